@@ -1,0 +1,334 @@
+"""Depth-camera simulation of taskboard scenes with ground truth.
+
+A scene is rendered by ray casting (Open3D ``RaycastingScene``) from a pinhole camera with the
+intrinsics of a real sensor. Occlusion between objects, self-occlusion and back faces come out of
+the ray casting; the sensor model adds depth noise that grows with distance and incidence angle
+and drops returns at grazing angles.
+
+Frames: ``board`` has its origin at the centre of the panel surface, +z out of the panel. The
+scene frame is the camera's optical frame (x right, y down, z forward), which is the frame of the
+cloud a ROS driver publishes.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+import yaml
+
+from .errors import AffordanceError
+from .templates import TemplateLibrary
+from .transforms import axis_angle_matrix, invert, make_T, random_rotations
+
+__all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
+           "simulate_taskboard", "write_scene", "load_truth", "KINECT_NFOV"]
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics in pixels."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    @property
+    def fov_deg(self) -> tuple[float, float]:
+        return (math.degrees(2 * math.atan(self.width / (2 * self.fx))),
+                math.degrees(2 * math.atan(self.height / (2 * self.fy))))
+
+
+#: Azure Kinect depth camera, NFOV unbinned mode: 640x576 pixels, about 75 x 65 degrees.
+KINECT_NFOV = CameraIntrinsics(width=640, height=576, fx=417.0, fy=452.0, cx=319.5, cy=287.5)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Axial depth noise of a time-of-flight / structured-light sensor (after Nguyen et al. 2012):
+
+    sigma(z, theta) = a + b * (z - z0)^2 + c / sqrt(z) * theta^2 / (pi/2 - theta)^2   [m]
+
+    with theta the incidence angle. Returns with theta above ``drop_start_deg`` are dropped with a
+    probability rising linearly to 1 at ``drop_full_deg``.
+    """
+
+    a: float = 0.0012
+    b: float = 0.0019
+    z0: float = 0.4
+    c: float = 0.0001
+    drop_start_deg: float = 70.0
+    drop_full_deg: float = 85.0
+
+    def sigma(self, z: np.ndarray, theta: np.ndarray | float = 0.0) -> np.ndarray:
+        theta = np.minimum(np.asarray(theta, dtype=float), math.radians(89.0))
+        return (self.a + self.b * (np.asarray(z) - self.z0) ** 2
+                + self.c / np.sqrt(z) * theta ** 2 / (math.pi / 2 - theta) ** 2)
+
+
+class DepthCamera:
+    """Renders organized point clouds of posed meshes by ray casting."""
+
+    def __init__(self, intrinsics: CameraIntrinsics = KINECT_NFOV, noise: NoiseModel | None = None):
+        self.intrinsics = intrinsics
+        self.noise = noise if noise is not None else NoiseModel()
+        u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
+        self._dirs = np.stack([(u - intrinsics.cx) / intrinsics.fx,
+                               (v - intrinsics.cy) / intrinsics.fy,
+                               np.ones_like(u, dtype=float)], axis=-1)   # z = 1: t_hit is depth
+
+    def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0):
+        """Cast one ray per pixel.
+
+        ``meshes``: sequence of (trimesh.Trimesh, T_cam_mesh 4x4). Returns ``(points, labels)``:
+        points (H, W, 3) float32 in the camera optical frame with NaN where there is no return,
+        labels (H, W) int32 with the index of the mesh hit, -1 for none. ``rng=None`` renders
+        without noise or dropouts.
+        """
+        import open3d as o3d  # local: ray casting is the only user
+        scene = o3d.t.geometry.RaycastingScene()
+        for mesh, T in meshes:
+            verts = np.asarray(mesh.vertices) @ T[:3, :3].T + T[:3, 3]
+            scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)),
+                                o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+        H, W = self.intrinsics.height, self.intrinsics.width
+        rays = np.concatenate([np.zeros((H, W, 3)), self._dirs], axis=-1).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor(rays))
+        depth = hit["t_hit"].numpy().astype(float)
+        labels = hit["geometry_ids"].numpy().astype(np.int64)
+        normals = hit["primitive_normals"].numpy().astype(float)
+        valid = np.isfinite(depth) & (depth < max_range)
+        labels = np.where(valid, labels, -1).astype(np.int32)
+        if rng is not None:
+            d_unit = self._dirs / np.linalg.norm(self._dirs, axis=-1, keepdims=True)
+            cos_in = np.abs(np.einsum("hwi,hwi->hw", normals, d_unit))
+            theta = np.arccos(np.clip(cos_in, 0.0, 1.0))
+            z = np.where(valid, depth, 1.0)
+            depth = depth + rng.normal(size=depth.shape) * self.noise.sigma(z, theta)
+            start, full = map(math.radians, (self.noise.drop_start_deg, self.noise.drop_full_deg))
+            p_drop = np.clip((theta - start) / (full - start), 0.0, 1.0)
+            valid &= rng.random(size=depth.shape) >= p_drop
+            labels = np.where(valid, labels, -1).astype(np.int32)
+        points = self._dirs * np.where(valid, depth, np.nan)[..., None]
+        return points.astype(np.float32), labels
+
+
+@dataclass(frozen=True)
+class SimulatedObject:
+    """Ground truth of one object in a simulated scene."""
+
+    template: str
+    T_scene_model: np.ndarray = field(repr=False)
+    click: np.ndarray | None = field(repr=False)   # a point of its visible surface (3,), or None
+    visible_points: int
+
+
+@dataclass(frozen=True)
+class SimulatedScene:
+    """A rendered scene. ``organized`` (H, W, 3) float32 has NaN where the sensor saw nothing."""
+
+    seed: int
+    layout: str
+    organized: np.ndarray = field(repr=False)
+    labels: np.ndarray = field(repr=False)
+    objects: tuple
+    T_scene_board: np.ndarray = field(repr=False)
+    intrinsics: CameraIntrinsics
+
+    @property
+    def points(self) -> np.ndarray:
+        """The finite points (N, 3) float64, scene (camera optical) frame, metres."""
+        flat = self.organized.reshape(-1, 3)
+        return flat[np.all(np.isfinite(flat), axis=1)].astype(float)
+
+    def truth(self) -> dict:
+        """The content of ``truth.yaml``."""
+        i = self.intrinsics
+        return {
+            "seed": self.seed,
+            "layout": self.layout,
+            "frame": "camera optical frame (x right, y down, z forward), metres",
+            "intrinsics": {"width": i.width, "height": i.height, "fx": i.fx, "fy": i.fy,
+                           "cx": i.cx, "cy": i.cy},
+            "T_scene_board": _rows(self.T_scene_board),
+            "objects": [{"template": o.template, "T_scene_model": _rows(o.T_scene_model),
+                         "click": None if o.click is None else [round(float(v), 6) for v in o.click],
+                         "visible_points": int(o.visible_points)} for o in self.objects],
+        }
+
+
+def _rows(T: np.ndarray) -> list:
+    return [[round(float(v), 9) for v in row] for row in T]
+
+
+PANEL_SIZE = (1.0, 0.6, 0.02)
+
+
+def _camera_pose(rng: np.random.Generator) -> np.ndarray:
+    """T_board_cam: 0.6-1.3 m from a point near the panel centre, up to 40 deg off its normal."""
+    dist = rng.uniform(0.6, 1.3)
+    alpha = math.radians(rng.uniform(0.0, 40.0))
+    phi = rng.uniform(0.0, 2 * math.pi)
+    target = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.06, 0.06), 0.0])
+    position = target + dist * np.array([math.sin(alpha) * math.cos(phi),
+                                         math.sin(alpha) * math.sin(phi), math.cos(alpha)])
+    z = target - position
+    z /= np.linalg.norm(z)
+    up = np.array([0.0, 1.0, 0.0])
+    y = -(up - z * (up @ z))
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    R = np.stack([x, y, z], axis=1) @ axis_angle_matrix([0, 0, 1], math.radians(rng.uniform(-10, 10)))
+    return make_T(R, position)
+
+
+def _footprint_radius(mesh: trimesh.Trimesh) -> float:
+    return float(np.linalg.norm(mesh.vertices[:, :2], axis=1).max())
+
+
+def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
+    for _ in range(50):
+        placed = []
+        for r in radii:
+            for _ in range(tries):
+                p = np.array([rng.uniform(-half_x + r, half_x - r), rng.uniform(-half_y + r, half_y - r)])
+                if all(np.linalg.norm(p - q) >= r + rq + gap for q, rq in placed):
+                    placed.append((p, r))
+                    break
+            else:
+                break
+        if len(placed) == len(radii):
+            return [p for p, _ in placed]
+    raise AffordanceError("could not place the objects on the panel without overlap")
+
+
+def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "panel",
+                       templates=None, camera: DepthCamera | None = None) -> SimulatedScene:
+    """Render a seeded taskboard: a 1 m x 0.6 m panel with every template (or the named
+    ``templates``) at a random position.
+
+    ``layout="panel"``: objects are mounted on the panel (template +z along the panel normal) with
+    a random rotation about their z axis. ``layout="table"``: the panel is a table top and objects
+    lie on it in uniformly random orientations (resting on their lowest point) -- the case without
+    a mounting prior. The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
+    if layout not in ("panel", "table"):
+        raise AffordanceError(f"layout must be 'panel' or 'table', got {layout!r}")
+    names = list(library) if templates is None else list(templates)
+    if not names:
+        raise AffordanceError("no templates to place")
+    rng = np.random.default_rng(int(seed))
+    camera = camera or DepthCamera()
+    rotations = []
+    for name in names:
+        if layout == "panel":
+            rotations.append(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)))
+        else:
+            rotations.append(random_rotations(1, rng)[0])
+    radii = []
+    for name, R in zip(names, rotations):
+        verts = library[name].vertices @ R.T
+        radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
+    half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
+    positions = _place(radii, rng, half_x, half_y)
+    T_board_cam = _camera_pose(rng)
+    T_cam_board = invert(T_board_cam)
+    panel = trimesh.creation.box(extents=PANEL_SIZE)
+    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    meshes = [(panel, T_cam_board)]
+    poses = []
+    for name, R, p in zip(names, rotations, positions):
+        lift = -float((library[name].vertices @ R.T)[:, 2].min()) if layout == "table" else 0.0
+        T_board_model = make_T(R, [p[0], p[1], lift])
+        T_cam_model = T_cam_board @ T_board_model
+        poses.append(T_cam_model)
+        meshes.append((library[name].mesh, T_cam_model))
+    organized, labels = camera.render(meshes, rng)
+    objects = []
+    for k, (name, T) in enumerate(zip(names, poses), start=1):
+        pts = organized[labels == k].astype(float)
+        click = None
+        if len(pts):
+            centre = np.median(pts, axis=0)
+            order = np.argsort(np.linalg.norm(pts - centre, axis=1))
+            near = order[:max(1, len(order) // 4)]
+            click = pts[rng.choice(near)]
+        objects.append(SimulatedObject(template=name, T_scene_model=T, click=click,
+                                       visible_points=int(len(pts))))
+    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
+                          objects=tuple(objects), T_scene_board=T_cam_board,
+                          intrinsics=camera.intrinsics)
+
+
+def ply_bytes(points: np.ndarray) -> bytes:
+    """Binary little-endian PLY of (N, 3) points as float32."""
+    pts = np.ascontiguousarray(points, dtype="<f4")
+    header = ("ply\nformat binary_little_endian 1.0\ncomment affordance_registration scene\n"
+              f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+              "end_header\n")
+    return header.encode("ascii") + pts.tobytes()
+
+
+def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
+    """Write ``scene.ply``, ``scene_organized.npy`` and ``truth.yaml`` into ``out_dir``.
+
+    Everything is written to temporary files first and renamed into place at the end, so a
+    failure leaves no half-finished output. Returns the paths written.
+    """
+    out_dir = os.path.abspath(out_dir)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise AffordanceError(f"cannot create output folder {out_dir}: {exc.strerror}") from None
+    if not os.access(out_dir, os.W_OK):
+        raise AffordanceError(f"output folder {out_dir} is not writable")
+    payloads = {
+        "scene.ply": ply_bytes(scene.points),
+        "truth.yaml": yaml.safe_dump(scene.truth(), sort_keys=False).encode(),
+    }
+    import io
+    buf = io.BytesIO()
+    np.save(buf, scene.organized)
+    payloads["scene_organized.npy"] = buf.getvalue()
+    staged = {}
+    try:
+        for name, data in payloads.items():
+            fd, tmp = tempfile.mkstemp(prefix=f".{name}.", dir=out_dir)
+            staged[name] = tmp
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+    except OSError as exc:
+        for tmp in staged.values():
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise AffordanceError(f"cannot write into {out_dir}: {exc.strerror}") from None
+    paths = {}
+    for name, tmp in staged.items():
+        final = os.path.join(out_dir, name)
+        os.replace(tmp, final)
+        paths[name] = final
+    return paths
+
+
+def load_truth(path: str) -> dict:
+    """Read a ``truth.yaml``; poses come back as 4x4 arrays and clicks as (3,) arrays."""
+    with open(path, encoding="utf-8") as handle:
+        doc = yaml.safe_load(handle)
+    for obj in doc.get("objects", []):
+        obj["T_scene_model"] = np.asarray(obj["T_scene_model"], dtype=float)
+        if obj.get("click") is not None:
+            obj["click"] = np.asarray(obj["click"], dtype=float)
+    doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float)
+    return doc

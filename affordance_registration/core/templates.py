@@ -1,0 +1,461 @@
+"""Affordance templates and the template library.
+
+A template is a YAML file (``models/<name>.yaml``)::
+
+    name: ball_valve                 # required, unique in a library
+    mesh: meshes/ball_valve.stl      # required, relative to the YAML; STL/OBJ/PLY mesh, or a
+                                     # PLY/PCD point cloud (a scan of the object)
+    mesh_scale: 1.0                  # factor from mesh units to metres
+    symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}
+    base_mesh: meshes/ball_valve_base.stl      # the part that does not move (with joints)
+    joints:
+      - {name: lever, type: revolute, axis: [0, 0, 1], origin: [0, 0, 0.085],
+         lower: 0.0, upper: 1.5708, torque_limit: 15.0, moving_mesh: meshes/ball_valve_lever.stl}
+    states: {open: {lever: 0.0}, closed: {lever: 1.5708}}
+    description: free text
+
+Template frame: origin at the centre of the mounting base, +z out of the mounting surface, metres.
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+from dataclasses import dataclass, field
+from typing import Iterator, Mapping
+
+import numpy as np
+import trimesh
+import yaml
+
+from .errors import TemplateError
+from .transforms import axis_angle_matrix, rotation_angle
+
+__all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
+
+_KNOWN_KEYS = {"name", "mesh", "mesh_scale", "symmetry", "joints", "states", "description",
+               "base_mesh", "scale"}
+_JOINT_KEYS = {"name", "type", "axis", "origin", "lower", "upper", "torque_limit", "moving_mesh"}
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """Rotational symmetry of a template about an axis through its origin.
+
+    ``order`` n >= 1 means the shape maps onto itself under rotations by 2*pi*k/n; ``continuous``
+    means under every rotation about ``axis``.
+    """
+
+    axis: tuple = (0.0, 0.0, 1.0)
+    order: int = 1
+    continuous: bool = False
+
+    @property
+    def rotations(self) -> np.ndarray:
+        """The symmetry rotations (k, 3, 3), identity first. A continuous symmetry is sampled at
+        1 degree steps (use :meth:`residual_angle` for exact errors)."""
+        n = 360 if self.continuous else self.order
+        return np.stack([axis_angle_matrix(self.axis, 2.0 * math.pi * k / n) for k in range(n)])
+
+    def residual_angle(self, R_rel: np.ndarray) -> float:
+        """Smallest rotation angle (rad) between ``R_rel`` and any symmetry rotation."""
+        if self.continuous:
+            a = np.asarray(self.axis, dtype=float)
+            a = a / np.linalg.norm(a)
+            return float(np.arccos(np.clip(a @ (R_rel @ a), -1.0, 1.0)))
+        S = self.rotations
+        return float(np.min(rotation_angle(np.swapaxes(S, 1, 2) @ R_rel)))
+
+
+@dataclass(frozen=True)
+class Joint:
+    """A joint of an articulated template. ``axis`` is a unit vector and ``origin`` a point, both
+    in the template frame; values are radians (revolute) or metres (prismatic)."""
+
+    name: str
+    type: str
+    axis: tuple
+    origin: tuple
+    lower: float
+    upper: float
+    torque_limit: float | None
+    moving_mesh: trimesh.Trimesh = field(repr=False, compare=False)
+
+
+class AffordanceTemplate:
+    """One template: geometry (mesh or scanned points), symmetry, joints and named states.
+
+    Surface samples are area-weighted, seeded and cached: ``samples(n, seed)`` always returns the
+    same arrays for the same arguments.
+    """
+
+    def __init__(self, name: str, path: str, mesh: trimesh.Trimesh | None,
+                 points: np.ndarray | None = None, point_normals: np.ndarray | None = None,
+                 mesh_scale: float = 1.0, symmetry: Symmetry | None = None,
+                 joints: tuple = (), states: Mapping | None = None, description: str = "",
+                 base_mesh: trimesh.Trimesh | None = None):
+        if mesh is None and points is None:
+            raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
+        self.name = name
+        self.path = path
+        self.mesh = mesh
+        self.points = points
+        self.point_normals = point_normals
+        self.mesh_scale = float(mesh_scale)
+        self.symmetry = symmetry
+        self.joints = tuple(joints)
+        self.states = dict(states or {})
+        self.description = description
+        self.base_mesh = base_mesh
+        self._cache: dict = {}
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return f"AffordanceTemplate({self.name!r}, diameter={self.diameter:.3f} m)"
+
+    @property
+    def is_point_template(self) -> bool:
+        return self.mesh is None
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """Mesh vertices, or the template points (N, 3) float64, metres."""
+        return np.asarray(self.mesh.vertices if self.mesh is not None else self.points, float)
+
+    @property
+    def diameter(self) -> float:
+        """Largest distance between two points of the template (m)."""
+        with self._lock:
+            if "diameter" not in self._cache:
+                verts = self.vertices
+                try:
+                    hull = trimesh.convex.convex_hull(verts).vertices
+                except Exception:  # degenerate (flat) point sets
+                    hull = verts
+                if len(hull) > 4000:
+                    hull = hull[np.random.default_rng(0).choice(len(hull), 4000, replace=False)]
+                d = np.sqrt(((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)).max()
+                self._cache["diameter"] = float(d)
+            return self._cache["diameter"]
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """Area-weighted surface centroid (3,), template frame."""
+        return self.samples(2048, seed=0)[0].mean(axis=0)
+
+    def samples(self, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` area-weighted surface samples and their outward unit normals, both (n, 3)
+        float64 in the template frame. Cached per (n, seed); do not modify the arrays."""
+        key = ("samples", int(n), int(seed))
+        with self._lock:
+            hit = self._cache.get(key)
+            if hit is not None:
+                return hit
+        if self.mesh is not None:
+            pts, faces = trimesh.sample.sample_surface(self.mesh, int(n), seed=int(seed))
+            nrm = np.asarray(self.mesh.face_normals[faces], dtype=float)
+            pts = np.asarray(pts, dtype=float)
+        else:
+            rng = np.random.default_rng(seed)
+            idx = rng.choice(len(self.points), size=int(n), replace=len(self.points) < n)
+            pts = self.points[idx].astype(float)
+            nrm = self.point_normals[idx].astype(float)
+        pts.setflags(write=False)
+        nrm.setflags(write=False)
+        with self._lock:
+            self._cache[key] = (pts, nrm)
+        return pts, nrm
+
+    def nearest_state(self, joint_values: Mapping[str, float]) -> str | None:
+        """Name of the named state closest to ``joint_values`` (None without states)."""
+        best, best_d = None, math.inf
+        for state, values in self.states.items():
+            d = sum((float(values.get(k, 0.0)) - float(v)) ** 2 for k, v in joint_values.items())
+            if d < best_d:
+                best, best_d = state, d
+        return best
+
+
+def _fail(path: str, key: str, msg: str) -> TemplateError:
+    return TemplateError(f"{path}: key '{key}': {msg}")
+
+
+def _vector(path: str, key: str, value, length: int = 3) -> tuple:
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise _fail(path, key, f"expected {length} numbers, got {value!r}") from None
+    if arr.shape != (length,) or not np.all(np.isfinite(arr)):
+        raise _fail(path, key, f"expected {length} finite numbers, got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+def _load_geometry(yaml_path: str, key: str, rel: str, scale: float):
+    """Load a mesh or point cloud; returns (mesh or None, points or None, normals or None)."""
+    if not isinstance(rel, str) or not rel:
+        raise _fail(yaml_path, key, "expected a file path relative to the YAML file")
+    path = os.path.join(os.path.dirname(os.path.abspath(yaml_path)), rel)
+    if not os.path.isfile(path):
+        raise _fail(yaml_path, key, f"file not found: {path}")
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".stl", ".obj", ".ply", ".pcd", ".off", ".glb", ".gltf"):
+        raise _fail(yaml_path, key, f"unsupported file type '{ext}' (STL, OBJ, PLY, PCD)")
+    try:
+        if ext == ".pcd":
+            geom = _read_point_file(path)
+        else:
+            geom = trimesh.load(path, process=True)
+            if isinstance(geom, trimesh.Scene):
+                geom = geom.dump(concatenate=True) if geom.geometry else None
+    except Exception as exc:  # trimesh raises many types for broken files
+        raise _fail(yaml_path, key, f"{path} does not load: {exc}") from None
+    if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
+        mesh = geom.copy()
+        mesh.apply_scale(scale)
+        if mesh.area <= 0:
+            raise _fail(yaml_path, key, f"{path} has no surface area")
+        return mesh, None, None
+    pts = np.asarray(getattr(geom, "vertices", geom) if geom is not None else [], dtype=float)
+    if pts.ndim != 2 or len(pts) < 10:
+        raise _fail(yaml_path, key, f"{path} does not load: no faces and fewer than 10 points")
+    pts = pts[np.all(np.isfinite(pts), axis=1)] * scale
+    return None, pts, _estimate_normals(pts)
+
+
+def _read_point_file(path: str) -> np.ndarray:
+    import open3d as o3d  # local: only point-cloud templates need it
+    cloud = o3d.io.read_point_cloud(path)
+    return np.asarray(cloud.points, dtype=float)
+
+
+def _estimate_normals(points: np.ndarray) -> np.ndarray:
+    """Unit normals of a scanned object by local PCA, oriented away from the centroid."""
+    from scipy.spatial import cKDTree
+    k = min(16, len(points))
+    _, idx = cKDTree(points).query(points, k=k)
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    outward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
+    normals[outward] *= -1
+    return normals
+
+
+def _parse_symmetry(path: str, value) -> Symmetry | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise _fail(path, "symmetry", f"expected a mapping like {{axis: [0,0,1], order: 4}}, "
+                                      f"got {value!r}")
+    unknown = set(value) - {"axis", "order", "continuous"}
+    if unknown:
+        raise _fail(path, "symmetry", f"unknown symmetry form: keys {sorted(unknown)} "
+                                      f"(use axis with order N or continuous: true)")
+    axis = _vector(path, "symmetry.axis", value.get("axis", [0, 0, 1]))
+    if np.linalg.norm(axis) < 1e-9:
+        raise _fail(path, "symmetry.axis", "axis must not be zero")
+    axis = tuple(float(v) for v in np.asarray(axis) / np.linalg.norm(axis))
+    continuous = value.get("continuous", False)
+    if continuous not in (True, False):
+        raise _fail(path, "symmetry.continuous", f"expected true or false, got {continuous!r}")
+    if continuous:
+        if "order" in value:
+            raise _fail(path, "symmetry", "give either order or continuous, not both")
+        return Symmetry(axis=axis, continuous=True)
+    order = value.get("order")
+    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+        raise _fail(path, "symmetry.order", f"expected an integer >= 1, got {order!r}")
+    return Symmetry(axis=axis, order=order)
+
+
+def _parse_joints(path: str, value, scale: float) -> tuple:
+    if value is None:
+        return ()
+    if not isinstance(value, list):
+        raise _fail(path, "joints", "expected a list of joints")
+    joints, names = [], set()
+    for i, spec in enumerate(value):
+        key = f"joints[{i}]"
+        if not isinstance(spec, dict):
+            raise _fail(path, key, "expected a mapping")
+        unknown = set(spec) - _JOINT_KEYS
+        if unknown:
+            raise _fail(path, key, f"unknown keys {sorted(unknown)}")
+        name = spec.get("name")
+        if not isinstance(name, str) or not name:
+            raise _fail(path, f"{key}.name", "missing or empty")
+        if name in names:
+            raise _fail(path, f"{key}.name", f"duplicate joint name '{name}'")
+        names.add(name)
+        jtype = spec.get("type")
+        if jtype not in ("revolute", "prismatic"):
+            raise _fail(path, f"{key}.type", f"expected revolute or prismatic, got {jtype!r}")
+        axis = np.asarray(_vector(path, f"{key}.axis", spec.get("axis")))
+        if np.linalg.norm(axis) < 1e-9:
+            raise _fail(path, f"{key}.axis", "axis must not be zero")
+        origin = _vector(path, f"{key}.origin", spec.get("origin", [0, 0, 0]))
+        try:
+            lower, upper = float(spec["lower"]), float(spec["upper"])
+        except KeyError as exc:
+            raise _fail(path, f"{key}.{exc.args[0]}", "missing joint limit") from None
+        except (TypeError, ValueError):
+            raise _fail(path, f"{key}.lower/upper", "limits must be numbers") from None
+        if not (math.isfinite(lower) and math.isfinite(upper)) or lower >= upper:
+            raise _fail(path, f"{key}.lower/upper",
+                        f"limits inverted or empty: lower={lower} must be below upper={upper}")
+        torque = spec.get("torque_limit")
+        if torque is not None:
+            try:
+                torque = float(torque)
+            except (TypeError, ValueError):
+                raise _fail(path, f"{key}.torque_limit", f"expected a number, got {torque!r}") \
+                    from None
+            if not torque > 0:
+                raise _fail(path, f"{key}.torque_limit", "must be positive")
+        if "moving_mesh" not in spec:
+            raise _fail(path, f"{key}.moving_mesh", "missing: the moving part's mesh is required")
+        moving, _, _ = _load_geometry(path, f"{key}.moving_mesh", spec["moving_mesh"], scale)
+        if moving is None:
+            raise _fail(path, f"{key}.moving_mesh", "the moving part must be a mesh")
+        if jtype == "prismatic":
+            lower_o, upper_o = lower * scale, upper * scale
+        else:
+            lower_o, upper_o = lower, upper
+        joints.append(Joint(name=name, type=jtype,
+                            axis=tuple(float(v) for v in axis / np.linalg.norm(axis)),
+                            origin=tuple(float(v) * scale for v in origin), lower=lower_o,
+                            upper=upper_o, torque_limit=torque, moving_mesh=moving))
+    return tuple(joints)
+
+
+def _parse_states(path: str, value, joints: tuple) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise _fail(path, "states", "expected a mapping of state name to joint values")
+    by_name = {j.name: j for j in joints}
+    states = {}
+    for state, values in value.items():
+        if not isinstance(values, dict):
+            raise _fail(path, f"states.{state}", "expected a mapping of joint name to value")
+        for jname, v in values.items():
+            if jname not in by_name:
+                raise _fail(path, f"states.{state}.{jname}", "no joint of that name")
+            joint = by_name[jname]
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                raise _fail(path, f"states.{state}.{jname}", f"expected a number, got {v!r}") \
+                    from None
+            tol = 1e-6 * max(1.0, abs(joint.upper - joint.lower))
+            if not joint.lower - tol <= v <= joint.upper + tol:
+                raise _fail(path, f"states.{state}.{jname}",
+                            f"{v} is outside the joint limits [{joint.lower}, {joint.upper}]")
+        states[str(state)] = {k: float(v) for k, v in values.items()}
+    return states
+
+
+def load_template(path: str) -> AffordanceTemplate:
+    """Load one template YAML file. Raises :class:`TemplateError` naming the file and key."""
+    path = str(path)
+    try:
+        with open(path, encoding="utf-8") as handle:
+            doc = yaml.safe_load(handle)
+    except OSError as exc:
+        raise TemplateError(f"{path}: cannot read: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise TemplateError(f"{path}: not valid YAML: {exc}".splitlines()[0]) from None
+    if not isinstance(doc, dict):
+        raise TemplateError(f"{path}: expected a mapping with at least 'name' and 'mesh'")
+    unknown = set(doc) - _KNOWN_KEYS
+    if unknown:
+        raise _fail(path, sorted(unknown)[0], f"unknown key (known: {', '.join(sorted(_KNOWN_KEYS))})")
+    name = doc.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise _fail(path, "name", "missing or empty")
+    if "mesh" not in doc:
+        raise _fail(path, "mesh", "missing")
+    scale = doc.get("mesh_scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) \
+            or scale <= 0:
+        raise _fail(path, "mesh_scale", f"expected a positive number, got {scale!r}")
+    mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale))
+    symmetry = _parse_symmetry(path, doc.get("symmetry"))
+    joints = _parse_joints(path, doc.get("joints"), float(scale))
+    states = _parse_states(path, doc.get("states"), joints)
+    base = None
+    if "base_mesh" in doc:
+        base, _, _ = _load_geometry(path, "base_mesh", doc["base_mesh"], float(scale))
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise _fail(path, "description", "expected text")
+    return AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
+                              point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
+                              joints=joints, states=states, description=description,
+                              base_mesh=base)
+
+
+def default_models_dir() -> str:
+    """The package's own template library: the source tree's models/ (editable install or
+    checkout), else ``share/affordance_registration/models`` of the install prefix."""
+    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    candidates = [os.path.join(here, "models")]
+    try:  # colcon / ament install
+        from ament_index_python.packages import get_package_share_directory
+        candidates.append(os.path.join(get_package_share_directory("affordance_registration"),
+                                       "models"))
+    except Exception:
+        pass
+    import sys
+    candidates.append(os.path.join(sys.prefix, "share", "affordance_registration", "models"))
+    for c in candidates:
+        if os.path.isdir(c) and any(f.endswith(".yaml") for f in os.listdir(c)):
+            return c
+    raise TemplateError("the package's models/ directory was not found; pass a templates "
+                        "directory explicitly")
+
+
+class TemplateLibrary(Mapping):
+    """An ordered, read-only name -> :class:`AffordanceTemplate` mapping."""
+
+    def __init__(self, templates=()):
+        self._templates: dict[str, AffordanceTemplate] = {}
+        for t in templates:
+            if t.name in self._templates:
+                raise TemplateError(f"{t.path}: key 'name': duplicate template name '{t.name}' "
+                                    f"(also in {self._templates[t.name].path})")
+            self._templates[t.name] = t
+
+    @classmethod
+    def load(cls, source: str | None = None) -> "TemplateLibrary":
+        """Load a directory of ``*.yaml`` templates, or one YAML file. ``None`` loads the
+        package's own models. An empty directory is an error."""
+        source = default_models_dir() if source is None else str(source)
+        if os.path.isdir(source):
+            files = sorted(os.path.join(source, f) for f in os.listdir(source)
+                           if f.endswith((".yaml", ".yml")) and not f.startswith("."))
+            if not files:
+                raise TemplateError(f"{source}: no template files (*.yaml) in this directory")
+        elif os.path.isfile(source):
+            files = [source]
+        else:
+            raise TemplateError(f"{source}: no such template file or directory")
+        return cls(load_template(f) for f in files)
+
+    def __getitem__(self, name: str) -> AffordanceTemplate:
+        try:
+            return self._templates[name]
+        except KeyError:
+            raise KeyError(f"no template named '{name}' (have: {', '.join(self._templates)})") \
+                from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._templates)
+
+    def __len__(self) -> int:
+        return len(self._templates)
+
+    @property
+    def max_diameter(self) -> float:
+        return max(t.diameter for t in self._templates.values())

@@ -1,0 +1,97 @@
+"""SE(3) helpers. Transforms are 4x4 float64 arrays named by their frames: ``T_a_b`` maps points
+expressed in frame b into frame a, so ``T_a_c = T_a_b @ T_b_c`` reads right."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
+    "axis_angle_matrix", "random_rotations", "align_z_to", "quat_xyzw_to_matrix",
+    "matrix_to_quat_xyzw",
+]
+
+
+def make_T(R=None, t=None) -> np.ndarray:
+    """4x4 transform from a 3x3 rotation (default identity) and a translation (default zero)."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    if t is not None:
+        T[:3, 3] = t
+    return T
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform (or a stack ``(..., 4, 4)`` of them)."""
+    R = T[..., :3, :3]
+    t = T[..., :3, 3]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply ``T`` (4x4) to ``points`` (N, 3)."""
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_angle(R: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians of a rotation matrix or a stack of them."""
+    trace = np.trace(R, axis1=-2, axis2=-1)
+    return np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
+
+
+def axis_angle_matrix(axis, angle: float) -> np.ndarray:
+    """3x3 rotation about a (not necessarily unit) axis by ``angle`` radians."""
+    axis = np.asarray(axis, dtype=float)
+    axis = axis / np.linalg.norm(axis)
+    return Rotation.from_rotvec(axis * angle).as_matrix()
+
+
+def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` rotations drawn uniformly from SO(3), shape (n, 3, 3)."""
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return Rotation.from_quat(q).as_matrix()
+
+
+def align_z_to(normal) -> np.ndarray:
+    """A rotation whose third column is the unit vector ``normal`` (the first column is chosen
+    deterministically perpendicular to it)."""
+    z = np.asarray(normal, dtype=float)
+    z = z / np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = helper - z * (helper @ z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=1)
+
+
+def quat_xyzw_to_matrix(q) -> np.ndarray:
+    """3x3 rotation of a quaternion (x, y, z, w); normalizes it."""
+    return Rotation.from_quat(np.asarray(q, dtype=float)).as_matrix()
+
+
+def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Quaternion (x, y, z, w) with w >= 0 of a 3x3 rotation."""
+    q = Rotation.from_matrix(R).as_quat()
+    return q if q[3] >= 0 else -q
+
+
+def pose_error(T_est: np.ndarray, T_true: np.ndarray, symmetry=None) -> tuple[float, float]:
+    """Translation error (m) and rotation error (rad) between two model->scene poses.
+
+    ``symmetry`` is a template's :class:`~affordance_registration.core.templates.Symmetry`
+    (or None): the error is the smallest over the poses the symmetry makes indistinguishable.
+    Symmetry axes pass through the template origin, so the translation error is the distance
+    between the origins either way.
+    """
+    dt = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
+    R_rel = T_true[:3, :3].T @ T_est[:3, :3]   # rotation of est relative to truth, model frame
+    if symmetry is None:
+        return dt, float(rotation_angle(R_rel))
+    return dt, float(symmetry.residual_angle(R_rel))

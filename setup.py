@@ -1,0 +1,70 @@
+"""affordance_registration: click-to-fit affordance template registration for ROS 2."""
+import os
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "affordance_registration"
+
+# Exact pins: the versions the test suite runs against (`make setup` installs these).
+CORE_REQUIRES = [
+    "numpy==2.4.6",
+    "scipy==1.17.1",
+    "trimesh==5.2.0",
+    "manifold3d==3.5.4",
+    "open3d-cpu==0.20.0; platform_system == 'Linux' and platform_machine == 'x86_64'",
+    "open3d==0.19.0; platform_system != 'Linux' or platform_machine != 'x86_64'",
+    "PyYAML==6.0.3",
+    "hidapi==0.15.0",
+    "rosbags==0.11.9",
+]
+
+# ROS 2 Jazzy from PyPI wheels, for machines without a ROS install. In a colcon
+# workspace these come from the ROS distribution instead (see package.xml).
+ROS_REQUIRES = [
+    "ros-jazzy-rclpy[fastrtps]==7.1.6",
+    "ros-jazzy-rmw-fastrtps-cpp==8.4.3",
+    "ros-jazzy-sensor-msgs==5.3.6",
+    "ros-jazzy-geometry-msgs==5.3.6",
+    "ros-jazzy-visualization-msgs==5.3.6",
+    "ros-jazzy-std-msgs==5.3.6",
+    "ros-jazzy-std-srvs==5.3.6",
+]
+
+
+def data_files():
+    files = [
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ]
+    for folder in ("launch_configs", "models", "models/meshes", "msg_docs"):
+        paths = [p for p in glob(f"{folder}/*") if os.path.isfile(p)]
+        if paths:
+            files.append((f"share/{PACKAGE}/{folder}", paths))
+    return files
+
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=data_files(),
+    install_requires=["setuptools"] + CORE_REQUIRES,
+    extras_require={
+        "ros": ROS_REQUIRES,
+        "test": ["pytest==9.2.0"],
+        "bench": ["small_gicp==1.0.1"],
+    },
+    python_requires=">=3.10",
+    zip_safe=False,
+    maintainer="affordance_registration developers",
+    maintainer_email="affordance-registration@users.noreply.example.org",
+    description="Affordance template registration via human-in-the-loop corrections (ROS 2).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "affordance-registration = affordance_registration.cli:main",
+        ],
+    },
+)
