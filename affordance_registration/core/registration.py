@@ -53,9 +53,13 @@ class FitSettings:
     score_cap: float = 0.01            #: per-point distance cap of the residual
     reject_floor: float = 0.015        #: ICP rejection radius shrinks to this within a stage
     free_space_margin: float = 0.01    #: depth tolerance of the visibility tests
+    grazing_angle: float = math.radians(89.0)  #: samples seen more obliquely count as unseen
+    score_samples: int = 600           #: template samples per candidate in the residual
     yaw_restarts: int = 12             #: plane-prior restarts per template (yaw sweep)
     random_restarts: int = 12          #: uniformly random restarts per template
-    free_restarts: int = 40            #: random restarts per template when there is no prior
+    free_restarts: int = 40            #: random restarts per template when there is no plane
+    resting_poses: int = 5             #: stable resting facets tried per template (plane found)
+    resting_yaws: int = 6              #: yaw steps per resting facet
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 2
@@ -63,6 +67,9 @@ class FitSettings:
     medium_iterations: int = 10
     fine_samples: int = 1500
     fine_iterations: int = 25
+    fine_metric: str = "plane"         #: final stage: "plane" (point-to-plane) or "point"
+    two_way: bool = True               #: final stage also pairs scene points with the template
+    reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
     refit_restarts: int = 6
     refit_max_move: float = 0.03       #: a refit may move at most this far from the correction
@@ -75,20 +82,23 @@ class FitSettings:
     def validate(self) -> "FitSettings":
         if self.method not in ("default", "paper"):
             raise RegistrationError(f"method must be 'default' or 'paper', got {self.method!r}")
+        if self.fine_metric not in ("plane", "point"):
+            raise RegistrationError(f"fine_metric must be 'plane' or 'point', got {self.fine_metric!r}")
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "weight_scale", "score_cap",
-                     "free_space_margin", "reject_floor", "refit_max_move", "refit_max_turn"):
+                     "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
-                     "medium_iterations", "fine_samples", "fine_iterations", "refit_restarts",
+                     "medium_iterations", "fine_samples", "score_samples", "reverse_points", "fine_iterations", "refit_restarts",
                      "paper_restarts", "paper_iterations", "paper_samples"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
-        for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep"):
+        for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
+                     "resting_poses", "resting_yaws"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise RegistrationError(f"{name} must be an integer >= 0, got {v!r}")
@@ -160,6 +170,28 @@ def _kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
     return R, t
 
 
+def _point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray):
+    """Batched weighted point-to-plane step: minimise sum w ((R x + t - q) . n)^2, linearised
+    about each batch's weighted centroid; returns (R, t) like :func:`_kabsch_weighted`."""
+    W = w.sum(axis=1)
+    ok = W > 1e-9
+    c = np.einsum("bs,bsi->bi", w, X) / np.where(ok, W, 1.0)[:, None]
+    Xc = X - c[:, None]
+    J = np.concatenate([np.cross(Xc, Nq), Nq], axis=-1)           # (B, S, 6)
+    r = np.einsum("bsi,bsi->bs", Q - X, Nq)
+    A = np.einsum("bs,bsi,bsj->bij", w, J, J) + 1e-9 * np.eye(6)
+    b = np.einsum("bs,bsi,bs->bi", w, J, r)
+    xi = np.linalg.solve(A, b[..., None])[..., 0]
+    omega, v = xi[:, :3], xi[:, 3:]
+    angle = np.linalg.norm(omega, axis=1)
+    R = np.stack([axis_angle_matrix(o, a) if a > 1e-12 else np.eye(3)
+                  for o, a in zip(omega, angle)])
+    t = c + v - np.einsum("bij,bj->bi", R, c)
+    R[~ok] = np.eye(3)
+    t[~ok] = 0.0
+    return R, t
+
+
 class Registrar:
     """Fits a template library to clicks in scenes. Thread-safe for concurrent ``fit`` calls
     (per-template caches are filled under the templates' own locks)."""
@@ -170,6 +202,7 @@ class Registrar:
         self.library = library
         self.settings = (settings or FitSettings()).validate()
         self._dense_trees: dict[str, cKDTree] = {}
+        self._cos_grazing = math.cos(self.settings.grazing_angle)
 
     # ------------------------------------------------------------------ public API
     def prepare(self, scene: Scene, click) -> ClickContext:
@@ -236,7 +269,7 @@ class Registrar:
         """Residual and likelihood of a given pose (no fitting)."""
         tpl = self.library[template]
         T = np.asarray(T_scene_model, dtype=float)
-        return self._result(ctx, tpl, T[:3, :3], T[:3, 3], self.settings.medium_samples, 0, 0.0)
+        return self._result(ctx, tpl, T[:3, :3], T[:3, 3], 0, 0.0)
 
     # ------------------------------------------------------------------ default method
     def _fit_default(self, ctx: ClickContext, names: list[str]) -> tuple:
@@ -276,7 +309,7 @@ class Registrar:
         iters = s.coarse_iterations + s.medium_iterations
         for k, j in enumerate(keep):
             i = int(hyp_tpl[j])
-            res = self._result(ctx, tpls[i], R[k], t[k], s.medium_samples, iters, elapsed)
+            res = self._result(ctx, tpls[i], R[k], t[k], iters, elapsed)
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
         ranked = _rank(list(best.values()))
@@ -293,36 +326,50 @@ class Registrar:
         return _rank(out)
 
     def _initial_hypotheses(self, ctx: ClickContext, tpls, rng):
+        """Initial (template index, R, t) hypotheses.
+
+        With a plane under the click: mounted (template +z along the plane normal, a yaw sweep;
+        modes auto and mounted), resting (each stable facet of the template down on the plane,
+        a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
+        Without a plane: uniformly random orientations around the cluster. The template's
+        centroid starts over the cluster's centroid; random ones get an offset of up to 15% of
+        the template diameter (the paper's restarts use up to the diameter)."""
         s = self.settings
-        use_prior = ctx.plane is not None and s.mode in ("auto", "mounted")
+        plane = ctx.plane
         centroid = ctx.cluster.mean(axis=0)
         hyp_tpl, Rs, ts = [], [], []
+
+        def add(i, tpl, R0, offset=None):
+            t0 = centroid - R0 @ tpl.centroid
+            if offset is not None:
+                t0 = t0 + offset
+            if plane is not None:   # rest on the plane: the lowest point touches it
+                low = tpl.samples(256, seed=1)[0]
+                t0 = t0 - plane.normal * plane.distance(low @ R0.T + t0).min()
+            hyp_tpl.append(i)
+            Rs.append(R0)
+            ts.append(t0)
+
         for i, tpl in enumerate(tpls):
-            c_model = tpl.centroid
-            n_rand = s.random_restarts if use_prior else s.free_restarts
-            if s.mode == "mounted" and use_prior:
-                n_rand = 0
-            if use_prior:
-                base = align_z_to(ctx.plane.normal)
-                foot = ctx.plane.project(centroid)
-                yaws = (np.arange(s.yaw_restarts) + rng.uniform()) * 2 * math.pi / s.yaw_restarts
-                for yaw in yaws:
-                    R0 = base @ axis_angle_matrix([0, 0, 1], yaw)
-                    # origin on the plane, the template's centroid over the cluster's centroid
-                    shift = R0 @ c_model
-                    shift -= ctx.plane.normal * (ctx.plane.normal @ shift)
-                    hyp_tpl.append(i)
-                    Rs.append(R0)
-                    ts.append(foot - shift)
+            if plane is not None:
+                up = align_z_to(plane.normal)
+                if s.mode in ("auto", "mounted"):
+                    for yaw in (np.arange(s.yaw_restarts) + rng.uniform()) * 2 * math.pi / s.yaw_restarts:
+                        add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw))
+                if s.mode in ("auto", "free"):
+                    for R_rest, _ in tpl.resting_rotations(s.resting_poses):
+                        if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
+                            continue   # the mounted orientation, already swept
+                        for yaw in (np.arange(s.resting_yaws) + rng.uniform()) * 2 * math.pi / s.resting_yaws:
+                            add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest)
+            n_rand = 0 if s.mode == "mounted" and plane is not None else (
+                s.random_restarts if plane is not None else s.free_restarts)
             if n_rand:
-                R0s = random_rotations(n_rand, rng)
                 offsets = rng.normal(size=(n_rand, 3))
                 offsets *= (0.15 * tpl.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
                             / np.linalg.norm(offsets, axis=1, keepdims=True))
-                for R0, off in zip(R0s, offsets):
-                    hyp_tpl.append(i)
-                    Rs.append(R0)
-                    ts.append(centroid - R0 @ c_model + off)
+                for R0, off in zip(random_rotations(n_rand, rng), offsets):
+                    add(i, tpl, R0, off)
         return np.array(hyp_tpl), np.stack(Rs), np.stack(ts)
 
     def _yaw_sweep(self, ctx: ClickContext, tpl, R, t):
@@ -346,7 +393,7 @@ class Registrar:
         reject = np.full(len(Rs), 0.25 * tpl.diameter)
         R2, t2 = self._icp(tlist, np.stack(Rs), np.stack(ts), ctx, s.medium_samples, 6, reject,
                            target="cluster", occlusion=True)
-        scores = [self._result(ctx, tpl, R2[k], t2[k], s.medium_samples, 0, 0.0).residual
+        scores = [self._result(ctx, tpl, R2[k], t2[k], 0, 0.0).residual
                   for k in range(len(Rs))]
         best = int(np.argmin(scores))
         return R2[best], t2[best]
@@ -355,8 +402,7 @@ class Registrar:
         reject = np.array([0.1 * tpl.diameter])
         R2, t2 = self._icp([tpl], R[None], t[None], ctx, samples, iterations, reject,
                            target="fine", occlusion=True)
-        return self._result(ctx, tpl, R2[0], t2[0], self.settings.medium_samples,
-                            iterations_before + iterations, 0.0)
+        return self._result(ctx, tpl, R2[0], t2[0], iterations_before + iterations, 0.0)
 
     def _guard_refit(self, res, T_init, R_fallback, t_fallback, ctx, tpl) -> FitResult:
         s = self.settings
@@ -365,7 +411,7 @@ class Registrar:
         turn = rotation_angle(T_init[:3, :3].T @ T[:3, :3])
         if move <= s.refit_max_move and turn <= s.refit_max_turn:
             return res
-        return self._result(ctx, tpl, R_fallback, t_fallback, s.medium_samples, res.iterations, 0.0)
+        return self._result(ctx, tpl, R_fallback, t_fallback, res.iterations, 0.0)
 
     # ------------------------------------------------------------------ building blocks
     def _stack_samples(self, tlist, n: int):
@@ -376,7 +422,9 @@ class Registrar:
     def _visible(self, ctx: ClickContext, X, Nw, occlusion: bool):
         """Samples facing the sensor and (optionally) not hidden behind observed surfaces; also
         the free-space violations (the sensor saw through where the sample would be)."""
-        facing = np.einsum("bsi,bsi->bs", Nw, ctx.sensor_origin - X) > 0
+        ray = ctx.sensor_origin - X
+        cos_in = np.einsum("bsi,bsi->bs", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=-1), 1e-9)
+        facing = cos_in > self._cos_grazing     # depth sensors return nothing at grazing angles
         if not occlusion:
             return facing, np.zeros_like(facing)
         obs, z = ctx.range_image.lookup(X)
@@ -388,7 +436,13 @@ class Registrar:
 
     def _icp(self, tlist, R, t, ctx: ClickContext, n_samples: int, iterations: int,
              reject: np.ndarray, target: str, occlusion: bool):
-        """Weighted ICP for a batch of hypotheses. R (B, 3, 3), t (B, 3) model -> scene."""
+        """Weighted ICP for a batch of hypotheses. R (B, 3, 3), t (B, 3) model -> scene.
+
+        Point-to-point with the closed-form weighted SVD; on the full-resolution target
+        (``target="fine"``) with ``fine_metric="plane"``, the same weights in a point-to-plane
+        step (closed-form 6x6 solve), which does not creep along flat or cylindrical surfaces."""
+        point_to_plane = target == "fine" and self.settings.fine_metric == "plane"
+        two_way = target == "fine" and self.settings.two_way
         d0 = self.settings.weight_scale
         tree = ctx.cluster_tree if target == "cluster" else ctx.fine_tree
         pts = tree.data
@@ -416,17 +470,58 @@ class Registrar:
                 dist[band] = np.abs(pd[band])
                 Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
                 vis = vis & ~band
-            d_v, i_v = tree.query(X[vis], k=1, workers=-1)
+            d_v, i_v = tree.query(X[vis], k=1, workers=_workers(int(vis.sum())))
             dist[vis] = d_v
             Q[vis] = pts[np.minimum(i_v, len(pts) - 1)]
             w = np.where(dist <= radius[:, None], 1.0 / (1.0 + dist / d0), 0.0)
             Q = np.where(np.isfinite(dist)[..., None], Q, X)
-            dR, dt = _kabsch_weighted(X, Q, w)
+            Nq = np.zeros_like(X)
+            if point_to_plane:
+                Nq[vis] = ctx.fine_normals[np.minimum(i_v, len(pts) - 1)]
+                if ctx.plane is not None:
+                    Nq[band] = ctx.plane.normal
+            if two_way:
+                X, Q, Nq, w = self._add_reverse_pairs(ctx, tlist, R, t, X, Q, Nq, w, radius)
+            if point_to_plane:
+                dR, dt = _point_to_plane_weighted(X, Q, Nq, w)
+            else:
+                dR, dt = _kabsch_weighted(X, Q, w)
             R = dR @ R
             t = np.einsum("bij,bj->bi", dR, t) + dt
-            if np.all(rotation_angle(dR) < 1e-4) and np.all(np.linalg.norm(dt, axis=1) < 1e-5):
+            if np.all(rotation_angle(dR) < 2e-4) and np.all(np.linalg.norm(dt, axis=1) < 5e-5):
                 break
         return R, t
+
+    def _add_reverse_pairs(self, ctx, tlist, R, t, X, Q, Nq, w, radius):
+        """Append scene -> template pairs: each full-resolution scene point inside a hypothesis'
+        bounding sphere paired with its nearest template sample (weights of the same form).
+        Returns the extended (X, Q, Nq, w) with the model side in X, the scene side in Q."""
+        d0 = self.settings.weight_scale
+        pts, normals = ctx.fine, ctx.fine_normals
+        limit = self.settings.reverse_points
+        if len(pts) > limit:   # an even, fixed subset (the same one every iteration)
+            step = len(pts) / limit
+            pick = (np.arange(limit) * step).astype(np.int64)
+            pts, normals = pts[pick], normals[pick]
+        rows = []
+        for b, tpl in enumerate(tlist):
+            centre = R[b] @ tpl.centroid + t[b]
+            near = np.einsum("ij,ij->i", pts - centre, pts - centre) <= (0.5 * tpl.diameter) ** 2
+            q = pts[near]
+            d, i = self._dense_tree(tpl).query((q - t[b]) @ R[b], k=1)
+            x = self._dense_tree(tpl).data[i] @ R[b].T + t[b]
+            wb = np.where(d <= radius[b], 1.0 / (1.0 + d / d0), 0.0)
+            rows.append((x, q, normals[near], wb))
+        S2 = max(len(r[0]) for r in rows)
+        if S2 == 0:
+            return X, Q, Nq, w
+        B = len(tlist)
+        X2, Q2, N2, w2 = (np.zeros((B, S2, 3)), np.zeros((B, S2, 3)), np.zeros((B, S2, 3)),
+                          np.zeros((B, S2)))
+        for b, (x, q, n, wb) in enumerate(rows):
+            X2[b, :len(x)], Q2[b, :len(x)], N2[b, :len(x)], w2[b, :len(x)] = x, q, n, wb
+        return (np.concatenate([X, X2], 1), np.concatenate([Q, Q2], 1),
+                np.concatenate([Nq, N2], 1), np.concatenate([w, w2], 1))
 
     def _forward_score(self, ctx: ClickContext, tlist, R, t, n_samples: int):
         """Template -> scene capped mean distance over visible samples (free-space violations
@@ -437,7 +532,8 @@ class Registrar:
         Nw = np.einsum("bij,bsj->bsi", R, N)
         vis, violated = self._visible(ctx, X, Nw, occlusion=True)
         dist = np.full(vis.shape, cap)
-        d_v, _ = ctx.crop_tree.query(X[vis], k=1, distance_upper_bound=cap, workers=-1)
+        d_v, _ = ctx.crop_tree.query(X[vis], k=1, distance_upper_bound=cap,
+                                     workers=_workers(int(vis.sum())))
         dist[vis] = np.minimum(d_v, cap)
         dist[violated] = cap
         n_vis = vis.sum(axis=1)
@@ -467,8 +563,8 @@ class Registrar:
         d, _ = self._dense_tree(tpl).query(local, k=1, distance_upper_bound=cap)
         return float(np.minimum(d, cap).mean())
 
-    def _result(self, ctx, tpl, R, t, n_samples, iterations, elapsed) -> FitResult:
-        fwd, inl = self._forward_score(ctx, [tpl], R[None], t[None], n_samples)
+    def _result(self, ctx, tpl, R, t, iterations, elapsed) -> FitResult:
+        fwd, inl = self._forward_score(ctx, [tpl], R[None], t[None], self.settings.score_samples)
         bwd = self._backward_score(ctx, tpl, R, t)
         residual = max(0.5 * (float(fwd[0]) + bwd), 1e-6)
         return FitResult(template=tpl.name, T_scene_model=make_T(R, t), residual=residual,
@@ -528,3 +624,9 @@ def _sym_angle(tpl: AffordanceTemplate, R_rel: np.ndarray) -> float:
     if tpl.symmetry is None:
         return float(rotation_angle(R_rel))
     return tpl.symmetry.residual_angle(R_rel)
+
+
+def _workers(n_queries: int) -> int:
+    """KD-tree query threads: all cores for big batches, one for small ones (thread start-up
+    costs more than it saves below a few thousand points)."""
+    return -1 if n_queries >= 8000 else 1

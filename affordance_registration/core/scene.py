@@ -136,6 +136,7 @@ class ClickContext:
     crop_tree: cKDTree = field(repr=False)
     cluster_tree: cKDTree = field(repr=False)
     fine_tree: cKDTree = field(repr=False)
+    fine_normals: np.ndarray = field(repr=False)
     timing: dict = field(default_factory=dict)
 
 
@@ -223,11 +224,13 @@ class Scene:
             fine = cluster
         depth = max(float(np.linalg.norm(c - self.sensor_origin)), 0.2)
         range_image = RangeImage(raw, self.sensor_origin, bin_size=voxel / depth)
+        fine_tree = cKDTree(fine)
         ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
                            sensor_origin=self.sensor_origin, crop=crop, cluster=cluster, fine=fine,
                            plane=plane_for_fine, plane_threshold=plane_threshold,
                            range_image=range_image, crop_tree=cKDTree(crop),
-                           cluster_tree=cluster_tree, fine_tree=cKDTree(fine), timing=timing)
+                           cluster_tree=cluster_tree, fine_tree=fine_tree,
+                           fine_normals=_pca_normals(fine, fine_tree), timing=timing)
         timing["index_s"] = time.perf_counter() - t2
         return ctx
 
@@ -240,6 +243,15 @@ def _point3(value, what: str) -> np.ndarray:
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise SceneError(f"{what} must be 3 finite numbers, got {value!r}")
     return p
+
+
+def _pca_normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> np.ndarray:
+    """Unit normals (N, 3) by PCA of the k nearest neighbours (sign arbitrary)."""
+    k = min(k, len(points))
+    _, idx = tree.query(points, k=k)
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    return np.ascontiguousarray(vecs[:, :, 0])
 
 
 def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,

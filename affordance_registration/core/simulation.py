@@ -22,10 +22,11 @@ import yaml
 
 from .errors import AffordanceError
 from .templates import TemplateLibrary
-from .transforms import axis_angle_matrix, invert, make_T, random_rotations
+from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
-           "simulate_taskboard", "write_scene", "load_truth", "KINECT_NFOV"]
+           "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
+           "KINECT_NFOV"]
 
 
 @dataclass(frozen=True)
@@ -219,8 +220,8 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
 
     ``layout="panel"``: objects are mounted on the panel (template +z along the panel normal) with
     a random rotation about their z axis. ``layout="table"``: the panel is a table top and objects
-    lie on it in uniformly random orientations (resting on their lowest point) -- the case without
-    a mounting prior. The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
+    lie on it, each resting on one of its stable facets (chosen by facet area) with a random
+    rotation about the vertical -- the case without a mounting prior. The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
@@ -233,10 +234,13 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     camera = camera or DepthCamera()
     rotations = []
     for name in names:
+        yaw = axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi))
         if layout == "panel":
-            rotations.append(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)))
-        else:
-            rotations.append(random_rotations(1, rng)[0])
+            rotations.append(yaw)
+        else:   # resting on one of its stable facets, chosen by facet area
+            rest = library[name].resting_rotations()
+            k = rng.choice(len(rest), p=np.array([w for _, w in rest]))
+            rotations.append(yaw @ rest[k][0])
     radii = []
     for name, R in zip(names, rotations):
         verts = library[name].vertices @ R.T
@@ -270,6 +274,16 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
                           objects=tuple(objects), T_scene_board=T_cam_board,
                           intrinsics=camera.intrinsics)
+
+
+def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Unsigned distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``."""
+    import open3d as o3d
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
+    return scene.compute_distance(query).numpy().astype(float)
 
 
 def ply_bytes(points: np.ndarray) -> bytes:

@@ -166,6 +166,24 @@ class AffordanceTemplate:
             self._cache[key] = (pts, nrm)
         return pts, nrm
 
+    def resting_rotations(self, max_poses: int = 6) -> list[tuple[np.ndarray, float]]:
+        """Orientations in which the template can rest on a horizontal surface.
+
+        A convex-hull facet is a resting facet when the centre of mass projects inside it. Returns
+        up to ``max_poses`` (R_rest, weight) pairs, largest facet first: R_rest (3x3) turns the
+        template so that facet faces down (-z); weight is the facet's share of the resting area.
+        Point templates have none."""
+        key = ("resting", int(max_poses))
+        with self._lock:
+            if key in self._cache:
+                return self._cache[key]
+        poses = [] if self.mesh is None else _resting_facets(self.mesh)[:max_poses]
+        total = sum(w for _, w in poses) or 1.0
+        poses = [(R, w / total) for R, w in poses]
+        with self._lock:
+            self._cache[key] = poses
+        return poses
+
     def nearest_state(self, joint_values: Mapping[str, float]) -> str | None:
         """Name of the named state closest to ``joint_values`` (None without states)."""
         best, best_d = None, math.inf
@@ -174,6 +192,57 @@ class AffordanceTemplate:
             if d < best_d:
                 best, best_d = state, d
         return best
+
+
+def _resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
+    """(R_rest, area) of every convex-hull facet the object can rest on, largest first."""
+    from scipy.spatial import ConvexHull
+    hull = mesh.convex_hull
+    com = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
+    in_facet = np.zeros(len(hull.faces), bool)
+    groups = []
+    for facet, normal in zip(hull.facets, hull.facets_normal):
+        in_facet[facet] = True
+        groups.append((facet, np.asarray(normal)))
+    for f in np.flatnonzero(~in_facet):
+        groups.append((np.array([f]), np.asarray(hull.face_normals[f])))
+    out = []
+    for faces, normal in groups:
+        verts = hull.vertices[np.unique(hull.faces[faces])]
+        area = float(hull.area_faces[faces].sum())
+        if area < 1e-6:
+            continue
+        # centre of mass projected onto the facet plane, inside the facet polygon?
+        u = np.cross(normal, [1.0, 0, 0] if abs(normal[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(normal, u)
+        poly = np.stack([verts @ u, verts @ v], axis=1)
+        p = np.array([com @ u, com @ v])
+        try:
+            eq = ConvexHull(poly).equations
+        except Exception:   # degenerate (collinear) facet
+            continue
+        if np.any(eq[:, :2] @ p + eq[:, 2] > -1e-4):   # not strictly inside (1e-4 m margin)
+            continue
+        # rotation taking the facet normal to -z
+        target = np.array([0.0, 0.0, -1.0])
+        axis = np.cross(normal, target)
+        s_, c_ = np.linalg.norm(axis), float(normal @ target)
+        if s_ < 1e-9:
+            R = np.eye(3) if c_ > 0 else axis_angle_matrix([1.0, 0, 0], math.pi)
+        else:
+            R = axis_angle_matrix(axis, math.atan2(s_, c_))
+        out.append((R, area, normal))
+    out.sort(key=lambda x: -x[1])
+    total = sum(a for _, a, _ in out) or 1.0
+    kept = []
+    for R, area, normal in out:   # one pose per resting direction (they differ by a yaw only)
+        if area / total < 0.02:
+            continue
+        if any(normal @ n > math.cos(math.radians(15)) for _, _, n in kept):
+            continue
+        kept.append((R, area, normal))
+    return [(R, a) for R, a, _ in kept]
 
 
 def _fail(path: str, key: str, msg: str) -> TemplateError:
