@@ -37,7 +37,8 @@ from .scene import ClickContext, Scene
 from .templates import AffordanceTemplate, TemplateLibrary
 from .transforms import align_z_to, axis_angle_matrix, make_T, random_rotations, rotation_angle
 
-__all__ = ["FitSettings", "FitResult", "FitReport", "Registrar"]
+__all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "correspondence_weights",
+           "weighted_rigid_fit"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,8 @@ class FitSettings:
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
     refit_restarts: int = 6
+    refit_samples: int = 800
+    refit_iterations: int = 12
     refit_max_move: float = 0.03       #: a refit may move at most this far from the correction
     refit_max_turn: float = math.radians(25.0)
     paper_restarts: int = 25
@@ -92,7 +95,8 @@ class FitSettings:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
-                     "medium_iterations", "fine_samples", "score_samples", "reverse_points", "fine_iterations", "refit_restarts",
+                     "medium_iterations", "fine_samples", "score_samples", "reverse_points",
+                     "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
                      "paper_restarts", "paper_iterations", "paper_samples"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -148,6 +152,14 @@ def _rank(results: list[FitResult]) -> tuple:
                  for i, r in enumerate(results, start=1))
 
 
+def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
+    """The paper's correspondence rule: distances beyond ``reject`` are rejected (weight 0), the
+    rest weigh w = 1 / (1 + d / d0). The paper has d0 = 1 (d in metres); the default method uses
+    d0 = ``weight_scale`` (5 mm), without which every useful d weighs about 1."""
+    dist = np.asarray(dist, dtype=float)
+    return np.where(dist <= reject, 1.0 / (1.0 + dist / d0), 0.0)
+
+
 def _kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
     """Batched weighted rigid fit: R, t minimising sum w |R x + t - q|^2 per batch.
 
@@ -192,6 +204,16 @@ def _point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np
     return R, t
 
 
+def weighted_rigid_fit(source: np.ndarray, target: np.ndarray, weights=None) -> np.ndarray:
+    """T (4x4) minimising sum w |T source - target|^2 for paired (N, 3) point sets (closed form,
+    SVD, reflection-safe)."""
+    X = np.asarray(source, dtype=float)[None]
+    Q = np.asarray(target, dtype=float)[None]
+    w = np.ones(X.shape[1]) if weights is None else np.asarray(weights, dtype=float)
+    R, t = _kabsch_weighted(X, Q, w[None])
+    return make_T(R[0], t[0])
+
+
 class Registrar:
     """Fits a template library to clicks in scenes. Thread-safe for concurrent ``fit`` calls
     (per-template caches are filled under the templates' own locks)."""
@@ -205,6 +227,18 @@ class Registrar:
         self._cos_grazing = math.cos(self.settings.grazing_angle)
 
     # ------------------------------------------------------------------ public API
+    def warm_up(self) -> None:
+        """Compute every template's samples, diameter and resting poses now (they are cached),
+        so the first click costs what every later one does."""
+        s = self.settings
+        for tpl in self.library.values():
+            for n in {s.coarse_samples, s.medium_samples, s.fine_samples, s.score_samples,
+                      s.refit_samples, 256}:
+                tpl.samples(n, seed=1)
+            tpl.centroid, tpl.diameter
+            tpl.resting_rotations(s.resting_poses)
+            self._dense_tree(tpl)
+
     def prepare(self, scene: Scene, click) -> ClickContext:
         """Snap the click to the surface and prepare the crop around it."""
         s = self.settings
@@ -255,12 +289,12 @@ class Registrar:
         move = np.linalg.norm(t - Ts[0][:3, 3], axis=1)
         turn = rotation_angle(np.swapaxes(Ts[0][None, :3, :3], 1, 2) @ R)
         allowed = (move <= s.refit_max_move) & (turn <= s.refit_max_turn)
-        if not allowed.any():
-            allowed[:] = False
+        if not allowed.any():   # every restart wandered off: start from the correction itself
             R[0], t[0] = Ts[0][:3, :3], Ts[0][:3, 3]
             allowed[0] = True
         best = int(np.argmin(np.where(allowed, fwd, np.inf)))
-        res = self._finish(ctx, tpl, R[best], t[best], samples=800, iterations=12,
+        res = self._finish(ctx, tpl, R[best], t[best], samples=s.refit_samples,
+                           iterations=s.refit_iterations,
                            iterations_before=6)
         res = self._guard_refit(res, Ts[0], R[best], t[best], ctx, tpl)
         return replace(res, time_s=time.perf_counter() - t0)
@@ -473,7 +507,7 @@ class Registrar:
             d_v, i_v = tree.query(X[vis], k=1, workers=_workers(int(vis.sum())))
             dist[vis] = d_v
             Q[vis] = pts[np.minimum(i_v, len(pts) - 1)]
-            w = np.where(dist <= radius[:, None], 1.0 / (1.0 + dist / d0), 0.0)
+            w = correspondence_weights(dist, radius[:, None], d0)
             Q = np.where(np.isfinite(dist)[..., None], Q, X)
             Nq = np.zeros_like(X)
             if point_to_plane:
@@ -510,7 +544,7 @@ class Registrar:
             q = pts[near]
             d, i = self._dense_tree(tpl).query((q - t[b]) @ R[b], k=1)
             x = self._dense_tree(tpl).data[i] @ R[b].T + t[b]
-            wb = np.where(d <= radius[b], 1.0 / (1.0 + d / d0), 0.0)
+            wb = correspondence_weights(d, radius[b], d0)
             rows.append((x, q, normals[near], wb))
         S2 = max(len(r[0]) for r in rows)
         if S2 == 0:
@@ -595,7 +629,7 @@ class Registrar:
                 for it in range(s.paper_iterations):
                     X = P @ R.T + t
                     d, idx = tree.query(X, k=1)
-                    w = np.where(d <= diam, 1.0 / (1.0 + d), 0.0)
+                    w = correspondence_weights(d, diam, 1.0)
                     if w.sum() < 1e-9:
                         break
                     resid = float((w * d).sum() / w.sum())
@@ -607,7 +641,7 @@ class Registrar:
                     prev = resid
                 X = P @ R.T + t
                 d, _ = tree.query(X, k=1)
-                w = np.where(d <= diam, 1.0 / (1.0 + d), 0.0)
+                w = correspondence_weights(d, diam, 1.0)
                 resid = float((w * d).sum() / max(w.sum(), 1e-9)) if w.sum() > 0 else math.inf
                 if best is None or resid < best[0]:
                     best = (resid, R, t, float(np.mean(d <= diam)))

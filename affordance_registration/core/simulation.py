@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,7 @@ from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
+           "SimulatedOperator",
            "KINECT_NFOV"]
 
 
@@ -276,13 +278,16 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
                           intrinsics=camera.intrinsics)
 
 
-def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Unsigned distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``."""
+def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
+    """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
+    negative inside a watertight mesh."""
     import open3d as o3d
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
                         o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
     query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
+    if signed:
+        return scene.compute_signed_distance(query).numpy().astype(float)
     return scene.compute_distance(query).numpy().astype(float)
 
 
@@ -346,3 +351,79 @@ def load_truth(path: str) -> dict:
             obj["click"] = np.asarray(obj["click"], dtype=float)
     doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float)
     return doc
+
+
+class SimulatedOperator:
+    """Plays the operator of the paper on a scene with ground truth.
+
+    For each object: click its visible surface; while the shown template is wrong, press "next
+    model"; while the shown pose is off by more than the tolerance, push the SpaceMouse toward the
+    true pose (a bounded twist in the view frame, a deliberately imperfect push) and let the
+    engine refit; then accept. ``actions`` is anything with ``click(point)``,
+    ``shown() -> (template, T_scene_model)``, ``next_model()``, ``push(linear, angular, duration,
+    T_scene_view)`` and ``refit()`` and ``accept()`` -- the core engine or a ROS client.
+    """
+
+    def __init__(self, library: TemplateLibrary, tolerance_m: float = 0.005,
+                 tolerance_rad: float = math.radians(5.0), max_speed: float = 0.05,
+                 max_turn_rate: float = 0.6, push_fraction: float = 0.8, max_pushes: int = 6,
+                 seed: int = 0):
+        self.library = library
+        self.tol_m, self.tol_rad = tolerance_m, tolerance_rad
+        self.max_speed, self.max_turn_rate = max_speed, max_turn_rate
+        self.push_fraction, self.max_pushes = push_fraction, max_pushes
+        self.rng = np.random.default_rng(seed)
+
+    def error(self, template: str, T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+        from .transforms import pose_error
+        return pose_error(T, T_true, self.library[template].symmetry)
+
+    def _closest_truth(self, template: str, T: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+        """The symmetric equivalent of the true pose closest to ``T``."""
+        from .transforms import rotation_angle
+        sym = self.library[template].symmetry
+        if sym is None:
+            return T_true
+        cands = [T_true @ make_T(S) for S in sym.rotations]
+        return min(cands, key=lambda C: float(rotation_angle(C[:3, :3].T @ T[:3, :3])))
+
+    def register(self, obj: SimulatedObject, actions, T_scene_view: np.ndarray) -> dict:
+        """Register one object; returns what it took (model changes, pushes, final error)."""
+        from .transforms import rotation_angle
+        from scipy.spatial.transform import Rotation
+        t0 = time.perf_counter()
+        actions.click(obj.click)
+        fit_s = time.perf_counter() - t0
+        first_template, _ = actions.shown()
+        changes = 0
+        n_templates = len(self.library)
+        while actions.shown()[0] != obj.template and changes < n_templates:
+            actions.next_model()
+            changes += 1
+        pushes = 0
+        template, T = actions.shown()
+        centroid = self.library[template].centroid if template in self.library else np.zeros(3)
+        while template == obj.template and pushes < self.max_pushes:
+            dt_err, dr_err = self.error(template, T, obj.T_scene_model)
+            if dt_err <= self.tol_m and dr_err <= self.tol_rad:
+                break
+            goal = self._closest_truth(template, T, obj.T_scene_model)
+            c_now = T[:3, :3] @ centroid + T[:3, 3]
+            c_goal = goal[:3, :3] @ centroid + goal[:3, 3]
+            rotvec = Rotation.from_matrix(goal[:3, :3] @ T[:3, :3].T).as_rotvec()
+            frac = self.push_fraction * self.rng.uniform(0.85, 1.15)
+            move, turn = (c_goal - c_now) * frac, rotvec * frac
+            duration = max(np.linalg.norm(move) / self.max_speed,
+                           np.linalg.norm(turn) / self.max_turn_rate, 0.1)
+            R_sv = T_scene_view[:3, :3]
+            actions.push(R_sv.T @ move / duration, R_sv.T @ turn / duration, duration, T_scene_view)
+            actions.refit()
+            pushes += 1
+            template, T = actions.shown()
+        dt_err, dr_err = self.error(template, T, obj.T_scene_model) if template == obj.template \
+            else (float("inf"), float("inf"))
+        actions.accept()
+        return {"template": obj.template, "ranked_first": first_template,
+                "shown": template, "model_changes": changes, "corrections": pushes,
+                "fit_s": fit_s, "error_mm": dt_err * 1000, "error_deg": math.degrees(dr_err),
+                "ok": template == obj.template and dt_err <= self.tol_m and dr_err <= self.tol_rad}

@@ -1,0 +1,231 @@
+"""The ``affordance-registration`` command.
+
+Subcommands: fit, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
+spacemouse, when their modules are present). Errors print one line naming the problem and exit
+with status 2; nothing half-written is left behind.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+
+import numpy as np
+
+from .core.errors import AffordanceError
+
+EXIT_ERROR = 2
+
+
+def _fail(msg: str) -> int:
+    print(f"affordance-registration: error: {msg}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise AffordanceError(f"--seed must be a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise AffordanceError(f"--seed must be a non-negative integer, got {text!r}")
+    return value
+
+
+def _library(path):
+    from .core.templates import TemplateLibrary
+    return TemplateLibrary.load(path)
+
+
+# ---------------------------------------------------------------------------- fit
+def cmd_fit(args) -> int:
+    from .core.registration import FitSettings, Registrar
+    from .core.scene import Scene
+    lib = _library(args.templates)
+    scene = Scene.from_file(args.scene)
+    settings = FitSettings(seed=_seed(args.seed), method=args.method, mode=args.mode)
+    registrar = Registrar(lib, settings)
+    registrar.warm_up()   # one-off start-up cost, not part of a click
+    report = registrar.fit(scene, args.point)
+    doc = {"point": [round(float(v), 6) for v in report.point],
+           "candidates": [c.to_dict() for c in report.candidates],
+           "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "
+          f"{len(report.candidates)} templates fitted in {report.timing_s['total']:.3f} s")
+    print(f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11}  position (m)")
+    for c in report.candidates:
+        pos = c.T_scene_model[:3, 3]
+        print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f}  "
+              f"({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})")
+    return 0
+
+
+# ---------------------------------------------------------------------------- simulate
+def cmd_simulate(args) -> int:
+    from .core.simulation import simulate_taskboard, write_scene
+    seed = _seed(args.seed)
+    lib = _library(args.templates)
+    sim = simulate_taskboard(lib, seed, layout=args.layout)
+    paths = write_scene(sim, args.out)
+    print(f"simulated {args.layout} scene (seed {seed}): {len(sim.points)} points, "
+          f"{len(sim.objects)} objects -> {args.out}")
+    for o in sim.objects:
+        p = o.T_scene_model[:3, 3]
+        click = "none visible" if o.click is None else \
+            "click (" + ", ".join(f"{v:.3f}" for v in o.click) + ")"
+        print(f"  {o.template:<22} at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), "
+              f"{o.visible_points} visible points, {click}")
+    for name in ("scene.ply", "truth.yaml", "scene_organized.npy"):
+        print(f"  wrote {paths[name]}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- bench
+def cmd_bench(args) -> int:
+    from .bench import format_table, run_bench
+    log = (lambda *a: print(*a, file=sys.stderr, flush=True))
+    result = run_bench(quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks,
+                       out=args.out, log=log)
+    print(format_table(result))
+    if result.get("written"):
+        print(f"table written to {result['written']}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- demo
+class _EngineActions:
+    """The simulated operator's controls, wired straight to the core engine."""
+
+    def __init__(self, engine):
+        self.engine = engine
+
+    def click(self, point):
+        self.engine.click(point)
+
+    def shown(self):
+        obj = self.engine.active_object()
+        return (obj.shown.template, obj.shown.T_scene_model) if obj else (None, None)
+
+    def next_model(self):
+        self.engine.next_model()
+
+    def push(self, linear, angular, duration, T_scene_view):
+        steps = max(1, int(round(duration / 0.05)))
+        for _ in range(steps):
+            self.engine.correct_twist(linear, angular, duration / steps, T_scene_view)
+
+    def refit(self):
+        self.engine.refit()
+
+    def accept(self):
+        self.engine.accept()
+
+
+def print_session_table(rows, out=print) -> None:
+    out(f"{'true template':<20} {'ranked first':<20} {'changes':>7} {'corrections':>11} "
+        f"{'fit s':>6} {'error':>14}")
+    for r in rows:
+        err = "-" if not math.isfinite(r["error_mm"]) else \
+            f"{r['error_mm']:.1f} mm {r['error_deg']:.1f}°"
+        out(f"{r['template']:<20} {r['ranked_first']:<20} {r['model_changes']:>7} "
+            f"{r['corrections']:>11} {r['fit_s']:>6.2f} {err:>14}")
+    n = len(rows)
+    ok = sum(r["ok"] for r in rows)
+    out(f"{ok}/{n} objects registered within tolerance; {sum(r['ranked_first'] == r['template'] for r in rows)}/{n} "
+        f"ranked first; {sum(r['model_changes'] for r in rows) / max(n, 1):.1f} model changes and "
+        f"{sum(r['corrections'] for r in rows) / max(n, 1):.1f} corrections per object; mean fit "
+        f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)")
+
+
+def cmd_demo(args) -> int:
+    from .core.corrections import view_from_optical
+    from .core.engine import AffordanceEngine
+    from .core.simulation import SimulatedOperator, simulate_taskboard
+    lib = _library(args.templates)
+    seed = _seed(args.seed)
+    sim = simulate_taskboard(lib, seed)
+    engine = AffordanceEngine(lib)
+    engine.set_scene(sim.organized, frame_id="camera_depth_optical_frame")
+    operator = SimulatedOperator(lib, seed=seed)
+    view = view_from_optical(np.eye(4))
+    rows = []
+    for obj in sim.objects:
+        if obj.click is None or obj.visible_points < 200:
+            continue
+        rows.append(operator.register(obj, _EngineActions(engine), view))
+    print(f"simulated taskboard (seed {seed}), core engine without ROS:")
+    print_session_table(rows)
+    os.makedirs(args.out, exist_ok=True)
+    print(engine.save(os.path.join(args.out, "registrations.yaml")))
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+# ---------------------------------------------------------------------------- models
+def cmd_generate_models(args) -> int:
+    from .core.taskboard import write_library
+    for path in write_library(args.out):
+        print(f"wrote {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="affordance-registration",
+        description="Click-to-fit affordance template registration (ROS 2).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
+    p.add_argument("--scene", required=True, help="scene file: PLY, PCD or organized .npy (m)")
+    p.add_argument("--point", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"))
+    p.add_argument("--templates", default=None, help="template directory (default: package models)")
+    p.add_argument("--seed", default="0")
+    p.add_argument("--method", choices=("default", "paper"), default="default")
+    p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto")
+    p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
+    p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
+    p.add_argument("--out", required=True, help="output folder (scene.ply, truth.yaml, ...)")
+    p.add_argument("--seed", default="0")
+    p.add_argument("--layout", choices=("panel", "table"), default="panel")
+    p.add_argument("--templates", default=None)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("bench", help="speed and accuracy against baselines, in one run")
+    p.add_argument("--quick", action="store_true", help="4 scenes, paper method on 5 clicks")
+    p.add_argument("--scenes", type=int, default=None, help="panel scenes (default 20)")
+    p.add_argument("--paper-clicks", type=int, default=None,
+                   help="clicks for the slow paper baseline (default 25; 0 = all)")
+    p.add_argument("--out", default="bench_output/bench.json", help="JSON output path")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("demo", help="the main job: a simulated operator session")
+    p.add_argument("--seed", default="7")
+    p.add_argument("--templates", default=None)
+    p.add_argument("--out", default="demo_output")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
+    p.add_argument("--out", default="models")
+    p.set_defaults(func=cmd_generate_models)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except AffordanceError as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

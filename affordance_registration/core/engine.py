@@ -1,0 +1,444 @@
+"""AffordanceEngine: objects of interest, ranked candidates, cycling, corrections, refit, accept,
+undo, save and load. Pure Python (no ROS); the ROS node is a thin wrapper around it.
+
+State is kept in immutable records (:class:`EngineState`), so undo restores the previous state
+exactly, and every action swaps the whole state under a lock: the engine is safe to call from
+several threads. Fitting runs outside the lock; only its result is committed under it.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import yaml
+
+from .corrections import apply_twist, view_from_optical
+from .errors import AffordanceError, EngineStateError, SceneError
+from .registration import FitResult, FitSettings, Registrar
+from .scene import ClickContext, Scene
+from .templates import TemplateLibrary
+from .transforms import matrix_to_quat_xyzw
+
+__all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
+           "load_registrations", "save_registrations", "REGISTRATIONS_FORMAT"]
+
+REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
+
+
+@dataclass(frozen=True)
+class TrackedObject:
+    """An object of interest: a click and its ranked candidates (one per template)."""
+
+    id: int
+    click: np.ndarray = field(repr=False)
+    candidates: tuple                       #: FitResult, best first
+    active: int = 0                         #: index of the shown candidate
+    refined: frozenset = frozenset()        #: candidate indices refined at full resolution
+    corrections: int = 0                    #: correction bursts applied by the operator
+    model_changes: int = 0                  #: next/previous presses
+    context: ClickContext | None = field(default=None, repr=False, compare=False)
+    scene_version: int = 0
+
+    @property
+    def shown(self) -> FitResult:
+        return self.candidates[self.active]
+
+
+@dataclass(frozen=True)
+class Registration:
+    """An accepted object."""
+
+    id: int
+    template: str
+    T_scene_model: np.ndarray = field(repr=False)
+    likelihood: float
+    probability: float
+    residual: float
+    click: np.ndarray = field(repr=False)
+    frame_id: str = ""
+    joints: dict = field(default_factory=dict)
+    state: str | None = None
+
+    def to_dict(self) -> dict:
+        T = self.T_scene_model
+        return {"id": self.id, "template": self.template, "frame_id": self.frame_id,
+                "pose": [[round(float(v), 9) for v in row] for row in T],
+                "position": [round(float(v), 9) for v in T[:3, 3]],
+                "orientation_xyzw": [round(float(v), 9) for v in matrix_to_quat_xyzw(T[:3, :3])],
+                "likelihood": round(float(self.likelihood), 6),
+                "probability": round(float(self.probability), 6),
+                "residual": round(float(self.residual), 9),
+                "click": [round(float(v), 6) for v in self.click],
+                "joints": dict(self.joints), "state": self.state}
+
+
+@dataclass(frozen=True)
+class EngineState:
+    objects: tuple = ()             #: TrackedObject, objects of interest not yet accepted
+    active_id: int | None = None    #: the selected object of interest
+    registered: tuple = ()          #: Registration
+    next_id: int = 1
+
+
+def _atomic_write_text(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file in the same folder + rename)."""
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_registrations(path: str, registrations, frame_id: str = "") -> str:
+    """Write registrations to a YAML file atomically; returns the absolute path."""
+    doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
+           "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+           "registrations": [r.to_dict() for r in registrations]}
+    try:
+        _atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+    except OSError as exc:
+        raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
+    return os.path.abspath(path)
+
+
+def load_registrations(path: str, library: TemplateLibrary | None = None) -> tuple:
+    """Read a registrations file; each entry is checked (template known, pose a rigid 4x4)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            doc = yaml.safe_load(handle)
+    except OSError as exc:
+        raise AffordanceError(f"cannot read registrations {path}: {exc.strerror}") from None
+    except yaml.YAMLError:
+        raise AffordanceError(f"{path}: not valid YAML") from None
+    if not isinstance(doc, dict) or doc.get("format") != REGISTRATIONS_FORMAT:
+        raise AffordanceError(f"{path}: not a registrations file (format {REGISTRATIONS_FORMAT})")
+    out = []
+    for i, entry in enumerate(doc.get("registrations") or []):
+        where = f"{path}: registrations[{i}]"
+        try:
+            T = np.asarray(entry["pose"], dtype=float)
+            template = str(entry["template"])
+        except (KeyError, TypeError, ValueError):
+            raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
+                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-5):
+            raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
+        if library is not None and template not in library:
+            raise AffordanceError(f"{where}: unknown template '{template}'")
+        out.append(Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
+                                likelihood=float(entry.get("likelihood", 0.0)),
+                                probability=float(entry.get("probability", 0.0)),
+                                residual=float(entry.get("residual", 0.0)),
+                                click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
+                                frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
+                                joints=dict(entry.get("joints") or {}), state=entry.get("state")))
+    return tuple(out)
+
+
+class AffordanceEngine:
+    """The operator-facing registration engine.
+
+    Every action returns a message a person can read, or raises :class:`EngineStateError` when it
+    does not apply now (nothing selected, nothing to undo...) and :class:`SceneError` for a bad
+    click. ``select_radius``: a click within this fraction of the shown template's diameter from
+    an object's centre selects that object instead of starting a new one.
+    """
+
+    def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
+                 select_radius: float = 0.4, undo_depth: int = 200):
+        self.registrar = Registrar(library, settings)
+        self.registrar.warm_up()
+        self.library = library
+        self.select_radius = float(select_radius)
+        self.undo_depth = int(undo_depth)
+        self._lock = threading.RLock()
+        self._state = EngineState()
+        self._undo: list[tuple[EngineState, str]] = []
+        self._scene: Scene | None = None
+        self._scene_version = 0
+        self._frame_id = ""
+        self._T_scene_view: np.ndarray | None = None
+        self._last_action = ""
+        self._last_timing: dict = {}
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def state(self) -> EngineState:
+        return self._state
+
+    @property
+    def frame_id(self) -> str:
+        return self._frame_id
+
+    @property
+    def has_scene(self) -> bool:
+        return self._scene is not None
+
+    def active_object(self) -> TrackedObject | None:
+        with self._lock:
+            return self._find(self._state.active_id)
+
+    def _find(self, obj_id) -> TrackedObject | None:
+        for o in self._state.objects:
+            if o.id == obj_id:
+                return o
+        return None
+
+    def _commit(self, new_state: EngineState, action: str, coalesce: bool = False) -> None:
+        """Swap in a new state, remembering the old one for undo (call with the lock held)."""
+        if not (coalesce and self._last_action == action and self._undo):
+            self._undo.append((self._state, action))
+            del self._undo[:-self.undo_depth]
+        self._state = new_state
+        self._last_action = action
+
+    def _replace_object(self, obj: TrackedObject) -> EngineState:
+        objs = tuple(obj if o.id == obj.id else o for o in self._state.objects)
+        return replace(self._state, objects=objs)
+
+    def _require_active(self) -> TrackedObject:
+        obj = self._find(self._state.active_id)
+        if obj is None:
+            raise EngineStateError("no object selected: click an object first")
+        return obj
+
+    # ------------------------------------------------------------------ inputs
+    def set_scene(self, points, frame_id: str = "", sensor_origin=None) -> int:
+        """Replace the scene (the latest cloud). Returns the number of finite points. Existing
+        objects keep their crops until they are refitted, which re-crops the new scene."""
+        scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
+                                                               frame_id=frame_id)
+        with self._lock:
+            self._scene = scene
+            self._scene_version += 1
+            self._frame_id = frame_id or scene.frame_id
+        return len(scene)
+
+    def set_view(self, T_scene_view: np.ndarray | None) -> None:
+        """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
+        for the default: looking through the sensor (its optical frame is the scene frame)."""
+        if T_scene_view is not None:
+            T = np.asarray(T_scene_view, dtype=float)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise AffordanceError("view pose must be a finite 4x4 transform")
+            T_scene_view = T
+        with self._lock:
+            self._T_scene_view = T_scene_view
+
+    def view_pose(self) -> np.ndarray:
+        with self._lock:
+            if self._T_scene_view is not None:
+                return self._T_scene_view
+            origin = self._scene.sensor_origin if self._scene is not None else np.zeros(3)
+            T = np.eye(4)
+            T[:3, 3] = origin
+            return view_from_optical(T)
+
+    # ------------------------------------------------------------------ actions
+    def click(self, point) -> str:
+        """Select the object of interest near ``point`` or fit every template around it."""
+        with self._lock:
+            scene, version = self._scene, self._scene_version
+            if scene is None:
+                raise EngineStateError("no point cloud received yet: cannot fit a click")
+            p = np.asarray(point, dtype=float).reshape(-1)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise SceneError(f"click must be 3 finite numbers, got {point!r}")
+            for obj in self._state.objects:
+                T = obj.shown.T_scene_model
+                tpl = self.library[obj.shown.template]
+                centre = T[:3, :3] @ tpl.centroid + T[:3, 3]
+                if np.linalg.norm(p - centre) <= self.select_radius * tpl.diameter:
+                    if obj.id != self._state.active_id:
+                        self._commit(replace(self._state, active_id=obj.id), "select")
+                    return f"selected object {obj.id}: {self._describe(obj)}"
+        report = self.registrar.fit(scene, p)          # outside the lock: fitting takes time
+        with self._lock:
+            obj = TrackedObject(id=self._state.next_id, click=report.point,
+                                candidates=report.candidates, refined=frozenset({0}),
+                                context=report.context, scene_version=version)
+            self._commit(replace(self._state, objects=self._state.objects + (obj,),
+                                 active_id=obj.id, next_id=obj.id + 1), "click")
+            self._last_timing = dict(report.timing_s)
+            return f"object {obj.id}: {self._describe(obj)} ({report.timing_s['total']:.2f} s)"
+
+    def _describe(self, obj: TrackedObject) -> str:
+        c = obj.shown
+        return (f"{c.template} — rank {obj.active + 1}/{len(obj.candidates)} — "
+                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}")
+
+    def _cycle(self, step: int) -> str:
+        with self._lock:
+            obj = self._require_active()
+            if len(obj.candidates) < 2:
+                raise EngineStateError("only one candidate: nothing to cycle to")
+            active = (obj.active + step) % len(obj.candidates)
+            ctx = obj.context
+            candidates = obj.candidates
+            refined = obj.refined
+        if active not in refined and ctx is not None:   # refine on first display, outside lock
+            cand = candidates[active]
+            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model)
+            if better.likelihood >= cand.likelihood:
+                cand = replace(better, rank=cand.rank, probability=cand.probability)
+            candidates = candidates[:active] + (cand,) + candidates[active + 1:]
+            refined = refined | {active}
+        with self._lock:
+            current = self._find(obj.id)
+            if current is None or current.active != obj.active:
+                raise EngineStateError("the object changed meanwhile; try again")
+            new = replace(current, active=active, candidates=candidates, refined=refined,
+                          model_changes=current.model_changes + 1)
+            self._commit(self._replace_object(new), "cycle")
+            return f"object {new.id}: {self._describe(new)}"
+
+    def next_model(self) -> str:
+        """Show the next most likely candidate of the selected object (wraps around)."""
+        return self._cycle(+1)
+
+    def previous_model(self) -> str:
+        """Show the previous candidate (wraps around)."""
+        return self._cycle(-1)
+
+    def correct_twist(self, linear, angular, dt: float, T_scene_view=None) -> str:
+        """Move the shown candidate by a view-frame twist (m/s, rad/s) held for ``dt`` s. Twists
+        in a row form one correction (one undo step) until something else happens."""
+        with self._lock:
+            obj = self._require_active()
+            view = self.view_pose() if T_scene_view is None else np.asarray(T_scene_view, float)
+            tpl = self.library[obj.shown.template]
+            T = apply_twist(obj.shown.T_scene_model, linear, angular, dt, view, tpl.centroid)
+            first = self._last_action != "twist"
+            new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
+            self._commit(self._replace_object(new), "twist", coalesce=True)
+            return f"object {obj.id}: moved {obj.shown.template}"
+
+    def correct_pose(self, T_scene_model) -> str:
+        """Set the shown candidate's pose (an absolute correction, e.g. a dragged marker)."""
+        T = np.asarray(T_scene_model, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
+                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
+            raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
+        with self._lock:
+            obj = self._require_active()
+            new = self._with_pose(obj, T, corrections=obj.corrections + 1)
+            self._commit(self._replace_object(new), "pose")
+            return f"object {obj.id}: {obj.shown.template} placed"
+
+    def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
+        cand = replace(obj.shown, T_scene_model=np.array(T, dtype=float))
+        cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
+        return replace(obj, candidates=cands, corrections=corrections)
+
+    def refit(self) -> str:
+        """Refit the shown candidate locally from its current (possibly corrected) pose."""
+        with self._lock:
+            obj = self._require_active()
+            scene, version = self._scene, self._scene_version
+        ctx = obj.context
+        if scene is not None and (ctx is None or obj.scene_version != version):
+            # a newer cloud arrived: re-crop it around the object's current centre
+            tpl = self.library[obj.shown.template]
+            T = obj.shown.T_scene_model
+            try:
+                ctx = self.registrar.prepare(scene, T[:3, :3] @ tpl.centroid + T[:3, 3])
+            except SceneError:
+                ctx = self.registrar.prepare(scene, obj.click)
+        if ctx is None:
+            raise EngineStateError("no point cloud to refit against")
+        t0 = time.perf_counter()
+        res = self.registrar.refit(ctx, obj.shown.template, obj.shown.T_scene_model)
+        with self._lock:
+            current = self._find(obj.id)
+            if current is None or current.shown.template != obj.shown.template or \
+                    not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model):
+                raise EngineStateError("the object changed during the refit; refit again")
+            cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
+            cands = current.candidates[:current.active] + (cand,) + \
+                current.candidates[current.active + 1:]
+            new = replace(current, candidates=cands, context=ctx, scene_version=version,
+                          refined=current.refined | {current.active})
+            self._commit(self._replace_object(new), "refit")
+            self._last_timing = {"refit": time.perf_counter() - t0}
+            moved = np.linalg.norm(res.T_scene_model[:3, 3] - obj.shown.T_scene_model[:3, 3])
+            return (f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
+                    f"likelihood {cand.likelihood:.0f})")
+
+    def accept(self) -> str:
+        """Register the shown candidate of the selected object and close the object."""
+        with self._lock:
+            obj = self._require_active()
+            c = obj.shown
+            reg = Registration(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
+                               likelihood=c.likelihood, probability=c.probability,
+                               residual=c.residual, click=obj.click, frame_id=self._frame_id)
+            objects = tuple(o for o in self._state.objects if o.id != obj.id)
+            self._commit(replace(self._state, objects=objects, registered=self._state.registered
+                                 + (reg,), active_id=objects[-1].id if objects else None),
+                         "accept")
+            return f"accepted {c.template} as object {obj.id} ({len(self._state.registered)} registered)"
+
+    def discard(self) -> str:
+        """Drop the selected object of interest."""
+        with self._lock:
+            obj = self._require_active()
+            objects = tuple(o for o in self._state.objects if o.id != obj.id)
+            self._commit(replace(self._state, objects=objects,
+                                 active_id=objects[-1].id if objects else None), "discard")
+            return f"discarded object {obj.id} ({obj.shown.template})"
+
+    def undo(self) -> str:
+        """Revert the last click, selection, cycle, correction, refit, accept, discard or load."""
+        with self._lock:
+            if not self._undo:
+                raise EngineStateError("nothing to undo")
+            previous, action = self._undo.pop()
+            self._state = previous
+            self._last_action = "undo"
+            return f"undid {action}"
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str) -> str:
+        with self._lock:
+            regs, frame = self._state.registered, self._frame_id
+        written = save_registrations(path, regs, frame)
+        return f"saved {len(regs)} registration(s) to {written}"
+
+    def load(self, path: str) -> str:
+        regs = load_registrations(path, self.library)
+        with self._lock:
+            next_id = max([self._state.next_id] + [r.id + 1 for r in regs])
+            self._commit(replace(self._state, registered=regs, next_id=next_id), "load")
+            return f"loaded {len(regs)} registration(s) from {path}"
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> dict:
+        """A JSON-ready summary: objects of interest with ranked candidates, registrations."""
+        with self._lock:
+            st = self._state
+            objects = []
+            for o in st.objects:
+                objects.append({
+                    "id": o.id, "active": o.id == st.active_id, "shown": o.active,
+                    "click": [round(float(v), 6) for v in o.click],
+                    "corrections": o.corrections, "model_changes": o.model_changes,
+                    "candidates": [c.to_dict() for c in o.candidates]})
+            return {"frame_id": self._frame_id, "active_id": st.active_id,
+                    "objects": objects,
+                    "registered": [r.to_dict() for r in st.registered],
+                    "counts": {"objects": len(st.objects), "registered": len(st.registered),
+                               "undo": len(self._undo)},
+                    "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()}}
+

@@ -1,0 +1,23 @@
+"""Shared fixtures. Every test process gets its own ROS domain and log folder, and ROS discovery
+stays on this machine (set before anything can import rclpy)."""
+import os
+import tempfile
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
+
+import pytest  # noqa: E402
+
+from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def library():
+    return TemplateLibrary.load()
+
+
+@pytest.fixture(scope="session")
+def panel_scene(library):
+    from affordance_registration.core.simulation import simulate_taskboard
+    return simulate_taskboard(library, 7)

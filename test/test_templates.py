@@ -1,0 +1,203 @@
+"""Template files: loading, validation errors that name file and key, samples, diameter, symmetry."""
+import math
+import os
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+import yaml
+from scipy.spatial import cKDTree
+
+from affordance_registration.core.errors import TemplateError
+from affordance_registration.core.simulation import mesh_distance
+from affordance_registration.core.templates import TemplateLibrary, load_template
+
+TASKBOARD = {"gate_valve", "ball_valve", "quarter_turn_valve", "emergency_stop", "grab_handle"}
+
+
+def test_package_library_has_the_five_taskboard_objects(library):
+    assert set(library) == TASKBOARD
+    for tpl in library.values():
+        assert tpl.mesh.is_watertight, tpl.name
+        assert 0.05 <= tpl.diameter <= 0.35, (tpl.name, tpl.diameter)
+        z = tpl.mesh.vertices[:, 2]
+        assert abs(z.min()) < 1e-6, f"{tpl.name}: base not at z=0"
+        # origin at the centre of the mounting base
+        base = tpl.mesh.vertices[z < 1e-6]
+        assert np.linalg.norm(base[:, :2].mean(axis=0)) < 0.01, tpl.name
+        assert tpl.description
+
+
+def test_articulated_templates_declare_joints_and_states(library):
+    for name in ("gate_valve", "ball_valve", "quarter_turn_valve", "emergency_stop"):
+        tpl = library[name]
+        assert len(tpl.joints) == 1 and tpl.states, name
+        j = tpl.joints[0]
+        assert j.lower < j.upper and j.torque_limit > 0
+        assert j.moving_mesh.is_watertight
+    assert set(library["ball_valve"].states) == {"open", "closed"}
+    assert set(library["emergency_stop"].states) == {"pressed", "released"}
+    assert library["ball_valve"].nearest_state({"lever": 1.4}) == "closed"
+    assert library["ball_valve"].nearest_state({"lever": 0.1}) == "open"
+
+
+def test_samples_lie_on_the_surface_and_are_cached(library):
+    for tpl in library.values():
+        pts, nrm = tpl.samples(500, seed=3)
+        assert pts.shape == (500, 3) and nrm.shape == (500, 3)
+        d = mesh_distance(tpl.mesh, pts)   # float32 inside Open3D
+        assert np.median(d) < 1e-6 and d.max() < 2e-4
+        assert np.allclose(np.linalg.norm(nrm, axis=1), 1.0)
+        # normals point outwards: a step along them leaves the solid
+        assert np.all(mesh_distance(tpl.mesh, pts + 1e-3 * nrm, signed=True) > 0)
+        again, _ = tpl.samples(500, seed=3)
+        assert again is pts
+        other, _ = tpl.samples(500, seed=4)
+        assert not np.allclose(other, pts)
+
+
+def test_diameter_matches_the_mesh(library):
+    for tpl in library.values():
+        v = tpl.mesh.vertices
+        brute = np.sqrt(((v[:, None] - v[None]) ** 2).sum(-1)).max()   # all vertex pairs
+        assert tpl.diameter == pytest.approx(brute, rel=1e-9)
+
+
+def test_symmetry_rotations_map_the_mesh_onto_itself(library):
+    """Surface samples turned by a symmetry rotation stay on the surface (up to the mesh's
+    polygonal approximation of round parts); turned by a non-symmetry they leave it."""
+    for tpl in library.values():
+        pts = tpl.samples(3000, seed=5)[0]
+        if tpl.symmetry is None:
+            # no symmetry claimed: a half turn about z visibly changes the shape
+            R = trimesh.transformations.rotation_matrix(math.pi, [0, 0, 1])[:3, :3]
+            assert np.percentile(mesh_distance(tpl.mesh, pts @ R.T), 95) > 0.004, tpl.name
+            continue
+        for R in tpl.symmetry.rotations[1:]:
+            d = mesh_distance(tpl.mesh, pts @ R.T)
+            assert np.percentile(d, 99) < 5e-4 and d.max() < 2e-3, tpl.name
+        half_step = 2 * math.pi / tpl.symmetry.order / 2
+        R = trimesh.transformations.rotation_matrix(half_step / 2, [0, 0, 1])[:3, :3]
+        assert np.percentile(mesh_distance(tpl.mesh, pts @ R.T), 95) > 0.002, tpl.name
+
+
+def test_symmetry_residual_angle():
+    from affordance_registration.core.templates import Symmetry
+    from affordance_registration.core.transforms import axis_angle_matrix
+    four = Symmetry(axis=(0.0, 0.0, 1.0), order=4)
+    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.pi / 2)) == pytest.approx(0, abs=1e-7)
+    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.radians(50))) == \
+        pytest.approx(math.radians(40), abs=1e-7)
+    cont = Symmetry(axis=(0.0, 0.0, 1.0), continuous=True)
+    assert cont.residual_angle(axis_angle_matrix([0, 0, 1], 1.234)) == pytest.approx(0, abs=1e-7)
+    tilt = axis_angle_matrix([1, 0, 0], 0.2) @ axis_angle_matrix([0, 0, 1], 2.0)
+    assert cont.residual_angle(tilt) == pytest.approx(0.2, abs=1e-7)
+
+
+def test_resting_rotations_put_a_facet_down(library):
+    for tpl in library.values():
+        poses = tpl.resting_rotations()
+        assert poses and sum(w for _, w in poses) == pytest.approx(1.0)
+        for R, _ in poses:
+            v = tpl.mesh.vertices @ R.T
+            low = v[:, 2] < v[:, 2].min() + 1e-4
+            com = np.asarray(tpl.mesh.center_mass) @ R.T
+            # the centre of mass is above the support polygon (its bounding box here)
+            sup = v[low, :2]
+            assert sup[:, 0].min() - 1e-4 <= com[0] <= sup[:, 0].max() + 1e-4
+            assert sup[:, 1].min() - 1e-4 <= com[1] <= sup[:, 1].max() + 1e-4
+
+
+# ----------------------------------------------------------------------------- bad files
+def _write(tmp_path, doc, name="t.yaml", mesh=True):
+    if mesh:
+        trimesh.creation.box(extents=[0.1, 0.1, 0.05]).export(tmp_path / "box.stl")
+    path = tmp_path / name
+    path.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc))
+    return str(path)
+
+
+@pytest.mark.parametrize("doc,key", [
+    ({"mesh": "box.stl"}, "name"),
+    ({"name": "x"}, "mesh"),
+    ({"name": "x", "mesh": "missing.stl"}, "mesh"),
+    ({"name": "x", "mesh": "box.stl", "mesh_scale": -1}, "mesh_scale"),
+    ({"name": "x", "mesh": "box.stl", "mesh_scale": "big"}, "mesh_scale"),
+    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "kind": "helical"}}, "symmetry"),
+    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "order": 0}}, "symmetry.order"),
+    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 0], "order": 2}}, "symmetry.axis"),
+    ({"name": "x", "mesh": "box.stl", "colour": "red"}, "colour"),
+    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
+      "lower": 1.0, "upper": 0.0, "moving_mesh": "box.stl"}]}, "joints[0].lower/upper"),
+    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
+      "lower": 0.0, "upper": 1.0}]}, "joints[0].moving_mesh"),
+    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "screw", "axis": [0, 0, 1],
+      "lower": 0.0, "upper": 1.0, "moving_mesh": "box.stl"}]}, "joints[0].type"),
+    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
+      "lower": 0.0, "upper": 1.0, "moving_mesh": "box.stl"}], "states": {"open": {"k": 0}}},
+     "states.open.k"),
+])
+def test_bad_template_files_name_the_file_and_key(tmp_path, doc, key):
+    path = _write(tmp_path, doc)
+    with pytest.raises(TemplateError) as err:
+        load_template(path)
+    msg = str(err.value)
+    assert path in msg and f"key '{key}'" in msg
+
+
+def test_a_mesh_that_does_not_load(tmp_path):
+    (tmp_path / "broken.stl").write_bytes(b"solid x\nfacet normal 0 0 1\n outer loop\n vertex 1 nan")
+    path = _write(tmp_path, {"name": "x", "mesh": "broken.stl"}, mesh=False)
+    with pytest.raises(TemplateError, match=r"key 'mesh'"):
+        load_template(path)
+
+
+def test_yaml_that_does_not_parse(tmp_path):
+    path = _write(tmp_path, "name: [unclosed\n")
+    with pytest.raises(TemplateError, match="not valid YAML"):
+        load_template(path)
+
+
+def test_duplicate_names_and_empty_directory(tmp_path):
+    _write(tmp_path, {"name": "same", "mesh": "box.stl"}, name="a.yaml")
+    _write(tmp_path, {"name": "same", "mesh": "box.stl"}, name="b.yaml")
+    with pytest.raises(TemplateError, match="duplicate template name 'same'"):
+        TemplateLibrary.load(str(tmp_path))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(TemplateError, match="no template files"):
+        TemplateLibrary.load(str(empty))
+
+
+def test_point_cloud_template(tmp_path, library):
+    """A scan of an object (PLY without faces) is a template: its points are the samples."""
+    from affordance_registration.core.simulation import ply_bytes
+    pts = library["emergency_stop"].samples(3000, seed=9)[0]
+    (tmp_path / "scan.ply").write_bytes(ply_bytes(pts))
+    path = _write(tmp_path, {"name": "scanned_stop", "mesh": "scan.ply"}, mesh=False)
+    tpl = load_template(path)
+    assert tpl.is_point_template
+    s, n = tpl.samples(400)
+    assert cKDTree(pts).query(s)[0].max() < 1e-6      # float32 round trip
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert tpl.diameter == pytest.approx(library["emergency_stop"].diameter, rel=0.05)
+
+
+def test_scale_converts_mesh_units(tmp_path):
+    trimesh.creation.box(extents=[100, 100, 50]).export(tmp_path / "mm.stl")
+    path = _write(tmp_path, {"name": "mm", "mesh": "mm.stl", "mesh_scale": 0.001}, mesh=False)
+    assert load_template(path).diameter == pytest.approx(math.sqrt(0.1**2 * 2 + 0.05**2))
+
+
+def test_generator_reproduces_the_committed_library(tmp_path, library):
+    from affordance_registration.core.taskboard import write_library
+    write_library(str(tmp_path))
+    fresh = TemplateLibrary.load(str(tmp_path))
+    assert set(fresh) == set(library)
+    for name in library:
+        assert fresh[name].diameter == pytest.approx(library[name].diameter, abs=1e-6)
+        assert abs(fresh[name].mesh.volume - library[name].mesh.volume) < 1e-9
+    src = os.path.join(os.path.dirname(library["ball_valve"].path), "ball_valve.yaml")
+    assert yaml.safe_load(open(src)) == yaml.safe_load(open(tmp_path / "ball_valve.yaml"))
+    shutil.rmtree(tmp_path)
