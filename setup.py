@@ -65,6 +65,7 @@ setup(
     entry_points={
         "console_scripts": [
             "affordance-registration = affordance_registration.cli:main",
+            "affordance_engine = affordance_registration.ros.engine_node:main",
         ],
     },
 )

@@ -165,6 +165,22 @@ def cmd_demo(args) -> int:
     return 0 if all(r["ok"] for r in rows) else 1
 
 
+# ---------------------------------------------------------------------------- launch
+def cmd_launch(args) -> int:
+    from .ros.launcher import LaunchError, package_share, run_launch_file
+    arguments = {}
+    for item in args.arguments:
+        if ":=" not in item:
+            raise LaunchError(f"launch arguments are NAME:=VALUE, got {item!r}")
+        name, value = item.split(":=", 1)
+        arguments[name] = value
+    profile = args.fastdds_profile
+    if args.shm and not profile:
+        profile = os.path.join(package_share("affordance_registration"), "launch_configs",
+                               "fastdds_shm.xml")
+    return run_launch_file(args.file, arguments, profile)
+
+
 # ---------------------------------------------------------------------------- models
 def cmd_generate_models(args) -> int:
     from .core.taskboard import write_library
@@ -209,6 +225,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--templates", default=None)
     p.add_argument("--out", default="demo_output")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
+    p.add_argument("file", help="a *.launch.yaml file")
+    p.add_argument("arguments", nargs="*", help="launch arguments NAME:=VALUE")
+    p.add_argument("--shm", action="store_true",
+                   help="use the package's Fast DDS profile (shared memory, localhost)")
+    p.add_argument("--fastdds-profile", default=None, help="a Fast DDS XML profile to use")
+    p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
     p.add_argument("--out", default="models")

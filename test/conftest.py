@@ -21,3 +21,13 @@ def library():
 def panel_scene(library):
     from affordance_registration.core.simulation import simulate_taskboard
     return simulate_taskboard(library, 7)
+
+
+@pytest.fixture(scope="session")
+def ros_context():
+    """rclpy in the test process (one context for the session)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    yield
+    rclpy.shutdown()

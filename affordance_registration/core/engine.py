@@ -173,6 +173,20 @@ class AffordanceEngine:
         self._last_action = ""
         self._last_timing: dict = {}
 
+    def configure(self, settings: FitSettings | None = None,
+                  library: TemplateLibrary | None = None) -> None:
+        """Use new fitting settings and/or a new template library from the next fit on.
+        Registrations are kept; a new library is refused while objects of interest are open
+        (their candidates refer to the old templates)."""
+        library = library or self.library
+        registrar = Registrar(library, settings or self.registrar.settings)
+        registrar.warm_up()
+        with self._lock:
+            if library is not self.library and self._state.objects:
+                raise EngineStateError("accept or discard the open objects before changing the "
+                                       "template library")
+            self.registrar, self.library = registrar, library
+
     # ------------------------------------------------------------------ state access
     @property
     def state(self) -> EngineState:

@@ -1,0 +1,70 @@
+"""Frame lookups for clicks and view poses: tf2 when the node runs in a ROS install that has it,
+else static transforms given as parameters.
+
+A static transform parameter entry is a string ``"parent child x y z qx qy qz qw"`` (metres,
+unit quaternion): the pose of ``child`` in ``parent``, as ``ros2 run tf2_ros
+static_transform_publisher`` takes it. Chains are followed in either direction.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..core.errors import AffordanceError
+from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
+
+__all__ = ["StaticFrames", "parse_static_transform", "FrameError"]
+
+
+class FrameError(AffordanceError):
+    """No transform is known between two frames."""
+
+
+def parse_static_transform(text: str) -> tuple[str, str, np.ndarray]:
+    parts = str(text).split()
+    if len(parts) != 9:
+        raise AffordanceError(f"static transform {text!r}: expected 'parent child x y z qx qy qz qw'")
+    try:
+        values = np.array([float(v) for v in parts[2:]])
+    except ValueError:
+        raise AffordanceError(f"static transform {text!r}: x y z qx qy qz qw must be numbers") \
+            from None
+    if not np.all(np.isfinite(values)):
+        raise AffordanceError(f"static transform {text!r}: values must be finite")
+    q = values[3:]
+    if abs(np.linalg.norm(q) - 1.0) > 0.01:
+        raise AffordanceError(f"static transform {text!r}: the quaternion is not unit length")
+    return parts[0].lstrip("/"), parts[1].lstrip("/"), make_T(quat_xyzw_to_matrix(q), values[:3])
+
+
+class StaticFrames:
+    """A graph of static transforms; ``lookup(target, source)`` gives T_target_source."""
+
+    def __init__(self, entries=()):
+        self._edges: dict[str, list[tuple[str, np.ndarray]]] = {}
+        for entry in entries:
+            if not str(entry).strip():      # [""] is how an empty string list is often written
+                continue
+            parent, child, T = parse_static_transform(entry)
+            self._edges.setdefault(parent, []).append((child, T))          # T_parent_child
+            self._edges.setdefault(child, []).append((parent, invert(T)))  # T_child_parent
+
+    def lookup(self, target: str, source: str) -> np.ndarray:
+        target, source = target.lstrip("/"), source.lstrip("/")
+        if target == source:
+            return np.eye(4)
+        # breadth-first from the target: T_target_node accumulates along the path
+        seen = {target: np.eye(4)}
+        queue = deque([target])
+        while queue:
+            node = queue.popleft()
+            for nxt, T_node_next in self._edges.get(node, []):
+                if nxt in seen:
+                    continue
+                seen[nxt] = seen[node] @ T_node_next
+                if nxt == source:
+                    return seen[nxt]
+                queue.append(nxt)
+        raise FrameError(f"no transform from frame '{source}' to frame '{target}' "
+                         f"(give it as a static_transforms parameter or run tf2)")

@@ -1,0 +1,268 @@
+"""Runs a ROS 2 YAML launch file (the format ``ros2 launch`` reads) without the ros2 CLI.
+
+Supported (what the package's own launch files and typical operator stations use)::
+
+    launch:
+    - arg: {name: points, default: /camera/depth/points}
+    - node:
+        pkg: affordance_registration
+        exec: affordance_engine
+        name: affordance_engine
+        namespace: ""
+        output: screen
+        args: "--some --extra"
+        param:
+        - {from: $(find-pkg-share affordance_registration)/launch_configs/affordance_engine.params.yaml}
+        - {name: refit_idle_s, value: 0.5}
+        remap:
+        - {from: points, to: $(var points)}
+
+Substitutions: ``$(var NAME)``, ``$(env NAME [DEFAULT])``, ``$(find-pkg-share PKG)``. Launch
+arguments are given as ``NAME:=VALUE`` on the command line. Executables are found on PATH (a venv's
+console scripts) or under ``lib/PKG`` of an ament prefix. Ctrl-C (SIGINT) or SIGTERM stops every
+node: SIGINT first, SIGTERM after ``grace`` seconds, SIGKILL after twice that.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import yaml
+
+from ..core.errors import AffordanceError
+
+__all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
+
+PACKAGE = "affordance_registration"
+
+
+class LaunchError(AffordanceError):
+    """The launch file cannot be read or run (the message names the file and entry)."""
+
+
+@dataclass
+class NodeAction:
+    pkg: str
+    executable: str
+    name: str | None = None
+    namespace: str | None = None
+    params: list = field(default_factory=list)        # ("file", path) | ("value", name, value)
+    remaps: list = field(default_factory=list)        # (from, to)
+    args: list = field(default_factory=list)
+    output: str = "screen"
+
+    def command(self) -> list[str]:
+        cmd = [find_executable(self.pkg, self.executable)] + list(self.args) + ["--ros-args"]
+        if self.name:
+            cmd += ["-r", f"__node:={self.name}"]
+        if self.namespace:
+            cmd += ["-r", f"__ns:=/{self.namespace.strip('/')}"]
+        for p in self.params:
+            if p[0] == "file":
+                cmd += ["--params-file", p[1]]
+            else:
+                cmd += ["-p", f"{p[1]}:={_param_text(p[2])}"]
+        for src, dst in self.remaps:
+            cmd += ["-r", f"{src}:={dst}"]
+        return cmd
+
+
+def _param_text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, dict)):
+        return yaml.safe_dump(value, default_flow_style=True).strip()
+    return str(value)
+
+
+def package_share(pkg: str) -> str:
+    """The share directory of a package: ament index, else (this package) its source tree or
+    ``<prefix>/share/<pkg>``."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return get_package_share_directory(pkg)
+    except Exception:
+        pass
+    if pkg == PACKAGE:
+        here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        if os.path.isfile(os.path.join(here, "package.xml")):
+            return here
+        share = os.path.join(sys.prefix, "share", PACKAGE)
+        if os.path.isdir(share):
+            return share
+    raise LaunchError(f"package '{pkg}' not found (no ament index entry)")
+
+
+def find_executable(pkg: str, executable: str) -> str:
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        candidate = os.path.join(prefix, "lib", pkg, executable)
+        if prefix and os.access(candidate, os.X_OK):
+            return candidate
+    venv_bin = os.path.dirname(sys.executable)
+    for folder in (venv_bin, None):
+        found = shutil.which(executable, path=folder) if folder else shutil.which(executable)
+        if found:
+            return found
+    raise LaunchError(f"executable '{executable}' of package '{pkg}' not found on PATH or "
+                      f"under lib/{pkg} of AMENT_PREFIX_PATH")
+
+
+_SUBST = re.compile(r"\$\((\w[\w-]*)((?:\s+[^)\s]+)*)\s*\)")
+
+
+def substitute(text, variables: dict, where: str):
+    if not isinstance(text, str):
+        return text
+
+    def repl(m):
+        kind, args = m.group(1), m.group(2).split()
+        if kind == "var":
+            if not args or args[0] not in variables:
+                raise LaunchError(f"{where}: unknown launch argument '{args[0] if args else ''}'")
+            return str(variables[args[0]])
+        if kind == "env":
+            if not args:
+                raise LaunchError(f"{where}: $(env) needs a variable name")
+            if args[0] in os.environ:
+                return os.environ[args[0]]
+            if len(args) > 1:
+                return " ".join(args[1:])
+            raise LaunchError(f"{where}: environment variable '{args[0]}' is not set")
+        if kind == "find-pkg-share":
+            return package_share(args[0])
+        raise LaunchError(f"{where}: unsupported substitution $({kind})")
+    out, prev = text, None
+    while out != prev:           # nested substitutions resolve inside out
+        prev, out = out, _SUBST.sub(repl, out)
+    return out
+
+
+def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeAction]:
+    """Parse a YAML launch file into node actions (arguments resolved)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            doc = yaml.safe_load(handle)
+    except OSError as exc:
+        raise LaunchError(f"{path}: cannot read: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise LaunchError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("launch"), list):
+        raise LaunchError(f"{path}: expected a top-level 'launch:' list")
+    given = dict(arguments or {})
+    variables: dict = {}
+    nodes = []
+    for i, entry in enumerate(doc["launch"]):
+        where = f"{path}: launch[{i}]"
+        if not isinstance(entry, dict) or len(entry) != 1:
+            raise LaunchError(f"{where}: each entry is one action (arg or node)")
+        (kind, body), = entry.items()
+        if kind == "arg":
+            name = body.get("name")
+            if not name:
+                raise LaunchError(f"{where}: arg needs a name")
+            if name in given:
+                variables[name] = given.pop(name)
+            elif "default" in body:
+                variables[name] = substitute(str(body["default"]), variables, where)
+            else:
+                raise LaunchError(f"{where}: launch argument '{name}' has no default; "
+                                  f"give it as {name}:=VALUE")
+        elif kind == "node":
+            if not isinstance(body, dict) or "pkg" not in body or "exec" not in body:
+                raise LaunchError(f"{where}: node needs 'pkg' and 'exec'")
+            sub = (lambda v: substitute(v, variables, where))
+            node = NodeAction(pkg=sub(body["pkg"]), executable=sub(body["exec"]),
+                              name=sub(body.get("name")), namespace=sub(body.get("namespace")),
+                              output=body.get("output", "screen"))
+            for p in body.get("param") or []:
+                if "from" in p:
+                    file_path = sub(p["from"])
+                    if not os.path.isfile(file_path):
+                        raise LaunchError(f"{where}: parameter file not found: {file_path}")
+                    node.params.append(("file", file_path))
+                elif "name" in p and "value" in p:
+                    node.params.append(("value", p["name"], sub(p["value"])))
+                else:
+                    raise LaunchError(f"{where}: a param needs 'from' or 'name' and 'value'")
+            for r in body.get("remap") or []:
+                if "from" not in r or "to" not in r:
+                    raise LaunchError(f"{where}: a remap needs 'from' and 'to'")
+                node.remaps.append((sub(r["from"]), sub(r["to"])))
+            args = body.get("args")
+            if args:
+                node.args = sub(str(args)).split()
+            nodes.append(node)
+        else:
+            raise LaunchError(f"{where}: unsupported action '{kind}' (arg and node are supported)")
+    if given:
+        raise LaunchError(f"{path}: unknown launch argument(s): {', '.join(given)}")
+    return nodes
+
+
+class Launcher:
+    """Starts the nodes of a launch file and stops them together."""
+
+    def __init__(self, nodes: list[NodeAction], env: dict | None = None, grace: float = 2.0,
+                 log=None):
+        self.nodes = nodes
+        self.env = dict(os.environ if env is None else env)
+        self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+        self.grace = grace
+        self.procs: list[subprocess.Popen] = []
+        self.log = log or (lambda msg: sys.stderr.write(msg + "\n"))
+
+    def start(self) -> None:
+        for node in self.nodes:
+            cmd = node.command()
+            self.log(f"[launch] starting {node.name or node.executable}: {' '.join(cmd)}")
+            out = None if node.output == "screen" else subprocess.DEVNULL
+            self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out, stderr=out))
+
+    def wait(self, stop_requested) -> int:
+        """Run until every node exits or ``stop_requested()`` is true; returns an exit code."""
+        while not stop_requested():
+            if all(p.poll() is not None for p in self.procs):
+                break
+            time.sleep(0.1)
+        return self.stop()
+
+    def stop(self) -> int:
+        for sig, wait in ((signal.SIGINT, self.grace), (signal.SIGTERM, self.grace),
+                          (signal.SIGKILL, self.grace)):
+            alive = [p for p in self.procs if p.poll() is None]
+            if not alive:
+                break
+            for p in alive:
+                p.send_signal(sig)
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline and any(p.poll() is None for p in alive):
+                time.sleep(0.05)
+        codes = [p.wait() for p in self.procs]
+        return 0 if all(c in (0, -signal.SIGINT, 130) for c in codes) else 1
+
+
+def run_launch_file(path: str, arguments: dict, fastdds_profile: str | None = None) -> int:
+    """``affordance-registration launch``: start, wait for Ctrl-C / SIGTERM, stop."""
+    nodes = parse_launch_file(path, arguments)
+    env = dict(os.environ)
+    if fastdds_profile:
+        if not os.path.isfile(fastdds_profile):
+            raise LaunchError(f"Fast DDS profile not found: {fastdds_profile}")
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = os.path.abspath(fastdds_profile)
+        env["FASTDDS_DEFAULT_PROFILES_FILE"] = os.path.abspath(fastdds_profile)
+        env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    launcher = Launcher(nodes, env)
+    stop = {"flag": False}
+
+    def on_signal(signum, frame):
+        stop["flag"] = True
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    launcher.start()
+    return launcher.wait(lambda: stop["flag"])

@@ -1,0 +1,146 @@
+"""Helpers for the ROS tests: start nodes as separate processes, and a client node that spins in
+a background thread of the test process."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def ros_env(extra=None) -> dict:
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    env.update(extra or {})
+    return env
+
+
+class NodeProcess:
+    """A node started as its own process; output goes to a log file; killed by PID on exit."""
+
+    def __init__(self, argv, log_path, env=None):
+        self.log_path = str(log_path)
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
+                                     env=ros_env(env), start_new_session=True)
+
+    def output(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        with open(self.log_path) as handle:
+            return handle.read()
+
+    def wait_output(self, text: str, timeout: float = 20.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.output():
+                return True
+            if self.proc.poll() is not None:
+                return text in self.output()
+            time.sleep(0.05)
+        return False
+
+    def interrupt(self, timeout: float = 5.0) -> tuple[int | None, float]:
+        """SIGINT, then wait; returns (exit code or None, seconds taken)."""
+        t0 = time.monotonic()
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            code = None
+        return code, time.monotonic() - t0
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.proc.wait(timeout=5)
+        self._log.close()
+
+
+def engine_process(tmp_path, params: dict | None = None, name="engine") -> NodeProcess:
+    args = [sys.executable, "-m", "affordance_registration.ros.engine_node", "--ros-args",
+            "-p", f"registrations_file:={tmp_path / 'registrations.yaml'}"]
+    for key, value in (params or {}).items():
+        args += ["-p", f"{key}:={value}"]
+    return NodeProcess(args, tmp_path / f"{name}.log")
+
+
+class Client:
+    """A node in the test process, spun by a background thread."""
+
+    def __init__(self, name: str):
+        self.node = rclpy.create_node(name)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+        self.latest: dict = {}
+        self.history: dict = {}
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def subscribe(self, msg_type, topic, qos=10, keep=False):
+        def cb(msg):
+            self.latest[topic] = msg
+            if keep:
+                self.history.setdefault(topic, []).append(msg)
+        self.node.create_subscription(msg_type, topic, cb, qos)
+
+    def status(self, topic="/affordance_engine/status") -> dict | None:
+        msg = self.latest.get(topic)
+        return None if msg is None else json.loads(msg.data)
+
+    def wait_for(self, predicate, timeout=20.0, what="condition"):
+        deadline = time.monotonic() + timeout
+        last_exc = None
+        while time.monotonic() < deadline:
+            try:
+                value = predicate()
+                if value:
+                    return value
+            except (KeyError, IndexError, TypeError) as exc:
+                last_exc = exc
+            time.sleep(0.02)
+        raise AssertionError(f"timed out waiting for {what}" + (f" ({last_exc!r})" if last_exc else ""))
+
+    def call(self, srv_type, name, request=None, timeout=10.0):
+        client = self.node.create_client(srv_type, name)
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise AssertionError(f"service {name} not available")
+        future = client.call_async(request or srv_type.Request())
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        self.node.destroy_client(client)
+        if not future.done():
+            raise AssertionError(f"service {name} did not answer within {timeout} s")
+        return future.result()
+
+    def wait_for_subscribers(self, publisher, count=1, timeout=20.0):
+        self.wait_for(lambda: publisher.get_subscription_count() >= count, timeout,
+                      f"a subscriber on {publisher.topic_name}")
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()

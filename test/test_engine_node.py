@@ -1,0 +1,251 @@
+"""The affordance_engine node end to end: a real node in its own process, a client node here,
+real topics and services (own ROS_DOMAIN_ID, discovery on localhost only)."""
+import math
+import time
+
+import numpy as np
+import pytest
+import yaml
+from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from sensor_msgs.msg import Joy, PointCloud2, PointField
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2
+from ros_helpers import LATCHED, Client, engine_process
+
+FRAME = "camera_depth_optical_frame"
+NS = "/affordance_engine"
+TOL_M, TOL_RAD = 0.005, math.radians(5)
+
+
+@pytest.fixture(scope="module")
+def session(ros_context, tmp_path_factory, library):
+    tmp = tmp_path_factory.mktemp("engine_node")
+    proc = engine_process(tmp, {"static_transforms": f"['{FRAME} rviz_frame 0.1 0 0 0 0 0 1']",
+                                "refit_idle_s": 0.4})
+    client = Client("engine_node_tester")
+    client.subscribe(String, f"{NS}/status", LATCHED)
+    client.subscribe(PoseStamped, f"{NS}/fit", keep=True)
+    client.subscribe(PoseArray, f"{NS}/registered", LATCHED)
+    pubs = {
+        "points": client.node.create_publisher(PointCloud2, "/points", 1),
+        "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
+        "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
+        "joy": client.node.create_publisher(Joy, "/spacenav/joy", 10),
+    }
+    sim = simulate_taskboard(library, 7)
+    try:
+        for pub in pubs.values():
+            client.wait_for_subscribers(pub, timeout=30)
+        yield {"proc": proc, "client": client, "pubs": pubs, "sim": sim, "tmp": tmp}
+    finally:
+        client.close()
+        code, took = proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])
+
+
+def status(s):
+    return s["client"].status(f"{NS}/status")
+
+
+def wait_error(s, text, timeout=15):
+    return s["client"].wait_for(lambda: text in (status(s) or {}).get("node", {}).get("last_error", ""),
+                                timeout, f"error containing {text!r}")
+
+
+def click(s, point, frame=FRAME):
+    msg = PointStamped()
+    msg.header.frame_id = frame
+    msg.point.x, msg.point.y, msg.point.z = map(float, point)
+    s["pubs"]["click"].publish(msg)
+
+
+def trigger(s, name):
+    return s["client"].call(Trigger, f"{NS}/{name}")
+
+
+def settled_fit(s, shown_index):
+    """The ~/fit pose once status and ~/fit show candidate ``shown_index`` of the active object
+    (both are published together, rate-limited)."""
+    def match():
+        st = status(s)
+        active = [o for o in st["objects"] if o["active"]][0]
+        if active["shown"] != shown_index:
+            return False
+        shown = np.asarray(active["candidates"][active["shown"]]["pose"])
+        fit = pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose)
+        return np.allclose(fit, shown, atol=1e-6) and fit
+    s["client"].wait_for(lambda: match() is not False, what="~/fit to match the status")
+    return pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose)
+
+
+def cloud_msg(points, frame=FRAME):
+    return xyz_to_pointcloud2(points, frame)
+
+
+def test_services_and_clicks_before_anything_say_why(session):
+    s = session
+    for name in ("next_model", "previous_model", "refit", "accept", "undo", "discard"):
+        res = trigger(s, name)
+        assert not res.success and res.message, name
+    assert "no object selected" in trigger(s, "accept").message
+    click(s, [0.0, 0.0, 1.0])
+    wait_error(s, "no point cloud received yet")
+
+
+def test_malformed_clouds_are_dropped_with_a_reason(session):
+    s = session
+    bad = cloud_msg(np.zeros((10, 3)))
+    bad.data = bytes(len(bad.data) - 4)
+    s["pubs"]["points"].publish(bad)
+    wait_error(s, "disagrees with its header")
+    no_xyz = cloud_msg(np.zeros((10, 3)))
+    no_xyz.fields = [PointField(name="intensity", offset=0, datatype=PointField.FLOAT32, count=1)]
+    s["pubs"]["points"].publish(no_xyz)
+    wait_error(s, "without x/y/z")
+    s["pubs"]["points"].publish(cloud_msg(np.full((20, 30, 3), np.nan)))
+    s["client"].wait_for(lambda: status(s)["node"]["cloud"] is not None, what="the NaN cloud")
+    click(s, [0.0, 0.0, 1.0])
+    wait_error(s, "no finite points")
+
+
+def test_clicks_rank_the_right_template_first(session, library):
+    s = session
+    sim = s["sim"]
+    s["pubs"]["points"].publish(cloud_msg(sim.organized))
+    s["client"].wait_for(lambda: status(s)["node"]["cloud"]["width"] == 640, what="the cloud")
+    time.sleep(0.3)
+    for k, obj in enumerate(sim.objects[:3], start=1):
+        click(s, obj.click)
+        st = s["client"].wait_for(lambda: len(status(s)["objects"]) == k and status(s), 30,
+                                  "a fitted object")
+        ranked = st["objects"][-1]["candidates"]
+        assert ranked[0]["template"] == obj.template
+        fit = s["client"].wait_for(lambda: s["client"].latest[f"{NS}/fit"], what="~/fit")
+        s["client"].wait_for(lambda: pose_error(pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose),
+                                                obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
+                             what="~/fit at the fitted pose")
+        fit = s["client"].latest[f"{NS}/fit"]
+        assert fit.header.frame_id == FRAME
+        dt, dr = pose_error(pose_to_matrix(fit.pose), obj.T_scene_model,
+                            library[obj.template].symmetry)
+        assert dt < TOL_M and dr < TOL_RAD
+
+
+def test_cycling_models(session):
+    s = session
+    res = trigger(s, "next_model")
+    assert res.success and "rank 2/5" in res.message
+    res = trigger(s, "previous_model")
+    assert res.success and "rank 1/5" in res.message
+    # Joy button 0 (default mapping) is next model, on the press edge only
+    joy = Joy()
+    joy.buttons = [1, 0]
+    s["pubs"]["joy"].publish(joy)
+    s["client"].wait_for(lambda: [o for o in status(s)["objects"] if o["active"]][0]["shown"] == 1,
+                         what="the joy press")
+    joy.buttons = [0, 0]
+    s["pubs"]["joy"].publish(joy)
+    assert trigger(s, "previous_model").success
+
+
+def test_twist_burst_moves_in_the_view_frame_then_refits(session, library):
+    s = session
+    obj = s["sim"].objects[2]
+    client = s["client"]
+    before = settled_fit(s, shown_index=0)
+    client.history[f"{NS}/fit"] = []
+    twist = Twist()
+    twist.linear.x = 0.5                    # 5 cm/s to the right of the screen (default gain)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.3:      # a 0.3 s push: about 1.5 cm
+        s["pubs"]["twist"].publish(twist)
+        time.sleep(1 / 30)
+    s["pubs"]["twist"].publish(Twist())     # released
+    client.wait_for(lambda: max(
+        (pose_to_matrix(m.pose)[0, 3] - before[0, 3] for m in client.history[f"{NS}/fit"]),
+        default=0) > 0.008, what="the fit to move right")
+    displaced = max(client.history[f"{NS}/fit"],
+                    key=lambda m: pose_to_matrix(m.pose)[0, 3])
+    d = pose_to_matrix(displaced.pose)[:3, 3] - before[:3, 3]
+    # along the view's right (the optical +x of the default view), not up or towards the viewer
+    assert 0.008 < d[0] < 0.03 and abs(d[1]) < 0.15 * d[0] and abs(d[2]) < 0.15 * d[0], d
+    # twists stopped: the node refits after refit_idle_s and lands back on the object
+    client.wait_for(lambda: pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose),
+                                       obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
+                    timeout=15, what="the refit to land on the object")
+    dt, dr = pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose), obj.T_scene_model,
+                        library[obj.template].symmetry)
+    assert dt < TOL_M and dr < TOL_RAD
+
+
+def test_nan_twist_is_ignored(session):
+    s = session
+    bad = Twist()
+    bad.linear.x = float("nan")
+    s["pubs"]["twist"].publish(bad)
+    wait_error(s, "NaN")
+    assert trigger(s, "next_model").success and trigger(s, "previous_model").success
+
+
+def test_accept_registers_and_save_writes_a_file(session):
+    s = session
+    res = trigger(s, "accept")
+    assert res.success and "accepted" in res.message
+    s["client"].wait_for(lambda: len(s["client"].latest[f"{NS}/registered"].poses) == 1,
+                         what="~/registered")
+    res = trigger(s, "save")
+    assert res.success
+    doc = yaml.safe_load((s["tmp"] / "registrations.yaml").read_text())
+    assert len(doc["registrations"]) == 1
+    assert doc["registrations"][0]["template"] == s["sim"].objects[2].template
+    from affordance_registration.core.engine import load_registrations
+    assert len(load_registrations(str(s["tmp"] / "registrations.yaml"))) == 1
+
+
+def test_click_frames(session):
+    s = session
+    obj = s["sim"].objects[3]
+    click(s, obj.click, frame="nowhere_frame")
+    wait_error(s, "'nowhere_frame'")
+    assert FRAME in status(s)["node"]["last_error"]
+    # rviz_frame is 0.1 m along x of the cloud frame (static_transforms parameter)
+    n = len(status(s)["objects"])
+    click(s, np.asarray(obj.click) - [0.1, 0.0, 0.0], frame="rviz_frame")
+    st = s["client"].wait_for(lambda: len(status(s)["objects"]) == n + 1 and status(s), 30,
+                              "the fit of a click in rviz_frame")
+    assert st["objects"][-1]["candidates"][0]["template"] == obj.template
+
+
+def test_parameters_are_validated(session):
+    s = session
+
+    def set_param(name, value):
+        p = Parameter(name=name, value=value)
+        req = SetParameters.Request(parameters=[p])
+        return s["client"].call(SetParameters, f"{NS}/set_parameters", req).results[0]
+
+    bad = set_param("refit_idle_s", ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                   double_value=-1.0))
+    assert not bad.successful and "refit_idle_s" in bad.reason
+    bad = set_param("fit_mode", ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                               string_value="sideways"))
+    assert not bad.successful and "fit_mode" in bad.reason
+    bad = set_param("templates_dir", ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                    string_value="/nonexistent"))
+    assert not bad.successful
+    good = set_param("linear_gain", ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                   double_value=0.2))
+    assert good.successful
+    assert trigger(s, "next_model").success          # still serving
+
+
+def test_sigint_stops_the_node_quickly(session):
+    code, took = session["proc"].interrupt(timeout=5)
+    assert code == 0 and took < 2.0, (code, took)
