@@ -33,7 +33,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     ctx = registrar.prepare(scene, click)
     names = list(registrar.library)
     tpls = [registrar.library[n] for n in names]
-    hyp_tpl, Rs, ts = registrar._initial_hypotheses(ctx, tpls, np.random.default_rng(0))
+    hyp_tpl, Rs, ts, _ = registrar._initial_hypotheses(ctx, tpls, np.random.default_rng(0))
     if engine == "open3d":
         import open3d as o3d
         target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ctx.cluster.copy()))

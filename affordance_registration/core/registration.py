@@ -20,8 +20,13 @@ one-sided scans (see DESIGN.md):
   SVD), coarse to fine: 64 samples for every restart -> the best 2 per template at 256 -> rank ->
   the winner at 1500;
 * initial orientations come from the mounting plane under the click (template +z along its
-  normal, a yaw sweep) mixed with uniform random ones, so objects that are not panel-mounted are
-  found too.
+  normal, a yaw sweep), from the template's stable resting facets on that plane (objects lying
+  on a table) and from uniform random ones; the best mounted hypothesis always reaches the
+  medium stage;
+* the operator clicked *on* the object: candidates are centred on the cluster points near the
+  click and pay for a surface that misses the click by more than ``click_tolerance``;
+* directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
+  either way: samples there neither pull nor count.
 """
 from __future__ import annotations
 
@@ -41,6 +46,9 @@ __all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "correspondence
            "weighted_rigid_fit"]
 
 
+MOUNTED, RESTING, RANDOM = 0, 1, 2     # families of initial hypotheses
+
+
 @dataclass(frozen=True)
 class FitSettings:
     """Fitting parameters (lengths in metres, angles in radians)."""
@@ -50,6 +58,7 @@ class FitSettings:
     voxel: float = 0.005               #: voxel edge of the crop
     crop_factor: float = 1.0           #: crop radius = crop_factor * largest template diameter
     snap_distance: float = 0.03        #: a click farther than this from the scan is refused
+    click_tolerance: float = 0.015     #: a candidate's surface should pass this close to the click
     weight_scale: float = 0.005        #: d0 in w = 1 / (1 + d / d0)
     score_cap: float = 0.01            #: per-point distance cap of the residual
     reject_floor: float = 0.015        #: ICP rejection radius shrinks to this within a stage
@@ -63,7 +72,7 @@ class FitSettings:
     resting_yaws: int = 6              #: yaw steps per resting facet
     coarse_samples: int = 64
     coarse_iterations: int = 8
-    keep_per_template: int = 2
+    keep_per_template: int = 3
     medium_samples: int = 256
     medium_iterations: int = 10
     fine_samples: int = 1500
@@ -89,7 +98,7 @@ class FitSettings:
             raise RegistrationError(f"fine_metric must be 'plane' or 'point', got {self.fine_metric!r}")
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
-        for name in ("voxel", "crop_factor", "snap_distance", "weight_scale", "score_cap",
+        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -312,19 +321,23 @@ class Registrar:
         rng = np.random.default_rng(s.seed)
         tpls = [self.library[n] for n in names]
         # 1. initial hypotheses for every template: plane prior (yaw sweep) + uniform random
-        hyp_tpl, hyp_R, hyp_t = self._initial_hypotheses(ctx, tpls, rng)
+        hyp_tpl, hyp_R, hyp_t, family = self._initial_hypotheses(ctx, tpls, rng)
         # 2. coarse ICP, all restarts of all templates together
         reject = np.array([0.5 * tpls[i].diameter for i in hyp_tpl])
         tlist = [tpls[i] for i in hyp_tpl]
         R, t = self._icp(tlist, hyp_R, hyp_t, ctx, s.coarse_samples, s.coarse_iterations, reject,
                          target="cluster", occlusion=True)
         fwd, _ = self._forward_score(ctx, tlist, R, t, s.coarse_samples)
+        fwd = fwd + self._click_penalty(ctx, tlist, R, t)
         # 3. keep the best distinct few per template, refine them at medium resolution
         keep = []
         for i, tpl in enumerate(tpls):
             idx = np.flatnonzero(hyp_tpl == i)
             idx = idx[np.argsort(fwd[idx])]
-            chosen = []
+            mounted = idx[family[idx] == MOUNTED]
+            # the best mounting-prior hypothesis always goes on: 64 samples cannot judge a
+            # tipped-over pose against it reliably
+            chosen = [mounted[0]] if len(mounted) and s.keep_per_template > 1 else []
             for j in idx:
                 if all(np.linalg.norm(t[j] - t[k]) > 0.01 or
                        _sym_angle(tpl, R[k].T @ R[j]) > math.radians(10) for k in chosen):
@@ -370,10 +383,10 @@ class Registrar:
         the template diameter (the paper's restarts use up to the diameter)."""
         s = self.settings
         plane = ctx.plane
+        hyp_tpl, Rs, ts, family = [], [], [], []
         centroid = ctx.cluster.mean(axis=0)
-        hyp_tpl, Rs, ts = [], [], []
 
-        def add(i, tpl, R0, offset=None):
+        def add(i, tpl, R0, offset=None, kind=MOUNTED):
             t0 = centroid - R0 @ tpl.centroid
             if offset is not None:
                 t0 = t0 + offset
@@ -383,8 +396,13 @@ class Registrar:
             hyp_tpl.append(i)
             Rs.append(R0)
             ts.append(t0)
+            family.append(kind)
 
         for i, tpl in enumerate(tpls):
+            # the object is under the click: centre on the cluster points within reach of it
+            # (the cluster may have merged with a neighbour)
+            near = np.linalg.norm(ctx.cluster - ctx.click, axis=1) <= 0.5 * tpl.diameter
+            centroid = ctx.cluster[near].mean(axis=0) if near.any() else ctx.click
             if plane is not None:
                 up = align_z_to(plane.normal)
                 if s.mode in ("auto", "mounted"):
@@ -395,7 +413,8 @@ class Registrar:
                         if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
                             continue   # the mounted orientation, already swept
                         for yaw in (np.arange(s.resting_yaws) + rng.uniform()) * 2 * math.pi / s.resting_yaws:
-                            add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest)
+                            add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest,
+                                kind=RESTING)
             n_rand = 0 if s.mode == "mounted" and plane is not None else (
                 s.random_restarts if plane is not None else s.free_restarts)
             if n_rand:
@@ -403,8 +422,8 @@ class Registrar:
                 offsets *= (0.15 * tpl.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
                             / np.linalg.norm(offsets, axis=1, keepdims=True))
                 for R0, off in zip(random_rotations(n_rand, rng), offsets):
-                    add(i, tpl, R0, off)
-        return np.array(hyp_tpl), np.stack(Rs), np.stack(ts)
+                    add(i, tpl, R0, off, kind=RANDOM)
+        return np.array(hyp_tpl), np.stack(Rs), np.stack(ts), np.array(family)
 
     def _yaw_sweep(self, ctx: ClickContext, tpl, R, t):
         """Rotate a pose about its template's z (mounting / symmetry) axis through the centroid
@@ -454,8 +473,9 @@ class Registrar:
         return P, N
 
     def _visible(self, ctx: ClickContext, X, Nw, occlusion: bool):
-        """Samples facing the sensor and (optionally) not hidden behind observed surfaces; also
-        the free-space violations (the sensor saw through where the sample would be)."""
+        """Samples facing the sensor and (with ``occlusion``) seen: their direction has a return
+        that is not in front of them; also the free-space violations (the sensor saw through
+        where the sample would be)."""
         ray = ctx.sensor_origin - X
         cos_in = np.einsum("bsi,bsi->bs", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=-1), 1e-9)
         facing = cos_in > self._cos_grazing     # depth sensors return nothing at grazing angles
@@ -466,7 +486,9 @@ class Registrar:
         known = np.isfinite(obs)
         hidden = known & (obs < z - m)
         violated = known & (obs > z + m)
-        return facing & ~hidden, facing & violated
+        # a direction with no return at all (outside the image, a dropout) is no evidence either
+        # way: such samples neither pull nor count
+        return facing & known & ~hidden, facing & violated
 
     def _icp(self, tlist, R, t, ctx: ClickContext, n_samples: int, iterations: int,
              reject: np.ndarray, target: str, occlusion: bool):
@@ -597,10 +619,23 @@ class Registrar:
         d, _ = self._dense_tree(tpl).query(local, k=1, distance_upper_bound=cap)
         return float(np.minimum(d, cap).mean())
 
+    def _click_penalty(self, ctx: ClickContext, tlist, R, t) -> np.ndarray:
+        """The operator clicked on the object: a candidate whose surface passes farther than
+        ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
+        s = self.settings
+        local = np.einsum("bji,bj->bi", R, ctx.click - t)      # click in each model frame
+        d = np.empty(len(tlist))
+        names = np.array([tp.name for tp in tlist])
+        for name in set(names):
+            sel = names == name
+            d[sel] = self._dense_tree(self.library[name]).query(local[sel], k=1)[0]
+        return np.clip(d - s.click_tolerance, 0.0, s.score_cap)
+
     def _result(self, ctx, tpl, R, t, iterations, elapsed) -> FitResult:
         fwd, inl = self._forward_score(ctx, [tpl], R[None], t[None], self.settings.score_samples)
         bwd = self._backward_score(ctx, tpl, R, t)
-        residual = max(0.5 * (float(fwd[0]) + bwd), 1e-6)
+        click = float(self._click_penalty(ctx, [tpl], R[None], t[None])[0])
+        residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
         return FitResult(template=tpl.name, T_scene_model=make_T(R, t), residual=residual,
                          likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
                          iterations=int(iterations), time_s=float(elapsed))
