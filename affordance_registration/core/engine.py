@@ -339,16 +339,18 @@ class AffordanceEngine:
             self._commit(self._replace_object(new), "twist", coalesce=True)
             return f"object {obj.id}: moved {obj.shown.template}"
 
-    def correct_pose(self, T_scene_model) -> str:
-        """Set the shown candidate's pose (an absolute correction, e.g. a dragged marker)."""
+    def correct_pose(self, T_scene_model, drag: bool = False) -> str:
+        """Set the shown candidate's pose (an absolute correction, e.g. a dragged marker).
+        With ``drag``, the poses of one drag in a row form one correction (one undo step)."""
         T = np.asarray(T_scene_model, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
                 not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
             raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
         with self._lock:
             obj = self._require_active()
-            new = self._with_pose(obj, T, corrections=obj.corrections + 1)
-            self._commit(self._replace_object(new), "pose")
+            first = not (drag and self._last_action == "drag")
+            new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
+            self._commit(self._replace_object(new), "drag" if drag else "pose", coalesce=drag)
             return f"object {obj.id}: {obj.shown.template} placed"
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:

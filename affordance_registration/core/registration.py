@@ -81,11 +81,12 @@ class FitSettings:
     two_way: bool = True               #: final stage also pairs scene points with the template
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
-    refit_restarts: int = 6
+    refit_restarts: int = 10
+    refit_spread: float = 0.015        #: translation spread of the refit's restarts (m)
     refit_samples: int = 800
     refit_iterations: int = 12
-    refit_max_move: float = 0.03       #: a refit may move at most this far from the correction
-    refit_max_turn: float = math.radians(25.0)
+    refit_max_move: float = 0.05       #: a refit may move at most this far from the correction
+    refit_max_turn: float = math.radians(30.0)
     paper_restarts: int = 25
     paper_iterations: int = 100
     paper_samples: int = 500
@@ -98,7 +99,7 @@ class FitSettings:
             raise RegistrationError(f"fine_metric must be 'plane' or 'point', got {self.fine_metric!r}")
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
-        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "weight_scale", "score_cap",
+        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -284,14 +285,25 @@ class Registrar:
         rng = np.random.default_rng(s.seed + 7919)
         Ts = [np.asarray(T_init, dtype=float)]
         centre = Ts[0][:3, :3] @ tpl.centroid + Ts[0][:3, 3]
-        for _ in range(s.refit_restarts - 1):
+        # one restart centred on the data around the correction (a rough drag is often off by a
+        # good part of the object's size)
+        near = np.linalg.norm(ctx.cluster - centre, axis=1) <= 0.5 * tpl.diameter
+        if near.sum() >= 10:
+            snapped = Ts[0].copy()
+            snapped[:3, 3] += ctx.cluster[near].mean(axis=0) - centre
+            if ctx.plane is not None:      # keep the height above the plane the operator chose
+                snapped[:3, 3] -= ctx.plane.normal * (ctx.plane.normal @ (snapped[:3, 3] -
+                                                                           Ts[0][:3, 3]))
+            Ts.append(snapped)
+        while len(Ts) < s.refit_restarts:
             axis = rng.normal(size=3)
             dR = axis_angle_matrix(axis, math.radians(4.0) * rng.uniform(0.5, 1.0))
             R = dR @ Ts[0][:3, :3]
-            t = dR @ (Ts[0][:3, 3] - centre) + centre + rng.normal(scale=0.004, size=3)
+            t = dR @ (Ts[0][:3, 3] - centre) + centre + rng.normal(scale=s.refit_spread, size=3)
             Ts.append(make_T(R, t))
         Ts = np.stack(Ts)
-        reject = np.full(len(Ts), 0.25 * tpl.diameter)
+        # reach out as far as a refit may move, so a rough correction is pulled in
+        reject = np.full(len(Ts), max(0.25 * tpl.diameter, s.refit_max_move))
         R, t = self._icp([tpl] * len(Ts), Ts[:, :3, :3], Ts[:, :3, 3], ctx, s.medium_samples,
                          6, reject, target="cluster", occlusion=True)
         fwd, _ = self._forward_score(ctx, [tpl] * len(Ts), R, t, s.medium_samples)

@@ -41,6 +41,7 @@ from .conversions import (ConversionError, likelihood_color, matrix_to_pose, mes
                           pointcloud2_to_xyz, pose_stamped, pose_to_matrix, sphere_marker,
                           text_marker)
 from .frames import FrameError, StaticFrames
+from .interactive import CorrectionMarkerServer
 
 FIRST_TWIST_DT = 1.0 / 30.0
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard")
@@ -71,8 +72,12 @@ PARAMETERS = {
     "points_reliable": (True, "subscribe to points with reliable QoS (false: best effort, for "
                               "sensor drivers publishing with SensorDataQoS); read at start", None),
     "publish_rate": (20.0, "highest rate of marker/status updates (Hz)", (1.0, 100.0)),
+    "interactive_namespace": ("/affordance_correction", "interactive marker server namespace "
+                              "(one level); read at start", None),
+    "interactive_orientation": ("object", "interactive marker controls aligned with the object "
+                                "or the operator's view", ("object", "view")),
 }
-READ_ONLY = {"points_reliable"}
+READ_ONLY = {"points_reliable", "interactive_namespace"}
 
 
 def _descriptor(name, default, description, constraint) -> ParameterDescriptor:
@@ -138,7 +143,8 @@ class EngineNode(Node):
         for action in ("next_model", "previous_model", "refit", "accept", "undo", "discard",
                        "save"):
             self.create_service(Trigger, f"~/{action}", self._service(action))
-        self.interactive = None
+        self.interactive = CorrectionMarkerServer(self, self._p["interactive_namespace"],
+                                                  self._p["interactive_orientation"])
         self.create_timer(0.05, self._on_timer)
         self._worker = threading.Thread(target=self._work, name="fitting", daemon=True)
         self._worker.start()
@@ -213,6 +219,8 @@ class EngineNode(Node):
                 self.library = self.engine.library
             if "static_transforms" in changed:
                 self.frames = StaticFrames(new["static_transforms"])
+            if "interactive_orientation" in changed:
+                self.interactive.orientation = new["interactive_orientation"]
         except AffordanceError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         self._p = new
@@ -486,8 +494,7 @@ class EngineNode(Node):
         arr.poses = [matrix_to_pose(r.T_scene_model) for r in state.registered]
         self.pub_registered.publish(arr)
         self.pub_status.publish(String(data=json.dumps(self.status())))
-        if self.interactive is not None:
-            self.interactive.sync()
+        self.interactive.sync()
 
     def _up(self) -> np.ndarray:
         """Screen-up direction in the cloud frame (for placing labels)."""

@@ -1,0 +1,201 @@
+"""Interactive-marker server for RViz's Interactive Markers display, implemented from the
+visualization_msgs definitions (the interactive_markers package is not on PyPI).
+
+Protocol, for a one-level namespace ``ns`` (parameter ``interactive_namespace``):
+
+* service ``ns/get_interactive_markers``: the full current set and the current sequence number;
+* topic ``ns/update`` (reliable, depth 100): UPDATE messages whose ``seq_num`` grows by exactly one
+  per change set -- a new or changed marker in ``markers``, a pose-only change in ``poses``, a
+  removal in ``erases`` -- and a KEEP_ALIVE every 0.5 s with the current ``seq_num`` and the stable
+  ``server_id``;
+* topic ``ns/feedback`` (subscribed): POSE_UPDATE moves the shown fit live; MOUSE_UP takes the
+  pose as an absolute correction and refits; MENU_SELECT runs the engine action of the entry.
+
+One marker, ``affordance_fit``, sits on the shown candidate of the selected object: its mesh as the
+visual (with the menu), six controls (move and rotate about x, y, z) oriented with the object or
+with the operator's view (parameter ``interactive_orientation``: object | view). It follows every
+change made elsewhere and disappears when nothing is selected.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from geometry_msgs.msg import Quaternion
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
+                                    InteractiveMarkerFeedback, InteractiveMarkerPose,
+                                    InteractiveMarkerUpdate, MenuEntry)
+from visualization_msgs.srv import GetInteractiveMarkers
+
+from ..core.errors import AffordanceError
+from ..core.transforms import matrix_to_quat_xyzw
+from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
+
+MARKER_NAME = "affordance_fit"
+MENU = (("next_model", "Next model"), ("previous_model", "Previous model"), ("refit", "Refit"),
+        ("accept", "Accept"), ("undo", "Undo"), ("discard", "Discard"))
+KEEP_ALIVE_S = 0.5
+_S = math.sqrt(0.5)
+# control frames whose x axis is the object's (or view's) x, y and z axis
+AXES = {"x": (_S, 0.0, 0.0, _S), "y": (0.0, 0.0, _S, _S), "z": (0.0, -_S, 0.0, _S)}  # x,y,z,w
+
+
+class CorrectionMarkerServer:
+    """The interactive-marker server of the engine node (all callbacks on its executor)."""
+
+    def __init__(self, node, namespace: str = "/affordance_correction",
+                 orientation: str = "object"):
+        self.node = node
+        self.ns = "/" + namespace.strip("/")
+        if not namespace.strip("/") or "/" in namespace.strip("/"):
+            raise AffordanceError(f"interactive marker namespace must be one level like "
+                                  f"/affordance_correction, got {namespace!r}")
+        if orientation not in ("object", "view"):
+            raise AffordanceError("interactive_orientation must be 'object' or 'view'")
+        self.orientation = orientation
+        self.server_id = f"{node.get_fully_qualified_name()}/{int(time.time() * 1e6):x}"
+        self.seq_num = 0
+        self._sent: tuple | None = None          # identity of what the clients have
+        self._marker: InteractiveMarker | None = None
+        self._drag_client: str | None = None
+        self._throttled: dict[str, float] = {}
+        update_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                                reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", update_qos)
+        node.create_subscription(InteractiveMarkerFeedback, f"{self.ns}/feedback",
+                                 self._on_feedback, update_qos)
+        node.create_service(GetInteractiveMarkers, f"{self.ns}/get_interactive_markers",
+                            self._on_get)
+        node.create_timer(KEEP_ALIVE_S, self._keep_alive)
+
+    # ------------------------------------------------------------------ server -> clients
+    def _on_get(self, request, response):
+        response.sequence_number = self.seq_num
+        response.markers = [self._marker] if self._marker is not None else []
+        return response
+
+    def _keep_alive(self) -> None:
+        self.pub.publish(InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
+                                                 type=InteractiveMarkerUpdate.KEEP_ALIVE))
+
+    def _publish(self, markers=(), poses=(), erases=()) -> None:
+        self.seq_num += 1
+        self.pub.publish(InteractiveMarkerUpdate(
+            server_id=self.server_id, seq_num=self.seq_num, type=InteractiveMarkerUpdate.UPDATE,
+            markers=list(markers), poses=list(poses), erases=list(erases)))
+
+    def sync(self) -> None:
+        """Send what changed since the last change set (called after every engine change)."""
+        obj = self.node.engine.active_object()
+        frame = self.node.engine.frame_id or self.node._cloud_frame
+        if obj is None:
+            if self._marker is not None:
+                self._marker, self._sent = None, None
+                self._publish(erases=[MARKER_NAME])
+            return
+        cand = obj.shown
+        view_R = self.node.engine.view_pose()[:3, :3].round(6).tobytes() \
+            if self.orientation == "view" else b""
+        identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R)
+        pose_bytes = np.asarray(cand.T_scene_model).tobytes()
+        if self._sent is not None and self._sent[0] == identity:
+            if self._sent[1] != pose_bytes:
+                self._marker.pose = matrix_to_pose(cand.T_scene_model)
+                p = InteractiveMarkerPose(name=MARKER_NAME, pose=self._marker.pose)
+                p.header.frame_id = frame
+                self._publish(poses=[p])
+                self._sent = (identity, pose_bytes)
+            return
+        self._marker = self._build(obj, frame)
+        self._sent = (identity, pose_bytes)
+        self._publish(markers=[self._marker])
+
+    def _build(self, obj, frame: str) -> InteractiveMarker:
+        cand = obj.shown
+        tpl = self.node.library[cand.template]
+        im = InteractiveMarker()
+        im.header.frame_id = frame
+        im.name = MARKER_NAME
+        im.description = f"{cand.template} — rank {obj.active + 1}/{len(obj.candidates)}"
+        im.pose = matrix_to_pose(cand.T_scene_model)
+        im.scale = float(max(0.1, 1.2 * tpl.diameter))
+        im.menu_entries = [MenuEntry(id=i, parent_id=0, title=title, command="",
+                                     command_type=MenuEntry.FEEDBACK)
+                           for i, (_, title) in enumerate(MENU, start=1)]
+        visual = InteractiveMarkerControl(name="mesh", always_visible=True,
+                                          interaction_mode=InteractiveMarkerControl.MENU)
+        mesh = mesh_marker(tpl.mesh, np.eye(4), "", "mesh", 0,
+                           ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
+        mesh.header.frame_id = ""          # relative to the interactive marker
+        visual.markers.append(mesh)
+        im.controls.append(visual)
+        R_view_in_object = None
+        if self.orientation == "view":
+            R_view_in_object = self.node.engine.view_pose()[:3, :3]
+        for axis, q in AXES.items():
+            for mode, prefix in ((InteractiveMarkerControl.MOVE_AXIS, "move"),
+                                 (InteractiveMarkerControl.ROTATE_AXIS, "rotate")):
+                c = InteractiveMarkerControl(name=f"{prefix}_{axis}", interaction_mode=mode)
+                if R_view_in_object is not None:
+                    from scipy.spatial.transform import Rotation
+                    R = R_view_in_object @ Rotation.from_quat(q).as_matrix()
+                    qx, qy, qz, qw = matrix_to_quat_xyzw(R)
+                    c.orientation_mode = InteractiveMarkerControl.FIXED
+                else:
+                    qx, qy, qz, qw = q
+                    c.orientation_mode = InteractiveMarkerControl.INHERIT
+                c.orientation = Quaternion(x=float(qx), y=float(qy), z=float(qz), w=float(qw))
+                im.controls.append(c)
+        return im
+
+    # ------------------------------------------------------------------ clients -> server
+    def _ignore(self, why: str) -> None:
+        now = time.monotonic()
+        if now - self._throttled.get(why, -math.inf) >= 2.0:
+            self._throttled[why] = now
+            self.node.get_logger().warning(f"interactive marker feedback ignored: {why}")
+
+    def _on_feedback(self, fb: InteractiveMarkerFeedback) -> None:
+        F = InteractiveMarkerFeedback
+        if fb.event_type == F.KEEP_ALIVE:
+            return
+        if self._marker is None or fb.marker_name != MARKER_NAME:
+            self._ignore(f"no marker named '{fb.marker_name}'")
+            return
+        if self._drag_client is not None and fb.client_id != self._drag_client and \
+                fb.event_type in (F.POSE_UPDATE, F.MOUSE_UP):
+            self._ignore(f"client '{fb.client_id}' while '{self._drag_client}' is dragging")
+            return
+        if fb.event_type == F.MENU_SELECT:
+            if not 1 <= fb.menu_entry_id <= len(MENU):
+                self._ignore(f"unknown menu entry {fb.menu_entry_id}")
+                return
+            self.node._run_action(MENU[fb.menu_entry_id - 1][0])
+            return
+        if fb.event_type == F.MOUSE_DOWN:
+            self._drag_client = fb.client_id
+            return
+        if fb.event_type not in (F.POSE_UPDATE, F.MOUSE_UP):
+            return
+        frame = self._marker.header.frame_id
+        if fb.header.frame_id and fb.header.frame_id.lstrip("/") != frame.lstrip("/"):
+            self._ignore(f"pose in frame '{fb.header.frame_id}', the marker is in '{frame}'")
+            return
+        try:
+            T = pose_to_matrix(fb.pose)
+        except ConversionError as exc:
+            self._ignore(f"malformed pose ({exc})")
+            return
+        try:
+            self.node.engine.correct_pose(T, drag=True)
+        except AffordanceError as exc:
+            self._ignore(str(exc))
+            return
+        self.node._dirty = True
+        if fb.event_type == F.MOUSE_UP:
+            self._drag_client = None
+            self.node._info(f"marker released: refitting {self._marker.description}")
+            self.node._jobs.put(("refit", None))

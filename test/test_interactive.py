@@ -1,0 +1,217 @@
+"""The interactive-marker server against a protocol client written here that behaves as RViz's:
+request the full set, then apply updates in seq_num order and detect gaps."""
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import (InteractiveMarkerControl, InteractiveMarkerFeedback,
+                                    InteractiveMarkerUpdate, Marker)
+from visualization_msgs.srv import GetInteractiveMarkers
+
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.ros.conversions import (matrix_to_pose, pose_to_matrix,
+                                                     xyz_to_pointcloud2)
+from ros_helpers import LATCHED, Client, engine_process
+from sensor_msgs.msg import PointCloud2
+
+NS = "/affordance_correction"
+FRAME = "camera_depth_optical_frame"
+
+
+class ProtocolClient:
+    """What RViz's Interactive Markers display does with a server."""
+
+    def __init__(self, client: Client):
+        self.client = client
+        self.lock = threading.Lock()
+        self.markers = {}
+        self.seq = None
+        self.server_id = None
+        self.gaps = []
+        self.pending = []
+        self.keep_alives = 0
+        client.node.create_subscription(InteractiveMarkerUpdate, f"{NS}/update", self._on_update,
+                                        100)
+        self.feedback = client.node.create_publisher(InteractiveMarkerFeedback, f"{NS}/feedback",
+                                                     100)
+
+    def init(self):
+        res = self.client.call(GetInteractiveMarkers, f"{NS}/get_interactive_markers")
+        with self.lock:
+            self.seq = res.sequence_number
+            self.markers = {m.name: m for m in res.markers}
+            for upd in sorted(self.pending, key=lambda u: u.seq_num):
+                self._apply(upd)
+            self.pending = []
+
+    def _on_update(self, upd):
+        with self.lock:
+            if upd.type == InteractiveMarkerUpdate.KEEP_ALIVE:
+                self.keep_alives += 1
+                self.server_id = upd.server_id
+                if self.seq is not None and upd.seq_num > self.seq:
+                    self.gaps.append(("keep_alive_ahead", self.seq, upd.seq_num))
+                return
+            if self.seq is None:
+                self.pending.append(upd)
+                return
+            self._apply(upd)
+
+    def _apply(self, upd):
+        if upd.seq_num <= self.seq:
+            return                              # already contained in the full set
+        if upd.seq_num != self.seq + 1:
+            self.gaps.append((self.seq, upd.seq_num))
+        self.seq = upd.seq_num
+        for m in upd.markers:
+            self.markers[m.name] = m
+        for p in upd.poses:
+            self.markers[p.name].pose = p.pose
+        for name in upd.erases:
+            self.markers.pop(name, None)
+
+    def send(self, event, pose=None, menu_entry_id=0, client_id="/rviz/InteractiveMarkers",
+             name="affordance_fit"):
+        fb = InteractiveMarkerFeedback(client_id=client_id, marker_name=name, event_type=event,
+                                       menu_entry_id=menu_entry_id)
+        fb.header.frame_id = FRAME
+        if pose is not None:
+            fb.pose = pose
+        self.feedback.publish(fb)
+
+
+@pytest.fixture(scope="module")
+def session(ros_context, tmp_path_factory, library):
+    tmp = tmp_path_factory.mktemp("interactive")
+    proc = engine_process(tmp, {"refit_idle_s": 0.4})
+    client = Client("interactive_tester")
+    client.subscribe(String, "/affordance_engine/status", LATCHED)
+    proto = ProtocolClient(client)
+    points = client.node.create_publisher(PointCloud2, "/points", 1)
+    click = client.node.create_publisher(PointStamped, "/clicked_point", 10)
+    sim = simulate_taskboard(library, 7)
+    try:
+        client.wait_for_subscribers(points, timeout=30)
+        client.wait_for_subscribers(proto.feedback, timeout=30)
+        proto.init()
+        yield {"proc": proc, "client": client, "proto": proto, "points": points, "click": click,
+               "sim": sim}
+    finally:
+        client.close()
+        proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])
+
+
+def marker(s):
+    with s["proto"].lock:
+        return s["proto"].markers.get("affordance_fit")
+
+
+def test_no_marker_until_a_click_then_mesh_and_six_controls(session):
+    s = session
+    assert marker(s) is None
+    s["client"].wait_for(lambda: s["proto"].keep_alives >= 2, what="keep-alives")
+    s["points"].publish(xyz_to_pointcloud2(s["sim"].organized, FRAME))
+    s["client"].wait_for(lambda: (s["client"].status() or {}).get("node", {}).get("cloud"),
+                         what="the cloud")
+    obj = s["sim"].objects[1]
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
+    s["click"].publish(msg)
+    m = s["client"].wait_for(lambda: marker(s), timeout=30, what="the interactive marker")
+    assert m.header.frame_id == FRAME and obj.template in m.description
+    modes = sorted((c.name, c.interaction_mode) for c in m.controls)
+    C = InteractiveMarkerControl
+    assert [c for c in modes if c[1] in (C.MOVE_AXIS, C.ROTATE_AXIS)] == [
+        ("move_x", C.MOVE_AXIS), ("move_y", C.MOVE_AXIS), ("move_z", C.MOVE_AXIS),
+        ("rotate_x", C.ROTATE_AXIS), ("rotate_y", C.ROTATE_AXIS), ("rotate_z", C.ROTATE_AXIS)]
+    mesh = [c for c in m.controls if c.name == "mesh"][0]
+    assert mesh.markers[0].type == Marker.TRIANGLE_LIST and len(mesh.markers[0].points) > 300
+    assert [e.title for e in m.menu_entries] == ["Next model", "Previous model", "Refit",
+                                                  "Accept", "Undo", "Discard"]
+    # the six axes: x, y, z of the object
+    axes = {}
+    for c in m.controls:
+        if c.name.startswith("move_"):
+            q = c.orientation
+            from scipy.spatial.transform import Rotation
+            axes[c.name[-1]] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()[:, 0]
+    assert np.allclose(axes["x"], [1, 0, 0]) and np.allclose(axes["y"], [0, 1, 0])
+    assert np.allclose(axes["z"], [0, 0, 1])
+
+
+def test_dragging_3cm_off_and_releasing_refits_back_onto_the_object(session, library):
+    s = session
+    obj = s["sim"].objects[1]
+    proto = s["proto"]
+    T = pose_to_matrix(marker(s).pose)
+    F = InteractiveMarkerFeedback
+    proto.send(F.MOUSE_DOWN, matrix_to_pose(T))
+    for k in range(1, 7):
+        Tk = T.copy()
+        Tk[:3, 3] += np.array([0.005, 0.0, 0.0]) * k          # 3 cm in 6 steps
+        proto.send(F.POSE_UPDATE, matrix_to_pose(Tk))
+        time.sleep(0.03)
+    s["client"].wait_for(lambda: pose_to_matrix(marker(s).pose)[0, 3] - T[0, 3] > 0.025,
+                         what="the marker to follow the drag")
+    proto.send(F.MOUSE_UP, matrix_to_pose(Tk))
+    sym = library[obj.template].symmetry
+    s["client"].wait_for(lambda: pose_error(pose_to_matrix(marker(s).pose), obj.T_scene_model,
+                                            sym)[0] < 0.005, timeout=15, what="the refit")
+    dt, dr = pose_error(pose_to_matrix(marker(s).pose), obj.T_scene_model, sym)
+    assert dt < 0.005 and dr < math.radians(5)
+
+
+def test_menu_next_model_changes_the_template(session):
+    s = session
+    before = marker(s).description
+    s["proto"].send(InteractiveMarkerFeedback.MENU_SELECT, menu_entry_id=1)
+    s["client"].wait_for(lambda: marker(s).description != before and "rank 2/5" in
+                         marker(s).description, what="the next model")
+    s["proto"].send(InteractiveMarkerFeedback.MENU_SELECT, menu_entry_id=2)
+    s["client"].wait_for(lambda: "rank 1/5" in marker(s).description, what="back to rank 1")
+
+
+def test_malformed_and_foreign_feedback_is_ignored(session):
+    s = session
+    proto, F = s["proto"], InteractiveMarkerFeedback
+    before = pose_to_matrix(marker(s).pose)
+    nan_pose = matrix_to_pose(np.eye(4))
+    nan_pose.position.x = float("nan")
+    proto.send(F.POSE_UPDATE, nan_pose)
+    bad_q = matrix_to_pose(np.eye(4))
+    bad_q.orientation.w = 3.0
+    proto.send(F.POSE_UPDATE, bad_q)
+    proto.send(F.POSE_UPDATE, matrix_to_pose(np.eye(4)), name="somebody_elses_marker")
+    proto.send(F.MENU_SELECT, menu_entry_id=99)
+    # a second client cannot hijack a drag in progress
+    proto.send(F.MOUSE_DOWN, matrix_to_pose(before), client_id="/rviz_a")
+    far = before.copy()
+    far[:3, 3] += [0.2, 0, 0]
+    proto.send(F.POSE_UPDATE, matrix_to_pose(far), client_id="/rviz_b")
+    proto.send(F.MOUSE_UP, matrix_to_pose(before), client_id="/rviz_a")
+    time.sleep(1.0)
+    assert np.allclose(pose_to_matrix(marker(s).pose)[:3, 3], before[:3, 3], atol=0.01)
+    res = s["client"].call(Trigger, "/affordance_engine/next_model")
+    assert res.success                                          # still serving
+    s["client"].call(Trigger, "/affordance_engine/previous_model")
+    out = s["proc"].output()
+    assert "malformed pose" in out and "no marker named 'somebody_elses_marker'" in out
+    assert "while '/rviz_a' is dragging" in out
+
+
+def test_discard_erases_the_marker_and_sequence_has_no_gaps(session):
+    s = session
+    assert s["client"].call(Trigger, "/affordance_engine/discard").success
+    s["client"].wait_for(lambda: marker(s) is None, what="the erase")
+    time.sleep(0.6)
+    assert s["proto"].gaps == []
+    assert s["proto"].seq >= 5
