@@ -66,6 +66,7 @@ setup(
         "console_scripts": [
             "affordance-registration = affordance_registration.cli:main",
             "affordance_engine = affordance_registration.ros.engine_node:main",
+            "affordance_spacemouse = affordance_registration.ros.spacemouse:main",
         ],
     },
 )

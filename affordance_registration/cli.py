@@ -181,6 +181,20 @@ def cmd_launch(args) -> int:
     return run_launch_file(args.file, arguments, profile)
 
 
+# ---------------------------------------------------------------------------- spacemouse
+def cmd_spacemouse(args) -> int:
+    from .ros.spacemouse import list_devices
+    try:
+        lines = list_devices()
+    except ImportError:
+        raise AffordanceError("the hidapi package is not installed (pip install hidapi)") from None
+    if not lines:
+        print("no SpaceMouse attached")
+    for line in lines:
+        print(line)
+    return 0
+
+
 # ---------------------------------------------------------------------------- models
 def cmd_generate_models(args) -> int:
     from .core.taskboard import write_library
@@ -233,6 +247,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use the package's Fast DDS profile (shared memory, localhost)")
     p.add_argument("--fastdds-profile", default=None, help="a Fast DDS XML profile to use")
     p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("spacemouse", help="SpaceMouse devices")
+    p.add_argument("--list", action="store_true", required=True,
+                   help="print the attached 3Dconnexion 6-DoF devices")
+    p.set_defaults(func=cmd_spacemouse)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
     p.add_argument("--out", default="models")

@@ -162,7 +162,7 @@ def test_twist_burst_moves_in_the_view_frame_then_refits(session, library):
     before = settled_fit(s, shown_index=0)
     client.history[f"{NS}/fit"] = []
     twist = Twist()
-    twist.linear.x = 0.5                    # 5 cm/s to the right of the screen (default gain)
+    twist.linear.y = -0.5       # spacenav axes: cap pushed right -> 5 cm/s right on the screen
     t0 = time.monotonic()
     while time.monotonic() - t0 < 0.3:      # a 0.3 s push: about 1.5 cm
         s["pubs"]["twist"].publish(twist)

@@ -44,6 +44,9 @@ from .frames import FrameError, StaticFrames
 from .interactive import CorrectionMarkerServer
 
 FIRST_TWIST_DT = 1.0 / 30.0
+# spacenav/twist axes (x away from the user, y left, z up) -> view axes (x right, y up, z to the
+# viewer): push right -> right on the screen, push away -> into the screen, lift -> up
+R_VIEW_SPACENAV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard")
 
 # name: (default, description, (min, max) or choices or None)
@@ -57,6 +60,9 @@ PARAMETERS = {
     "seed": (0, "random seed of the restarts", (0, 2**31 - 1)),
     "linear_gain": (0.1, "m/s per unit of spacenav/twist linear", (0.0, 10.0)),
     "angular_gain": (0.6, "rad/s per unit of spacenav/twist angular", (0.0, 20.0)),
+    "twist_frame": ("spacenav", "axes of spacenav/twist: spacenav (REP-103 device axes: x away "
+                    "from the user, y left, z up) or view (x right, y up, z to the viewer)",
+                    ("spacenav", "view")),
     "max_twist_dt": (0.1, "longest time one twist message is integrated over (s)", (0.001, 1.0)),
     "refit_idle_s": (0.5, "refit after the twists stop for this long (s)", (0.05, 30.0)),
     "button_next_model": (0, "Joy button for next model (-1: none)", (-1, 63)),
@@ -321,6 +327,8 @@ class EngineNode(Node):
         dt = FIRST_TWIST_DT if prev is None or now - prev > self._p["refit_idle_s"] else \
             min(now - prev, self._p["max_twist_dt"])
         self._last_twist = now
+        if self._p["twist_frame"] == "spacenav":
+            lin, ang = R_VIEW_SPACENAV @ lin, R_VIEW_SPACENAV @ ang
         try:
             self.engine.correct_twist(lin * self._p["linear_gain"], ang * self._p["angular_gain"],
                                       dt)

@@ -1,0 +1,506 @@
+"""``affordance_spacemouse``: 3Dconnexion SpaceMouse -> ``spacenav/twist`` and ``spacenav/joy``,
+read with hidapi -- a drop-in for the spacenav driver, without spacenavd.
+
+Axis convention (the spacenav driver's, checked against its source and spacenavd's defaults): the
+raw HID axes are x right, y towards the user, z down (and rotations about those). spacenavd swaps
+y/z and inverts y, z, ry, rz; the ROS driver then publishes REP-103 axes (x forward = away from
+the user, y left, z up)::
+
+    linear  = (-hid_y,  -hid_x,  -hid_z)  / full_scale * linear_scale
+    angular = (-hid_ry, -hid_rx, -hid_rz) / full_scale * angular_scale
+
+``full_scale`` defaults to 512 like the spacenav driver (raw values reach about +-350, so outputs
+reach about +-0.7). Joy axes are the same six values in that order (not scaled), buttons are the
+device's button bits.
+
+Reports: older devices send translation (report 1, three int16 LE) and rotation (report 2)
+separately; newer wireless ones send all six axes in one 12-byte report 1; report 3 is the button
+bitfield. Other reports (battery...) and short ones are dropped.
+
+The parsing here is pure (no ROS); the hidapi calls sit behind :class:`HidBackend`, so a
+:class:`FifoBackend` can feed recorded or scripted reports (tests, demos).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import signal
+import struct
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DEVICES", "SKIP", "DeviceInfo", "parse_report", "AxisState", "to_ros",
+           "HidBackend", "HidapiBackend", "FifoBackend", "find_device", "list_devices", "main"]
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    name: str
+    buttons: int
+
+
+#: (vendor, product) -> device. 0x046d: the Logitech-era 3Dconnexion devices.
+DEVICES = {
+    (0x046D, 0xC623): DeviceInfo("SpaceTraveler", 8),
+    (0x046D, 0xC625): DeviceInfo("SpacePilot", 21),
+    (0x046D, 0xC626): DeviceInfo("SpaceNavigator", 2),
+    (0x046D, 0xC627): DeviceInfo("SpaceExplorer", 15),
+    (0x046D, 0xC628): DeviceInfo("SpaceNavigator for Notebooks", 2),
+    (0x046D, 0xC629): DeviceInfo("SpacePilot Pro", 31),
+    (0x046D, 0xC62B): DeviceInfo("SpaceMouse Pro", 15),
+    (0x256F, 0xC62E): DeviceInfo("SpaceMouse Wireless (cable)", 2),
+    (0x256F, 0xC62F): DeviceInfo("SpaceMouse Wireless (receiver)", 2),
+    (0x256F, 0xC631): DeviceInfo("SpaceMouse Pro Wireless (cable)", 15),
+    (0x256F, 0xC632): DeviceInfo("SpaceMouse Pro Wireless (receiver)", 15),
+    (0x256F, 0xC633): DeviceInfo("SpaceMouse Enterprise", 31),
+    (0x256F, 0xC635): DeviceInfo("SpaceMouse Compact", 2),
+    (0x256F, 0xC652): DeviceInfo("3Dconnexion Universal Receiver", 15),
+}
+#: 3Dconnexion products that are not 6-DoF mice (CadMouse family, keyboards): never opened.
+SKIP = {(0x256F, pid) for pid in (0xC650, 0xC651, 0xC654, 0xC655, 0xC656, 0xC657, 0xC658,
+                                 0xC664, 0xC665)}
+
+
+def parse_report(data) -> tuple[str, tuple] | None:
+    """One HID input report (report id first) -> ("translation", (x, y, z)),
+    ("rotation", (rx, ry, rz)), ("motion", (x, y, z, rx, ry, rz)), ("buttons", bits) or None
+    for reports to drop (other ids, too short)."""
+    data = bytes(data)
+    if len(data) < 2:
+        return None
+    rid = data[0]
+    if rid == 1 and len(data) >= 13:
+        return "motion", struct.unpack_from("<6h", data, 1)
+    if rid == 1 and len(data) >= 7:
+        return "translation", struct.unpack_from("<3h", data, 1)
+    if rid == 2 and len(data) >= 7:
+        return "rotation", struct.unpack_from("<3h", data, 1)
+    if rid == 3:
+        return "buttons", int.from_bytes(data[1:], "little")
+    return None
+
+
+class AxisState:
+    """Latest raw HID axes (x, y, z, rx, ry, rz) and button bits of one device."""
+
+    def __init__(self, n_buttons: int = 2):
+        self.raw = np.zeros(6)
+        self.bits = 0
+        self.n_buttons = n_buttons
+        self.last_motion = 0.0
+
+    def update(self, parsed, now: float) -> str | None:
+        """Apply a parsed report; returns "motion" or "buttons" when something changed."""
+        if parsed is None:
+            return None
+        kind, value = parsed
+        if kind == "buttons":
+            if value == self.bits:
+                return None
+            self.bits = value
+            return "buttons"
+        if kind == "translation":
+            self.raw[:3] = value
+        elif kind == "rotation":
+            self.raw[3:] = value
+        else:
+            self.raw[:] = value
+        self.last_motion = now
+        return "motion"
+
+    @property
+    def buttons(self) -> list[int]:
+        n = max(self.n_buttons, self.bits.bit_length())
+        return [(self.bits >> i) & 1 for i in range(n)]
+
+
+def to_ros(raw, full_scale: float, deadband: float, linear_scale, angular_scale):
+    """Raw HID axes -> (linear (3,), angular (3,), joy axes (6,)) in the spacenav convention.
+    ``deadband`` is a fraction of full scale applied per axis."""
+    r = np.asarray(raw, dtype=float) / full_scale
+    r[np.abs(r) < deadband] = 0.0
+    axes = np.array([-r[1], -r[0], -r[2], -r[4], -r[3], -r[5]])
+    return axes[:3] * np.asarray(linear_scale), axes[3:] * np.asarray(angular_scale), axes
+
+
+# ------------------------------------------------------------------------------- backends
+class HidBackend:
+    """The hidapi calls the node needs. ``enumerate()`` -> list of dicts with vendor_id,
+    product_id, path, product_string; ``open(path)`` -> handle with ``read(size, timeout_ms)``
+    (list of ints, [] on timeout, OSError when the device is gone) and ``close()``."""
+
+    def enumerate(self) -> list[dict]:
+        raise NotImplementedError
+
+    def open(self, path):
+        raise NotImplementedError
+
+
+class HidapiBackend(HidBackend):
+    def __init__(self):
+        import hid  # the hidapi package
+        self._hid = hid
+
+    def enumerate(self) -> list[dict]:
+        return list(self._hid.enumerate())
+
+    def open(self, path):
+        dev = self._hid.device()
+        dev.open_path(path if isinstance(path, bytes) else str(path).encode())
+        return dev
+
+
+class FifoBackend(HidBackend):
+    """Scripted devices for tests and demos: JSON lines on a FIFO (or file) ::
+
+        {"plug": {"path": "fake0", "vendor_id": 9583, "product_id": 50741, "product": "..."}}
+        {"report": [1, 10, 0, 0, 0, 0, 0]}        # to the open device
+        {"unplug": "fake0"}
+        {"plug": {"path": "fake1", ..., "deny": true}}   # opening it: permission denied
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        self._devices: dict[str, dict] = {}
+        self._denied: set[str] = set()
+        self._reports: dict[str, queue.Queue] = {}
+        self._lock = threading.Lock()
+        threading.Thread(target=self._reader, daemon=True).start()
+
+    def _reader(self):
+        while True:
+            try:
+                with open(self.path, encoding="utf-8") as handle:   # blocks until a writer
+                    for line in handle:
+                        self._command(line)
+            except OSError:
+                time.sleep(0.1)
+
+    def _command(self, line: str):
+        try:
+            cmd = json.loads(line)
+        except ValueError:
+            return
+        with self._lock:
+            if "plug" in cmd:
+                d = cmd["plug"]
+                self._devices[d["path"]] = {"vendor_id": d["vendor_id"],
+                                            "product_id": d["product_id"],
+                                            "path": d["path"].encode(),
+                                            "product_string": d.get("product", "")}
+                self._reports[d["path"]] = queue.Queue()
+                if d.get("deny"):
+                    self._denied.add(d["path"])
+                else:
+                    self._denied.discard(d["path"])
+            elif "unplug" in cmd:
+                self._devices.pop(cmd["unplug"], None)
+            elif "report" in cmd:
+                for q in self._reports.values():
+                    q.put(list(cmd["report"]))
+
+    def enumerate(self) -> list[dict]:
+        with self._lock:
+            return [dict(d) for d in self._devices.values()]
+
+    def open(self, path):
+        key = path.decode() if isinstance(path, bytes) else str(path)
+        with self._lock:
+            if key in self._denied:
+                raise PermissionError(13, "Permission denied", key)
+            if key not in self._devices:
+                raise OSError(2, "open failed", key)
+            q = self._reports[key]
+        backend = self
+
+        class Handle:
+            def read(self, size, timeout_ms=0):
+                with backend._lock:
+                    if key not in backend._devices:
+                        raise OSError(19, "read error: device disconnected")
+                try:
+                    return q.get(timeout=timeout_ms / 1000.0) if timeout_ms else q.get_nowait()
+                except queue.Empty:
+                    return []
+
+            def close(self):
+                pass
+        return Handle()
+
+
+def make_backend(spec: str) -> HidBackend:
+    if spec.startswith("fifo:"):
+        return FifoBackend(spec[5:])
+    if spec not in ("", "hidapi"):
+        raise ValueError(f"unknown hid_backend {spec!r} (hidapi or fifo:PATH)")
+    return HidapiBackend()
+
+
+def find_device(backend: HidBackend, device_path: str = "", vendor_id: int = 0,
+                product_id: int = 0) -> dict | None:
+    """The device to open: an explicit path or vendor/product, else the first known SpaceMouse
+    (CadMice and keyboards are skipped)."""
+    for d in backend.enumerate():
+        key = (d["vendor_id"], d["product_id"])
+        path = d["path"].decode() if isinstance(d["path"], bytes) else str(d["path"])
+        if device_path:
+            if path == device_path:
+                return d
+            continue
+        if vendor_id and product_id:
+            if key == (vendor_id, product_id):
+                return d
+            continue
+        if key in DEVICES and key not in SKIP:
+            return d
+    return None
+
+
+def list_devices(backend: HidBackend | None = None) -> list[str]:
+    """Human-readable lines for ``affordance-registration spacemouse --list``."""
+    backend = backend or HidapiBackend()
+    lines, seen = [], set()
+    for d in backend.enumerate():
+        key = (d["vendor_id"], d["product_id"])
+        path = d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else d["path"]
+        if key in SKIP or key not in DEVICES or path in seen:
+            continue
+        seen.add(path)
+        access = "" if not path.startswith("/dev/") or os.access(path, os.R_OK | os.W_OK) else \
+            "  (no permission: install launch_configs/99-spacemouse.rules)"
+        lines.append(f"{DEVICES[key].name}  {key[0]:04x}:{key[1]:04x}  {path}{access}")
+    return lines
+
+
+# ------------------------------------------------------------------------------- the node
+def _node_class():
+    import rclpy  # noqa: F401  (the node needs ROS; the parsing above does not)
+    from geometry_msgs.msg import Twist, TwistStamped
+    from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+    from rclpy.node import Node
+    from sensor_msgs.msg import Joy
+
+    params = {
+        "hid_backend": ("hidapi", "hidapi, or fifo:PATH for scripted reports (tests, demos)"),
+        "device_path": ("", "open this HID path ('' = first known SpaceMouse)"),
+        "vendor_id": (0, "with product_id: open this USB id"),
+        "product_id": (0, "with vendor_id: open this USB id"),
+        "full_scale": (512.0, "raw value that maps to 1.0 (the spacenav driver's default)"),
+        "deadband": (0.02, "per-axis deadband, fraction of full scale"),
+        "linear_scale": ([1.0, 1.0, 1.0], "per-axis linear scale"),
+        "angular_scale": ([1.0, 1.0, 1.0], "per-axis angular scale"),
+        "publish_rate": (30.0, "Twist/Joy rate while the cap moves (Hz)"),
+        "zero_when_static": (True, "publish zeros once when the cap is released"),
+        "static_timeout_s": (0.25, "no motion report for this long counts as released"),
+        "use_twist_stamped": (False, "publish geometry_msgs/TwistStamped instead of Twist"),
+        "frame_id": ("spacenav", "frame of TwistStamped and Joy headers"),
+        "retry_interval": (1.0, "seconds between attempts to find or reopen the device"),
+    }
+
+    class SpaceMouseNode(Node):
+        def __init__(self, backend: HidBackend | None = None):
+            super().__init__("affordance_spacemouse")
+            for name, (default, desc) in params.items():
+                self.declare_parameter(name, default, ParameterDescriptor(description=desc))
+            self.p = {name: self.get_parameter(name).value for name in params}
+            problem = self._check(self.p)
+            if problem:
+                raise ValueError(problem)
+            self.add_on_set_parameters_callback(self._on_set)
+            self.backend = backend or make_backend(self.p["hid_backend"])
+            twist_type = TwistStamped if self.p["use_twist_stamped"] else Twist
+            self.pub_twist = self.create_publisher(twist_type, "spacenav/twist", 10)
+            self.pub_joy = self.create_publisher(Joy, "spacenav/joy", 10)
+            self.hid_handle = None
+            self.device = None
+            self.state = AxisState()
+            self._moving = False
+            self._next_try = 0.0
+            self._warned: dict[str, float] = {}
+            self._permission_reported: set[str] = set()
+            self.create_timer(1.0 / self.p["publish_rate"], self._on_timer)
+            self.get_logger().info("looking for a SpaceMouse")
+
+        @staticmethod
+        def _check(p) -> str | None:
+            if not p["full_scale"] > 0:
+                return "full_scale must be positive"
+            if not 0 <= p["deadband"] < 1:
+                return "deadband must be in [0, 1)"
+            for k in ("linear_scale", "angular_scale"):
+                if len(p[k]) != 3 or not all(math.isfinite(v) for v in p[k]):
+                    return f"{k} must be 3 finite numbers"
+            if not p["publish_rate"] > 0 or not p["static_timeout_s"] > 0:
+                return "publish_rate and static_timeout_s must be positive"
+            return None
+
+        def _on_set(self, parameters):
+            new = dict(self.p)
+            for prm in parameters:
+                if prm.name in new:
+                    new[prm.name] = prm.value
+            problem = self._check(new)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
+            if any(prm.name in ("hid_backend", "use_twist_stamped", "publish_rate")
+                   for prm in parameters):
+                return SetParametersResult(successful=False, reason="read at start only")
+            self.p = new
+            return SetParametersResult(successful=True)
+
+        def _warn(self, msg: str, every: float = 5.0):
+            now = time.monotonic()
+            if now - self._warned.get(msg, -math.inf) >= every:
+                self._warned[msg] = now
+                self.get_logger().warning(msg)
+
+        def _connect(self):
+            now = time.monotonic()
+            if now < self._next_try:
+                return
+            self._next_try = now + self.p["retry_interval"]
+            d = find_device(self.backend, self.p["device_path"], self.p["vendor_id"],
+                            self.p["product_id"])
+            if d is None:
+                self._warn("no SpaceMouse found; retrying (affordance-registration spacemouse "
+                           "--list shows what is attached)")
+                return
+            path = d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else \
+                str(d["path"])
+            try:
+                self.hid_handle = self.backend.open(d["path"])
+            except PermissionError:
+                self._permission_error(path)
+                return
+            except OSError as exc:
+                if path.startswith("/dev/") and not os.access(path, os.R_OK | os.W_OK):
+                    self._permission_error(path)
+                else:
+                    self._warn(f"cannot open {path}: {exc}; retrying")
+                return
+            key = (d["vendor_id"], d["product_id"])
+            info = DEVICES.get(key, DeviceInfo(d.get("product_string") or "HID device", 2))
+            self.device = (path, info)
+            self.state = AxisState(info.buttons)
+            self.get_logger().info(f"opened {info.name} ({key[0]:04x}:{key[1]:04x}) at {path}")
+
+        def _permission_error(self, path: str):
+            if path in self._permission_reported:
+                return
+            self._permission_reported.add(path)
+            self.get_logger().error(
+                f"permission denied opening {path}: install the udev rule "
+                f"launch_configs/99-spacemouse.rules into /etc/udev/rules.d/, run "
+                f"'sudo udevadm control --reload && sudo udevadm trigger', and replug the device")
+
+        def _read_all(self) -> bool:
+            """Drain pending reports; returns True when the buttons changed."""
+            changed = False
+            now = time.monotonic()
+            for _ in range(64):
+                try:
+                    data = self.hid_handle.read(64, 0)
+                except (OSError, ValueError) as exc:
+                    self.get_logger().warning(f"{self.device[1].name} disconnected ({exc}); "
+                                              f"waiting for it to come back")
+                    try:
+                        self.hid_handle.close()
+                    except Exception:
+                        pass
+                    self.hid_handle, self.device = None, None
+                    self.state = AxisState(self.state.n_buttons)
+                    self._publish(force_zero=True)
+                    return False
+                if not data:
+                    break
+                if self.state.update(parse_report(data), now) == "buttons":
+                    changed = True
+            return changed
+
+        def _on_timer(self):
+            if self.hid_handle is None:
+                self._connect()
+                return
+            if self._read_all():
+                self._publish_joy()             # button changes go out at once
+            if self.hid_handle is None:
+                return
+            now = time.monotonic()
+            if self.p["zero_when_static"] and now - self.state.last_motion > \
+                    self.p["static_timeout_s"]:
+                self.state.raw[:] = 0.0
+            moving = bool(np.any(self.state.raw))
+            if moving or self._moving:
+                self._publish()
+            self._moving = moving
+
+        def _values(self):
+            return to_ros(self.state.raw, self.p["full_scale"], self.p["deadband"],
+                          self.p["linear_scale"], self.p["angular_scale"])
+
+        def _publish(self, force_zero: bool = False):
+            lin, ang, axes = self._values()
+            if force_zero:
+                lin, ang, axes = np.zeros(3), np.zeros(3), np.zeros(6)
+            if self.p["use_twist_stamped"]:
+                msg = TwistStamped()
+                msg.header.stamp = self.get_clock().now().to_msg()
+                msg.header.frame_id = self.p["frame_id"]
+                t = msg.twist
+            else:
+                msg = Twist()
+                t = msg
+            t.linear.x, t.linear.y, t.linear.z = map(float, lin)
+            t.angular.x, t.angular.y, t.angular.z = map(float, ang)
+            self.pub_twist.publish(msg)
+            self._publish_joy(axes)
+
+        def _publish_joy(self, axes=None):
+            if axes is None:
+                axes = self._values()[2]
+            joy = Joy()
+            joy.header.stamp = self.get_clock().now().to_msg()
+            joy.header.frame_id = self.p["frame_id"]
+            joy.axes = [float(v) for v in axes]
+            joy.buttons = self.state.buttons
+            self.pub_joy.publish(joy)
+
+    return SpaceMouseNode
+
+
+def main(args=None) -> int:
+    """Console script ``affordance_spacemouse`` (takes ``--ros-args``)."""
+    import rclpy
+    from rclpy.exceptions import ParameterException
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    node, code = None, 0
+    try:
+        node = _node_class()()
+        while not stop.is_set() and rclpy.ok():
+            try:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            except Exception as exc:   # a failing callback must not take the node down
+                node.get_logger().error(f"internal error in a callback: {exc!r}")
+    except (ValueError, ImportError, ParameterException) as exc:
+        sys.stderr.write(f"affordance_spacemouse: cannot start: {exc}\n")
+        code = 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
