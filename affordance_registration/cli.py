@@ -11,6 +11,7 @@ import json
 import math
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -142,7 +143,7 @@ def print_session_table(rows, out=print) -> None:
         f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)")
 
 
-def cmd_demo(args) -> int:
+def _core_demo(args) -> int:
     from .core.corrections import view_from_optical
     from .core.engine import AffordanceEngine
     from .core.simulation import SimulatedOperator, simulate_taskboard
@@ -163,6 +164,94 @@ def cmd_demo(args) -> int:
     os.makedirs(args.out, exist_ok=True)
     print(engine.save(os.path.join(args.out, "registrations.yaml")))
     return 0 if all(r["ok"] for r in rows) else 1
+
+
+def default_session_dir() -> str:
+    from .core.templates import default_models_dir
+    return os.path.join(os.path.dirname(default_models_dir()), "test", "data", "session")
+
+
+def cmd_demo(args) -> int:
+    """The main job: the full ROS 2 pipeline on the bundled recorded session."""
+    if args.core:
+        return _core_demo(args)
+    from .ros.session import replay_session
+    session = args.session or default_session_dir()
+    if not os.path.isdir(session):
+        raise AffordanceError(f"no recorded session at {session}")
+    print(f"replaying the recorded operator session {session} into a live affordance_engine "
+          f"node (started from launch_configs/affordance_engine.launch.yaml) ...", flush=True)
+    result = replay_session(session, args.out)
+    print_session_table(result["rows"])
+    for m in result["mismatches"]:
+        print(f"MISMATCH with the recorded status: {m}")
+    print(f"{result['played']} messages replayed in {result['played_s']:.1f} s; {result['saved']}")
+    print(f"wrote {result['status']} and {result['picture']}")
+    print("DEMO OK" if result["ok"] else "DEMO FAILED")
+    return 0 if result["ok"] else 1
+
+
+def cmd_session(args) -> int:
+    """Record a new operator session (simulated scene, live engine, simulated operator)."""
+    from .ros.session import record_session
+    print(f"recording a simulated operator session (seed {_seed(args.seed)}) into {args.out} ...")
+    result = record_session(args.out, seed=_seed(args.seed))
+    print_session_table(result["rows"])
+    print(f"recorded {result['counts']} into {result['bag']}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- bag
+def cmd_bag(args) -> int:
+    from .ros.bag import BagError, bag_info
+    if args.bag_command == "info":
+        info = bag_info(args.bag)
+        print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
+        for t in info["topics"]:
+            print(f"  {t['topic']:<32} {t['type']:<36} {t['count']:>6}")
+        return 0
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    import signal
+    import threading
+    stop = threading.Event()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    node = rclpy.create_node("affordance_bag")
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
+                                               for _ in iter(stop.is_set, True)], daemon=True)
+    spinner.start()
+    try:
+        if args.bag_command == "record":
+            from .ros.bag import Recorder
+            recorder = Recorder(node, args.out, args.topics)
+            t0 = time.monotonic()
+            while not stop.is_set() and (args.duration is None or
+                                         time.monotonic() - t0 < args.duration):
+                time.sleep(0.05)
+            counts = recorder.close()
+            print(f"recorded {sum(counts.values())} messages into {args.out}: {counts}")
+        else:
+            from .ros.bag import Player
+            player = Player(node, args.bag, rate=args.rate, start_offset=args.start_offset,
+                            topics=args.topics or None, loop=args.loop)
+            if args.wait_for_subscribers and not player.wait_for_subscribers(
+                    args.wait_for_subscribers):
+                print("not every topic has a subscriber; playing anyway", file=sys.stderr)
+            n = player.play(stop)
+            print(f"played {n} messages from {args.bag}")
+    except BagError:
+        raise
+    finally:
+        stop.set()
+        spinner.join(timeout=2)
+        node.destroy_node()
+        rclpy.shutdown()
+    return 0
 
 
 # ---------------------------------------------------------------------------- launch
@@ -234,11 +323,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="bench_output/bench.json", help="JSON output path")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("demo", help="the main job: a simulated operator session")
-    p.add_argument("--seed", default="7")
-    p.add_argument("--templates", default=None)
+    p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "
+                                    "live engine node, print the results, write demo_output/")
+    p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
     p.add_argument("--out", default="demo_output")
+    p.add_argument("--core", action="store_true",
+                   help="no ROS: a simulated operator on the core engine in this process")
+    p.add_argument("--seed", default="7", help="with --core: the simulated scene")
+    p.add_argument("--templates", default=None)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("session", help="record a simulated operator session (scene, engine node, "
+                                       "operator over ROS) as a rosbag2 bag")
+    p.add_argument("--out", required=True)
+    p.add_argument("--seed", default="7")
+    p.set_defaults(func=cmd_session)
+
+    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
+    bsub = p.add_subparsers(dest="bag_command", required=True)
+    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
+    b.add_argument("out")
+    b.add_argument("topics", nargs="+")
+    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
+    b = bsub.add_parser("play", help="republish a bag with its original timing")
+    b.add_argument("bag")
+    b.add_argument("--rate", type=float, default=1.0)
+    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
+    b.add_argument("--topics", nargs="*", default=None)
+    b.add_argument("--loop", action="store_true")
+    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
+                   help="wait up to this long for a subscriber on every topic first")
+    b = bsub.add_parser("info", help="topics, types, counts, duration")
+    b.add_argument("bag")
+    p.set_defaults(func=cmd_bag)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")

@@ -42,6 +42,7 @@ class TrackedObject:
     model_changes: int = 0                  #: next/previous presses
     context: ClickContext | None = field(default=None, repr=False, compare=False)
     scene_version: int = 0
+    fit_s: float = 0.0                      #: time the click's fit took
 
     @property
     def shown(self) -> FitResult:
@@ -62,6 +63,10 @@ class Registration:
     frame_id: str = ""
     joints: dict = field(default_factory=dict)
     state: str | None = None
+    ranked_first: str = ""                  #: the template the fit ranked first
+    model_changes: int = 0                  #: next/previous presses before accepting
+    corrections: int = 0                    #: correction bursts before accepting
+    fit_s: float = 0.0                      #: time the click's fit took
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -73,7 +78,9 @@ class Registration:
                 "probability": round(float(self.probability), 6),
                 "residual": round(float(self.residual), 9),
                 "click": [round(float(v), 6) for v in self.click],
-                "joints": dict(self.joints), "state": self.state}
+                "joints": dict(self.joints), "state": self.state,
+                "ranked_first": self.ranked_first, "model_changes": self.model_changes,
+                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6)}
 
 
 @dataclass(frozen=True)
@@ -143,7 +150,11 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
                                 residual=float(entry.get("residual", 0.0)),
                                 click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
                                 frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
-                                joints=dict(entry.get("joints") or {}), state=entry.get("state")))
+                                joints=dict(entry.get("joints") or {}), state=entry.get("state"),
+                                ranked_first=str(entry.get("ranked_first", "")),
+                                model_changes=int(entry.get("model_changes", 0)),
+                                corrections=int(entry.get("corrections", 0)),
+                                fit_s=float(entry.get("fit_s", 0.0))))
     return tuple(out)
 
 
@@ -282,7 +293,8 @@ class AffordanceEngine:
         with self._lock:
             obj = TrackedObject(id=self._state.next_id, click=report.point,
                                 candidates=report.candidates, refined=frozenset({0}),
-                                context=report.context, scene_version=version)
+                                context=report.context, scene_version=version,
+                                fit_s=report.timing_s["total"])
             self._commit(replace(self._state, objects=self._state.objects + (obj,),
                                  active_id=obj.id, next_id=obj.id + 1), "click")
             self._last_timing = dict(report.timing_s)
@@ -399,7 +411,10 @@ class AffordanceEngine:
             c = obj.shown
             reg = Registration(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
                                likelihood=c.likelihood, probability=c.probability,
-                               residual=c.residual, click=obj.click, frame_id=self._frame_id)
+                               residual=c.residual, click=obj.click, frame_id=self._frame_id,
+                               ranked_first=obj.candidates[0].template,
+                               model_changes=obj.model_changes, corrections=obj.corrections,
+                               fit_s=obj.fit_s)
             objects = tuple(o for o in self._state.objects if o.id != obj.id)
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),

@@ -90,13 +90,14 @@ class DepthCamera:
                                (v - intrinsics.cy) / intrinsics.fy,
                                np.ones_like(u, dtype=float)], axis=-1)   # z = 1: t_hit is depth
 
-    def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0):
+    def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0,
+               return_normals: bool = False):
         """Cast one ray per pixel.
 
         ``meshes``: sequence of (trimesh.Trimesh, T_cam_mesh 4x4). Returns ``(points, labels)``:
         points (H, W, 3) float32 in the camera optical frame with NaN where there is no return,
         labels (H, W) int32 with the index of the mesh hit, -1 for none. ``rng=None`` renders
-        without noise or dropouts.
+        without noise or dropouts. ``return_normals`` adds the (H, W, 3) surface normals.
         """
         import open3d as o3d  # local: ray casting is the only user
         scene = o3d.t.geometry.RaycastingScene()
@@ -123,6 +124,8 @@ class DepthCamera:
             valid &= rng.random(size=depth.shape) >= p_drop
             labels = np.where(valid, labels, -1).astype(np.int32)
         points = self._dirs * np.where(valid, depth, np.nan)[..., None]
+        if return_normals:
+            return points.astype(np.float32), labels, normals
         return points.astype(np.float32), labels
 
 

@@ -344,7 +344,7 @@ class EngineNode(Node):
         for action in BUTTON_ACTIONS:
             b = int(self._p[f"button_{action}"])
             if 0 <= b < len(buttons) and buttons[b] and not previous[b]:
-                self._run_action(action)
+                self._submit_action(action)
 
     def _on_view(self, msg: PoseStamped) -> None:
         try:
@@ -358,9 +358,23 @@ class EngineNode(Node):
     # ------------------------------------------------------------------ actions
     def _service(self, action: str):
         def callback(request, response):
-            response.success, response.message = self._run_action(action)
+            response.success, response.message = self._submit_action(action, wait=True)
             return response
         return callback
+
+    def _submit_action(self, action: str, wait: bool = False) -> tuple[bool, str]:
+        """Run an action after the clicks already queued (a button pressed right after a click
+        acts on that click's object). Services wait for it; buttons and menus do not."""
+        if self._jobs.empty() and self._busy is None:
+            return self._run_action(action)
+        done = threading.Event()
+        result: list = []
+        self._jobs.put(("action", (action, done, result)))
+        if not wait:
+            return True, f"{action} queued behind the running fit"
+        if not done.wait(timeout=60.0):
+            return False, f"{action}: the fitting thread did not get to it within 60 s"
+        return result[0]
 
     def _run_action(self, action: str) -> tuple[bool, str]:
         try:
@@ -410,6 +424,10 @@ class EngineNode(Node):
                 elif kind == "refit":
                     self._ensure_scene_quietly()
                     self._info(self.engine.refit())
+                elif kind == "action":
+                    action, done, result = payload
+                    result.append(self._run_action(action))
+                    done.set()
             except AffordanceError as exc:
                 self._error(str(exc))
             except Exception as exc:   # a bug must not kill the worker

@@ -173,7 +173,7 @@ class CorrectionMarkerServer:
             if not 1 <= fb.menu_entry_id <= len(MENU):
                 self._ignore(f"unknown menu entry {fb.menu_entry_id}")
                 return
-            self.node._run_action(MENU[fb.menu_entry_id - 1][0])
+            self.node._submit_action(MENU[fb.menu_entry_id - 1][0])
             return
         if fb.event_type == F.MOUSE_DOWN:
             self._drag_client = fb.client_id

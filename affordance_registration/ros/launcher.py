@@ -209,20 +209,24 @@ class Launcher:
     """Starts the nodes of a launch file and stops them together."""
 
     def __init__(self, nodes: list[NodeAction], env: dict | None = None, grace: float = 2.0,
-                 log=None):
+                 log=None, output=None):
         self.nodes = nodes
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         self.grace = grace
         self.procs: list[subprocess.Popen] = []
         self.log = log or (lambda msg: sys.stderr.write(msg + "\n"))
+        self.output = output      # a file for every node's output (None: as the launch file says)
 
     def start(self) -> None:
         for node in self.nodes:
             cmd = node.command()
             self.log(f"[launch] starting {node.name or node.executable}: {' '.join(cmd)}")
             out = None if node.output == "screen" else subprocess.DEVNULL
-            self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out, stderr=out))
+            if self.output is not None:
+                out = self.output
+            self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out,
+                                               stderr=subprocess.STDOUT if out else None))
 
     def wait(self, stop_requested) -> int:
         """Run until every node exits or ``stop_requested()`` is true; returns an exit code."""

@@ -1,0 +1,386 @@
+"""Operator sessions over ROS: the simulated operator driving a live engine node through its
+topics (recorded as a rosbag2 bag), and the replay of a recorded session into a live node -- the
+product's demonstration (``make demo``) and a regression test.
+
+Recorded topics: ``/points`` (the scan, thinned to its finite points), ``/clicked_point``,
+``/spacenav/joy`` (button 0 = next model, 1 = accept), ``/spacenav/twist`` and
+``/affordance_engine/status`` (what the node reported then).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import threading
+import time
+
+import numpy as np
+import yaml
+from geometry_msgs.msg import PointStamped, Twist
+from sensor_msgs.msg import Joy, PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from ..core.errors import AffordanceError
+from ..core.simulation import SimulatedOperator, load_truth, simulate_taskboard
+from ..core.templates import TemplateLibrary
+from ..core.transforms import pose_error
+from .conversions import xyz_to_pointcloud2
+from .engine_node import R_VIEW_SPACENAV
+from .launcher import Launcher, package_share, parse_launch_file
+
+NS = "/affordance_engine"
+INPUT_TOPICS = ["/points", "/clicked_point", "/spacenav/joy", "/spacenav/twist"]
+STATUS_TOPIC = f"{NS}/status"
+FRAME = "camera_depth_optical_frame"
+
+__all__ = ["RosOperator", "record_session", "replay_session", "start_engine"]
+
+
+def _latched():
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class StatusWatch:
+    """Keeps every ~/status the node publishes (for waiting on it and for the session table)."""
+
+    def __init__(self, node):
+        self.history: list[dict] = []
+        self._cv = threading.Condition()
+        node.create_subscription(String, STATUS_TOPIC, self._on_status, _latched())
+
+    def _on_status(self, msg):
+        with self._cv:
+            self.history.append(json.loads(msg.data))
+            self._cv.notify_all()
+
+    @property
+    def latest(self) -> dict | None:
+        with self._cv:
+            return self.history[-1] if self.history else None
+
+    def wait(self, predicate, timeout: float, what: str, after: int = 0) -> dict:
+        """The first status (from index ``after`` on) satisfying ``predicate``."""
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while True:
+                for st in self.history[after:]:
+                    if predicate(st):
+                        return st
+                after = len(self.history)
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AffordanceError(f"timed out waiting for {what}")
+                self._cv.wait(timeout=min(left, 0.2))
+
+    def count(self) -> int:
+        with self._cv:
+            return len(self.history)
+
+
+def _active(st: dict) -> dict | None:
+    for o in st.get("objects", []):
+        if o["active"]:
+            return o
+    return None
+
+
+class RosOperator:
+    """The simulated operator's controls as ROS messages (what a person does in RViz and with a
+    SpaceMouse): the engine node is driven only through its topics."""
+
+    def __init__(self, node, watch: StatusWatch, linear_gain: float = 0.1,
+                 angular_gain: float = 0.6, idle_s: float = 0.5):
+        self.node, self.watch = node, watch
+        self.linear_gain, self.angular_gain, self.idle_s = linear_gain, angular_gain, idle_s
+        self.pub_click = node.create_publisher(PointStamped, "/clicked_point", 10)
+        self.pub_joy = node.create_publisher(Joy, "/spacenav/joy", 10)
+        self.pub_twist = node.create_publisher(Twist, "/spacenav/twist", 10)
+
+    def _idle(self, st):
+        return st.get("node", {}).get("busy") is None and st.get("node", {}).get("queued") == 0
+
+    def click(self, point):
+        n = self.watch.count()
+        before = self.watch.latest or {}
+        known = {o["id"] for o in before.get("objects", [])}
+        msg = PointStamped()
+        msg.header.frame_id = FRAME
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.point.x, msg.point.y, msg.point.z = map(float, point)
+        self.pub_click.publish(msg)
+        self.watch.wait(lambda st: self._idle(st) and _active(st) is not None and
+                        _active(st)["id"] not in known, 60, "the fit of a click", after=n)
+
+    def shown(self):
+        obj = _active(self.watch.latest or {})
+        if obj is None:
+            return None, None
+        c = obj["candidates"][obj["shown"]]
+        return c["template"], np.asarray(c["pose"], dtype=float)
+
+    def _press(self, button: int):
+        joy = Joy()
+        joy.axes = [0.0] * 6
+        joy.buttons = [0, 0]
+        joy.buttons[button] = 1
+        self.pub_joy.publish(joy)
+        time.sleep(0.05)
+        joy.buttons = [0, 0]
+        self.pub_joy.publish(joy)
+
+    def next_model(self):
+        n = self.watch.count()
+        obj = _active(self.watch.latest)
+        self._press(0)
+        self.watch.wait(lambda st: _active(st) is not None and
+                        _active(st)["model_changes"] > obj["model_changes"], 20,
+                        "the next model", after=n)
+
+    def push(self, linear, angular, duration, T_scene_view):
+        """Hold the SpaceMouse cap: view-frame velocities -> spacenav axes at 30 Hz."""
+        lin = R_VIEW_SPACENAV.T @ (np.asarray(linear) / self.linear_gain)
+        ang = R_VIEW_SPACENAV.T @ (np.asarray(angular) / self.angular_gain)
+        twist = Twist()
+        twist.linear.x, twist.linear.y, twist.linear.z = map(float, lin)
+        twist.angular.x, twist.angular.y, twist.angular.z = map(float, ang)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < duration:
+            self.pub_twist.publish(twist)
+            time.sleep(1 / 30)
+        self.pub_twist.publish(Twist())          # released
+        self._pushed_at = self.watch.count()
+
+    def refit(self):
+        """The node refits by itself after the twists stop; wait for it."""
+        self.watch.wait(lambda st: ": refit" in st.get("node", {}).get("last_message", "") and
+                        self._idle(st), 20, "the refit after the push",
+                        after=getattr(self, "_pushed_at", 0))
+
+    def accept(self):
+        n = self.watch.count()
+        k = len((self.watch.latest or {}).get("registered", []))
+        self._press(1)
+        self.watch.wait(lambda st: len(st.get("registered", [])) > k, 20, "the accept", after=n)
+
+
+def start_engine(out_dir: str, log=None, extra_args: dict | None = None) -> Launcher:
+    """The engine node from the package's YAML launch file (as an operator station starts it)."""
+    launch = os.path.join(package_share("affordance_registration"), "launch_configs",
+                          "affordance_engine.launch.yaml")
+    args = {"registrations_file": os.path.join(os.path.abspath(out_dir), "registrations.yaml")}
+    args.update(extra_args or {})
+    log_file = open(os.path.join(out_dir, "engine.log"), "w")
+    launcher = Launcher(parse_launch_file(launch, args), log=log or (lambda m: None),
+                        output=log_file)
+    launcher.start()
+    return launcher
+
+
+def _cloud_message(points: np.ndarray) -> PointCloud2:
+    finite = points[np.all(np.isfinite(points), axis=1)]
+    return xyz_to_pointcloud2(finite.astype(np.float32), FRAME)
+
+
+def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
+    """Simulate a taskboard, start the engine, let the simulated operator register every object
+    through ROS topics while a bag records the session. Writes ``bag/`` and ``truth.yaml``."""
+    import rclpy
+    from .bag import Recorder
+    library = TemplateLibrary.load()
+    sim = simulate_taskboard(library, seed)
+    os.makedirs(out_dir, exist_ok=True)
+    bag_path = os.path.join(out_dir, "bag")
+    if os.path.exists(bag_path):
+        raise AffordanceError(f"{bag_path} exists already")
+    with open(os.path.join(out_dir, "truth.yaml"), "w", encoding="utf-8") as handle:
+        yaml.safe_dump(sim.truth(), handle, sort_keys=False)
+    own_context = not rclpy.ok()
+    if own_context:
+        rclpy.init()
+    launcher = start_engine(out_dir, log=lambda m: None)
+    from rclpy.executors import SingleThreadedExecutor
+    node = rclpy.create_node("affordance_session_operator")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = threading.Event()
+    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
+                                               for _ in iter(stop.is_set, True)], daemon=True)
+    spinner.start()
+    rows = []
+    try:
+        watch = StatusWatch(node)
+        operator = RosOperator(node, watch)
+        pub_points = node.create_publisher(PointCloud2, "/points", _latched())
+        recorder = Recorder(node, bag_path, INPUT_TOPICS + [STATUS_TOPIC])
+        deadline = time.monotonic() + 60
+        while pub_points.get_subscription_count() < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        watch.wait(lambda st: True, 60, "the engine node")
+        time.sleep(0.5)                                   # the recorder discovers the topics
+        pub_points.publish(_cloud_message(sim.organized.reshape(-1, 3)))
+        watch.wait(lambda st: (st.get("node", {}).get("cloud") or {}).get("received"), 30,
+                   "the cloud to arrive")
+        sim_operator = SimulatedOperator(library, seed=seed)
+        from ..core.corrections import view_from_optical
+        view = view_from_optical(np.eye(4))
+        for obj in sim.objects:
+            if obj.click is None or obj.visible_points < 200:
+                continue
+            rows.append(sim_operator.register(obj, operator, view))
+            log(f"  {obj.template}: {rows[-1]['model_changes']} model changes, "
+                f"{rows[-1]['corrections']} corrections, error {rows[-1]['error_mm']:.1f} mm")
+        time.sleep(0.5)
+        counts = recorder.close()
+    finally:
+        stop.set()
+        spinner.join(timeout=2)
+        launcher.stop()
+        node.destroy_node()
+        if own_context:
+            rclpy.shutdown()
+    return {"rows": rows, "counts": counts, "bag": bag_path}
+
+
+def _recorded_status(bag_path: str) -> list[dict]:
+    """Every ~/status message recorded in a bag, decoded."""
+    from rosbags.rosbag2 import Reader
+    from .bag import _typestore, BagError
+    ts = _typestore()
+    out = []
+    try:
+        with Reader(bag_path) as reader:
+            conns = [c for c in reader.connections if c.topic == STATUS_TOPIC]
+            for conn, _, data in reader.messages(connections=conns):
+                out.append(json.loads(ts.deserialize_cdr(data, conn.msgtype).data))
+    except Exception as exc:
+        raise BagError(f"{bag_path}: cannot read the recorded status ({exc})") from None
+    return out
+
+
+def session_rows(status: dict, truth: dict, library) -> list[dict]:
+    """The paper-style table from a node's status: per registered object its true template (the
+    nearest true object), the template ranked first, model changes, corrections, fit time and
+    final pose error."""
+    rows = []
+    for reg in status.get("registered", []):
+        T = np.asarray(reg["pose"], dtype=float)
+        match = min(truth["objects"], key=lambda t: np.linalg.norm(
+            np.asarray(t["T_scene_model"])[:3, 3] - T[:3, 3]))
+        right = reg["template"] == match["template"]
+        if right:
+            dt, dr = pose_error(T, np.asarray(match["T_scene_model"]),
+                                library[match["template"]].symmetry)
+        else:
+            dt, dr = float("inf"), float("inf")
+        rows.append({"template": match["template"], "ranked_first": reg["ranked_first"],
+                     "shown": reg["template"], "model_changes": reg["model_changes"],
+                     "corrections": reg["corrections"], "fit_s": reg["fit_s"],
+                     "error_mm": dt * 1000, "error_deg": math.degrees(dr),
+                     "ok": right and dt <= 0.005 and dr <= math.radians(5)})
+    return rows
+
+
+def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print) -> dict:
+    """Play a recorded session into a live engine node started from the YAML launch file; save
+    its registrations, compare them with the truth and with what the node reported when the
+    session was recorded, and draw the result. Returns a summary (``ok`` is the verdict)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from .bag import Player
+    library = TemplateLibrary.load()
+    truth = load_truth(os.path.join(session_dir, "truth.yaml"))
+    bag_path = os.path.join(session_dir, "bag")
+    recorded = _recorded_status(bag_path)
+    os.makedirs(out_dir, exist_ok=True)
+    own_context = not rclpy.ok()
+    if own_context:
+        rclpy.init()
+    launcher = start_engine(out_dir, log=lambda m: None)
+    node = rclpy.create_node("affordance_session_replay")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = threading.Event()
+    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
+                                               for _ in iter(stop.is_set, True)], daemon=True)
+    spinner.start()
+    try:
+        watch = StatusWatch(node)
+        player = Player(node, bag_path, rate=rate, topics=INPUT_TOPICS)
+        watch.wait(lambda st: True, 60, "the engine node to start")
+        if not player.wait_for_subscribers(30):
+            raise AffordanceError("the engine node did not subscribe to the session's topics")
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        n = player.play()
+        watch.wait(lambda st: len(st.get("registered", [])) >= len(recorded[-1]["registered"])
+                   and st["node"]["busy"] is None, 60, "the last registration")
+        played_s = time.monotonic() - t0
+        client = node.create_client(Trigger, f"{NS}/save")
+        if not client.wait_for_service(timeout_sec=10):
+            raise AffordanceError("the engine's ~/save service is not available")
+        future = client.call_async(Trigger.Request())
+        deadline = time.monotonic() + 10
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        saved = future.result().message if future.done() else "save did not answer"
+        live = watch.latest
+    finally:
+        stop.set()
+        spinner.join(timeout=2)
+        launcher.stop()
+        node.destroy_node()
+        if own_context:
+            rclpy.shutdown()
+    rows = session_rows(live, truth, library)
+    # what the node reports now against what it reported when the session was recorded
+    mismatches = []
+    rec, cur = recorded[-1]["registered"], live["registered"]
+    if [r["template"] for r in rec] != [r["template"] for r in cur]:
+        mismatches.append(f"templates {[r['template'] for r in rec]} were recorded, "
+                          f"{[r['template'] for r in cur]} now")
+    else:
+        for a, b in zip(rec, cur):
+            dt, dr = pose_error(np.asarray(b["pose"]), np.asarray(a["pose"]),
+                                library[a["template"]].symmetry)
+            if dt > 0.003 or dr > math.radians(3):
+                mismatches.append(f"{a['template']} #{a['id']}: {dt * 1000:.1f} mm, "
+                                  f"{math.degrees(dr):.1f} deg from the recorded pose")
+    with open(os.path.join(out_dir, "status.json"), "w", encoding="utf-8") as handle:
+        json.dump(live, handle, indent=1)
+    from ..core.render import render_registrations, write_png
+    from ..core.simulation import CameraIntrinsics
+    intr = CameraIntrinsics(**truth["intrinsics"])
+    cloud = _recorded_cloud(bag_path)
+    picture = os.path.join(out_dir, "registrations.png")
+    write_png(picture, render_registrations(cloud, [(r["template"], np.asarray(r["pose"]))
+                                                    for r in cur], library, intr))
+    ok = bool(rows) and all(r["ok"] for r in rows) and not mismatches and \
+        len(rows) == len(recorded[-1]["registered"])
+    return {"rows": rows, "mismatches": mismatches, "played": n, "played_s": played_s,
+            "saved": saved, "picture": picture, "status": os.path.join(out_dir, "status.json"),
+            "ok": ok}
+
+
+def _recorded_cloud(bag_path: str) -> np.ndarray:
+    from rosbags.rosbag2 import Reader
+    from .bag import _typestore
+    from .conversions import pointcloud2_to_xyz
+    ts = _typestore()
+    with Reader(bag_path) as reader:
+        conns = [c for c in reader.connections if c.topic == "/points"]
+        for conn, _, data in reader.messages(connections=conns):
+            msg = ts.deserialize_cdr(data, conn.msgtype)
+            ros_msg = PointCloud2()
+            ros_msg.height, ros_msg.width = int(msg.height), int(msg.width)
+            ros_msg.point_step, ros_msg.row_step = int(msg.point_step), int(msg.row_step)
+            ros_msg.is_bigendian = bool(msg.is_bigendian)
+            from sensor_msgs.msg import PointField
+            ros_msg.fields = [PointField(name=f.name, offset=int(f.offset), datatype=int(f.datatype),
+                                         count=int(f.count)) for f in msg.fields]
+            ros_msg.data = bytes(msg.data)
+            return pointcloud2_to_xyz(ros_msg)[0]
+    return np.zeros((0, 3))
