@@ -203,29 +203,20 @@ def cmd_session(args) -> int:
 
 # ---------------------------------------------------------------------------- bag
 def cmd_bag(args) -> int:
-    from .ros.bag import BagError, bag_info
+    from .ros.bag import bag_info
     if args.bag_command == "info":
         info = bag_info(args.bag)
         print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
         for t in info["topics"]:
             print(f"  {t['topic']:<32} {t['type']:<36} {t['count']:>6}")
         return 0
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
     import signal
     import threading
+    from .ros.spin import background_node
     stop = threading.Event()
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    node = rclpy.create_node("affordance_bag")
-    from rclpy.executors import SingleThreadedExecutor
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
-                                               for _ in iter(stop.is_set, True)], daemon=True)
-    spinner.start()
-    try:
+    with background_node("affordance_bag") as node:
         if args.bag_command == "record":
             from .ros.bag import Recorder
             recorder = Recorder(node, args.out, args.topics)
@@ -244,13 +235,6 @@ def cmd_bag(args) -> int:
                 print("not every topic has a subscriber; playing anyway", file=sys.stderr)
             n = player.play(stop)
             print(f"played {n} messages from {args.bag}")
-    except BagError:
-        raise
-    finally:
-        stop.set()
-        spinner.join(timeout=2)
-        node.destroy_node()
-        rclpy.shutdown()
     return 0
 
 

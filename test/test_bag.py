@@ -1,6 +1,5 @@
 """rosbag2 bags (record / play / info) and the replay of the bundled operator session into a live
 engine node -- the regression test of a real recorded bag."""
-import math
 import os
 import shutil
 import subprocess
@@ -8,7 +7,6 @@ import sys
 import threading
 import time
 
-import numpy as np
 import pytest
 import yaml
 from rclpy.executors import SingleThreadedExecutor

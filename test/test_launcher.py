@@ -1,7 +1,6 @@
 """The YAML launch-file runner: parsing, substitutions, and starting/stopping real nodes."""
 import os
 import sys
-import time
 
 import numpy as np
 import pytest

@@ -48,7 +48,6 @@ def test_rigid_fit_never_returns_a_reflection():
 
 
 def test_point_to_plane_step_recovers_a_small_motion(library):
-    rng = np.random.default_rng(2)
     P, N = library["emergency_stop"].samples(600, seed=1)
     R = Rotation.from_rotvec([0.01, -0.02, 0.015]).as_matrix()
     t = np.array([0.003, -0.002, 0.004])

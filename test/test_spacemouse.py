@@ -2,7 +2,6 @@
 process driven by a scripted HID device (FifoBackend), alone and with the engine."""
 import errno
 import json
-import math
 import os
 import struct
 import sys

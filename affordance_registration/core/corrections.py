@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import AffordanceError
-from .transforms import axis_angle_matrix, make_T
+from .transforms import axis_angle_matrix, finite_vector, make_T
 
 __all__ = ["view_from_optical", "twist_step", "apply_twist", "OPTICAL_TO_VIEW"]
 
@@ -27,13 +27,7 @@ def view_from_optical(T_scene_optical: np.ndarray) -> np.ndarray:
 
 
 def _vec3(value, what: str) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise AffordanceError(f"{what} must be 3 numbers, got {value!r}") from None
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise AffordanceError(f"{what} must be 3 finite numbers, got {value!r}")
-    return v
+    return finite_vector(value, what, AffordanceError)
 
 
 def twist_step(linear, angular, dt: float, T_scene_view: np.ndarray, centre) -> np.ndarray:

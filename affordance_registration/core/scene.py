@@ -18,6 +18,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .errors import SceneError
+from .transforms import finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points"]
 
@@ -236,13 +237,7 @@ class Scene:
 
 
 def _point3(value, what: str) -> np.ndarray:
-    try:
-        p = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise SceneError(f"{what} must be 3 numbers, got {value!r}") from None
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise SceneError(f"{what} must be 3 finite numbers, got {value!r}")
-    return p
+    return finite_vector(value, what, SceneError)
 
 
 def _pca_normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> np.ndarray:

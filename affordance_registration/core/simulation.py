@@ -392,7 +392,6 @@ class SimulatedOperator:
 
     def register(self, obj: SimulatedObject, actions, T_scene_view: np.ndarray) -> dict:
         """Register one object; returns what it took (model changes, pushes, final error)."""
-        from .transforms import rotation_angle
         from scipy.spatial.transform import Rotation
         t0 = time.perf_counter()
         actions.click(obj.click)

@@ -14,7 +14,6 @@ import math
 import os
 from dataclasses import dataclass, field
 
-import numpy as np
 import trimesh
 import yaml
 

@@ -6,10 +6,21 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
+    "finite_vector", "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "align_z_to", "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
+
+
+def finite_vector(value, what: str, error=ValueError, length: int = 3) -> np.ndarray:
+    """``value`` as a float64 vector of ``length`` finite numbers, else ``error`` naming it."""
+    try:
+        v = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise error(f"{what} must be {length} numbers, got {value!r}") from None
+    if v.shape != (length,) or not np.all(np.isfinite(v)):
+        raise error(f"{what} must be {length} finite numbers, got {value!r}")
+    return v
 
 
 def make_T(R=None, t=None) -> np.ndarray:

@@ -161,15 +161,23 @@ def _triangle_points(mesh) -> list:
     return hit[1]
 
 
-def mesh_marker(mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int,
-                color: ColorRGBA, stamp=None) -> Marker:
-    """The mesh as a TRIANGLE_LIST marker posed at T (RViz needs no mesh file)."""
+def _marker(kind: int, frame_id: str, ns: str, marker_id: int, stamp, position=None) -> Marker:
     m = Marker()
     m.header.frame_id = frame_id
     if stamp is not None:
         m.header.stamp = stamp
     m.ns, m.id = ns, int(marker_id)
-    m.type, m.action = Marker.TRIANGLE_LIST, Marker.ADD
+    m.type, m.action = kind, Marker.ADD
+    m.pose.orientation.w = 1.0
+    if position is not None:
+        m.pose.position = Point(x=float(position[0]), y=float(position[1]), z=float(position[2]))
+    return m
+
+
+def mesh_marker(mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int,
+                color: ColorRGBA, stamp=None) -> Marker:
+    """The mesh as a TRIANGLE_LIST marker posed at T (RViz needs no mesh file)."""
+    m = _marker(Marker.TRIANGLE_LIST, frame_id, ns, marker_id, stamp)
     m.pose = matrix_to_pose(T)
     m.scale.x = m.scale.y = m.scale.z = 1.0
     m.color = color
@@ -179,14 +187,7 @@ def mesh_marker(mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int,
 
 def text_marker(text: str, position, frame_id: str, ns: str, marker_id: int, stamp=None,
                 height: float = 0.025) -> Marker:
-    m = Marker()
-    m.header.frame_id = frame_id
-    if stamp is not None:
-        m.header.stamp = stamp
-    m.ns, m.id = ns, int(marker_id)
-    m.type, m.action = Marker.TEXT_VIEW_FACING, Marker.ADD
-    m.pose.position = Point(x=float(position[0]), y=float(position[1]), z=float(position[2]))
-    m.pose.orientation.w = 1.0
+    m = _marker(Marker.TEXT_VIEW_FACING, frame_id, ns, marker_id, stamp, position)
     m.scale.z = height
     m.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
     m.text = text
@@ -195,14 +196,7 @@ def text_marker(text: str, position, frame_id: str, ns: str, marker_id: int, sta
 
 def sphere_marker(position, frame_id: str, ns: str, marker_id: int, stamp=None,
                   diameter: float = 0.012) -> Marker:
-    m = Marker()
-    m.header.frame_id = frame_id
-    if stamp is not None:
-        m.header.stamp = stamp
-    m.ns, m.id = ns, int(marker_id)
-    m.type, m.action = Marker.SPHERE, Marker.ADD
-    m.pose.position = Point(x=float(position[0]), y=float(position[1]), z=float(position[2]))
-    m.pose.orientation.w = 1.0
+    m = _marker(Marker.SPHERE, frame_id, ns, marker_id, stamp, position)
     m.scale.x = m.scale.y = m.scale.z = diameter
     m.color = ColorRGBA(r=0.2, g=0.6, b=1.0, a=1.0)
     return m

@@ -13,20 +13,16 @@ import json
 import math
 import os
 import queue
-import signal
-import sys
 import threading
 import time
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterException, ParameterUninitializedException
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -37,11 +33,12 @@ from ..core.engine import AffordanceEngine
 from ..core.errors import AffordanceError, EngineStateError
 from ..core.registration import FitSettings
 from ..core.templates import TemplateLibrary
-from .conversions import (ConversionError, likelihood_color, matrix_to_pose, mesh_marker,
+from .conversions import (likelihood_color, matrix_to_pose, mesh_marker,
                           pointcloud2_to_xyz, pose_stamped, pose_to_matrix, sphere_marker,
                           text_marker)
 from .frames import FrameError, StaticFrames
 from .interactive import CorrectionMarkerServer
+from .spin import run_node
 
 FIRST_TWIST_DT = 1.0 / 30.0
 # spacenav/twist axes (x away from the user, y left, z up) -> view axes (x right, y up, z to the
@@ -533,33 +530,7 @@ class EngineNode(Node):
 
 def main(args=None) -> int:
     """Console script ``affordance_engine`` (takes ``--ros-args``)."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = None
-    code = 0
-    try:
-        node = EngineNode()
-        while not stop.is_set() and rclpy.ok():
-            try:
-                rclpy.spin_once(node, timeout_sec=0.1)
-            except Exception as exc:   # a failing callback must not take the node down
-                node.get_logger().error(f"internal error in a callback: {exc!r}")
-    except (AffordanceError, ParameterException) as exc:
-        sys.stderr.write(f"affordance_engine: cannot start: {exc}\n")
-        code = 2
-    finally:
-        if node is not None:
-            node.get_logger().info("shutting down")
-            node.shutdown()
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return code
+    return run_node(EngineNode, "affordance_engine", args, shutdown=lambda node: node.shutdown())
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from ..core.corrections import view_from_optical
 from ..core.errors import AffordanceError
 from ..core.simulation import SimulatedOperator, load_truth, simulate_taskboard
 from ..core.templates import TemplateLibrary
@@ -28,6 +29,7 @@ from ..core.transforms import pose_error
 from .conversions import xyz_to_pointcloud2
 from .engine_node import R_VIEW_SPACENAV
 from .launcher import Launcher, package_share, parse_launch_file
+from .spin import background_node
 
 NS = "/affordance_engine"
 INPUT_TOPICS = ["/points", "/clicked_point", "/spacenav/joy", "/spacenav/twist"]
@@ -188,7 +190,6 @@ def _cloud_message(points: np.ndarray) -> PointCloud2:
 def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
     """Simulate a taskboard, start the engine, let the simulated operator register every object
     through ROS topics while a bag records the session. Writes ``bag/`` and ``truth.yaml``."""
-    import rclpy
     from .bag import Recorder
     library = TemplateLibrary.load()
     sim = simulate_taskboard(library, seed)
@@ -198,50 +199,34 @@ def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
         raise AffordanceError(f"{bag_path} exists already")
     with open(os.path.join(out_dir, "truth.yaml"), "w", encoding="utf-8") as handle:
         yaml.safe_dump(sim.truth(), handle, sort_keys=False)
-    own_context = not rclpy.ok()
-    if own_context:
-        rclpy.init()
-    launcher = start_engine(out_dir, log=lambda m: None)
-    from rclpy.executors import SingleThreadedExecutor
-    node = rclpy.create_node("affordance_session_operator")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    stop = threading.Event()
-    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
-                                               for _ in iter(stop.is_set, True)], daemon=True)
-    spinner.start()
+    launcher = start_engine(out_dir)
     rows = []
     try:
-        watch = StatusWatch(node)
-        operator = RosOperator(node, watch)
-        pub_points = node.create_publisher(PointCloud2, "/points", _latched())
-        recorder = Recorder(node, bag_path, INPUT_TOPICS + [STATUS_TOPIC])
-        deadline = time.monotonic() + 60
-        while pub_points.get_subscription_count() < 1 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        watch.wait(lambda st: True, 60, "the engine node")
-        time.sleep(0.5)                                   # the recorder discovers the topics
-        pub_points.publish(_cloud_message(sim.organized.reshape(-1, 3)))
-        watch.wait(lambda st: (st.get("node", {}).get("cloud") or {}).get("received"), 30,
-                   "the cloud to arrive")
-        sim_operator = SimulatedOperator(library, seed=seed)
-        from ..core.corrections import view_from_optical
-        view = view_from_optical(np.eye(4))
-        for obj in sim.objects:
-            if obj.click is None or obj.visible_points < 200:
-                continue
-            rows.append(sim_operator.register(obj, operator, view))
-            log(f"  {obj.template}: {rows[-1]['model_changes']} model changes, "
-                f"{rows[-1]['corrections']} corrections, error {rows[-1]['error_mm']:.1f} mm")
-        time.sleep(0.5)
-        counts = recorder.close()
+        with background_node("affordance_session_operator") as node:
+            watch = StatusWatch(node)
+            operator = RosOperator(node, watch)
+            pub_points = node.create_publisher(PointCloud2, "/points", _latched())
+            recorder = Recorder(node, bag_path, INPUT_TOPICS + [STATUS_TOPIC])
+            deadline = time.monotonic() + 60
+            while pub_points.get_subscription_count() < 1 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            watch.wait(lambda st: True, 60, "the engine node")
+            time.sleep(0.5)                               # the recorder discovers the topics
+            pub_points.publish(_cloud_message(sim.organized.reshape(-1, 3)))
+            watch.wait(lambda st: (st.get("node", {}).get("cloud") or {}).get("received"), 30,
+                       "the cloud to arrive")
+            sim_operator = SimulatedOperator(library, seed=seed)
+            view = view_from_optical(np.eye(4))
+            for obj in sim.objects:
+                if obj.click is None or obj.visible_points < 200:
+                    continue
+                rows.append(sim_operator.register(obj, operator, view))
+                log(f"  {obj.template}: {rows[-1]['model_changes']} model changes, "
+                    f"{rows[-1]['corrections']} corrections, error {rows[-1]['error_mm']:.1f} mm")
+            time.sleep(0.5)
+            counts = recorder.close()
     finally:
-        stop.set()
-        spinner.join(timeout=2)
         launcher.stop()
-        node.destroy_node()
-        if own_context:
-            rclpy.shutdown()
     return {"rows": rows, "counts": counts, "bag": bag_path}
 
 
@@ -288,53 +273,37 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
     """Play a recorded session into a live engine node started from the YAML launch file; save
     its registrations, compare them with the truth and with what the node reported when the
     session was recorded, and draw the result. Returns a summary (``ok`` is the verdict)."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from .bag import Player
     library = TemplateLibrary.load()
     truth = load_truth(os.path.join(session_dir, "truth.yaml"))
     bag_path = os.path.join(session_dir, "bag")
     recorded = _recorded_status(bag_path)
     os.makedirs(out_dir, exist_ok=True)
-    own_context = not rclpy.ok()
-    if own_context:
-        rclpy.init()
-    launcher = start_engine(out_dir, log=lambda m: None)
-    node = rclpy.create_node("affordance_session_replay")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    stop = threading.Event()
-    spinner = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
-                                               for _ in iter(stop.is_set, True)], daemon=True)
-    spinner.start()
+    launcher = start_engine(out_dir)
     try:
-        watch = StatusWatch(node)
-        player = Player(node, bag_path, rate=rate, topics=INPUT_TOPICS)
-        watch.wait(lambda st: True, 60, "the engine node to start")
-        if not player.wait_for_subscribers(30):
-            raise AffordanceError("the engine node did not subscribe to the session's topics")
-        time.sleep(0.3)
-        t0 = time.monotonic()
-        n = player.play()
-        watch.wait(lambda st: len(st.get("registered", [])) >= len(recorded[-1]["registered"])
-                   and st["node"]["busy"] is None, 60, "the last registration")
-        played_s = time.monotonic() - t0
-        client = node.create_client(Trigger, f"{NS}/save")
-        if not client.wait_for_service(timeout_sec=10):
-            raise AffordanceError("the engine's ~/save service is not available")
-        future = client.call_async(Trigger.Request())
-        deadline = time.monotonic() + 10
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        saved = future.result().message if future.done() else "save did not answer"
-        live = watch.latest
+        with background_node("affordance_session_replay") as node:
+            watch = StatusWatch(node)
+            player = Player(node, bag_path, rate=rate, topics=INPUT_TOPICS)
+            watch.wait(lambda st: True, 60, "the engine node to start")
+            if not player.wait_for_subscribers(30):
+                raise AffordanceError("the engine node did not subscribe to the session's topics")
+            time.sleep(0.3)
+            t0 = time.monotonic()
+            n = player.play()
+            watch.wait(lambda st: len(st.get("registered", [])) >= len(recorded[-1]["registered"])
+                       and st["node"]["busy"] is None, 60, "the last registration")
+            played_s = time.monotonic() - t0
+            client = node.create_client(Trigger, f"{NS}/save")
+            if not client.wait_for_service(timeout_sec=10):
+                raise AffordanceError("the engine's ~/save service is not available")
+            future = client.call_async(Trigger.Request())
+            deadline = time.monotonic() + 10
+            while not future.done() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            saved = future.result().message if future.done() else "save did not answer"
+            live = watch.latest
     finally:
-        stop.set()
-        spinner.join(timeout=2)
         launcher.stop()
-        node.destroy_node()
-        if own_context:
-            rclpy.shutdown()
     rows = session_rows(live, truth, library)
     # what the node reports now against what it reported when the session was recorded
     mismatches = []

@@ -26,9 +26,7 @@ import json
 import math
 import os
 import queue
-import signal
 import struct
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -476,30 +474,8 @@ def _node_class():
 
 def main(args=None) -> int:
     """Console script ``affordance_spacemouse`` (takes ``--ros-args``)."""
-    import rclpy
-    from rclpy.exceptions import ParameterException
-    from rclpy.signals import SignalHandlerOptions
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *a: stop.set())
-    signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    node, code = None, 0
-    try:
-        node = _node_class()()
-        while not stop.is_set() and rclpy.ok():
-            try:
-                rclpy.spin_once(node, timeout_sec=0.1)
-            except Exception as exc:   # a failing callback must not take the node down
-                node.get_logger().error(f"internal error in a callback: {exc!r}")
-    except (ValueError, ImportError, ParameterException) as exc:
-        sys.stderr.write(f"affordance_spacemouse: cannot start: {exc}\n")
-        code = 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return code
+    from .spin import run_node
+    return run_node(lambda: _node_class()(), "affordance_spacemouse", args)
 
 
 if __name__ == "__main__":
