@@ -23,6 +23,7 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.task import Future
 from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -354,24 +355,24 @@ class EngineNode(Node):
 
     # ------------------------------------------------------------------ actions
     def _service(self, action: str):
-        def callback(request, response):
-            response.success, response.message = self._submit_action(action, wait=True)
+        async def callback(request, response):
+            # after the clicks already queued, without blocking the executor meanwhile
+            if self._jobs.empty() and self._busy is None:
+                response.success, response.message = self._run_action(action)
+                return response
+            done = Future(executor=self.executor)
+            self._jobs.put(("action", (action, done)))
+            response.success, response.message = await done
             return response
         return callback
 
-    def _submit_action(self, action: str, wait: bool = False) -> tuple[bool, str]:
-        """Run an action after the clicks already queued (a button pressed right after a click
-        acts on that click's object). Services wait for it; buttons and menus do not."""
+    def _submit_action(self, action: str) -> None:
+        """A button or menu action: after the clicks already queued (a button pressed right
+        after a click acts on that click's object)."""
         if self._jobs.empty() and self._busy is None:
-            return self._run_action(action)
-        done = threading.Event()
-        result: list = []
-        self._jobs.put(("action", (action, done, result)))
-        if not wait:
-            return True, f"{action} queued behind the running fit"
-        if not done.wait(timeout=60.0):
-            return False, f"{action}: the fitting thread did not get to it within 60 s"
-        return result[0]
+            self._run_action(action)
+        else:
+            self._jobs.put(("action", (action, None)))
 
     def _run_action(self, action: str) -> tuple[bool, str]:
         try:
@@ -406,7 +407,8 @@ class EngineNode(Node):
                 if kind == "click":
                     point, frame = payload
                     self._busy = f"fitting a click ({self._jobs.qsize()} more queued)"
-                    self._dirty = True
+                    # progress goes out now, whatever the executor is busy with
+                    self.pub_status.publish(String(data=json.dumps(self.status())))
                     self._ensure_scene()
                     cloud_frame = self.engine.frame_id
                     if frame and frame.lstrip("/") != cloud_frame.lstrip("/"):
@@ -422,9 +424,13 @@ class EngineNode(Node):
                     self._ensure_scene_quietly()
                     self._info(self.engine.refit())
                 elif kind == "action":
-                    action, done, result = payload
-                    result.append(self._run_action(action))
-                    done.set()
+                    action, done = payload
+                    try:
+                        outcome = self._run_action(action)
+                    except Exception as exc:   # the caller must get an answer regardless
+                        outcome = (False, f"internal error: {exc!r}")
+                    if done is not None:
+                        done.set_result(outcome)
             except AffordanceError as exc:
                 self._error(str(exc))
             except Exception as exc:   # a bug must not kill the worker

@@ -27,11 +27,13 @@ def run_node(factory, name: str, args=None, shutdown=None) -> int:
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     node, code = None, 0
+    executor = SingleThreadedExecutor()
     try:
         node = factory()
+        executor.add_node(node)        # one executor for the node's life: its futures wake it
         while not stop.is_set() and rclpy.ok():
             try:
-                rclpy.spin_once(node, timeout_sec=0.1)
+                executor.spin_once(timeout_sec=0.1)
             except Exception as exc:   # a failing callback must not take the node down
                 node.get_logger().error(f"internal error in a callback: {exc!r}")
     except (AffordanceError, ParameterException, ValueError, ImportError) as exc:
@@ -42,6 +44,7 @@ def run_node(factory, name: str, args=None, shutdown=None) -> int:
             node.get_logger().info("shutting down")
             if shutdown is not None:
                 shutdown(node)
+            executor.remove_node(node)
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
