@@ -137,6 +137,9 @@ class SimulatedObject:
     T_scene_model: np.ndarray = field(repr=False)
     click: np.ndarray | None = field(repr=False)   # a point of its visible surface (3,), or None
     visible_points: int
+    joints: dict = field(default_factory=dict)     # joint name -> value (rad or m)
+    scale: float = 1.0
+    state: str | None = None
 
 
 @dataclass(frozen=True)
@@ -169,7 +172,10 @@ class SimulatedScene:
             "T_scene_board": _rows(self.T_scene_board),
             "objects": [{"template": o.template, "T_scene_model": _rows(o.T_scene_model),
                          "click": None if o.click is None else [round(float(v), 6) for v in o.click],
-                         "visible_points": int(o.visible_points)} for o in self.objects],
+                         "visible_points": int(o.visible_points),
+                         "joints": {k: round(float(v), 9) for k, v in o.joints.items()},
+                         "scale": round(float(o.scale), 9), "state": o.state}
+                        for o in self.objects],
         }
 
 
@@ -219,14 +225,20 @@ def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
 
 
 def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "panel",
-                       templates=None, camera: DepthCamera | None = None) -> SimulatedScene:
+                       templates=None, camera: DepthCamera | None = None,
+                       articulated: bool = False) -> SimulatedScene:
     """Render a seeded taskboard: a 1 m x 0.6 m panel with every template (or the named
     ``templates``) at a random position.
 
     ``layout="panel"``: objects are mounted on the panel (template +z along the panel normal) with
     a random rotation about their z axis. ``layout="table"``: the panel is a table top and objects
     lie on it, each resting on one of its stable facets (chosen by facet area) with a random
-    rotation about the vertical -- the case without a mounting prior. The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
+    rotation about the vertical -- the case without a mounting prior.
+
+    ``articulated``: revolute joints take a uniform value within their limits, prismatic ones a
+    random named state (an e-stop pressed or released), and templates with a scale range a
+    uniform scale in it; ``truth.yaml`` records them. Otherwise every template is rendered as
+    its YAML mesh (joint values zero, scale 1). The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
@@ -237,6 +249,20 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))
     camera = camera or DepthCamera()
+    joints, scales = [], []
+    for name in names:
+        tpl = library[name]
+        q = {}
+        if articulated and tpl.joints and tpl.base_mesh is not None:
+            j = tpl.joints[0]
+            if j.type == "revolute" or not tpl.states:
+                q[j.name] = float(rng.uniform(j.lower, j.upper))
+            else:
+                state = sorted(tpl.states)[rng.integers(len(tpl.states))]
+                q[j.name] = float(tpl.states[state].get(j.name, 0.0))
+        joints.append(q)
+        lo_hi = tpl.scale_range if articulated else None
+        scales.append(float(rng.uniform(*lo_hi)) if lo_hi else 1.0)
     rotations = []
     for name in names:
         yaw = axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi))
@@ -246,9 +272,11 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
             rest = library[name].resting_rotations()
             k = rng.choice(len(rest), p=np.array([w for _, w in rest]))
             rotations.append(yaw @ rest[k][0])
+    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
+                 for n, q, sc in zip(names, joints, scales)]
     radii = []
-    for name, R in zip(names, rotations):
-        verts = library[name].vertices @ R.T
+    for mesh, R in zip(meshes_at, rotations):
+        verts = np.asarray(mesh.vertices) @ R.T
         radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
     half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
     positions = _place(radii, rng, half_x, half_y)
@@ -258,12 +286,12 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
     meshes = [(panel, T_cam_board)]
     poses = []
-    for name, R, p in zip(names, rotations, positions):
-        lift = -float((library[name].vertices @ R.T)[:, 2].min()) if layout == "table" else 0.0
+    for mesh, R, p in zip(meshes_at, rotations, positions):
+        lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0
         T_board_model = make_T(R, [p[0], p[1], lift])
         T_cam_model = T_cam_board @ T_board_model
         poses.append(T_cam_model)
-        meshes.append((library[name].mesh, T_cam_model))
+        meshes.append((mesh, T_cam_model))
     organized, labels = camera.render(meshes, rng)
     objects = []
     for k, (name, T) in enumerate(zip(names, poses), start=1):
@@ -274,8 +302,11 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
             order = np.argsort(np.linalg.norm(pts - centre, axis=1))
             near = order[:max(1, len(order) // 4)]
             click = pts[rng.choice(near)]
+        q = joints[k - 1]
         objects.append(SimulatedObject(template=name, T_scene_model=T, click=click,
-                                       visible_points=int(len(pts))))
+                                       visible_points=int(len(pts)), joints=q,
+                                       scale=scales[k - 1],
+                                       state=library[name].nearest_state(q) if q else None))
     return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
                           objects=tuple(objects), T_scene_board=T_cam_board,
                           intrinsics=camera.intrinsics)

@@ -31,6 +31,7 @@ class TemplateSpec:
     symmetry: dict | None = None
     joint: dict | None = None
     states: dict = field(default_factory=dict)
+    scale: tuple | None = None
 
     def full_mesh(self) -> trimesh.Trimesh:
         """The whole object at joint value zero (watertight union of the parts)."""
@@ -94,12 +95,14 @@ def gate_valve() -> TemplateSpec:
     return TemplateSpec(
         name="gate_valve",
         description="Rising-stem gate valve with a four-spoke handwheel (150 mm). The stem and "
-                    "wheel rise by up to 30 mm as the valve opens.",
+                    "wheel rise by up to 30 mm as the valve opens. Made in several sizes "
+                    "(80% to 125%).",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 4},
         joint={"name": "stem", "type": "prismatic", "axis": [0, 0, 1], "origin": [0, 0, 0.085],
                "lower": 0.0, "upper": 0.030, "torque_limit": 60.0},
         states={"closed": {"stem": 0.0}, "open": {"stem": 0.030}},
+        scale=(0.8, 1.25),
     )
 
 
@@ -209,6 +212,8 @@ def write_library(out_dir: str) -> list[str]:
                      "mesh": f"meshes/{spec.name}.stl", "mesh_scale": 1.0}
         _atomic_write_bytes(os.path.join(mesh_dir, f"{spec.name}.stl"),
                             spec.full_mesh().export(file_type="stl"))
+        if spec.scale:
+            doc["scale"] = list(spec.scale)
         if spec.symmetry:
             doc["symmetry"] = spec.symmetry
         if spec.joint:

@@ -6,6 +6,7 @@ A template is a YAML file (``models/<name>.yaml``)::
     mesh: meshes/ball_valve.stl      # required, relative to the YAML; STL/OBJ/PLY mesh, or a
                                      # PLY/PCD point cloud (a scan of the object)
     mesh_scale: 1.0                  # factor from mesh units to metres
+    scale: [0.8, 1.25]               # optional: the design comes in sizes; scale is estimated
     symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}
     base_mesh: meshes/ball_valve_base.stl      # the part that does not move (with joints)
     joints:
@@ -29,7 +30,7 @@ import trimesh
 import yaml
 
 from .errors import TemplateError
-from .transforms import axis_angle_matrix, rotation_angle
+from .transforms import axis_angle_matrix, make_T, rotation_angle
 
 __all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
 
@@ -93,7 +94,7 @@ class AffordanceTemplate:
                  points: np.ndarray | None = None, point_normals: np.ndarray | None = None,
                  mesh_scale: float = 1.0, symmetry: Symmetry | None = None,
                  joints: tuple = (), states: Mapping | None = None, description: str = "",
-                 base_mesh: trimesh.Trimesh | None = None):
+                 base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
         self.name = name
@@ -107,6 +108,7 @@ class AffordanceTemplate:
         self.states = dict(states or {})
         self.description = description
         self.base_mesh = base_mesh
+        self.scale_range = scale_range
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -183,6 +185,79 @@ class AffordanceTemplate:
         with self._lock:
             self._cache[key] = poses
         return poses
+
+    @property
+    def articulated(self) -> bool:
+        """Has a joint (with its moving part) or allows scaling: fitted with extra unknowns."""
+        return (bool(self.joints) and self.base_mesh is not None) or self.scale_range is not None
+
+    def part_samples(self, n: int, seed: int = 0):
+        """Area-weighted samples of the fixed and the moving part at joint value zero: (points
+        (n, 3), normals (n, 3), moving (n,) bool). Without a joint, all samples are fixed."""
+        key = ("parts", int(n), int(seed))
+        with self._lock:
+            hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        if not self.joints or self.base_mesh is None:
+            P, N = self.samples(n, seed)
+            out = (P, N, np.zeros(len(P), bool))
+        else:
+            moving = self.joints[0].moving_mesh
+            n_mov = int(round(n * moving.area / (moving.area + self.base_mesh.area)))
+            n_mov = min(max(n_mov, 1), n - 1)
+            pb, fb = trimesh.sample.sample_surface(self.base_mesh, n - n_mov, seed=int(seed))
+            pm, fm = trimesh.sample.sample_surface(moving, n_mov, seed=int(seed) + 1)
+            P = np.vstack([pb, pm]).astype(float)
+            N = np.vstack([self.base_mesh.face_normals[fb], moving.face_normals[fm]]).astype(float)
+            out = (P, N, np.r_[np.zeros(len(pb), bool), np.ones(len(pm), bool)])
+        for a in out:
+            a.setflags(write=False)
+        with self._lock:
+            self._cache[key] = out
+        return out
+
+    def joint_transform(self, q: float) -> np.ndarray:
+        """4x4 motion of the moving part at joint value ``q`` (rad or m) from its zero pose."""
+        j = self.joints[0]
+        axis, origin = np.asarray(j.axis), np.asarray(j.origin)
+        if j.type == "prismatic":
+            return make_T(t=axis * q)
+        R = axis_angle_matrix(axis, q)
+        return make_T(R, origin - R @ origin)
+
+    def pose_parts(self, P, N, moving, q: float = 0.0, scale: float = 1.0):
+        """Samples with the moving part at joint value ``q`` and the whole template scaled
+        about its origin (the mounting base centre)."""
+        P = np.array(P, dtype=float)
+        N = np.array(N, dtype=float)
+        if q and self.joints and moving.any():
+            T = self.joint_transform(q)
+            P[moving] = P[moving] @ T[:3, :3].T + T[:3, 3]
+            N[moving] = N[moving] @ T[:3, :3].T
+        return P * scale, N
+
+    def mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh:
+        """The template's mesh with the moving part at ``q``, scaled by ``scale`` (cached)."""
+        key = ("mesh", round(float(q), 5), round(float(scale), 5))
+        with self._lock:
+            hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        if self.joints and self.base_mesh is not None and q:
+            moving = self.joints[0].moving_mesh.copy()
+            moving.apply_transform(self.joint_transform(q))
+            mesh = trimesh.util.concatenate([self.base_mesh, moving])
+        else:
+            mesh = self.mesh.copy()
+        if scale != 1.0:
+            mesh.apply_scale(scale)
+        with self._lock:
+            if len(self._cache) > 256:
+                for k in [k for k in self._cache if k[0] == "mesh"][:128]:
+                    del self._cache[k]
+            self._cache[key] = mesh
+        return mesh
 
     def nearest_state(self, joint_values: Mapping[str, float]) -> str | None:
         """Name of the named state closest to ``joint_values`` (None without states)."""
@@ -459,10 +534,22 @@ def load_template(path: str) -> AffordanceTemplate:
     description = doc.get("description", "")
     if not isinstance(description, str):
         raise _fail(path, "description", "expected text")
+    scale_range = None
+    if "scale" in doc:
+        sc = doc["scale"]
+        try:
+            lo, hi = (float(v) for v in sc)
+        except (TypeError, ValueError):
+            raise _fail(path, "scale", f"expected [min, max], got {sc!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise _fail(path, "scale", f"expected 0 < min < max, got {sc!r}")
+        scale_range = (lo, hi)
+    if joints and base is None:
+        raise _fail(path, "base_mesh", "a template with joints needs the fixed part's mesh")
     return AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
                               point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
                               joints=joints, states=states, description=description,
-                              base_mesh=base)
+                              base_mesh=base, scale_range=scale_range)
 
 
 def default_models_dir() -> str:
