@@ -123,3 +123,26 @@ def test_bad_arguments(library):
         simulate_taskboard(library, -1)
     with pytest.raises(AffordanceError, match="layout"):
         simulate_taskboard(library, 1, layout="floor")
+
+
+def test_articulated_scenes_record_joint_values_and_scales(library):
+    s = simulate_taskboard(library, 4, articulated=True)
+    by = {o.template: o for o in s.objects}
+    lever = by["ball_valve"].joints["lever"]
+    assert 0.0 <= lever <= math.pi / 2
+    assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
+    assert by["emergency_stop"].state in ("pressed", "released")
+    assert 0.8 <= by["gate_valve"].scale <= 1.25
+    assert by["grab_handle"].joints == {} and by["grab_handle"].state is None
+    # the rendered surface is the template with that joint value and scale
+    k = [o.template for o in s.objects].index("ball_valve") + 1
+    o = by["ball_valve"]
+    pts = s.organized[s.labels == k].astype(float)
+    local = transform_points(invert(o.T_scene_model), pts)
+    posed = library["ball_valve"].mesh_at(lever, o.scale)
+    assert np.median(mesh_distance(posed, local)) < 0.003
+    truth = s.truth()["objects"][[x["template"] for x in s.truth()["objects"]].index("ball_valve")]
+    assert truth["joints"]["lever"] == pytest.approx(lever) and truth["state"] == o.state
+    # without articulated=True nothing moves: the seed gives the same scene as before
+    plain = simulate_taskboard(library, 4)
+    assert all(x.joints == {} and x.scale == 1.0 for x in plain.objects)

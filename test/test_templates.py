@@ -201,3 +201,48 @@ def test_generator_reproduces_the_committed_library(tmp_path, library):
     src = os.path.join(os.path.dirname(library["ball_valve"].path), "ball_valve.yaml")
     assert yaml.safe_load(open(src)) == yaml.safe_load(open(tmp_path / "ball_valve.yaml"))
     shutil.rmtree(tmp_path)
+
+
+# ----------------------------------------------------------------------------- articulation
+def test_part_samples_and_joint_motion(library):
+    tpl = library["ball_valve"]
+    P, N, moving = tpl.part_samples(1000, seed=1)
+    assert 0.05 < moving.mean() < 0.6
+    lever = tpl.joints[0].moving_mesh
+    assert mesh_distance(lever, P[moving]).max() < 2e-4
+    assert mesh_distance(tpl.base_mesh, P[~moving]).max() < 2e-4
+    # a quarter turn moves only the lever, about the joint axis through its origin
+    P2, N2 = tpl.pose_parts(P, N, moving, q=math.pi / 2)
+    assert np.allclose(P2[~moving], P[~moving])
+    R = trimesh.transformations.rotation_matrix(math.pi / 2, [0, 0, 1], [0, 0, 0.085])[:3, :3]
+    assert np.allclose(P2[moving] - [0, 0, 0.085], (P[moving] - [0, 0, 0.085]) @ R.T, atol=1e-12)
+    assert np.allclose(N2[moving], N[moving] @ R.T)
+    moved = tpl.mesh_at(math.pi / 2)
+    assert mesh_distance(moved, P2[moving]).max() < 2e-4
+    # prismatic: the e-stop button pressed 8 mm goes 8 mm down
+    stop = library["emergency_stop"]
+    P, N, moving = stop.part_samples(500, seed=1)
+    P3, _ = stop.pose_parts(P, N, moving, q=0.008)
+    assert np.allclose(P3[moving] - P[moving], [0, 0, -0.008])
+    # scale about the base origin
+    P4, _ = stop.pose_parts(P, N, moving, scale=1.2)
+    assert np.allclose(P4, P * 1.2)
+    assert stop.mesh_at(0.0, 1.2).extents == pytest.approx(stop.mesh.extents * 1.2)
+
+
+def test_scale_range_key(tmp_path, library):
+    assert library["gate_valve"].scale_range == (0.8, 1.25)
+    assert library["ball_valve"].scale_range is None
+    for bad in ([1.2, 0.8], [0, 1], "big", [1.0]):
+        path = _write(tmp_path, {"name": "x", "mesh": "box.stl", "scale": bad})
+        with pytest.raises(TemplateError, match=r"key 'scale'"):
+            load_template(path)
+
+
+def test_joints_need_the_fixed_part(tmp_path):
+    trimesh.creation.box(extents=[0.02, 0.02, 0.02]).export(tmp_path / "knob.stl")
+    path = _write(tmp_path, {"name": "x", "mesh": "box.stl", "joints": [
+        {"name": "j", "type": "revolute", "axis": [0, 0, 1], "lower": 0.0, "upper": 1.0,
+         "moving_mesh": "knob.stl"}]})
+    with pytest.raises(TemplateError, match=r"key 'base_mesh'"):
+        load_template(path)
