@@ -132,7 +132,7 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     assert 0.0 <= lever <= math.pi / 2
     assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
     assert by["emergency_stop"].state in ("pressed", "released")
-    assert 0.8 <= by["gate_valve"].scale <= 1.25
+    assert all(o.scale == 1.0 for o in s.objects)        # no template has a scale range
     assert by["grab_handle"].joints == {} and by["grab_handle"].state is None
     # the rendered surface is the template with that joint value and scale
     k = [o.template for o in s.objects].index("ball_valve") + 1

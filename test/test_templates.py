@@ -231,8 +231,9 @@ def test_part_samples_and_joint_motion(library):
 
 
 def test_scale_range_key(tmp_path, library):
-    assert library["gate_valve"].scale_range == (0.8, 1.25)
-    assert library["ball_valve"].scale_range is None
+    assert all(t.scale_range is None for t in library.values())
+    good = _write(tmp_path, {"name": "x", "mesh": "box.stl", "scale": [0.8, 1.25]}, name="g.yaml")
+    assert load_template(good).scale_range == (0.8, 1.25)
     for bad in ([1.2, 0.8], [0, 1], "big", [1.0]):
         path = _write(tmp_path, {"name": "x", "mesh": "box.stl", "scale": bad})
         with pytest.raises(TemplateError, match=r"key 'scale'"):

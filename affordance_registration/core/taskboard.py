@@ -95,14 +95,12 @@ def gate_valve() -> TemplateSpec:
     return TemplateSpec(
         name="gate_valve",
         description="Rising-stem gate valve with a four-spoke handwheel (150 mm). The stem and "
-                    "wheel rise by up to 30 mm as the valve opens. Made in several sizes "
-                    "(80% to 125%).",
+                    "wheel rise by up to 30 mm as the valve opens.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 4},
         joint={"name": "stem", "type": "prismatic", "axis": [0, 0, 1], "origin": [0, 0, 0.085],
                "lower": 0.0, "upper": 0.030, "torque_limit": 60.0},
         states={"closed": {"stem": 0.0}, "open": {"stem": 0.030}},
-        scale=(0.8, 1.25),
     )
 
 
