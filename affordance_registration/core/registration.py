@@ -74,6 +74,7 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
+    coarse_two_way: bool = True        #: coarse selection also scores cluster -> template
     medium_samples: int = 256
     medium_iterations: int = 10
     fine_samples: int = 1500
@@ -404,6 +405,8 @@ class Registrar:
                          target="cluster", occlusion=True)
         fwd, _ = self._forward_score(ctx, tlist, R, t, s.coarse_samples)
         fwd = fwd + self._click_penalty(ctx, tlist, R, t)
+        if s.coarse_two_way:     # the cluster -> template half of the residual, on a subsample
+            fwd = 0.5 * fwd + 0.5 * self._coarse_backward(ctx, tlist, R, t)
         # 3. keep the best distinct few per template, refine them at medium resolution
         keep = []
         for i, tpl in enumerate(tpls):
@@ -500,10 +503,18 @@ class Registrar:
                     for yaw in (np.arange(s.yaw_restarts) + rng.uniform()) * 2 * math.pi / s.yaw_restarts:
                         add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw))
                 if s.mode in ("auto", "free"):
+                    cluster_axis = _principal_angle(ctx.cluster @ up)
                     for R_rest, _ in tpl.resting_rotations(s.resting_poses):
                         if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
                             continue   # the mounted orientation, already swept
-                        for yaw in (np.arange(s.resting_yaws) + rng.uniform()) * 2 * math.pi / s.resting_yaws:
+                        yaws = list((np.arange(s.resting_yaws) + rng.uniform()) * 2 * math.pi
+                                    / s.resting_yaws)
+                        # and the two yaws that line the resting template's long axis up with
+                        # the cluster's (elongated parts lying on a table)
+                        tpl_axis = _principal_angle(tpl.samples(256, seed=1)[0] @ R_rest.T)
+                        if cluster_axis is not None and tpl_axis is not None:
+                            yaws += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
+                        for yaw in yaws:
                             add(i, tpl, up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest,
                                 kind=RESTING)
             n_rand = 0 if s.mode == "mounted" and plane is not None else (
@@ -772,6 +783,22 @@ class Registrar:
         d, _ = self._dense_tree(tpl).query(local, k=1, distance_upper_bound=cap)
         return float(np.minimum(d, cap).mean())
 
+    def _coarse_backward(self, ctx: ClickContext, tlist, R, t, n: int = 64) -> np.ndarray:
+        """Scene -> template capped mean distance of a fixed subsample of the cluster (B,)."""
+        cap = self.settings.score_cap
+        pts = ctx.cluster[np.linspace(0, len(ctx.cluster) - 1, min(n, len(ctx.cluster)))
+                          .astype(int)]
+        local = np.einsum("bji,bnj->bni", R, pts[None] - t[:, None, :])   # (B, n, 3) model
+        out = np.empty(len(tlist))
+        keys = np.array([id(tp) for tp in tlist])
+        for key in set(keys.tolist()):
+            sel = np.flatnonzero(keys == key)
+            tp = tlist[int(sel[0])]
+            d, _ = self._dense_tree(tp).query(local[sel].reshape(-1, 3), k=1,
+                                              distance_upper_bound=cap)
+            out[sel] = np.minimum(d, cap).reshape(len(sel), -1).mean(axis=1)
+        return out
+
     def _click_penalty(self, ctx: ClickContext, tlist, R, t) -> np.ndarray:
         """The operator clicked on the object: a candidate whose surface passes farther than
         ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
@@ -846,6 +873,16 @@ class Registrar:
                                      iterations=total_iters,
                                      time_s=time.perf_counter() - t_start))
         return _rank(results)
+
+
+def _principal_angle(points: np.ndarray) -> float | None:
+    """Angle in the xy plane of the main axis of ``points`` (N, 3), or None when they are not
+    elongated (the two in-plane spreads within 20% of each other)."""
+    xy = points[:, :2] - points[:, :2].mean(axis=0)
+    vals, vecs = np.linalg.eigh(xy.T @ xy)
+    if len(points) < 10 or vals[1] < 1.44 * max(vals[0], 1e-12):
+        return None
+    return float(math.atan2(vecs[1, 1], vecs[0, 1]))
 
 
 def _sym_angle(tpl: AffordanceTemplate, R_rel: np.ndarray) -> float:
