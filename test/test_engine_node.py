@@ -170,12 +170,13 @@ def test_twist_burst_moves_in_the_view_frame_then_refits(session, library):
     s["pubs"]["twist"].publish(Twist())     # released
     client.wait_for(lambda: max(
         (pose_to_matrix(m.pose)[0, 3] - before[0, 3] for m in client.history[f"{NS}/fit"]),
-        default=0) > 0.008, what="the fit to move right")
+        default=0) > 0.004, what="the fit to move right")
     displaced = max(client.history[f"{NS}/fit"],
                     key=lambda m: pose_to_matrix(m.pose)[0, 3])
     d = pose_to_matrix(displaced.pose)[:3, 3] - before[:3, 3]
     # along the view's right (the optical +x of the default view), not up or towards the viewer
-    assert 0.008 < d[0] < 0.03 and abs(d[1]) < 0.15 * d[0] and abs(d[2]) < 0.15 * d[0], d
+    # (how far depends on how evenly the messages arrive; the refit reaches back 5 cm)
+    assert 0.004 < d[0] < 0.04 and abs(d[1]) < 0.15 * d[0] and abs(d[2]) < 0.15 * d[0], d
     # twists stopped: the node refits after refit_idle_s and lands back on the object
     client.wait_for(lambda: pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose),
                                        obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
