@@ -16,7 +16,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..core.errors import AffordanceError
 
-__all__ = ["BagError", "Recorder", "Player", "bag_info", "message_class"]
+__all__ = ["BagError", "Recorder", "Player", "bag_info", "message_class", "read_messages"]
 
 
 class BagError(AffordanceError):
@@ -153,6 +153,23 @@ def bag_info(path: str) -> dict:
                 "messages": reader.message_count,
                 "topics": [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount}
                            for c in reader.connections]}
+    finally:
+        reader.close()
+
+
+def read_messages(path: str, topic: str):
+    """Yield the messages recorded on ``topic``, decoded into rclpy message objects."""
+    from rclpy.serialization import deserialize_message
+    reader = _open_reader(path)
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        for conn, _, data in reader.messages(connections=conns):
+            yield deserialize_message(bytes(data), message_class(conn.msgtype))
+    except BagError:
+        raise
+    except Exception as exc:
+        raise BagError(f"{path}: reading {topic} failed ({exc.__class__.__name__}: {exc}); "
+                       f"the bag is truncated or corrupt") from None
     finally:
         reader.close()
 

@@ -25,7 +25,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.task import Future
 from sensor_msgs.msg import Joy, PointCloud2
-from std_msgs.msg import String
+from std_msgs.msg import ColorRGBA, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -502,7 +502,6 @@ class EngineNode(Node):
                                                self._up(), frame, "candidate_label", obj.id,
                                                stamp))
             markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
-        from std_msgs.msg import ColorRGBA
         for reg in state.registered:
             tpl = self.library[reg.template] if reg.template in self.library else None
             if tpl is None:

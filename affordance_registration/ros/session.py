@@ -26,7 +26,8 @@ from ..core.errors import AffordanceError
 from ..core.simulation import SimulatedOperator, load_truth, simulate_taskboard
 from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
-from .conversions import xyz_to_pointcloud2
+from .bag import read_messages
+from .conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
 from .engine_node import R_VIEW_SPACENAV
 from .launcher import Launcher, package_share, parse_launch_file
 from .spin import background_node
@@ -232,18 +233,7 @@ def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
 
 def _recorded_status(bag_path: str) -> list[dict]:
     """Every ~/status message recorded in a bag, decoded."""
-    from rosbags.rosbag2 import Reader
-    from .bag import _typestore, BagError
-    ts = _typestore()
-    out = []
-    try:
-        with Reader(bag_path) as reader:
-            conns = [c for c in reader.connections if c.topic == STATUS_TOPIC]
-            for conn, _, data in reader.messages(connections=conns):
-                out.append(json.loads(ts.deserialize_cdr(data, conn.msgtype).data))
-    except Exception as exc:
-        raise BagError(f"{bag_path}: cannot read the recorded status ({exc})") from None
-    return out
+    return [json.loads(m.data) for m in read_messages(bag_path, STATUS_TOPIC)]
 
 
 def session_rows(status: dict, truth: dict, library) -> list[dict]:
@@ -335,21 +325,7 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
 
 
 def _recorded_cloud(bag_path: str) -> np.ndarray:
-    from rosbags.rosbag2 import Reader
-    from .bag import _typestore
-    from .conversions import pointcloud2_to_xyz
-    ts = _typestore()
-    with Reader(bag_path) as reader:
-        conns = [c for c in reader.connections if c.topic == "/points"]
-        for conn, _, data in reader.messages(connections=conns):
-            msg = ts.deserialize_cdr(data, conn.msgtype)
-            ros_msg = PointCloud2()
-            ros_msg.height, ros_msg.width = int(msg.height), int(msg.width)
-            ros_msg.point_step, ros_msg.row_step = int(msg.point_step), int(msg.row_step)
-            ros_msg.is_bigendian = bool(msg.is_bigendian)
-            from sensor_msgs.msg import PointField
-            ros_msg.fields = [PointField(name=f.name, offset=int(f.offset), datatype=int(f.datatype),
-                                         count=int(f.count)) for f in msg.fields]
-            ros_msg.data = bytes(msg.data)
-            return pointcloud2_to_xyz(ros_msg)[0]
+    """The points of the first cloud recorded on /points."""
+    for msg in read_messages(bag_path, "/points"):
+        return pointcloud2_to_xyz(msg)[0]
     return np.zeros((0, 3))
