@@ -247,6 +247,71 @@ def test_parameters_are_validated(session):
     assert trigger(s, "next_model").success          # still serving
 
 
+def test_joint_state_in_status_markers_and_joint_steps(session, library):
+    """An articulated scene: the lever valve's joint value and state are in ~/status, its
+    moving part is drawn at the estimated angle in ~/markers, ~/joint_plus steps the lever by
+    joint_step_deg and refits, and a Joy axis mapped by parameter steps it back."""
+    from visualization_msgs.msg import MarkerArray
+    s = session
+    client = s["client"]
+    client.subscribe(MarkerArray, f"{NS}/markers", LATCHED)
+    q_true = math.pi / 4
+    sim = simulate_taskboard(library, 3102, articulated=True,
+                             joints={"ball_valve": {"lever": q_true}})
+    obj = next(o for o in sim.objects if o.template == "ball_valve")
+    s["pubs"]["points"].publish(cloud_msg(sim.organized))
+    time.sleep(0.5)
+    n_before = len(status(s)["objects"])
+    click(s, obj.click)
+    st = client.wait_for(lambda: len(status(s)["objects"]) == n_before + 1 and status(s), 30,
+                         "the lever valve fitted")
+    shown = [o for o in st["objects"] if o["active"]][0]["candidates"][0]
+    assert shown["template"] == "ball_valve"
+    assert abs(shown["joints"]["lever"] - q_true) <= math.radians(5)
+    assert shown["state"] in ("open", "closed") and shown["scale"] == 1.0
+    tpl = library["ball_valve"]
+
+    def moving_part_at(q):
+        ma = client.latest.get(f"{NS}/markers")
+        parts = [m for m in (ma.markers if ma else []) if m.ns == "candidate_moving_part"]
+        if not parts:
+            return False
+        pts = np.array([[p.x, p.y, p.z] for p in parts[-1].points])
+        expected = np.asarray(tpl.moving_mesh_at(q).triangles).reshape(-1, 3)
+        return pts.shape == expected.shape and np.allclose(pts, expected, atol=1e-5)
+    client.wait_for(lambda: moving_part_at(shown["joints"]["lever"]), what="the moving part marker")
+    res = trigger(s, "joint_plus")
+    assert res.success and "lever" in res.message, res.message
+    q1 = shown["joints"]["lever"] + math.radians(5.0)
+    client.wait_for(lambda: abs([o for o in status(s)["objects"] if o["active"]][0]
+                                ["candidates"][0]["joints"]["lever"] - q1) < 1e-5,
+                    what="the stepped joint in the status")
+    client.wait_for(lambda: moving_part_at(q1), what="the moving part at the stepped angle")
+    # a Joy axis mapped to the joint: one step per push, in the push's direction
+    setp = client.call(SetParameters, f"{NS}/set_parameters", SetParameters.Request(parameters=[
+        Parameter(name="joint_axis", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                                          integer_value=5))]))
+    assert setp.results[0].successful
+    joy = Joy()
+    for value in (0.0, -0.9, -0.95, 0.0):
+        joy.axes = [0.0] * 5 + [value]
+        s["pubs"]["joy"].publish(joy)
+        time.sleep(0.1)
+    client.wait_for(lambda: abs([o for o in status(s)["objects"] if o["active"]][0]
+                                ["candidates"][0]["joints"]["lever"] - (q1 - math.radians(5))) < 1e-5,
+                    what="one step back from the axis push")
+    res = trigger(s, "discard")
+    assert res.success
+    # a template without a joint refuses with a reason
+    handle = next(o for o in sim.objects if o.template == "grab_handle")
+    click(s, handle.click)
+    client.wait_for(lambda: [o for o in status(s)["objects"] if o["active"]] and
+                    [o for o in status(s)["objects"] if o["active"]][0]["candidates"][0]
+                    ["template"] == "grab_handle", 30, "the grab handle")
+    res = trigger(s, "joint_minus")
+    assert not res.success and "no joint" in res.message
+
+
 def test_sigint_stops_the_node_quickly(session):
     code, took = session["proc"].interrupt(timeout=5)
     assert code == 0 and took < 2.0, (code, took)

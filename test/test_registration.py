@@ -172,23 +172,3 @@ def test_clear_errors(library, registrar, tmp_path):
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100
-
-
-def test_experimental_joint_estimation_recovers_clear_states(library):
-    """The opt-in articulated path (FitSettings(articulated=True), issue 8 still open): on a
-    scene with a lever valve nearly closed, an e-stop pressed and a gate valve open, the joint
-    values and named states come back. A functional check of that path, not an accuracy claim."""
-    sim = simulate_taskboard(library, 505, articulated=True)
-    reg = Registrar(library, FitSettings(articulated=True))
-    scene = Scene(sim.organized)
-    by = {o.template: o for o in sim.objects}
-    for name, tol in (("ball_valve", math.radians(5)), ("emergency_stop", 0.002),
-                      ("gate_valve", 0.002)):
-        obj = by[name]
-        best = reg.fit(scene, obj.click).candidates[0]
-        assert best.template == name
-        (jname, q_true), = obj.joints.items()
-        assert abs(best.joints[jname] - q_true) <= tol, (name, best.joints, q_true)
-        assert best.state == obj.state
-    # the default stays rigid: no joint values are claimed
-    assert Registrar(library).fit(scene, by["ball_valve"].click).candidates[0].joints == {}

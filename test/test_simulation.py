@@ -132,7 +132,11 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     assert 0.0 <= lever <= math.pi / 2
     assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
     assert by["emergency_stop"].state in ("pressed", "released")
-    assert all(o.scale == 1.0 for o in s.objects)        # no template has a scale range
+    assert all(o.scale == 1.0 for o in s.objects)        # no bundled template has sizes
+    from affordance_registration.bench import sized_library
+    sized = simulate_taskboard(sized_library(library), 4, articulated=True)
+    handle = next(o for o in sized.objects if o.template == "grab_handle")
+    assert 0.8 <= handle.scale <= 1.25 and handle.scale != 1.0
     assert by["grab_handle"].joints == {} and by["grab_handle"].state is None
     # the rendered surface is the template with that joint value and scale
     k = [o.template for o in s.objects].index("ball_valve") + 1

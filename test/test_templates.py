@@ -232,6 +232,11 @@ def test_part_samples_and_joint_motion(library):
 
 def test_scale_range_key(tmp_path, library):
     assert all(t.scale_range is None for t in library.values())
+    sized = library["grab_handle"].with_scale_range((0.8, 1.25))
+    assert sized.scale_range == (0.8, 1.25) and sized.articulated
+    assert library["grab_handle"].scale_range is None
+    with pytest.raises(TemplateError, match="scale range"):
+        library["grab_handle"].with_scale_range((1.2, 0.8))
     good = _write(tmp_path, {"name": "x", "mesh": "box.stl", "scale": [0.8, 1.25]}, name="g.yaml")
     assert load_template(good).scale_range == (0.8, 1.25)
     for bad in ([1.2, 0.8], [0, 1], "big", [1.0]):

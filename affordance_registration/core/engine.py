@@ -7,6 +7,7 @@ several threads. Fitting runs outside the lock; only its result is committed und
 """
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 import threading
@@ -61,8 +62,9 @@ class Registration:
     residual: float
     click: np.ndarray = field(repr=False)
     frame_id: str = ""
-    joints: dict = field(default_factory=dict)
-    state: str | None = None
+    joints: dict = field(default_factory=dict)      #: joint name -> value (rad or m)
+    state: str | None = None                        #: the nearest named state
+    scale: float = 1.0                              #: uniform scale of the template
     ranked_first: str = ""                  #: the template the fit ranked first
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
@@ -78,7 +80,8 @@ class Registration:
                 "probability": round(float(self.probability), 6),
                 "residual": round(float(self.residual), 9),
                 "click": [round(float(v), 6) for v in self.click],
-                "joints": dict(self.joints), "state": self.state,
+                "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
+                "state": self.state, "scale": round(float(self.scale), 6),
                 "ranked_first": self.ranked_first, "model_changes": self.model_changes,
                 "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6)}
 
@@ -150,7 +153,9 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
                                 residual=float(entry.get("residual", 0.0)),
                                 click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
                                 frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
-                                joints=dict(entry.get("joints") or {}), state=entry.get("state"),
+                                joints={str(k): float(v) for k, v in
+                                        (entry.get("joints") or {}).items()},
+                                state=entry.get("state"), scale=float(entry.get("scale", 1.0)),
                                 ranked_first=str(entry.get("ranked_first", "")),
                                 model_changes=int(entry.get("model_changes", 0)),
                                 corrections=int(entry.get("corrections", 0)),
@@ -162,18 +167,21 @@ class AffordanceEngine:
     """The operator-facing registration engine.
 
     Every action returns a message a person can read, or raises :class:`EngineStateError` when it
-    does not apply now (nothing selected, nothing to undo...) and :class:`SceneError` for a bad
-    click. ``select_radius``: a click within this fraction of the shown template's diameter from
+    does not apply now (nothing selected, nothing to undo, no joint...) and :class:`SceneError`
+    for a bad click. ``select_radius``: a click within this fraction of the shown template's diameter from
     an object's centre selects that object instead of starting a new one.
     """
 
     def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
-                 select_radius: float = 0.4, undo_depth: int = 200):
+                 select_radius: float = 0.4, undo_depth: int = 200,
+                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002):
         self.registrar = Registrar(library, settings)
         self.registrar.warm_up()
         self.library = library
         self.select_radius = float(select_radius)
         self.undo_depth = int(undo_depth)
+        self.joint_step_rad = float(joint_step_rad)    #: one joint nudge, revolute (rad)
+        self.joint_step_m = float(joint_step_m)        #: one joint nudge, prismatic (m)
         self._lock = threading.RLock()
         self._state = EngineState()
         self._undo: list[tuple[EngineState, str]] = []
@@ -302,7 +310,10 @@ class AffordanceEngine:
 
     def _describe(self, obj: TrackedObject) -> str:
         c = obj.shown
-        return (f"{c.template} — rank {obj.active + 1}/{len(obj.candidates)} — "
+        extra = f" — {c.state}" if c.state else ""
+        if c.scale != 1.0:
+            extra += f" — scale {c.scale:.2f}"
+        return (f"{c.template}{extra} — rank {obj.active + 1}/{len(obj.candidates)} — "
                 f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}")
 
     def _cycle(self, step: int) -> str:
@@ -316,7 +327,8 @@ class AffordanceEngine:
             refined = obj.refined
         if active not in refined and ctx is not None:   # refine on first display, outside lock
             cand = candidates[active]
-            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model)
+            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
+                                          cand.scale)
             if better.likelihood >= cand.likelihood:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = candidates[:active] + (cand,) + candidates[active + 1:]
@@ -370,8 +382,44 @@ class AffordanceEngine:
         cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
         return replace(obj, candidates=cands, corrections=corrections)
 
-    def refit(self) -> str:
-        """Refit the shown candidate locally from its current (possibly corrected) pose."""
+    def correct_joint(self, steps: float | None = None, value: float | None = None,
+                      refit: bool = True) -> str:
+        """Nudge the shown candidate's joint by ``steps`` joint steps (``joint_step_rad`` for a
+        revolute joint, ``joint_step_m`` for a prismatic one) or set it to ``value`` (rad or m),
+        clamped to its limits; then, with ``refit``, refit the pose with the joint held where
+        the operator put it. One correction (one undo step with its refit)."""
+        with self._lock:
+            obj = self._require_active()
+            tpl = self.library[obj.shown.template]
+            if not tpl.joints or tpl.base_mesh is None:
+                raise EngineStateError(f"{tpl.name} has no joint to move")
+            joint = tpl.joints[0]
+            q = float(obj.shown.joints.get(joint.name, 0.0))
+            if value is not None:
+                q_new = float(value)
+            elif steps is not None:
+                step = self.joint_step_rad if joint.type == "revolute" else self.joint_step_m
+                q_new = q + float(steps) * step
+            else:
+                raise AffordanceError("give a number of joint steps or a joint value")
+            if not np.isfinite(q_new):
+                raise AffordanceError(f"joint value must be finite, got {q_new!r}")
+            q_new = float(np.clip(q_new, joint.lower, joint.upper))
+            joints = {joint.name: q_new}
+            cand = replace(obj.shown, joints=joints, state=tpl.nearest_state(joints))
+            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
+            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            self._commit(self._replace_object(new), "joint")
+        unit = "deg" if joint.type == "revolute" else "mm"
+        shown = np.degrees(q_new) if joint.type == "revolute" else q_new * 1000
+        msg = f"object {obj.id}: {joint.name} of {tpl.name} at {shown:.1f} {unit} ({cand.state})"
+        if refit:
+            msg += "; " + self.refit(hold_joint=True, coalesce=True)
+        return msg
+
+    def refit(self, hold_joint: bool = False, coalesce: bool = False) -> str:
+        """Refit the shown candidate locally from its current (possibly corrected) pose, joint
+        values and scale (``hold_joint``: keep the joint value, refit the pose and scale)."""
         with self._lock:
             obj = self._require_active()
             scene, version = self._scene, self._scene_version
@@ -387,18 +435,26 @@ class AffordanceEngine:
         if ctx is None:
             raise EngineStateError("no point cloud to refit against")
         t0 = time.perf_counter()
-        res = self.registrar.refit(ctx, obj.shown.template, obj.shown.T_scene_model)
+        shown = obj.shown
+        res = self.registrar.refit(ctx, shown.template, shown.T_scene_model, shown.joints,
+                                   shown.scale, hold_joint=hold_joint)
+        if hold_joint and shown.joints:       # the operator's value, whatever the settings
+            res = replace(res, joints=dict(shown.joints), state=shown.state)
         with self._lock:
             current = self._find(obj.id)
             if current is None or current.shown.template != obj.shown.template or \
-                    not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model):
+                    not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model) or \
+                    current.shown.joints != shown.joints:
                 raise EngineStateError("the object changed during the refit; refit again")
             cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
             cands = current.candidates[:current.active] + (cand,) + \
                 current.candidates[current.active + 1:]
             new = replace(current, candidates=cands, context=ctx, scene_version=version,
                           refined=current.refined | {current.active})
-            self._commit(self._replace_object(new), "refit")
+            if coalesce:        # the refit belongs to the correction just made: one undo step
+                self._state = self._replace_object(new)
+            else:
+                self._commit(self._replace_object(new), "refit")
             self._last_timing = {"refit": time.perf_counter() - t0}
             moved = np.linalg.norm(res.T_scene_model[:3, 3] - obj.shown.T_scene_model[:3, 3])
             return (f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
@@ -412,6 +468,7 @@ class AffordanceEngine:
             reg = Registration(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
                                likelihood=c.likelihood, probability=c.probability,
                                residual=c.residual, click=obj.click, frame_id=self._frame_id,
+                               joints=dict(c.joints), state=c.state, scale=c.scale,
                                ranked_first=obj.candidates[0].template,
                                model_changes=obj.model_changes, corrections=obj.corrections,
                                fit_s=obj.fit_s)

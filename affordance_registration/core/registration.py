@@ -83,11 +83,10 @@ class FitSettings:
     two_way: bool = True               #: final stage also pairs scene points with the template
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
-    #: EXPERIMENTAL (off): estimate joint values and scale where templates have them. Measured on
-    #: 8 articulated scenes: joint within 5 deg / 2 mm 24/30, state 28/30, 2.2x the rigid time;
-    #: not yet good enough to be the default (see the issue on articulated templates).
-    articulated: bool = False
-    articulated_candidates: int = 2    #: that many leading candidates get them estimated
+    #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
+    articulated: bool = True
+    articulated_candidates: int = 3    #: at most that many leading candidates get them estimated,
+    articulated_margin: float = 1.6    #: those with a residual within this factor of the best
     joint_sweep: int = 13              #: joint values tried across a revolute joint's limits
     scale_sweep: int = 7               #: scales tried across a template's scale range
     articulation_rounds: int = 3
@@ -111,7 +110,8 @@ class FitSettings:
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
-                     "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn"):
+                     "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
+                     "articulated_margin"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
@@ -173,18 +173,35 @@ class FitReport:
     context: ClickContext = field(repr=False)
 
 
+class PartTrees:
+    """KD-trees over dense samples of a template's fixed and moving part at joint value zero and
+    scale one, in the template frame: nearest-surface queries for the template at any joint value
+    and scale without building a tree per hypothesis."""
+
+    def __init__(self, template: AffordanceTemplate, n: int = 4096):
+        P, _, moving = template.part_samples(n, seed=2)
+        self.base_pts, self.moving_pts = P[~moving], P[moving]
+        self.base = cKDTree(self.base_pts)
+        self.moving = cKDTree(self.moving_pts) if len(self.moving_pts) else None
+
+
 class PosedTemplate:
     """A template with its joint at ``q`` and scaled by ``scale``: the interface the fitting
-    uses (samples, centroid, diameter, symmetry, name), so articulated and scaled candidates run
-    through the same batched ICP and scoring as rigid ones. ``moving_only`` keeps just the
-    moving part's samples (to judge a joint value by the part it moves)."""
+    uses (samples, centroid, diameter, symmetry, name, nearest), so articulated and scaled
+    candidates run through the same batched ICP and scoring as rigid ones. ``moving_only`` keeps
+    just the moving part's samples (to judge a joint value by the part it moves)."""
 
-    def __init__(self, template: AffordanceTemplate, q: float = 0.0, scale: float = 1.0,
-                 moving_only: bool = False):
-        self.template, self.q, self.scale = template, float(q), float(scale)
+    def __init__(self, template: AffordanceTemplate, trees: PartTrees, q: float = 0.0,
+                 scale: float = 1.0, moving_only: bool = False):
+        self.template, self.trees, self.q, self.scale = template, trees, float(q), float(scale)
         self.name, self.symmetry = template.name, template.symmetry
         self.moving_only = moving_only
         self._cache: dict = {}
+
+    def with_values(self, q: float | None = None, scale: float | None = None,
+                    moving_only: bool = False) -> "PosedTemplate":
+        return PosedTemplate(self.template, self.trees, self.q if q is None else q,
+                             self.scale if scale is None else scale, moving_only)
 
     @property
     def diameter(self) -> float:
@@ -192,7 +209,11 @@ class PosedTemplate:
 
     @property
     def centroid(self) -> np.ndarray:
-        return self.samples(2048, seed=0)[0].mean(axis=0)
+        if "centroid" not in self._cache:
+            P, N, moving = self.template.part_samples(2048, seed=0)
+            self._cache["centroid"] = self.template.pose_parts(P, N, moving, self.q,
+                                                               self.scale)[0].mean(axis=0)
+        return self._cache["centroid"]
 
     def samples(self, n: int, seed: int = 0):
         key = (int(n), int(seed))
@@ -208,10 +229,27 @@ class PosedTemplate:
                 self._cache[key] = self.template.pose_parts(P, N, moving, self.q, self.scale)
         return self._cache[key]
 
-    def dense_tree(self) -> cKDTree:
-        if "tree" not in self._cache:
-            self._cache["tree"] = cKDTree(self.samples(4096, seed=2)[0])
-        return self._cache["tree"]
+    def nearest(self, local: np.ndarray, upper: float = np.inf, parts: bool = False):
+        """Distance (m) from points ``local`` (N, 3, this posed template's frame) to the nearest
+        dense surface sample, and that sample (N, 3); distances beyond ``upper`` are inf. With
+        ``parts``, also whether that sample is on the moving part (N,) bool."""
+        u = np.asarray(local, dtype=float) / self.scale
+        ub = upper / self.scale
+        d, i = self.trees.base.query(u, k=1, distance_upper_bound=ub)
+        pts = self.trees.base_pts[np.minimum(i, len(self.trees.base_pts) - 1)]
+        if self.trees.moving is not None:
+            T = self.template.joint_transform(self.q) if self.q else np.eye(4)
+            um = (u - T[:3, 3]) @ T[:3, :3]          # into the moving part's zero pose
+            dm, im = self.trees.moving.query(um, k=1, distance_upper_bound=ub)
+            closer = dm < d
+            d = np.where(closer, dm, d)
+            pm = self.trees.moving_pts[np.minimum(im, len(self.trees.moving_pts) - 1)]
+            pts = np.where(closer[:, None], pm @ T[:3, :3].T + T[:3, 3], pts)
+        else:
+            closer = np.zeros(len(d), bool)
+        if parts:
+            return d * self.scale, pts * self.scale, closer
+        return d * self.scale, pts * self.scale
 
     @property
     def joints(self) -> dict:
@@ -298,6 +336,7 @@ class Registrar:
         self.library = library
         self.settings = (settings or FitSettings()).validate()
         self._dense_trees: dict[str, cKDTree] = {}
+        self._part_tree_cache: dict[str, PartTrees] = {}
         self._cos_grazing = math.cos(self.settings.grazing_angle)
 
     # ------------------------------------------------------------------ public API
@@ -312,6 +351,8 @@ class Registrar:
             tpl.centroid, tpl.diameter
             tpl.resting_rotations(s.resting_poses)
             self._dense_tree(tpl)
+            if tpl.articulated:
+                self._part_trees(tpl)
 
     def prepare(self, scene: Scene, click) -> ClickContext:
         """Snap the click to the surface and prepare the crop around it."""
@@ -338,14 +379,20 @@ class Registrar:
         timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
         return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
 
-    def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray) -> FitResult:
+    def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
+              joints: dict | None = None, scale: float = 1.0,
+              hold_joint: bool = False) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
         ``refit_max_move`` / ``refit_max_turn`` from ``T_init``: a refit that would jump back to a
-        pose the operator moved away from keeps the closest acceptable pose instead."""
+        pose the operator moved away from keeps the closest acceptable pose instead.
+
+        An articulated template starts from ``joints`` (name -> value) and ``scale`` and refines
+        them with the pose (with ``settings.articulated``); ``hold_joint`` keeps the joint value
+        as given (the operator just set it) and refines the pose and scale only."""
         s = self.settings
         t0 = time.perf_counter()
-        tpl = self.library[template]
+        tpl = self._model(template, joints, scale)
         rng = np.random.default_rng(s.seed + 7919)
         Ts = [np.asarray(T_init, dtype=float)]
         centre = Ts[0][:3, :3] @ tpl.centroid + Ts[0][:3, 3]
@@ -378,17 +425,34 @@ class Registrar:
             R[0], t[0] = Ts[0][:3, :3], Ts[0][:3, 3]
             allowed[0] = True
         best = int(np.argmin(np.where(allowed, fwd, np.inf)))
-        res = self._finish(ctx, tpl, R[best], t[best], samples=s.refit_samples,
-                           iterations=s.refit_iterations,
-                           iterations_before=6)
+        if isinstance(tpl, PosedTemplate):
+            res, tpl = self._finish_articulated(ctx, tpl, R[best], t[best], s.refit_samples,
+                                                s.refit_iterations, 6, hold_joint=hold_joint)
+        else:
+            res = self._finish(ctx, tpl, R[best], t[best], samples=s.refit_samples,
+                               iterations=s.refit_iterations, iterations_before=6)
         res = self._guard_refit(res, Ts[0], R[best], t[best], ctx, tpl)
         return replace(res, time_s=time.perf_counter() - t0)
 
-    def score(self, ctx: ClickContext, template: str, T_scene_model: np.ndarray) -> FitResult:
-        """Residual and likelihood of a given pose (no fitting)."""
-        tpl = self.library[template]
+    def score(self, ctx: ClickContext, template: str, T_scene_model: np.ndarray,
+              joints: dict | None = None, scale: float = 1.0) -> FitResult:
+        """Residual and likelihood of a given pose, joint values and scale (no fitting)."""
+        tpl = self._model(template, joints, scale)
         T = np.asarray(T_scene_model, dtype=float)
         return self._result(ctx, tpl, T[:3, :3], T[:3, 3], 0, 0.0)
+
+    def _model(self, template: str, joints: dict | None = None, scale: float = 1.0):
+        """The template to fit: with ``settings.articulated``, an articulated one posed at
+        ``joints`` (clipped to its limits) and ``scale`` (clipped to its range)."""
+        base = self.library[template]
+        if not (self.settings.articulated and base.articulated):
+            return base
+        q = 0.0
+        if base.joints and base.base_mesh is not None and joints:
+            j = base.joints[0]
+            q = float(np.clip(float(joints.get(j.name, 0.0)), j.lower, j.upper))
+        lo_hi = base.scale_range
+        return self._posed(base, q, float(np.clip(scale, *lo_hi)) if lo_hi is not None else 1.0)
 
     # ------------------------------------------------------------------ default method
     def _fit_default(self, ctx: ClickContext, names: list[str]) -> tuple:
@@ -443,7 +507,9 @@ class Registrar:
         if s.articulated:
             for r in ranked[:s.articulated_candidates]:
                 tpl = self.library[r.template]
-                if not tpl.articulated:
+                # a rigid fit of a valve with its handle turned can rank behind a wrong
+                # template: every close enough articulated candidate gets its joint estimated
+                if not tpl.articulated or r.residual > s.articulated_margin * ranked[0].residual:
                     continue
                 model, Ra, ta = self._articulate(ctx, tpl, r.T_scene_model[:3, :3],
                                                  r.T_scene_model[:3, 3])
@@ -459,7 +525,11 @@ class Registrar:
         if isinstance(tpl, PosedTemplate):       # the joint after the sweep, once more
             tpl, R_w, t_w = self._articulate(ctx, tpl.template, R_w, t_w, tpl.q, tpl.scale,
                                              sweep=False)
-        final = self._finish(ctx, tpl, R_w, t_w, s.fine_samples, s.fine_iterations, iters)
+        if isinstance(tpl, PosedTemplate):
+            final, _ = self._finish_articulated(ctx, tpl, R_w, t_w, s.fine_samples,
+                                                s.fine_iterations, iters)
+        else:
+            final = self._finish(ctx, tpl, R_w, t_w, s.fine_samples, s.fine_iterations, iters)
         if final.likelihood < win.likelihood:
             final = win
         total = time.perf_counter() - t0
@@ -554,15 +624,20 @@ class Registrar:
         return R2[best], t2[best]
 
     def _articulate(self, ctx: ClickContext, tpl: AffordanceTemplate, R, t, q0: float = 0.0,
-                    scale0: float = 1.0, sweep: bool = True):
-        """Estimate the joint value and the scale with the pose. The sweep tries every joint
-        value twice -- the fixed part stays and the moving part moves, or the moving part stays
-        where the data put it and the fixed part moves back (a rigid fit has often turned the
-        whole object to match the handle) -- and scales across the range, each with a short ICP;
-        rounds of pose ICP and local joint/scale steps follow. Joint values are judged by the
-        whole residual plus the moving part's own fit. Returns (PosedTemplate, R, t)."""
+                    scale0: float = 1.0, sweep: bool = True, hold_joint: bool = False):
+        """Estimate the joint value and the scale with the pose.
+
+        The sweep tries joint values across the limits, each three ways: the fixed part stays and
+        the moving part moves, or the fixed part moves back by half or all of the change (a rigid
+        fit has often turned or shifted the whole object to match its moving part); then scales
+        across the range. Every hypothesis gets a short batched ICP and is judged by
+        the two-way residual plus the moving part's own fit. Rounds of local joint/scale steps
+        (each with a short ICP) follow, halving the step. ``hold_joint`` keeps ``q0`` (the
+        operator set it). Returns (PosedTemplate, R, t)."""
         s = self.settings
         joint = tpl.joints[0] if tpl.joints and tpl.base_mesh is not None else None
+        if hold_joint:
+            joint = None
         lo_hi = tpl.scale_range
         n = s.medium_samples
 
@@ -572,15 +647,14 @@ class Registrar:
                 reject = np.array([0.15 * m.diameter for m in models])
                 Rs, ts = self._icp(models, Rs, ts, ctx, n, icp_iterations, reject,
                                    target="cluster", occlusion=True)
-            scores = np.array([self._result(ctx, m, Rs[k], ts[k], 0, 0.0).residual
-                               for k, m in enumerate(models)])
+            scores = self._scores(ctx, models, Rs, ts, n)
             if joint is not None:
-                parts = [PosedTemplate(tpl, m.q, m.scale, moving_only=True) for m in models]
+                parts = [m.with_values(moving_only=True) for m in models]
                 scores = scores + self._forward_score(ctx, parts, Rs, ts, n // 2)[0]
             k = int(np.argmin(scores))
             return models[k], Rs[k], ts[k]
 
-        model = PosedTemplate(tpl, q0, scale0)
+        model = self._posed(tpl, q0, scale0)
         if sweep and joint is not None:
             steps = s.joint_sweep if joint.type == "revolute" else max(3, s.joint_sweep // 2)
             T = make_T(R, t)
@@ -589,29 +663,127 @@ class Registrar:
                 moves = (0.0, 0.5, 1.0) if g != q0 else (0.0,)
                 for f in moves:     # the fixed part turns back by none, half or all of it
                     T_h = T @ tpl.joint_transform(f * (q0 - g)) if f else T
-                    models.append(PosedTemplate(tpl, g, scale0))
+                    models.append(model.with_values(q=g))
                     Rs.append(T_h[:3, :3])
                     ts.append(T_h[:3, 3])
             model, R, t = best_of(models, Rs, ts, s.articulation_icp)
         if sweep and lo_hi is not None:
-            grid = np.linspace(lo_hi[0], lo_hi[1], s.scale_sweep)
-            models = [PosedTemplate(tpl, model.q, g) for g in grid]
-            model, R, t = best_of(models, [R] * len(grid), [t] * len(grid), 4)
+            # each scale about the template's origin (the mounting base stays) and about its
+            # centroid (the fit matched the middle of a bigger or smaller object)
+            centre = R @ model.centroid + t
+            models, Rs, ts = [], [], []
+            for g in np.linspace(lo_hi[0], lo_hi[1], s.scale_sweep):
+                m = model.with_values(scale=g)
+                models += [m, m]
+                Rs += [R, R]
+                ts += [t, centre - R @ m.centroid]
+            model, R, t = best_of(models, Rs, ts, s.articulation_icp)
         q_step = (joint.upper - joint.lower) / (2 * s.joint_sweep) if joint is not None else 0.0
-        s_step = 0.02
+        s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
+        if not sweep:
+            q_step, s_step = q_step / 2, s_step / 2
         for _ in range(s.articulation_rounds):
             models = [model]
             if joint is not None:
-                models += [PosedTemplate(tpl, float(np.clip(model.q + d * q_step, joint.lower,
-                                                            joint.upper)), model.scale)
-                           for d in (-1.0, 1.0)]
+                models += [model.with_values(q=float(np.clip(model.q + d * q_step, joint.lower,
+                                                             joint.upper))) for d in (-1.0, 1.0)]
             if lo_hi is not None:
-                models += [PosedTemplate(tpl, model.q,
-                                         float(np.clip(model.scale * (1 + d * s_step), *lo_hi)))
-                           for d in (-1.0, 1.0)]
+                models += [model.with_values(scale=float(np.clip(model.scale + d * s_step,
+                                                                 *lo_hi))) for d in (-1.0, 1.0)]
+            if len(models) == 1:
+                break
             model, R, t = best_of(models, [R] * len(models), [t] * len(models), 4)
             q_step, s_step = q_step / 2, s_step / 2
         return model, R, t
+
+    def _scores(self, ctx: ClickContext, models, Rs, ts, n: int) -> np.ndarray:
+        """The two-way capped residual (plus the click penalty) of a batch of hypotheses (B,)."""
+        fwd, _ = self._forward_score(ctx, models, Rs, ts, n)
+        bwd = np.array([self._backward_score(ctx, m, Rs[k], ts[k]) for k, m in enumerate(models)])
+        return 0.5 * (fwd + bwd) + self._click_penalty(ctx, models, Rs, ts)
+
+    def _finish_articulated(self, ctx: ClickContext, model: PosedTemplate, R, t, samples: int,
+                            iterations: int, iterations_before: int, hold_joint: bool = False):
+        """The fine stage with the joint value and the scale as unknowns besides the pose: the
+        two-way weighted point-to-plane step of :meth:`_icp` extended by a column per extra
+        unknown (d x / d q: the moving part's motion about or along the joint axis; d x / d s:
+        the unscaled posed point), solved in closed form each iteration (Gauss-Newton).
+        Returns (FitResult, PosedTemplate)."""
+        s = self.settings
+        tpl = model.template
+        jointed = bool(tpl.joints) and tpl.base_mesh is not None
+        joint = tpl.joints[0] if jointed and not hold_joint else None
+        lo_hi = tpl.scale_range
+        d0 = s.weight_scale
+        P0, N0, moving0 = tpl.part_samples(samples, seed=1)
+        q, sc = model.q, model.scale
+        R, t = np.array(R, dtype=float), np.array(t, dtype=float)
+        reject = 0.1 * model.diameter
+        floor = min(reject, s.reject_floor)
+        pts, normals = ctx.fine, ctx.fine_normals
+        if len(pts) > s.reverse_points:       # the same even subset as the rigid fine stage
+            pick = (np.arange(s.reverse_points) * (len(pts) / s.reverse_points)).astype(np.int64)
+            pts, normals = pts[pick], normals[pick]
+        axis = np.asarray(joint.axis) if joint is not None else None
+        origin = np.asarray(joint.origin) if joint is not None else None
+        it = 0
+        for it in range(iterations):
+            radius = reject * (floor / reject) ** (it / max(iterations - 1, 1))
+            Tj = tpl.joint_transform(q) if jointed and q else np.eye(4)
+            U, Nu = np.array(P0), np.array(N0)
+            U[moving0] = P0[moving0] @ Tj[:3, :3].T + Tj[:3, 3]
+            Nu[moving0] = N0[moving0] @ Tj[:3, :3].T
+            X = (sc * U) @ R.T + t
+            Q, Nq, w = self._pairs(ctx, ctx.fine_tree, X[None], (Nu @ R.T)[None],
+                                   np.array([radius]), True, True)
+            Q, Nq, w, mov = Q[0], Nq[0], w[0], moving0
+            if s.two_way:   # scene -> template pairs: each scene point with its nearest sample
+                posed = model.with_values(q=q, scale=sc)
+                centre = R @ posed.centroid + t
+                near = np.einsum("ij,ij->i", pts - centre, pts - centre) <= \
+                    (0.5 * posed.diameter) ** 2
+                d_r, x_r, mov_r = posed.nearest((pts[near] - t) @ R, parts=True)
+                finite = np.isfinite(d_r)
+                X = np.vstack([X, x_r[finite] @ R.T + t])
+                Q = np.vstack([Q, pts[near][finite]])
+                Nq = np.vstack([Nq, normals[near][finite]])
+                w = np.concatenate([w, correspondence_weights(d_r[finite], radius, d0)])
+                U = np.vstack([U, x_r[finite] / sc])
+                mov = np.concatenate([mov, mov_r[finite]])
+            W = w.sum()
+            if W < 1e-9:
+                break
+            c = (w[:, None] * X).sum(axis=0) / W
+            cols = [np.cross(X - c, Nq), Nq]
+            if joint is not None:
+                du = (np.cross(axis, U - origin) if joint.type == "revolute"
+                      else np.broadcast_to(axis, U.shape)) * mov[:, None]
+                cols.append(np.einsum("si,si->s", (sc * du) @ R.T, Nq)[:, None])
+            if lo_hi is not None:
+                cols.append(np.einsum("si,si->s", U @ R.T, Nq)[:, None])
+            J = np.concatenate(cols, axis=1)
+            r = np.einsum("si,si->s", Q - X, Nq)
+            A = (J * w[:, None]).T @ J + 1e-9 * np.eye(J.shape[1])
+            xi = np.linalg.solve(A, (J * w[:, None]).T @ r)
+            omega, v = xi[:3], xi[3:6]
+            angle = float(np.linalg.norm(omega))
+            dR = axis_angle_matrix(omega, angle) if angle > 1e-12 else np.eye(3)
+            R = dR @ R
+            t = dR @ (t - c) + c + v
+            k = 6
+            dq = ds = 0.0
+            if joint is not None:
+                span = joint.upper - joint.lower
+                dq = float(np.clip(xi[k], -span / 8, span / 8))
+                q = float(np.clip(q + dq, joint.lower, joint.upper))
+                k += 1
+            if lo_hi is not None:
+                ds = float(np.clip(xi[k], -0.05, 0.05))
+                sc = float(np.clip(sc + ds, *lo_hi))
+            if angle < 2e-4 and np.linalg.norm(v) < 5e-5 and abs(dq) < 1e-4 and abs(ds) < 1e-4:
+                break
+        model = model.with_values(q=q, scale=sc)
+        return self._result(ctx, model, R, t, iterations_before + it + 1, 0.0), model
 
     def _finish(self, ctx, tpl, R, t, samples, iterations, iterations_before) -> FitResult:
         reject = np.array([0.1 * tpl.diameter])
@@ -661,13 +833,10 @@ class Registrar:
         step (closed-form 6x6 solve), which does not creep along flat or cylindrical surfaces."""
         point_to_plane = target == "fine" and self.settings.fine_metric == "plane"
         two_way = target == "fine" and self.settings.two_way
-        d0 = self.settings.weight_scale
         tree = ctx.cluster_tree if target == "cluster" else ctx.fine_tree
-        pts = tree.data
         P, N = self._stack_samples(tlist, n_samples)
         R = np.array(R, dtype=float)
         t = np.array(t, dtype=float)
-        B, S = P.shape[:2]
         reject = np.asarray(reject, dtype=float)
         floor = np.minimum(reject, self.settings.reject_floor)
         for it in range(iterations):
@@ -676,28 +845,7 @@ class Registrar:
             radius = reject * (floor / reject) ** frac
             X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
             Nw = np.einsum("bij,bsj->bsi", R, N)
-            vis, _ = self._visible(ctx, X, Nw, occlusion)
-            dist = np.full((B, S), np.inf)
-            Q = np.empty_like(X)
-            if ctx.plane is not None:
-                # The plane band was removed from the targets; a sample in it corresponds to its
-                # projection on the plane, which the sensor did observe (keeps tilt and height
-                # constrained when the rest of the object is degenerate, e.g. a bar seen from above).
-                pd = ctx.plane.distance(X)
-                band = vis & (pd <= 1.5 * ctx.plane_threshold)
-                dist[band] = np.abs(pd[band])
-                Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
-                vis = vis & ~band
-            d_v, i_v = tree.query(X[vis], k=1, workers=_workers(int(vis.sum())))
-            dist[vis] = d_v
-            Q[vis] = pts[np.minimum(i_v, len(pts) - 1)]
-            w = correspondence_weights(dist, radius[:, None], d0)
-            Q = np.where(np.isfinite(dist)[..., None], Q, X)
-            Nq = np.zeros_like(X)
-            if point_to_plane:
-                Nq[vis] = ctx.fine_normals[np.minimum(i_v, len(pts) - 1)]
-                if ctx.plane is not None:
-                    Nq[band] = ctx.plane.normal
+            Q, Nq, w = self._pairs(ctx, tree, X, Nw, radius, occlusion, point_to_plane)
             if two_way:
                 X, Q, Nq, w = self._add_reverse_pairs(ctx, tlist, R, t, X, Q, Nq, w, radius)
             if point_to_plane:
@@ -709,6 +857,39 @@ class Registrar:
             if np.all(rotation_angle(dR) < 2e-4) and np.all(np.linalg.norm(dt, axis=1) < 5e-5):
                 break
         return R, t
+
+    def _pairs(self, ctx: ClickContext, tree: cKDTree, X, Nw, radius, occlusion: bool,
+               normals: bool):
+        """Correspondences of posed samples X (B, S, 3) with normals Nw: the nearest target point
+        (Q), its normal when ``normals`` (Nq, else zeros) and the weight w (B, S) -- zero for
+        unseen samples and beyond ``radius`` (B,)."""
+        d0 = self.settings.weight_scale
+        pts = tree.data
+        B, S = X.shape[:2]
+        vis, _ = self._visible(ctx, X, Nw, occlusion)
+        dist = np.full((B, S), np.inf)
+        Q = np.empty_like(X)
+        band = np.zeros_like(vis)
+        if ctx.plane is not None:
+            # The plane band was removed from the targets; a sample in it corresponds to its
+            # projection on the plane, which the sensor did observe (keeps tilt and height
+            # constrained when the rest of the object is degenerate, e.g. a bar seen from above).
+            pd = ctx.plane.distance(X)
+            band = vis & (pd <= 1.5 * ctx.plane_threshold)
+            dist[band] = np.abs(pd[band])
+            Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
+            vis = vis & ~band
+        d_v, i_v = tree.query(X[vis], k=1, workers=_workers(int(vis.sum())))
+        dist[vis] = d_v
+        Q[vis] = pts[np.minimum(i_v, len(pts) - 1)]
+        w = correspondence_weights(dist, radius[:, None], d0)
+        Q = np.where(np.isfinite(dist)[..., None], Q, X)
+        Nq = np.zeros_like(X)
+        if normals:
+            Nq[vis] = ctx.fine_normals[np.minimum(i_v, len(pts) - 1)]
+            if ctx.plane is not None:
+                Nq[band] = ctx.plane.normal
+        return Q, Nq, w
 
     def _add_reverse_pairs(self, ctx, tlist, R, t, X, Q, Nq, w, radius):
         """Append scene -> template pairs: each full-resolution scene point inside a hypothesis'
@@ -726,8 +907,8 @@ class Registrar:
             centre = R[b] @ tpl.centroid + t[b]
             near = np.einsum("ij,ij->i", pts - centre, pts - centre) <= (0.5 * tpl.diameter) ** 2
             q = pts[near]
-            d, i = self._dense_tree(tpl).query((q - t[b]) @ R[b], k=1)
-            x = self._dense_tree(tpl).data[i] @ R[b].T + t[b]
+            d, x = self._nearest(tpl, (q - t[b]) @ R[b])
+            x = x @ R[b].T + t[b]
             wb = correspondence_weights(d, radius[b], d0)
             rows.append((x, q, normals[near], wb))
         S2 = max(len(r[0]) for r in rows)
@@ -760,14 +941,30 @@ class Registrar:
         inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
         return fwd, inl
 
-    def _dense_tree(self, tpl) -> cKDTree:
-        if isinstance(tpl, PosedTemplate):
-            return tpl.dense_tree()
+    def _dense_tree(self, tpl: AffordanceTemplate) -> cKDTree:
         tree = self._dense_trees.get(tpl.name)
         if tree is None:
             tree = cKDTree(tpl.samples(4096, seed=2)[0])
             self._dense_trees[tpl.name] = tree
         return tree
+
+    def _part_trees(self, tpl: AffordanceTemplate) -> PartTrees:
+        trees = self._part_tree_cache.get(tpl.name)
+        if trees is None:
+            trees = self._part_tree_cache[tpl.name] = PartTrees(tpl)
+        return trees
+
+    def _posed(self, tpl: AffordanceTemplate, q: float = 0.0, scale: float = 1.0) -> PosedTemplate:
+        return PosedTemplate(tpl, self._part_trees(tpl), q, scale)
+
+    def _nearest(self, tpl, local: np.ndarray, upper: float = np.inf):
+        """Distances from ``local`` (N, 3, model frame) to the template's dense surface samples
+        (inf beyond ``upper``) and those samples (N, 3)."""
+        if isinstance(tpl, PosedTemplate):
+            return tpl.nearest(local, upper)
+        tree = self._dense_tree(tpl)
+        d, i = tree.query(local, k=1, distance_upper_bound=upper)
+        return d, tree.data[np.minimum(i, tree.n - 1)]
 
     def _backward_score(self, ctx: ClickContext, tpl, R, t) -> float:
         """Scene -> template capped mean distance over the cluster points inside the template's
@@ -780,7 +977,7 @@ class Registrar:
         if not near.any():
             return cap
         local = (pts[near] - t) @ R          # scene -> model frame
-        d, _ = self._dense_tree(tpl).query(local, k=1, distance_upper_bound=cap)
+        d, _ = self._nearest(tpl, local, cap)
         return float(np.minimum(d, cap).mean())
 
     def _coarse_backward(self, ctx: ClickContext, tlist, R, t, n: int = 64) -> np.ndarray:
@@ -794,8 +991,7 @@ class Registrar:
         for key in set(keys.tolist()):
             sel = np.flatnonzero(keys == key)
             tp = tlist[int(sel[0])]
-            d, _ = self._dense_tree(tp).query(local[sel].reshape(-1, 3), k=1,
-                                              distance_upper_bound=cap)
+            d, _ = self._nearest(tp, local[sel].reshape(-1, 3), cap)
             out[sel] = np.minimum(d, cap).reshape(len(sel), -1).mean(axis=1)
         return out
 
@@ -809,7 +1005,7 @@ class Registrar:
         for key in set(keys.tolist()):
             sel = keys == key
             tp = tlist[int(np.flatnonzero(sel)[0])]
-            d[sel] = self._dense_tree(tp).query(local[sel], k=1)[0]
+            d[sel] = self._nearest(tp, local[sel])[0]
         return np.clip(d - s.click_tolerance, 0.0, s.score_cap)
 
     def _result(self, ctx, tpl, R, t, iterations, elapsed) -> FitResult:

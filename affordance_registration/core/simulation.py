@@ -226,7 +226,8 @@ def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
 
 def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "panel",
                        templates=None, camera: DepthCamera | None = None,
-                       articulated: bool = False) -> SimulatedScene:
+                       articulated: bool = False, joints: dict | None = None,
+                       scales: dict | None = None) -> SimulatedScene:
     """Render a seeded taskboard: a 1 m x 0.6 m panel with every template (or the named
     ``templates``) at a random position.
 
@@ -238,7 +239,9 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     ``articulated``: revolute joints take a uniform value within their limits, prismatic ones a
     random named state (an e-stop pressed or released), and templates with a scale range a
     uniform scale in it; ``truth.yaml`` records them. Otherwise every template is rendered as
-    its YAML mesh (joint values zero, scale 1). The camera is 0.6-1.3 m away, up to 40 degrees off the panel normal.
+    its YAML mesh (joint values zero, scale 1). ``joints`` ({template: {joint: value}}) and
+    ``scales`` ({template: scale}) set chosen values instead of random ones. The camera is
+    0.6-1.3 m away, up to 40 degrees off the panel normal.
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
@@ -249,6 +252,7 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))
     camera = camera or DepthCamera()
+    chosen_joints, chosen_scales = dict(joints or {}), dict(scales or {})
     joints, scales = [], []
     for name in names:
         tpl = library[name]
@@ -260,9 +264,12 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
             else:
                 state = sorted(tpl.states)[rng.integers(len(tpl.states))]
                 q[j.name] = float(tpl.states[state].get(j.name, 0.0))
+        if name in chosen_joints:
+            q = {str(k): float(v) for k, v in chosen_joints[name].items()}
         joints.append(q)
         lo_hi = tpl.scale_range if articulated else None
-        scales.append(float(rng.uniform(*lo_hi)) if lo_hi else 1.0)
+        sc = float(rng.uniform(*lo_hi)) if lo_hi else 1.0
+        scales.append(float(chosen_scales.get(name, sc)))
     rotations = []
     for name in names:
         yaw = axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi))

@@ -132,6 +132,7 @@ def quarter_turn_valve() -> TemplateSpec:
     base = _union([
         _flange(),
         _cyl(0.030, 0.010, 0.062),                  # body
+        _cyl_x(0.014, -0.050, 0.050, z=0.034),      # pipe ports along x (show the handle's zero)
         _cyl(0.012, 0.060, 0.076),                  # collar
     ])
     moving = _union([
@@ -140,7 +141,8 @@ def quarter_turn_valve() -> TemplateSpec:
     ])
     return TemplateSpec(
         name="quarter_turn_valve",
-        description="Plug valve with a 124 mm T handle; a quarter turn closes it.",
+        description="Plug valve with a 124 mm T handle; handle along the pipe means open, a quarter "
+                    "turn across it closed.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 2},
         joint={"name": "handle", "type": "revolute", "axis": [0, 0, 1], "origin": [0, 0, 0.075],

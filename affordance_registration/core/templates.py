@@ -30,7 +30,7 @@ import trimesh
 import yaml
 
 from .errors import TemplateError
-from .transforms import axis_angle_matrix, make_T, rotation_angle
+from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
 __all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
 
@@ -186,6 +186,18 @@ class AffordanceTemplate:
             self._cache[key] = poses
         return poses
 
+    def with_scale_range(self, scale_range: tuple | None) -> "AffordanceTemplate":
+        """A copy of this template allowing uniform scale within ``scale_range`` (min, max)
+        -- what a ``scale: [min, max]`` key in its YAML gives."""
+        lo, hi = (float(v) for v in scale_range) if scale_range is not None else (1.0, 2.0)
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise TemplateError(f"{self.path}: scale range must be 0 < min < max, "
+                                f"got {scale_range!r}")
+        return AffordanceTemplate(self.name, self.path, self.mesh, self.points,
+                                  self.point_normals, self.mesh_scale, self.symmetry,
+                                  self.joints, self.states, self.description, self.base_mesh,
+                                  None if scale_range is None else (lo, hi))
+
     @property
     def articulated(self) -> bool:
         """Has a joint (with its moving part) or allows scaling: fitted with extra unknowns."""
@@ -258,6 +270,35 @@ class AffordanceTemplate:
                     del self._cache[k]
             self._cache[key] = mesh
         return mesh
+
+    def moving_mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh | None:
+        """The moving part alone at joint value ``q``, scaled (None without a joint)."""
+        if not self.joints or self.base_mesh is None:
+            return None
+        moving = self.joints[0].moving_mesh.copy()
+        moving.apply_transform(self.joint_transform(q))
+        if scale != 1.0:
+            moving.apply_scale(scale)
+        return moving
+
+    def joint_frame(self, q: float = 0.0, scale: float = 1.0) -> np.ndarray:
+        """4x4 pose in the template frame of the joint at value ``q``: origin on the joint
+        origin (moved along the axis for a prismatic joint), x along the joint axis, turned
+        about it by ``q`` for a revolute joint."""
+        j = self.joints[0]
+        axis, origin = np.asarray(j.axis), np.asarray(j.origin)
+        R0 = align_x_to(axis)
+        if j.type == "revolute":
+            return make_T(axis_angle_matrix(axis, q) @ R0, scale * origin)
+        return make_T(R0, scale * (origin + q * axis))
+
+    def joint_value_from_frame(self, T_model_frame: np.ndarray, scale: float = 1.0) -> float:
+        """Inverse of :meth:`joint_frame`: the joint value a (dragged) joint frame shows,
+        clamped to the limits."""
+        j = self.joints[0]
+        rel = np.linalg.inv(self.joint_frame(0.0, scale)) @ np.asarray(T_model_frame, float)
+        q = math.atan2(rel[2, 1], rel[1, 1]) if j.type == "revolute" else rel[0, 3] / scale
+        return float(np.clip(q, j.lower, j.upper))
 
     def nearest_state(self, joint_values: Mapping[str, float]) -> str | None:
         """Name of the named state closest to ``joint_values`` (None without states)."""

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 __all__ = [
     "finite_vector", "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
-    "axis_angle_matrix", "random_rotations", "align_z_to", "quat_xyzw_to_matrix",
+    "axis_angle_matrix", "random_rotations", "align_z_to", "align_x_to", "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
 
@@ -80,6 +80,12 @@ def align_z_to(normal) -> np.ndarray:
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return np.stack([x, y, z], axis=1)
+
+
+def align_x_to(axis) -> np.ndarray:
+    """A rotation whose first column is the unit vector ``axis`` (a cyclic permutation of
+    :func:`align_z_to`'s columns, so still right-handed)."""
+    return align_z_to(axis)[:, [2, 0, 1]]
 
 
 def quat_xyzw_to_matrix(q) -> np.ndarray:

@@ -45,13 +45,16 @@ FIRST_TWIST_DT = 1.0 / 30.0
 # spacenav/twist axes (x away from the user, y left, z up) -> view axes (x right, y up, z to the
 # viewer): push right -> right on the screen, push away -> into the screen, lift -> up
 R_VIEW_SPACENAV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
-BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard")
+BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
+                  "joint_plus", "joint_minus")
 
 # name: (default, description, (min, max) or choices or None)
 PARAMETERS = {
     "templates_dir": ("", "template library directory ('' = the package's models/)", None),
     "fit_mode": ("auto", "auto: mounting plane prior + resting + random; mounted; free",
                  ("auto", "mounted", "free")),
+    "estimate_joints": (True, "fit joint values (valve open/closed) and scale where templates "
+                              "have them; false: rigid templates only", None),
     "voxel_size": (0.005, "voxel edge of the crop around a click (m)", (0.001, 0.05)),
     "weight_scale": (0.005, "d0 of the correspondence weight 1/(1+d/d0) (m)", (0.0005, 0.1)),
     "snap_distance": (0.03, "a click farther than this from the cloud is refused (m)", (0.001, 1.0)),
@@ -69,6 +72,15 @@ PARAMETERS = {
     "button_refit": (-1, "Joy button for refit (-1: none)", (-1, 63)),
     "button_undo": (-1, "Joy button for undo (-1: none)", (-1, 63)),
     "button_discard": (-1, "Joy button for discard (-1: none)", (-1, 63)),
+    "button_joint_plus": (-1, "Joy button stepping the shown object's joint up (-1: none)",
+                          (-1, 63)),
+    "button_joint_minus": (-1, "Joy button stepping the shown object's joint down (-1: none)",
+                           (-1, 63)),
+    "joint_axis": (-1, "Joy axis stepping the joint once per push past joint_axis_threshold, "
+                       "in the push's direction (-1: none)", (-1, 63)),
+    "joint_axis_threshold": (0.5, "how far joint_axis must be pushed to step", (0.05, 1.0)),
+    "joint_step_deg": (5.0, "one joint step of a revolute joint (deg)", (0.1, 90.0)),
+    "joint_step_mm": (2.0, "one joint step of a prismatic joint (mm)", (0.1, 100.0)),
     "static_transforms": ([], "'parent child x y z qx qy qz qw' entries used when tf2 is absent",
                           None),
     "registrations_file": ("affordance_registrations.yaml", "where ~/save writes (YAML)", None),
@@ -82,6 +94,22 @@ PARAMETERS = {
                                 "or the operator's view", ("object", "view")),
 }
 READ_ONLY = {"points_reliable", "interactive_namespace"}
+
+
+MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
+
+
+def _joint_text(tpl, joints: dict, state, scale: float) -> str:
+    """' (closed, lever 88 deg, x1.10)' for labels; '' for a rigid template at scale 1."""
+    parts = [state] if state else []
+    for j in tpl.joints:
+        if j.name in joints:
+            v = joints[j.name]
+            parts.append(f"{j.name} {math.degrees(v):.0f} deg" if j.type == "revolute"
+                         else f"{j.name} {v * 1000:.1f} mm")
+    if abs(scale - 1.0) > 1e-6:
+        parts.append(f"x{scale:.2f}")
+    return f" ({', '.join(parts)})" if parts else ""
 
 
 def _descriptor(name, default, description, constraint) -> ParameterDescriptor:
@@ -107,6 +135,7 @@ class EngineNode(Node):
             raise AffordanceError(f"bad parameter: {problem}")
         self.library = self._load_library(self._p["templates_dir"])
         self.engine = AffordanceEngine(self.library, self._fit_settings(self._p))
+        self._set_joint_steps(self._p)
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -124,6 +153,7 @@ class EngineNode(Node):
         self._last_twist: float | None = None
         self._pending_refit = False
         self._buttons: list[int] = []
+        self._joint_axis_sign = 0
         self._last_error = ""
         self._throttled: dict[str, float] = {}
         self._last_message = ""
@@ -145,7 +175,7 @@ class EngineNode(Node):
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", latched)
         self.pub_status = self.create_publisher(String, "~/status", latched)
         for action in ("next_model", "previous_model", "refit", "accept", "undo", "discard",
-                       "save"):
+                       "save", "joint_plus", "joint_minus"):
             self.create_service(Trigger, f"~/{action}", self._service(action))
         self.interactive = CorrectionMarkerServer(self, self._p["interactive_namespace"],
                                                   self._p["interactive_orientation"])
@@ -198,7 +228,12 @@ class EngineNode(Node):
     def _fit_settings(p: dict) -> FitSettings:
         return FitSettings(mode=p["fit_mode"], voxel=float(p["voxel_size"]),
                            weight_scale=float(p["weight_scale"]),
-                           snap_distance=float(p["snap_distance"]), seed=int(p["seed"]))
+                           snap_distance=float(p["snap_distance"]), seed=int(p["seed"]),
+                           articulated=bool(p["estimate_joints"]))
+
+    def _set_joint_steps(self, p: dict) -> None:
+        self.engine.joint_step_rad = math.radians(float(p["joint_step_deg"]))
+        self.engine.joint_step_m = float(p["joint_step_mm"]) / 1000.0
 
     @staticmethod
     def _load_library(path: str) -> TemplateLibrary:
@@ -218,11 +253,12 @@ class EngineNode(Node):
             if "templates_dir" in changed and new["templates_dir"] != self._p["templates_dir"]:
                 library = self._load_library(new["templates_dir"])
             if library is not None or changed & {"fit_mode", "voxel_size", "weight_scale",
-                                                 "snap_distance", "seed"}:
+                                                 "snap_distance", "seed", "estimate_joints"}:
                 self.engine.configure(self._fit_settings(new), library)
                 self.library = self.engine.library
             if "static_transforms" in changed:
                 self.frames = StaticFrames(new["static_transforms"])
+            self._set_joint_steps(new)
             if "interactive_orientation" in changed:
                 self.interactive.orientation = new["interactive_orientation"]
         except AffordanceError as exc:
@@ -343,6 +379,14 @@ class EngineNode(Node):
             b = int(self._p[f"button_{action}"])
             if 0 <= b < len(buttons) and buttons[b] and not previous[b]:
                 self._submit_action(action)
+        a = int(self._p["joint_axis"])
+        if 0 <= a < len(msg.axes):
+            v = float(msg.axes[a])
+            sign = 0 if not math.isfinite(v) or abs(v) < self._p["joint_axis_threshold"] \
+                else (1 if v > 0 else -1)
+            if sign and sign != self._joint_axis_sign:
+                self._submit_action("joint_plus" if sign > 0 else "joint_minus")
+            self._joint_axis_sign = sign
 
     def _on_view(self, msg: PoseStamped) -> None:
         try:
@@ -382,13 +426,20 @@ class EngineNode(Node):
                 self._ensure_scene_quietly()
                 msg = self.engine.refit()
                 self._pending_refit = False
+            elif action in ("joint_plus", "joint_minus"):
+                self._ensure_scene_quietly()
+                msg = self.engine.correct_joint(steps=1.0 if action == "joint_plus" else -1.0)
+            elif isinstance(action, tuple) and action[0] == "joint_value":
+                self._ensure_scene_quietly()
+                msg = self.engine.correct_joint(value=action[1])
             else:
                 msg = getattr(self.engine, action)()
             self._info(msg)
             self._dirty = True
             return True, msg
         except AffordanceError as exc:
-            self._error(f"{action.replace('_', ' ')}: {exc}")
+            name = action[0] if isinstance(action, tuple) else action
+            self._error(f"{name.replace('_', ' ')}: {exc}")
             return False, str(exc)
 
     def _ensure_scene_quietly(self) -> None:
@@ -493,11 +544,16 @@ class EngineNode(Node):
             c = obj.shown
             tpl = self.library[c.template]
             T = c.T_scene_model
-            markers.markers.append(mesh_marker(tpl.mesh, T, frame, "candidate", obj.id,
-                                               likelihood_color(c.probability), stamp))
+            q = next(iter(c.joints.values()), 0.0)
+            markers.markers.append(mesh_marker(tpl.mesh_at(q, c.scale), T, frame, "candidate",
+                                               obj.id, likelihood_color(c.probability), stamp))
+            moving = tpl.moving_mesh_at(q, c.scale)
+            if moving is not None:    # the moving part where the fit put it, highlighted
+                markers.markers.append(mesh_marker(moving, T, frame, "candidate_moving_part",
+                                                   obj.id, MOVING_COLOR, stamp))
             top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-            label = (f"{c.template} — rank {obj.active + 1}/{len(obj.candidates)} — "
-                     f"{c.probability:.2f}")
+            label = (f"{c.template}{_joint_text(tpl, c.joints, c.state, c.scale)} — rank "
+                     f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
             markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter *
                                                self._up(), frame, "candidate_label", obj.id,
                                                stamp))
@@ -506,10 +562,17 @@ class EngineNode(Node):
             tpl = self.library[reg.template] if reg.template in self.library else None
             if tpl is None:
                 continue
-            markers.markers.append(mesh_marker(tpl.mesh, reg.T_scene_model, frame, "registered",
-                                               reg.id, ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9),
-                                               stamp))
-            markers.markers.append(text_marker(f"{reg.template} #{reg.id}",
+            q = next(iter(reg.joints.values()), 0.0)
+            markers.markers.append(mesh_marker(tpl.mesh_at(q, reg.scale), reg.T_scene_model,
+                                               frame, "registered", reg.id,
+                                               ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9), stamp))
+            moving = tpl.moving_mesh_at(q, reg.scale)
+            if moving is not None:
+                markers.markers.append(mesh_marker(moving, reg.T_scene_model, frame,
+                                                   "registered_moving_part", reg.id,
+                                                   MOVING_COLOR, stamp))
+            text = f"{reg.template} #{reg.id}{_joint_text(tpl, reg.joints, reg.state, reg.scale)}"
+            markers.markers.append(text_marker(text,
                                                reg.T_scene_model[:3, 3] - 0.5 * tpl.diameter *
                                                self._up(), frame, "registered_label", reg.id,
                                                stamp))

@@ -15,6 +15,12 @@ One marker, ``affordance_fit``, sits on the shown candidate of the selected obje
 visual (with the menu), six controls (move and rotate about x, y, z) oriented with the object or
 with the operator's view (parameter ``interactive_orientation``: object | view). It follows every
 change made elsewhere and disappears when nothing is selected.
+
+A template with a joint gets a second marker, ``affordance_joint``, on the joint (x along the joint
+axis): one control, rotating about the axis (revolute) or moving along it (prismatic). RViz moves
+a whole interactive marker whichever of its controls is dragged, so the joint needs a marker of
+its own. Releasing it sets the joint value it shows (clamped to the limits) and refits the pose
+with that value held.
 """
 from __future__ import annotations
 
@@ -35,6 +41,7 @@ from ..core.transforms import matrix_to_quat_xyzw
 from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
 
 MARKER_NAME = "affordance_fit"
+JOINT_MARKER_NAME = "affordance_joint"
 MENU = (("next_model", "Next model"), ("previous_model", "Previous model"), ("refit", "Refit"),
         ("accept", "Accept"), ("undo", "Undo"), ("discard", "Discard"))
 KEEP_ALIVE_S = 0.5
@@ -59,7 +66,7 @@ class CorrectionMarkerServer:
         self.server_id = f"{node.get_fully_qualified_name()}/{int(time.time() * 1e6):x}"
         self.seq_num = 0
         self._sent: tuple | None = None          # identity of what the clients have
-        self._marker: InteractiveMarker | None = None
+        self._markers: dict[str, InteractiveMarker] = {}
         self._drag_client: str | None = None
         self._throttled: dict[str, float] = {}
         update_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
@@ -74,7 +81,7 @@ class CorrectionMarkerServer:
     # ------------------------------------------------------------------ server -> clients
     def _on_get(self, request, response):
         response.sequence_number = self.seq_num
-        response.markers = [self._marker] if self._marker is not None else []
+        response.markers = list(self._markers.values())
         return response
 
     def _keep_alive(self) -> None:
@@ -92,26 +99,66 @@ class CorrectionMarkerServer:
         obj = self.node.engine.active_object()
         frame = self.node.engine.frame_id or self.node._cloud_frame
         if obj is None:
-            if self._marker is not None:
-                self._marker, self._sent = None, None
-                self._publish(erases=[MARKER_NAME])
+            if self._markers:
+                names = list(self._markers)
+                self._markers, self._sent = {}, None
+                self._publish(erases=names)
             return
         cand = obj.shown
         view_R = self.node.engine.view_pose()[:3, :3].round(6).tobytes() \
             if self.orientation == "view" else b""
-        identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R)
+        identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R,
+                    tuple(sorted(cand.joints.items())), round(cand.scale, 9))
         pose_bytes = np.asarray(cand.T_scene_model).tobytes()
         if self._sent is not None and self._sent[0] == identity:
             if self._sent[1] != pose_bytes:
-                self._marker.pose = matrix_to_pose(cand.T_scene_model)
-                p = InteractiveMarkerPose(name=MARKER_NAME, pose=self._marker.pose)
-                p.header.frame_id = frame
-                self._publish(poses=[p])
+                poses = []
+                for name, pose in self._poses(cand).items():
+                    self._markers[name].pose = pose
+                    p = InteractiveMarkerPose(name=name, pose=pose)
+                    p.header.frame_id = frame
+                    poses.append(p)
+                self._publish(poses=poses)
                 self._sent = (identity, pose_bytes)
             return
-        self._marker = self._build(obj, frame)
+        old = set(self._markers)
+        self._markers = {MARKER_NAME: self._build(obj, frame)}
+        tpl = self.node.library[cand.template]
+        if tpl.joints and tpl.base_mesh is not None:
+            self._markers[JOINT_MARKER_NAME] = self._build_joint(obj, frame)
         self._sent = (identity, pose_bytes)
-        self._publish(markers=[self._marker])
+        self._publish(markers=list(self._markers.values()),
+                      erases=sorted(old - set(self._markers)))
+
+    def _poses(self, cand) -> dict:
+        """Pose of each marker for the candidate: the fit at the object, the joint marker at the
+        joint."""
+        out = {MARKER_NAME: matrix_to_pose(cand.T_scene_model)}
+        if JOINT_MARKER_NAME in self._markers:
+            tpl = self.node.library[cand.template]
+            q = next(iter(cand.joints.values()), 0.0)
+            out[JOINT_MARKER_NAME] = matrix_to_pose(cand.T_scene_model @
+                                                    tpl.joint_frame(q, cand.scale))
+        return out
+
+    def _build_joint(self, obj, frame: str) -> InteractiveMarker:
+        cand = obj.shown
+        tpl = self.node.library[cand.template]
+        joint = tpl.joints[0]
+        q = next(iter(cand.joints.values()), 0.0)
+        im = InteractiveMarker()
+        im.header.frame_id = frame
+        im.name = JOINT_MARKER_NAME
+        im.description = f"{joint.name} ({joint.type})"
+        im.pose = matrix_to_pose(cand.T_scene_model @ tpl.joint_frame(q, cand.scale))
+        im.scale = float(max(0.05, 0.6 * tpl.diameter * cand.scale))
+        mode = (InteractiveMarkerControl.ROTATE_AXIS if joint.type == "revolute"
+                else InteractiveMarkerControl.MOVE_AXIS)
+        c = InteractiveMarkerControl(name="joint", interaction_mode=mode,
+                                     orientation_mode=InteractiveMarkerControl.INHERIT)
+        c.orientation = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)     # x: the joint axis
+        im.controls.append(c)
+        return im
 
     def _build(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
@@ -127,7 +174,8 @@ class CorrectionMarkerServer:
                            for i, (_, title) in enumerate(MENU, start=1)]
         visual = InteractiveMarkerControl(name="mesh", always_visible=True,
                                           interaction_mode=InteractiveMarkerControl.MENU)
-        mesh = mesh_marker(tpl.mesh, np.eye(4), "", "mesh", 0,
+        q = next(iter(cand.joints.values()), 0.0)
+        mesh = mesh_marker(tpl.mesh_at(q, cand.scale), np.eye(4), "", "mesh", 0,
                            ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
         mesh.header.frame_id = ""          # relative to the interactive marker
         visual.markers.append(mesh)
@@ -162,7 +210,7 @@ class CorrectionMarkerServer:
         F = InteractiveMarkerFeedback
         if fb.event_type == F.KEEP_ALIVE:
             return
-        if self._marker is None or fb.marker_name != MARKER_NAME:
+        if fb.marker_name not in self._markers:
             self._ignore(f"no marker named '{fb.marker_name}'")
             return
         if self._drag_client is not None and fb.client_id != self._drag_client and \
@@ -180,7 +228,8 @@ class CorrectionMarkerServer:
             return
         if fb.event_type not in (F.POSE_UPDATE, F.MOUSE_UP):
             return
-        frame = self._marker.header.frame_id
+        marker = self._markers[fb.marker_name]
+        frame = marker.header.frame_id
         if fb.header.frame_id and fb.header.frame_id.lstrip("/") != frame.lstrip("/"):
             self._ignore(f"pose in frame '{fb.header.frame_id}', the marker is in '{frame}'")
             return
@@ -188,6 +237,9 @@ class CorrectionMarkerServer:
             T = pose_to_matrix(fb.pose)
         except ConversionError as exc:
             self._ignore(f"malformed pose ({exc})")
+            return
+        if fb.marker_name == JOINT_MARKER_NAME:
+            self._on_joint_feedback(fb, T)
             return
         try:
             self.node.engine.correct_pose(T, drag=True)
@@ -197,5 +249,24 @@ class CorrectionMarkerServer:
         self.node._dirty = True
         if fb.event_type == F.MOUSE_UP:
             self._drag_client = None
-            self.node._info(f"marker released: refitting {self._marker.description}")
+            self.node._info(f"marker released: refitting {marker.description}")
             self.node._jobs.put(("refit", None))
+
+    def _on_joint_feedback(self, fb: InteractiveMarkerFeedback, T_scene_frame: np.ndarray) -> None:
+        """The joint marker: RViz shows the drag itself; on release the joint takes the value
+        the marker shows and the pose is refitted with it held."""
+        if fb.event_type != InteractiveMarkerFeedback.MOUSE_UP:
+            return
+        self._drag_client = None
+        obj = self.node.engine.active_object()
+        if obj is None:
+            self._ignore("joint released with no object selected")
+            return
+        cand = obj.shown
+        tpl = self.node.library[cand.template]
+        if not tpl.joints:
+            self._ignore(f"{cand.template} has no joint")
+            return
+        q = tpl.joint_value_from_frame(np.linalg.inv(cand.T_scene_model) @ T_scene_frame,
+                                       cand.scale)
+        self.node._submit_action(("joint_value", q))
