@@ -26,7 +26,12 @@ one-sided scans (see DESIGN.md):
 * the operator clicked *on* the object: candidates are centred on the cluster points near the
   click and pay for a surface that misses the click by more than ``click_tolerance``;
 * directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
-  either way: samples there neither pull nor count.
+  either way: samples there neither pull nor count;
+* articulated templates (a joint with its moving part, or a scale range) among the leading
+  candidates get their joint value and scale with the pose: a sweep across the joint's limits
+  (the fixed part held, or moved back with the moving part left where the data put it), local
+  steps, and a fine stage whose point-to-plane Gauss-Newton step has a column for the joint and
+  one for the scale besides the six of the pose.
 """
 from __future__ import annotations
 
