@@ -308,7 +308,9 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
         for a, b in zip(rec, cur):
             dt, dr = pose_error(np.asarray(b["pose"]), np.asarray(a["pose"]),
                                 library[a["template"]].symmetry)
-            if dt > 0.003 or dr > math.radians(3):
+            # the replay's refits run at its own timing (a loaded machine integrates the recorded
+            # twists differently): the same tolerance as against the truth
+            if dt > 0.005 or dr > math.radians(5):
                 mismatches.append(f"{a['template']} #{a['id']}: {dt * 1000:.1f} mm, "
                                   f"{math.degrees(dr):.1f} deg from the recorded pose")
     with open(os.path.join(out_dir, "status.json"), "w", encoding="utf-8") as handle:
