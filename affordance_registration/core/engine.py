@@ -391,10 +391,10 @@ class AffordanceEngine:
         with self._lock:
             obj = self._require_active()
             tpl = self.library[obj.shown.template]
-            if not tpl.joints or tpl.base_mesh is None:
+            joint = tpl.joint
+            if joint is None:
                 raise EngineStateError(f"{tpl.name} has no joint to move")
-            joint = tpl.joints[0]
-            q = float(obj.shown.joints.get(joint.name, 0.0))
+            q = tpl.joint_value(obj.shown.joints)
             if value is not None:
                 q_new = float(value)
             elif steps is not None:

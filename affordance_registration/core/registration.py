@@ -258,8 +258,8 @@ class PosedTemplate:
 
     @property
     def joints(self) -> dict:
-        j = self.template.joints
-        return {j[0].name: self.q} if j and self.template.base_mesh is not None else {}
+        j = self.template.joint
+        return {j.name: self.q} if j is not None else {}
 
 
 def _rank(results: list[FitResult]) -> tuple:
@@ -452,10 +452,8 @@ class Registrar:
         base = self.library[template]
         if not (self.settings.articulated and base.articulated):
             return base
-        q = 0.0
-        if base.joints and base.base_mesh is not None and joints:
-            j = base.joints[0]
-            q = float(np.clip(float(joints.get(j.name, 0.0)), j.lower, j.upper))
+        j = base.joint
+        q = float(np.clip(base.joint_value(joints or {}), j.lower, j.upper)) if j else 0.0
         lo_hi = base.scale_range
         return self._posed(base, q, float(np.clip(scale, *lo_hi)) if lo_hi is not None else 1.0)
 
@@ -530,7 +528,6 @@ class Registrar:
         if isinstance(tpl, PosedTemplate):       # the joint after the sweep, once more
             tpl, R_w, t_w = self._articulate(ctx, tpl.template, R_w, t_w, tpl.q, tpl.scale,
                                              sweep=False)
-        if isinstance(tpl, PosedTemplate):
             final, _ = self._finish_articulated(ctx, tpl, R_w, t_w, s.fine_samples,
                                                 s.fine_iterations, iters)
         else:
@@ -629,7 +626,7 @@ class Registrar:
         return R2[best], t2[best]
 
     def _articulate(self, ctx: ClickContext, tpl: AffordanceTemplate, R, t, q0: float = 0.0,
-                    scale0: float = 1.0, sweep: bool = True, hold_joint: bool = False):
+                    scale0: float = 1.0, sweep: bool = True):
         """Estimate the joint value and the scale with the pose.
 
         The sweep tries joint values across the limits, each three ways: the fixed part stays and
@@ -637,12 +634,9 @@ class Registrar:
         fit has often turned or shifted the whole object to match its moving part); then scales
         across the range. Every hypothesis gets a short batched ICP and is judged by
         the two-way residual plus the moving part's own fit. Rounds of local joint/scale steps
-        (each with a short ICP) follow, halving the step. ``hold_joint`` keeps ``q0`` (the
-        operator set it). Returns (PosedTemplate, R, t)."""
+        (each with a short ICP) follow, halving the step. Returns (PosedTemplate, R, t)."""
         s = self.settings
-        joint = tpl.joints[0] if tpl.joints and tpl.base_mesh is not None else None
-        if hold_joint:
-            joint = None
+        joint = tpl.joint
         lo_hi = tpl.scale_range
         n = s.medium_samples
 
@@ -716,8 +710,7 @@ class Registrar:
         Returns (FitResult, PosedTemplate)."""
         s = self.settings
         tpl = model.template
-        jointed = bool(tpl.joints) and tpl.base_mesh is not None
-        joint = tpl.joints[0] if jointed and not hold_joint else None
+        joint = None if hold_joint else tpl.joint
         lo_hi = tpl.scale_range
         d0 = s.weight_scale
         P0, N0, moving0 = tpl.part_samples(samples, seed=1)
@@ -725,19 +718,13 @@ class Registrar:
         R, t = np.array(R, dtype=float), np.array(t, dtype=float)
         reject = 0.1 * model.diameter
         floor = min(reject, s.reject_floor)
-        pts, normals = ctx.fine, ctx.fine_normals
-        if len(pts) > s.reverse_points:       # the same even subset as the rigid fine stage
-            pick = (np.arange(s.reverse_points) * (len(pts) / s.reverse_points)).astype(np.int64)
-            pts, normals = pts[pick], normals[pick]
+        pts, normals = self._reverse_subset(ctx)
         axis = np.asarray(joint.axis) if joint is not None else None
         origin = np.asarray(joint.origin) if joint is not None else None
         it = 0
         for it in range(iterations):
             radius = reject * (floor / reject) ** (it / max(iterations - 1, 1))
-            Tj = tpl.joint_transform(q) if jointed and q else np.eye(4)
-            U, Nu = np.array(P0), np.array(N0)
-            U[moving0] = P0[moving0] @ Tj[:3, :3].T + Tj[:3, 3]
-            Nu[moving0] = N0[moving0] @ Tj[:3, :3].T
+            U, Nu = tpl.pose_parts(P0, N0, moving0, q)       # unscaled, joint at q
             X = (sc * U) @ R.T + t
             Q, Nq, w = self._pairs(ctx, ctx.fine_tree, X[None], (Nu @ R.T)[None],
                                    np.array([radius]), True, True)
@@ -896,17 +883,22 @@ class Registrar:
                 Nq[band] = ctx.plane.normal
         return Q, Nq, w
 
+    def _reverse_subset(self, ctx: ClickContext):
+        """The full-resolution scene points (and normals) the fine stage pairs with the template:
+        at most ``reverse_points``, an even, fixed subset (the same one every iteration)."""
+        pts, normals = ctx.fine, ctx.fine_normals
+        limit = self.settings.reverse_points
+        if len(pts) > limit:
+            pick = (np.arange(limit) * (len(pts) / limit)).astype(np.int64)
+            pts, normals = pts[pick], normals[pick]
+        return pts, normals
+
     def _add_reverse_pairs(self, ctx, tlist, R, t, X, Q, Nq, w, radius):
         """Append scene -> template pairs: each full-resolution scene point inside a hypothesis'
         bounding sphere paired with its nearest template sample (weights of the same form).
         Returns the extended (X, Q, Nq, w) with the model side in X, the scene side in Q."""
         d0 = self.settings.weight_scale
-        pts, normals = ctx.fine, ctx.fine_normals
-        limit = self.settings.reverse_points
-        if len(pts) > limit:   # an even, fixed subset (the same one every iteration)
-            step = len(pts) / limit
-            pick = (np.arange(limit) * step).astype(np.int64)
-            pts, normals = pts[pick], normals[pick]
+        pts, normals = self._reverse_subset(ctx)
         rows = []
         for b, tpl in enumerate(tlist):
             centre = R[b] @ tpl.centroid + t[b]

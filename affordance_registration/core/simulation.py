@@ -257,8 +257,8 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     for name in names:
         tpl = library[name]
         q = {}
-        if articulated and tpl.joints and tpl.base_mesh is not None:
-            j = tpl.joints[0]
+        if articulated and tpl.joint is not None:
+            j = tpl.joint
             if j.type == "revolute" or not tpl.states:
                 q[j.name] = float(rng.uniform(j.lower, j.upper))
             else:

@@ -188,20 +188,30 @@ class AffordanceTemplate:
 
     def with_scale_range(self, scale_range: tuple | None) -> "AffordanceTemplate":
         """A copy of this template allowing uniform scale within ``scale_range`` (min, max)
-        -- what a ``scale: [min, max]`` key in its YAML gives."""
-        lo, hi = (float(v) for v in scale_range) if scale_range is not None else (1.0, 2.0)
-        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-            raise TemplateError(f"{self.path}: scale range must be 0 < min < max, "
-                                f"got {scale_range!r}")
+        -- what a ``scale: [min, max]`` key in its YAML gives -- or rigid (None)."""
+        if scale_range is not None:
+            try:
+                scale_range = _scale_range(scale_range)
+            except ValueError as exc:
+                raise TemplateError(f"{self.path}: scale range {exc}") from None
         return AffordanceTemplate(self.name, self.path, self.mesh, self.points,
                                   self.point_normals, self.mesh_scale, self.symmetry,
                                   self.joints, self.states, self.description, self.base_mesh,
-                                  None if scale_range is None else (lo, hi))
+                                  scale_range)
+
+    @property
+    def joint(self) -> Joint | None:
+        """The joint fitted with the pose (the first, with its moving part), or None."""
+        return self.joints[0] if self.joints and self.base_mesh is not None else None
+
+    def joint_value(self, joints: Mapping[str, float]) -> float:
+        """This template's joint value in ``joints`` (name -> value; 0 when absent)."""
+        return float(joints.get(self.joint.name, 0.0)) if self.joint is not None else 0.0
 
     @property
     def articulated(self) -> bool:
         """Has a joint (with its moving part) or allows scaling: fitted with extra unknowns."""
-        return (bool(self.joints) and self.base_mesh is not None) or self.scale_range is not None
+        return self.joint is not None or self.scale_range is not None
 
     def part_samples(self, n: int, seed: int = 0):
         """Area-weighted samples of the fixed and the moving part at joint value zero: (points
@@ -256,10 +266,8 @@ class AffordanceTemplate:
             hit = self._cache.get(key)
         if hit is not None:
             return hit
-        if self.joints and self.base_mesh is not None and q:
-            moving = self.joints[0].moving_mesh.copy()
-            moving.apply_transform(self.joint_transform(q))
-            mesh = trimesh.util.concatenate([self.base_mesh, moving])
+        if self.joint is not None and q:
+            mesh = trimesh.util.concatenate([self.base_mesh, self.moving_mesh_at(q)])
         else:
             mesh = self.mesh.copy()
         if scale != 1.0:
@@ -273,9 +281,9 @@ class AffordanceTemplate:
 
     def moving_mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh | None:
         """The moving part alone at joint value ``q``, scaled (None without a joint)."""
-        if not self.joints or self.base_mesh is None:
+        if self.joint is None:
             return None
-        moving = self.joints[0].moving_mesh.copy()
+        moving = self.joint.moving_mesh.copy()
         moving.apply_transform(self.joint_transform(q))
         if scale != 1.0:
             moving.apply_scale(scale)
@@ -373,6 +381,17 @@ def _vector(path: str, key: str, value, length: int = 3) -> tuple:
     if arr.shape != (length,) or not np.all(np.isfinite(arr)):
         raise _fail(path, key, f"expected {length} finite numbers, got {value!r}")
     return tuple(float(v) for v in arr)
+
+
+def _scale_range(value) -> tuple:
+    """(min, max) from a ``scale`` value; ValueError saying what is wrong."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected [min, max], got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"expected 0 < min < max, got {value!r}")
+    return lo, hi
 
 
 def _load_geometry(yaml_path: str, key: str, rel: str, scale: float):
@@ -577,14 +596,10 @@ def load_template(path: str) -> AffordanceTemplate:
         raise _fail(path, "description", "expected text")
     scale_range = None
     if "scale" in doc:
-        sc = doc["scale"]
         try:
-            lo, hi = (float(v) for v in sc)
-        except (TypeError, ValueError):
-            raise _fail(path, "scale", f"expected [min, max], got {sc!r}") from None
-        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-            raise _fail(path, "scale", f"expected 0 < min < max, got {sc!r}")
-        scale_range = (lo, hi)
+            scale_range = _scale_range(doc["scale"])
+        except ValueError as exc:
+            raise _fail(path, "scale", str(exc)) from None
     if joints and base is None:
         raise _fail(path, "base_mesh", "a template with joints needs the fixed part's mesh")
     return AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,

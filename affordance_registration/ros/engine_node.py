@@ -544,7 +544,7 @@ class EngineNode(Node):
             c = obj.shown
             tpl = self.library[c.template]
             T = c.T_scene_model
-            q = next(iter(c.joints.values()), 0.0)
+            q = tpl.joint_value(c.joints)
             markers.markers.append(mesh_marker(tpl.mesh_at(q, c.scale), T, frame, "candidate",
                                                obj.id, likelihood_color(c.probability), stamp))
             moving = tpl.moving_mesh_at(q, c.scale)
@@ -562,7 +562,7 @@ class EngineNode(Node):
             tpl = self.library[reg.template] if reg.template in self.library else None
             if tpl is None:
                 continue
-            q = next(iter(reg.joints.values()), 0.0)
+            q = tpl.joint_value(reg.joints)
             markers.markers.append(mesh_marker(tpl.mesh_at(q, reg.scale), reg.T_scene_model,
                                                frame, "registered", reg.id,
                                                ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9), stamp))

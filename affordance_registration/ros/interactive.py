@@ -124,7 +124,7 @@ class CorrectionMarkerServer:
         old = set(self._markers)
         self._markers = {MARKER_NAME: self._build(obj, frame)}
         tpl = self.node.library[cand.template]
-        if tpl.joints and tpl.base_mesh is not None:
+        if tpl.joint is not None:
             self._markers[JOINT_MARKER_NAME] = self._build_joint(obj, frame)
         self._sent = (identity, pose_bytes)
         self._publish(markers=list(self._markers.values()),
@@ -136,16 +136,15 @@ class CorrectionMarkerServer:
         out = {MARKER_NAME: matrix_to_pose(cand.T_scene_model)}
         if JOINT_MARKER_NAME in self._markers:
             tpl = self.node.library[cand.template]
-            q = next(iter(cand.joints.values()), 0.0)
-            out[JOINT_MARKER_NAME] = matrix_to_pose(cand.T_scene_model @
-                                                    tpl.joint_frame(q, cand.scale))
+            out[JOINT_MARKER_NAME] = matrix_to_pose(
+                cand.T_scene_model @ tpl.joint_frame(tpl.joint_value(cand.joints), cand.scale))
         return out
 
     def _build_joint(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
         tpl = self.node.library[cand.template]
-        joint = tpl.joints[0]
-        q = next(iter(cand.joints.values()), 0.0)
+        joint = tpl.joint
+        q = tpl.joint_value(cand.joints)
         im = InteractiveMarker()
         im.header.frame_id = frame
         im.name = JOINT_MARKER_NAME
@@ -174,8 +173,7 @@ class CorrectionMarkerServer:
                            for i, (_, title) in enumerate(MENU, start=1)]
         visual = InteractiveMarkerControl(name="mesh", always_visible=True,
                                           interaction_mode=InteractiveMarkerControl.MENU)
-        q = next(iter(cand.joints.values()), 0.0)
-        mesh = mesh_marker(tpl.mesh_at(q, cand.scale), np.eye(4), "", "mesh", 0,
+        mesh = mesh_marker(tpl.mesh_at(tpl.joint_value(cand.joints), cand.scale), np.eye(4), "", "mesh", 0,
                            ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
         mesh.header.frame_id = ""          # relative to the interactive marker
         visual.markers.append(mesh)
@@ -264,7 +262,7 @@ class CorrectionMarkerServer:
             return
         cand = obj.shown
         tpl = self.node.library[cand.template]
-        if not tpl.joints:
+        if tpl.joint is None:
             self._ignore(f"{cand.template} has no joint")
             return
         q = tpl.joint_value_from_frame(np.linalg.inv(cand.T_scene_model) @ T_scene_frame,
