@@ -53,6 +53,7 @@ __all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate"
 
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     # families of initial hypotheses
+CONTACT_SLACK = 0.002                  # m: plane noise allowed in a contact
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,12 @@ class FitSettings:
     articulated_margin: float = 1.6    #: those with a residual within this factor of the best
     joint_sweep: int = 13              #: joint values tried across a revolute joint's limits
     scale_sweep: int = 7               #: scales tried across a template's scale range
+    #: an articulated candidate whose rigid fit touches the plane under the click (within this)
+    #: keeps touching it: the joint must not be traded for the whole object floating off it
+    contact_distance: float = 0.01
+    #: a joint value or scale the data cannot tell from the nearest named state or the nominal
+    #: scale 1 (residual within this fraction) is reported at that value
+    nominal_preference: float = 0.02
     articulation_rounds: int = 3
     articulation_icp: int = 5          #: ICP iterations per sweep hypothesis
     refit_restarts: int = 10
@@ -116,7 +123,7 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin"):
+                     "articulated_margin", "contact_distance", "nominal_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
@@ -534,6 +541,9 @@ class Registrar:
             final = self._finish(ctx, tpl, R_w, t_w, s.fine_samples, s.fine_iterations, iters)
         if final.likelihood < win.likelihood:
             final = win
+        if isinstance(tpl, PosedTemplate):
+            final = self._prefer_nominal(ctx, self._model(final.template, final.joints,
+                                                        final.scale), final, iters)
         total = time.perf_counter() - t0
         out = [replace(final, time_s=total)] + [replace(r, time_s=total) for r in ranked[1:]]
         return _rank(out)
@@ -639,6 +649,8 @@ class Registrar:
         joint = tpl.joint
         lo_hi = tpl.scale_range
         n = s.medium_samples
+        model = self._posed(tpl, q0, scale0)
+        contact = self._in_contact(ctx, model, R, t)
 
         def best_of(models, Rs, ts, icp_iterations):
             Rs, ts = np.stack(Rs), np.stack(ts)
@@ -647,13 +659,15 @@ class Registrar:
                 Rs, ts = self._icp(models, Rs, ts, ctx, n, icp_iterations, reject,
                                    target="cluster", occlusion=True)
             scores = self._scores(ctx, models, Rs, ts, n)
+            if contact:    # a gap to (or a dip into) the plane beyond its noise costs
+                gap = np.abs(self._plane_gap(ctx, models, Rs, ts, n))
+                scores = scores + np.clip(gap - CONTACT_SLACK, 0.0, s.score_cap)
             if joint is not None:
                 parts = [m.with_values(moving_only=True) for m in models]
                 scores = scores + self._forward_score(ctx, parts, Rs, ts, n // 2)[0]
             k = int(np.argmin(scores))
             return models[k], Rs[k], ts[k]
 
-        model = self._posed(tpl, q0, scale0)
         if sweep and joint is not None:
             steps = s.joint_sweep if joint.type == "revolute" else max(3, s.joint_sweep // 2)
             T = make_T(R, t)
@@ -695,6 +709,66 @@ class Registrar:
             q_step, s_step = q_step / 2, s_step / 2
         return model, R, t
 
+    def _prefer_nominal(self, ctx: ClickContext, model: PosedTemplate, res: FitResult,
+                        iterations_before: int) -> FitResult:
+        """Occam's razor for the extra unknowns: refit at the nearest named state's joint value
+        and/or at the nominal scale 1 (within the range) -- the fixed part held or moved so the
+        moving part stays, the template scaled about its origin or its centroid -- and keep
+        that when its residual is within ``nominal_preference`` of the free fit's. Valves mostly
+        sit open or closed, and most objects come in their nominal size."""
+        tpl = model.template
+        s = self.settings
+        qs, scales = [model.q], [model.scale]
+        if tpl.joint is not None and tpl.states and res.state is not None:
+            q_s = float(tpl.states[res.state].get(tpl.joint.name, model.q))
+            if abs(q_s - model.q) > 1e-9:
+                qs.append(q_s)
+        lo_hi = tpl.scale_range
+        if lo_hi is not None and lo_hi[0] <= 1.0 <= lo_hi[1] and abs(model.scale - 1.0) > 1e-9:
+            scales.append(1.0)
+        T = res.T_scene_model
+        centre = T[:3, :3] @ model.centroid + T[:3, 3]
+        best = None
+        for q in qs:
+            for sc in scales:
+                if q == model.q and sc == model.scale:
+                    continue
+                m = model.with_values(q=q, scale=sc)
+                starts = [T]
+                if q != model.q:
+                    starts.append(T @ tpl.joint_transform(model.q - q))
+                if sc != model.scale:
+                    starts += [make_T(T0[:3, :3], centre - T0[:3, :3] @ m.centroid)
+                               for T0 in list(starts)]
+                for T0 in starts:
+                    # as it is, and refined (the fine stage's objective is not the residual)
+                    refined, _ = self._finish_articulated(ctx, m, T0[:3, :3], T0[:3, 3],
+                                                          s.refit_samples, s.refit_iterations,
+                                                          iterations_before, hold_joint=True,
+                                                          hold_scale=True)
+                    for cand in (self._result(ctx, m, T0[:3, :3], T0[:3, 3],
+                                              iterations_before, 0.0), refined):
+                        if best is None or cand.residual < best.residual:
+                            best = cand
+        if best is not None and best.residual <= (1.0 + s.nominal_preference) * res.residual:
+            return best
+        return res
+
+    def _plane_gap(self, ctx: ClickContext, models, Rs, ts, n: int) -> np.ndarray:
+        """Signed distance (m) of each hypothesis' lowest sample from the plane under the click
+        (positive: floating above it), (B,)."""
+        P, _ = self._stack_samples(models, n)
+        X = np.einsum("bij,bsj->bsi", np.asarray(Rs), P) + np.asarray(ts)[:, None, :]
+        return ctx.plane.distance(X).min(axis=1)
+
+    def _in_contact(self, ctx: ClickContext, model, R, t) -> bool:
+        """Whether a pose rests on the plane under the click (its lowest sample within
+        ``contact_distance`` of it)."""
+        if ctx.plane is None:
+            return False
+        gap = self._plane_gap(ctx, [model], R[None], t[None], 256)[0]
+        return abs(gap) <= self.settings.contact_distance
+
     def _scores(self, ctx: ClickContext, models, Rs, ts, n: int) -> np.ndarray:
         """The two-way capped residual (plus the click penalty) of a batch of hypotheses (B,)."""
         fwd, _ = self._forward_score(ctx, models, Rs, ts, n)
@@ -702,16 +776,17 @@ class Registrar:
         return 0.5 * (fwd + bwd) + self._click_penalty(ctx, models, Rs, ts)
 
     def _finish_articulated(self, ctx: ClickContext, model: PosedTemplate, R, t, samples: int,
-                            iterations: int, iterations_before: int, hold_joint: bool = False):
+                            iterations: int, iterations_before: int, hold_joint: bool = False,
+                            hold_scale: bool = False):
         """The fine stage with the joint value and the scale as unknowns besides the pose: the
         two-way weighted point-to-plane step of :meth:`_icp` extended by a column per extra
         unknown (d x / d q: the moving part's motion about or along the joint axis; d x / d s:
-        the unscaled posed point), solved in closed form each iteration (Gauss-Newton).
-        Returns (FitResult, PosedTemplate)."""
+        the unscaled posed point), solved in closed form each iteration (Gauss-Newton);
+        ``hold_joint`` / ``hold_scale`` keep those as given. Returns (FitResult, PosedTemplate)."""
         s = self.settings
         tpl = model.template
         joint = None if hold_joint else tpl.joint
-        lo_hi = tpl.scale_range
+        lo_hi = None if hold_scale else tpl.scale_range
         d0 = s.weight_scale
         P0, N0, moving0 = tpl.part_samples(samples, seed=1)
         q, sc = model.q, model.scale
@@ -721,6 +796,7 @@ class Registrar:
         pts, normals = self._reverse_subset(ctx)
         axis = np.asarray(joint.axis) if joint is not None else None
         origin = np.asarray(joint.origin) if joint is not None else None
+        contact = self._in_contact(ctx, model, R, t)
         it = 0
         for it in range(iterations):
             radius = reject * (floor / reject) ** (it / max(iterations - 1, 1))
@@ -742,6 +818,9 @@ class Registrar:
                 w = np.concatenate([w, correspondence_weights(d_r[finite], radius, d0)])
                 U = np.vstack([U, x_r[finite] / sc])
                 mov = np.concatenate([mov, mov_r[finite]])
+            if contact:     # the lowest samples rest on the plane (unseen: the object hides them)
+                X, Q, Nq, w, U, mov = self._contact_rows(ctx, X, Q, Nq, w, U, mov, len(P0),
+                                                         radius)
             W = w.sum()
             if W < 1e-9:
                 break
@@ -755,27 +834,50 @@ class Registrar:
                 cols.append(np.einsum("si,si->s", U @ R.T, Nq)[:, None])
             J = np.concatenate(cols, axis=1)
             r = np.einsum("si,si->s", Q - X, Nq)
-            A = (J * w[:, None]).T @ J + 1e-9 * np.eye(J.shape[1])
-            xi = np.linalg.solve(A, (J * w[:, None]).T @ r)
+            # (value, lower, upper, largest step) of the extra unknowns, in column order
+            extra = ([(q, joint.lower, joint.upper, (joint.upper - joint.lower) / 8)]
+                     if joint is not None else []) + \
+                ([(sc, lo_hi[0], lo_hi[1], 0.05)] if lo_hi is not None else [])
+            free = np.ones(J.shape[1], bool)
+            while True:   # an unknown at its limit that the step pushes beyond stays there
+                Jf = J[:, free]
+                A = (Jf * w[:, None]).T @ Jf + 1e-9 * np.eye(Jf.shape[1])
+                xi = np.zeros(J.shape[1])
+                xi[free] = np.linalg.solve(A, (Jf * w[:, None]).T @ r)
+                stuck = [6 + i for i, (val, lo, hi, _) in enumerate(extra) if free[6 + i] and
+                         ((val <= lo and xi[6 + i] < 0) or (val >= hi and xi[6 + i] > 0))]
+                if not stuck:
+                    break
+                free[stuck] = False
             omega, v = xi[:3], xi[3:6]
             angle = float(np.linalg.norm(omega))
             dR = axis_angle_matrix(omega, angle) if angle > 1e-12 else np.eye(3)
             R = dR @ R
             t = dR @ (t - c) + c + v
-            k = 6
-            dq = ds = 0.0
+            steps = [float(np.clip(xi[6 + i], -big, big)) for i, (_, _, _, big) in enumerate(extra)]
+            values = [float(np.clip(val + d, lo, hi))
+                      for (val, lo, hi, _), d in zip(extra, steps)]
             if joint is not None:
-                span = joint.upper - joint.lower
-                dq = float(np.clip(xi[k], -span / 8, span / 8))
-                q = float(np.clip(q + dq, joint.lower, joint.upper))
-                k += 1
+                q = values.pop(0)
             if lo_hi is not None:
-                ds = float(np.clip(xi[k], -0.05, 0.05))
-                sc = float(np.clip(sc + ds, *lo_hi))
-            if angle < 2e-4 and np.linalg.norm(v) < 5e-5 and abs(dq) < 1e-4 and abs(ds) < 1e-4:
+                sc = values.pop(0)
+            dq_ds = max((abs(d) for d in steps), default=0.0)
+            if angle < 2e-4 and np.linalg.norm(v) < 5e-5 and dq_ds < 1e-4:
                 break
         model = model.with_values(q=q, scale=sc)
         return self._result(ctx, model, R, t, iterations_before + it + 1, 0.0), model
+
+    def _contact_rows(self, ctx: ClickContext, X, Q, Nq, w, U, mov, n_forward: int, radius):
+        """Append point-to-plane rows pairing the lowest of the first ``n_forward`` posed samples
+        (within ``CONTACT_SLACK`` of the lowest) with the plane under the click."""
+        pd = ctx.plane.distance(X[:n_forward])
+        low = np.flatnonzero(pd <= pd.min() + CONTACT_SLACK)
+        x_low = X[low]
+        return (np.vstack([X, x_low]), np.vstack([Q, x_low - pd[low][:, None] * ctx.plane.normal]),
+                np.vstack([Nq, np.broadcast_to(ctx.plane.normal, x_low.shape)]),
+                np.concatenate([w, correspondence_weights(np.abs(pd[low]), radius,
+                                                          self.settings.weight_scale)]),
+                np.vstack([U, U[low]]), np.concatenate([mov, mov[low]]))
 
     def _finish(self, ctx, tpl, R, t, samples, iterations, iterations_before) -> FitResult:
         reject = np.array([0.1 * tpl.diameter])
