@@ -215,3 +215,56 @@ def test_discard_erases_the_marker_and_sequence_has_no_gaps(session):
     time.sleep(0.6)
     assert s["proto"].gaps == []
     assert s["proto"].seq >= 5
+
+
+def test_joint_marker_turns_the_lever_and_follows_the_fit(session, library):
+    """An articulated object gets a second marker on its joint (x along the axis, one
+    ROTATE_AXIS control for a revolute joint). Releasing it turned by 0.1 rad sets the lever to
+    that value (the status says so, the pose is refitted with it held) and both markers follow;
+    discarding erases both, with no gap in the sequence."""
+    s, proto, F = session, session["proto"], InteractiveMarkerFeedback
+    tpl = library["ball_valve"]
+    sim = simulate_taskboard(library, 3102, articulated=True,
+                             joints={"ball_valve": {"lever": math.pi / 4}})
+    obj = next(o for o in sim.objects if o.template == "ball_valve")
+    s["points"].publish(xyz_to_pointcloud2(sim.organized, FRAME))
+    time.sleep(0.5)
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
+    s["click"].publish(msg)
+
+    def joint_marker():
+        with proto.lock:
+            return proto.markers.get("affordance_joint")
+
+    def shown():
+        st = s["client"].status() or {}
+        active = [o for o in st.get("objects", []) if o["active"]]
+        return active[0]["candidates"][active[0]["shown"]] if active else None
+    s["client"].wait_for(lambda: joint_marker() is not None and (shown() or {}).get("template")
+                         == "ball_valve", timeout=30, what="the joint marker")
+    jm = joint_marker()
+    assert [(c.name, c.interaction_mode) for c in jm.controls] == [
+        ("joint", InteractiveMarkerControl.ROTATE_AXIS)]
+    q0 = shown()["joints"]["lever"]
+    T_fit = np.asarray(shown()["pose"])
+    s["client"].wait_for(lambda: np.allclose(pose_to_matrix(joint_marker().pose),
+                                             T_fit @ tpl.joint_frame(q0), atol=1e-5),
+                         what="the joint marker at the joint")
+    q1 = q0 + 0.1
+    target = T_fit @ tpl.joint_frame(q1)
+    proto.send(F.MOUSE_DOWN, matrix_to_pose(T_fit @ tpl.joint_frame(q0)), name="affordance_joint")
+    proto.send(F.POSE_UPDATE, matrix_to_pose(target), name="affordance_joint")
+    proto.send(F.MOUSE_UP, matrix_to_pose(target), name="affordance_joint")
+    s["client"].wait_for(lambda: abs(shown()["joints"]["lever"] - q1) < 1e-6,
+                         what="the lever set from the marker")
+    T_new = np.asarray(shown()["pose"])
+    s["client"].wait_for(lambda: np.allclose(pose_to_matrix(joint_marker().pose),
+                                             T_new @ tpl.joint_frame(q1), atol=1e-5),
+                         what="the joint marker at the new angle")
+    assert np.linalg.norm(T_new[:3, 3] - T_fit[:3, 3]) < 0.01     # the valve stayed put
+    assert s["client"].call(Trigger, "/affordance_engine/discard").success
+    s["client"].wait_for(lambda: joint_marker() is None and marker(s) is None, what="the erase")
+    time.sleep(0.6)
+    assert s["proto"].gaps == []
