@@ -107,7 +107,9 @@ def _refit_times(registrar, jobs, library, rng):
         centre = T[:3, :3] @ tpl.centroid + T[:3, 3]
         T_c = make_T(dR @ T[:3, :3], dR @ (T[:3, 3] - centre) + centre + off)
         t0 = time.perf_counter()
-        res = registrar.refit(ctx, obj.template, T_c)
+        # the candidate carries its joint values (the truth's here: the joint at zero)
+        joints = dict(obj.joints) or ({tpl.joint.name: 0.0} if tpl.joint is not None else {})
+        res = registrar.refit(ctx, obj.template, T_c, joints)
         times.append(time.perf_counter() - t0)
         dt, dr = pose_error(res.T_scene_model, T, tpl.symmetry)
         ok += dt <= POSE_TOL_M and dr <= POSE_TOL_RAD

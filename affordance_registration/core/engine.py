@@ -417,9 +417,10 @@ class AffordanceEngine:
             msg += "; " + self.refit(hold_joint=True, coalesce=True)
         return msg
 
-    def refit(self, hold_joint: bool = False, coalesce: bool = False) -> str:
+    def refit(self, hold_joint: bool | None = None, coalesce: bool = False) -> str:
         """Refit the shown candidate locally from its current (possibly corrected) pose, joint
-        values and scale (``hold_joint``: keep the joint value, refit the pose and scale)."""
+        values and scale. Joint values the candidate has are kept (``hold_joint=False``:
+        estimate them again), ones it lacks are estimated."""
         with self._lock:
             obj = self._require_active()
             scene, version = self._scene, self._scene_version

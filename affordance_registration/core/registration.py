@@ -55,7 +55,8 @@ __all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate"
 
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     # families of initial hypotheses
-CONTACT_SLACK = 0.002                  # m: plane noise allowed in a contact
+CONTACT_BAND = 0.002                   # m: samples this close to the lowest one rest on the plane
+CONTACT_SLACK = 0.005                  # m: a gap to the plane within this costs nothing
 
 
 @dataclass(frozen=True)
@@ -100,9 +101,10 @@ class FitSettings:
     #: an articulated candidate whose rigid fit touches the plane under the click (within this)
     #: keeps touching it: the joint must not be traded for the whole object floating off it
     contact_distance: float = 0.01
-    #: a joint value or scale the data cannot tell from the nearest named state or the nominal
-    #: scale 1 (residual within this fraction) is reported at that value
+    #: a joint value the data cannot tell from the nearest named state (residual within this
+    #: fraction) is reported at that state; likewise a scale and the nominal scale 1
     nominal_preference: float = 0.02
+    nominal_scale_preference: float = 0.005
     articulation_rounds: int = 3
     articulation_icp: int = 5          #: ICP iterations per sweep hypothesis
     refit_restarts: int = 10
@@ -125,7 +127,8 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "contact_distance", "nominal_preference"):
+                     "articulated_margin", "contact_distance", "nominal_preference",
+                     "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
@@ -395,18 +398,22 @@ class Registrar:
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
               joints: dict | None = None, scale: float = 1.0,
-              hold_joint: bool = False) -> FitResult:
+              hold_joint: bool | None = None) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
         ``refit_max_move`` / ``refit_max_turn`` from ``T_init``: a refit that would jump back to a
         pose the operator moved away from keeps the closest acceptable pose instead.
 
-        An articulated template starts from ``joints`` (name -> value) and ``scale`` and refines
-        them with the pose (with ``settings.articulated``); ``hold_joint`` keeps the joint value
-        as given (the operator just set it) and refines the pose and scale only."""
+        An articulated template starts from ``joints`` (name -> value) and ``scale`` (with
+        ``settings.articulated``). ``hold_joint`` keeps the joint value as given and refines the
+        pose and scale only; by default (None) a joint value that is given is kept -- estimated
+        once with the click, then changed by the operator's joint corrections, not by refits of
+        the pose -- and one that is not given is estimated."""
         s = self.settings
         t0 = time.perf_counter()
         tpl = self._model(template, joints, scale)
+        if hold_joint is None:
+            hold_joint = bool(joints)
         rng = np.random.default_rng(s.seed + 7919)
         Ts = [np.asarray(T_init, dtype=float)]
         centre = Ts[0][:3, :3] @ tpl.centroid + Ts[0][:3, 3]
@@ -716,7 +723,8 @@ class Registrar:
         """Occam's razor for the extra unknowns: refit at the nearest named state's joint value
         and/or at the nominal scale 1 (within the range) -- the fixed part held or moved so the
         moving part stays, the template scaled about its origin or its centroid -- and keep
-        that when its residual is within ``nominal_preference`` of the free fit's. Valves mostly
+        that when its residual is within ``nominal_preference`` (joint) plus
+        ``nominal_scale_preference`` (scale) of the free fit's. Valves mostly
         sit open or closed, and most objects come in their nominal size."""
         tpl = model.template
         s = self.settings
@@ -735,6 +743,9 @@ class Registrar:
             for sc in scales:
                 if q == model.q and sc == model.scale:
                     continue
+                allowed = (1.0 + (s.nominal_preference if q != model.q else 0.0)
+                           + (s.nominal_scale_preference if sc != model.scale else 0.0)) \
+                    * res.residual
                 m = model.with_values(q=q, scale=sc)
                 starts = [T]
                 if q != model.q:
@@ -750,11 +761,10 @@ class Registrar:
                                                           hold_scale=True)
                     for cand in (self._result(ctx, m, T0[:3, :3], T0[:3, 3],
                                               iterations_before, 0.0), refined):
-                        if best is None or cand.residual < best.residual:
+                        if cand.residual <= allowed and (best is None or
+                                                         cand.residual < best.residual):
                             best = cand
-        if best is not None and best.residual <= (1.0 + s.nominal_preference) * res.residual:
-            return best
-        return res
+        return best if best is not None else res
 
     def _plane_gap(self, ctx: ClickContext, models, Rs, ts, n: int) -> np.ndarray:
         """Signed distance (m) of each hypothesis' lowest sample from the plane under the click
@@ -790,6 +800,8 @@ class Registrar:
         tpl = model.template
         joint = None if hold_joint else tpl.joint
         lo_hi = None if hold_scale else tpl.scale_range
+        if joint is None and lo_hi is None:     # nothing but the pose: the rigid fine stage
+            return self._finish(ctx, model, R, t, samples, iterations, iterations_before), model
         d0 = s.weight_scale
         P0, N0, moving0 = tpl.part_samples(samples, seed=1)
         q, sc = model.q, model.scale
@@ -872,9 +884,9 @@ class Registrar:
 
     def _contact_rows(self, ctx: ClickContext, X, Q, Nq, w, U, mov, n_forward: int, radius):
         """Append point-to-plane rows pairing the lowest of the first ``n_forward`` posed samples
-        (within ``CONTACT_SLACK`` of the lowest) with the plane under the click."""
+        (within ``CONTACT_BAND`` of the lowest) with the plane under the click."""
         pd = ctx.plane.distance(X[:n_forward])
-        low = np.flatnonzero(pd <= pd.min() + CONTACT_SLACK)
+        low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
         x_low = X[low]
         return (np.vstack([X, x_low]), np.vstack([Q, x_low - pd[low][:, None] * ctx.plane.normal]),
                 np.vstack([Nq, np.broadcast_to(ctx.plane.normal, x_low.shape)]),

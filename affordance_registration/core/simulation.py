@@ -22,7 +22,7 @@ import trimesh
 import yaml
 
 from .errors import AffordanceError
-from .templates import TemplateLibrary
+from .templates import TemplateLibrary, mesh_distance
 from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
@@ -317,19 +317,6 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
                           objects=tuple(objects), T_scene_board=T_cam_board,
                           intrinsics=camera.intrinsics)
-
-
-def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
-    """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
-    negative inside a watertight mesh."""
-    import open3d as o3d
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
-    query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
-    if signed:
-        return scene.compute_signed_distance(query).numpy().astype(float)
-    return scene.compute_distance(query).numpy().astype(float)
 
 
 def ply_bytes(points: np.ndarray) -> bytes:

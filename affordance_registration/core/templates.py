@@ -214,16 +214,23 @@ class AffordanceTemplate:
         return self.joint is not None or self.scale_range is not None
 
     def part_samples(self, n: int, seed: int = 0):
-        """Area-weighted samples of the fixed and the moving part at joint value zero: (points
-        (n, 3), normals (n, 3), moving (n,) bool). Without a joint, all samples are fixed."""
+        """Area-weighted samples of the object's surface at joint value zero, each labelled with
+        its part: (points (n, 3), normals (n, 3), moving (n,) bool) -- the points and normals
+        of :meth:`samples`. Without a joint, all samples are fixed."""
         key = ("parts", int(n), int(seed))
         with self._lock:
             hit = self._cache.get(key)
         if hit is not None:
             return hit
-        if not self.joints or self.base_mesh is None:
+        if self.joint is None:
             P, N = self.samples(n, seed)
             out = (P, N, np.zeros(len(P), bool))
+        elif self.mesh is not None:
+            # the object's outer surface (the YAML mesh, the union at joint value zero), each
+            # sample labelled with the part it lies on: no faces hidden inside the union
+            P, N = self.samples(n, seed)
+            moving = mesh_distance(self.joint.moving_mesh, P) < mesh_distance(self.base_mesh, P)
+            out = (P, N, moving)
         else:
             moving = self.joints[0].moving_mesh
             n_mov = int(round(n * moving.area / (moving.area + self.base_mesh.area)))
@@ -316,6 +323,19 @@ class AffordanceTemplate:
             if d < best_d:
                 best, best_d = state, d
         return best
+
+
+def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
+    """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
+    negative inside a watertight mesh."""
+    import open3d as o3d
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
+    if signed:
+        return scene.compute_signed_distance(query).numpy().astype(float)
+    return scene.compute_distance(query).numpy().astype(float)
 
 
 def _resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
