@@ -202,3 +202,18 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     assert dt <= 0.005
     free = Registrar(sized, FitSettings(contact_distance=1e-9))
     assert abs(_fit(free, sim, "grab_handle")[1].scale / obj.scale - 1.0) > 0.03
+
+
+def test_a_much_bigger_handle_is_found_from_hypotheses_at_the_range_ends(library):
+    """A grab handle at 1.24x: the nominal-size template alone lands on one end of it (48 mm
+    off, turned 25 deg), from which no scale step recovers; hypotheses at the ends of the
+    scale range from the start find it."""
+    from affordance_registration.bench import sized_library
+    sized = sized_library(library)
+    sim = simulate_taskboard(sized, 522, articulated=True)
+    obj, best = _fit(Registrar(sized), sim, "grab_handle")
+    assert obj.scale == pytest.approx(1.244, abs=0.001)
+    assert best.template == "grab_handle"
+    assert abs(best.scale / obj.scale - 1.0) <= 0.03, best.scale
+    dt, dr = pose_error(best.T_scene_model, obj.T_scene_model, sized["grab_handle"].symmetry)
+    assert dt <= 0.005 and dr <= DEG5, (dt, math.degrees(dr))

@@ -94,7 +94,7 @@ class FitSettings:
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
     #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
     articulated: bool = True
-    articulated_candidates: int = 3    #: at most that many leading candidates get them estimated,
+    articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
     articulated_margin: float = 1.3    #: those with a residual within this factor of the best
     joint_sweep: int = 13              #: joint values tried across a revolute joint's limits
     scale_sweep: int = 7               #: scales tried across a template's scale range
@@ -267,6 +267,11 @@ class PosedTemplate:
         if parts:
             return d * self.scale, pts * self.scale, closer
         return d * self.scale, pts * self.scale
+
+    def resting_rotations(self, max_poses: int = 6):
+        """The template's resting orientations (those at joint zero; scale does not change
+        them)."""
+        return self.template.resting_rotations(max_poses)
 
     @property
     def joints(self) -> dict:
@@ -479,11 +484,19 @@ class Registrar:
         t0 = time.perf_counter()
         rng = np.random.default_rng(s.seed)
         tpls = [self.library[n] for n in names]
-        # 1. initial hypotheses for every template: plane prior (yaw sweep) + uniform random
-        hyp_tpl, hyp_R, hyp_t, family = self._initial_hypotheses(ctx, tpls, rng)
+        # 1. initial hypotheses for every template: plane prior (yaw sweep) + uniform random;
+        #    a template that comes in sizes also at the ends of its scale range
+        variants = [(i, tpl) for i, tpl in enumerate(tpls)]
+        if s.articulated:
+            variants += [(i, self._posed(tpl, 0.0, g)) for i, tpl in enumerate(tpls)
+                         if tpl.scale_range is not None for g in tpl.scale_range if g != 1.0]
+        hyp_v, hyp_R, hyp_t, family = self._initial_hypotheses(ctx, [m for _, m in variants],
+                                                               rng)
+        hyp_tpl = np.array([variants[v][0] for v in hyp_v])      # the template of each
+        hyp_model = [variants[v][1] for v in hyp_v]               # ... and the model fitted
         # 2. coarse ICP, all restarts of all templates together
-        reject = np.array([0.5 * tpls[i].diameter for i in hyp_tpl])
-        tlist = [tpls[i] for i in hyp_tpl]
+        reject = np.array([0.5 * m.diameter for m in hyp_model])
+        tlist = hyp_model
         R, t = self._icp(tlist, hyp_R, hyp_t, ctx, s.coarse_samples, s.coarse_iterations, reject,
                          target="cluster", occlusion=True)
         fwd, _ = self._forward_score(ctx, tlist, R, t, s.coarse_samples)
@@ -507,7 +520,7 @@ class Registrar:
                     break
             keep.extend(chosen)
         keep = np.array(keep)
-        tlist = [tpls[hyp_tpl[j]] for j in keep]
+        tlist = [hyp_model[j] for j in keep]
         reject = np.array([0.25 * tp.diameter for tp in tlist])
         R, t = self._icp(tlist, R[keep], t[keep], ctx, s.medium_samples, s.medium_iterations,
                          reject, target="cluster", occlusion=True)
@@ -517,7 +530,7 @@ class Registrar:
         iters = s.coarse_iterations + s.medium_iterations
         for k, j in enumerate(keep):
             i = int(hyp_tpl[j])
-            res = self._result(ctx, tpls[i], R[k], t[k], iters, elapsed)
+            res = self._result(ctx, tlist[k], R[k], t[k], iters, elapsed)
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
         ranked = _rank(list(best.values()))
@@ -531,7 +544,8 @@ class Registrar:
                 if not tpl.articulated or r.residual > s.articulated_margin * ranked[0].residual:
                     continue
                 model, Ra, ta = self._articulate(ctx, tpl, r.T_scene_model[:3, :3],
-                                                 r.T_scene_model[:3, 3])
+                                                 r.T_scene_model[:3, 3], tpl.joint_value(r.joints),
+                                                 r.scale)
                 res = self._result(ctx, model, Ra, ta, iters, elapsed)
                 models[r.template] = model
                 ranked = tuple(res if x.template == r.template else x for x in ranked)
@@ -690,15 +704,21 @@ class Registrar:
                     ts.append(T_h[:3, 3])
             model, R, t = best_of(models, Rs, ts, s.articulation_icp)
         if sweep and lo_hi is not None:
-            # each scale about the template's origin (the mounting base stays) and about its
-            # centroid (the fit matched the middle of a bigger or smaller object)
+            # each scale about the template's origin (the mounting base stays), about its
+            # centroid (the fit matched the middle of a bigger or smaller object), and with its
+            # centroid over the data near the click (the fit matched one end of a bigger one),
+            # along the plane when there is one
             centre = R @ model.centroid + t
+            near = np.linalg.norm(ctx.cluster - ctx.click, axis=1) <= 0.5 * tpl.diameter * lo_hi[1]
+            data = ctx.cluster[near].mean(axis=0) if near.any() else centre
+            if ctx.plane is not None:
+                data = data - ctx.plane.normal * (ctx.plane.normal @ (data - centre))
             models, Rs, ts = [], [], []
             for g in np.linspace(lo_hi[0], lo_hi[1], s.scale_sweep):
                 m = model.with_values(scale=g)
-                models += [m, m]
-                Rs += [R, R]
-                ts += [t, centre - R @ m.centroid]
+                models += [m, m, m]
+                Rs += [R, R, R]
+                ts += [t, centre - R @ m.centroid, t + data - (R @ m.centroid + t)]
             model, R, t = best_of(models, Rs, ts, s.articulation_icp)
         q_step = (joint.upper - joint.lower) / (2 * s.joint_sweep) if joint is not None else 0.0
         s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
