@@ -39,7 +39,8 @@ def write_png(path: str, rgb: np.ndarray) -> None:
 def render_registrations(points: np.ndarray, registrations, library,
                          intrinsics: CameraIntrinsics = KINECT_NFOV) -> np.ndarray:
     """(H, W, 3) uint8 picture of ``points`` (N, 3, camera optical frame) with each
-    ``(template name, T_scene_model)`` of ``registrations`` drawn in place."""
+    ``(template name, T_scene_model[, joints, scale])`` of ``registrations`` drawn in place (an
+    articulated template at its joint values and scale)."""
     H, W = intrinsics.height, intrinsics.width
     img = np.full((H, W, 3), 24, dtype=float)
     pts = np.asarray(points, dtype=float)
@@ -59,7 +60,13 @@ def render_registrations(points: np.ndarray, registrations, library,
     regs = list(registrations)
     if regs:
         camera = DepthCamera(intrinsics)
-        meshes = [(library[name].mesh, np.asarray(T, dtype=float)) for name, T in regs]
+        meshes = []
+        for name, T, *extra in regs:
+            tpl = library[name]
+            joints = extra[0] if len(extra) > 0 else {}
+            scale = extra[1] if len(extra) > 1 else 1.0
+            meshes.append((tpl.mesh_at(tpl.joint_value(joints or {}), float(scale)),
+                           np.asarray(T, dtype=float)))
         hit, labels, normals = camera.render(meshes, None, return_normals=True)
         depth = hit[..., 2].reshape(-1)
         labels = labels.reshape(-1)
@@ -68,7 +75,7 @@ def render_registrations(points: np.ndarray, registrations, library,
         shade = 0.35 + 0.65 * np.abs(np.einsum("ni,ni->n", normals.reshape(-1, 3), rays))
         in_front = (labels >= 0) & ~(scan_depth < depth - 0.01)
         flat = img.reshape(-1, 3)
-        for k, (name, _) in enumerate(regs):
+        for k, (name, *_) in enumerate(regs):
             sel = in_front & (labels == k)
             colour = np.array(TEMPLATE_COLOURS.get(name, _FALLBACK[k % len(_FALLBACK)]), float)
             flat[sel] = 0.25 * flat[sel] + 0.75 * colour * shade[sel, None]

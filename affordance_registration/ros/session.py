@@ -320,7 +320,8 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
     intr = CameraIntrinsics(**truth["intrinsics"])
     cloud = _recorded_cloud(bag_path)
     picture = os.path.join(out_dir, "registrations.png")
-    write_png(picture, render_registrations(cloud, [(r["template"], np.asarray(r["pose"]))
+    write_png(picture, render_registrations(cloud, [(r["template"], np.asarray(r["pose"]),
+                                                     r.get("joints") or {}, r.get("scale", 1.0))
                                                     for r in cur], library, intr))
     ok = bool(rows) and all(r["ok"] for r in rows) and not mismatches and \
         len(rows) == len(recorded[-1]["registered"])
