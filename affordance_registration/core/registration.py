@@ -718,7 +718,7 @@ class Registrar:
                 m = model.with_values(scale=g)
                 models += [m, m, m]
                 Rs += [R, R, R]
-                ts += [t, centre - R @ m.centroid, t + data - (R @ m.centroid + t)]
+                ts += [t, centre - R @ m.centroid, data - R @ m.centroid]
             model, R, t = best_of(models, Rs, ts, s.articulation_icp)
         q_step = (joint.upper - joint.lower) / (2 * s.joint_sweep) if joint is not None else 0.0
         s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
