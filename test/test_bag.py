@@ -132,8 +132,8 @@ def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library
     for r in rows:
         assert r["shown"] == r["template"], r
         assert r["error_mm"] < 5 and r["error_deg"] < 5, r
-    # the session needed the operator: a model change and SpaceMouse corrections
-    assert sum(r["model_changes"] for r in rows) >= 1
+    # the session needed the operator: a SpaceMouse correction (model changes are covered live
+    # in test_engine_node: every object of this scene is ranked right at the first click)
     assert sum(r["corrections"] for r in rows) >= 1
     assert result["ok"]
     saved = yaml.safe_load(open(tmp_path / "out" / "registrations.yaml"))

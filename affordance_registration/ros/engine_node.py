@@ -45,6 +45,7 @@ FIRST_TWIST_DT = 1.0 / 30.0
 # spacenav/twist axes (x away from the user, y left, z up) -> view axes (x right, y up, z to the
 # viewer): push right -> right on the screen, push away -> into the screen, lift -> up
 R_VIEW_SPACENAV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
+REFIT_FIRST = ("accept", "next_model", "previous_model", "discard")
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
                   "joint_plus", "joint_minus")
 
@@ -398,8 +399,19 @@ class EngineNode(Node):
             self._error(f"view_pose ignored: {exc}", throttle=2.0)
 
     # ------------------------------------------------------------------ actions
+    def _settle_twists(self, action) -> None:
+        """A refit still waiting for the twists to stop belongs to the object they moved: it
+        runs before an action that leaves that object (accept, next/previous model, discard);
+        undo, refit and joint steps make it moot."""
+        if not self._pending_refit:
+            return
+        self._pending_refit = False
+        if (action[0] if isinstance(action, tuple) else action) in REFIT_FIRST:
+            self._jobs.put(("refit", None))
+
     def _service(self, action: str):
         async def callback(request, response):
+            self._settle_twists(action)
             # after the clicks already queued, without blocking the executor meanwhile
             if self._jobs.empty() and self._busy is None:
                 response.success, response.message = self._run_action(action)
@@ -413,6 +425,7 @@ class EngineNode(Node):
     def _submit_action(self, action: str) -> None:
         """A button or menu action: after the clicks already queued (a button pressed right
         after a click acts on that click's object)."""
+        self._settle_twists(action)
         if self._jobs.empty() and self._busy is None:
             self._run_action(action)
         else:
