@@ -224,6 +224,31 @@ def test_click_frames(session):
     assert st["objects"][-1]["candidates"][0]["template"] == obj.template
 
 
+def test_accept_right_after_a_twist_takes_the_refitted_pose(session, library):
+    """Accept pressed while the refit still waits for the SpaceMouse to stop: the refit runs
+    first, so the registration is the refitted pose, not the pushed-off one (and the refit
+    does not land on whatever is selected next)."""
+    s = session
+    obj = s["sim"].objects[3]                  # fitted and selected by test_click_frames
+    client = s["client"]
+    n = len(client.latest[f"{NS}/registered"].poses)
+    twist = Twist()
+    twist.linear.y = -0.5                      # about 1.5 cm to the right over 0.3 s
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.3:
+        s["pubs"]["twist"].publish(twist)
+        time.sleep(1 / 30)
+    s["pubs"]["twist"].publish(Twist())
+    time.sleep(0.1)                            # well within refit_idle_s (0.4 s)
+    res = trigger(s, "accept")
+    assert res.success and obj.template in res.message, res.message
+    client.wait_for(lambda: len(client.latest[f"{NS}/registered"].poses) == n + 1,
+                    what="~/registered")
+    reg = status(s)["registered"][-1]
+    dt, dr = pose_error(np.asarray(reg["pose"]), obj.T_scene_model, library[obj.template].symmetry)
+    assert reg["template"] == obj.template and dt < TOL_M and dr < TOL_RAD, (dt, dr)
+
+
 def test_parameters_are_validated(session):
     s = session
 
