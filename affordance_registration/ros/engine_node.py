@@ -438,7 +438,6 @@ class EngineNode(Node):
             elif action == "refit":
                 self._ensure_scene_quietly()
                 msg = self.engine.refit()
-                self._pending_refit = False
             elif action in ("joint_plus", "joint_minus"):
                 self._ensure_scene_quietly()
                 msg = self.engine.correct_joint(steps=1.0 if action == "joint_plus" else -1.0)
