@@ -12,11 +12,16 @@ import numpy as np
 from .errors import AffordanceError
 from .transforms import axis_angle_matrix, finite_vector, make_T
 
-__all__ = ["view_from_optical", "twist_step", "apply_twist", "OPTICAL_TO_VIEW"]
+__all__ = ["view_from_optical", "twist_step", "apply_twist", "OPTICAL_TO_VIEW",
+           "R_VIEW_SPACENAV"]
 
 #: Rotation from the screen view frame (x right, y up, z to the viewer) to a camera optical frame
 #: (x right, y down, z forward): R_optical_view.
 OPTICAL_TO_VIEW = np.diag([1.0, -1.0, -1.0])
+
+#: Rotation from the spacenav device axes of ``spacenav/twist`` (x away from the user, y left, z up)
+#: to the view axes: push right -> right on the screen, push away -> into the screen, lift -> up.
+R_VIEW_SPACENAV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
 
 
 def view_from_optical(T_scene_optical: np.ndarray) -> np.ndarray:

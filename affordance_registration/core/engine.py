@@ -321,11 +321,13 @@ class AffordanceEngine:
             obj = self._require_active()
             if len(obj.candidates) < 2:
                 raise EngineStateError("only one candidate: nothing to cycle to")
-            active = (obj.active + step) % len(obj.candidates)
-            ctx = obj.context
-            candidates = obj.candidates
-            refined = obj.refined
-        if active not in refined and ctx is not None:   # refine on first display, outside lock
+        return self._show(obj, (obj.active + step) % len(obj.candidates))
+
+    def _show(self, obj: TrackedObject, active: int) -> str:
+        """Show candidate ``active`` of ``obj`` (refined at full resolution the first time it
+        is shown; the refit runs outside the lock)."""
+        ctx, candidates, refined = obj.context, obj.candidates, obj.refined
+        if active not in refined and ctx is not None:
             cand = candidates[active]
             better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
                                           cand.scale)
@@ -341,6 +343,19 @@ class AffordanceEngine:
                           model_changes=current.model_changes + 1)
             self._commit(self._replace_object(new), "cycle")
             return f"object {new.id}: {self._describe(new)}"
+
+    def select_model(self, template: str) -> str:
+        """Show the selected object's candidate of ``template`` (by name, any rank)."""
+        with self._lock:
+            obj = self._require_active()
+            names = [c.template for c in obj.candidates]
+            if template not in names:
+                raise EngineStateError(f"object {obj.id} has no candidate '{template}' "
+                                       f"(candidates: {', '.join(names)})")
+            index = names.index(template)
+            if index == obj.active:
+                return f"object {obj.id}: {self._describe(obj)} (already shown)"
+        return self._show(obj, index)
 
     def next_model(self) -> str:
         """Show the next most likely candidate of the selected object (wraps around)."""

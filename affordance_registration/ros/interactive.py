@@ -21,11 +21,17 @@ axis): one control, rotating about the axis (revolute) or moving along it (prism
 a whole interactive marker whichever of its controls is dragged, so the joint needs a marker of
 its own. Releasing it sets the joint value it shows (clamped to the limits) and refits the pose
 with that value held.
+
+The server knows its host only through :class:`MarkerCallbacks` (what is shown, and where to send
+the operator's input), so it is tested without a node; :meth:`CorrectionMarkerServer.attach`
+wires it to a node's topics and service.
 """
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from geometry_msgs.msg import Quaternion
@@ -37,112 +43,155 @@ from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
 from visualization_msgs.srv import GetInteractiveMarkers
 
 from ..core.errors import AffordanceError
-from ..core.transforms import matrix_to_quat_xyzw
+from ..core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
+
+__all__ = ["CorrectionMarkerServer", "MarkerCallbacks", "MARKER_NAME", "JOINT_MARKER_NAME",
+           "MENU", "DRAG_EXPIRY_S"]
 
 MARKER_NAME = "affordance_fit"
 JOINT_MARKER_NAME = "affordance_joint"
 MENU = (("next_model", "Next model"), ("previous_model", "Previous model"), ("refit", "Refit"),
         ("accept", "Accept"), ("undo", "Undo"), ("discard", "Discard"))
 KEEP_ALIVE_S = 0.5
+#: a drag belongs to the client that started it while that client keeps sending feedback (poses
+#: or keep-alives); after this long without any, another client may take over
+DRAG_EXPIRY_S = 3.0
+WARN_EVERY_S = 2.0
 _S = math.sqrt(0.5)
 # control frames whose x axis is the object's (or view's) x, y and z axis
 AXES = {"x": (_S, 0.0, 0.0, _S), "y": (0.0, 0.0, _S, _S), "z": (0.0, -_S, 0.0, _S)}  # x,y,z,w
 
 
-class CorrectionMarkerServer:
-    """The interactive-marker server of the engine node (all callbacks on its executor)."""
+@dataclass(frozen=True)
+class MarkerCallbacks:
+    """What the server reads from and sends to its host.
 
-    def __init__(self, node, namespace: str = "/affordance_correction",
-                 orientation: str = "object"):
-        self.node = node
-        self.ns = "/" + namespace.strip("/")
+    ``active()``: the selected object (a TrackedObject) or None; ``frame()``: the frame of the
+    shown poses; ``view_pose()``: T_scene_view (4x4) of the operator; ``template(name)``: an
+    AffordanceTemplate; ``pose(T_scene_model, release)``: the dragged pose of the shown fit
+    (``release``: the drag ended, refit from it); ``action(name, argument)``: a menu entry or
+    (``"joint_value"``, q) from the joint marker; ``warn(text)``: a warning for the log.
+    """
+
+    active: Callable
+    frame: Callable
+    view_pose: Callable
+    template: Callable
+    pose: Callable
+    action: Callable
+    warn: Callable
+
+
+class CorrectionMarkerServer:
+    """The interactive-marker server of the engine node: marker building, sequence numbers, drag
+    ownership and feedback handling. ``clock()`` (s) is injectable."""
+
+    def __init__(self, callbacks: MarkerCallbacks, namespace: str = "/affordance_correction",
+                 orientation: str = "object", server_id: str = "affordance_engine",
+                 clock=time.monotonic):
         if not namespace.strip("/") or "/" in namespace.strip("/"):
             raise AffordanceError(f"interactive marker namespace must be one level like "
                                   f"/affordance_correction, got {namespace!r}")
         if orientation not in ("object", "view"):
             raise AffordanceError("interactive_orientation must be 'object' or 'view'")
+        self.cb = callbacks
+        self.ns = "/" + namespace.strip("/")
         self.orientation = orientation
-        self.server_id = f"{node.get_fully_qualified_name()}/{int(time.time() * 1e6):x}"
+        self.server_id = f"{server_id}/{int(time.time() * 1e6):x}"
+        self.clock = clock
         self.seq_num = 0
         self._sent: tuple | None = None          # identity of what the clients have
         self._markers: dict[str, InteractiveMarker] = {}
-        self._drag_client: str | None = None
-        self._throttled: dict[str, float] = {}
-        update_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                                reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", update_qos)
+        self._drag: tuple[str, float] | None = None     # (client id, last feedback time)
+        self._warned: dict[str, float] = {}
+        self._publish_fn = None
+
+    # ------------------------------------------------------------------ ROS wiring
+    def attach(self, node) -> None:
+        """Serve on ``node``: the update topic, the feedback subscription, the full-set service
+        and the keep-alive timer."""
+        qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE)
+        pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", qos)
+        self._publish_fn = pub.publish
         node.create_subscription(InteractiveMarkerFeedback, f"{self.ns}/feedback",
-                                 self._on_feedback, update_qos)
+                                 self.feedback, qos)
         node.create_service(GetInteractiveMarkers, f"{self.ns}/get_interactive_markers",
                             self._on_get)
-        node.create_timer(KEEP_ALIVE_S, self._keep_alive)
+        node.create_timer(KEEP_ALIVE_S, lambda: pub.publish(self.keep_alive()))
 
-    # ------------------------------------------------------------------ server -> clients
     def _on_get(self, request, response):
-        response.sequence_number = self.seq_num
-        response.markers = list(self._markers.values())
+        response.sequence_number, response.markers = self.full_set()
         return response
 
-    def _keep_alive(self) -> None:
-        self.pub.publish(InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
-                                                 type=InteractiveMarkerUpdate.KEEP_ALIVE))
+    # ------------------------------------------------------------------ server -> clients
+    def full_set(self) -> tuple[int, list]:
+        """The current sequence number and every marker (the get_interactive_markers answer)."""
+        return self.seq_num, list(self._markers.values())
 
-    def _publish(self, markers=(), poses=(), erases=()) -> None:
+    def keep_alive(self) -> InteractiveMarkerUpdate:
+        return InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
+                                       type=InteractiveMarkerUpdate.KEEP_ALIVE)
+
+    def _update(self, markers=(), poses=(), erases=()) -> InteractiveMarkerUpdate:
         self.seq_num += 1
-        self.pub.publish(InteractiveMarkerUpdate(
-            server_id=self.server_id, seq_num=self.seq_num, type=InteractiveMarkerUpdate.UPDATE,
-            markers=list(markers), poses=list(poses), erases=list(erases)))
+        upd = InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
+                                      type=InteractiveMarkerUpdate.UPDATE, markers=list(markers),
+                                      poses=list(poses), erases=list(erases))
+        if self._publish_fn is not None:
+            self._publish_fn(upd)
+        return upd
 
-    def sync(self) -> None:
-        """Send what changed since the last change set (called after every engine change)."""
-        obj = self.node.engine.active_object()
-        frame = self.node.engine.frame_id or self.node._cloud_frame
+    def sync(self) -> InteractiveMarkerUpdate | None:
+        """Send what changed since the last change set (call after every change of the host's
+        state); returns the update sent, or None when nothing changed."""
+        obj = self.cb.active()
+        frame = self.cb.frame()
         if obj is None:
-            if self._markers:
-                names = list(self._markers)
-                self._markers, self._sent = {}, None
-                self._publish(erases=names)
-            return
+            if not self._markers:
+                return None
+            names = list(self._markers)
+            self._markers, self._sent = {}, None
+            return self._update(erases=names)
         cand = obj.shown
-        view_R = self.node.engine.view_pose()[:3, :3].round(6).tobytes() \
+        view_R = self.cb.view_pose()[:3, :3].round(6).tobytes() \
             if self.orientation == "view" else b""
         identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R,
                     tuple(sorted(cand.joints.items())), round(cand.scale, 9))
         pose_bytes = np.asarray(cand.T_scene_model).tobytes()
         if self._sent is not None and self._sent[0] == identity:
-            if self._sent[1] != pose_bytes:
-                poses = []
-                for name, pose in self._poses(cand).items():
-                    self._markers[name].pose = pose
-                    p = InteractiveMarkerPose(name=name, pose=pose)
-                    p.header.frame_id = frame
-                    poses.append(p)
-                self._publish(poses=poses)
-                self._sent = (identity, pose_bytes)
-            return
+            if self._sent[1] == pose_bytes:
+                return None
+            poses = []
+            for name, pose in self._poses(cand).items():
+                self._markers[name].pose = pose
+                p = InteractiveMarkerPose(name=name, pose=pose)
+                p.header.frame_id = frame
+                poses.append(p)
+            self._sent = (identity, pose_bytes)
+            return self._update(poses=poses)
         old = set(self._markers)
         self._markers = {MARKER_NAME: self._build(obj, frame)}
-        tpl = self.node.library[cand.template]
-        if tpl.joint is not None:
+        if self.cb.template(cand.template).joint is not None:
             self._markers[JOINT_MARKER_NAME] = self._build_joint(obj, frame)
         self._sent = (identity, pose_bytes)
-        self._publish(markers=list(self._markers.values()),
-                      erases=sorted(old - set(self._markers)))
+        return self._update(markers=list(self._markers.values()),
+                            erases=sorted(old - set(self._markers)))
 
     def _poses(self, cand) -> dict:
         """Pose of each marker for the candidate: the fit at the object, the joint marker at the
         joint."""
         out = {MARKER_NAME: matrix_to_pose(cand.T_scene_model)}
         if JOINT_MARKER_NAME in self._markers:
-            tpl = self.node.library[cand.template]
+            tpl = self.cb.template(cand.template)
             out[JOINT_MARKER_NAME] = matrix_to_pose(
                 cand.T_scene_model @ tpl.joint_frame(tpl.joint_value(cand.joints), cand.scale))
         return out
 
     def _build_joint(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
-        tpl = self.node.library[cand.template]
+        tpl = self.cb.template(cand.template)
         joint = tpl.joint
         q = tpl.joint_value(cand.joints)
         im = InteractiveMarker()
@@ -161,7 +210,7 @@ class CorrectionMarkerServer:
 
     def _build(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
-        tpl = self.node.library[cand.template]
+        tpl = self.cb.template(cand.template)
         im = InteractiveMarker()
         im.header.frame_id = frame
         im.name = MARKER_NAME
@@ -173,22 +222,18 @@ class CorrectionMarkerServer:
                            for i, (_, title) in enumerate(MENU, start=1)]
         visual = InteractiveMarkerControl(name="mesh", always_visible=True,
                                           interaction_mode=InteractiveMarkerControl.MENU)
-        mesh = mesh_marker(tpl.mesh_at(tpl.joint_value(cand.joints), cand.scale), np.eye(4), "", "mesh", 0,
-                           ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
+        mesh = mesh_marker(tpl.mesh_at(tpl.joint_value(cand.joints), cand.scale), np.eye(4), "",
+                           "mesh", 0, ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
         mesh.header.frame_id = ""          # relative to the interactive marker
         visual.markers.append(mesh)
         im.controls.append(visual)
-        R_view_in_object = None
-        if self.orientation == "view":
-            R_view_in_object = self.node.engine.view_pose()[:3, :3]
+        R_view = self.cb.view_pose()[:3, :3] if self.orientation == "view" else None
         for axis, q in AXES.items():
             for mode, prefix in ((InteractiveMarkerControl.MOVE_AXIS, "move"),
                                  (InteractiveMarkerControl.ROTATE_AXIS, "rotate")):
                 c = InteractiveMarkerControl(name=f"{prefix}_{axis}", interaction_mode=mode)
-                if R_view_in_object is not None:
-                    from scipy.spatial.transform import Rotation
-                    R = R_view_in_object @ Rotation.from_quat(q).as_matrix()
-                    qx, qy, qz, qw = matrix_to_quat_xyzw(R)
+                if R_view is not None:      # fixed in the cloud frame, along the view's axes
+                    qx, qy, qz, qw = matrix_to_quat_xyzw(R_view @ quat_xyzw_to_matrix(q))
                     c.orientation_mode = InteractiveMarkerControl.FIXED
                 else:
                     qx, qy, qz, qw = q
@@ -198,73 +243,77 @@ class CorrectionMarkerServer:
         return im
 
     # ------------------------------------------------------------------ clients -> server
-    def _ignore(self, why: str) -> None:
-        now = time.monotonic()
-        if now - self._throttled.get(why, -math.inf) >= 2.0:
-            self._throttled[why] = now
-            self.node.get_logger().warning(f"interactive marker feedback ignored: {why}")
+    def _ignore(self, kind: str, text: str) -> None:
+        """A throttled warning: at most one per ``kind`` every WARN_EVERY_S, whatever the text
+        (so a storm of distinct client ids gives one line, not one each)."""
+        now = self.clock()
+        if now - self._warned.get(kind, -math.inf) >= WARN_EVERY_S:
+            self._warned[kind] = now
+            self.cb.warn(f"interactive marker feedback ignored: {text}")
 
-    def _on_feedback(self, fb: InteractiveMarkerFeedback) -> None:
+    def _owner(self) -> str | None:
+        """The client whose drag is in progress (None when nobody's, or it went silent)."""
+        if self._drag is not None and self.clock() - self._drag[1] > DRAG_EXPIRY_S:
+            self._drag = None
+        return None if self._drag is None else self._drag[0]
+
+    def feedback(self, fb: InteractiveMarkerFeedback) -> None:
+        """Handle one feedback message from a client."""
         F = InteractiveMarkerFeedback
+        owner = self._owner()
         if fb.event_type == F.KEEP_ALIVE:
+            if owner == fb.client_id:
+                self._drag = (owner, self.clock())
             return
         if fb.marker_name not in self._markers:
-            self._ignore(f"no marker named '{fb.marker_name}'")
+            self._ignore("marker", f"no marker named '{fb.marker_name}'")
             return
-        if self._drag_client is not None and fb.client_id != self._drag_client and \
+        if owner is not None and fb.client_id != owner and \
                 fb.event_type in (F.POSE_UPDATE, F.MOUSE_UP):
-            self._ignore(f"client '{fb.client_id}' while '{self._drag_client}' is dragging")
+            self._ignore("drag", f"client '{fb.client_id}' while '{owner}' is dragging")
             return
         if fb.event_type == F.MENU_SELECT:
             if not 1 <= fb.menu_entry_id <= len(MENU):
-                self._ignore(f"unknown menu entry {fb.menu_entry_id}")
+                self._ignore("menu", f"unknown menu entry {fb.menu_entry_id}")
                 return
-            self.node._submit_action(MENU[fb.menu_entry_id - 1][0])
+            self.cb.action(MENU[fb.menu_entry_id - 1][0], None)
             return
         if fb.event_type == F.MOUSE_DOWN:
-            self._drag_client = fb.client_id
+            self._drag = (fb.client_id, self.clock())
             return
         if fb.event_type not in (F.POSE_UPDATE, F.MOUSE_UP):
             return
-        marker = self._markers[fb.marker_name]
-        frame = marker.header.frame_id
+        frame = self._markers[fb.marker_name].header.frame_id
         if fb.header.frame_id and fb.header.frame_id.lstrip("/") != frame.lstrip("/"):
-            self._ignore(f"pose in frame '{fb.header.frame_id}', the marker is in '{frame}'")
+            self._ignore("frame", f"pose in frame '{fb.header.frame_id}', the marker is in "
+                                  f"'{frame}'")
             return
         try:
             T = pose_to_matrix(fb.pose)
         except ConversionError as exc:
-            self._ignore(f"malformed pose ({exc})")
+            self._ignore("pose", f"malformed pose ({exc})")
             return
+        release = fb.event_type == F.MOUSE_UP
+        if release or owner is None or owner == fb.client_id:
+            self._drag = None if release else (fb.client_id, self.clock())
         if fb.marker_name == JOINT_MARKER_NAME:
-            self._on_joint_feedback(fb, T)
+            if release:
+                self._joint_released(T)
             return
-        try:
-            self.node.engine.correct_pose(T, drag=True)
-        except AffordanceError as exc:
-            self._ignore(str(exc))
-            return
-        self.node._dirty = True
-        if fb.event_type == F.MOUSE_UP:
-            self._drag_client = None
-            self.node._info(f"marker released: refitting {marker.description}")
-            self.node._jobs.put(("refit", None))
+        self.cb.pose(T, release)
 
-    def _on_joint_feedback(self, fb: InteractiveMarkerFeedback, T_scene_frame: np.ndarray) -> None:
+    def _joint_released(self, T_scene_frame: np.ndarray) -> None:
         """The joint marker: RViz shows the drag itself; on release the joint takes the value
         the marker shows and the pose is refitted with it held."""
-        if fb.event_type != InteractiveMarkerFeedback.MOUSE_UP:
-            return
-        self._drag_client = None
-        obj = self.node.engine.active_object()
+        obj = self.cb.active()
         if obj is None:
-            self._ignore("joint released with no object selected")
+            self._ignore("joint", "joint released with no object selected")
             return
         cand = obj.shown
-        tpl = self.node.library[cand.template]
+        tpl = self.cb.template(cand.template)
         if tpl.joint is None:
-            self._ignore(f"{cand.template} has no joint")
+            self._ignore("joint", f"{cand.template} has no joint")
             return
         q = tpl.joint_value_from_frame(np.linalg.inv(cand.T_scene_model) @ T_scene_frame,
                                        cand.scale)
-        self.node._submit_action(("joint_value", q))
+        self.cb.action("joint_value", q)

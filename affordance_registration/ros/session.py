@@ -28,7 +28,7 @@ from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
 from .bag import read_messages
 from .conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
-from .engine_node import R_VIEW_SPACENAV
+from ..core.corrections import R_VIEW_SPACENAV
 from .launcher import Launcher, package_share, parse_launch_file
 from .spin import background_node
 

@@ -1,0 +1,409 @@
+"""Operator input in one ordered stream.
+
+Everything the operator does -- clicks, SpaceMouse twists and buttons, service calls, marker drags
+and menu entries, view poses -- goes through one :class:`OperatorStream` and is handled in the
+order it arrived, one input at a time, by one worker. So an action pressed right after a click
+acts on that click's object however long the fit takes, and twists that arrive while a fit is
+pending move the object that fit produces.
+
+The stream also owns what used to depend on when messages happened to be handled:
+
+* **twist integration**: each twist is held for the time between it and the previous one of the
+  same burst, measured with the inputs' own time stamps (when the sender stamped them; for ROS,
+  the publisher's source time stamp), not with when the worker got round to it -- a loaded
+  machine that hands the node a burst late moves the object just as far;
+* **the idle refit**: once the twists stop for ``refit_idle_s`` (and nothing else is queued),
+  the moved object is refitted;
+* **refit before leave**: a refit still waiting for the twists to stop belongs to the object
+  they moved, so it runs before any input that leaves that object (a click, accept, next /
+  previous / select model, discard); undo, refit, a joint step and a marker drag make it moot;
+* **button edges**: a Joy message acts on the buttons that went down since the previous one;
+* **joint-axis hysteresis**: a Joy axis steps the joint once per push past the threshold and
+  re-arms only after it comes back below half of it.
+
+Pure Python with an injectable clock (and sleep): tests drive it in simulated time without ROS.
+The ROS node converts messages into :meth:`OperatorStream.submit` calls and publishes what changed.
+"""
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .corrections import R_VIEW_SPACENAV
+from .errors import AffordanceError
+
+__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS"]
+
+#: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value`` and
+#: ``select_model`` carry an argument (the joint value, the template name) in ``argument``
+ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "undo", "discard",
+           "save", "joint_plus", "joint_minus", "joint_value")
+#: inputs that leave the shown object: a refit still waiting for the twists to stop runs first
+LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
+#: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
+SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value")
+#: the actions Joy buttons can be mapped to
+BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
+                  "joint_plus", "joint_minus")
+
+
+@dataclass(frozen=True)
+class OperatorSettings:
+    """How operator input is interpreted (lengths m, angles rad, times s)."""
+
+    linear_gain: float = 0.1           #: m/s per unit of twist linear
+    angular_gain: float = 0.6          #: rad/s per unit of twist angular
+    #: axes of the twists: "spacenav" (device axes: x away from the user, y left, z up) or
+    #: "view" (x right, y up, z to the viewer)
+    twist_frame: str = "spacenav"
+    max_twist_dt: float = 0.1          #: longest time one twist is held
+    first_twist_dt: float = 1.0 / 30   #: the first twist of a burst: one frame of a 30 Hz device
+    refit_idle_s: float = 0.5          #: refit once the twists stopped this long
+    #: Joy button per action (action name -> button index; -1 or absent: none)
+    buttons: tuple = (("next_model", 0), ("accept", 1))
+    joint_axis: int = -1               #: Joy axis stepping the joint (-1: none)
+    joint_axis_threshold: float = 0.5  #: how far the axis must be pushed to step
+    #: test-only: every click's fit takes at least this long (an artificially slow fitter)
+    slow_fit_s: float = 0.0
+
+    def validate(self) -> "OperatorSettings":
+        if self.twist_frame not in ("spacenav", "view"):
+            raise AffordanceError(f"twist_frame must be 'spacenav' or 'view', got "
+                                  f"{self.twist_frame!r}")
+        for name in ("linear_gain", "angular_gain", "slow_fit_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
+        for name in ("max_twist_dt", "first_twist_dt", "refit_idle_s", "joint_axis_threshold"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise AffordanceError(f"{name} must be a positive number, got {v!r}")
+        for action, _ in self.buttons:
+            if action not in BUTTON_ACTIONS:
+                raise AffordanceError(f"no Joy action {action!r} (one of "
+                                      f"{', '.join(BUTTON_ACTIONS)})")
+        return self
+
+    def button_map(self) -> dict:
+        return {a: int(b) for a, b in self.buttons if int(b) >= 0}
+
+
+@dataclass(frozen=True)
+class OperatorInput:
+    """One input of the stream.
+
+    ``kind``: "click" (``value`` a point (3,) in ``frame``), "action" (``value`` an action name of
+    :data:`ACTIONS`, ``argument`` its argument), "twist" (``value`` (linear (3,), angular (3,)) in
+    the ``twist_frame`` axes, unscaled), "joy" (``value`` (buttons, axes)), "view" (``value`` the
+    operator's view pose T_scene_view 4x4), "pose" (``value`` an absolute pose T_scene_model of
+    the shown candidate, a marker drag; ``argument`` True on release: refit from it).
+
+    ``stamp``: when the sender made the input (s; twists are integrated over the differences of
+    their stamps), None for "when it arrived". ``source``: what it came from (a topic or service
+    name), counted in :meth:`OperatorStream.status` once handled. ``reply(success, message)`` is
+    called once the input has been handled.
+    """
+
+    kind: str
+    value: object = None
+    argument: object = None
+    frame: str = ""
+    stamp: float | None = None
+    source: str = ""
+    reply: object = field(default=None, compare=False)
+    arrived: float = 0.0
+
+
+class OperatorStream:
+    """The ordered stream of operator input in front of an
+    :class:`~affordance_registration.core.engine.AffordanceEngine`.
+
+    ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Hooks, all optional:
+    ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
+    ``to_scene_frame(point, frame)`` expresses a click given in ``frame`` in the scene's frame
+    (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
+    every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
+    after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
+    ``registrations_file()`` gives the path ``save`` writes to.
+
+    Submit from any thread; handle with :meth:`run` (a worker thread) or, in tests,
+    :meth:`process_pending`.
+    """
+
+    def __init__(self, engine, settings: OperatorSettings | None = None, clock=time.monotonic,
+                 sleep=time.sleep, *, refresh_scene=None, to_scene_frame=None, report=None,
+                 on_change=None, on_busy=None, registrations_file=None):
+        self.engine = engine
+        self.settings = (settings or OperatorSettings()).validate()
+        self.clock, self.sleep = clock, sleep
+        self._refresh_scene = refresh_scene or (lambda: None)
+        self._to_scene_frame = to_scene_frame or (lambda point, frame: point)
+        self._report = report or (lambda kind, ok, msg: None)
+        self._on_change = on_change or (lambda: None)
+        self._on_busy = on_busy or (lambda text: None)
+        self._registrations_file = registrations_file or (lambda: "affordance_registrations.yaml")
+        self._cv = threading.Condition()
+        self._queue: collections.deque[OperatorInput] = collections.deque()
+        self._busy: str | None = None
+        self._handled: dict[str, int] = {}
+        # twist bursts and the refit waiting for them to stop
+        self._pending_refit = False
+        self._last_twist_arrived: float | None = None
+        self._last_twist_stamp: float | None = None
+        # Joy state: previous buttons, joint axis armed sign
+        self._buttons: tuple = ()
+        self._axis_sign = 0
+
+    # ------------------------------------------------------------------ settings
+    def configure(self, settings: OperatorSettings) -> None:
+        """Use new settings from the next input on."""
+        settings = settings.validate()
+        with self._cv:
+            self.settings = settings
+            self._cv.notify_all()
+
+    # ------------------------------------------------------------------ input
+    def submit(self, item: OperatorInput) -> None:
+        """Append an input to the stream (any thread)."""
+        with self._cv:
+            self._queue.append(_arrived(item, self.clock()))
+            self._cv.notify_all()
+
+    def click(self, point, frame: str = "", source: str = "click", reply=None) -> None:
+        self.submit(OperatorInput("click", np.asarray(point, dtype=float), frame=frame,
+                                  source=source, reply=reply))
+
+    def action(self, name: str, argument=None, source: str = "", reply=None) -> None:
+        self.submit(OperatorInput("action", name, argument, source=source or name, reply=reply))
+
+    def twist(self, linear, angular, stamp: float | None = None, source: str = "twist") -> None:
+        self.submit(OperatorInput("twist", (np.asarray(linear, dtype=float),
+                                            np.asarray(angular, dtype=float)),
+                                  stamp=stamp, source=source))
+
+    def joy(self, buttons, axes=(), source: str = "joy") -> None:
+        self.submit(OperatorInput("joy", (tuple(int(b) for b in buttons),
+                                          tuple(float(a) for a in axes)), source=source))
+
+    def view(self, T_scene_view, source: str = "view") -> None:
+        self.submit(OperatorInput("view", np.asarray(T_scene_view, dtype=float), source=source))
+
+    def pose(self, T_scene_model, release: bool = False, source: str = "pose") -> None:
+        self.submit(OperatorInput("pose", np.asarray(T_scene_model, dtype=float), bool(release),
+                                  source=source))
+
+    # ------------------------------------------------------------------ state
+    def status(self) -> dict:
+        """``busy`` (what the worker does now, or None), ``queued`` inputs, ``handled`` inputs
+        per source, ``pending_refit`` (twists moved the object and its refit waits for them to
+        stop) and ``idle`` (none of these)."""
+        with self._cv:
+            return {"busy": self._busy, "queued": len(self._queue),
+                    "handled": dict(self._handled), "pending_refit": self._pending_refit,
+                    "idle": self._busy is None and not self._queue and not self._pending_refit}
+
+    def idle_refit_due(self) -> float | None:
+        """When the waiting twist refit becomes due (clock time), or None."""
+        with self._cv:
+            if not self._pending_refit or self._last_twist_arrived is None:
+                return None
+            return self._last_twist_arrived + self.settings.refit_idle_s
+
+    # ------------------------------------------------------------------ handling
+    def process_pending(self) -> int:
+        """Handle everything queued, then the idle refit if the clock says it is due. Returns the
+        number of inputs handled (the refit not counted). For tests in simulated time."""
+        n = 0
+        while self._step():
+            n += 1
+        self._idle_refit_if_due()
+        return n
+
+    def run(self, stop: threading.Event) -> None:
+        """The worker loop: handle inputs in order until ``stop`` is set; refit moved objects
+        once the twists stopped."""
+        while not stop.is_set():
+            with self._cv:
+                if not self._queue:
+                    due = self.idle_refit_due()
+                    wait = 0.1 if due is None else min(0.1, max(0.0, due - self.clock()))
+                    self._cv.wait(timeout=wait)
+            if not self._step():
+                self._idle_refit_if_due()
+
+    def _step(self) -> bool:
+        with self._cv:
+            if not self._queue:
+                return False
+            item = self._queue.popleft()
+            self._busy = _describe(item, len(self._queue))
+        try:
+            ok, message = self._handle(item)
+        except AffordanceError as exc:
+            ok, message = False, str(exc)
+        except Exception as exc:     # a bug must not kill the worker or leave a caller waiting
+            ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
+        if message:
+            self._report(_kind(item), ok, message)
+        if item.reply is not None:
+            item.reply(ok, message)
+        with self._cv:
+            self._busy = None
+            self._handled[item.source] = self._handled.get(item.source, 0) + 1
+        self._on_change()
+        return True
+
+    def _idle_refit_if_due(self) -> None:
+        due = self.idle_refit_due()
+        with self._cv:
+            if due is None or self._queue or self.clock() < due:
+                return
+            self._pending_refit = False
+            self._busy = "refitting after the SpaceMouse stopped"
+        try:
+            self._report("refit", *self._refit())
+        except AffordanceError as exc:
+            self._report("refit", False, str(exc))
+        finally:
+            with self._cv:
+                self._busy = None
+            self._on_change()
+
+    def _handle(self, item: OperatorInput) -> tuple[bool, str]:
+        kind = item.kind
+        if kind == "twist":
+            return self._on_twist(item)
+        if kind == "joy":
+            return self._on_joy(item)
+        if kind == "view":
+            self.engine.set_view(item.value)
+            return True, ""
+        if kind == "pose":
+            return self._on_pose(item)
+        if kind == "click":
+            self._settle("click")
+            return self._on_click(item)
+        if kind == "action":
+            return self._act(item.value, item.argument)
+        raise AffordanceError(f"unknown operator input {kind!r}")
+
+    def _settle(self, action: str) -> None:
+        """Before an input that leaves the object, the refit its twists are waiting for; before
+        one that refits or reverts anyway, nothing."""
+        if not self._pending_refit:
+            return
+        if action in LEAVING_ACTIONS:
+            self._pending_refit = False
+            ok, message = self._refit()
+            self._report("refit", ok, message)
+        elif action in SETTLING_ACTIONS or action == "pose":
+            self._pending_refit = False
+
+    def _refit(self) -> tuple[bool, str]:
+        self._refresh_scene()
+        return True, self.engine.refit()
+
+    def _on_click(self, item: OperatorInput) -> tuple[bool, str]:
+        self._on_busy(self._busy)
+        self._refresh_scene()
+        point = self._to_scene_frame(item.value, item.frame)
+        message = self.engine.click(point)
+        if self.settings.slow_fit_s > 0:
+            self.sleep(self.settings.slow_fit_s)
+        return True, message
+
+    def _act(self, action: str, argument=None) -> tuple[bool, str]:
+        if action not in ACTIONS:
+            raise AffordanceError(f"unknown action {action!r}")
+        self._settle(action)
+        if action == "save":
+            return True, self.engine.save(self._registrations_file())
+        if action in ("refit", "joint_plus", "joint_minus", "joint_value"):
+            self._refresh_scene()
+        if action == "refit":
+            return True, self.engine.refit()
+        if action in ("joint_plus", "joint_minus"):
+            return True, self.engine.correct_joint(steps=1.0 if action == "joint_plus" else -1.0)
+        if action == "joint_value":
+            return True, self.engine.correct_joint(value=argument)
+        if action == "select_model":
+            return True, self.engine.select_model(argument)
+        return True, getattr(self.engine, action)()
+
+    def _on_twist(self, item: OperatorInput) -> tuple[bool, str]:
+        s = self.settings
+        lin, ang = item.value
+        if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
+            raise AffordanceError("ignored a twist with NaN/inf values")
+        if not (np.any(lin) or np.any(ang)):
+            return True, ""                     # released: the idle refit takes over
+        stamp = item.arrived if item.stamp is None else item.stamp
+        prev = self._last_twist_stamp
+        gap = math.inf if prev is None else stamp - prev
+        # the first twist of a burst counts as one frame of the device
+        dt = s.first_twist_dt if not 0 <= gap <= s.refit_idle_s else min(gap, s.max_twist_dt)
+        self._last_twist_stamp = stamp
+        self._last_twist_arrived = item.arrived
+        if s.twist_frame == "spacenav":
+            lin, ang = R_VIEW_SPACENAV @ lin, R_VIEW_SPACENAV @ ang
+        try:
+            self.engine.correct_twist(lin * s.linear_gain, ang * s.angular_gain, dt)
+        except AffordanceError as exc:
+            raise AffordanceError(f"twist ignored: {exc}") from None
+        self._pending_refit = True
+        return True, ""   # a burst is reported by its refit, not per message
+
+    def _on_joy(self, item: OperatorInput) -> tuple[bool, str]:
+        s = self.settings
+        buttons, axes = item.value
+        previous = self._buttons + (0,) * max(0, len(buttons) - len(self._buttons))
+        self._buttons = buttons
+        pressed = [action for action, b in s.button_map().items()
+                   if b < len(buttons) and buttons[b] and not previous[b]]
+        a = s.joint_axis
+        if 0 <= a < len(axes):
+            v = axes[a]
+            v = v if math.isfinite(v) else 0.0
+            if self._axis_sign and abs(v) < 0.5 * s.joint_axis_threshold:
+                self._axis_sign = 0                           # back near the centre: re-armed
+            elif not self._axis_sign and abs(v) >= s.joint_axis_threshold:
+                self._axis_sign = 1 if v > 0 else -1
+                pressed.append("joint_plus" if v > 0 else "joint_minus")
+        results = []
+        for action in pressed:      # each press in order, as if pressed one after the other
+            try:
+                results.append((True, self._act(action)[1]))
+            except AffordanceError as exc:
+                results.append((False, f"{action.replace('_', ' ')}: {exc}"))
+        if not results:
+            return True, ""
+        return all(ok for ok, _ in results), "; ".join(m for _, m in results if m)
+
+    def _on_pose(self, item: OperatorInput) -> tuple[bool, str]:
+        self._settle("pose")
+        message = self.engine.correct_pose(item.value, drag=True)
+        if not item.argument:
+            return True, ""
+        self._refresh_scene()
+        return True, f"{message}; {self.engine.refit()}"
+
+
+def _arrived(item: OperatorInput, now: float) -> OperatorInput:
+    from dataclasses import replace
+    return replace(item, arrived=now)
+
+
+def _kind(item: OperatorInput) -> str:
+    return str(item.value) if item.kind == "action" else item.kind
+
+
+def _describe(item: OperatorInput, queued: int) -> str:
+    what = {"click": "fitting a click", "action": f"{item.value}", "twist": "moving the object",
+            "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object"}
+    text = what.get(item.kind, item.kind)
+    return f"{text} ({queued} more queued)" if queued else text

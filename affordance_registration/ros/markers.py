@@ -1,0 +1,72 @@
+"""The engine's state drawn as RViz markers (``~/markers``): the shown candidate of each open
+object, its moving part, its label and the click; registered objects in their own colour."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
+
+__all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
+
+MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
+REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
+
+
+def joint_text(tpl, joints: dict, state, scale: float) -> str:
+    """' (closed, lever 88 deg, x1.10)' for labels; '' for a rigid template at scale 1."""
+    parts = [state] if state else []
+    for j in tpl.joints:
+        if j.name in joints:
+            v = joints[j.name]
+            parts.append(f"{j.name} {math.degrees(v):.0f} deg" if j.type == "revolute"
+                         else f"{j.name} {v * 1000:.1f} mm")
+    if abs(scale - 1.0) > 1e-6:
+        parts.append(f"x{scale:.2f}")
+    return f" ({', '.join(parts)})" if parts else ""
+
+
+def _object_markers(tpl, T, joints, scale, frame, ns, marker_id, colour, stamp) -> list:
+    """The template's mesh at its joint values and scale, and its moving part highlighted."""
+    q = tpl.joint_value(joints)
+    out = [mesh_marker(tpl.mesh_at(q, scale), T, frame, ns, marker_id, colour, stamp)]
+    moving = tpl.moving_mesh_at(q, scale)
+    if moving is not None:    # the moving part where the fit put it
+        out.append(mesh_marker(moving, T, frame, f"{ns}_moving_part", marker_id, MOVING_COLOR,
+                               stamp))
+    return out
+
+
+def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerArray:
+    """A DELETEALL, then the open objects' shown candidates and the registrations of ``state``
+    (an :class:`~affordance_registration.core.engine.EngineState`). ``up`` (3,) is the screen's
+    up direction in ``frame`` (labels go below the objects)."""
+    markers = MarkerArray()
+    clear = Marker()
+    clear.action = Marker.DELETEALL
+    markers.markers.append(clear)
+    for obj in state.objects:
+        c = obj.shown
+        tpl = library[c.template]
+        T = c.T_scene_model
+        markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
+                                           likelihood_color(c.probability), stamp)
+        top = T[:3, :3] @ tpl.centroid + T[:3, 3]
+        label = (f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)} — rank "
+                 f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
+        markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
+                                           "candidate_label", obj.id, stamp))
+        markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
+    for reg in state.registered:
+        if reg.template not in library:
+            continue
+        tpl = library[reg.template]
+        markers.markers += _object_markers(tpl, reg.T_scene_model, reg.joints, reg.scale, frame,
+                                           "registered", reg.id, REGISTERED_COLOR, stamp)
+        text = f"{reg.template} #{reg.id}{joint_text(tpl, reg.joints, reg.state, reg.scale)}"
+        markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - 0.5 * tpl.diameter
+                                           * up, frame, "registered_label", reg.id, stamp))
+    return markers
