@@ -52,7 +52,7 @@ setup(
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
         "ros": ROS_REQUIRES,
-        "test": ["pytest==9.2.0"],
+        "test": ["pytest==9.2.0", "hypothesis==6.170.17"],
         "bench": ["small_gicp==1.0.1"],
     },
     python_requires=">=3.10",
