@@ -268,3 +268,108 @@ def test_joint_marker_turns_the_lever_and_follows_the_fit(session, library):
     s["client"].wait_for(lambda: joint_marker() is None and marker(s) is None, what="the erase")
     time.sleep(0.6)
     assert s["proto"].gaps == []
+
+
+# ---------------------------------------------------------------------------- without a node
+class Host:
+    """The server's host for tests without ROS: a real engine, and what the server sends."""
+
+    def __init__(self, library, engine):
+        from affordance_registration.ros.interactive import MarkerCallbacks
+        self.engine, self.sent, self.warnings = engine, [], []
+        self.callbacks = MarkerCallbacks(
+            active=engine.active_object, frame=lambda: FRAME, view_pose=engine.view_pose,
+            template=library.__getitem__,
+            pose=lambda T, release: self.sent.append(("pose", T, release)),
+            action=lambda name, arg: self.sent.append(("action", name, arg)),
+            warn=self.warnings.append)
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def _feedback(event, T=None, client="/rviz_a", name="affordance_fit", menu=0):
+    fb = InteractiveMarkerFeedback(client_id=client, marker_name=name, event_type=event,
+                                   menu_entry_id=menu)
+    fb.header.frame_id = FRAME
+    if T is not None:
+        fb.pose = matrix_to_pose(T)
+    return fb
+
+
+def test_server_through_its_callbacks_without_a_node(library):
+    """Change sets with consecutive sequence numbers, drags handed to the host, a second client
+    locked out while the first one keeps sending and let in once it went silent, one warning per
+    kind however many clients misbehave, menu entries and the joint marker as actions."""
+    from affordance_registration.core.engine import AffordanceEngine
+    from affordance_registration.ros.interactive import (DRAG_EXPIRY_S, JOINT_MARKER_NAME,
+                                                         MARKER_NAME, CorrectionMarkerServer)
+    F = InteractiveMarkerFeedback
+    sim = simulate_taskboard(library, 3102, articulated=True,
+                             joints={"ball_valve": {"lever": math.pi / 4}})
+    engine = AffordanceEngine(library)
+    engine.set_scene(sim.organized, frame_id=FRAME)
+    host, clock = Host(library, engine), Clock()
+    server = CorrectionMarkerServer(host.callbacks, "/affordance_correction", clock=clock)
+    assert server.sync() is None and server.full_set() == (0, [])
+    engine.click(next(o for o in sim.objects if o.template == "ball_valve").click)
+    upd = server.sync()
+    assert upd.seq_num == 1 and sorted(m.name for m in upd.markers) == [MARKER_NAME,
+                                                                       JOINT_MARKER_NAME]
+    assert server.sync() is None                          # nothing changed: nothing sent
+    T = engine.active_object().shown.T_scene_model
+    T2 = T.copy()
+    T2[:3, 3] += [0.01, 0.0, 0.0]
+    engine.correct_pose(T2, drag=True)
+    upd = server.sync()
+    assert upd.seq_num == 2 and not upd.markers and {p.name for p in upd.poses} == {
+        MARKER_NAME, JOINT_MARKER_NAME}
+    assert np.allclose(pose_to_matrix(upd.poses[0].pose), T2)
+    # a drag by /rviz_a: its poses reach the host, a second client's do not
+    server.feedback(_feedback(F.MOUSE_DOWN, T))
+    server.feedback(_feedback(F.POSE_UPDATE, T2))
+    for k in range(200):
+        server.feedback(_feedback(F.POSE_UPDATE, T, client=f"/rviz_{k}"))
+    assert len([w for w in host.warnings if "is dragging" in w]) == 1     # one line, not 200
+    clock.t += DRAG_EXPIRY_S - 0.5
+    server.feedback(_feedback(F.KEEP_ALIVE))              # /rviz_a still holds the mouse
+    clock.t += DRAG_EXPIRY_S - 0.5
+    server.feedback(_feedback(F.POSE_UPDATE, T, client="/rviz_b"))
+    assert host.sent == [("pose", host.sent[0][1], False)]
+    assert np.allclose(host.sent[0][1], T2)
+    # /rviz_a never released and went silent: /rviz_b may drag now
+    clock.t += DRAG_EXPIRY_S + 0.1
+    server.feedback(_feedback(F.POSE_UPDATE, T, client="/rviz_b"))
+    server.feedback(_feedback(F.MOUSE_UP, T, client="/rviz_b"))
+    assert [(kind, release) for kind, _, release in host.sent[1:]] == [("pose", False),
+                                                                     ("pose", True)]
+    # malformed and foreign feedback: one warning per kind
+    bad = _feedback(F.POSE_UPDATE, T)
+    bad.pose.position.x = float("nan")
+    server.feedback(bad)
+    server.feedback(bad)
+    server.feedback(_feedback(F.POSE_UPDATE, T, name="somebody_elses_marker"))
+    server.feedback(_feedback(F.MENU_SELECT, menu=99))
+    assert sum("malformed pose" in w for w in host.warnings) == 1
+    assert any("no marker named 'somebody_elses_marker'" in w for w in host.warnings)
+    assert any("unknown menu entry 99" in w for w in host.warnings)
+    n = len(host.sent)
+    # the menu and the joint marker become actions
+    server.feedback(_feedback(F.MENU_SELECT, menu=4))
+    tpl = library["ball_valve"]
+    cand = engine.active_object().shown
+    q = tpl.joint_value(cand.joints) - 0.2
+    server.feedback(_feedback(F.MOUSE_UP, cand.T_scene_model @ tpl.joint_frame(q),
+                              name=JOINT_MARKER_NAME))
+    assert host.sent[n] == ("action", "accept", None)
+    assert host.sent[n + 1][:2] == ("action", "joint_value") and \
+        host.sent[n + 1][2] == pytest.approx(q)
+    engine.discard()
+    upd = server.sync()
+    assert upd.seq_num == 3 and sorted(upd.erases) == [MARKER_NAME, JOINT_MARKER_NAME]
+    assert server.full_set() == (3, [])
