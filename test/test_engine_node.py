@@ -340,3 +340,63 @@ def test_joint_state_in_status_markers_and_joint_steps(session, library):
 def test_sigint_stops_the_node_quickly(session):
     code, took = session["proc"].interrupt(timeout=5)
     assert code == 0 and took < 2.0, (code, took)
+
+
+def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path, library):
+    """An engine whose fits take at least 4 s (test-only setting): a SpaceMouse push, a
+    next/previous service pair and an accept button sent while a click's fit runs all act, in
+    that order, on the object that fit produces -- the push moves it, the refit waiting for the
+    push runs before the model changes, and the accept registers it on the object."""
+    proc = engine_process(tmp_path, {"test_slow_fit_s": 4.0, "refit_idle_s": 0.4})
+    client = Client("slow_fit_tester")
+    try:
+        client.subscribe(String, f"{NS}/status", LATCHED)
+        pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
+                "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
+                "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
+                "joy": client.node.create_publisher(Joy, "/spacenav/joy", 10)}
+        s = {"client": client, "pubs": pubs}
+        for pub in pubs.values():
+            client.wait_for_subscribers(pub, timeout=30)
+        next_model = client.node.create_client(Trigger, f"{NS}/next_model")
+        assert next_model.wait_for_service(timeout_sec=30)
+        sim = simulate_taskboard(library, 7)
+        pubs["points"].publish(cloud_msg(sim.organized))
+        client.wait_for(lambda: (status(s) or {}).get("node", {}).get("cloud"), 30, "the cloud")
+        obj = sim.objects[2]
+        click(s, obj.click)
+        client.wait_for(lambda: "fitting a click" in (status(s)["node"]["busy"] or ""), 30,
+                        "the fit to start")
+        twist = Twist()
+        twist.linear.y = -0.5                      # 5 cm/s to the right on the screen, 0.3 s
+        for _ in range(10):
+            pubs["twist"].publish(twist)
+            time.sleep(1 / 30)
+        pubs["twist"].publish(Twist())
+        future = next_model.call_async(Trigger.Request())
+        client.wait_for(lambda: status(s)["node"]["queued"] >= 12, 30,
+                        f"the queued inputs {status(s)['node']}")
+        joy = Joy()
+        joy.buttons = [0, 1]                       # button 1: accept
+        pubs["joy"].publish(joy)
+        assert status(s)["objects"] == [] and status(s)["node"]["busy"], \
+            "the inputs were sent while the fit was still running"
+        client.wait_for(future.done, 60, "the next_model answer")
+        st = client.wait_for(lambda: len(status(s)["registered"]) == 1 and status(s), 60,
+                             "the accept")
+        assert future.result().success and "rank 2/5" in future.result().message
+        reg = st["registered"][0]
+        assert reg["ranked_first"] == obj.template and reg["model_changes"] == 1
+        assert reg["corrections"] == 1
+        # the push, refitted before the model change, then the next model accepted: that is
+        # rank 2 of the pushed object's click
+        assert reg["template"] != obj.template
+        assert st["objects"] == [] and st["node"]["idle"]
+        log = proc.output()
+        order = [log.index(text) for text in ("object 1:", ": refit", "rank 2/5", "accepted")]
+        assert order == sorted(order), log[-2000:]
+    finally:
+        client.close()
+        proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])

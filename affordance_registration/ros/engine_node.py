@@ -21,6 +21,7 @@ import time
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
@@ -110,9 +111,12 @@ class EngineNode(Node):
         self.pub_fit = self.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
         self.pub_status = self.create_publisher(String, "~/status", LATCHED)
+        # service calls wait for the stream without holding the default callback group: the
+        # subscriptions and the publishing timer keep running meanwhile
+        services = ReentrantCallbackGroup()
         for action in SERVICES:
             self.create_service(Trigger, f"~/{action}", self._service(action),
-                                qos_profile=SERVICE_QOS)
+                                qos_profile=SERVICE_QOS, callback_group=services)
         self.interactive = CorrectionMarkerServer(
             MarkerCallbacks(active=self.engine.active_object, frame=self._frame,
                             view_pose=self.engine.view_pose, template=self.library.__getitem__,
@@ -260,14 +264,17 @@ class EngineNode(Node):
     def _on_click(self, msg: PointStamped) -> None:
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
         self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name)
+        self._dirty = True      # the status shows what is queued
 
     def _on_twist(self, msg: Twist, info=None) -> None:
         self.stream.twist([msg.linear.x, msg.linear.y, msg.linear.z],
                           [msg.angular.x, msg.angular.y, msg.angular.z], stamp=_stamp_s(info),
                           source=self._sub_twist.topic_name)
+        self._dirty = True
 
     def _on_joy(self, msg: Joy) -> None:
         self.stream.joy(msg.buttons, msg.axes, source=self._sub_joy.topic_name)
+        self._dirty = True
 
     def _on_view(self, msg: PoseStamped) -> None:
         try:
@@ -277,15 +284,18 @@ class EngineNode(Node):
             self._error("view", f"view_pose ignored: {exc}")
             return
         self.stream.view(view_from_optical(T), source=self._sub_view.topic_name)
+        self._dirty = True
 
     def _on_select(self, msg: String) -> None:
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
+        self._dirty = True
 
     def _service(self, action: str):
         async def callback(request, response):
             done = Future(executor=self.executor)
             self.stream.action(action, source=f"~/{action}",
                                reply=lambda ok, message: done.set_result((ok, message)))
+            self._dirty = True
             response.success, response.message = await done
             return response
         return callback
