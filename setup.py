@@ -17,6 +17,7 @@ CORE_REQUIRES = [
     "PyYAML==6.0.3",
     "hidapi==0.15.0",
     "rosbags==0.11.9",
+    "Pillow==13.0.0",
 ]
 
 # ROS 2 Jazzy from PyPI wheels, for machines without a ROS install. In a colcon

@@ -64,15 +64,16 @@ def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
     counts = {t["topic"]: (t["type"], t["count"]) for t in info["topics"]}
     assert counts == {"/bagtest/a": ("std_msgs/msg/String", 5),
                       "/bagtest/latched": ("std_msgs/msg/String", 1)}
-    assert 0.35 < info["duration_s"] < 1.5
+    assert 0.35 < info["duration_s"] < 6.0         # published 0.1 s apart (a loaded machine
+    #                                                 may stamp them later, never earlier)
     meta = yaml.safe_load(open(os.path.join(out, "metadata.yaml")))["rosbag2_bagfile_information"]
     assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
     topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
     assert topics["/bagtest/a"]["type_description_hash"].startswith("RIHS01_")
     assert topics["/bagtest/latched"]["offered_qos_profiles"][0]["durability"] == "transient_local"
 
-    # play at twice the speed; the latched topic stays latched for a late subscriber
-    player = Player(node, out, rate=2.0)
+    # play at half the speed; the latched topic stays latched for a late subscriber
+    player = Player(node, out, rate=0.5)
     got, stamps = [], []
     node.create_subscription(String, "/bagtest/a", lambda m: (got.append(m.data),
                                                               stamps.append(time.monotonic())), 10)
@@ -82,11 +83,19 @@ def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
     assert _wait(lambda: len(got) == 5)
     assert got == [f"m{k}" for k in range(5)]
     span = stamps[-1] - stamps[0]
-    assert 0.12 < span < 0.5, span          # recorded 0.4 s apart in total, played at 2x
+    # recorded about 0.4 s apart in total, played at 0.5x: 0.8 s (never less: the player sleeps
+    # until each message is due; a loaded machine may deliver later, so no tight upper bound)
+    from rosbags.rosbag2 import Reader
+    with Reader(out) as reader:
+        conns = [c for c in reader.connections if c.topic == "/bagtest/a"]
+        recorded = [stamp for _, stamp, _ in reader.messages(connections=conns)]
+    recorded_span = (recorded[-1] - recorded[0]) / 1e9
+    assert recorded_span > 0.35
+    assert 2 * recorded_span - 0.1 < span < 10.0, (span, recorded_span)
     late = []
     node.create_subscription(String, "/bagtest/latched", lambda m: late.append(m.data), latched)
     assert _wait(lambda: late == ["config"])
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 30
 
 
 def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
@@ -117,20 +126,27 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
 
 def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library):
     """The recorded operator session, played into a fresh engine node started from the YAML
-    launch file: the registered objects match the truth and what the node reported when the
-    session was recorded."""
+    launch file while two other processes keep both cores busy: paced by the node, the
+    registered objects match the truth and what the node reported when the session was
+    recorded."""
     from affordance_registration.ros.session import replay_session
     info = bag_info(os.path.join(SESSION, "bag"))
     assert {t["topic"] for t in info["topics"]} >= {"/points", "/clicked_point",
                                                     "/spacenav/joy", "/spacenav/twist",
                                                     "/affordance_engine/status"}
     assert os.path.getsize(os.path.join(SESSION, "bag", "bag.mcap")) < 8e6
-    result = replay_session(SESSION, str(tmp_path / "out"))
-    assert result["mismatches"] == []
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        result = replay_session(SESSION, str(tmp_path / "out"))
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+    assert result["mismatches"] == [], result["mismatches"]
     rows = result["rows"]
     assert len(rows) == 5
     for r in rows:
-        assert r["shown"] == r["template"], r
+        assert r["shown"] == r["template"] and r["ok"] and r["why"] == "", r
         assert r["error_mm"] < 5 and r["error_deg"] < 5, r
     # the session needed the operator: a SpaceMouse correction (model changes are covered live
     # in test_engine_node: every object of this scene is ranked right at the first click)
@@ -140,3 +156,40 @@ def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library
     assert len(saved["registrations"]) == 5
     png = open(result["picture"], "rb").read()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20000
+
+
+def test_demo_verdict_names_what_failed(library):
+    """A replayed registration off the truth (or off the recording) fails with why, in the
+    table, the last line and the picture; a missing one is a failing row too."""
+    import json
+    import numpy as np
+    from affordance_registration.cli import print_session_table, verdict_line
+    from affordance_registration.core.render import FAIL_COLOUR, PASS_COLOUR, render_verdict
+    from affordance_registration.core.simulation import CameraIntrinsics, load_truth
+    from affordance_registration.ros.bag import read_messages
+    from affordance_registration.ros.session import compare_with_recording, session_rows
+    truth = load_truth(os.path.join(SESSION, "truth.yaml"))
+    recorded = [json.loads(m.data) for m in
+                read_messages(os.path.join(SESSION, "bag"), "/affordance_engine/status")][-1]
+    good = compare_with_recording(session_rows(recorded, truth, library),
+                                  recorded["registered"], recorded["registered"], library)
+    assert [r["ok"] for r in good] == [True] * 5 and verdict_line(good) == "DEMO OK"
+    live = json.loads(json.dumps(recorded))
+    live["registered"][2]["pose"][0][3] += 0.007                  # 7 mm off along x
+    moved = live["registered"][2]["template"]
+    live["registered"] = live["registered"][:4]                     # the last one missing
+    rows = compare_with_recording(session_rows(live, truth, library), recorded["registered"],
+                                  live["registered"], library)
+    assert [r["ok"] for r in rows] == [True, True, False, True, False]
+    assert "mm > 5 mm" in rows[2]["why"] and "from the recorded registration" in rows[2]["why"]
+    assert rows[4]["why"] == "not registered in the replay"
+    lines = []
+    print_session_table(rows, out=lines.append)
+    assert lines[3].endswith(f"FAIL ({rows[2]['why']})") and lines[1].endswith("PASS")
+    last = verdict_line(rows)
+    assert last.startswith("DEMO FAILED: ") and moved in last and rows[4]["template"] in last
+    picture = render_verdict(np.zeros((0, 3)), [
+        {**r, "ok": v["ok"], "why": v["why"]} for r, v in zip(live["registered"], rows)],
+        [], library, CameraIntrinsics(**truth["intrinsics"]))
+    colours = {tuple(c) for c in picture.reshape(-1, 3)}
+    assert FAIL_COLOUR in colours and PASS_COLOUR in colours

@@ -73,9 +73,9 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
         pub.publish(xyz_to_pointcloud2(np.random.default_rng(0).uniform(0, 1, (100, 3)), "cam"))
         client.wait_for(lambda: (client.status() or {}).get("node", {}).get("cloud"),
                         what="the cloud on the remapped topic")
-        code, took = proc.interrupt(timeout=10)
+        code, took = proc.interrupt(timeout=30)
         assert code == 0, proc.output()
-        assert took < 5.0
+        assert took < 10.0
         assert "shutting down" in proc.output()
     finally:
         client.close()

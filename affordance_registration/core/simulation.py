@@ -27,8 +27,13 @@ from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
-           "SimulatedOperator",
+           "SimulatedOperator", "failures", "POSE_TOL_M", "POSE_TOL_RAD",
            "KINECT_NFOV"]
+
+#: a registration is right when its template is the true one and its pose is within these of the
+#: truth (symmetry-aware): the paper's and the benchmark's success criterion
+POSE_TOL_M = 0.005
+POSE_TOL_RAD = math.radians(5.0)
 
 
 @dataclass(frozen=True)
@@ -381,6 +386,20 @@ def load_truth(path: str) -> dict:
     return doc
 
 
+def failures(row: dict, tolerance_m: float = POSE_TOL_M,
+             tolerance_rad: float = POSE_TOL_RAD) -> list[str]:
+    """Why a registered object (a row with the true ``template``, the ``shown`` one and its
+    ``error_mm`` / ``error_deg`` from the truth) is wrong: empty when it is right."""
+    if row["shown"] != row["template"]:
+        return [f"registered as {row['shown']}"]
+    reasons = []
+    if not row["error_mm"] <= tolerance_m * 1000:
+        reasons.append(f"{row['error_mm']:.1f} mm > {tolerance_m * 1000:.0f} mm")
+    if not row["error_deg"] <= math.degrees(tolerance_rad):
+        reasons.append(f"{row['error_deg']:.1f}° > {math.degrees(tolerance_rad):.0f}°")
+    return reasons
+
+
 class SimulatedOperator:
     """Plays the operator of the paper on a scene with ground truth.
 
@@ -392,8 +411,8 @@ class SimulatedOperator:
     T_scene_view)`` and ``refit()`` and ``accept()`` -- the core engine or a ROS client.
     """
 
-    def __init__(self, library: TemplateLibrary, tolerance_m: float = 0.005,
-                 tolerance_rad: float = math.radians(5.0), max_speed: float = 0.05,
+    def __init__(self, library: TemplateLibrary, tolerance_m: float = POSE_TOL_M,
+                 tolerance_rad: float = POSE_TOL_RAD, max_speed: float = 0.05,
                  max_turn_rate: float = 0.6, push_fraction: float = 0.8, max_pushes: int = 6,
                  seed: int = 0):
         self.library = library

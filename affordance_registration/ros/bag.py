@@ -8,6 +8,7 @@ conversion), so any message type the typestore knows is supported.
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import threading
 import time
@@ -16,7 +17,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..core.errors import AffordanceError
 
-__all__ = ["BagError", "Recorder", "Player", "bag_info", "message_class", "read_messages"]
+__all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "message_class",
+           "read_messages"]
 
 
 class BagError(AffordanceError):
@@ -174,15 +176,82 @@ def read_messages(path: str, topic: str):
         reader.close()
 
 
+class StatusPacer:
+    """Paces a replay by the receiving node's progress: before a message is published, wait
+    until the node has handled everything published so far and is idle.
+
+    The node publishes a JSON status on ``status_topic`` (transient local) whose ``node`` entry
+    has ``handled`` (resolved topic name -> messages handled) and ``idle`` (nothing queued,
+    nothing running, no refit waiting) -- what ``affordance_engine`` publishes on ``~/status``.
+    Topics the node does not count are not waited for."""
+
+    def __init__(self, node, status_topic: str = "/affordance_engine/status",
+                 timeout: float = 60.0):
+        self.timeout = float(timeout)
+        self.status_topic = status_topic
+        self._cv = threading.Condition()
+        self._status: dict | None = None
+        self._baseline: dict | None = None
+        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        from std_msgs.msg import String
+        node.create_subscription(String, status_topic, self._on_status, qos)
+
+    def _on_status(self, msg) -> None:
+        try:
+            status = json.loads(msg.data).get("node") or {}
+        except (ValueError, AttributeError):
+            return
+        with self._cv:
+            self._status = status
+            self._cv.notify_all()
+
+    def _ready(self, published: dict) -> bool:
+        st = self._status
+        if st is None or not st.get("idle"):
+            return False
+        handled = st.get("handled") or {}
+        if self._baseline is None:        # what the node had handled before this replay
+            self._baseline = dict(handled)
+        return all(handled[t] - self._baseline.get(t, 0) >= n for t, n in published.items()
+                   if t in handled)
+
+    def wait(self, published: dict, stop: threading.Event) -> None:
+        """Block until the node has handled ``published`` (topic -> count since the first
+        wait) and is idle."""
+        deadline = time.monotonic() + self.timeout
+        with self._cv:
+            while not self._ready(published) and not stop.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    st = self._status
+                    raise BagError(f"the node on {self.status_topic} did not finish with the "
+                                   f"messages played so far within {self.timeout:.0f} s "
+                                   f"(played {published}, its status: "
+                                   f"{'none' if st is None else st.get('handled')}, idle "
+                                   f"{None if st is None else st.get('idle')})")
+                self._cv.wait(timeout=min(left, 0.2))
+
+
 class Player:
-    """Republishes a bag with its original timing (scaled by ``rate``)."""
+    """Republishes a bag with its original timing (scaled by ``rate``).
+
+    With a ``pace`` (:class:`StatusPacer`), each message waits until the receiving node has
+    finished with the ones before it, except within a burst -- a message on the same topic as
+    the one before it, recorded at most ``burst_gap`` s after it (a SpaceMouse push at 30 Hz) --
+    whose recorded relative timing is kept. The replay then does not depend on how fast the
+    node or the machine is."""
 
     def __init__(self, node, path: str, rate: float = 1.0, start_offset: float = 0.0,
-                 topics=None, loop: bool = False):
+                 topics=None, loop: bool = False, pace: "StatusPacer | None" = None,
+                 burst_gap: float = 0.1):
         if not rate > 0:
             raise BagError("--rate must be positive")
         self.node, self.path = node, path
         self.rate, self.start_offset, self.loop = rate, start_offset, loop
+        self.pace, self.burst_gap = pace, float(burst_gap)
+        self.counts: dict[str, int] = {}         # messages published per topic
         reader = _open_reader(path)
         try:
             self.connections = [c for c in reader.connections
@@ -210,23 +279,12 @@ class Player:
         return False
 
     def play(self, stop: threading.Event | None = None) -> int:
-        """Publish every message at its time; returns the number published."""
+        """Publish every message at its time (or paced); returns the number published."""
         stop = stop or threading.Event()
         while True:
             reader = _open_reader(self.path)
             try:
-                t_wall0 = time.monotonic()
-                t_bag0 = self.start + int(self.start_offset * 1e9)
-                for conn, stamp, data in reader.messages(connections=self.connections):
-                    if stamp < t_bag0:
-                        continue
-                    due = t_wall0 + (stamp - t_bag0) / 1e9 / self.rate
-                    while not stop.is_set() and time.monotonic() < due:
-                        time.sleep(min(0.01, max(0.0, due - time.monotonic())))
-                    if stop.is_set():
-                        return self.published
-                    self.publishers[conn.topic].publish(bytes(data))
-                    self.published += 1
+                self._play_once(reader, stop)
             except BagError:
                 raise
             except Exception as exc:
@@ -236,3 +294,27 @@ class Player:
                 reader.close()
             if not self.loop or stop.is_set():
                 return self.published
+
+    def _play_once(self, reader, stop: threading.Event) -> None:
+        t_bag0 = self.start + int(self.start_offset * 1e9)
+        t_wall0 = time.monotonic()
+        previous = None                 # (topic, stamp) of the message published before
+        for conn, stamp, data in reader.messages(connections=self.connections):
+            if stamp < t_bag0:
+                continue
+            if self.pace is not None:
+                in_burst = previous is not None and previous[0] == conn.topic and \
+                    (stamp - previous[1]) / 1e9 <= self.burst_gap
+                if not in_burst:
+                    self.pace.wait(self.counts, stop)
+                    # the node is ready: this message starts a new time line
+                    t_wall0, t_bag0 = time.monotonic(), stamp
+            due = t_wall0 + (stamp - t_bag0) / 1e9 / self.rate
+            while not stop.is_set() and time.monotonic() < due:
+                time.sleep(min(0.01, max(0.0, due - time.monotonic())))
+            if stop.is_set():
+                return
+            self.publishers[conn.topic].publish(bytes(data))
+            self.published += 1
+            self.counts[conn.topic] = self.counts.get(conn.topic, 0) + 1
+            previous = (conn.topic, stamp)

@@ -97,7 +97,8 @@ class EngineNode(Node):
         cloud_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                                reliability=ReliabilityPolicy.RELIABLE if self._p["points_reliable"]
                                else ReliabilityPolicy.BEST_EFFORT)
-        self.create_subscription(PointCloud2, "points", self._on_cloud, cloud_qos)
+        self._sub_points = self.create_subscription(PointCloud2, "points", self._on_cloud,
+                                                    cloud_qos)
         self._sub_click = self.create_subscription(PointStamped, "clicked_point", self._on_click,
                                                    INPUT_QOS)
         self._sub_twist = self.create_subscription(Twist, "spacenav/twist", self._on_twist,
@@ -340,9 +341,11 @@ class EngineNode(Node):
         stream = self.stream.status()
         with self._lock:
             msg = self._cloud_msg
+            # clouds are stored when they arrive: received is handled
+            handled = {self._sub_points.topic_name: self._cloud_count, **stream["handled"]}
             st["node"] = {
                 "busy": stream["busy"], "queued": stream["queued"], "idle": stream["idle"],
-                "pending_refit": stream["pending_refit"], "handled": stream["handled"],
+                "pending_refit": stream["pending_refit"], "handled": handled,
                 "cloud": None if msg is None else {
                     "frame_id": msg.header.frame_id, "width": msg.width, "height": msg.height,
                     "received": self._cloud_count},
