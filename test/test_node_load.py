@@ -54,7 +54,11 @@ def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):
         res = client.call(GetParameters, "/affordance_engine/get_parameters",
                           GetParameters.Request(names=["refit_idle_s"]))
         assert time.monotonic() - t0 < 1.5 and res.values[0].double_value == 0.5
-        # a service called now acts after both clicks: the second object is the one accepted
+        # a service called once both clicks have reached the node acts after both (a cloud
+        # stream this big can delay a click on the wire by a retransmission; the order the
+        # node guarantees is the order inputs arrive): the second object is the one accepted
+        client.wait_for(lambda: client.status()["node"]["received"].get("/clicked_point") == 2,
+                        30, "both clicks at the node")
         accepted = client.call(Trigger, "/affordance_engine/accept", timeout=30)
         assert accepted.success and sim.objects[1].template in accepted.message
         st = client.wait_for(lambda: len(client.status()["registered"]) == 1 and

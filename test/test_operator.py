@@ -270,3 +270,41 @@ def test_select_model_by_name(library, scene):
     s.stream.action("select_model", names[0])
     s.stream.process_pending()
     assert s.shown().template == obj.template
+
+
+def test_the_selected_object_follows_a_new_cloud(library, scene):
+    """A new cloud (the scene moved 2 cm) refits the selected object from its current pose --
+    not an undo step, at most twice a second, and not while the operator is pushing it."""
+    from affordance_registration.core.transforms import make_T
+    s = Stream(library, scene)
+    obj = scene.objects[2]
+    s.stream.click(obj.click)
+    s.stream.process_pending()
+    undo_depth = len(s.engine._undo)
+    shift = np.array([0.02, -0.01, 0.0])
+    s.engine.set_scene(scene.organized + shift.astype(np.float32), frame_id=FRAME)
+    s.stream.new_cloud()
+    s.stream.new_cloud()                                  # one waits in the queue at most
+    assert s.stream.status()["queued"] == 1
+    s.stream.process_pending()
+    moved = make_T(t=shift) @ obj.T_scene_model
+    dt, dr = pose_error(s.shown().T_scene_model, moved, library[obj.template].symmetry)
+    assert dt < TOL_M and dr < TOL_RAD, (dt, dr)
+    assert len(s.engine._undo) == undo_depth
+    assert any("followed the new cloud" in m for _, ok, m in s.reports if ok)
+    # within follow_period_s of the last follow, and while twists wait for their refit: no
+    T_followed = s.shown().T_scene_model.copy()
+    s.engine.set_scene(scene.organized, frame_id=FRAME)
+    s.stream.new_cloud()
+    s.stream.process_pending()
+    assert np.array_equal(s.shown().T_scene_model, T_followed)
+    s.clock.t += 1.0
+    s.stream.twist(*view_twist([0.1, 0, 0]), stamp=1.0)
+    s.stream.new_cloud()
+    s.stream.process_pending()
+    assert s.stream.status()["pending_refit"]             # not followed: the push's refit will
+    s.clock.t += 1.0
+    s.stream.process_pending()                            # the idle refit, on the new cloud
+    dt, dr = pose_error(s.shown().T_scene_model, obj.T_scene_model,
+                        library[obj.template].symmetry)
+    assert dt < TOL_M and dr < TOL_RAD, (dt, dr)

@@ -476,6 +476,16 @@ class AffordanceEngine:
             return (f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
                     f"likelihood {cand.likelihood:.0f})")
 
+    def follow_scene(self) -> str | None:
+        """Refit the selected object on the latest scene if it was fitted on an older one (a
+        new cloud arrived), from its current pose, keeping its joint values; not an undo step.
+        None when there is nothing to follow."""
+        with self._lock:
+            obj = self._find(self._state.active_id)
+            if obj is None or self._scene is None or obj.scene_version == self._scene_version:
+                return None
+        return self.refit(coalesce=True).replace(": refit ", ": followed the new cloud: ", 1)
+
     def accept(self) -> str:
         """Register the shown candidate of the selected object and close the object."""
         with self._lock:

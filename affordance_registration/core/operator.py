@@ -68,6 +68,10 @@ class OperatorSettings:
     buttons: tuple = (("next_model", 0), ("accept", 1))
     joint_axis: int = -1               #: Joy axis stepping the joint (-1: none)
     joint_axis_threshold: float = 0.5  #: how far the axis must be pushed to step
+    #: a new cloud refits the selected (not yet accepted) object from its current pose, at most
+    #: once every ``follow_period_s``
+    follow_clouds: bool = True
+    follow_period_s: float = 0.5
     #: test-only: every click's fit takes at least this long (an artificially slow fitter)
     slow_fit_s: float = 0.0
 
@@ -75,7 +79,7 @@ class OperatorSettings:
         if self.twist_frame not in ("spacenav", "view"):
             raise AffordanceError(f"twist_frame must be 'spacenav' or 'view', got "
                                   f"{self.twist_frame!r}")
-        for name in ("linear_gain", "angular_gain", "slow_fit_s"):
+        for name in ("linear_gain", "angular_gain", "slow_fit_s", "follow_period_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -151,6 +155,7 @@ class OperatorStream:
         self._queue: collections.deque[OperatorInput] = collections.deque()
         self._busy: str | None = None
         self._handled: dict[str, int] = {}
+        self._received: dict[str, int] = {}
         # twist bursts and the refit waiting for them to stop
         self._pending_refit = False
         self._last_twist_arrived: float | None = None
@@ -158,6 +163,7 @@ class OperatorStream:
         # Joy state: previous buttons, joint axis armed sign
         self._buttons: tuple = ()
         self._axis_sign = 0
+        self._last_follow = -math.inf
 
     # ------------------------------------------------------------------ settings
     def configure(self, settings: OperatorSettings) -> None:
@@ -172,6 +178,7 @@ class OperatorStream:
         """Append an input to the stream (any thread)."""
         with self._cv:
             self._queue.append(_arrived(item, self.clock()))
+            self._received[item.source] = self._received.get(item.source, 0) + 1
             self._cv.notify_all()
 
     def click(self, point, frame: str = "", source: str = "click", reply=None) -> None:
@@ -197,14 +204,23 @@ class OperatorStream:
         self.submit(OperatorInput("pose", np.asarray(T_scene_model, dtype=float), bool(release),
                                   source=source))
 
+    def new_cloud(self) -> None:
+        """A new cloud arrived: the selected object follows it (in order with the operator's
+        input; one such input waits in the queue at most)."""
+        with self._cv:
+            if any(item.kind == "cloud" for item in self._queue):
+                return
+        self.submit(OperatorInput("cloud", source="cloud"))
+
     # ------------------------------------------------------------------ state
     def status(self) -> dict:
-        """``busy`` (what the worker does now, or None), ``queued`` inputs, ``handled`` inputs
-        per source, ``pending_refit`` (twists moved the object and its refit waits for them to
-        stop) and ``idle`` (none of these)."""
+        """``busy`` (what the worker does now, or None), ``queued`` inputs, ``received`` and
+        ``handled`` inputs per source, ``pending_refit`` (twists moved the object and its refit
+        waits for them to stop) and ``idle`` (none of these)."""
         with self._cv:
             return {"busy": self._busy, "queued": len(self._queue),
-                    "handled": dict(self._handled), "pending_refit": self._pending_refit,
+                    "received": dict(self._received), "handled": dict(self._handled),
+                    "pending_refit": self._pending_refit,
                     "idle": self._busy is None and not self._queue and not self._pending_refit}
 
     def idle_refit_due(self) -> float | None:
@@ -290,6 +306,8 @@ class OperatorStream:
             return self._on_click(item)
         if kind == "action":
             return self._act(item.value, item.argument)
+        if kind == "cloud":
+            return self._follow()
         raise AffordanceError(f"unknown operator input {kind!r}")
 
     def _settle(self, action: str) -> None:
@@ -384,6 +402,21 @@ class OperatorStream:
             return True, ""
         return all(ok for ok, _ in results), "; ".join(m for _, m in results if m)
 
+    def _follow(self) -> tuple[bool, str]:
+        """The selected object follows a new cloud -- unless the operator is pushing it (its
+        refit will use the new cloud) or it followed one moments ago."""
+        s = self.settings
+        now = self.clock()
+        if not s.follow_clouds or self._pending_refit or now - self._last_follow < \
+                s.follow_period_s:
+            return True, ""
+        self._refresh_scene()
+        message = self.engine.follow_scene()
+        if message is None:
+            return True, ""
+        self._last_follow = now
+        return True, message
+
     def _on_pose(self, item: OperatorInput) -> tuple[bool, str]:
         self._settle("pose")
         message = self.engine.correct_pose(item.value, drag=True)
@@ -404,6 +437,7 @@ def _kind(item: OperatorInput) -> str:
 
 def _describe(item: OperatorInput, queued: int) -> str:
     what = {"click": "fitting a click", "action": f"{item.value}", "twist": "moving the object",
-            "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object"}
+            "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object",
+            "cloud": "following the new cloud"}
     text = what.get(item.kind, item.kind)
     return f"{text} ({queued} more queued)" if queued else text

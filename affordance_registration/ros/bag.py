@@ -182,8 +182,9 @@ class StatusPacer:
 
     The node publishes a JSON status on ``status_topic`` (transient local) whose ``node`` entry
     has ``handled`` (resolved topic name -> messages handled) and ``idle`` (nothing queued,
-    nothing running, no refit waiting) -- what ``affordance_engine`` publishes on ``~/status``.
-    Topics the node does not count are not waited for."""
+    nothing running, no refit waiting) -- what ``affordance_engine`` publishes on ``~/status``,
+    listing each of its input topics from the start. Topics the node does not list are not
+    waited for."""
 
     def __init__(self, node, status_topic: str = "/affordance_engine/status",
                  timeout: float = 60.0):

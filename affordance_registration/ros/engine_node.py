@@ -19,7 +19,7 @@ import threading
 import time
 
 import numpy as np
-from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist
+from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist, TwistStamped
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -101,13 +101,16 @@ class EngineNode(Node):
                                                     cloud_qos)
         self._sub_click = self.create_subscription(PointStamped, "clicked_point", self._on_click,
                                                    INPUT_QOS)
-        self._sub_twist = self.create_subscription(Twist, "spacenav/twist", self._on_twist,
-                                                   INPUT_QOS)
+        self._sub_twist = self.create_subscription(
+            TwistStamped if self._p["twist_stamped"] else Twist, "spacenav/twist",
+            self._on_twist, INPUT_QOS)
         self._sub_joy = self.create_subscription(Joy, "spacenav/joy", self._on_joy, INPUT_QOS)
         self._sub_view = self.create_subscription(PoseStamped, "view_pose", self._on_view,
                                                   INPUT_QOS)
         self._sub_select = self.create_subscription(String, "~/select_model", self._on_select,
                                                     INPUT_QOS)
+        self._input_subscriptions = (self._sub_click, self._sub_twist, self._sub_joy,
+                                     self._sub_view, self._sub_select)
         self.pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
         self.pub_fit = self.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
@@ -240,7 +243,7 @@ class EngineNode(Node):
             self._dirty = True
         if self._dirty:
             self._cloud_status_at = now
-
+        self.stream.new_cloud()
     def _ensure_scene(self) -> None:
         """Make the engine's scene the latest cloud (stream worker). An unusable newer cloud is
         reported and the previous scene kept; with no previous scene it is an error."""
@@ -267,9 +270,15 @@ class EngineNode(Node):
         self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name)
         self._dirty = True      # the status shows what is queued
 
-    def _on_twist(self, msg: Twist, info=None) -> None:
+    def _on_twist(self, msg, info=None) -> None:
+        """A Twist (held for the time since the previous one by the publisher's source time
+        stamps) or a TwistStamped (by its header stamps)."""
+        stamp = _stamp_s(info)
+        if isinstance(msg, TwistStamped):
+            header_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            stamp, msg = (header_stamp if header_stamp > 0 else stamp), msg.twist
         self.stream.twist([msg.linear.x, msg.linear.y, msg.linear.z],
-                          [msg.angular.x, msg.angular.y, msg.angular.z], stamp=_stamp_s(info),
+                          [msg.angular.x, msg.angular.y, msg.angular.z], stamp=stamp,
                           source=self._sub_twist.topic_name)
         self._dirty = True
 
@@ -341,11 +350,15 @@ class EngineNode(Node):
         stream = self.stream.status()
         with self._lock:
             msg = self._cloud_msg
-            # clouds are stored when they arrive: received is handled
-            handled = {self._sub_points.topic_name: self._cloud_count, **stream["handled"]}
+            # every input topic from the start (a paced player waits for the topics it finds
+            # here); clouds are stored when they arrive: received is handled
+            handled = {sub.topic_name: 0 for sub in self._input_subscriptions}
+            handled.update(stream["handled"])
+            handled[self._sub_points.topic_name] = self._cloud_count
             st["node"] = {
                 "busy": stream["busy"], "queued": stream["queued"], "idle": stream["idle"],
-                "pending_refit": stream["pending_refit"], "handled": handled,
+                "pending_refit": stream["pending_refit"], "received": stream["received"],
+                "handled": handled,
                 "cloud": None if msg is None else {
                     "frame_id": msg.header.frame_id, "width": msg.width, "height": msg.height,
                     "received": self._cloud_count},

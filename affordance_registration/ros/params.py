@@ -36,6 +36,9 @@ PARAMETERS = {
     "twist_frame": ("spacenav", "axes of spacenav/twist: spacenav (REP-103 device axes: x away "
                     "from the user, y left, z up) or view (x right, y up, z to the viewer)",
                     ("spacenav", "view")),
+    "twist_stamped": (False, "spacenav/twist is geometry_msgs/TwistStamped (the spacenav driver's "
+                              "and affordance_spacemouse's use_twist_stamped): twists are held "
+                              "for the time between their header stamps; read at start", None),
     "max_twist_dt": (0.1, "longest time one twist message is integrated over (s)", (0.001, 1.0)),
     "refit_idle_s": (0.5, "refit after the twists stop for this long (s)", (0.05, 30.0)),
     "button_next_model": (0, "Joy button for next model (-1: none)", (-1, 63)),
@@ -64,10 +67,12 @@ PARAMETERS = {
                               "(one level); read at start", None),
     "interactive_orientation": ("object", "interactive marker controls aligned with the object "
                                 "or the operator's view", ("object", "view")),
+    "refit_on_new_cloud": (True, "a new cloud refits the selected (not yet accepted) object "
+                                 "from its current pose, at most twice a second", None),
     "test_slow_fit_s": (0.0, "test only: every click's fit takes at least this long (s), to "
                              "show that input stays in order behind a slow fit", (0.0, 60.0)),
 }
-READ_ONLY = {"points_reliable", "interactive_namespace"}
+READ_ONLY = {"points_reliable", "interactive_namespace", "twist_stamped"}
 #: parameters that make the fitting settings (a change rebuilds the registrar)
 FIT_PARAMETERS = {"fit_mode", "voxel_size", "weight_scale", "snap_distance", "seed",
                   "estimate_joints"}
@@ -152,4 +157,4 @@ def operator_settings(p: dict) -> OperatorSettings:
         refit_idle_s=float(p["refit_idle_s"]),
         buttons=tuple((a, int(p[f"button_{a}"])) for a in BUTTON_ACTIONS),
         joint_axis=int(p["joint_axis"]), joint_axis_threshold=float(p["joint_axis_threshold"]),
-        slow_fit_s=float(p["test_slow_fit_s"]))
+        follow_clouds=bool(p["refit_on_new_cloud"]), slow_fit_s=float(p["test_slow_fit_s"]))
