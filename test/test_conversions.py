@@ -1,4 +1,4 @@
-"""Message conversions, without rclpy.init: PointCloud2 layouts, poses, static frames."""
+"""Message conversions, without rclpy.init: PointCloud2 layouts, poses, frame graphs."""
 import math
 import struct
 
@@ -11,7 +11,7 @@ from affordance_registration.core.transforms import make_T, random_rotations
 from affordance_registration.ros.conversions import (ConversionError, matrix_to_pose,
                                                      pointcloud2_to_xyz, pose_to_matrix,
                                                      xyz_to_pointcloud2)
-from affordance_registration.ros.frames import FrameError, StaticFrames
+from affordance_registration.ros.frames import FrameError, FrameGraph, StaticFrames
 
 
 def _pack(points, layout, point_step, big_endian=False, row_pad=0, width=None):
@@ -124,3 +124,16 @@ def test_static_frames_follow_chains_both_ways():
     assert np.allclose(frames.lookup("tool", "map") @ T, np.eye(4), atol=1e-9)
     with pytest.raises(FrameError, match="'elsewhere'"):
         frames.lookup("map", "elsewhere")
+
+
+def test_frame_graph_keeps_one_parent_per_child_and_merges():
+    tf = FrameGraph()
+    tf.set("map", "cam", make_T(np.eye(3), [1.0, 0.0, 0.0]))
+    tf.set("/map", "/cam", make_T(np.eye(3), [2.0, 0.0, 0.0]))     # the newer transform wins
+    assert len(tf) == 1 and np.allclose(tf.lookup("map", "cam")[:3, 3], [2, 0, 0])
+    param = StaticFrames(["map cam 5 0 0 0 0 0 1", "cam tool 0 0 1 0 0 0 1"])
+    both = param.merged(tf)                                         # TF wins over the parameter
+    assert np.allclose(both.lookup("map", "tool")[:3, 3], [2, 0, 1])
+    assert np.allclose(both.lookup("tool", "map")[:3, 3], [-2, 0, -1])
+    with pytest.raises(FrameError):
+        tf.lookup("map", "tool")

@@ -18,8 +18,8 @@ from ..core.errors import AffordanceError
 from ..core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 __all__ = ["ConversionError", "pointcloud2_to_xyz", "xyz_to_pointcloud2", "pose_to_matrix",
-           "matrix_to_pose", "transform_to_matrix", "mesh_marker", "text_marker",
-           "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
+           "matrix_to_pose", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
+           "text_marker", "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
 
 _FLOAT_TYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
 _SIZES = {PointField.INT8: 1, PointField.UINT8: 1, PointField.INT16: 2, PointField.UINT16: 2,
@@ -128,6 +128,14 @@ def transform_to_matrix(tf: Transform) -> np.ndarray:
     pose.position = Point(x=tf.translation.x, y=tf.translation.y, z=tf.translation.z)
     pose.orientation = tf.rotation
     return pose_to_matrix(pose)
+
+
+def matrix_to_transform(T: np.ndarray) -> Transform:
+    q = matrix_to_quat_xyzw(np.asarray(T)[:3, :3])
+    tf = Transform()
+    tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in T[:3, 3])
+    tf.rotation = Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+    return tf
 
 
 def pose_stamped(T: np.ndarray, frame_id: str, stamp=None) -> PoseStamped:

@@ -41,6 +41,7 @@ from .frames import FrameError, StaticFrames
 from .interactive import CorrectionMarkerServer, MarkerCallbacks
 from .markers import state_markers
 from .spin import run_node
+from .tf import TfBroadcaster, TfListener
 
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
             "joint_plus", "joint_minus")
@@ -76,6 +77,7 @@ class EngineNode(Node):
         self._set_joint_steps(self._p)
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
+        self._tf_out = TfBroadcaster(self)
 
         self._lock = threading.Lock()
         self._cloud_msg: PointCloud2 | None = None
@@ -174,29 +176,13 @@ class EngineNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ frames
-    def _make_tf(self):
-        try:
-            import tf2_ros
-        except ImportError:
-            return None
-        buffer = tf2_ros.Buffer()
-        listener = tf2_ros.TransformListener(buffer, self)
-        return buffer, listener
+    def _make_tf(self) -> TfListener:
+        return TfListener(self)
 
     def _lookup(self, target: str, source: str) -> np.ndarray:
-        """T_target_source from tf2 (if present) or the static transforms parameter."""
-        target, source = target.lstrip("/"), source.lstrip("/")
-        if not source or source == target:
-            return np.eye(4)
-        if self._tf is not None:
-            from rclpy.time import Time
-            from .conversions import transform_to_matrix
-            try:
-                tf = self._tf[0].lookup_transform(target, source, Time())
-                return transform_to_matrix(tf.transform)
-            except Exception:  # tf2 raises several lookup exceptions; fall back to static
-                pass
-        return self.frames.lookup(target, source)
+        """T_target_source from TF (tf2_ros, or /tf and /tf_static) and the static transforms
+        parameter."""
+        return self._tf.lookup(target, source, fallback=self.frames)
 
     def _frame(self) -> str:
         """The frame of everything the node reports: the scene's, else the latest cloud's."""
@@ -378,6 +364,9 @@ class EngineNode(Node):
         arr.header.frame_id, arr.header.stamp = frame, stamp
         arr.poses = [matrix_to_pose(r.T_scene_model) for r in state.registered]
         self.pub_registered.publish(arr)
+        self._tf_out.publish_registrations(state.registered, frame, stamp)
+        self._tf_out.publish_candidate(None if active is None else active.shown.T_scene_model,
+                                       frame, stamp)
         self.pub_status.publish(String(data=json.dumps(self.status())))
         self.interactive.sync()
 

@@ -1,5 +1,5 @@
-"""Frame lookups for clicks and view poses: tf2 when the node runs in a ROS install that has it,
-else static transforms given as parameters.
+"""Frame graphs for clicks and view poses: the latest transforms heard on /tf and /tf_static
+(``ros/tf.py`` fills one) and the static transforms given as a parameter (the fallback).
 
 A static transform parameter entry is a string ``"parent child x y z qx qy qz qw"`` (metres,
 unit quaternion): the pose of ``child`` in ``parent``, as ``ros2 run tf2_ros
@@ -14,7 +14,7 @@ import numpy as np
 from ..core.errors import AffordanceError
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["StaticFrames", "parse_static_transform", "FrameError"]
+__all__ = ["FrameGraph", "StaticFrames", "parse_static_transform", "FrameError"]
 
 
 class FrameError(AffordanceError):
@@ -38,28 +38,42 @@ def parse_static_transform(text: str) -> tuple[str, str, np.ndarray]:
     return parts[0].lstrip("/"), parts[1].lstrip("/"), make_T(quat_xyzw_to_matrix(q), values[:3])
 
 
-class StaticFrames:
-    """A graph of static transforms; ``lookup(target, source)`` gives T_target_source."""
+class FrameGraph:
+    """Transforms between frames as tf2 keeps them: each child frame has one parent (a new
+    transform for a child replaces its old one). ``lookup(target, source)`` gives
+    T_target_source, following chains in either direction."""
 
-    def __init__(self, entries=()):
-        self._edges: dict[str, list[tuple[str, np.ndarray]]] = {}
-        for entry in entries:
-            if not str(entry).strip():      # [""] is how an empty string list is often written
-                continue
-            parent, child, T = parse_static_transform(entry)
-            self._edges.setdefault(parent, []).append((child, T))          # T_parent_child
-            self._edges.setdefault(child, []).append((parent, invert(T)))  # T_child_parent
+    def __init__(self):
+        self._parents: dict[str, tuple[str, np.ndarray]] = {}   # child -> (parent, T_parent_child)
+
+    def set(self, parent: str, child: str, T_parent_child: np.ndarray) -> None:
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        if parent and child and parent != child:
+            self._parents[child] = (parent, np.asarray(T_parent_child, dtype=float))
+
+    def __len__(self) -> int:
+        return len(self._parents)
+
+    def merged(self, other: "FrameGraph") -> "FrameGraph":
+        """This graph with ``other``'s transforms added; ``other`` wins for a child both have."""
+        out = FrameGraph()
+        out._parents = {**self._parents, **other._parents}
+        return out
 
     def lookup(self, target: str, source: str) -> np.ndarray:
         target, source = target.lstrip("/"), source.lstrip("/")
         if target == source:
             return np.eye(4)
+        edges: dict[str, list[tuple[str, np.ndarray]]] = {}
+        for child, (parent, T) in self._parents.items():
+            edges.setdefault(parent, []).append((child, T))          # T_parent_child
+            edges.setdefault(child, []).append((parent, invert(T)))  # T_child_parent
         # breadth-first from the target: T_target_node accumulates along the path
         seen = {target: np.eye(4)}
         queue = deque([target])
         while queue:
             node = queue.popleft()
-            for nxt, T_node_next in self._edges.get(node, []):
+            for nxt, T_node_next in edges.get(node, []):
                 if nxt in seen:
                     continue
                 seen[nxt] = seen[node] @ T_node_next
@@ -67,4 +81,16 @@ class StaticFrames:
                     return seen[nxt]
                 queue.append(nxt)
         raise FrameError(f"no transform from frame '{source}' to frame '{target}' "
-                         f"(give it as a static_transforms parameter or run tf2)")
+                         f"(publish it on /tf or /tf_static, or give it as a static_transforms "
+                         f"parameter)")
+
+
+class StaticFrames(FrameGraph):
+    """The ``static_transforms`` parameter's entries as a frame graph."""
+
+    def __init__(self, entries=()):
+        super().__init__()
+        for entry in entries:
+            if not str(entry).strip():      # [""] is how an empty string list is often written
+                continue
+            self.set(*parse_static_transform(entry))

@@ -56,8 +56,8 @@ PARAMETERS = {
     "joint_axis_threshold": (0.5, "how far joint_axis must be pushed to step", (0.05, 1.0)),
     "joint_step_deg": (5.0, "one joint step of a revolute joint (deg)", (0.1, 90.0)),
     "joint_step_mm": (2.0, "one joint step of a prismatic joint (mm)", (0.1, 100.0)),
-    "static_transforms": ([], "'parent child x y z qx qy qz qw' entries used when tf2 is absent",
-                          None),
+    "static_transforms": ([], "'parent child x y z qx qy qz qw' entries for frames TF does not "
+                          "know", None),
     "registrations_file": ("affordance_registrations.yaml", "where ~/save writes (YAML)", None),
     "sensor_origin": ([0.0, 0.0, 0.0], "sensor position in the cloud frame (m)", None),
     "points_reliable": (True, "subscribe to points with reliable QoS (false: best effort, for "

@@ -1,0 +1,191 @@
+"""TF for the engine node: registrations and the shown candidate out, frame lookups in.
+
+Out (``TfBroadcaster``): every registration is a frame ``<template>_<id>`` (``ball_valve_1``)
+on ``/tf_static``, parent the frame it was registered in (the cloud's); the shown candidate of
+the selected object is ``affordance_candidate`` on ``/tf``. The static set goes out whole
+whenever it changes, as one TFMessage on a reliable, transient-local publisher of depth 1 (what
+tf2_ros' static broadcaster does), so a late listener gets exactly the current set: a frame
+undone, discarded or replaced by a load is gone from it. (tf2_ros' StaticTransformBroadcaster
+is not used even where it is installed: it only ever adds or replaces frames, so it could not
+drop an undone one. Note that a tf2 buffer already holding a static frame keeps it until it
+restarts: tf2 has no way to retract a static transform.)
+
+In (``TfListener``): frame lookups for clicks and view poses. In a ROS install with tf2_ros,
+its Buffer and TransformListener; in the pip-only install, a minimal listener that keeps the
+latest transform of every child frame heard on ``/tf`` and ``/tf_static`` (no interpolation in
+time: a click is taken in the latest known frames) and follows chains both ways. Either way the
+``static_transforms`` parameter is the fallback for what TF does not know.
+
+Without tf2_msgs (the pip-only install whose ``make setup`` could not build it) there is no TF
+output and lookups use the parameter alone; the node says so once at start and runs.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from geometry_msgs.msg import TransformStamped
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
+from .frames import FrameError, FrameGraph
+
+__all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame",
+           "load_tf_message"]
+
+CANDIDATE_FRAME = "affordance_candidate"
+CANDIDATE_REPUBLISH_S = 1.0          # the candidate frame stays fresh for /tf listeners
+# the QoS of tf2_ros' broadcasters and listeners (tf2_ros/qos.py)
+STATIC_BROADCASTER_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                                    reliability=ReliabilityPolicy.RELIABLE,
+                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATIC_LISTENER_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+DYNAMIC_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+
+
+def registration_frame(template: str, registration_id: int) -> str:
+    """The TF frame of a registration: ``<template>_<id>``."""
+    return f"{template}_{registration_id}"
+
+
+def load_tf_message():
+    """tf2_msgs' TFMessage class, or None where tf2_msgs is not installed."""
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        return None
+    return TFMessage
+
+
+def _transform(parent: str, child: str, T_parent_child: np.ndarray, stamp) -> TransformStamped:
+    t = TransformStamped()
+    t.header.frame_id, t.header.stamp, t.child_frame_id = parent, stamp, child
+    t.transform = matrix_to_transform(T_parent_child)
+    return t
+
+
+class TfBroadcaster:
+    """Registrations on /tf_static and the shown candidate on /tf (see the module docstring).
+    Without tf2_msgs every call is a no-op and ``available`` is False."""
+
+    def __init__(self, node):
+        self._node = node
+        TFMessage = load_tf_message()
+        self.available = TFMessage is not None
+        self._static_key: tuple = ()
+        self._static: dict[str, TransformStamped] = {}    # child -> transform as last sent
+        self._candidate: TransformStamped | None = None
+        if not self.available:
+            node.get_logger().warning("tf2_msgs is not installed: registrations are not "
+                                      "published on TF (make setup builds it into the venv)")
+            return
+        self._msg_type = TFMessage
+        self._pub_static = node.create_publisher(TFMessage, "/tf_static", STATIC_BROADCASTER_QOS)
+        self._pub_dynamic = node.create_publisher(TFMessage, "/tf", DYNAMIC_QOS)
+        node.create_timer(CANDIDATE_REPUBLISH_S, self._republish_candidate)
+
+    def publish_registrations(self, registered, parent_frame: str, stamp) -> bool:
+        """Publish the full static set if it changed. ``registered``: records with ``template``,
+        ``id``, ``T_scene_model`` (4x4, metres) and ``frame_id`` (the parent; ``parent_frame``
+        where empty). A frame whose pose and parent did not change keeps its stamp. Returns
+        whether a message went out."""
+        if not self.available:
+            return False
+        frames = []
+        for reg in registered:
+            parent = (reg.frame_id or parent_frame).lstrip("/")
+            if parent:
+                frames.append((parent, registration_frame(reg.template, reg.id),
+                               np.asarray(reg.T_scene_model, dtype=float)))
+        key = tuple((parent, child, T.tobytes()) for parent, child, T in frames)
+        if key == self._static_key:
+            return False
+        previous = dict(zip((k[1] for k in self._static_key), self._static_key))
+        transforms = {}
+        for (parent, child, T), k in zip(frames, key):
+            kept = self._static.get(child)
+            transforms[child] = kept if kept is not None and previous.get(child) == k else \
+                _transform(parent, child, T, stamp)
+        self._static, self._static_key = transforms, key
+        self._pub_static.publish(self._msg_type(transforms=list(transforms.values())))
+        return True
+
+    def publish_candidate(self, T_parent_candidate: np.ndarray | None, parent_frame: str,
+                          stamp) -> None:
+        """The shown candidate's frame on /tf (republished every second while shown); None: no
+        candidate is shown, so the frame stops being published."""
+        if not self.available:
+            return
+        parent_frame = parent_frame.lstrip("/")
+        if T_parent_candidate is None or not parent_frame:
+            self._candidate = None
+            return
+        self._candidate = _transform(parent_frame, CANDIDATE_FRAME, T_parent_candidate, stamp)
+        self._pub_dynamic.publish(self._msg_type(transforms=[self._candidate]))
+
+    def _republish_candidate(self) -> None:
+        candidate = self._candidate
+        if candidate is not None:
+            candidate.header.stamp = self._node.get_clock().now().to_msg()
+            self._pub_dynamic.publish(self._msg_type(transforms=[candidate]))
+
+
+class TfListener:
+    """``lookup(target, source, fallback)`` -> T_target_source (4x4) from tf2_ros where it is
+    installed, else from the latest transforms heard on /tf and /tf_static; ``fallback`` (a
+    FrameGraph: the static_transforms parameter) fills in what TF does not know."""
+
+    def __init__(self, node):
+        self._lock = threading.Lock()
+        self._graph = FrameGraph()
+        self._buffer = None
+        self._bad_logged: set[str] = set()
+        self._node = node
+        try:
+            import tf2_ros
+        except ImportError:
+            tf2_ros = None
+        if tf2_ros is not None:
+            self._buffer = tf2_ros.Buffer()
+            self._tf2_listener = tf2_ros.TransformListener(self._buffer, node)
+            return
+        TFMessage = load_tf_message()
+        if TFMessage is None:
+            return
+        node.create_subscription(TFMessage, "/tf", self._on_tf, DYNAMIC_QOS)
+        node.create_subscription(TFMessage, "/tf_static", self._on_tf, STATIC_LISTENER_QOS)
+
+    def _on_tf(self, msg) -> None:
+        for t in msg.transforms:
+            try:
+                T = transform_to_matrix(t.transform)
+            except ConversionError as exc:
+                if t.child_frame_id not in self._bad_logged:    # once per frame
+                    self._bad_logged.add(t.child_frame_id)
+                    self._node.get_logger().warning(
+                        f"ignored the transform of frame '{t.child_frame_id}' on TF: {exc}")
+                continue
+            with self._lock:
+                self._graph.set(t.header.frame_id, t.child_frame_id, T)
+
+    def lookup(self, target: str, source: str, fallback: FrameGraph | None = None) -> np.ndarray:
+        target, source = target.lstrip("/"), source.lstrip("/")
+        if not source or source == target:
+            return np.eye(4)
+        if self._buffer is not None:
+            from rclpy.time import Time
+            try:
+                tf = self._buffer.lookup_transform(target, source, Time())
+                return transform_to_matrix(tf.transform)
+            except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
+                if fallback is None:
+                    raise FrameError(f"no transform from frame '{source}' to frame "
+                                     f"'{target}' on TF") from None
+                return fallback.lookup(target, source)
+        with self._lock:
+            graph = (fallback or FrameGraph()).merged(self._graph)
+        return graph.lookup(target, source)
