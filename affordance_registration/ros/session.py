@@ -161,18 +161,22 @@ class RosOperator:
         twist = Twist()
         twist.linear.x, twist.linear.y, twist.linear.z = map(float, lin)
         twist.angular.x, twist.angular.y, twist.angular.z = map(float, ang)
-        t0 = time.monotonic()
+        # a 30 Hz device: with stamped twists, the stamps are the device's ticks (whatever this
+        # process's scheduling does to when they are sent)
+        t0, k = time.monotonic(), 0
+        stamp0 = self.node.get_clock().now().nanoseconds
         while time.monotonic() - t0 < duration:
-            self._publish_twist(twist)
-            time.sleep(1 / 30)
-        self._publish_twist(Twist())             # released
+            self._publish_twist(twist, stamp0 + k * 1_000_000_000 // 30)
+            k += 1
+            time.sleep(max(0.0, t0 + k / 30 - time.monotonic()))
+        self._publish_twist(Twist(), stamp0 + k * 1_000_000_000 // 30)      # released
         self._pushed_at = self.watch.count()
 
-    def _publish_twist(self, twist: Twist) -> None:
+    def _publish_twist(self, twist: Twist, stamp_ns: int) -> None:
         if self.stamped:
             msg = TwistStamped(twist=twist)
             msg.header.frame_id = "spacenav"
-            msg.header.stamp = self.node.get_clock().now().to_msg()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
             self.pub_twist.publish(msg)
         else:
             self.pub_twist.publish(twist)
@@ -409,11 +413,13 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
     rng = np.random.default_rng(rng_seed)
     view = view_from_optical(np.eye(4))
     ros_ok = core_ok = n = 0
-    launcher = start_engine(out_dir)
+    # stamped twists: the push moves the object as far as a 30 Hz device would, whatever the
+    # scheduling of this (measuring) process does to when the messages go out
+    launcher = start_engine(out_dir, extra_args={"twist_stamped": "true"})
     try:
         with background_node("affordance_push_refit") as node:
             watch = StatusWatch(node)
-            operator = RosOperator(node, watch)
+            operator = RosOperator(node, watch, stamped=True)
             pub_points = node.create_publisher(PointCloud2, "/points", _latched())
             watch.wait(lambda st: True, 60, "the engine node")
             for seed in seeds:
@@ -437,8 +443,9 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
                     c_now = T[:3, :3] @ tpl.centroid + T[:3, 3]
                     c_goal = goal[:3, :3] @ tpl.centroid + goal[:3, 3]
                     rotvec = Rotation.from_matrix(goal[:3, :3] @ T[:3, :3].T).as_rotvec()
-                    duration = 0.5
-                    operator.push((c_goal - c_now) / duration, rotvec / duration, duration, view)
+                    duration, R_sv = 0.5, view[:3, :3]     # twists are in the view's axes
+                    operator.push(R_sv.T @ (c_goal - c_now) / duration,
+                                  R_sv.T @ rotvec / duration, duration, view)
                     operator.refit()
                     template, T = operator.shown()
                     ros_ok += template == obj.template and _within(T, obj, library)
