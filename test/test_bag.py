@@ -59,6 +59,10 @@ def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
         time.sleep(0.1)
     assert _wait(lambda: rec.counts["/bagtest/a"] == 5)
     rec.close()
+    # the original publishers go: the late subscriber below must hear the player's latched
+    # message, not the original one (it would get both, in either order)
+    node.destroy_publisher(pub_a)
+    node.destroy_publisher(pub_l)
 
     info = bag_info(out)
     counts = {t["topic"]: (t["type"], t["count"]) for t in info["topics"]}
