@@ -17,20 +17,27 @@ import numpy as np
 from .errors import AffordanceError
 from .transforms import finite_vector, make_T
 
-__all__ = ["thin_for_display", "scalar_colors", "snap_ray", "optical_pose", "look_at_pose",
+__all__ = ["thin_for_display", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
            "project", "pixel_ray", "initial_view"]
 
-#: colour map of :func:`scalar_colors`: near/low (blue) -> far/high (red), uint8 RGB stops
-_STOPS = np.array([[48, 18, 59], [40, 120, 240], [30, 200, 180], [160, 240, 60],
-                   [250, 190, 40], [220, 60, 20]], dtype=float)
+#: colour map of :func:`scalar_colors`: near/low (dark slate) -> far/high (light sand), muted so
+#: that the fitted meshes (green..red, orange, blue) stand out against the cloud
+_STOPS = np.array([[55, 62, 78], [95, 105, 120], [145, 150, 155], [190, 185, 170],
+                   [230, 222, 200]], dtype=float)
 
 
-def _voxel_first(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Indices of one point (the first) per occupied voxel of edge ``voxel``."""
-    keys = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+def _voxel_keys(offsets: np.ndarray, voxel: float) -> np.ndarray:
+    """One int64 key per point: the voxel of edge ``voxel`` it falls in. ``offsets`` (N, 3) are
+    the points minus their minimum (non-negative, so truncation is the floor)."""
+    keys = (offsets * np.float32(1.0 / voxel)).astype(np.int64)
     dims = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    return np.unique(flat, return_index=True)[1]
+    return (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+
+
+def _occupied(keys: np.ndarray) -> int:
+    """How many distinct voxel keys there are."""
+    k = np.sort(keys)
+    return int(np.count_nonzero(k[1:] != k[:-1])) + 1
 
 
 def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np.ndarray:
@@ -39,8 +46,9 @@ def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np
     budget. A cloud within the budget is returned whole; a cloud is never dropped, only thinned.
 
     The voxel edge starts from the extent of a surface-like cloud and is corrected by
-    sqrt(count / budget) per iteration; should the voxels not get there, the last set is strided
-    down to the budget. Non-finite rows must have been removed.
+    sqrt(count / budget) per iteration (counting occupied voxels only; the indices are taken
+    once, for the chosen edge); should the voxels not get there, the set is strided down to the
+    budget. Non-finite rows must have been removed.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -51,26 +59,43 @@ def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np
     n = len(pts)
     if n <= budget:
         return np.arange(n)
-    extent = np.sort(np.ptp(pts, axis=0))[::-1]
+    offsets = (pts - pts.min(axis=0)).astype(np.float32)
+    extent = np.sort(offsets.max(axis=0))[::-1].astype(float)
     voxel = max(math.sqrt(max(extent[0] * extent[1], 1e-12) / budget), 1e-6)
-    best = None
+    best = None                                   # (count, voxel) of the fullest set in budget
     for _ in range(iterations):
-        idx = _voxel_first(pts, voxel)
-        if len(idx) <= budget and (best is None or len(idx) > len(best)):
-            best = idx
-        if budget * 0.7 <= len(idx) <= budget:
+        count = _occupied(_voxel_keys(offsets, voxel))
+        if count <= budget and (best is None or count > best[0]):
+            best = (count, voxel)
+        if budget * 0.7 <= count <= budget:
             break
-        voxel *= math.sqrt(len(idx) / budget) * (1.02 if len(idx) > budget else 0.98)
-    if best is None:
-        best = idx[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
-    return np.sort(best)
+        voxel *= math.sqrt(count / budget) * (1.04 if count > budget else 0.98)
+    idx = np.unique(_voxel_keys(offsets, best[1] if best else voxel), return_index=True)[1]
+    if len(idx) > budget:
+        idx = idx[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
+    return np.sort(idx)
+
+
+def offset_surface(vertices: np.ndarray, faces: np.ndarray,
+                   margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh's surface moved ``margin`` (m) outwards along its vertex normals: drawn on the
+    surface it was fitted to, it shows in front of that surface's points instead of hiding
+    among them. ``vertices`` (V, 3), ``faces`` (F, 3) (a triangle soup is welded first); returns
+    (vertices (V', 3) float32, faces (F', 3) uint32)."""
+    import trimesh
+    mesh = trimesh.Trimesh(np.asarray(vertices, dtype=float), np.asarray(faces), process=True)
+    if len(mesh.faces) == 0:
+        return np.asarray(vertices, dtype=np.float32), np.asarray(faces, dtype=np.uint32)
+    shell = mesh.vertices + margin * mesh.vertex_normals
+    return shell.astype(np.float32), mesh.faces.astype(np.uint32)
 
 
 def scalar_colors(values: np.ndarray, low: float = 2.0, high: float = 98.0) -> np.ndarray:
     """RGB colours (N, 3) uint8 of a scalar per point (depth, intensity): the ``low``..``high``
-    percentile range mapped onto a blue -> green -> red scale. Non-finite values are grey."""
+    percentile range mapped onto a dark -> light scale (brightness grows with the value).
+    Non-finite values are mid grey."""
     v = np.asarray(values, dtype=float).reshape(-1)
-    out = np.full((len(v), 3), 128, dtype=np.uint8)
+    out = np.full((len(v), 3), 128, dtype=np.uint8)   # mid grey: no value
     finite = np.isfinite(v)
     if not finite.any():
         return out

@@ -67,7 +67,7 @@ PARAMETERS = {
                                      "~/select_model and services"),
     "interactive_namespace": ("/affordance_correction", "the engine's interactive markers"),
     "display_points": (200000, "most cloud points sent to the page (the cloud is thinned)"),
-    "point_size": (0.004, "m, drawn size of a cloud point"),
+    "point_size": (0.003, "m, drawn size of a cloud point"),
     "color_by": ("auto", "auto (intensity when the cloud has it, else depth) | depth | intensity"),
     "up": ("auto", "the world's up axis on the page: auto (-y for optical frames, else +z) | "
                    "+x | -x | +y | -y | +z | -z"),
@@ -77,6 +77,7 @@ PARAMETERS = {
     "click_cone_deg": (0.5, "a click picks cloud points within this angle of its ray"),
 }
 MARKER_NAME = "affordance_fit"          # the engine's interactive marker for the shown fit
+MESH_MARGIN = 0.005                     # m: meshes are drawn this far out of their surface
 DRAG_KEEP_ALIVE_S = 1.0                 # the engine drops a silent drag after 3 s
 UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
            "+z": (0, 0, 1), "-z": (0, 0, -1)}
@@ -359,6 +360,8 @@ class StationPage:
         self._gizmo = None
         self._gizmo_scale = 0.0
         self._view = None                              # (position, look_at, up) for new views
+        self._unpointed: set = set()       # browsers not yet pointed at the first view
+        self._reported: set = set()        # browsers whose camera has reported
         self._options: dict[str, str] = {}
         gui = self.server.gui
         gui.add_markdown("**Affordance station** — click an object in the cloud to fit it; "
@@ -374,6 +377,7 @@ class StationPage:
         self.status = gui.add_markdown("**Engine**: starting")
         self.server.scene.on_click()(self._on_click)
         self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._on_disconnect)
 
     @property
     def port(self) -> int:
@@ -395,19 +399,32 @@ class StationPage:
             self.h.select(template)
 
     def _on_connect(self, client) -> None:
-        client.camera.fov = self.fov
+        # a browser's camera can be moved only once it has reported where it is: it is pointed
+        # at the current first view on its first report (new browsers start there anyway, from
+        # the initial camera)
         with self._lock:
-            view = self._view
-        if view is not None:
-            self._point_camera(client, view)
+            self._unpointed.add(client.client_id)
+        client.camera.fov = self.fov
 
         @client.camera.on_update
         def _(camera) -> None:
+            with self._lock:
+                view = self._view if client.client_id in self._unpointed else None
+                self._reported.add(client.client_id)
+                if view is not None:
+                    self._unpointed.discard(client.client_id)
+            if view is not None:
+                self._point_camera(client, view)
             try:
                 T = display.optical_pose(camera.wxyz, camera.position)
             except AffordanceError:
                 return
             self.h.camera(T)
+
+    def _on_disconnect(self, client) -> None:
+        with self._lock:
+            self._unpointed.discard(client.client_id)
+            self._reported.discard(client.client_id)
 
     def _point_camera(self, client, view) -> None:
         position, look_at, up = view
@@ -428,12 +445,15 @@ class StationPage:
     def set_view(self, up: np.ndarray, position: np.ndarray, look_at: np.ndarray) -> None:
         """The world's up axis, and the first view of a cloud: for new browsers, and moves the
         cameras of the browsers already open."""
-        with self._lock:
-            self._view = (position, look_at, up)
         self.server.scene.set_up_direction(tuple(float(v) for v in up))
         cam = self.server.initial_camera
         cam.up, cam.position, cam.look_at = tuple(up), tuple(position), tuple(look_at)
-        for client in self.server.get_clients().values():
+        with self._lock:
+            self._view = (position, look_at, up)
+            clients = self.server.get_clients()
+            ready = [c for cid, c in clients.items() if cid in self._reported]
+            self._unpointed |= set(clients) - {c.client_id for c in ready}
+        for client in ready:
             self._point_camera(client, (position, look_at, up))
 
     def show_cloud(self, points: np.ndarray, colors: np.ndarray) -> None:
@@ -468,9 +488,11 @@ class StationPage:
         if old is not None and old[1] == digest:
             old[0].position, old[0].wxyz = T[:3, 3], _wxyz(T)
             return
+        # opaque, its surface a few mm out: the fit shows in front of the points it was
+        # fitted to (the pose sent back is the gizmo's, unaffected)
+        vertices, faces = display.offset_surface(d.vertices, d.faces, MESH_MARGIN)
         handle = self.server.scene.add_mesh_simple(
-            name, d.vertices, d.faces, color=d.color,
-            opacity=None if d.opacity >= 0.99 else d.opacity, side="double", flat_shading=True,
+            name, vertices, faces, color=d.color, side="double",
             position=T[:3, 3], wxyz=_wxyz(T))
         self._nodes[name] = (handle, digest)
 
