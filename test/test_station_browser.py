@@ -2,6 +2,7 @@
 and the station run as separate processes; headless chromium (software WebGL) driven by
 Playwright clicks, drags and presses buttons on the page like an operator."""
 import math
+import re
 import numpy as np
 import pytest
 import yaml
@@ -92,6 +93,13 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             wait_text(page, r"Shown: #1 \w+.*rank 2/5")
             page.get_by_role("button", name="Previous", exact=True).click()
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            # a candidate picked by name in the dropdown (~/select_model), and back
+            for rank in (3, 1):
+                page.locator("input[value^='1. '], input[value^='2. '], "
+                             "input[value^='3. ']").first.click()
+                page.get_by_role("option", name=re.compile(rf"^{rank}\. ")).click()
+                wait_text(page, rf"Shown: #1 \w+.*rank {rank}/5")
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
             client.wait_for(lambda: _shown(client.status())["rank"] == 1 and
                             client.status()["node"]["idle"], 60, "the first candidate again")
 
@@ -118,7 +126,13 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, f"refit after the drag: {err}"
 
-            # Accept, Save: the saved registration is the truth
+            # Refit, Accept, Undo, Accept, Save: the saved registration is the truth
+            page.get_by_role("button", name="Refit", exact=True).click()
+            wait_text(page, r"refit: ok — ")
+            page.get_by_role("button", name="Accept", exact=True).click()
+            wait_text(page, r"1 registered")
+            page.get_by_role("button", name="Undo", exact=True).click()
+            wait_text(page, r"0 registered")
             page.get_by_role("button", name="Accept", exact=True).click()
             wait_text(page, r"1 registered")
             page.get_by_role("button", name="Save", exact=True).click()

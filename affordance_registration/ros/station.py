@@ -66,6 +66,8 @@ PARAMETERS = {
     "engine": ("/affordance_engine", "the engine node's name: its ~/status, ~/markers, "
                                      "~/select_model and services"),
     "interactive_namespace": ("/affordance_correction", "the engine's interactive markers"),
+    "points_reliable": (True, "reliable 'points' subscription (false: best effort, for drivers "
+                              "that publish with SensorDataQoS)"),
     "display_points": (200000, "most cloud points sent to the page (the cloud is thinned)"),
     "point_size": (0.003, "m, drawn size of a cloud point"),
     "color_by": ("auto", "auto (intensity when the cloud has it, else depth) | depth | intensity"),
@@ -607,9 +609,11 @@ class StationNode(Node):
         self._drag_last = None                       # (T, time) of the drag in progress
         self._refresh = True
 
-        self.create_subscription(PointCloud2, "points", self._on_cloud,
-                                 QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                                            reliability=ReliabilityPolicy.RELIABLE))
+        self.create_subscription(
+            PointCloud2, "points", self._on_cloud,
+            QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                       reliability=ReliabilityPolicy.RELIABLE if p["points_reliable"]
+                       else ReliabilityPolicy.BEST_EFFORT))
         self.status_topic = f"{self.engine}/status"
         self.create_subscription(String, self.status_topic, self._on_status, LATCHED)
         markers_qos = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
