@@ -126,15 +126,18 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, f"refit after the drag: {err}"
 
-            # Refit, Accept, Undo, Accept, Save: the saved registration is the truth
+            # Refit, Accept, Undo, Accept, Save: the saved registration is the truth (each step
+            # waits for text the step before could not have shown)
             page.get_by_role("button", name="Refit", exact=True).click()
             wait_text(page, r"refit: ok — ")
             page.get_by_role("button", name="Accept", exact=True).click()
-            wait_text(page, r"1 registered")
+            wait_text(page, r"Objects: 0 open, 1 registered")
             page.get_by_role("button", name="Undo", exact=True).click()
-            wait_text(page, r"0 registered")
+            wait_text(page, r"undo: ok — undid accept")
+            wait_text(page, r"Objects: 1 open, 0 registered")
             page.get_by_role("button", name="Accept", exact=True).click()
-            wait_text(page, r"1 registered")
+            wait_text(page, r"accept: ok — accepted")
+            wait_text(page, r"Objects: 0 open, 1 registered")
             page.get_by_role("button", name="Save", exact=True).click()
             wait_text(page, r"save: ok — saved 1 registration")
             saved = yaml.safe_load((tmp_path / "registrations.yaml").read_text())
@@ -146,7 +149,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             # a second browser shows the same state
             second = page.context.new_page()
             open_station(second, f"http://127.0.0.1:{port}")
-            wait_text(second, r"1 registered")
+            wait_text(second, r"Objects: 0 open, 1 registered")
             wait_text(second, r"save: ok — saved 1 registration")
     finally:
         client.close()

@@ -31,6 +31,7 @@ import math
 import socket
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -81,6 +82,7 @@ PARAMETERS = {
 MARKER_NAME = "affordance_fit"          # the engine's interactive marker for the shown fit
 MESH_MARGIN = 0.005                     # m: meshes are drawn this far out of their surface
 DRAG_KEEP_ALIVE_S = 1.0                 # the engine drops a silent drag after 3 s
+CALL_TIMEOUT_S = 120.0                  # a button's call unanswered this long is given up
 UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
            "+z": (0, 0, 1), "-z": (0, 0, -1)}
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -363,7 +365,6 @@ class StationPage:
         self._gizmo_scale = 0.0
         self._view = None                              # (position, look_at, up) for new views
         self._unpointed: set = set()       # browsers not yet pointed at the first view
-        self._reported: set = set()        # browsers whose camera has reported
         self._options: dict[str, str] = {}
         gui = self.server.gui
         gui.add_markdown("**Affordance station** — click an object in the cloud to fit it; "
@@ -401,9 +402,6 @@ class StationPage:
             self.h.select(template)
 
     def _on_connect(self, client) -> None:
-        # a browser's camera can be moved only once it has reported where it is: it is pointed
-        # at the current first view on its first report (new browsers start there anyway, from
-        # the initial camera)
         with self._lock:
             self._unpointed.add(client.client_id)
         client.camera.fov = self.fov
@@ -412,11 +410,9 @@ class StationPage:
         def _(camera) -> None:
             with self._lock:
                 view = self._view if client.client_id in self._unpointed else None
-                self._reported.add(client.client_id)
-                if view is not None:
+            if view is not None and self._point_camera(client, view):
+                with self._lock:
                     self._unpointed.discard(client.client_id)
-            if view is not None:
-                self._point_camera(client, view)
             try:
                 T = display.optical_pose(camera.wxyz, camera.position)
             except AffordanceError:
@@ -426,13 +422,19 @@ class StationPage:
     def _on_disconnect(self, client) -> None:
         with self._lock:
             self._unpointed.discard(client.client_id)
-            self._reported.discard(client.client_id)
 
-    def _point_camera(self, client, view) -> None:
+    @staticmethod
+    def _point_camera(client, view) -> bool:
+        """Move a browser's camera to ``view``; False when it cannot be moved yet (viser knows a
+        camera only once the browser has reported it: it is pointed on its next report)."""
         position, look_at, up = view
-        client.camera.up_direction = tuple(up)
-        client.camera.position = tuple(position)
-        client.camera.look_at = tuple(look_at)
+        try:
+            client.camera.up_direction = tuple(up)
+            client.camera.position = tuple(position)
+            client.camera.look_at = tuple(look_at)
+        except (AssertionError, ValueError):    # viser: "camera state not known yet"
+            return False
+        return True
 
     async def _on_gizmo(self, event) -> None:
         # async: viser runs it on its event loop, so the phases arrive in order
@@ -452,11 +454,12 @@ class StationPage:
         cam.up, cam.position, cam.look_at = tuple(up), tuple(position), tuple(look_at)
         with self._lock:
             self._view = (position, look_at, up)
-            clients = self.server.get_clients()
-            ready = [c for cid, c in clients.items() if cid in self._reported]
-            self._unpointed |= set(clients) - {c.client_id for c in ready}
-        for client in ready:
-            self._point_camera(client, (position, look_at, up))
+            clients = dict(self.server.get_clients())
+            self._unpointed |= set(clients)
+        for cid, client in clients.items():
+            if self._point_camera(client, (position, look_at, up)):
+                with self._lock:
+                    self._unpointed.discard(cid)
 
     def show_cloud(self, points: np.ndarray, colors: np.ndarray) -> None:
         self.server.scene.add_point_cloud("/cloud", points.astype(np.float32), colors,
@@ -607,6 +610,8 @@ class StationNode(Node):
         self._view_sent_at = -math.inf
         self._drag_id = f"affordance_station_{int(time.time() * 1e6):x}"
         self._drag_last = None                       # (T, time) of the drag in progress
+        self._calls: deque = deque()                 # buttons waiting for the call in flight
+        self._calling = None                         # (action, time sent) of the call in flight
         self._refresh = True
 
         self.create_subscription(
@@ -680,22 +685,50 @@ class StationNode(Node):
         self._note(f"clicked ({', '.join(f'{v:.3f}' for v in point)}) in '{frame}': fitting")
 
     def _action(self, action: str) -> None:
+        """A button: its service is called once the station's previous call was answered, so
+        the engine gets the buttons in the order they were pressed (calls to different services
+        are not ordered on the wire)."""
         client = self.triggers[action]
         if not client.service_is_ready():
             self._note(f"{action}: not sent, the engine's {client.srv_name} service is not "
                        f"available")
             return
-        self._note(f"{action}: sent")
-        future = client.call_async(Trigger.Request())
+        with self._lock:
+            self._calls.append(action)
+            ahead = self._calling[0] if self._calling else None
+        self._note(f"{action}: sent" if ahead is None else f"{action}: after {ahead}")
+        self._next_call()
+
+    def _next_call(self) -> None:
+        with self._lock:
+            if self._calling is not None or not self._calls:
+                return
+            action = self._calls.popleft()
+            self._calling = (action, time.monotonic())
+        future = self.triggers[action].call_async(Trigger.Request())
         future.add_done_callback(lambda f: self._on_reply(action, f))
 
     def _on_reply(self, action: str, future) -> None:
         try:
             res = future.result()
+            text = f"{action}: {'ok' if res.success else 'refused'} — {res.message}"
         except Exception as exc:          # the call failed in rclpy (engine gone mid-call)
-            self._note(f"{action}: failed ({exc})")
-            return
-        self._note(f"{action}: {'ok' if res.success else 'refused'} — {res.message}")
+            text = f"{action}: failed ({exc})"
+        with self._lock:
+            if self._calling is None or self._calling[0] != action:
+                return                    # given up on already (see _step)
+            self._calling = None
+        self._note(text)
+        self._next_call()
+
+    def _give_up_calls(self, why: str) -> None:
+        """Forget the call in flight and the queued ones (the engine went away or does not
+        answer): the operator sees which were lost."""
+        with self._lock:
+            lost = ([self._calling[0]] if self._calling else []) + list(self._calls)
+            self._calling, self._calls = None, deque()
+        if lost:
+            self._note(f"{', '.join(lost)}: no answer ({why})")
 
     def _select(self, template: str) -> None:
         self.pub_select.publish(String(data=template))
@@ -763,6 +796,11 @@ class StationNode(Node):
         connected = self.count_publishers(self.status_topic) > 0
         if connected != self._connected:
             self._connected, refresh = connected, True
+        with self._lock:
+            calling = self._calling
+        if calling is not None and (not connected or now - calling[1] > CALL_TIMEOUT_S):
+            self._give_up_calls("the engine is not running" if not connected else
+                                f"waited {CALL_TIMEOUT_S:.0f} s")
         if refresh:
             self._render()
         if view is not None and self._frame() and \
