@@ -93,6 +93,8 @@ def pixel(T_world_optical, fov_deg: float, box: dict, point) -> tuple[float, flo
 
 def on_canvas(page, xy: tuple) -> bool:
     """Whether the page point shows the 3D view (not the panel or the edge of the page)."""
+    if not all(math.isfinite(v) for v in xy):        # behind the camera
+        return False
     return bool(page.evaluate("([x, y]) => { const e = document.elementFromPoint(x, y); "
                               "return e !== null && e.tagName === 'CANVAS'; }", list(xy)))
 
