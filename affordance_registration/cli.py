@@ -239,7 +239,8 @@ def cmd_station(args) -> int:
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with open(log_path, "w") as log:
-        launcher = Launcher(nodes, log=lambda m: None, output=log)
+        # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
+        launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
         launcher.start()
         url = f"http://{args.host}:{args.port}"
         deadline = time.monotonic() + 120

@@ -187,6 +187,7 @@ def main() -> int:
     finally:
         client.close()
         for p in procs:
+            p.interrupt(timeout=10)
             p.kill()
         rclpy.shutdown()
     return 0

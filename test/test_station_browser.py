@@ -48,7 +48,8 @@ def processes(tmp_path):
         started.append(proc)
         return proc
     yield start
-    for proc in started:
+    for proc in started:          # SIGINT first: a node killed outright stays in the DDS graph
+        proc.interrupt(timeout=10)    # until its lease expires, and later tests would see it
         proc.kill()
 
 
