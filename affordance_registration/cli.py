@@ -392,6 +392,14 @@ def main(argv=None) -> int:
         return _fail(str(exc))
     except KeyboardInterrupt:
         return 130
+    except MemoryError:
+        return _fail("out of memory")
+    except Exception as exc:          # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
+        if os.environ.get("AFFORDANCE_DEBUG"):
+            raise
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        return _fail(f"internal error: {exc.__class__.__name__}: {text} (please report it; "
+                     f"AFFORDANCE_DEBUG=1 shows the traceback)")
 
 
 if __name__ == "__main__":

@@ -174,7 +174,9 @@ class AffordanceEngine:
 
     def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
                  select_radius: float = 0.4, undo_depth: int = 200,
-                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002):
+                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002,
+                 reach_m: float = 1.0):
+        self.reach_m = float(reach_m)       #: corrections keep an object this close to its click
         self.registrar = Registrar(library, settings)
         self.registrar.warm_up()
         self.library = library
@@ -382,9 +384,6 @@ class AffordanceEngine:
         """Set the shown candidate's pose (an absolute correction, e.g. a dragged marker).
         With ``drag``, the poses of one drag in a row form one correction (one undo step)."""
         T = np.asarray(T_scene_model, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
-            raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
         with self._lock:
             obj = self._require_active()
             first = not (drag and self._last_action == "drag")
@@ -393,7 +392,18 @@ class AffordanceEngine:
             return f"object {obj.id}: {obj.shown.template} placed"
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
-        cand = replace(obj.shown, T_scene_model=np.array(T, dtype=float))
+        """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
+        pose or takes the object farther than ``reach_m`` from where it was clicked."""
+        T = np.array(T, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
+                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
+            raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
+        tpl = self.library[obj.shown.template]
+        away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
+        if away > self.reach_m:
+            raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
+                                  f"from where it was clicked (at most {self.reach_m:g} m)")
+        cand = replace(obj.shown, T_scene_model=T)
         cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
         return replace(obj, candidates=cands, corrections=corrections)
 

@@ -26,27 +26,11 @@ __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "
 def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
     """Read a scene file: PLY or PCD (Open3D), or an organized ``.npy`` array (H, W, 3).
 
-    Returns (points (N, 3) float64 possibly with NaN rows, organized shape or None)."""
-    path = str(path)
-    if not os.path.isfile(path):
-        raise SceneError(f"{path}: no such scene file")
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise SceneError(f"{path}: not a readable .npy array: {exc}") from None
-        if arr.ndim != 3 or arr.shape[-1] != 3:
-            raise SceneError(f"{path}: expected an organized (H, W, 3) array, got {arr.shape}")
-        return arr.reshape(-1, 3).astype(float), arr.shape[:2]
-    if ext not in (".ply", ".pcd"):
-        raise SceneError(f"{path}: unsupported scene format '{ext}' (PLY, PCD or .npy)")
-    import open3d as o3d  # local: only file loading needs it
-    cloud = o3d.io.read_point_cloud(path)
-    pts = np.asarray(cloud.points, dtype=float)
-    if len(pts) == 0:
-        raise SceneError(f"{path}: no points could be read (empty or not a point cloud)")
-    return pts, None
+    Returns (points (N, 3) float64 possibly with NaN rows, organized shape or None); see
+    :func:`~affordance_registration.core.pointfiles.read_points` for the checks."""
+    from .pointfiles import read_points
+    f = read_points(path)
+    return f.points, f.organized
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:

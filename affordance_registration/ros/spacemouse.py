@@ -174,6 +174,86 @@ class FifoBackend(HidBackend):
     def _reader(self):
         while True:
             try:
+                with open(self.path, encoding="utf-8", errors="replace") as handle:  # blocks
+                    for line in handle:
+                        self._command(line)
+            except OSError:
+                time.sleep(0.1)
+
+    def _command(self, line: str) -> None:
+        """One scripted line; anything malformed is skipped (the reader keeps going)."""
+        try:
+            cmd = json.loads(line)
+        except (ValueError, RecursionError):
+            return
+        if not isinstance(cmd, dict):
+            return
+        try:
+            self._apply(cmd)
+        except (KeyError, TypeError, ValueError, AttributeError):
+            return
+
+    def _apply(self, cmd: dict) -> None:
+        with self._lock:
+            if "plug" in cmd:
+                d = cmd["plug"]
+                path = str(d["path"])
+                device = {"vendor_id": int(d["vendor_id"]), "product_id": int(d["product_id"]),
+                          "path": path.encode(), "product_string": str(d.get("product", ""))}
+                self._devices[path] = device
+                self._reports[path] = queue.Queue()
+                if d.get("deny"):
+                    self._denied.add(path)
+                else:
+                    self._denied.discard(path)
+            elif "unplug" in cmd:
+                self._devices.pop(str(cmd["unplug"]), None)
+            elif "report" in cmd:
+                report = [int(b) & 0xFF for b in cmd["report"]]
+                for q in self._reports.values():
+                    q.put(report)
+
+    def enumerate(self) -> list[dict]:
+        raise NotImplementedError
+
+    def open(self, path):
+        raise NotImplementedError
+
+
+class HidapiBackend(HidBackend):
+    def __init__(self):
+        import hid  # the hidapi package
+        self._hid = hid
+
+    def enumerate(self) -> list[dict]:
+        return list(self._hid.enumerate())
+
+    def open(self, path):
+        dev = self._hid.device()
+        dev.open_path(path if isinstance(path, bytes) else str(path).encode())
+        return dev
+
+
+class FifoBackend(HidBackend):
+    """Scripted devices for tests and demos: JSON lines on a FIFO (or file) ::
+
+        {"plug": {"path": "fake0", "vendor_id": 9583, "product_id": 50741, "product": "..."}}
+        {"report": [1, 10, 0, 0, 0, 0, 0]}        # to the open device
+        {"unplug": "fake0"}
+        {"plug": {"path": "fake1", ..., "deny": true}}   # opening it: permission denied
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        self._devices: dict[str, dict] = {}
+        self._denied: set[str] = set()
+        self._reports: dict[str, queue.Queue] = {}
+        self._lock = threading.Lock()
+        threading.Thread(target=self._reader, daemon=True).start()
+
+    def _reader(self):
+        while True:
+            try:
                 with open(self.path, encoding="utf-8") as handle:   # blocks until a writer
                     for line in handle:
                         self._command(line)
