@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import time
 
@@ -291,11 +292,24 @@ def cmd_generate_models(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (exit 2, "see --help"), and numbers such as
+    ``-1e-3`` taken as values, not as options (argparse knows only ``-1`` and ``-0.5``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$"
+                                                   r"|^-(inf|nan)$", re.IGNORECASE)
+
+    def error(self, message):
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="affordance-registration",
         description="Click-to-fit affordance template registration (ROS 2).")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
     p.add_argument("--scene", required=True, help="scene file: PLY, PCD or organized .npy (m)")
@@ -339,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_session)
 
     p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
-    bsub = p.add_subparsers(dest="bag_command", required=True)
+    bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
     b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
     b.add_argument("out")
     b.add_argument("topics", nargs="+")

@@ -96,7 +96,7 @@ def test_services_and_clicks_before_anything_say_why(session):
         assert not res.success and res.message, name
     assert "no object selected" in trigger(s, "accept").message
     click(s, [0.0, 0.0, 1.0])
-    wait_error(s, "no point cloud received yet")
+    wait_error(s, "no usable point cloud yet")
 
 
 def test_malformed_clouds_are_dropped_with_a_reason(session):

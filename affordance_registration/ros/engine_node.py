@@ -85,6 +85,7 @@ class EngineNode(Node):
         self._cloud_count = 0
         self._converted = 0
         self._cloud_status_at = 0.0
+        self._dropped = ""              # why the latest cloud was refused ("" if it was not)
         self._dirty = True
         self._last_publish = 0.0
         self._last_error = ""
@@ -220,8 +221,10 @@ class EngineNode(Node):
         try:                            # the header checked now; the points read when needed
             pointcloud2_layout(msg)
         except ConversionError as exc:
+            self._dropped = f"the last PointCloud2 (frame '{msg.header.frame_id}') was dropped: {exc}"
             self._error("cloud", f"dropped a PointCloud2 in '{msg.header.frame_id}': {exc}")
             return
+        self._dropped = ""
         with self._lock:
             prev = self._cloud_msg
             self._cloud_msg = msg
@@ -242,7 +245,8 @@ class EngineNode(Node):
         with self._lock:
             msg, count = self._cloud_msg, self._cloud_count
         if msg is None:
-            raise EngineStateError("no point cloud received yet on 'points'")
+            raise EngineStateError(f"no usable point cloud yet on '{self._sub_points.topic_name}'"
+                                   + (f": {self._dropped}" if self._dropped else ""))
         if count == self._converted:
             return
         self._converted = count
