@@ -297,10 +297,16 @@ class EngineNode(Node):
         self._dirty = True
 
     def _service(self, action: str):
+        """A service answered once the stream has handled its action. rclpy resumes a waiting
+        callback only when its executor goes round, so the reply wakes it."""
         async def callback(request, response):
             done = Future(executor=self.executor)
-            self.stream.action(action, source=f"~/{action}",
-                               reply=lambda ok, message: done.set_result((ok, message)))
+            executor = self.executor
+
+            def reply(ok, message):
+                done.set_result((ok, message))
+                executor.wake()
+            self.stream.action(action, source=f"~/{action}", reply=reply)
             self._dirty = True
             response.success, response.message = await done
             return response

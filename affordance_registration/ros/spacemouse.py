@@ -190,7 +190,7 @@ class FifoBackend(HidBackend):
             return
         try:
             self._apply(cmd)
-        except (KeyError, TypeError, ValueError, AttributeError):
+        except (KeyError, TypeError, ValueError):
             return
 
     def _apply(self, cmd: dict) -> None:
@@ -212,76 +212,6 @@ class FifoBackend(HidBackend):
                 report = [int(b) & 0xFF for b in cmd["report"]]
                 for q in self._reports.values():
                     q.put(report)
-
-    def enumerate(self) -> list[dict]:
-        raise NotImplementedError
-
-    def open(self, path):
-        raise NotImplementedError
-
-
-class HidapiBackend(HidBackend):
-    def __init__(self):
-        import hid  # the hidapi package
-        self._hid = hid
-
-    def enumerate(self) -> list[dict]:
-        return list(self._hid.enumerate())
-
-    def open(self, path):
-        dev = self._hid.device()
-        dev.open_path(path if isinstance(path, bytes) else str(path).encode())
-        return dev
-
-
-class FifoBackend(HidBackend):
-    """Scripted devices for tests and demos: JSON lines on a FIFO (or file) ::
-
-        {"plug": {"path": "fake0", "vendor_id": 9583, "product_id": 50741, "product": "..."}}
-        {"report": [1, 10, 0, 0, 0, 0, 0]}        # to the open device
-        {"unplug": "fake0"}
-        {"plug": {"path": "fake1", ..., "deny": true}}   # opening it: permission denied
-    """
-
-    def __init__(self, path: str):
-        self.path = path
-        self._devices: dict[str, dict] = {}
-        self._denied: set[str] = set()
-        self._reports: dict[str, queue.Queue] = {}
-        self._lock = threading.Lock()
-        threading.Thread(target=self._reader, daemon=True).start()
-
-    def _reader(self):
-        while True:
-            try:
-                with open(self.path, encoding="utf-8") as handle:   # blocks until a writer
-                    for line in handle:
-                        self._command(line)
-            except OSError:
-                time.sleep(0.1)
-
-    def _command(self, line: str):
-        try:
-            cmd = json.loads(line)
-        except ValueError:
-            return
-        with self._lock:
-            if "plug" in cmd:
-                d = cmd["plug"]
-                self._devices[d["path"]] = {"vendor_id": d["vendor_id"],
-                                            "product_id": d["product_id"],
-                                            "path": d["path"].encode(),
-                                            "product_string": d.get("product", "")}
-                self._reports[d["path"]] = queue.Queue()
-                if d.get("deny"):
-                    self._denied.add(d["path"])
-                else:
-                    self._denied.discard(d["path"])
-            elif "unplug" in cmd:
-                self._devices.pop(cmd["unplug"], None)
-            elif "report" in cmd:
-                for q in self._reports.values():
-                    q.put(list(cmd["report"]))
 
     def enumerate(self) -> list[dict]:
         with self._lock:
