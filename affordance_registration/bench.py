@@ -21,7 +21,7 @@ import numpy as np
 
 from .core.registration import FitResult, FitSettings, Registrar, _rank
 from .core.scene import Scene
-from .core.simulation import simulate_taskboard
+from .core.simulation import simulate_taskboard, sized_library
 from .core.templates import TemplateLibrary
 from .core.transforms import axis_angle_matrix, make_T, pose_error
 
@@ -117,17 +117,6 @@ def _refit_times(registrar, jobs, library, rng):
         dt, dr = pose_error(res.T_scene_model, T, tpl.symmetry)
         ok += dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
     return float(np.median(times)), ok / len(jobs)
-
-
-SIZED = {"grab_handle": (0.8, 1.25)}
-
-
-def sized_library(library: TemplateLibrary) -> TemplateLibrary:
-    """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
-    the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
-    README), so the scale rows use this variant."""
-    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
-                            for n in library])
 
 
 def _articulated_rows(library, seeds) -> dict:

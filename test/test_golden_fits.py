@@ -56,8 +56,7 @@ def run_cases() -> tuple[dict, dict]:
     """Fit every case; returns ({case: [candidate dicts, best first]}, {scene: hash})."""
     from affordance_registration.core.registration import FitSettings, Registrar
     from affordance_registration.core.scene import Scene
-    from affordance_registration.bench import sized_library
-    from affordance_registration.core.simulation import simulate_taskboard
+    from affordance_registration.core.simulation import simulate_taskboard, sized_library
     from affordance_registration.core.templates import TemplateLibrary
     from affordance_registration.core.transforms import axis_angle_matrix, make_T
 

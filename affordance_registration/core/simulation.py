@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -22,13 +21,13 @@ import trimesh
 import yaml
 
 from .errors import AffordanceError
+from .files import write_atomically
 from .templates import TemplateLibrary, mesh_distance
 from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
-           "SimulatedOperator",
-           "KINECT_NFOV"]
+           "SimulatedOperator", "KINECT_NFOV", "SIZED", "sized_library"]
 
 
 @dataclass(frozen=True)
@@ -86,9 +85,12 @@ class DepthCamera:
         self.intrinsics = intrinsics
         self.noise = noise if noise is not None else NoiseModel()
         u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
-        self._dirs = np.stack([(u - intrinsics.cx) / intrinsics.fx,
-                               (v - intrinsics.cy) / intrinsics.fy,
-                               np.ones_like(u, dtype=float)], axis=-1)   # z = 1: t_hit is depth
+        #: the ray through each pixel, (H, W, 3) in the optical frame, scaled to z = 1 (a hit's
+        #: distance along it is its depth); read-only
+        self.ray_directions = np.stack([(u - intrinsics.cx) / intrinsics.fx,
+                                        (v - intrinsics.cy) / intrinsics.fy,
+                                        np.ones_like(u, dtype=float)], axis=-1)
+        self.ray_directions.setflags(write=False)
 
     def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0,
                return_normals: bool = False):
@@ -106,7 +108,8 @@ class DepthCamera:
             scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)),
                                 o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
         H, W = self.intrinsics.height, self.intrinsics.width
-        rays = np.concatenate([np.zeros((H, W, 3)), self._dirs], axis=-1).astype(np.float32)
+        dirs = self.ray_directions
+        rays = np.concatenate([np.zeros((H, W, 3)), dirs], axis=-1).astype(np.float32)
         hit = scene.cast_rays(o3d.core.Tensor(rays))
         depth = hit["t_hit"].numpy().astype(float)
         labels = hit["geometry_ids"].numpy().astype(np.int64)
@@ -114,7 +117,7 @@ class DepthCamera:
         valid = np.isfinite(depth) & (depth < max_range)
         labels = np.where(valid, labels, -1).astype(np.int32)
         if rng is not None:
-            d_unit = self._dirs / np.linalg.norm(self._dirs, axis=-1, keepdims=True)
+            d_unit = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
             cos_in = np.abs(np.einsum("hwi,hwi->hw", normals, d_unit))
             theta = np.arccos(np.clip(cos_in, 0.0, 1.0))
             z = np.where(valid, depth, 1.0)
@@ -123,7 +126,7 @@ class DepthCamera:
             p_drop = np.clip((theta - start) / (full - start), 0.0, 1.0)
             valid &= rng.random(size=depth.shape) >= p_drop
             labels = np.where(valid, labels, -1).astype(np.int32)
-        points = self._dirs * np.where(valid, depth, np.nan)[..., None]
+        points = dirs * np.where(valid, depth, np.nan)[..., None]
         if return_normals:
             return points.astype(np.float32), labels, normals
         return points.astype(np.float32), labels
@@ -319,6 +322,18 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
                           intrinsics=camera.intrinsics)
 
 
+#: the templates the articulated scenes may also show in sizes (see :func:`sized_library`)
+SIZED = {"grab_handle": (0.8, 1.25)}
+
+
+def sized_library(library: TemplateLibrary) -> TemplateLibrary:
+    """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
+    the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
+    README), so the scenes with scaled objects (tests, the bench's scale rows) use this variant."""
+    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
+                            for n in library])
+
+
 def ply_bytes(points: np.ndarray) -> bytes:
     """Binary little-endian PLY of (N, 3) points as float32."""
     pts = np.ascontiguousarray(points, dtype="<f4")
@@ -349,23 +364,12 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
     buf = io.BytesIO()
     np.save(buf, scene.organized)
     payloads["scene_organized.npy"] = buf.getvalue()
-    staged = {}
     try:
-        for name, data in payloads.items():
-            fd, tmp = tempfile.mkstemp(prefix=f".{name}.", dir=out_dir)
-            staged[name] = tmp
-            with os.fdopen(fd, "wb") as handle:
-                handle.write(data)
+        written = write_atomically({os.path.join(out_dir, name): data
+                                    for name, data in payloads.items()})
     except OSError as exc:
-        for tmp in staged.values():
-            if os.path.exists(tmp):
-                os.unlink(tmp)
         raise AffordanceError(f"cannot write into {out_dir}: {exc.strerror}") from None
-    paths = {}
-    for name, tmp in staged.items():
-        final = os.path.join(out_dir, name)
-        os.replace(tmp, final)
-        paths[name] = final
+    paths = dict(zip(payloads, written))
     return paths
 
 
