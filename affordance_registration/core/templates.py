@@ -30,6 +30,7 @@ import trimesh
 import yaml
 
 from .errors import TemplateError
+from .neighbours import pca_normals
 from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
 __all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
@@ -454,15 +455,9 @@ def _read_point_file(path: str) -> np.ndarray:
 
 def _estimate_normals(points: np.ndarray) -> np.ndarray:
     """Unit normals of a scanned object by local PCA, oriented away from the centroid."""
-    from scipy.spatial import cKDTree
-    k = min(16, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    _, vecs = np.linalg.eigh(cov)
-    normals = vecs[:, :, 0]
-    outward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
-    normals[outward] *= -1
+    normals = pca_normals(points, 16)
+    inward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
+    normals[inward] *= -1
     return normals
 
 
