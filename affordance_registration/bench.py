@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from .core.registration import FitResult, FitSettings, Registrar, _rank
+from .core.registration import FitResult, FitSettings, Registrar, rank
+from .core.registration.hypotheses import initial_hypotheses
 from .core.scene import Scene
 from .core.simulation import simulate_taskboard, sized_library
 from .core.templates import TemplateLibrary
@@ -39,7 +40,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     ctx = registrar.prepare(scene, click)
     names = list(registrar.library)
     tpls = [registrar.library[n] for n in names]
-    hyp_tpl, Rs, ts, _ = registrar._initial_hypotheses(ctx, tpls, np.random.default_rng(0))
+    hyps = initial_hypotheses(ctx, tpls, registrar.settings, np.random.default_rng(0))
     if engine == "open3d":
         import open3d as o3d
         target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ctx.cluster.copy()))
@@ -59,7 +60,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
             sources[i] = src
     best: dict[int, tuple] = {}
     t0 = time.perf_counter()
-    for i, R, t in zip(hyp_tpl, Rs, ts):
+    for i, R, t in zip(hyps.index, hyps.R, hyps.t):
         init = make_T(R, t)
         if engine == "open3d":
             r = o3d.pipelines.registration.registration_icp(sources[i], target, 0.02, init, est, crit)
@@ -76,7 +77,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     results = [FitResult(template=names[i], T_scene_model=T, residual=max(rmse, 1e-9),
                          likelihood=score, inlier_fraction=fit, time_s=elapsed)
                for i, (score, T, fit, rmse) in best.items()]
-    return _rank(results)
+    return rank(results)
 
 
 def _evaluate(row_name, fit_fn, jobs, library):

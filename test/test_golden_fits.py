@@ -24,7 +24,6 @@ import platform
 import sys
 
 import numpy as np
-import pytest
 
 FIXTURE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "golden_fits.json")
 EXACT = 1e-9

@@ -7,9 +7,9 @@ from scipy.spatial.transform import Rotation
 
 from affordance_registration.core.errors import RegistrationError, SceneError
 from affordance_registration.core.registration import (FitSettings, Registrar,
-                                                       _point_to_plane_weighted,
                                                        correspondence_weights,
                                                        weighted_rigid_fit)
+from affordance_registration.core.registration.solve import point_to_plane_weighted
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
@@ -55,7 +55,7 @@ def test_point_to_plane_step_recovers_a_small_motion(library):
     T = np.eye(4)
     for _ in range(5):
         Xi = X @ T[:3, :3].T + T[:3, 3]
-        dR, dt = _point_to_plane_weighted(Xi[None], P[None], N[None], np.ones((1, len(P))))
+        dR, dt = point_to_plane_weighted(Xi[None], P[None], N[None], np.ones((1, len(P))))
         T = make_T(dR[0], dt[0]) @ T
     dt_, dr_ = pose_error(T @ make_T(R, t), np.eye(4))
     assert dt_ < 1e-6 and dr_ < 1e-6

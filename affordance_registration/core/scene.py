@@ -136,6 +136,15 @@ class ClickContext:
     fine_tree: KDTree = field(repr=False)
     fine_normals: np.ndarray = field(repr=False)
 
+    def cluster_mean_near(self, point: np.ndarray, radius: float,
+                          min_points: int = 1) -> np.ndarray | None:
+        """Mean (3,) of the cluster points within ``radius`` (m) of ``point`` (3,), or None when
+        fewer than ``min_points`` are."""
+        near = np.linalg.norm(self.cluster - point, axis=1) <= radius
+        if near.sum() < max(min_points, 1):
+            return None
+        return self.cluster[near].mean(axis=0)
+
 
 class Scene:
     """The finite points of one scan, (N, 3) float64 metres, and the sensor origin in that frame.

@@ -1,0 +1,148 @@
+"""Correspondences of one ICP iteration: posed template samples paired with the nearest scene
+points (forward), scene points paired with the nearest template surface (reverse), and a resting
+template's lowest samples paired with the plane under the click (contact) -- each pair weighted
+by the paper's rule with a scaled distance, :func:`correspondence_weights`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..neighbours import nearest, tree_points
+from ..scene import ClickContext
+from .model import Model
+from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
+from .visibility import visible
+
+__all__ = ["correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
+           "add_reverse_pairs", "contact_rows", "plane_gap", "in_contact", "stack_samples",
+           "in_sphere"]
+
+
+def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
+    """The paper's correspondence rule: distances beyond ``reject`` are rejected (weight 0), the
+    rest weigh w = 1 / (1 + d / d0). The paper has d0 = 1 (d in metres); the default method uses
+    d0 = ``weight_scale`` (5 mm), without which every useful d weighs about 1."""
+    dist = np.asarray(dist, dtype=float)
+    return np.where(dist <= reject, 1.0 / (1.0 + dist / d0), 0.0)
+
+
+def stack_samples(models, n: int):
+    """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
+    P = np.stack([m.samples(n)[0] for m in models])
+    N = np.stack([m.samples(n)[1] for m in models])
+    return P, N
+
+
+def in_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Which of ``points`` (N, 3) lie within ``radius`` of ``centre`` (3,), (N,) bool."""
+    rel = points - centre
+    return np.einsum("ij,ij->i", rel, rel) <= radius * radius
+
+
+def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
+                  radius: np.ndarray, settings: FitSettings, normals: bool):
+    """Correspondences of posed samples X (B, S, 3) with normals Nw: the nearest ``target``
+    point (Q), its normal when ``normals`` (Nq, else zeros) and the weight w (B, S) -- zero for
+    unseen samples and beyond ``radius`` (B,)."""
+    tree = ctx.cluster_tree if target == CLUSTER else ctx.fine_tree
+    pts = tree_points(tree)
+    B, S = X.shape[:2]
+    vis, _ = visible(ctx, X, Nw, settings)
+    dist = np.full((B, S), np.inf)
+    Q = np.empty_like(X)
+    band = np.zeros_like(vis)
+    if ctx.plane is not None:
+        # The plane band was removed from the targets; a sample in it corresponds to its
+        # projection on the plane, which the sensor did observe (keeps tilt and height
+        # constrained when the rest of the object is degenerate, e.g. a bar seen from above).
+        pd = ctx.plane.distance(X)
+        band = vis & (pd <= PLANE_BAND * ctx.plane_threshold)
+        dist[band] = np.abs(pd[band])
+        Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
+        vis = vis & ~band
+    d_v, i_v = nearest(tree, X[vis])
+    dist[vis] = d_v
+    Q[vis] = pts[i_v]
+    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
+    Q = np.where(np.isfinite(dist)[..., None], Q, X)
+    Nq = np.zeros_like(X)
+    if normals:
+        Nq[vis] = ctx.fine_normals[i_v]
+        if ctx.plane is not None:
+            Nq[band] = ctx.plane.normal
+    return Q, Nq, w
+
+
+def reverse_subset(ctx: ClickContext, limit: int):
+    """The full-resolution scene points (and normals) the fine stage pairs with the template:
+    at most ``limit``, an even, fixed subset (the same one every iteration)."""
+    pts, normals = ctx.fine, ctx.fine_normals
+    if len(pts) > limit:
+        pick = (np.arange(limit) * (len(pts) / limit)).astype(np.int64)
+        pts, normals = pts[pick], normals[pick]
+    return pts, normals
+
+
+def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
+                  normals: np.ndarray, radius: float, d0: float):
+    """Scene -> template pairs of one hypothesis (R (3, 3), t (3,)): each of the scene points
+    ``pts`` (N, 3, with ``normals``) inside the posed model's bounding sphere paired with its
+    nearest template surface sample. Returns (x: that sample in the scene (M, 3), q: the scene
+    point (M, 3), n: its normal, w (M,), local: the sample in the model frame (M, 3), moving:
+    whether it is on the moving part (M,))."""
+    near = in_sphere(pts, R @ model.centroid + t, 0.5 * model.diameter)
+    q = pts[near]
+    d, local, moving = model.nearest((q - t) @ R, parts=True)
+    return (local @ R.T + t, q, normals[near], correspondence_weights(d, radius, d0), local,
+            moving)
+
+
+def add_reverse_pairs(ctx: ClickContext, models, R, t, X, Q, Nq, w, radius,
+                      settings: FitSettings):
+    """Append scene -> template pairs (:func:`reverse_pairs`) to a batch of forward pairs,
+    padded with zero weights. Returns the extended (X, Q, Nq, w) with the model side in X, the
+    scene side in Q."""
+    pts, normals = reverse_subset(ctx, settings.reverse_points)
+    rows = [reverse_pairs(m, R[b], t[b], pts, normals, radius[b], settings.weight_scale)[:4]
+            for b, m in enumerate(models)]
+    S2 = max(len(r[0]) for r in rows)
+    if S2 == 0:
+        return X, Q, Nq, w
+    B = len(models)
+    X2, Q2, N2, w2 = (np.zeros((B, S2, 3)), np.zeros((B, S2, 3)), np.zeros((B, S2, 3)),
+                      np.zeros((B, S2)))
+    for b, (x, q, n, wb) in enumerate(rows):
+        X2[b, :len(x)], Q2[b, :len(x)], N2[b, :len(x)], w2[b, :len(x)] = x, q, n, wb
+    return (np.concatenate([X, X2], 1), np.concatenate([Q, Q2], 1),
+            np.concatenate([Nq, N2], 1), np.concatenate([w, w2], 1))
+
+
+def contact_rows(ctx: ClickContext, X, Q, Nq, w, U, mov, n_forward: int, radius,
+                 settings: FitSettings):
+    """Append point-to-plane rows pairing the lowest of the first ``n_forward`` posed samples
+    (within ``CONTACT_BAND`` of the lowest) with the plane under the click."""
+    pd = ctx.plane.distance(X[:n_forward])
+    low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
+    x_low = X[low]
+    return (np.vstack([X, x_low]), np.vstack([Q, x_low - pd[low][:, None] * ctx.plane.normal]),
+            np.vstack([Nq, np.broadcast_to(ctx.plane.normal, x_low.shape)]),
+            np.concatenate([w, correspondence_weights(np.abs(pd[low]), radius,
+                                                      settings.weight_scale)]),
+            np.vstack([U, U[low]]), np.concatenate([mov, mov[low]]))
+
+
+def plane_gap(ctx: ClickContext, models, R, t, n: int) -> np.ndarray:
+    """Signed distance (m) of each hypothesis' lowest sample from the plane under the click
+    (positive: floating above it), (B,)."""
+    P, _ = stack_samples(models, n)
+    X = np.einsum("bij,bsj->bsi", np.asarray(R), P) + np.asarray(t)[:, None, :]
+    return ctx.plane.distance(X).min(axis=1)
+
+
+def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> bool:
+    """Whether a pose rests on the plane under the click (its lowest sample within
+    ``contact_distance`` of it)."""
+    if ctx.plane is None:
+        return False
+    gap = plane_gap(ctx, [model], R[None], t[None], REST_SAMPLES)[0]
+    return abs(gap) <= settings.contact_distance

@@ -1,0 +1,118 @@
+"""The residual a candidate is ranked by: two-way and capped -- template -> scene over the
+samples the sensor could have seen (a free-space violation counts as the cap), scene cluster ->
+template, and the click penalty (the operator clicked *on* the object). Its inverse is the
+likelihood.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..neighbours import nearest
+from ..scene import ClickContext
+from ..transforms import make_T
+from .correspondences import in_sphere, stack_samples
+from .model import Model
+from .results import FitResult
+from .settings import (BACKWARD_SUBSAMPLE, MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
+                       FitSettings)
+from .visibility import visible
+
+__all__ = ["forward_residual", "backward_residual", "backward_in_sphere", "click_penalty",
+           "coarse_scores", "scores", "result"]
+
+
+def forward_residual(ctx: ClickContext, models, R, t, n: int, settings: FitSettings):
+    """Template -> scene capped mean distance over visible samples (free-space violations
+    count as the cap), and the fraction of visible samples within the cap. (B,), (B,)."""
+    cap = settings.score_cap
+    P, N = stack_samples(models, n)
+    X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
+    Nw = np.einsum("bij,bsj->bsi", R, N)
+    vis, violated = visible(ctx, X, Nw, settings)
+    dist = np.full(vis.shape, cap)
+    d_v, _ = nearest(ctx.crop_tree, X[vis], cap)
+    dist[vis] = np.minimum(d_v, cap)
+    dist[violated] = cap
+    n_vis = vis.sum(axis=1)
+    fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * P.shape[1]),
+                   (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
+    inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
+    return fwd, inl
+
+
+def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.ndarray:
+    """Distances (B, K) from points ``local`` (B, K, 3, each in its hypothesis' model frame)
+    to that model's surface, one query per distinct model."""
+    out = np.empty(local.shape[:2])
+    keys = np.array([id(m) for m in models])
+    for key in dict.fromkeys(keys.tolist()):
+        sel = np.flatnonzero(keys == key)
+        d, _ = models[int(sel[0])].nearest(local[sel].reshape(-1, 3), upper)
+        out[sel] = d.reshape(len(sel), -1)
+    return out
+
+
+def backward_residual(ctx: ClickContext, models, R, t, settings: FitSettings,
+                      n: int = BACKWARD_SUBSAMPLE) -> np.ndarray:
+    """Scene -> template capped mean distance of a fixed subsample of the cluster (B,)."""
+    cap = settings.score_cap
+    pts = ctx.cluster[np.linspace(0, len(ctx.cluster) - 1, min(n, len(ctx.cluster)))
+                      .astype(int)]
+    local = np.einsum("bji,bnj->bni", R, pts[None] - t[:, None, :])   # (B, n, 3) model
+    return np.minimum(_grouped_nearest(models, local, cap), cap).mean(axis=1)
+
+
+def backward_in_sphere(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> float:
+    """Scene -> template capped mean distance over the cluster points inside the template's
+    bounding sphere at this pose (points no sample explains count up to the cap)."""
+    cap = settings.score_cap
+    near = in_sphere(ctx.cluster, R @ model.centroid + t, 0.5 * model.diameter + cap)
+    if not near.any():
+        return cap
+    local = (ctx.cluster[near] - t) @ R          # scene -> model frame
+    d, _ = model.nearest(local, cap)
+    return float(np.minimum(d, cap).mean())
+
+
+def click_penalty(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.ndarray:
+    """The operator clicked on the object: a candidate whose surface passes farther than
+    ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
+    local = np.einsum("bji,bj->bi", R, ctx.click - t)      # click in each model frame
+    d = _grouped_nearest(models, local[:, None, :])[:, 0]
+    return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
+
+
+def coarse_scores(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.ndarray:
+    """The coarse stage's selection score of a batch of hypotheses (B,)."""
+    fwd, _ = forward_residual(ctx, models, R, t, settings.coarse_samples, settings)
+    fwd = fwd + click_penalty(ctx, models, R, t, settings)
+    if settings.coarse_two_way:     # the cluster -> template half of the residual, on a subsample
+        fwd = 0.5 * fwd + 0.5 * backward_residual(ctx, models, R, t, settings)
+    return fwd
+
+
+def scores(ctx: ClickContext, models, R, t, n: int, settings: FitSettings) -> np.ndarray:
+    """The two-way capped residual (plus the click penalty) of a batch of hypotheses (B,), the
+    cluster -> template half on an even subsample of ``n`` cluster points."""
+    R, t = np.asarray(R), np.asarray(t)
+    fwd, _ = forward_residual(ctx, models, R, t, n, settings)
+    bwd = backward_residual(ctx, models, R, t, settings, n)
+    return 0.5 * (fwd + bwd) + click_penalty(ctx, models, R, t, settings)
+
+
+def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterations: int = 0,
+           elapsed: float = 0.0) -> FitResult:
+    """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
+    penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
+    the nearest named state."""
+    fwd, inl = forward_residual(ctx, [model], R[None], t[None], settings.score_samples,
+                                settings)
+    bwd = backward_in_sphere(ctx, model, R, t, settings)
+    click = float(click_penalty(ctx, [model], R[None], t[None], settings)[0])
+    residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
+    joints = model.joints
+    return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
+                     likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
+                     iterations=int(iterations), time_s=float(elapsed), joints=joints,
+                     scale=model.scale if model.articulated else 1.0,
+                     state=model.template.nearest_state(joints) if joints else None)
