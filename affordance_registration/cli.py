@@ -276,6 +276,27 @@ def cmd_generate_models(args) -> int:
     return 0
 
 
+def _add_bag_parser(sub) -> None:
+    """The ``bag`` subcommand and its own subcommands."""
+    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
+    bsub = p.add_subparsers(dest="bag_command", required=True)
+    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
+    b.add_argument("out")
+    b.add_argument("topics", nargs="+")
+    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
+    b = bsub.add_parser("play", help="republish a bag with its original timing")
+    b.add_argument("bag")
+    b.add_argument("--rate", type=float, default=1.0)
+    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
+    b.add_argument("--topics", nargs="*", default=None)
+    b.add_argument("--loop", action="store_true")
+    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
+                   help="wait up to this long for a subscriber on every topic first")
+    b = bsub.add_parser("info", help="topics, types, counts, duration")
+    b.add_argument("bag")
+    p.set_defaults(func=cmd_bag)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="affordance-registration",
@@ -323,23 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="7")
     p.set_defaults(func=cmd_session)
 
-    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
-    bsub = p.add_subparsers(dest="bag_command", required=True)
-    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
-    b.add_argument("out")
-    b.add_argument("topics", nargs="+")
-    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
-    b = bsub.add_parser("play", help="republish a bag with its original timing")
-    b.add_argument("bag")
-    b.add_argument("--rate", type=float, default=1.0)
-    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
-    b.add_argument("--topics", nargs="*", default=None)
-    b.add_argument("--loop", action="store_true")
-    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
-                   help="wait up to this long for a subscriber on every topic first")
-    b = bsub.add_parser("info", help="topics, types, counts, duration")
-    b.add_argument("bag")
-    p.set_defaults(func=cmd_bag)
+    _add_bag_parser(sub)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")

@@ -207,10 +207,6 @@ def _camera_pose(rng: np.random.Generator) -> np.ndarray:
     return make_T(R, position)
 
 
-def _footprint_radius(mesh: trimesh.Trimesh) -> float:
-    return float(np.linalg.norm(mesh.vertices[:, :2], axis=1).max())
-
-
 def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
     for _ in range(50):
         placed = []
@@ -255,7 +251,46 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))
     camera = camera or DepthCamera()
-    chosen_joints, chosen_scales = dict(joints or {}), dict(scales or {})
+    joints, scales = _joint_values_and_scales(library, names, rng, articulated, joints or {},
+                                              scales or {})
+    rotations = _orientations(library, names, layout, rng)
+    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
+                 for n, q, sc in zip(names, joints, scales)]
+    radii = []
+    for mesh, R in zip(meshes_at, rotations):
+        verts = np.asarray(mesh.vertices) @ R.T
+        radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
+    half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
+    positions = _place(radii, rng, half_x, half_y)
+    T_board_cam = _camera_pose(rng)
+    T_cam_board = invert(T_board_cam)
+    panel = trimesh.creation.box(extents=PANEL_SIZE)
+    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    meshes = [(panel, T_cam_board)]
+    poses = []
+    for mesh, R, p in zip(meshes_at, rotations, positions):
+        lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0
+        T_cam_model = T_cam_board @ make_T(R, [p[0], p[1], lift])
+        poses.append(T_cam_model)
+        meshes.append((mesh, T_cam_model))
+    organized, labels = camera.render(meshes, rng)
+    objects = []
+    for k, (name, T) in enumerate(zip(names, poses), start=1):
+        pts = organized[labels == k].astype(float)
+        q = joints[k - 1]
+        objects.append(SimulatedObject(template=name, T_scene_model=T, click=_click(pts, rng),
+                                       visible_points=int(len(pts)), joints=q,
+                                       scale=scales[k - 1],
+                                       state=library[name].nearest_state(q) if q else None))
+    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
+                          objects=tuple(objects), T_scene_board=T_cam_board,
+                          intrinsics=camera.intrinsics)
+
+
+def _joint_values_and_scales(library: TemplateLibrary, names, rng: np.random.Generator,
+                             articulated: bool, chosen_joints: dict, chosen_scales: dict):
+    """Each object's joint values ({joint: value}) and scale: random within the limits and the
+    scale range (``articulated``, a prismatic joint at a random named state) unless chosen."""
     joints, scales = [], []
     for name in names:
         tpl = library[name]
@@ -273,53 +308,33 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         lo_hi = tpl.scale_range if articulated else None
         sc = float(rng.uniform(*lo_hi)) if lo_hi else 1.0
         scales.append(float(chosen_scales.get(name, sc)))
+    return joints, scales
+
+
+def _orientations(library: TemplateLibrary, names, layout: str, rng: np.random.Generator):
+    """Each object's orientation on the board: a random yaw, and on a table resting on one of
+    its stable facets (chosen by facet area)."""
     rotations = []
     for name in names:
         yaw = axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi))
         if layout == "panel":
             rotations.append(yaw)
-        else:   # resting on one of its stable facets, chosen by facet area
+        else:
             rest = library[name].resting_rotations()
             k = rng.choice(len(rest), p=np.array([w for _, w in rest]))
             rotations.append(yaw @ rest[k][0])
-    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
-                 for n, q, sc in zip(names, joints, scales)]
-    radii = []
-    for mesh, R in zip(meshes_at, rotations):
-        verts = np.asarray(mesh.vertices) @ R.T
-        radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
-    half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
-    positions = _place(radii, rng, half_x, half_y)
-    T_board_cam = _camera_pose(rng)
-    T_cam_board = invert(T_board_cam)
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
-    meshes = [(panel, T_cam_board)]
-    poses = []
-    for mesh, R, p in zip(meshes_at, rotations, positions):
-        lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0
-        T_board_model = make_T(R, [p[0], p[1], lift])
-        T_cam_model = T_cam_board @ T_board_model
-        poses.append(T_cam_model)
-        meshes.append((mesh, T_cam_model))
-    organized, labels = camera.render(meshes, rng)
-    objects = []
-    for k, (name, T) in enumerate(zip(names, poses), start=1):
-        pts = organized[labels == k].astype(float)
-        click = None
-        if len(pts):
-            centre = np.median(pts, axis=0)
-            order = np.argsort(np.linalg.norm(pts - centre, axis=1))
-            near = order[:max(1, len(order) // 4)]
-            click = pts[rng.choice(near)]
-        q = joints[k - 1]
-        objects.append(SimulatedObject(template=name, T_scene_model=T, click=click,
-                                       visible_points=int(len(pts)), joints=q,
-                                       scale=scales[k - 1],
-                                       state=library[name].nearest_state(q) if q else None))
-    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
-                          objects=tuple(objects), T_scene_board=T_cam_board,
-                          intrinsics=camera.intrinsics)
+    return rotations
+
+
+def _click(pts: np.ndarray, rng: np.random.Generator):
+    """An operator's click on an object's visible points (N, 3): one of the quarter nearest
+    their median; None when none is visible."""
+    if not len(pts):
+        return None
+    centre = np.median(pts, axis=0)
+    order = np.argsort(np.linalg.norm(pts - centre, axis=1))
+    near = order[:max(1, len(order) // 4)]
+    return pts[rng.choice(near)]
 
 
 #: the templates the articulated scenes may also show in sizes (see :func:`sized_library`)
