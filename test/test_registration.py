@@ -169,6 +169,9 @@ def test_clear_errors(library, registrar, tmp_path):
         Registrar(TemplateLibrary([]))
     with pytest.raises(RegistrationError, match="mode"):
         FitSettings(mode="sideways").validate()
+    with pytest.raises(RegistrationError, match="fine_metric can only be 'plane'"):
+        FitSettings(fine_metric="point").validate()
+    FitSettings(fine_metric="plane", two_way=True, coarse_two_way=True).validate()
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100

@@ -43,10 +43,10 @@ def icp(ctx: ClickContext, models, R, t, stage: Stage, settings: FitSettings, re
     (B,) overrides the stage's reach (m). Returns the refined (R, t).
 
     Point-to-point with the closed-form weighted SVD; on the full-resolution target (the fine
-    stage) with ``fine_metric="plane"``, the same weights in a point-to-plane step (closed-form
-    6x6 solve), which does not creep along flat or cylindrical surfaces."""
-    point_to_plane = stage.target == FINE and settings.fine_metric == "plane"
-    two_way = stage.target == FINE and settings.two_way
+    stage) two-way (scene points paired with the template too) and with the same weights in a
+    point-to-plane step (closed-form 6x6 solve), which does not creep along flat or
+    cylindrical surfaces."""
+    point_to_plane = two_way = stage.target == FINE
     P, N = stack_samples(models, stage.samples)
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
@@ -106,15 +106,15 @@ def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: Fi
         Q, Nq, w = forward_pairs(ctx, FINE, X[None], (Nu @ R.T)[None], np.array([radius]), s,
                                  True)
         Q, Nq, w, mov = Q[0], Nq[0], w[0], moving0
-        if s.two_way:   # scene -> template pairs: each scene point with its nearest sample
-            x_r, q_r, n_r, w_r, local_r, mov_r = reverse_pairs(
-                model.with_values(q=q, scale=sc), R, t, pts, normals, radius, d0)
-            X = np.vstack([X, x_r])
-            Q = np.vstack([Q, q_r])
-            Nq = np.vstack([Nq, n_r])
-            w = np.concatenate([w, w_r])
-            U = np.vstack([U, local_r / sc])
-            mov = np.concatenate([mov, mov_r])
+        # scene -> template pairs: each scene point with its nearest sample
+        x_r, q_r, n_r, w_r, local_r, mov_r = reverse_pairs(
+            model.with_values(q=q, scale=sc), R, t, pts, normals, radius, d0)
+        X = np.vstack([X, x_r])
+        Q = np.vstack([Q, q_r])
+        Nq = np.vstack([Nq, n_r])
+        w = np.concatenate([w, w_r])
+        U = np.vstack([U, local_r / sc])
+        mov = np.concatenate([mov, mov_r])
         if contact:     # the lowest samples rest on the plane (unseen: the object hides them)
             X, Q, Nq, w, U, mov = contact_rows(ctx, X, Q, Nq, w, U, mov, len(P0), radius, s)
         W = w.sum()

@@ -86,9 +86,8 @@ def coarse_scores(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.
     """The coarse stage's selection score of a batch of hypotheses (B,)."""
     fwd, _ = forward_residual(ctx, models, R, t, settings.coarse_samples, settings)
     fwd = fwd + click_penalty(ctx, models, R, t, settings)
-    if settings.coarse_two_way:     # the cluster -> template half of the residual, on a subsample
-        fwd = 0.5 * fwd + 0.5 * backward_residual(ctx, models, R, t, settings)
-    return fwd
+    # the cluster -> template half of the residual, on a subsample
+    return 0.5 * fwd + 0.5 * backward_residual(ctx, models, R, t, settings)
 
 
 def scores(ctx: ClickContext, models, R, t, n: int, settings: FitSettings) -> np.ndarray:

@@ -67,7 +67,9 @@ class Stage:
 
 @dataclass(frozen=True)
 class FitSettings:
-    """Fitting parameters (lengths in metres, angles in radians)."""
+    """Fitting parameters (lengths in metres, angles in radians). ``fine_metric``, ``two_way``
+    and ``coarse_two_way`` are accepted at their values only: the alternatives were never
+    used and are gone."""
 
     method: str = "default"            #: "default" or "paper" (the literal baseline)
     mode: str = "auto"                 #: "auto" (plane prior + random), "mounted", "free"
@@ -89,13 +91,13 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
-    coarse_two_way: bool = True        #: coarse selection also scores cluster -> template
+    coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
     medium_samples: int = 256
     medium_iterations: int = 10
     fine_samples: int = 1500
     fine_iterations: int = 25
-    fine_metric: str = "plane"         #: final stage: "plane" (point-to-plane) or "point"
-    two_way: bool = True               #: final stage also pairs scene points with the template
+    fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
+    two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
     #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
@@ -127,8 +129,10 @@ class FitSettings:
     def validate(self) -> "FitSettings":
         if self.method not in ("default", "paper"):
             raise RegistrationError(f"method must be 'default' or 'paper', got {self.method!r}")
-        if self.fine_metric not in ("plane", "point"):
-            raise RegistrationError(f"fine_metric must be 'plane' or 'point', got {self.fine_metric!r}")
+        for name, only in (("fine_metric", "plane"), ("two_way", True), ("coarse_two_way", True)):
+            if getattr(self, name) != only:   # switches that never left their defaults
+                raise RegistrationError(f"{name} can only be {only!r} (the alternative was "
+                                        f"removed), got {getattr(self, name)!r}")
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
