@@ -29,15 +29,16 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     across the range. Every hypothesis gets a short batched ICP and is judged by the two-way
     residual plus the moving part's own fit (and, resting on the plane under the click, by its
     gap to the plane). Rounds of local joint/scale steps (each with a short ICP) follow,
-    halving the step. Returns (Model, R, t)."""
+    halving the step. Returns (Model, R, t, whether its last ICP converged)."""
     s = settings
     tpl = model.template
     joint, lo_hi = tpl.joint, tpl.scale_range
     judge = _Judge(ctx, s, joint is not None, in_contact(ctx, model, R, t, s))
+    converged = None
     if sweep and joint is not None:
-        model, R, t = judge.best_of(*_joint_sweep(model, R, t, s), s.sweep)
+        model, R, t, converged = judge.best_of(*_joint_sweep(model, R, t, s), s.sweep)
     if sweep and lo_hi is not None:
-        model, R, t = judge.best_of(*_scale_sweep(ctx, model, R, t, s), s.sweep)
+        model, R, t, converged = judge.best_of(*_scale_sweep(ctx, model, R, t, s), s.sweep)
     q_step = (joint.upper - joint.lower) / (2 * s.joint_sweep) if joint is not None else 0.0
     s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
     if not sweep:
@@ -52,9 +53,10 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
                                                              *lo_hi))) for d in (-1.0, 1.0)]
         if len(models) == 1:
             break
-        model, R, t = judge.best_of(models, [R] * len(models), [t] * len(models), s.local)
+        model, R, t, converged = judge.best_of(models, [R] * len(models), [t] * len(models),
+                                               s.local)
         q_step, s_step = q_step / 2, s_step / 2
-    return model, R, t
+    return model, R, t, converged
 
 
 class _Judge:
@@ -64,11 +66,14 @@ class _Judge:
         self.ctx, self.settings, self.jointed, self.contact = ctx, settings, jointed, contact
 
     def best_of(self, models, Rs, ts, stage: Stage):
+        """(model, R, t, whether its ICP converged) of the best hypothesis."""
         ctx, s = self.ctx, self.settings
         n = s.medium_samples
         Rs, ts = np.stack(Rs), np.stack(ts)
+        converged = np.zeros(len(models), bool)
         if stage.iterations:
-            Rs, ts = icp(ctx, models, Rs, ts, stage, s)
+            run = icp(ctx, models, Rs, ts, stage, s)
+            Rs, ts, converged = run.R, run.t, run.converged
         score = scores(ctx, models, Rs, ts, n, s)
         if self.contact:    # a gap to (or a dip into) the plane beyond its noise costs
             gap = np.abs(plane_gap(ctx, models, Rs, ts, n))
@@ -77,7 +82,7 @@ class _Judge:
             parts = [m.with_values(moving_only=True) for m in models]
             score = score + forward_residual(ctx, parts, Rs, ts, n // 2, s)[0]
         k = int(np.argmin(score))
-        return models[k], Rs[k], ts[k]
+        return models[k], Rs[k], ts[k], bool(converged[k])
 
 
 def _joint_sweep(model: Model, R, t, settings: FitSettings):
@@ -158,10 +163,10 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
                 # as it is, and refined (the fine stage's objective is not the residual)
                 fit = fine_stage(ctx, m, T0[:3, :3], T0[:3, 3], s.refit_fine, s,
                                  hold_joint=True, hold_scale=True)
-                refined = result(ctx, fit.model, fit.R, fit.t, s,
-                                 iterations_before + fit.iterations)
-                for cand in (result(ctx, m, T0[:3, :3], T0[:3, 3], s, iterations_before),
-                             refined):
+                refined = result(ctx, m, fit.R[0], fit.t[0], s,
+                                 iterations_before + fit.iterations, fit.converged[0])
+                as_is = result(ctx, m, T0[:3, :3], T0[:3, 3], s, res.iterations, res.converged)
+                for cand in (as_is, refined):
                     if cand.residual <= allowed and (best is None or
                                                      cand.residual < best.residual):
                         best = cand

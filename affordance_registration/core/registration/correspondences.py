@@ -5,6 +5,8 @@ by the paper's rule with a scaled distance, :func:`correspondence_weights`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..neighbours import nearest, tree_points
@@ -13,8 +15,8 @@ from .model import Model
 from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
 from .visibility import visible
 
-__all__ = ["correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
-           "add_reverse_pairs", "contact_rows", "plane_gap", "in_contact", "stack_samples",
+__all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
+           "reverse_rows", "contact_rows", "plane_gap", "in_contact", "stack_samples",
            "in_sphere"]
 
 
@@ -97,38 +99,66 @@ def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
             moving)
 
 
-def add_reverse_pairs(ctx: ClickContext, models, R, t, X, Q, Nq, w, radius,
-                      settings: FitSettings):
-    """Append scene -> template pairs (:func:`reverse_pairs`) to a batch of forward pairs,
-    padded with zero weights. Returns the extended (X, Q, Nq, w) with the model side in X, the
-    scene side in Q."""
+@dataclass(frozen=True)
+class Pairs:
+    """The correspondences of a batch of B hypotheses, S rows each: the model side X and the
+    scene side Q (B, S, 3), the scene normals N (zeros where a stage does not use them), the
+    weights w (B, S; zero on padding). For the extra unknowns of the fine stage also the model
+    side in the unscaled model frame U (B, S, 3) and whether it lies on the moving part
+    (B, S) -- or None."""
+
+    X: np.ndarray
+    Q: np.ndarray
+    N: np.ndarray
+    w: np.ndarray
+    U: np.ndarray | None = None
+    moving: np.ndarray | None = None
+
+    def joined(self, other: "Pairs") -> "Pairs":
+        """These rows followed by ``other``'s (hypothesis by hypothesis)."""
+        def cat(a, b):
+            return None if a is None or b is None else np.concatenate([a, b], axis=1)
+        return Pairs(cat(self.X, other.X), cat(self.Q, other.Q), cat(self.N, other.N),
+                     cat(self.w, other.w), cat(self.U, other.U), cat(self.moving, other.moving))
+
+
+def _padded(rows: list, fill=0.0) -> np.ndarray:
+    """Ragged per-hypothesis rows (n_b, ...) stacked into (B, max n_b, ...), padded."""
+    width = max(len(r) for r in rows)
+    out = np.full((len(rows), width) + rows[0].shape[1:], fill, dtype=rows[0].dtype)
+    for b, r in enumerate(rows):
+        out[b, :len(r)] = r
+    return out
+
+
+def reverse_rows(ctx: ClickContext, models, R, t, radius, settings: FitSettings) -> Pairs:
+    """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
+    subset of at most ``reverse_points`` full-resolution scene points, padded with zero
+    weights."""
     pts, normals = reverse_subset(ctx, settings.reverse_points)
-    rows = [reverse_pairs(m, R[b], t[b], pts, normals, radius[b], settings.weight_scale)[:4]
+    rows = [reverse_pairs(m, R[b], t[b], pts, normals, radius[b], settings.weight_scale)
             for b, m in enumerate(models)]
-    S2 = max(len(r[0]) for r in rows)
-    if S2 == 0:
-        return X, Q, Nq, w
-    B = len(models)
-    X2, Q2, N2, w2 = (np.zeros((B, S2, 3)), np.zeros((B, S2, 3)), np.zeros((B, S2, 3)),
-                      np.zeros((B, S2)))
-    for b, (x, q, n, wb) in enumerate(rows):
-        X2[b, :len(x)], Q2[b, :len(x)], N2[b, :len(x)], w2[b, :len(x)] = x, q, n, wb
-    return (np.concatenate([X, X2], 1), np.concatenate([Q, Q2], 1),
-            np.concatenate([Nq, N2], 1), np.concatenate([w, w2], 1))
+    x, q, n, w, local, moving = (_padded([r[k] for r in rows], fill) for k, fill in
+                                 enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False)))
+    scales = np.array([m.scale for m in models])[:, None, None]
+    return Pairs(x, q, n, w, local / scales, moving)
 
 
-def contact_rows(ctx: ClickContext, X, Q, Nq, w, U, mov, n_forward: int, radius,
-                 settings: FitSettings):
-    """Append point-to-plane rows pairing the lowest of the first ``n_forward`` posed samples
-    (within ``CONTACT_BAND`` of the lowest) with the plane under the click."""
-    pd = ctx.plane.distance(X[:n_forward])
-    low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
-    x_low = X[low]
-    return (np.vstack([X, x_low]), np.vstack([Q, x_low - pd[low][:, None] * ctx.plane.normal]),
-            np.vstack([Nq, np.broadcast_to(ctx.plane.normal, x_low.shape)]),
-            np.concatenate([w, correspondence_weights(np.abs(pd[low]), radius,
-                                                      settings.weight_scale)]),
-            np.vstack([U, U[low]]), np.concatenate([mov, mov[low]]))
+def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSettings) -> Pairs:
+    """Point-to-plane rows pairing each hypothesis' lowest forward samples (within
+    ``CONTACT_BAND`` of the lowest, seen or not: the object hides them) with the plane under
+    the click, padded with zero weights."""
+    normal = ctx.plane.normal
+    rows = []
+    for b in range(len(forward.X)):
+        pd = ctx.plane.distance(forward.X[b])
+        low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
+        x = forward.X[b][low]
+        rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
+                     correspondence_weights(np.abs(pd[low]), radius[b], settings.weight_scale),
+                     forward.U[b][low], forward.moving[b][low]))
+    return Pairs(*(_padded([r[k] for r in rows], fill) for k, fill in
+                   enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False))))
 
 
 def plane_gap(ctx: ClickContext, models, R, t, n: int) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from .results import IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
 
@@ -24,13 +25,16 @@ MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 class Hypotheses:
     """A batch of B poses: ``models`` (B, what each fits), ``R`` (B, 3, 3) and ``t`` (B, 3)
     model -> scene, ``index`` (B,) which of the given templates each is of, ``family`` (B,)
-    MOUNTED, RESTING or RANDOM."""
+    MOUNTED, RESTING or RANDOM; the ICP iterations run on them so far and which converged in
+    the last stage ((B,) bool, or None before any)."""
 
     models: tuple
     R: np.ndarray
     t: np.ndarray
     index: np.ndarray
     family: np.ndarray
+    iterations: int = 0
+    converged: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.models)
@@ -39,17 +43,19 @@ class Hypotheses:
         """The hypotheses at ``idx`` (an index array), in that order."""
         idx = np.asarray(idx, dtype=int)
         return Hypotheses(tuple(self.models[i] for i in idx), self.R[idx], self.t[idx],
-                          self.index[idx], self.family[idx])
+                          self.index[idx], self.family[idx], self.iterations,
+                          None if self.converged is None else self.converged[idx])
 
-    def moved(self, R, t) -> "Hypotheses":
-        """The same hypotheses at new poses."""
-        return Hypotheses(self.models, R, t, self.index, self.family)
+    def after(self, stage: IcpResult) -> "Hypotheses":
+        """The same hypotheses as an ICP stage left them."""
+        return Hypotheses(stage.models, stage.R, stage.t, self.index, self.family,
+                          self.iterations + stage.iterations, stage.converged)
 
     def relabelled(self, index_of: np.ndarray) -> "Hypotheses":
         """The same hypotheses with ``index`` mapped through ``index_of`` (e.g. from the
         models they started from to the templates those are of)."""
         return Hypotheses(self.models, self.R, self.t, np.asarray(index_of)[self.index],
-                          self.family)
+                          self.family, self.iterations, self.converged)
 
 
 def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,

@@ -1,35 +1,31 @@
-"""Weighted ICP: a batch of hypotheses advanced together, one KD query per iteration; the
-rejection radius shrinks from the stage's reach to ``reject_floor``; iterations stop early once
-every hypothesis has converged.
+"""Weighted ICP: one loop for every stage. A batch of hypotheses advances together (one KD query
+per iteration); the rejection radius shrinks from the stage's reach to ``reject_floor``; the
+loop stops once every hypothesis has converged (its step turns it less than
+``CONVERGED_ROTATION``, moves its weighted centroid less than ``CONVERGED_TRANSLATION`` and
+changes its joint value and scale less than ``CONVERGED_EXTRA``) or at the stage's iteration
+limit.
+
+On the voxelized cluster the step is point to point (closed-form weighted SVD). On the
+full-resolution cluster (the fine stage) scene points are paired with the template too, and the
+step is point to plane (it does not creep along flat or cylindrical surfaces), with a column per
+extra unknown -- a joint value, a scale -- besides the six of the pose.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..scene import ClickContext
-from ..transforms import axis_angle_matrix, rotation_angle
-from .correspondences import (add_reverse_pairs, contact_rows,
-                              forward_pairs, in_contact, reverse_pairs, reverse_subset,
-                              stack_samples)
+from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, reverse_rows
 from .model import Model
+from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
-                       JOINT_STEP_LIMIT, SCALE_STEP_LIMIT, FitSettings, Stage)
-from .solve import bounded_least_squares, kabsch_weighted, point_to_plane_weighted
+                       JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT, FitSettings, Stage)
+from .solve import plane_step, rigid_step
 
-__all__ = ["icp", "fine_stage", "Refined", "radius_schedule"]
+__all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
 
-
-@dataclass(frozen=True)
-class Refined:
-    """One hypothesis after a fine stage: the model (its joint value and scale as fitted), the
-    pose and the iterations it took (counting those before it)."""
-
-    model: Model
-    R: np.ndarray
-    t: np.ndarray
-    iterations: int
+JOINT, SCALE = "joint", "scale"     #: the extra unknowns a stage may fit besides the pose
 
 
 def radius_schedule(reject, floor, it: int, iterations: int):
@@ -38,118 +34,139 @@ def radius_schedule(reject, floor, it: int, iterations: int):
     return reject * (floor / reject) ** (it / max(iterations - 1, 1))
 
 
-def icp(ctx: ClickContext, models, R, t, stage: Stage, settings: FitSettings, reject=None):
-    """Weighted ICP for a batch of hypotheses. R (B, 3, 3), t (B, 3) model -> scene; ``reject``
-    (B,) overrides the stage's reach (m). Returns the refined (R, t).
-
-    Point-to-point with the closed-form weighted SVD; on the full-resolution target (the fine
-    stage) two-way (scene points paired with the template too) and with the same weights in a
-    point-to-plane step (closed-form 6x6 solve), which does not creep along flat or
-    cylindrical surfaces."""
-    point_to_plane = two_way = stage.target == FINE
-    P, N = stack_samples(models, stage.samples)
-    R = np.array(R, dtype=float)
-    t = np.array(t, dtype=float)
+def icp(ctx: ClickContext, models, R, t, stage: Stage, settings: FitSettings, reject=None,
+        unknowns: tuple = (), contact: bool = False) -> IcpResult:
+    """Weighted ICP of a batch of hypotheses: ``models`` (B), R (B, 3, 3), t (B, 3) model ->
+    scene. ``reject`` (B,) in m overrides the stage's reach. ``unknowns`` (fine stage only):
+    JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
+    samples also pair with the plane under the click (the fit rests on it)."""
+    fine = stage.target == FINE
+    posing = _Posing(models, stage.samples, unknowns)
+    R, t = np.array(R, dtype=float), np.array(t, dtype=float)
     if reject is None:
         reject = stage.reject * np.array([m.diameter for m in models])
     reject = np.asarray(reject, dtype=float)
     floor = np.minimum(reject, settings.reject_floor)
+    converged = np.zeros(len(models), bool)
+    it = -1
     for it in range(stage.iterations):
         radius = radius_schedule(reject, floor, it, stage.iterations)
-        X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
-        Nw = np.einsum("bij,bsj->bsi", R, N)
-        Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, point_to_plane)
-        if two_way:
-            X, Q, Nq, w = add_reverse_pairs(ctx, models, R, t, X, Q, Nq, w, radius, settings)
-        if point_to_plane:
-            dR, dt = point_to_plane_weighted(X, Q, Nq, w)
+        X, Nw, U, moving = posing.posed(R, t)
+        Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
+        pairs = forward = Pairs(X, Q, Nq, w, U, moving)
+        if fine:
+            pairs = pairs.joined(reverse_rows(ctx, posing.models, R, t, radius, settings))
+        if contact:
+            pairs = pairs.joined(contact_rows(ctx, forward, radius, settings))
+        if fine:
+            step = plane_step(pairs.X, pairs.Q, pairs.N, pairs.w, posing.columns(pairs, R),
+                              posing.bounds())
         else:
-            dR, dt = kabsch_weighted(X, Q, w)
-        R = dR @ R
-        t = np.einsum("bij,bj->bi", dR, t) + dt
-        if np.all(rotation_angle(dR) < CONVERGED_ROTATION) and \
-                np.all(np.linalg.norm(dt, axis=1) < CONVERGED_TRANSLATION):
+            step = rigid_step(pairs.X, pairs.Q, pairs.w)
+        R = step.R @ R
+        t = np.einsum("bij,bj->bi", step.R, t) + step.t
+        extra = posing.advance(step.extra)
+        converged = (step.rotation < CONVERGED_ROTATION) & \
+            (step.motion < CONVERGED_TRANSLATION) & (extra < CONVERGED_EXTRA)
+        if converged.all():
             break
-    return R, t
+    return IcpResult(tuple(posing.models), R, t, it + 1, converged)
 
 
 def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: FitSettings,
-               hold_joint: bool = False, hold_scale: bool = False) -> Refined:
+               hold_joint: bool = False, hold_scale: bool = False) -> IcpResult:
     """One hypothesis alone on the full-resolution target. An articulated model's joint value
     and scale are unknowns besides the pose (``hold_joint`` / ``hold_scale`` keep them as
-    given): the two-way weighted point-to-plane step of :func:`icp` extended by a column per
-    extra unknown (d x / d q: the moving part's motion about or along the joint axis; d x / d s:
-    the unscaled posed point), solved in closed form each iteration (Gauss-Newton)."""
+    given); such a fit resting on the plane under the click keeps resting on it."""
     tpl = model.template
-    joint = None if hold_joint or not model.articulated else tpl.joint
-    lo_hi = None if hold_scale or not model.articulated else tpl.scale_range
-    if joint is None and lo_hi is None:     # nothing but the pose
-        R2, t2 = icp(ctx, [model], R[None], t[None], stage, settings)
-        return Refined(model, R2[0], t2[0], stage.iterations)
-    s = settings
-    iterations = stage.iterations
-    d0 = s.weight_scale
-    P0, N0, moving0 = tpl.part_samples(stage.samples, seed=1)
-    q, sc = model.q, model.scale
-    R, t = np.array(R, dtype=float), np.array(t, dtype=float)
-    reject = stage.reject * model.diameter
-    floor = min(reject, s.reject_floor)
-    pts, normals = reverse_subset(ctx, s.reverse_points)
-    axis = np.asarray(joint.axis) if joint is not None else None
-    origin = np.asarray(joint.origin) if joint is not None else None
-    contact = in_contact(ctx, model, R, t, s)
-    it = 0
-    for it in range(iterations):
-        radius = radius_schedule(reject, floor, it, iterations)
-        U, Nu = tpl.pose_parts(P0, N0, moving0, q)       # unscaled, joint at q
-        X = (sc * U) @ R.T + t
-        Q, Nq, w = forward_pairs(ctx, FINE, X[None], (Nu @ R.T)[None], np.array([radius]), s,
-                                 True)
-        Q, Nq, w, mov = Q[0], Nq[0], w[0], moving0
-        # scene -> template pairs: each scene point with its nearest sample
-        x_r, q_r, n_r, w_r, local_r, mov_r = reverse_pairs(
-            model.with_values(q=q, scale=sc), R, t, pts, normals, radius, d0)
-        X = np.vstack([X, x_r])
-        Q = np.vstack([Q, q_r])
-        Nq = np.vstack([Nq, n_r])
-        w = np.concatenate([w, w_r])
-        U = np.vstack([U, local_r / sc])
-        mov = np.concatenate([mov, mov_r])
-        if contact:     # the lowest samples rest on the plane (unseen: the object hides them)
-            X, Q, Nq, w, U, mov = contact_rows(ctx, X, Q, Nq, w, U, mov, len(P0), radius, s)
-        W = w.sum()
-        if W < 1e-9:
-            break
-        c = (w[:, None] * X).sum(axis=0) / W
-        cols = [np.cross(X - c, Nq), Nq]
-        if joint is not None:
-            du = (np.cross(axis, U - origin) if joint.type == "revolute"
-                  else np.broadcast_to(axis, U.shape)) * mov[:, None]
-            cols.append(np.einsum("si,si->s", (sc * du) @ R.T, Nq)[:, None])
-        if lo_hi is not None:
-            cols.append(np.einsum("si,si->s", U @ R.T, Nq)[:, None])
-        J = np.concatenate(cols, axis=1)
-        r = np.einsum("si,si->s", Q - X, Nq)
-        # (value, lower, upper, largest step) of the extra unknowns, in column order
-        extra = ([(q, joint.lower, joint.upper, (joint.upper - joint.lower) * JOINT_STEP_LIMIT)]
-                 if joint is not None else []) + \
-            ([(sc, lo_hi[0], lo_hi[1], SCALE_STEP_LIMIT)] if lo_hi is not None else [])
-        xi = bounded_least_squares(J, r, w, [e[0] for e in extra], [e[1] for e in extra],
-                                   [e[2] for e in extra])
-        omega, v = xi[:3], xi[3:6]
-        angle = float(np.linalg.norm(omega))
-        dR = axis_angle_matrix(omega, angle) if angle > 1e-12 else np.eye(3)
-        R = dR @ R
-        t = dR @ (t - c) + c + v
-        steps = [float(np.clip(xi[6 + i], -big, big)) for i, (_, _, _, big) in enumerate(extra)]
-        values = [float(np.clip(val + d, lo, hi))
-                  for (val, lo, hi, _), d in zip(extra, steps)]
-        if joint is not None:
-            q = values.pop(0)
-        if lo_hi is not None:
-            sc = values.pop(0)
-        dq_ds = max((abs(d) for d in steps), default=0.0)
-        if angle < CONVERGED_ROTATION and np.linalg.norm(v) < CONVERGED_TRANSLATION and \
-                dq_ds < CONVERGED_EXTRA:
-            break
-    return Refined(model.with_values(q=q, scale=sc), R, t, it + 1)
+    unknowns = () if not model.articulated else \
+        ((JOINT,) if tpl.joint is not None and not hold_joint else ()) + \
+        ((SCALE,) if tpl.scale_range is not None and not hold_scale else ())
+    contact = bool(unknowns) and in_contact(ctx, model, R, t, settings)
+    return icp(ctx, [model], R[None], t[None], stage, settings, unknowns=unknowns,
+               contact=contact)
+
+
+class _Posing:
+    """The samples of a batch of hypotheses, posed every iteration -- with extra unknowns at
+    each model's current joint value and scale -- and those unknowns' columns, bounds and
+    updates."""
+
+    def __init__(self, models, n: int, unknowns: tuple):
+        self.models, self.unknowns = list(models), tuple(unknowns)
+        if not self.unknowns:
+            self.P = np.stack([m.samples(n)[0] for m in models])
+            self.N = np.stack([m.samples(n)[1] for m in models])
+        else:
+            self.parts = [m.template.part_samples(n, seed=SAMPLE_SEED) for m in models]
+
+    def posed(self, R, t):
+        """(X, Nw) the samples in the scene (B, S, 3); with extra unknowns also U, the samples
+        unscaled in the model frame (B, S, 3), and which are on the moving part (B, S)."""
+        if not self.unknowns:
+            U, moving, P, N = None, None, self.P, self.N
+        else:
+            posed = [m.template.pose_parts(P0, N0, mov, m.q)
+                     for m, (P0, N0, mov) in zip(self.models, self.parts)]
+            U = np.stack([p[0] for p in posed])
+            N = np.stack([p[1] for p in posed])
+            moving = np.stack([mov for _, _, mov in self.parts])
+            P = U * np.array([m.scale for m in self.models])[:, None, None]
+        X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
+        return X, np.einsum("bij,bsj->bsi", R, N), U, moving
+
+    def columns(self, pairs: Pairs, R) -> np.ndarray | None:
+        """d(x . n) / d(value) of every row for each extra unknown, (B, S, k) or None."""
+        if not self.unknowns:
+            return None
+        cols = []
+        for name in self.unknowns:
+            if name == JOINT:
+                du = np.stack([self._joint_motion(m, U) for m, U in zip(self.models, pairs.U)])
+                du = du * pairs.moving[..., None] * \
+                    np.array([m.scale for m in self.models])[:, None, None]
+            else:
+                du = pairs.U
+            cols.append(np.einsum("bsi,bsi->bs", np.einsum("bij,bsj->bsi", R, du), pairs.N))
+        return np.stack(cols, axis=-1)
+
+    @staticmethod
+    def _joint_motion(model: Model, U: np.ndarray) -> np.ndarray:
+        """d U / d q of the moving part's points U (S, 3): about or along the joint axis."""
+        j = model.template.joint
+        axis = np.asarray(j.axis)
+        if j.type == "revolute":
+            return np.cross(axis, U - np.asarray(j.origin))
+        return np.broadcast_to(axis, U.shape)
+
+    def _limits(self, model: Model):
+        """(value, lower, upper, largest step) of each extra unknown of ``model``."""
+        out = []
+        for name in self.unknowns:
+            if name == JOINT:
+                j = model.template.joint
+                out.append((model.q, j.lower, j.upper, (j.upper - j.lower) * JOINT_STEP_LIMIT))
+            else:
+                lo, hi = model.template.scale_range
+                out.append((model.scale, lo, hi, SCALE_STEP_LIMIT))
+        return np.array(out, dtype=float).reshape(len(self.unknowns), 4)
+
+    def bounds(self):
+        """(values, lower, upper) of the extra unknowns, each (B, k), or None."""
+        if not self.unknowns:
+            return None
+        lim = np.stack([self._limits(m) for m in self.models])
+        return lim[..., 0], lim[..., 1], lim[..., 2]
+
+    def advance(self, increments: np.ndarray) -> np.ndarray:
+        """Apply the extra unknowns' increments (B, k), each limited to its largest step and
+        kept within its bounds; returns the largest step taken per hypothesis (B,)."""
+        if not self.unknowns:
+            return np.zeros(len(self.models))
+        lim = np.stack([self._limits(m) for m in self.models])
+        steps = np.clip(increments, -lim[..., 3], lim[..., 3])
+        values = np.clip(lim[..., 0] + steps, lim[..., 1], lim[..., 2])
+        for b, m in enumerate(self.models):
+            new = dict(zip(self.unknowns, values[b]))
+            self.models[b] = m.with_values(q=new.get(JOINT), scale=new.get(SCALE))
+        return np.abs(steps).max(axis=1)

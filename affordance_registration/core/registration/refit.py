@@ -30,7 +30,8 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
     n = len(Ts)
     # reach out as far as a refit may move, so a rough correction is pulled in
     reject = np.full(n, max(s.short.reject * model.diameter, s.refit_max_move))
-    R, t = icp(ctx, [model] * n, Ts[:, :3, :3], Ts[:, :3, 3], s.short, s, reject=reject)
+    starts = icp(ctx, [model] * n, Ts[:, :3, :3], Ts[:, :3, 3], s.short, s, reject=reject)
+    R, t = starts.R, starts.t
     fwd, _ = forward_residual(ctx, [model] * n, R, t, s.medium_samples, s)
     allowed = _within_reach(T0, R, t, s)
     if not allowed.any():   # every restart wandered off: start from the correction itself
@@ -38,10 +39,10 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
         allowed[0] = True
     best = int(np.argmin(np.where(allowed, fwd, np.inf)))
     fit = fine_stage(ctx, model, R[best], t[best], s.refit_fine, s, hold_joint=hold_joint)
-    iterations = s.short.iterations + fit.iterations
-    if _within_reach(T0, fit.R[None], fit.t[None], s)[0]:
-        return result(ctx, fit.model, fit.R, fit.t, s, iterations)
-    return result(ctx, fit.model, R[best], t[best], s, iterations)
+    iterations = starts.iterations + fit.iterations
+    if _within_reach(T0, fit.R, fit.t, s)[0]:
+        return result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations, fit.converged[0])
+    return result(ctx, fit.models[0], R[best], t[best], s, iterations, starts.converged[best])
 
 
 def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,

@@ -139,19 +139,18 @@ class Registrar:
         variants, template_of = self._variants(names)
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
         # 2. coarse ICP, all restarts of all templates together
-        hyps = hyps.moved(*icp(ctx, hyps.models, hyps.R, hyps.t, s.coarse, s))
+        hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.coarse, s))
         score = coarse_scores(ctx, hyps.models, hyps.R, hyps.t, s)
         # 3. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
-        hyps = hyps.moved(*icp(ctx, hyps.models, hyps.R, hyps.t, s.medium, s))
+        hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.medium, s))
         # 4. rank: the best hypothesis per template by the two-way residual
-        iters = s.coarse_iterations + s.medium_iterations
-        ranked = self._best_per_template(ctx, hyps, iters)
+        ranked = self._best_per_template(ctx, hyps)
         # 5. articulated templates among the leaders: joint value and scale with the pose
-        ranked, models = self._articulate_leaders(ctx, ranked, iters)
+        ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
         # 6. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
         #    at full resolution, then (articulated) towards a named state and scale 1
-        final = self._finish_winner(ctx, ranked[0], models, iters)
+        final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
         total = time.perf_counter() - t0
         return rank([replace(final, time_s=total)] + [replace(r, time_s=total)
                                                       for r in ranked[1:]])
@@ -168,12 +167,13 @@ class Registrar:
                          for g in tpl.scale_range if g != 1.0]
         return [m for _, m in variants], np.array([i for i, _ in variants])
 
-    def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses, iterations: int) -> tuple:
+    def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
         """Each template's best hypothesis by the residual, ranked."""
         best: dict[int, FitResult] = {}
         for k in range(len(hyps)):
             i = int(hyps.index[k])
-            res = result(ctx, hyps.models[k], hyps.R[k], hyps.t[k], self.settings, iterations)
+            res = result(ctx, hyps.models[k], hyps.R[k], hyps.t[k], self.settings,
+                         hyps.iterations, hyps.converged[k])
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
         return rank(best.values())
@@ -193,8 +193,8 @@ class Registrar:
                 continue
             start = self.models.model(tpl, tpl.joint_value(r.joints), r.scale, articulated=True)
             R, t = r.T_scene_model[:3, :3], r.T_scene_model[:3, 3]
-            model, R, t = articulate(ctx, start, R, t, s)
-            res = result(ctx, model, R, t, s, iterations)
+            model, R, t, converged = articulate(ctx, start, R, t, s)
+            res = result(ctx, model, R, t, s, iterations, converged)
             models[r.template] = model
             ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
@@ -209,9 +209,10 @@ class Registrar:
             model = self.models.model(self.library[win.template])
         R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3], win.T_scene_model[:3, 3])
         if model.articulated:       # the joint after the sweep, once more
-            model, R, t = articulate(ctx, model, R, t, s, sweep=False)
+            model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False)
         fit = fine_stage(ctx, model, R, t, s.fine, s)
-        final = result(ctx, fit.model, fit.R, fit.t, s, iterations + fit.iterations)
+        final = result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations + fit.iterations,
+                       fit.converged[0])
         if final.likelihood < win.likelihood:
             final = win
         if model.articulated:
@@ -226,10 +227,11 @@ class Registrar:
         if s.yaw_sweep <= 1:
             return R, t
         Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
-        Rs, ts = icp(ctx, [model] * len(Rs), Rs, ts, s.short, s)
-        residuals = [result(ctx, model, Rs[k], ts[k], s).residual for k in range(len(Rs))]
+        swept = icp(ctx, [model] * len(Rs), Rs, ts, s.short, s)
+        residuals = [result(ctx, model, swept.R[k], swept.t[k], s).residual
+                     for k in range(len(Rs))]
         best = int(np.argmin(residuals))
-        return Rs[best], ts[best]
+        return swept.R[best], swept.t[best]
 
     def _model(self, template: str, joints: dict | None = None, scale: float = 1.0) -> Model:
         """The model to fit: with ``settings.articulated``, an articulated template posed at

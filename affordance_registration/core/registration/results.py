@@ -7,7 +7,7 @@ import numpy as np
 
 from ..scene import ClickContext
 
-__all__ = ["FitResult", "FitReport", "rank"]
+__all__ = ["FitResult", "FitReport", "IcpResult", "rank"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,9 @@ class FitResult:
     joints: dict = field(default_factory=dict)       #: joint name -> value (rad or m)
     scale: float = 1.0                               #: uniform scale of the template
     state: str | None = None                         #: the nearest named state
+    #: whether the last ICP stage of this candidate converged before its iteration limit
+    #: (None: no ICP ran, e.g. the literal baseline's own loop)
+    converged: bool | None = None
 
     def to_dict(self) -> dict:
         return {"rank": self.rank, "template": self.template,
@@ -37,6 +40,20 @@ class FitResult:
                 "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
                 "iterations": self.iterations, "time_s": round(self.time_s, 6),
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
+
+
+@dataclass(frozen=True)
+class IcpResult:
+    """What an ICP stage returns for its batch of B hypotheses (like small_gicp's
+    ``RegistrationResult``): the models (their joint values and scales as fitted), the poses
+    R (B, 3, 3) and t (B, 3) model -> scene, the iterations run and which hypotheses
+    converged (their last step below the thresholds), (B,) bool."""
+
+    models: tuple
+    R: np.ndarray
+    t: np.ndarray
+    iterations: int
+    converged: np.ndarray
 
 
 @dataclass(frozen=True)

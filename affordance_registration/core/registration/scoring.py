@@ -100,10 +100,10 @@ def scores(ctx: ClickContext, models, R, t, n: int, settings: FitSettings) -> np
 
 
 def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterations: int = 0,
-           elapsed: float = 0.0) -> FitResult:
+           converged: bool | None = None) -> FitResult:
     """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
     penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
-    the nearest named state."""
+    the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
     fwd, inl = forward_residual(ctx, [model], R[None], t[None], settings.score_samples,
                                 settings)
     bwd = backward_in_sphere(ctx, model, R, t, settings)
@@ -112,6 +112,7 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
     joints = model.joints
     return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
                      likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
-                     iterations=int(iterations), time_s=float(elapsed), joints=joints,
+                     iterations=int(iterations), joints=joints,
                      scale=model.scale if model.articulated else 1.0,
-                     state=model.template.nearest_state(joints) if joints else None)
+                     state=model.template.nearest_state(joints) if joints else None,
+                     converged=None if converged is None else bool(converged))

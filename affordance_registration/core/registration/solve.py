@@ -1,23 +1,49 @@
 """The closed-form solves of one ICP iteration: the weighted rigid transform (SVD, point to
-point), the weighted point-to-plane step (6 unknowns, linearised) and the same step with bounded
-extra unknowns (a joint value, a scale).
+point) and the weighted point-to-plane Gauss-Newton step -- 6 unknowns for a rigid motion, plus
+bounded extra unknowns (a joint value, a scale).
 
-Arrays are batched where it says so: ``B`` hypotheses of ``S`` pairs each.
+Arrays are batched: ``B`` hypotheses of ``S`` pairs each.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from ..transforms import axis_angle_matrix, make_T
+from ..transforms import axis_angle_matrix, make_T, rotation_angle
 
-__all__ = ["kabsch_weighted", "point_to_plane_weighted", "bounded_least_squares",
-           "rotations_from_vectors", "weighted_rigid_fit"]
+__all__ = ["Step", "rigid_step", "plane_step", "gauss_newton", "kabsch_weighted",
+           "point_to_plane_weighted", "rotations_from_vectors", "weighted_rigid_fit"]
 
 
-def kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
-    """Batched weighted rigid fit: R, t minimising sum w |R x + t - q|^2 per batch.
+@dataclass(frozen=True)
+class Step:
+    """One ICP step of a batch of B hypotheses: the rigid motion (R (B, 3, 3), t (B, 3)) to
+    apply to each pose (x -> R x + t), the weighted centroid of the model side it was solved
+    about (B, 3), and the increments of the extra unknowns (B, k)."""
 
-    X, Q (B, S, 3); w (B, S). Reflection-safe. Batches with no weight get the identity."""
+    R: np.ndarray
+    t: np.ndarray
+    centre: np.ndarray
+    extra: np.ndarray
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """How far each hypothesis turns (rad), (B,)."""
+        return rotation_angle(self.R)
+
+    @property
+    def motion(self) -> np.ndarray:
+        """How far each hypothesis' weighted centroid moves (m), (B,) -- unlike the translation
+        of the frame's origin, the same in every scene frame."""
+        moved = np.einsum("bij,bj->bi", self.R, self.centre) + self.t
+        return np.linalg.norm(moved - self.centre, axis=1)
+
+
+def rigid_step(X: np.ndarray, Q: np.ndarray, w: np.ndarray) -> Step:
+    """Batched weighted rigid fit (point to point, closed form): the R, t minimising
+    sum w |R x + t - q|^2 per hypothesis. X, Q (B, S, 3); w (B, S). Reflection-safe;
+    hypotheses with no weight get the identity."""
     W = w.sum(axis=1)
     ok = W > 1e-9
     Ws = np.where(ok, W, 1.0)[:, None]
@@ -33,46 +59,64 @@ def kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
     t = mq - np.einsum("bij,bj->bi", R, mx)
     R[~ok] = np.eye(3)
     t[~ok] = 0.0
-    return R, t
+    return Step(R, t, mx, np.zeros((len(X), 0)))
 
 
-def point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray):
-    """Batched weighted point-to-plane step: minimise sum w ((R x + t - q) . n)^2, linearised
-    about each batch's weighted centroid; returns (R, t) like :func:`kabsch_weighted`."""
+def plane_step(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray,
+               extra: np.ndarray | None = None, bounds=None) -> Step:
+    """Batched weighted point-to-plane Gauss-Newton step: minimise
+    sum w ((R x + t - q) . n + extra . dv)^2, linearised about each hypothesis' weighted
+    centroid -- 6 unknowns (the rigid case) plus a column per extra unknown in ``extra``
+    (B, S, k: d(x . n) / d value). ``bounds``: (values, lower, upper), each (B, k), see
+    :func:`gauss_newton`. X, Q, Nq (B, S, 3); w (B, S)."""
     W = w.sum(axis=1)
     ok = W > 1e-9
     c = np.einsum("bs,bsi->bi", w, X) / np.where(ok, W, 1.0)[:, None]
-    Xc = X - c[:, None]
-    J = np.concatenate([np.cross(Xc, Nq), Nq], axis=-1)           # (B, S, 6)
+    cols = [np.cross(X - c[:, None], Nq), Nq] + ([] if extra is None else [extra])
+    J = np.concatenate(cols, axis=-1)
     r = np.einsum("bsi,bsi->bs", Q - X, Nq)
-    A = np.einsum("bs,bsi,bsj->bij", w, J, J) + 1e-9 * np.eye(6)
-    b = np.einsum("bs,bsi,bs->bi", w, J, r)
-    xi = np.linalg.solve(A, b[..., None])[..., 0]
-    omega, v = xi[:, :3], xi[:, 3:]
-    R = rotations_from_vectors(omega)
-    t = c + v - np.einsum("bij,bj->bi", R, c)
+    xi = gauss_newton(J, r, w, *(bounds if bounds is not None else (None, None, None)))
+    R = rotations_from_vectors(xi[:, :3])
+    t = c + xi[:, 3:6] - np.einsum("bij,bj->bi", R, c)
     R[~ok] = np.eye(3)
     t[~ok] = 0.0
-    return R, t
+    xi[~ok] = 0.0
+    return Step(R, t, c, xi[:, 6:])
 
 
-def bounded_least_squares(J: np.ndarray, r: np.ndarray, w: np.ndarray, values, lower,
-                          upper) -> np.ndarray:
-    """The weighted least-squares step xi minimising sum w (J xi - r)^2, J (S, 6 + k), whose last
-    k unknowns are bounded: one at its ``lower`` / ``upper`` bound (``values`` (k,) are where they
-    are now) that the step would push beyond stays there -- its column drops out and the rest is
-    solved again -- instead of being clipped behind the other unknowns' backs. (6 + k,)."""
-    free = np.ones(J.shape[1], bool)
+def gauss_newton(J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower=None,
+                 upper=None) -> np.ndarray:
+    """The weighted least-squares step xi (B, n) minimising sum w (J xi - r)^2 per hypothesis,
+    J (B, S, n), r and w (B, S). With ``values`` / ``lower`` / ``upper`` ((B, n - 6): where the
+    unknowns after the first six are now and their bounds), an unknown at a bound that the step
+    would push beyond stays there -- its column drops out and the rest is solved again --
+    instead of being clipped behind the other unknowns' backs."""
+    B, _, n = J.shape
+    free = np.ones((B, n), bool)
     while True:
-        Jf = J[:, free]
-        A = (Jf * w[:, None]).T @ Jf + 1e-9 * np.eye(Jf.shape[1])
-        xi = np.zeros(J.shape[1])
-        xi[free] = np.linalg.solve(A, (Jf * w[:, None]).T @ r)
-        stuck = [6 + i for i, (val, lo, hi) in enumerate(zip(values, lower, upper))
-                 if free[6 + i] and ((val <= lo and xi[6 + i] < 0) or (val >= hi and xi[6 + i] > 0))]
-        if not stuck:
+        Jf = J * free[:, None, :]
+        A = np.einsum("bs,bsi,bsj->bij", w, Jf, Jf) + 1e-9 * np.eye(n)
+        xi = np.linalg.solve(A, np.einsum("bs,bsi,bs->bi", w, Jf, r)[..., None])[..., 0]
+        if values is None or n == 6:
             return xi
-        free[stuck] = False
+        push = xi[:, 6:]
+        stuck = free[:, 6:] & (((values <= lower) & (push < 0)) | ((values >= upper) & (push > 0)))
+        if not stuck.any():
+            return xi
+        free[:, 6:] &= ~stuck
+
+
+def kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
+    """Batched weighted rigid fit: (R (B, 3, 3), t (B, 3)) of :func:`rigid_step`."""
+    step = rigid_step(X, Q, w)
+    return step.R, step.t
+
+
+def point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray):
+    """Batched weighted point-to-plane step: (R, t) of :func:`plane_step` with the six
+    unknowns of a rigid motion."""
+    step = plane_step(X, Q, Nq, w)
+    return step.R, step.t
 
 
 def rotations_from_vectors(omega: np.ndarray) -> np.ndarray:
