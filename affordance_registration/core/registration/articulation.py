@@ -74,7 +74,7 @@ class _Judge:
         if stage.iterations:
             run = icp(ctx, models, Rs, ts, stage, s)
             Rs, ts, converged = run.R, run.t, run.converged
-        score = scores(ctx, models, Rs, ts, n, s)
+        score = scores(ctx, models, Rs, ts, s, n, n)
         if self.contact:    # a gap to (or a dip into) the plane beyond its noise costs
             gap = np.abs(plane_gap(ctx, models, Rs, ts, n))
             score = score + np.clip(gap - CONTACT_SLACK, 0.0, s.score_cap)

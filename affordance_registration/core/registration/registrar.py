@@ -53,8 +53,8 @@ from .model import Model, ModelCache
 from .paper import PaperMethod
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import coarse_scores, result
-from .settings import FitSettings, REST_SAMPLES, SAMPLE_SEED
+from .scoring import result, scores
+from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
 
@@ -140,7 +140,8 @@ class Registrar:
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
         # 2. coarse ICP, all restarts of all templates together
         hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.coarse, s))
-        score = coarse_scores(ctx, hyps.models, hyps.R, hyps.t, s)
+        score = scores(ctx, hyps.models, hyps.R, hyps.t, s, s.coarse_samples,
+                       BACKWARD_SUBSAMPLE)
         # 3. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
         hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.medium, s))

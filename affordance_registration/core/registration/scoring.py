@@ -18,7 +18,7 @@ from .settings import (BACKWARD_SUBSAMPLE, MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAM
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "backward_in_sphere", "click_penalty",
-           "coarse_scores", "scores", "result"]
+           "scores", "result"]
 
 
 def forward_residual(ctx: ClickContext, models, R, t, n: int, settings: FitSettings):
@@ -82,20 +82,14 @@ def click_penalty(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.
     return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
 
 
-def coarse_scores(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.ndarray:
-    """The coarse stage's selection score of a batch of hypotheses (B,)."""
-    fwd, _ = forward_residual(ctx, models, R, t, settings.coarse_samples, settings)
-    fwd = fwd + click_penalty(ctx, models, R, t, settings)
-    # the cluster -> template half of the residual, on a subsample
-    return 0.5 * fwd + 0.5 * backward_residual(ctx, models, R, t, settings)
-
-
-def scores(ctx: ClickContext, models, R, t, n: int, settings: FitSettings) -> np.ndarray:
-    """The two-way capped residual (plus the click penalty) of a batch of hypotheses (B,), the
-    cluster -> template half on an even subsample of ``n`` cluster points."""
+def scores(ctx: ClickContext, models, R, t, settings: FitSettings, samples: int,
+           cluster_points: int) -> np.ndarray:
+    """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
+    template -> scene on ``samples`` template samples, cluster -> template on an even
+    subsample of ``cluster_points`` cluster points."""
     R, t = np.asarray(R), np.asarray(t)
-    fwd, _ = forward_residual(ctx, models, R, t, n, settings)
-    bwd = backward_residual(ctx, models, R, t, settings, n)
+    fwd, _ = forward_residual(ctx, models, R, t, samples, settings)
+    bwd = backward_residual(ctx, models, R, t, settings, cluster_points)
     return 0.5 * (fwd + bwd) + click_penalty(ctx, models, R, t, settings)
 
 
