@@ -175,3 +175,28 @@ def test_clear_errors(library, registrar, tmp_path):
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100
+
+
+def test_model_cache_is_safe_under_threads(library):
+    """Concurrent fits share one cache of posed samples and KD-trees: every thread gets the
+    samples of the joint value and scale it asked for (even while a small cache evicts), and
+    one template's dense surface is built once for all of them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from affordance_registration.core.registration.model import ModelCache
+    tpl = library["ball_valve"]
+    cache = ModelCache(max_posed=3)
+    jobs = [(q, sc, n) for q in (0.0, 0.4, 1.2) for sc in (1.0, 1.15) for n in (64, 96)] * 4
+
+    def posed(job):
+        q, sc, n = job
+        return cache.model(tpl, q, sc, articulated=True).samples(n)
+
+    with ThreadPoolExecutor(6) as pool:
+        got = list(pool.map(posed, jobs))
+        surfaces = list(pool.map(lambda _: cache.surface(tpl), range(12)))
+    for (q, sc, n), (P, N) in zip(jobs, got):
+        P0, N0, moving = tpl.part_samples(n, seed=1)
+        P_ref, N_ref = tpl.pose_parts(P0, N0, moving, q, sc)
+        assert np.array_equal(P, P_ref) and np.array_equal(N, N_ref), (q, sc, n)
+    assert all(s is surfaces[0] for s in surfaces)
