@@ -65,6 +65,16 @@ class Stage:
     target: str = CLUSTER
 
 
+def _stage(samples: str, iterations, reject: float, target: str = CLUSTER,
+           doc: str = "") -> property:
+    """A :class:`FitSettings` property: the :class:`Stage` with the samples of field
+    ``samples`` and the iterations of field ``iterations`` (or that number)."""
+    def get(settings) -> Stage:
+        n_it = getattr(settings, iterations) if isinstance(iterations, str) else iterations
+        return Stage(getattr(settings, samples), n_it, reject, target)
+    return property(get, doc=doc)
+
+
 @dataclass(frozen=True)
 class FitSettings:
     """Fitting parameters (lengths in metres, angles in radians). ``fine_metric``, ``two_way``
@@ -161,37 +171,17 @@ class FitSettings:
         return self
 
     # ---------------------------------------------------------------- the stages
-    @property
-    def coarse(self) -> Stage:
-        """Every restart of every template, on few samples."""
-        return Stage(self.coarse_samples, self.coarse_iterations, COARSE_REJECT)
-
-    @property
-    def medium(self) -> Stage:
-        """The best few restarts per template."""
-        return Stage(self.medium_samples, self.medium_iterations, MEDIUM_REJECT)
-
-    @property
-    def short(self) -> Stage:
-        """The winner's yaw sweep and a refit's restarts."""
-        return Stage(self.medium_samples, SHORT_ICP, MEDIUM_REJECT)
-
-    @property
-    def sweep(self) -> Stage:
-        """Each joint value / scale hypothesis of the articulated sweep."""
-        return Stage(self.medium_samples, self.articulation_icp, SWEEP_REJECT)
-
-    @property
-    def local(self) -> Stage:
-        """Each local joint / scale step after the sweep."""
-        return Stage(self.medium_samples, LOCAL_ICP, SWEEP_REJECT)
-
-    @property
-    def fine(self) -> Stage:
-        """The winner alone, on the full-resolution cluster."""
-        return Stage(self.fine_samples, self.fine_iterations, FINE_REJECT, FINE)
-
-    @property
-    def refit_fine(self) -> Stage:
-        """A refit's best restart on the full-resolution cluster."""
-        return Stage(self.refit_samples, self.refit_iterations, FINE_REJECT, FINE)
+    coarse = _stage("coarse_samples", "coarse_iterations", COARSE_REJECT,
+                    doc="Every restart of every template, on few samples.")
+    medium = _stage("medium_samples", "medium_iterations", MEDIUM_REJECT,
+                    doc="The best few restarts per template.")
+    short = _stage("medium_samples", SHORT_ICP, MEDIUM_REJECT,
+                   doc="The winner's yaw sweep and a refit's restarts.")
+    sweep = _stage("medium_samples", "articulation_icp", SWEEP_REJECT,
+                   doc="Each joint value / scale hypothesis of the articulated sweep.")
+    local = _stage("medium_samples", LOCAL_ICP, SWEEP_REJECT,
+                   doc="Each local joint / scale step after the sweep.")
+    fine = _stage("fine_samples", "fine_iterations", FINE_REJECT, FINE,
+                  doc="The winner alone, on the full-resolution cluster.")
+    refit_fine = _stage("refit_samples", "refit_iterations", FINE_REJECT, FINE,
+                        doc="A refit's best restart on the full-resolution cluster.")
