@@ -10,14 +10,14 @@ import numpy as np
 from ..neighbours import nearest
 from ..scene import ClickContext
 from ..transforms import make_T
-from .correspondences import in_sphere, stack_samples
+from .correspondences import stack_samples
 from .model import Model
 from .results import FitResult
-from .settings import (BACKWARD_SUBSAMPLE, MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
+from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
                        FitSettings)
 from .visibility import visible
 
-__all__ = ["forward_residual", "backward_residual", "backward_in_sphere", "click_penalty",
+__all__ = ["forward_residual", "backward_residual", "click_penalty",
            "scores", "result"]
 
 
@@ -53,25 +53,18 @@ def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.nda
 
 
 def backward_residual(ctx: ClickContext, models, R, t, settings: FitSettings,
-                      n: int = BACKWARD_SUBSAMPLE) -> np.ndarray:
-    """Scene -> template capped mean distance of a fixed subsample of the cluster (B,)."""
+                      cluster_points: int | None = None) -> np.ndarray:
+    """Scene cluster -> template: the capped mean distance (B,) from the cluster points to
+    each posed model's surface (points no sample explains count as the cap, so a template that
+    leaves part of the object unexplained pays for it), on an even, fixed subsample of at most
+    ``cluster_points`` of them (None: all)."""
     cap = settings.score_cap
-    pts = ctx.cluster[np.linspace(0, len(ctx.cluster) - 1, min(n, len(ctx.cluster)))
-                      .astype(int)]
-    local = np.einsum("bji,bnj->bni", R, pts[None] - t[:, None, :])   # (B, n, 3) model
+    pts = ctx.cluster
+    if cluster_points is not None and len(pts) > cluster_points:
+        pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
+    R, t = np.asarray(R), np.asarray(t)
+    local = np.einsum("bji,bnj->bni", R, pts[None] - t[:, None, :])   # (B, K, 3) model
     return np.minimum(_grouped_nearest(models, local, cap), cap).mean(axis=1)
-
-
-def backward_in_sphere(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> float:
-    """Scene -> template capped mean distance over the cluster points inside the template's
-    bounding sphere at this pose (points no sample explains count up to the cap)."""
-    cap = settings.score_cap
-    near = in_sphere(ctx.cluster, R @ model.centroid + t, 0.5 * model.diameter + cap)
-    if not near.any():
-        return cap
-    local = (ctx.cluster[near] - t) @ R          # scene -> model frame
-    d, _ = model.nearest(local, cap)
-    return float(np.minimum(d, cap).mean())
 
 
 def click_penalty(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.ndarray:
@@ -100,7 +93,7 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
     the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
     fwd, inl = forward_residual(ctx, [model], R[None], t[None], settings.score_samples,
                                 settings)
-    bwd = backward_in_sphere(ctx, model, R, t, settings)
+    bwd = float(backward_residual(ctx, [model], R[None], t[None], settings)[0])
     click = float(click_penalty(ctx, [model], R[None], t[None], settings)[0])
     residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
     joints = model.joints
