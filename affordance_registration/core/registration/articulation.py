@@ -10,7 +10,7 @@ from ..scene import ClickContext
 from ..transforms import make_T
 from .correspondences import in_contact, plane_gap
 from .icp import fine_stage, icp
-from .model import Model
+from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result, scores
 from .settings import CONTACT_SLACK, FitSettings, Stage
@@ -69,20 +69,21 @@ class _Judge:
         """(model, R, t, whether its ICP converged) of the best hypothesis."""
         ctx, s = self.ctx, self.settings
         n = s.medium_samples
-        Rs, ts = np.stack(Rs), np.stack(ts)
+        batch = Batch.of(models, np.stack(Rs), np.stack(ts))
         converged = np.zeros(len(models), bool)
         if stage.iterations:
-            run = icp(ctx, models, Rs, ts, stage, s)
-            Rs, ts, converged = run.R, run.t, run.converged
-        score = scores(ctx, models, Rs, ts, s, n, n)
+            run = icp(ctx, batch, stage, s)
+            batch, converged = Batch(run.models, run.R, run.t), run.converged
+        score = scores(ctx, batch, s, n, n)
         if self.contact:    # a gap to (or a dip into) the plane beyond its noise costs
-            gap = np.abs(plane_gap(ctx, models, Rs, ts, n))
+            gap = np.abs(plane_gap(ctx, batch, n))
             score = score + np.clip(gap - CONTACT_SLACK, 0.0, s.score_cap)
         if self.jointed:
-            parts = [m.with_values(moving_only=True) for m in models]
-            score = score + forward_residual(ctx, parts, Rs, ts, n // 2, s)[0]
+            parts = Batch(tuple(m.with_values(moving_only=True) for m in models), batch.R,
+                          batch.t)
+            score = score + forward_residual(ctx, parts, n // 2, s)[0]
         k = int(np.argmin(score))
-        return models[k], Rs[k], ts[k], bool(converged[k])
+        return models[k], batch.R[k], batch.t[k], bool(converged[k])
 
 
 def _joint_sweep(model: Model, R, t, settings: FitSettings):

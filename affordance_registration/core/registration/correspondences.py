@@ -11,7 +11,7 @@ import numpy as np
 
 from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
-from .model import Model
+from .model import Batch, Model
 from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
 from .visibility import visible
 
@@ -131,16 +131,16 @@ def _padded(rows: list, fill=0.0) -> np.ndarray:
     return out
 
 
-def reverse_rows(ctx: ClickContext, models, R, t, radius, settings: FitSettings) -> Pairs:
+def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings) -> Pairs:
     """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
     subset of at most ``reverse_points`` full-resolution scene points, padded with zero
     weights."""
     pts, normals = reverse_subset(ctx, settings.reverse_points)
-    rows = [reverse_pairs(m, R[b], t[b], pts, normals, radius[b], settings.weight_scale)
-            for b, m in enumerate(models)]
+    rows = [reverse_pairs(m, batch.R[b], batch.t[b], pts, normals, radius[b],
+                          settings.weight_scale) for b, m in enumerate(batch.models)]
     x, q, n, w, local, moving = (_padded([r[k] for r in rows], fill) for k, fill in
                                  enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False)))
-    scales = np.array([m.scale for m in models])[:, None, None]
+    scales = np.array([m.scale for m in batch.models])[:, None, None]
     return Pairs(x, q, n, w, local / scales, moving)
 
 
@@ -161,11 +161,11 @@ def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSetting
                    enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False))))
 
 
-def plane_gap(ctx: ClickContext, models, R, t, n: int) -> np.ndarray:
-    """Signed distance (m) of each hypothesis' lowest sample from the plane under the click
-    (positive: floating above it), (B,)."""
-    P, _ = stack_samples(models, n)
-    X = np.einsum("bij,bsj->bsi", np.asarray(R), P) + np.asarray(t)[:, None, :]
+def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
+    """Signed distance (m) of each hypothesis' lowest of ``n`` samples from the plane under the
+    click (positive: floating above it), (B,)."""
+    P, _ = stack_samples(batch.models, n)
+    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
     return ctx.plane.distance(X).min(axis=1)
 
 
@@ -174,5 +174,5 @@ def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> 
     ``contact_distance`` of it)."""
     if ctx.plane is None:
         return False
-    gap = plane_gap(ctx, [model], R[None], t[None], REST_SAMPLES)[0]
+    gap = plane_gap(ctx, Batch.single(model, R, t), REST_SAMPLES)[0]
     return abs(gap) <= settings.contact_distance

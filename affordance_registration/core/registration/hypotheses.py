@@ -11,6 +11,7 @@ import numpy as np
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from .model import Batch
 from .results import IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
@@ -22,22 +23,16 @@ MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 
 
 @dataclass(frozen=True)
-class Hypotheses:
+class Hypotheses(Batch):
     """A batch of B poses: ``models`` (B, what each fits), ``R`` (B, 3, 3) and ``t`` (B, 3)
     model -> scene, ``index`` (B,) which of the given templates each is of, ``family`` (B,)
     MOUNTED, RESTING or RANDOM; the ICP iterations run on them so far and which converged in
     the last stage ((B,) bool, or None before any)."""
 
-    models: tuple
-    R: np.ndarray
-    t: np.ndarray
     index: np.ndarray
     family: np.ndarray
     iterations: int = 0
     converged: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.models)
 
     def take(self, idx) -> "Hypotheses":
         """The hypotheses at ``idx`` (an index array), in that order."""

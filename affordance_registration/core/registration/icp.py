@@ -17,7 +17,7 @@ import numpy as np
 
 from ..scene import ClickContext
 from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, reverse_rows
-from .model import Model
+from .model import Batch, Model
 from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
                        JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT, FitSettings, Stage)
@@ -34,20 +34,20 @@ def radius_schedule(reject, floor, it: int, iterations: int):
     return reject * (floor / reject) ** (it / max(iterations - 1, 1))
 
 
-def icp(ctx: ClickContext, models, R, t, stage: Stage, settings: FitSettings, reject=None,
+def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject=None,
         unknowns: tuple = (), contact: bool = False) -> IcpResult:
-    """Weighted ICP of a batch of hypotheses: ``models`` (B), R (B, 3, 3), t (B, 3) model ->
-    scene. ``reject`` (B,) in m overrides the stage's reach. ``unknowns`` (fine stage only):
+    """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
+    reach. ``unknowns`` (fine stage only):
     JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
     samples also pair with the plane under the click (the fit rests on it)."""
     fine = stage.target == FINE
-    posing = _Posing(models, stage.samples, unknowns)
-    R, t = np.array(R, dtype=float), np.array(t, dtype=float)
+    posing = _Posing(batch.models, stage.samples, unknowns)
+    R, t = np.array(batch.R, dtype=float), np.array(batch.t, dtype=float)
     if reject is None:
-        reject = stage.reject * np.array([m.diameter for m in models])
+        reject = stage.reject * np.array([m.diameter for m in batch.models])
     reject = np.asarray(reject, dtype=float)
     floor = np.minimum(reject, settings.reject_floor)
-    converged = np.zeros(len(models), bool)
+    converged = np.zeros(len(batch), bool)
     it = -1
     for it in range(stage.iterations):
         radius = radius_schedule(reject, floor, it, stage.iterations)
@@ -55,7 +55,8 @@ def icp(ctx: ClickContext, models, R, t, stage: Stage, settings: FitSettings, re
         Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
         pairs = forward = Pairs(X, Q, Nq, w, U, moving)
         if fine:
-            pairs = pairs.joined(reverse_rows(ctx, posing.models, R, t, radius, settings))
+            pairs = pairs.joined(reverse_rows(ctx, Batch(tuple(posing.models), R, t), radius,
+                                              settings))
         if contact:
             pairs = pairs.joined(contact_rows(ctx, forward, radius, settings))
         if fine:
@@ -83,7 +84,7 @@ def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: Fi
         ((JOINT,) if tpl.joint is not None and not hold_joint else ()) + \
         ((SCALE,) if tpl.scale_range is not None and not hold_scale else ())
     contact = bool(unknowns) and in_contact(ctx, model, R, t, settings)
-    return icp(ctx, [model], R[None], t[None], stage, settings, unknowns=unknowns,
+    return icp(ctx, Batch.single(model, R, t), stage, settings, unknowns=unknowns,
                contact=contact)
 
 

@@ -15,7 +15,7 @@ from ..templates import AffordanceTemplate
 from .settings import (CENTROID_SAMPLES, CENTROID_SEED, DENSE_SAMPLES, DENSE_SEED,
                        MOVING_OVERSAMPLING, SAMPLE_SEED)
 
-__all__ = ["Model", "ModelCache", "Surface"]
+__all__ = ["Model", "ModelCache", "Surface", "Batch"]
 
 
 class Surface:
@@ -178,3 +178,26 @@ class Model:
         """The template's resting orientations (those at joint zero; scale does not change
         them)."""
         return self.template.resting_rotations(max_poses)
+
+
+@dataclass(frozen=True)
+class Batch:
+    """B hypotheses: the ``models`` (B,) posed by R (B, 3, 3) and t (B, 3), model -> scene --
+    what the stages advance and score together."""
+
+    models: tuple
+    R: np.ndarray
+    t: np.ndarray
+
+    @staticmethod
+    def of(models, R, t) -> "Batch":
+        """A batch from sequences of models and of poses (stacked)."""
+        return Batch(tuple(models), np.asarray(R, dtype=float), np.asarray(t, dtype=float))
+
+    @staticmethod
+    def single(model: Model, R: np.ndarray, t: np.ndarray) -> "Batch":
+        """One hypothesis, R (3, 3), t (3,)."""
+        return Batch((model,), np.asarray(R, dtype=float)[None], np.asarray(t, dtype=float)[None])
+
+    def __len__(self) -> int:
+        return len(self.models)

@@ -9,7 +9,7 @@ import numpy as np
 from ..scene import ClickContext
 from ..transforms import axis_angle_matrix, make_T, rotation_angle
 from .icp import fine_stage, icp
-from .model import Model
+from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result
 from .settings import REFIT_SEED_OFFSET, REFIT_TURN, FitSettings
@@ -30,9 +30,10 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
     n = len(Ts)
     # reach out as far as a refit may move, so a rough correction is pulled in
     reject = np.full(n, max(s.short.reject * model.diameter, s.refit_max_move))
-    starts = icp(ctx, [model] * n, Ts[:, :3, :3], Ts[:, :3, 3], s.short, s, reject=reject)
+    starts = icp(ctx, Batch.of([model] * n, Ts[:, :3, :3], Ts[:, :3, 3]), s.short, s,
+                 reject=reject)
     R, t = starts.R, starts.t
-    fwd, _ = forward_residual(ctx, [model] * n, R, t, s.medium_samples, s)
+    fwd, _ = forward_residual(ctx, starts, s.medium_samples, s)
     allowed = _within_reach(T0, R, t, s)
     if not allowed.any():   # every restart wandered off: start from the correction itself
         R[0], t[0] = T0[:3, :3], T0[:3, 3]

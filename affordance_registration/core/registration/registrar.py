@@ -49,7 +49,7 @@ from ..templates import TemplateLibrary
 from .articulation import articulate, prefer_nominal
 from .hypotheses import Hypotheses, initial_hypotheses, keep_distinct, yaw_sweep_starts
 from .icp import fine_stage, icp
-from .model import Model, ModelCache
+from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
 from .refit import refit
 from .results import FitReport, FitResult, rank
@@ -139,12 +139,11 @@ class Registrar:
         variants, template_of = self._variants(names)
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
         # 2. coarse ICP, all restarts of all templates together
-        hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.coarse, s))
-        score = scores(ctx, hyps.models, hyps.R, hyps.t, s, s.coarse_samples,
-                       BACKWARD_SUBSAMPLE)
+        hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
+        score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
         # 3. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
-        hyps = hyps.after(icp(ctx, hyps.models, hyps.R, hyps.t, s.medium, s))
+        hyps = hyps.after(icp(ctx, hyps, s.medium, s))
         # 4. rank: the best hypothesis per template by the two-way residual
         ranked = self._best_per_template(ctx, hyps)
         # 5. articulated templates among the leaders: joint value and scale with the pose
@@ -228,7 +227,7 @@ class Registrar:
         if s.yaw_sweep <= 1:
             return R, t
         Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
-        swept = icp(ctx, [model] * len(Rs), Rs, ts, s.short, s)
+        swept = icp(ctx, Batch.of([model] * len(Rs), Rs, ts), s.short, s)
         residuals = [result(ctx, model, swept.R[k], swept.t[k], s).residual
                      for k in range(len(Rs))]
         best = int(np.argmin(residuals))

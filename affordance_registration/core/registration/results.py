@@ -6,6 +6,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..scene import ClickContext
+from .model import Batch
 
 __all__ = ["FitResult", "FitReport", "IcpResult", "rank"]
 
@@ -43,15 +44,12 @@ class FitResult:
 
 
 @dataclass(frozen=True)
-class IcpResult:
+class IcpResult(Batch):
     """What an ICP stage returns for its batch of B hypotheses (like small_gicp's
-    ``RegistrationResult``): the models (their joint values and scales as fitted), the poses
-    R (B, 3, 3) and t (B, 3) model -> scene, the iterations run and which hypotheses
-    converged (their last step below the thresholds), (B,) bool."""
+    ``RegistrationResult``): the models (their joint values and scales as fitted) and poses,
+    the iterations run and which hypotheses converged (their last step below the thresholds),
+    (B,) bool."""
 
-    models: tuple
-    R: np.ndarray
-    t: np.ndarray
     iterations: int
     converged: np.ndarray
 

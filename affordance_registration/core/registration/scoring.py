@@ -11,7 +11,7 @@ from ..neighbours import nearest
 from ..scene import ClickContext
 from ..transforms import make_T
 from .correspondences import stack_samples
-from .model import Model
+from .model import Batch, Model
 from .results import FitResult
 from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
                        FitSettings)
@@ -21,13 +21,14 @@ __all__ = ["forward_residual", "backward_residual", "click_penalty",
            "scores", "result"]
 
 
-def forward_residual(ctx: ClickContext, models, R, t, n: int, settings: FitSettings):
-    """Template -> scene capped mean distance over visible samples (free-space violations
-    count as the cap), and the fraction of visible samples within the cap. (B,), (B,)."""
+def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
+    """Template -> scene capped mean distance over ``n`` samples of each hypothesis, those the
+    sensor could have seen (free-space violations count as the cap), and the fraction of them
+    within the cap. (B,), (B,)."""
     cap = settings.score_cap
-    P, N = stack_samples(models, n)
-    X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
-    Nw = np.einsum("bij,bsj->bsi", R, N)
+    P, N = stack_samples(batch.models, n)
+    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
+    Nw = np.einsum("bij,bsj->bsi", batch.R, N)
     vis, violated = visible(ctx, X, Nw, settings)
     dist = np.full(vis.shape, cap)
     d_v, _ = nearest(ctx.crop_tree, X[vis], cap)
@@ -52,7 +53,7 @@ def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.nda
     return out
 
 
-def backward_residual(ctx: ClickContext, models, R, t, settings: FitSettings,
+def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
                       cluster_points: int | None = None) -> np.ndarray:
     """Scene cluster -> template: the capped mean distance (B,) from the cluster points to
     each posed model's surface (points no sample explains count as the cap, so a template that
@@ -62,28 +63,26 @@ def backward_residual(ctx: ClickContext, models, R, t, settings: FitSettings,
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
-    R, t = np.asarray(R), np.asarray(t)
-    local = np.einsum("bji,bnj->bni", R, pts[None] - t[:, None, :])   # (B, K, 3) model
-    return np.minimum(_grouped_nearest(models, local, cap), cap).mean(axis=1)
+    local = np.einsum("bji,bnj->bni", batch.R, pts[None] - batch.t[:, None, :])  # (B, K, 3)
+    return np.minimum(_grouped_nearest(batch.models, local, cap), cap).mean(axis=1)
 
 
-def click_penalty(ctx: ClickContext, models, R, t, settings: FitSettings) -> np.ndarray:
+def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
     """The operator clicked on the object: a candidate whose surface passes farther than
     ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
-    local = np.einsum("bji,bj->bi", R, ctx.click - t)      # click in each model frame
-    d = _grouped_nearest(models, local[:, None, :])[:, 0]
+    local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
+    d = _grouped_nearest(batch.models, local[:, None, :])[:, 0]
     return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
 
 
-def scores(ctx: ClickContext, models, R, t, settings: FitSettings, samples: int,
+def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
            cluster_points: int) -> np.ndarray:
     """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
     template -> scene on ``samples`` template samples, cluster -> template on an even
     subsample of ``cluster_points`` cluster points."""
-    R, t = np.asarray(R), np.asarray(t)
-    fwd, _ = forward_residual(ctx, models, R, t, samples, settings)
-    bwd = backward_residual(ctx, models, R, t, settings, cluster_points)
-    return 0.5 * (fwd + bwd) + click_penalty(ctx, models, R, t, settings)
+    fwd, _ = forward_residual(ctx, batch, samples, settings)
+    bwd = backward_residual(ctx, batch, settings, cluster_points)
+    return 0.5 * (fwd + bwd) + click_penalty(ctx, batch, settings)
 
 
 def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterations: int = 0,
@@ -91,10 +90,10 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
     """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
     penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
     the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
-    fwd, inl = forward_residual(ctx, [model], R[None], t[None], settings.score_samples,
-                                settings)
-    bwd = float(backward_residual(ctx, [model], R[None], t[None], settings)[0])
-    click = float(click_penalty(ctx, [model], R[None], t[None], settings)[0])
+    one = Batch.single(model, R, t)
+    fwd, inl = forward_residual(ctx, one, settings.score_samples, settings)
+    bwd = float(backward_residual(ctx, one, settings)[0])
+    click = float(click_penalty(ctx, one, settings)[0])
     residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
     joints = model.joints
     return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
