@@ -40,7 +40,7 @@ class ModelCache:
 
     def __init__(self, max_posed: int = 512):
         self._lock = threading.Lock()
-        self._surfaces: dict[int, tuple[AffordanceTemplate, Surface]] = {}
+        self._surfaces: dict[AffordanceTemplate, Surface] = {}
         self._posed: OrderedDict = OrderedDict()
         self._max_posed = int(max_posed)
 
@@ -51,14 +51,14 @@ class ModelCache:
         return Model(template, self, float(q), float(scale), articulated=articulated)
 
     def surface(self, template: AffordanceTemplate) -> Surface:
-        key = id(template)
+        """The template's :class:`Surface` (built once; templates are keys by identity)."""
         with self._lock:
-            hit = self._surfaces.get(key)
+            hit = self._surfaces.get(template)
         if hit is not None:
-            return hit[1]
+            return hit
         surface = Surface(template)
-        with self._lock:       # keep the template alive with it: its id stays its own
-            return self._surfaces.setdefault(key, (template, surface))[1]
+        with self._lock:
+            return self._surfaces.setdefault(template, surface)
 
     def posed(self, key: tuple, compute):
         """The value cached under ``key``, or ``compute()`` (then cached, the oldest dropped
@@ -69,6 +69,8 @@ class ModelCache:
                 self._posed.move_to_end(key)
                 return hit
         value = compute()
+        for array in value if isinstance(value, tuple) else (value,):
+            array.setflags(write=False)        # shared between threads and callers
         with self._lock:
             self._posed[key] = value
             while len(self._posed) > self._max_posed:
@@ -128,15 +130,14 @@ class Model:
         def compute():
             P, N, moving = self.template.part_samples(CENTROID_SAMPLES, seed=CENTROID_SEED)
             return self.template.pose_parts(P, N, moving, self.q, self.scale)[0].mean(axis=0)
-        return self.cache.posed(("centroid", id(self.template), self.q, self.scale), compute)
+        return self.cache.posed(("centroid", self.template, self.q, self.scale), compute)
 
     def samples(self, n: int, seed: int = SAMPLE_SEED) -> tuple[np.ndarray, np.ndarray]:
         """``n`` surface samples and their normals, both (n, 3) in the model frame (do not
         modify them)."""
         if self._as_is:
             return self.template.samples(n, seed)
-        key = ("samples", id(self.template), self.q, self.scale, self.moving_only, int(n),
-               int(seed))
+        key = ("samples", self.template, self.q, self.scale, self.moving_only, int(n), int(seed))
         return self.cache.posed(key, lambda: self._posed_samples(int(n), int(seed)))
 
     def _posed_samples(self, n: int, seed: int):
