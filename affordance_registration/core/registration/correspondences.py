@@ -131,17 +131,24 @@ def _padded(rows: list, fill=0.0) -> np.ndarray:
     return out
 
 
+def _pairs_of(rows: list) -> Pairs:
+    """Pairs from per-hypothesis (X, Q, N, w, U, moving) rows of different lengths, padded
+    with zero weights."""
+    fills = (0.0, 0.0, 0.0, 0.0, 0.0, False)
+    return Pairs(*(_padded([r[k] for r in rows], fill) for k, fill in enumerate(fills)))
+
+
 def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings) -> Pairs:
     """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
     subset of at most ``reverse_points`` full-resolution scene points, padded with zero
     weights."""
     pts, normals = reverse_subset(ctx, settings.reverse_points)
-    rows = [reverse_pairs(m, batch.R[b], batch.t[b], pts, normals, radius[b],
-                          settings.weight_scale) for b, m in enumerate(batch.models)]
-    x, q, n, w, local, moving = (_padded([r[k] for r in rows], fill) for k, fill in
-                                 enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False)))
-    scales = np.array([m.scale for m in batch.models])[:, None, None]
-    return Pairs(x, q, n, w, local / scales, moving)
+    rows = []
+    for b, m in enumerate(batch.models):
+        x, q, n, w, local, moving = reverse_pairs(m, batch.R[b], batch.t[b], pts, normals,
+                                                  radius[b], settings.weight_scale)
+        rows.append((x, q, n, w, local / m.scale, moving))
+    return _pairs_of(rows)
 
 
 def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSettings) -> Pairs:
@@ -157,8 +164,7 @@ def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSetting
         rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
                      correspondence_weights(np.abs(pd[low]), radius[b], settings.weight_scale),
                      forward.U[b][low], forward.moving[b][low]))
-    return Pairs(*(_padded([r[k] for r in rows], fill) for k, fill in
-                   enumerate((0.0, 0.0, 0.0, 0.0, 0.0, False))))
+    return _pairs_of(rows)
 
 
 def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
