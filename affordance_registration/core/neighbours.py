@@ -14,8 +14,8 @@ __all__ = ["KDTree", "build_tree", "tree_points", "nearest", "k_nearest", "pairs
            "pca_normals"]
 
 KDTree = cKDTree
-#: queries of at least this many points use every core (thread start-up costs more than it
-#: saves below a few thousand points)
+#: a ``parallel`` query of at least this many points uses every core (thread start-up costs
+#: more than it saves below a few thousand points)
 PARALLEL_QUERIES = 8000
 
 
@@ -29,13 +29,14 @@ def tree_points(tree: KDTree) -> np.ndarray:
     return tree.data
 
 
-def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf):
+def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf, parallel: bool = False):
     """Distance (N,) from each of ``points`` (N, 3) to its nearest tree point and that point's
     index (N,) int. Beyond ``upper`` the distance is inf and the index a valid but meaningless
-    one (mask by ``np.isfinite`` of the distance)."""
+    one (mask by ``np.isfinite`` of the distance). ``parallel``: a big query (at least
+    ``PARALLEL_QUERIES`` points) uses every core."""
     n = len(points)
     d, i = tree.query(points, k=1, distance_upper_bound=upper,
-                      workers=-1 if n >= PARALLEL_QUERIES else 1)
+                      workers=-1 if parallel and n >= PARALLEL_QUERIES else 1)
     return d, np.minimum(i, tree.n - 1)
 
 

@@ -30,8 +30,9 @@ def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
 
 def stack_samples(models, n: int):
     """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
-    P = np.stack([m.samples(n)[0] for m in models])
-    N = np.stack([m.samples(n)[1] for m in models])
+    of = {id(m): m.samples(n) for m in models}      # a batch repeats few distinct models
+    P = np.stack([of[id(m)][0] for m in models])
+    N = np.stack([of[id(m)][1] for m in models])
     return P, N
 
 
@@ -62,7 +63,7 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
         dist[band] = np.abs(pd[band])
         Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
         vis = vis & ~band
-    d_v, i_v = nearest(tree, X[vis])
+    d_v, i_v = nearest(tree, X[vis], parallel=True)
     dist[vis] = d_v
     Q[vis] = pts[i_v]
     w = correspondence_weights(dist, radius[:, None], settings.weight_scale)

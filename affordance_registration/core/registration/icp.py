@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import ClickContext
-from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, reverse_rows
+from .correspondences import (Pairs, contact_rows, forward_pairs, in_contact, reverse_rows,
+                              stack_samples)
 from .model import Batch, Model
 from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
@@ -96,8 +97,7 @@ class _Posing:
     def __init__(self, models, n: int, unknowns: tuple):
         self.models, self.unknowns = list(models), tuple(unknowns)
         if not self.unknowns:
-            self.P = np.stack([m.samples(n)[0] for m in models])
-            self.N = np.stack([m.samples(n)[1] for m in models])
+            self.P, self.N = stack_samples(models, n)
         else:
             self.parts = [m.template.part_samples(n, seed=SAMPLE_SEED) for m in models]
 

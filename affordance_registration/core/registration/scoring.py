@@ -31,7 +31,7 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
     Nw = np.einsum("bij,bsj->bsi", batch.R, N)
     vis, violated = visible(ctx, X, Nw, settings)
     dist = np.full(vis.shape, cap)
-    d_v, _ = nearest(ctx.crop_tree, X[vis], cap)
+    d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
     dist[vis] = np.minimum(d_v, cap)
     dist[violated] = cap
     n_vis = vis.sum(axis=1)
