@@ -19,9 +19,10 @@ import time
 
 import numpy as np
 
-from .core.registration import FitResult, FitSettings, Registrar, _rank
+from .core.registration import FitResult, FitSettings, Registrar, rank
+from .core.registration.hypotheses import initial_hypotheses
 from .core.scene import Scene
-from .core.simulation import simulate_taskboard
+from .core.simulation import simulate_taskboard, sized_library
 from .core.templates import TemplateLibrary
 from .core.transforms import axis_angle_matrix, make_T, pose_error
 
@@ -39,7 +40,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     ctx = registrar.prepare(scene, click)
     names = list(registrar.library)
     tpls = [registrar.library[n] for n in names]
-    hyp_tpl, Rs, ts, _ = registrar._initial_hypotheses(ctx, tpls, np.random.default_rng(0))
+    hyps = initial_hypotheses(ctx, tpls, registrar.settings, np.random.default_rng(0))
     if engine == "open3d":
         import open3d as o3d
         target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ctx.cluster.copy()))
@@ -59,7 +60,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
             sources[i] = src
     best: dict[int, tuple] = {}
     t0 = time.perf_counter()
-    for i, R, t in zip(hyp_tpl, Rs, ts):
+    for i, R, t in zip(hyps.index, hyps.R, hyps.t):
         init = make_T(R, t)
         if engine == "open3d":
             r = o3d.pipelines.registration.registration_icp(sources[i], target, 0.02, init, est, crit)
@@ -76,7 +77,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     results = [FitResult(template=names[i], T_scene_model=T, residual=max(rmse, 1e-9),
                          likelihood=score, inlier_fraction=fit, time_s=elapsed)
                for i, (score, T, fit, rmse) in best.items()]
-    return _rank(results)
+    return rank(results)
 
 
 def _evaluate(row_name, fit_fn, jobs, library):
@@ -117,17 +118,6 @@ def _refit_times(registrar, jobs, library, rng):
         dt, dr = pose_error(res.T_scene_model, T, tpl.symmetry)
         ok += dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
     return float(np.median(times)), ok / len(jobs)
-
-
-SIZED = {"grab_handle": (0.8, 1.25)}
-
-
-def sized_library(library: TemplateLibrary) -> TemplateLibrary:
-    """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
-    the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
-    README), so the scale rows use this variant."""
-    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
-                            for n in library])
 
 
 def _articulated_rows(library, seeds) -> dict:

@@ -305,6 +305,35 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _add_bag_parser(sub) -> None:
+    """The ``bag`` subcommand and its own subcommands."""
+    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
+    bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
+    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
+    b.add_argument("out")
+    b.add_argument("topics", nargs="+")
+    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
+    b = bsub.add_parser("play", help="republish a bag with its original timing")
+    b.add_argument("bag")
+    b.add_argument("--rate", type=float, default=1.0)
+    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
+    b.add_argument("--topics", nargs="*", default=None)
+    b.add_argument("--loop", action="store_true")
+    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
+                   help="wait up to this long for a subscriber on every topic first")
+    b.add_argument("--paced", action="store_true",
+                   help="send each message once the engine node has finished with the ones "
+                        "before it (watching its status), keeping the recorded timing only "
+                        "within bursts (a SpaceMouse push); default: wall-clock timing")
+    b.add_argument("--status-topic", default="/affordance_engine/status",
+                   help="with --paced: the node's JSON status topic")
+    b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
+                   help="with --paced: give up when the node takes longer than this")
+    b = bsub.add_parser("info", help="topics, types, counts, duration")
+    b.add_argument("bag")
+    p.set_defaults(func=cmd_bag)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="affordance-registration",
@@ -352,31 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="7")
     p.set_defaults(func=cmd_session)
 
-    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
-    bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
-    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
-    b.add_argument("out")
-    b.add_argument("topics", nargs="+")
-    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
-    b = bsub.add_parser("play", help="republish a bag with its original timing")
-    b.add_argument("bag")
-    b.add_argument("--rate", type=float, default=1.0)
-    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
-    b.add_argument("--topics", nargs="*", default=None)
-    b.add_argument("--loop", action="store_true")
-    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
-                   help="wait up to this long for a subscriber on every topic first")
-    b.add_argument("--paced", action="store_true",
-                   help="send each message once the engine node has finished with the ones "
-                        "before it (watching its status), keeping the recorded timing only "
-                        "within bursts (a SpaceMouse push); default: wall-clock timing")
-    b.add_argument("--status-topic", default="/affordance_engine/status",
-                   help="with --paced: the node's JSON status topic")
-    b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
-                   help="with --paced: give up when the node takes longer than this")
-    b = bsub.add_parser("info", help="topics, types, counts, duration")
-    b.add_argument("bag")
-    p.set_defaults(func=cmd_bag)
+    _add_bag_parser(sub)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")

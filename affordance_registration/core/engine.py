@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -19,6 +18,7 @@ import yaml
 
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError
+from .files import write_atomically
 from .registration import FitResult, FitSettings, Registrar
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
@@ -94,30 +94,13 @@ class EngineState:
     next_id: int = 1
 
 
-def _atomic_write_text(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same folder + rename)."""
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def save_registrations(path: str, registrations, frame_id: str = "") -> str:
     """Write registrations to a YAML file atomically; returns the absolute path."""
     doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
            "registrations": [r.to_dict() for r in registrations]}
     try:
-        _atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+        write_atomically({path: yaml.safe_dump(doc, sort_keys=False)})
     except OSError as exc:
         raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
     return os.path.abspath(path)

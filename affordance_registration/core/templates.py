@@ -30,6 +30,7 @@ import trimesh
 import yaml
 
 from .errors import TemplateError
+from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
 from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
@@ -485,15 +486,9 @@ def _check_extent(yaml_path: str, key: str, points: np.ndarray) -> None:
 
 def _estimate_normals(points: np.ndarray) -> np.ndarray:
     """Unit normals of a scanned object by local PCA, oriented away from the centroid."""
-    from scipy.spatial import cKDTree
-    k = min(16, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    _, vecs = np.linalg.eigh(cov)
-    normals = vecs[:, :, 0]
-    outward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
-    normals[outward] *= -1
+    normals = pca_normals(points, 16)
+    inward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
+    normals[inward] *= -1
     return normals
 
 
