@@ -6,6 +6,7 @@ import math
 import os
 import resource
 import shutil
+import stat
 import subprocess
 import sys
 import threading
@@ -304,3 +305,86 @@ def test_the_spacemouse_fifo_skips_lines_that_are_not_commands(tmp_path):
     while not backend.enumerate() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert [d["path"] for d in backend.enumerate()] == [b"fake0"]
+
+
+# ---------------------------------------------------------------------------- saving
+def _registrations():
+    from affordance_registration.core.engine import Registration
+    T = np.eye(4)
+    T[:3, 3] = [0.1, 0.2, 0.9]
+    return [Registration(id=1, template="ball_valve", T_scene_model=T, likelihood=1.0,
+                         probability=0.5, residual=0.002, click=T[:3, 3])]
+
+
+def test_saving_never_replaces_what_is_not_a_regular_file(tmp_path):
+    """Row 'registrations_file pointing at a character device, as root': refused, the device
+    intact; likewise a FIFO (without blocking on it) and a folder."""
+    from affordance_registration.core.engine import save_registrations
+    from affordance_registration.core.errors import AffordanceError
+    targets = {"fifo": tmp_path / "fifo", "folder": tmp_path / "folder"}
+    os.mkfifo(targets["fifo"])
+    targets["folder"].mkdir()
+    if os.geteuid() == 0:            # a character device like /dev/null, made here
+        targets["device"] = tmp_path / "null"
+        os.mknod(targets["device"], 0o600 | stat.S_IFCHR, os.makedev(1, 3))
+    for kind, path in targets.items():
+        before = os.lstat(path)
+        with pytest.raises(AffordanceError, match="not a regular file|is a folder"):
+            save_registrations(str(path), _registrations())
+        after = os.lstat(path)
+        assert (after.st_mode, after.st_ino, after.st_rdev) == \
+            (before.st_mode, before.st_ino, before.st_rdev), kind
+    assert sorted(os.listdir(tmp_path)) == sorted(p.name for p in targets.values())
+    # a link to a regular file: the file it points to is written, the link stays
+    real = tmp_path / "real.yaml"
+    real.write_text("old")
+    (tmp_path / "link.yaml").symlink_to(real)
+    save_registrations(str(tmp_path / "link.yaml"), _registrations())
+    assert (tmp_path / "link.yaml").is_symlink() and "ball_valve" in real.read_text()
+
+
+def test_saving_keeps_a_files_mode_and_honours_the_umask(tmp_path):
+    """Row 'a successful ~/save': mode 0600 whatever the umask -- now a new file gets the umask
+    and an existing one keeps its mode."""
+    from affordance_registration.core.engine import save_registrations
+    old = os.umask(0o022)
+    try:
+        save_registrations(str(tmp_path / "new.yaml"), _registrations())
+        assert stat.S_IMODE(os.stat(tmp_path / "new.yaml").st_mode) == 0o644
+        os.umask(0o077)
+        kept = tmp_path / "kept.yaml"
+        kept.write_text("x")
+        os.chmod(kept, 0o640)
+        save_registrations(str(kept), _registrations())
+        assert stat.S_IMODE(os.stat(kept).st_mode) == 0o640
+    finally:
+        os.umask(old)
+
+
+def test_a_save_killed_midway_leaves_nothing_the_next_save_does_not_clean(tmp_path):
+    """Row 'SIGKILL during ~/save': the process is killed while it writes a large file; the
+    old file is intact, and the next save removes the dead process's temporary file."""
+    import signal
+    from affordance_registration.core.engine import save_registrations
+    target = tmp_path / "registrations.yaml"
+    save_registrations(str(target), _registrations())
+    before = target.read_bytes()
+    # the writer stops for good right before its rename (its fsync never returns): a kill then
+    # is a kill in the middle of a save, whatever the machine's speed
+    writer = subprocess.Popen([sys.executable, "-c", (
+        "import os, sys, time\nos.fsync = lambda fd: time.sleep(3600)\n"
+        "from affordance_registration.core.files import write_atomically\n"
+        "write_atomically({sys.argv[1]: b'x' * 2**20})"), str(target)])
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not [
+                p for p in os.listdir(tmp_path) if ".tmp-" in p and os.path.getsize(
+                    tmp_path / p) == 2**20]:
+            time.sleep(0.01)
+        writer.send_signal(signal.SIGKILL)
+    finally:
+        writer.wait()
+    leftovers = [p for p in os.listdir(tmp_path) if ".tmp-" in p]
+    assert leftovers and target.read_bytes() == before
+    save_registrations(str(target), _registrations())
+    assert sorted(os.listdir(tmp_path)) == ["registrations.yaml"]
