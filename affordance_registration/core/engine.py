@@ -49,6 +49,13 @@ class TrackedObject:
     def shown(self) -> FitResult:
         return self.candidates[self.active]
 
+    def to_dict(self, active_id) -> dict:
+        """The object in the engine's status (``active``: it is the selected one)."""
+        return {"id": self.id, "active": self.id == active_id, "shown": self.active,
+                "click": [round(float(v), 6) for v in self.click],
+                "corrections": self.corrections, "model_changes": self.model_changes,
+                "candidates": [c.to_dict() for c in self.candidates]}
+
 
 @dataclass(frozen=True)
 class Registration:
@@ -69,6 +76,17 @@ class Registration:
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
     fit_s: float = 0.0                      #: time the click's fit took
+
+    @classmethod
+    def of(cls, obj: TrackedObject, frame_id: str) -> "Registration":
+        """The registration of ``obj``'s shown candidate."""
+        c = obj.shown
+        return cls(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
+                   likelihood=c.likelihood, probability=c.probability, residual=c.residual,
+                   click=obj.click, frame_id=frame_id, joints=dict(c.joints), state=c.state,
+                   scale=c.scale, ranked_first=obj.candidates[0].template,
+                   model_changes=obj.model_changes, corrections=obj.corrections,
+                   fit_s=obj.fit_s)
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -483,19 +501,13 @@ class AffordanceEngine:
         """Register the shown candidate of the selected object and close the object."""
         with self._lock:
             obj = self._require_active()
-            c = obj.shown
-            reg = Registration(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
-                               likelihood=c.likelihood, probability=c.probability,
-                               residual=c.residual, click=obj.click, frame_id=self._frame_id,
-                               joints=dict(c.joints), state=c.state, scale=c.scale,
-                               ranked_first=obj.candidates[0].template,
-                               model_changes=obj.model_changes, corrections=obj.corrections,
-                               fit_s=obj.fit_s)
+            reg = Registration.of(obj, self._frame_id)
             objects = tuple(o for o in self._state.objects if o.id != obj.id)
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            return f"accepted {c.template} as object {obj.id} ({len(self._state.registered)} registered)"
+            return (f"accepted {reg.template} as object {obj.id} "
+                    f"({len(self._state.registered)} registered)")
 
     def discard(self) -> str:
         """Drop the selected object of interest."""
@@ -535,15 +547,8 @@ class AffordanceEngine:
         """A JSON-ready summary: objects of interest with ranked candidates, registrations."""
         with self._lock:
             st = self._state
-            objects = []
-            for o in st.objects:
-                objects.append({
-                    "id": o.id, "active": o.id == st.active_id, "shown": o.active,
-                    "click": [round(float(v), 6) for v in o.click],
-                    "corrections": o.corrections, "model_changes": o.model_changes,
-                    "candidates": [c.to_dict() for c in o.candidates]})
             return {"frame_id": self._frame_id, "active_id": st.active_id,
-                    "objects": objects,
+                    "objects": [o.to_dict(st.active_id) for o in st.objects],
                     "registered": [r.to_dict() for r in st.registered],
                     "counts": {"objects": len(st.objects), "registered": len(st.registered),
                                "undo": len(self._undo)},
