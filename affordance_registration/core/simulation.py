@@ -27,7 +27,8 @@ from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
-           "SimulatedOperator", "failures", "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV",
+           "SimulatedOperator", "failures", "operator_correction", "truth_joints",
+           "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV",
            "SIZED", "sized_library"]
 
 #: a registration is right when its template is the true one and its pose is within these of the
@@ -404,6 +405,24 @@ def load_truth(path: str) -> dict:
             obj["click"] = np.asarray(obj["click"], dtype=float)
     doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float)
     return doc
+
+
+def operator_correction(T_true: np.ndarray, centroid, rng: np.random.Generator,
+                        move: float = 0.015, turn: float = math.radians(8.0)) -> np.ndarray:
+    """The benchmark's operator correction: ``T_true`` (4x4) turned by ``turn`` (rad) about a
+    random axis through the object's centre (``centroid``, model frame) and moved ``move`` (m)
+    in a random direction -- a rough drag the refit should bring back."""
+    dR = axis_angle_matrix(rng.normal(size=3), turn)
+    off = rng.normal(size=3)
+    off *= move / np.linalg.norm(off)
+    centre = T_true[:3, :3] @ np.asarray(centroid, float) + T_true[:3, 3]
+    return make_T(dR @ T_true[:3, :3], dR @ (T_true[:3, 3] - centre) + centre + off)
+
+
+def truth_joints(template, obj) -> dict:
+    """The joint values a fitted candidate of ``obj`` carries: the truth's, the joint at zero
+    when the truth names none."""
+    return dict(obj.joints) or ({template.joint.name: 0.0} if template.joint is not None else {})
 
 
 def failures(row: dict, tolerance_m: float = POSE_TOL_M,
