@@ -19,7 +19,7 @@ __all__ = ["PointFile", "read_points", "check_header", "MAX_FILE_BYTES", "MAX_PO
 
 #: the largest point or mesh file read (bytes) and the most points one may hold
 MAX_FILE_BYTES = 2_000_000_000
-MAX_POINTS = 20_000_000
+MAX_POINTS = 10_000_000
 _HEADER_LIMIT = 65536           # bytes of header read before giving up on finding its end
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
               "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
