@@ -15,6 +15,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from ..core.errors import AffordanceError
+from ..core.pointfiles import MAX_POINTS
 from ..core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 __all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "xyz_to_pointcloud2", "pose_to_matrix",
@@ -60,6 +61,9 @@ def pointcloud2_layout(msg: PointCloud2) -> np.dtype:
                                   f"point_step {step}")
         formats.append(endian + _FLOAT_TYPES[f.datatype])
         offsets.append(int(f.offset))
+    if h * w > MAX_POINTS:
+        raise ConversionError(f"PointCloud2 has {h * w:,} points, more than the {MAX_POINTS:,} "
+                              f"this node takes (downsample it)")
     if h * w and row_step < w * step:
         raise ConversionError(f"PointCloud2 row_step {row_step} is smaller than width {w} x "
                               f"point_step {step}")
