@@ -19,14 +19,13 @@ import time
 
 import numpy as np
 
-from .core.registration import FitResult, FitSettings, Registrar, _rank
+from .core.registration import FitResult, FitSettings, Registrar, rank
+from .core.registration.hypotheses import initial_hypotheses
 from .core.scene import Scene
-from .core.simulation import simulate_taskboard
+from .core.simulation import (POSE_TOL_M, POSE_TOL_RAD, operator_correction,
+                              simulate_taskboard, sized_library, truth_joints)
 from .core.templates import TemplateLibrary
-from .core.transforms import axis_angle_matrix, make_T, pose_error
-
-POSE_TOL_M = 0.005
-POSE_TOL_RAD = math.radians(5.0)
+from .core.transforms import make_T, pose_error
 MIN_VISIBLE = 200
 JOINT_TOL_RAD = math.radians(5.0)
 JOINT_TOL_M = 0.002
@@ -39,7 +38,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     ctx = registrar.prepare(scene, click)
     names = list(registrar.library)
     tpls = [registrar.library[n] for n in names]
-    hyp_tpl, Rs, ts, _ = registrar._initial_hypotheses(ctx, tpls, np.random.default_rng(0))
+    hyps = initial_hypotheses(ctx, tpls, registrar.settings, np.random.default_rng(0))
     if engine == "open3d":
         import open3d as o3d
         target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ctx.cluster.copy()))
@@ -59,7 +58,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
             sources[i] = src
     best: dict[int, tuple] = {}
     t0 = time.perf_counter()
-    for i, R, t in zip(hyp_tpl, Rs, ts):
+    for i, R, t in zip(hyps.index, hyps.R, hyps.t):
         init = make_T(R, t)
         if engine == "open3d":
             r = o3d.pipelines.registration.registration_icp(sources[i], target, 0.02, init, est, crit)
@@ -76,7 +75,7 @@ def _baseline_fit(registrar: Registrar, scene: Scene, click, engine: str):
     results = [FitResult(template=names[i], T_scene_model=T, residual=max(rmse, 1e-9),
                          likelihood=score, inlier_fraction=fit, time_s=elapsed)
                for i, (score, T, fit, rmse) in best.items()]
-    return _rank(results)
+    return rank(results)
 
 
 def _evaluate(row_name, fit_fn, jobs, library):
@@ -103,31 +102,14 @@ def _refit_times(registrar, jobs, library, rng):
         ctx = registrar.prepare(scene, obj.click)
         T = obj.T_scene_model
         tpl = library[obj.template]
-        axis = rng.normal(size=3)
-        dR = axis_angle_matrix(axis, math.radians(8.0))
-        off = rng.normal(size=3)
-        off *= 0.015 / np.linalg.norm(off)
-        centre = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        T_c = make_T(dR @ T[:3, :3], dR @ (T[:3, 3] - centre) + centre + off)
+        T_c = operator_correction(T, tpl.centroid, rng)
         t0 = time.perf_counter()
         # the candidate carries its joint values (the truth's here: the joint at zero)
-        joints = dict(obj.joints) or ({tpl.joint.name: 0.0} if tpl.joint is not None else {})
-        res = registrar.refit(ctx, obj.template, T_c, joints)
+        res = registrar.refit(ctx, obj.template, T_c, truth_joints(tpl, obj))
         times.append(time.perf_counter() - t0)
         dt, dr = pose_error(res.T_scene_model, T, tpl.symmetry)
         ok += dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
     return float(np.median(times)), ok / len(jobs)
-
-
-SIZED = {"grab_handle": (0.8, 1.25)}
-
-
-def sized_library(library: TemplateLibrary) -> TemplateLibrary:
-    """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
-    the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
-    README), so the scale rows use this variant."""
-    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
-                            for n in library])
 
 
 def _articulated_rows(library, seeds) -> dict:
@@ -234,12 +216,28 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     extra = _ros_conversion_bench()
     if extra:
         result["conversions"] = extra
+    pushed = _ros_push_refit_bench(range(1000, 1000 + n_scenes), 5 if quick else 40, log)
+    if pushed:
+        result["push_refit_ros"] = pushed
     if out:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         with open(out, "w", encoding="utf-8") as handle:
             json.dump(result, handle, indent=2)
         result["written"] = os.path.abspath(out)
     return result
+
+
+def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
+    """The refit row over ROS: the same corrections made with SpaceMouse pushes to a live
+    engine node, which refits once the twists stop (needs the ROS packages)."""
+    try:
+        from .ros.session import measure_push_refit
+    except ImportError:
+        return None
+    import tempfile
+    log(f"refit after a SpaceMouse push, over ROS, on {clicks} clicks ...")
+    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
+        return measure_push_refit(seeds, clicks, out, log=log)
 
 
 def _ros_conversion_bench() -> dict | None:
@@ -266,6 +264,11 @@ def format_table(result: dict) -> str:
                      f"{a['state_right']:.1%}, scale within 3% {a['scale_within_3pct']:.1%} of "
                      f"{a['scaled']}; median {a['median_s']:.3f} s = {a['time_ratio_to_rigid']:.2f}x "
                      f"rigid ({a['rigid_median_s']:.3f} s)")
+    pushed = result.get("push_refit_ros")
+    if pushed:
+        lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
+                     f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
+                     f" corrections {pushed['core_success']:.1%}")
     conv = result.get("conversions")
     if conv:
         lines.append(f"PointCloud2 -> numpy, {conv['points']:,} organized points: median "

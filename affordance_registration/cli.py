@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import time
 
@@ -340,11 +341,53 @@ def cmd_generate_models(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (exit 2, "see --help"), and numbers such as
+    ``-1e-3`` taken as values, not as options (argparse knows only ``-1`` and ``-0.5``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$"
+                                                   r"|^-(inf|nan)$", re.IGNORECASE)
+
+    def error(self, message):
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _add_bag_parser(sub) -> None:
+    """The ``bag`` subcommand and its own subcommands."""
+    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
+    bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
+    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
+    b.add_argument("out")
+    b.add_argument("topics", nargs="+")
+    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
+    b = bsub.add_parser("play", help="republish a bag with its original timing")
+    b.add_argument("bag")
+    b.add_argument("--rate", type=float, default=1.0)
+    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
+    b.add_argument("--topics", nargs="*", default=None)
+    b.add_argument("--loop", action="store_true")
+    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
+                   help="wait up to this long for a subscriber on every topic first")
+    b.add_argument("--paced", action="store_true",
+                   help="send each message once the engine node has finished with the ones "
+                        "before it (watching its status), keeping the recorded timing only "
+                        "within bursts (a SpaceMouse push); default: wall-clock timing")
+    b.add_argument("--status-topic", default="/affordance_engine/status",
+                   help="with --paced: the node's JSON status topic")
+    b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
+                   help="with --paced: give up when the node takes longer than this")
+    b = bsub.add_parser("info", help="topics, types, counts, duration")
+    b.add_argument("bag")
+    p.set_defaults(func=cmd_bag)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="affordance-registration",
         description="Click-to-fit affordance template registration (ROS 2).")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
     p.add_argument("--scene", required=True, help="scene file: PLY, PCD or organized .npy (m)")
@@ -398,31 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --demo: registrations file and node logs")
     p.set_defaults(func=cmd_station)
 
-    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
-    bsub = p.add_subparsers(dest="bag_command", required=True)
-    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
-    b.add_argument("out")
-    b.add_argument("topics", nargs="+")
-    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
-    b = bsub.add_parser("play", help="republish a bag with its original timing")
-    b.add_argument("bag")
-    b.add_argument("--rate", type=float, default=1.0)
-    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
-    b.add_argument("--topics", nargs="*", default=None)
-    b.add_argument("--loop", action="store_true")
-    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
-                   help="wait up to this long for a subscriber on every topic first")
-    b.add_argument("--paced", action="store_true",
-                   help="send each message once the engine node has finished with the ones "
-                        "before it (watching its status), keeping the recorded timing only "
-                        "within bursts (a SpaceMouse push); default: wall-clock timing")
-    b.add_argument("--status-topic", default="/affordance_engine/status",
-                   help="with --paced: the node's JSON status topic")
-    b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
-                   help="with --paced: give up when the node takes longer than this")
-    b = bsub.add_parser("info", help="topics, types, counts, duration")
-    b.add_argument("bag")
-    p.set_defaults(func=cmd_bag)
+
+    _add_bag_parser(sub)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")
@@ -452,6 +472,14 @@ def main(argv=None) -> int:
         return _fail(str(exc))
     except KeyboardInterrupt:
         return 130
+    except MemoryError:
+        return _fail("out of memory")
+    except Exception as exc:          # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
+        if os.environ.get("AFFORDANCE_DEBUG"):
+            raise
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        return _fail(f"internal error: {exc.__class__.__name__}: {text} (please report it; "
+                     f"AFFORDANCE_DEBUG=1 shows the traceback)")
 
 
 if __name__ == "__main__":

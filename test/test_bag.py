@@ -112,9 +112,9 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
     with pytest.raises(BagError, match="truncated|corrupt|not a readable"):
         bag_info(str(broken))
         # some truncations only show when the messages are read
-        from affordance_registration.ros.bag import _open_reader
-        r = _open_reader(str(broken))
-        list(r.messages())
+        from affordance_registration.ros.bag import read_messages
+        for topic in ("/points", "/clicked_point", "/affordance_engine/status"):
+            list(read_messages(str(broken), topic))
     garbage = tmp_path / "garbage"
     garbage.mkdir()
     (garbage / "metadata.yaml").write_text("rosbag2_bagfile_information: [not, a, bag]\n")

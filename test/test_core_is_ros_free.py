@@ -7,8 +7,8 @@ def test_importing_core_loads_no_ros():
     code = (
         "import sys, importlib, pkgutil\n"
         "import affordance_registration.core as core\n"
-        "for m in pkgutil.iter_modules(core.__path__):\n"
-        "    importlib.import_module('affordance_registration.core.' + m.name)\n"
+        "for m in pkgutil.walk_packages(core.__path__, 'affordance_registration.core.'):\n"
+        "    importlib.import_module(m.name)\n"
         "import affordance_registration.bench\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'sensor_msgs', "
         "'geometry_msgs', 'visualization_msgs', 'std_msgs', 'std_srvs', 'viser')]\n"

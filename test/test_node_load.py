@@ -22,7 +22,9 @@ def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):
     big = np.full((1024, 1024, 3), np.nan, dtype=np.float32)     # 1,048,576 points
     big[:576, :640] = sim.organized
     msg = xyz_to_pointcloud2(big, "cam")
-    proc = engine_process(tmp_path)
+    # every fit takes 8 s longer (test-only setting), so "answered during the fits" is a
+    # question of order, not of how fast this machine is today
+    proc = engine_process(tmp_path, {"test_slow_fit_s": 8.0})
     client = Client("load_tester")
     try:
         deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
@@ -49,17 +51,19 @@ def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):
             m.header.frame_id = "cam"
             m.point.x, m.point.y, m.point.z = map(float, obj.click)
             click.publish(m)
-        # while the fits run, parameters are answered promptly
-        t0 = time.monotonic()
+        # while the fits run, parameters are answered: before the first fit's object appears
+        client.wait_for(lambda: "fitting a click" in (client.status()["node"]["busy"] or ""), 30,
+                        "the first fit to start")
         res = client.call(GetParameters, "/affordance_engine/get_parameters",
-                          GetParameters.Request(names=["refit_idle_s"]))
-        assert time.monotonic() - t0 < 1.5 and res.values[0].double_value == 0.5
+                          GetParameters.Request(names=["refit_idle_s"]), timeout=30)
+        answered_at = len(client.history["/affordance_engine/status"])
+        assert res.values[0].double_value == 0.5
         # a service called once both clicks have reached the node acts after both (a cloud
         # stream this big can delay a click on the wire by a retransmission; the order the
         # node guarantees is the order inputs arrive): the second object is the one accepted
         client.wait_for(lambda: client.status()["node"]["received"].get("/clicked_point") == 2,
                         30, "both clicks at the node")
-        accepted = client.call(Trigger, "/affordance_engine/accept", timeout=30)
+        accepted = client.call(Trigger, "/affordance_engine/accept", timeout=60)
         assert accepted.success and sim.objects[1].template in accepted.message
         st = client.wait_for(lambda: len(client.status()["registered"]) == 1 and
                              len(client.status()["objects"]) == 1 and client.status(), 30,
@@ -70,6 +74,9 @@ def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):
                                             client.history["/affordance_engine/status"]))
                 if s["node"]["busy"]]
         assert busy, "the status never showed the fitting thread at work"
+        statuses = [json.loads(x.data) for x in client.history["/affordance_engine/status"]]
+        first_object = next(i for i, st in enumerate(statuses) if st["objects"])
+        assert first_object >= answered_at, "get_parameters was answered only after a fit"
         stop.set()
         streamer.join(timeout=5)
         assert len(sent) >= 5

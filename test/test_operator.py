@@ -280,7 +280,7 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     obj = scene.objects[2]
     s.stream.click(obj.click)
     s.stream.process_pending()
-    undo_depth = len(s.engine._undo)
+    undo_depth = s.engine.status()["counts"]["undo"]
     shift = np.array([0.02, -0.01, 0.0])
     s.engine.set_scene(scene.organized + shift.astype(np.float32), frame_id=FRAME)
     s.stream.new_cloud()
@@ -290,7 +290,7 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     moved = make_T(t=shift) @ obj.T_scene_model
     dt, dr = pose_error(s.shown().T_scene_model, moved, library[obj.template].symmetry)
     assert dt < TOL_M and dr < TOL_RAD, (dt, dr)
-    assert len(s.engine._undo) == undo_depth
+    assert s.engine.status()["counts"]["undo"] == undo_depth
     assert any("followed the new cloud" in m for _, ok, m in s.reports if ok)
     # within follow_period_s of the last follow, and while twists wait for their refit: no
     T_followed = s.shown().T_scene_model.copy()

@@ -7,9 +7,9 @@ from scipy.spatial.transform import Rotation
 
 from affordance_registration.core.errors import RegistrationError, SceneError
 from affordance_registration.core.registration import (FitSettings, Registrar,
-                                                       _point_to_plane_weighted,
                                                        correspondence_weights,
                                                        weighted_rigid_fit)
+from affordance_registration.core.registration.solve import point_to_plane_weighted
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
@@ -55,7 +55,7 @@ def test_point_to_plane_step_recovers_a_small_motion(library):
     T = np.eye(4)
     for _ in range(5):
         Xi = X @ T[:3, :3].T + T[:3, 3]
-        dR, dt = _point_to_plane_weighted(Xi[None], P[None], N[None], np.ones((1, len(P))))
+        dR, dt = point_to_plane_weighted(Xi[None], P[None], N[None], np.ones((1, len(P))))
         T = make_T(dR[0], dt[0]) @ T
     dt_, dr_ = pose_error(T @ make_T(R, t), np.eye(4))
     assert dt_ < 1e-6 and dr_ < 1e-6
@@ -169,6 +169,34 @@ def test_clear_errors(library, registrar, tmp_path):
         Registrar(TemplateLibrary([]))
     with pytest.raises(RegistrationError, match="mode"):
         FitSettings(mode="sideways").validate()
+    with pytest.raises(RegistrationError, match="fine_metric can only be 'plane'"):
+        FitSettings(fine_metric="point").validate()
+    FitSettings(fine_metric="plane", two_way=True, coarse_two_way=True).validate()
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100
+
+
+def test_model_cache_is_safe_under_threads(library):
+    """Concurrent fits share one cache of posed samples and KD-trees: every thread gets the
+    samples of the joint value and scale it asked for (even while a small cache evicts), and
+    one template's dense surface is built once for all of them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from affordance_registration.core.registration.model import ModelCache
+    tpl = library["ball_valve"]
+    cache = ModelCache(max_posed=3)
+    jobs = [(q, sc, n) for q in (0.0, 0.4, 1.2) for sc in (1.0, 1.15) for n in (64, 96)] * 4
+
+    def posed(job):
+        q, sc, n = job
+        return cache.model(tpl, q, sc, articulated=True).samples(n)
+
+    with ThreadPoolExecutor(6) as pool:
+        got = list(pool.map(posed, jobs))
+        surfaces = list(pool.map(lambda _: cache.surface(tpl), range(12)))
+    for (q, sc, n), (P, N) in zip(jobs, got):
+        P0, N0, moving = tpl.part_samples(n, seed=1)
+        P_ref, N_ref = tpl.pose_parts(P0, N0, moving, q, sc)
+        assert np.array_equal(P, P_ref) and np.array_equal(N, N_ref), (q, sc, n)
+    assert all(s is surfaces[0] for s in surfaces)

@@ -86,7 +86,8 @@ def test_noise_statistics_match_the_model():
     hit = lab_clean == 0
     # expected survival per pixel from the incidence angle, computed independently here
     model = NoiseModel()
-    rays = camera._dirs[hit] / np.linalg.norm(camera._dirs[hit], axis=1, keepdims=True)
+    dirs = camera.ray_directions[hit]
+    rays = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     theta = np.arccos(np.abs(rays @ tilted[:3, 2]))
     lo, hi = math.radians(model.drop_start_deg), math.radians(model.drop_full_deg)
     survive = 1 - np.clip((theta - lo) / (hi - lo), 0, 1)
@@ -133,7 +134,7 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
     assert by["emergency_stop"].state in ("pressed", "released")
     assert all(o.scale == 1.0 for o in s.objects)        # no bundled template has sizes
-    from affordance_registration.bench import sized_library
+    from affordance_registration.core.simulation import sized_library
     sized = simulate_taskboard(sized_library(library), 4, articulated=True)
     handle = next(o for o in sized.objects if o.template == "grab_handle")
     assert 0.8 <= handle.scale <= 1.25 and handle.scale != 1.0

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -19,6 +18,7 @@ import yaml
 
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError
+from .files import write_atomically
 from .registration import FitResult, FitSettings, Registrar
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
@@ -49,6 +49,13 @@ class TrackedObject:
     def shown(self) -> FitResult:
         return self.candidates[self.active]
 
+    def to_dict(self, active_id) -> dict:
+        """The object in the engine's status (``active``: it is the selected one)."""
+        return {"id": self.id, "active": self.id == active_id, "shown": self.active,
+                "click": [round(float(v), 6) for v in self.click],
+                "corrections": self.corrections, "model_changes": self.model_changes,
+                "candidates": [c.to_dict() for c in self.candidates]}
+
 
 @dataclass(frozen=True)
 class Registration:
@@ -69,6 +76,17 @@ class Registration:
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
     fit_s: float = 0.0                      #: time the click's fit took
+
+    @classmethod
+    def of(cls, obj: TrackedObject, frame_id: str) -> "Registration":
+        """The registration of ``obj``'s shown candidate."""
+        c = obj.shown
+        return cls(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
+                   likelihood=c.likelihood, probability=c.probability, residual=c.residual,
+                   click=obj.click, frame_id=frame_id, joints=dict(c.joints), state=c.state,
+                   scale=c.scale, ranked_first=obj.candidates[0].template,
+                   model_changes=obj.model_changes, corrections=obj.corrections,
+                   fit_s=obj.fit_s)
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -94,30 +112,13 @@ class EngineState:
     next_id: int = 1
 
 
-def _atomic_write_text(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same folder + rename)."""
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def save_registrations(path: str, registrations, frame_id: str = "") -> str:
     """Write registrations to a YAML file atomically; returns the absolute path."""
     doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
            "registrations": [r.to_dict() for r in registrations]}
     try:
-        _atomic_write_text(path, yaml.safe_dump(doc, sort_keys=False))
+        write_atomically({path: yaml.safe_dump(doc, sort_keys=False)})
     except OSError as exc:
         raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
     return os.path.abspath(path)
@@ -174,7 +175,9 @@ class AffordanceEngine:
 
     def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
                  select_radius: float = 0.4, undo_depth: int = 200,
-                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002):
+                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002,
+                 reach_m: float = 1.0):
+        self.reach_m = float(reach_m)       #: corrections keep an object this close to its click
         self.registrar = Registrar(library, settings)
         self.registrar.warm_up()
         self.library = library
@@ -382,9 +385,6 @@ class AffordanceEngine:
         """Set the shown candidate's pose (an absolute correction, e.g. a dragged marker).
         With ``drag``, the poses of one drag in a row form one correction (one undo step)."""
         T = np.asarray(T_scene_model, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
-            raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
         with self._lock:
             obj = self._require_active()
             first = not (drag and self._last_action == "drag")
@@ -393,7 +393,18 @@ class AffordanceEngine:
             return f"object {obj.id}: {obj.shown.template} placed"
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
-        cand = replace(obj.shown, T_scene_model=np.array(T, dtype=float))
+        """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
+        pose or takes the object farther than ``reach_m`` from where it was clicked."""
+        T = np.array(T, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
+                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
+            raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
+        tpl = self.library[obj.shown.template]
+        away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
+        if away > self.reach_m:
+            raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
+                                  f"from where it was clicked (at most {self.reach_m:g} m)")
+        cand = replace(obj.shown, T_scene_model=T)
         cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
         return replace(obj, candidates=cands, corrections=corrections)
 
@@ -490,19 +501,13 @@ class AffordanceEngine:
         """Register the shown candidate of the selected object and close the object."""
         with self._lock:
             obj = self._require_active()
-            c = obj.shown
-            reg = Registration(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
-                               likelihood=c.likelihood, probability=c.probability,
-                               residual=c.residual, click=obj.click, frame_id=self._frame_id,
-                               joints=dict(c.joints), state=c.state, scale=c.scale,
-                               ranked_first=obj.candidates[0].template,
-                               model_changes=obj.model_changes, corrections=obj.corrections,
-                               fit_s=obj.fit_s)
+            reg = Registration.of(obj, self._frame_id)
             objects = tuple(o for o in self._state.objects if o.id != obj.id)
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            return f"accepted {c.template} as object {obj.id} ({len(self._state.registered)} registered)"
+            return (f"accepted {reg.template} as object {obj.id} "
+                    f"({len(self._state.registered)} registered)")
 
     def discard(self) -> str:
         """Drop the selected object of interest."""
@@ -542,15 +547,8 @@ class AffordanceEngine:
         """A JSON-ready summary: objects of interest with ranked candidates, registrations."""
         with self._lock:
             st = self._state
-            objects = []
-            for o in st.objects:
-                objects.append({
-                    "id": o.id, "active": o.id == st.active_id, "shown": o.active,
-                    "click": [round(float(v), 6) for v in o.click],
-                    "corrections": o.corrections, "model_changes": o.model_changes,
-                    "candidates": [c.to_dict() for c in o.candidates]})
             return {"frame_id": self._frame_id, "active_id": st.active_id,
-                    "objects": objects,
+                    "objects": [o.to_dict(st.active_id) for o in st.objects],
                     "registered": [r.to_dict() for r in st.registered],
                     "counts": {"objects": len(st.objects), "registered": len(st.registered),
                                "undo": len(self._undo)},

@@ -63,6 +63,8 @@ class OperatorSettings:
     twist_frame: str = "spacenav"
     max_twist_dt: float = 0.1          #: longest time one twist is held
     first_twist_dt: float = 1.0 / 30   #: the first twist of a burst: one frame of a 30 Hz device
+    max_speed: float = 2.0             #: m/s; a faster twist (after the gain) is refused
+    max_turn_rate: float = 10.0        #: rad/s; likewise
     refit_idle_s: float = 0.5          #: refit once the twists stopped this long
     #: Joy button per action (action name -> button index; -1 or absent: none)
     buttons: tuple = (("next_model", 0), ("accept", 1))
@@ -83,7 +85,8 @@ class OperatorSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
-        for name in ("max_twist_dt", "first_twist_dt", "refit_idle_s", "joint_axis_threshold"):
+        for name in ("max_twist_dt", "first_twist_dt", "refit_idle_s", "joint_axis_threshold",
+                     "max_speed", "max_turn_rate"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise AffordanceError(f"{name} must be a positive number, got {v!r}")
@@ -330,10 +333,9 @@ class OperatorStream:
         self._on_busy(self._busy)
         self._refresh_scene()
         point = self._to_scene_frame(item.value, item.frame)
-        message = self.engine.click(point)
-        if self.settings.slow_fit_s > 0:
+        if self.settings.slow_fit_s > 0:     # test only: the fit takes this much longer
             self.sleep(self.settings.slow_fit_s)
-        return True, message
+        return True, self.engine.click(point)
 
     def _act(self, action: str, argument=None) -> tuple[bool, str]:
         if action not in ACTIONS:
@@ -369,8 +371,13 @@ class OperatorStream:
         self._last_twist_arrived = item.arrived
         if s.twist_frame == "spacenav":
             lin, ang = R_VIEW_SPACENAV @ lin, R_VIEW_SPACENAV @ ang
+        lin, ang = lin * s.linear_gain, ang * s.angular_gain
+        speed, rate = float(np.linalg.norm(lin)), float(np.linalg.norm(ang))
+        if speed > s.max_speed or rate > s.max_turn_rate:
+            raise AffordanceError(f"ignored a twist of {speed:.3g} m/s, {rate:.3g} rad/s (at most "
+                                  f"{s.max_speed:g} m/s, {s.max_turn_rate:g} rad/s)")
         try:
-            self.engine.correct_twist(lin * s.linear_gain, ang * s.angular_gain, dt)
+            self.engine.correct_twist(lin, ang, dt)
         except AffordanceError as exc:
             raise AffordanceError(f"twist ignored: {exc}") from None
         self._pending_refit = True

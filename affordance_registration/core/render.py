@@ -70,7 +70,7 @@ def render_registrations(points: np.ndarray, registrations, library,
         hit, labels, normals = camera.render(meshes, None, return_normals=True)
         depth = hit[..., 2].reshape(-1)
         labels = labels.reshape(-1)
-        rays = camera._dirs.reshape(-1, 3)
+        rays = camera.ray_directions.reshape(-1, 3)
         rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
         shade = 0.35 + 0.65 * np.abs(np.einsum("ni,ni->n", normals.reshape(-1, 3), rays))
         in_front = (labels >= 0) & ~(scan_depth < depth - 0.01)

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from .errors import SceneError
+from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .transforms import finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points"]
@@ -26,27 +26,11 @@ __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "
 def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
     """Read a scene file: PLY or PCD (Open3D), or an organized ``.npy`` array (H, W, 3).
 
-    Returns (points (N, 3) float64 possibly with NaN rows, organized shape or None)."""
-    path = str(path)
-    if not os.path.isfile(path):
-        raise SceneError(f"{path}: no such scene file")
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise SceneError(f"{path}: not a readable .npy array: {exc}") from None
-        if arr.ndim != 3 or arr.shape[-1] != 3:
-            raise SceneError(f"{path}: expected an organized (H, W, 3) array, got {arr.shape}")
-        return arr.reshape(-1, 3).astype(float), arr.shape[:2]
-    if ext not in (".ply", ".pcd"):
-        raise SceneError(f"{path}: unsupported scene format '{ext}' (PLY, PCD or .npy)")
-    import open3d as o3d  # local: only file loading needs it
-    cloud = o3d.io.read_point_cloud(path)
-    pts = np.asarray(cloud.points, dtype=float)
-    if len(pts) == 0:
-        raise SceneError(f"{path}: no points could be read (empty or not a point cloud)")
-    return pts, None
+    Returns (points (N, 3) float64 possibly with NaN rows, organized shape or None); see
+    :func:`~affordance_registration.core.pointfiles.read_points` for the checks."""
+    from .pointfiles import read_points
+    f = read_points(path)
+    return f.points, f.organized
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -73,9 +57,6 @@ class Plane:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         return points @ self.normal + self.d
-
-    def project(self, point: np.ndarray) -> np.ndarray:
-        return point - self.distance(point) * self.normal
 
 
 class RangeImage:
@@ -134,11 +115,19 @@ class ClickContext:
     plane: Plane | None
     plane_threshold: float
     range_image: RangeImage = field(repr=False)
-    crop_tree: cKDTree = field(repr=False)
-    cluster_tree: cKDTree = field(repr=False)
-    fine_tree: cKDTree = field(repr=False)
+    crop_tree: KDTree = field(repr=False)
+    cluster_tree: KDTree = field(repr=False)
+    fine_tree: KDTree = field(repr=False)
     fine_normals: np.ndarray = field(repr=False)
-    timing: dict = field(default_factory=dict)
+
+    def cluster_mean_near(self, point: np.ndarray, radius: float,
+                          min_points: int = 1) -> np.ndarray | None:
+        """Mean (3,) of the cluster points within ``radius`` (m) of ``point`` (3,), or None when
+        fewer than ``min_points`` are."""
+        near = np.linalg.norm(self.cluster - point, axis=1) <= radius
+        if near.sum() < max(min_points, 1):
+            return None
+        return self.cluster[near].mean(axis=0)
 
 
 class Scene:
@@ -193,17 +182,12 @@ class Scene:
                       plane_threshold: float = 0.006, min_plane_fraction: float = 0.15,
                       cluster_gap: float | None = None, seed: int = 0) -> ClickContext:
         """Crop ``radius`` around the (already snapped) click and prepare the fitting targets."""
-        import time
-        timing = {}
-        t0 = time.perf_counter()
         c = _point3(click, "click")
         d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
         raw = self.points[d2 <= radius * radius]
         if len(raw) < 10:
             raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click")
         crop = voxel_downsample(raw, voxel)
-        timing["crop_s"] = time.perf_counter() - t0
-        t1 = time.perf_counter()
         plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, self.sensor_origin, seed)
         gap = cluster_gap if cluster_gap is not None else 0.025
         keep = np.ones(len(crop), bool) if plane is None else plane.distance(crop) > plane_threshold
@@ -213,11 +197,9 @@ class Scene:
             plane_for_fine = None
         else:
             plane_for_fine = plane
-        timing["segment_s"] = time.perf_counter() - t1
-        t2 = time.perf_counter()
         # full-resolution points of the cluster's voxels (final refinement target)
-        cluster_tree = cKDTree(cluster)
-        near, _ = cluster_tree.query(raw, k=1, distance_upper_bound=voxel)
+        cluster_tree = build_tree(cluster)
+        near, _ = nearest(cluster_tree, raw, voxel)
         fine = raw[np.isfinite(near)]
         if plane_for_fine is not None:
             fine = fine[plane_for_fine.distance(fine) > plane_threshold]
@@ -225,28 +207,18 @@ class Scene:
             fine = cluster
         depth = max(float(np.linalg.norm(c - self.sensor_origin)), 0.2)
         range_image = RangeImage(raw, self.sensor_origin, bin_size=voxel / depth)
-        fine_tree = cKDTree(fine)
+        fine_tree = build_tree(fine)
         ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
                            sensor_origin=self.sensor_origin, crop=crop, cluster=cluster, fine=fine,
                            plane=plane_for_fine, plane_threshold=plane_threshold,
-                           range_image=range_image, crop_tree=cKDTree(crop),
+                           range_image=range_image, crop_tree=build_tree(crop),
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=_pca_normals(fine, fine_tree), timing=timing)
-        timing["index_s"] = time.perf_counter() - t2
+                           fine_normals=pca_normals(fine, 12, fine_tree))
         return ctx
 
 
 def _point3(value, what: str) -> np.ndarray:
     return finite_vector(value, what, SceneError)
-
-
-def _pca_normals(points: np.ndarray, tree: cKDTree, k: int = 12) -> np.ndarray:
-    """Unit normals (N, 3) by PCA of the k nearest neighbours (sign arbitrary)."""
-    k = min(k, len(points))
-    _, idx = tree.query(points, k=k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
-    return np.ascontiguousarray(vecs[:, :, 0])
 
 
 def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
@@ -296,8 +268,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     seeds = np.linalg.norm(pts - click, axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    tree = cKDTree(pts)
-    pairs = tree.query_pairs(gap, output_type="ndarray")
+    pairs = pairs_within(build_tree(pts), gap)
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])),
                        shape=(len(pts), len(pts)))
     _, labels = connected_components(graph, directed=False)

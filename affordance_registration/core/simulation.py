@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -22,13 +21,15 @@ import trimesh
 import yaml
 
 from .errors import AffordanceError
+from .files import write_atomically
 from .templates import TemplateLibrary, mesh_distance
 from .transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
-           "SimulatedOperator", "failures", "POSE_TOL_M", "POSE_TOL_RAD",
-           "KINECT_NFOV"]
+           "SimulatedOperator", "failures", "operator_correction", "truth_joints",
+           "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV",
+           "SIZED", "sized_library"]
 
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
@@ -91,9 +92,12 @@ class DepthCamera:
         self.intrinsics = intrinsics
         self.noise = noise if noise is not None else NoiseModel()
         u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
-        self._dirs = np.stack([(u - intrinsics.cx) / intrinsics.fx,
-                               (v - intrinsics.cy) / intrinsics.fy,
-                               np.ones_like(u, dtype=float)], axis=-1)   # z = 1: t_hit is depth
+        #: the ray through each pixel, (H, W, 3) in the optical frame, scaled to z = 1 (a hit's
+        #: distance along it is its depth); read-only
+        self.ray_directions = np.stack([(u - intrinsics.cx) / intrinsics.fx,
+                                        (v - intrinsics.cy) / intrinsics.fy,
+                                        np.ones_like(u, dtype=float)], axis=-1)
+        self.ray_directions.setflags(write=False)
 
     def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0,
                return_normals: bool = False):
@@ -111,7 +115,8 @@ class DepthCamera:
             scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)),
                                 o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
         H, W = self.intrinsics.height, self.intrinsics.width
-        rays = np.concatenate([np.zeros((H, W, 3)), self._dirs], axis=-1).astype(np.float32)
+        dirs = self.ray_directions
+        rays = np.concatenate([np.zeros((H, W, 3)), dirs], axis=-1).astype(np.float32)
         hit = scene.cast_rays(o3d.core.Tensor(rays))
         depth = hit["t_hit"].numpy().astype(float)
         labels = hit["geometry_ids"].numpy().astype(np.int64)
@@ -119,7 +124,7 @@ class DepthCamera:
         valid = np.isfinite(depth) & (depth < max_range)
         labels = np.where(valid, labels, -1).astype(np.int32)
         if rng is not None:
-            d_unit = self._dirs / np.linalg.norm(self._dirs, axis=-1, keepdims=True)
+            d_unit = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
             cos_in = np.abs(np.einsum("hwi,hwi->hw", normals, d_unit))
             theta = np.arccos(np.clip(cos_in, 0.0, 1.0))
             z = np.where(valid, depth, 1.0)
@@ -128,7 +133,7 @@ class DepthCamera:
             p_drop = np.clip((theta - start) / (full - start), 0.0, 1.0)
             valid &= rng.random(size=depth.shape) >= p_drop
             labels = np.where(valid, labels, -1).astype(np.int32)
-        points = self._dirs * np.where(valid, depth, np.nan)[..., None]
+        points = dirs * np.where(valid, depth, np.nan)[..., None]
         if return_normals:
             return points.astype(np.float32), labels, normals
         return points.astype(np.float32), labels
@@ -209,10 +214,6 @@ def _camera_pose(rng: np.random.Generator) -> np.ndarray:
     return make_T(R, position)
 
 
-def _footprint_radius(mesh: trimesh.Trimesh) -> float:
-    return float(np.linalg.norm(mesh.vertices[:, :2], axis=1).max())
-
-
 def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
     for _ in range(50):
         placed = []
@@ -257,7 +258,46 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))
     camera = camera or DepthCamera()
-    chosen_joints, chosen_scales = dict(joints or {}), dict(scales or {})
+    joints, scales = _joint_values_and_scales(library, names, rng, articulated, joints or {},
+                                              scales or {})
+    rotations = _orientations(library, names, layout, rng)
+    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
+                 for n, q, sc in zip(names, joints, scales)]
+    radii = []
+    for mesh, R in zip(meshes_at, rotations):
+        verts = np.asarray(mesh.vertices) @ R.T
+        radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
+    half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
+    positions = _place(radii, rng, half_x, half_y)
+    T_board_cam = _camera_pose(rng)
+    T_cam_board = invert(T_board_cam)
+    panel = trimesh.creation.box(extents=PANEL_SIZE)
+    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    meshes = [(panel, T_cam_board)]
+    poses = []
+    for mesh, R, p in zip(meshes_at, rotations, positions):
+        lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0
+        T_cam_model = T_cam_board @ make_T(R, [p[0], p[1], lift])
+        poses.append(T_cam_model)
+        meshes.append((mesh, T_cam_model))
+    organized, labels = camera.render(meshes, rng)
+    objects = []
+    for k, (name, T) in enumerate(zip(names, poses), start=1):
+        pts = organized[labels == k].astype(float)
+        q = joints[k - 1]
+        objects.append(SimulatedObject(template=name, T_scene_model=T, click=_click(pts, rng),
+                                       visible_points=int(len(pts)), joints=q,
+                                       scale=scales[k - 1],
+                                       state=library[name].nearest_state(q) if q else None))
+    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
+                          objects=tuple(objects), T_scene_board=T_cam_board,
+                          intrinsics=camera.intrinsics)
+
+
+def _joint_values_and_scales(library: TemplateLibrary, names, rng: np.random.Generator,
+                             articulated: bool, chosen_joints: dict, chosen_scales: dict):
+    """Each object's joint values ({joint: value}) and scale: random within the limits and the
+    scale range (``articulated``, a prismatic joint at a random named state) unless chosen."""
     joints, scales = [], []
     for name in names:
         tpl = library[name]
@@ -275,53 +315,45 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         lo_hi = tpl.scale_range if articulated else None
         sc = float(rng.uniform(*lo_hi)) if lo_hi else 1.0
         scales.append(float(chosen_scales.get(name, sc)))
+    return joints, scales
+
+
+def _orientations(library: TemplateLibrary, names, layout: str, rng: np.random.Generator):
+    """Each object's orientation on the board: a random yaw, and on a table resting on one of
+    its stable facets (chosen by facet area)."""
     rotations = []
     for name in names:
         yaw = axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi))
         if layout == "panel":
             rotations.append(yaw)
-        else:   # resting on one of its stable facets, chosen by facet area
+        else:
             rest = library[name].resting_rotations()
             k = rng.choice(len(rest), p=np.array([w for _, w in rest]))
             rotations.append(yaw @ rest[k][0])
-    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
-                 for n, q, sc in zip(names, joints, scales)]
-    radii = []
-    for mesh, R in zip(meshes_at, rotations):
-        verts = np.asarray(mesh.vertices) @ R.T
-        radii.append(float(np.linalg.norm(verts[:, :2], axis=1).max()))
-    half_x, half_y = PANEL_SIZE[0] / 2, PANEL_SIZE[1] / 2
-    positions = _place(radii, rng, half_x, half_y)
-    T_board_cam = _camera_pose(rng)
-    T_cam_board = invert(T_board_cam)
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
-    meshes = [(panel, T_cam_board)]
-    poses = []
-    for mesh, R, p in zip(meshes_at, rotations, positions):
-        lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0
-        T_board_model = make_T(R, [p[0], p[1], lift])
-        T_cam_model = T_cam_board @ T_board_model
-        poses.append(T_cam_model)
-        meshes.append((mesh, T_cam_model))
-    organized, labels = camera.render(meshes, rng)
-    objects = []
-    for k, (name, T) in enumerate(zip(names, poses), start=1):
-        pts = organized[labels == k].astype(float)
-        click = None
-        if len(pts):
-            centre = np.median(pts, axis=0)
-            order = np.argsort(np.linalg.norm(pts - centre, axis=1))
-            near = order[:max(1, len(order) // 4)]
-            click = pts[rng.choice(near)]
-        q = joints[k - 1]
-        objects.append(SimulatedObject(template=name, T_scene_model=T, click=click,
-                                       visible_points=int(len(pts)), joints=q,
-                                       scale=scales[k - 1],
-                                       state=library[name].nearest_state(q) if q else None))
-    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
-                          objects=tuple(objects), T_scene_board=T_cam_board,
-                          intrinsics=camera.intrinsics)
+    return rotations
+
+
+def _click(pts: np.ndarray, rng: np.random.Generator):
+    """An operator's click on an object's visible points (N, 3): one of the quarter nearest
+    their median; None when none is visible."""
+    if not len(pts):
+        return None
+    centre = np.median(pts, axis=0)
+    order = np.argsort(np.linalg.norm(pts - centre, axis=1))
+    near = order[:max(1, len(order) // 4)]
+    return pts[rng.choice(near)]
+
+
+#: the templates the articulated scenes may also show in sizes (see :func:`sized_library`)
+SIZED = {"grab_handle": (0.8, 1.25)}
+
+
+def sized_library(library: TemplateLibrary) -> TemplateLibrary:
+    """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
+    the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
+    README), so the scenes with scaled objects (tests, the bench's scale rows) use this variant."""
+    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
+                            for n in library])
 
 
 def ply_bytes(points: np.ndarray) -> bytes:
@@ -354,23 +386,12 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
     buf = io.BytesIO()
     np.save(buf, scene.organized)
     payloads["scene_organized.npy"] = buf.getvalue()
-    staged = {}
     try:
-        for name, data in payloads.items():
-            fd, tmp = tempfile.mkstemp(prefix=f".{name}.", dir=out_dir)
-            staged[name] = tmp
-            with os.fdopen(fd, "wb") as handle:
-                handle.write(data)
+        written = write_atomically({os.path.join(out_dir, name): data
+                                    for name, data in payloads.items()})
     except OSError as exc:
-        for tmp in staged.values():
-            if os.path.exists(tmp):
-                os.unlink(tmp)
         raise AffordanceError(f"cannot write into {out_dir}: {exc.strerror}") from None
-    paths = {}
-    for name, tmp in staged.items():
-        final = os.path.join(out_dir, name)
-        os.replace(tmp, final)
-        paths[name] = final
+    paths = dict(zip(payloads, written))
     return paths
 
 
@@ -384,6 +405,24 @@ def load_truth(path: str) -> dict:
             obj["click"] = np.asarray(obj["click"], dtype=float)
     doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float)
     return doc
+
+
+def operator_correction(T_true: np.ndarray, centroid, rng: np.random.Generator,
+                        move: float = 0.015, turn: float = math.radians(8.0)) -> np.ndarray:
+    """The benchmark's operator correction: ``T_true`` (4x4) turned by ``turn`` (rad) about a
+    random axis through the object's centre (``centroid``, model frame) and moved ``move`` (m)
+    in a random direction -- a rough drag the refit should bring back."""
+    dR = axis_angle_matrix(rng.normal(size=3), turn)
+    off = rng.normal(size=3)
+    off *= move / np.linalg.norm(off)
+    centre = T_true[:3, :3] @ np.asarray(centroid, float) + T_true[:3, 3]
+    return make_T(dR @ T_true[:3, :3], dR @ (T_true[:3, 3] - centre) + centre + off)
+
+
+def truth_joints(template, obj) -> dict:
+    """The joint values a fitted candidate of ``obj`` carries: the truth's, the joint at zero
+    when the truth names none."""
+    return dict(obj.joints) or ({template.joint.name: 0.0} if template.joint is not None else {})
 
 
 def failures(row: dict, tolerance_m: float = POSE_TOL_M,

@@ -30,12 +30,20 @@ import trimesh
 import yaml
 
 from .errors import TemplateError
+from .neighbours import pca_normals
+from .pointfiles import MAX_FILE_BYTES, check_header, read_points
 from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
 __all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
 
 _KNOWN_KEYS = {"name", "mesh", "mesh_scale", "symmetry", "joints", "states", "description",
-               "base_mesh", "scale"}
+               "base_mesh", "scale", "allow_external_files"}
+#: bounds on what a template file may ask for, checked before any work is done
+MAX_YAML_BYTES = 1_000_000
+MAX_TEMPLATE_SIZE = 100.0        #: m, largest extent of a (scaled) template
+MAX_SYMMETRY_ORDER = 360         #: beyond this, say ``continuous: true``
+MAX_REVOLUTE = 64 * math.pi      #: rad, joint limits of a revolute joint (32 turns)
+MAX_JOINTS = 16
 _JOINT_KEYS = {"name", "type", "axis", "origin", "lower", "upper", "torque_limit", "moving_mesh"}
 
 
@@ -414,55 +422,73 @@ def _scale_range(value) -> tuple:
     return lo, hi
 
 
-def _load_geometry(yaml_path: str, key: str, rel: str, scale: float):
-    """Load a mesh or point cloud; returns (mesh or None, points or None, normals or None)."""
+def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
+    """The file a template key names: relative to the YAML, and inside the YAML's folder unless
+    the template says ``allow_external_files: true``."""
     if not isinstance(rel, str) or not rel:
         raise _fail(yaml_path, key, "expected a file path relative to the YAML file")
-    path = os.path.join(os.path.dirname(os.path.abspath(yaml_path)), rel)
+    folder = os.path.dirname(os.path.abspath(yaml_path))
+    path = os.path.join(folder, rel)
+    if not allow_external:
+        root = os.path.realpath(folder)
+        if os.path.commonpath([os.path.realpath(path), root]) != root:
+            raise _fail(yaml_path, key, f"{rel} is outside the template's folder {folder} "
+                                        f"(set 'allow_external_files: true' to allow that)")
     if not os.path.isfile(path):
         raise _fail(yaml_path, key, f"file not found: {path}")
+    if os.path.getsize(path) > MAX_FILE_BYTES:
+        raise _fail(yaml_path, key, f"{path} is larger than {MAX_FILE_BYTES / 1e9:.0f} GB")
+    return path
+
+
+def _load_geometry(yaml_path: str, key: str, rel: str, scale: float,
+                   allow_external: bool = False):
+    """Load a mesh, or a point cloud (a PCD, or a PLY without faces: a scan of the object, read
+    like a scene); returns (mesh or None, points or None, normals or None)."""
+    path = _geometry_path(yaml_path, key, rel, allow_external)
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".stl", ".obj", ".ply", ".pcd", ".off", ".glb", ".gltf"):
         raise _fail(yaml_path, key, f"unsupported file type '{ext}' (STL, OBJ, PLY, PCD)")
+    fail = (lambda msg: _fail(yaml_path, key, msg))
+    if ext in (".ply", ".pcd") and not check_header(path, fail)["faces"]:
+        pts = read_points(path, fail).points
+        pts = pts[np.all(np.isfinite(pts), axis=1)] * scale
+        if len(pts) < 10:
+            raise _fail(yaml_path, key, f"{path}: fewer than 10 finite points")
+        _check_extent(yaml_path, key, pts)
+        return None, pts, _estimate_normals(pts)
     try:
-        if ext == ".pcd":
-            geom = _read_point_file(path)
-        else:
-            geom = trimesh.load(path, process=True)
-            if isinstance(geom, trimesh.Scene):
-                geom = geom.dump(concatenate=True) if geom.geometry else None
+        geom = trimesh.load(path, process=True)
+        if isinstance(geom, trimesh.Scene):
+            geom = geom.dump(concatenate=True) if geom.geometry else None
     except Exception as exc:  # trimesh raises many types for broken files
         raise _fail(yaml_path, key, f"{path} does not load: {exc}") from None
-    if isinstance(geom, trimesh.Trimesh) and len(geom.faces) > 0:
-        mesh = geom.copy()
-        mesh.apply_scale(scale)
-        if mesh.area <= 0:
-            raise _fail(yaml_path, key, f"{path} has no surface area")
-        return mesh, None, None
-    pts = np.asarray(getattr(geom, "vertices", geom) if geom is not None else [], dtype=float)
-    if pts.ndim != 2 or len(pts) < 10:
-        raise _fail(yaml_path, key, f"{path} does not load: no faces and fewer than 10 points")
-    pts = pts[np.all(np.isfinite(pts), axis=1)] * scale
-    return None, pts, _estimate_normals(pts)
+    if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+        raise _fail(yaml_path, key, f"{path} does not load as a mesh (no faces)")
+    mesh = geom.copy()
+    mesh.apply_scale(scale)
+    _check_extent(yaml_path, key, np.asarray(mesh.vertices))
+    if mesh.area <= 0:
+        raise _fail(yaml_path, key, f"{path} has no surface area")
+    return mesh, None, None
 
 
-def _read_point_file(path: str) -> np.ndarray:
-    import open3d as o3d  # local: only point-cloud templates need it
-    cloud = o3d.io.read_point_cloud(path)
-    return np.asarray(cloud.points, dtype=float)
+def _check_extent(yaml_path: str, key: str, points: np.ndarray) -> None:
+    """Scaled geometry must be finite and at most MAX_TEMPLATE_SIZE across."""
+    if not np.all(np.isfinite(points)):
+        raise _fail(yaml_path, key, "the geometry is not finite (mesh_scale too large?)")
+    size = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    if size > MAX_TEMPLATE_SIZE:
+        raise _fail(yaml_path, key, f"the geometry is {size:.3g} m across, more than the "
+                                    f"{MAX_TEMPLATE_SIZE:.0f} m a template may be (mesh_scale "
+                                    f"converts its units to metres)")
 
 
 def _estimate_normals(points: np.ndarray) -> np.ndarray:
     """Unit normals of a scanned object by local PCA, oriented away from the centroid."""
-    from scipy.spatial import cKDTree
-    k = min(16, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    _, vecs = np.linalg.eigh(cov)
-    normals = vecs[:, :, 0]
-    outward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
-    normals[outward] *= -1
+    normals = pca_normals(points, 16)
+    inward = np.einsum("ni,ni->n", normals, points - points.mean(axis=0)) < 0
+    normals[inward] *= -1
     return normals
 
 
@@ -490,14 +516,20 @@ def _parse_symmetry(path: str, value) -> Symmetry | None:
     order = value.get("order")
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise _fail(path, "symmetry.order", f"expected an integer >= 1, got {order!r}")
+    if order > MAX_SYMMETRY_ORDER:
+        raise _fail(path, "symmetry.order", f"{order} is more than {MAX_SYMMETRY_ORDER}: for a "
+                                            f"shape that looks the same at every angle use "
+                                            f"'continuous: true'")
     return Symmetry(axis=axis, order=order)
 
 
-def _parse_joints(path: str, value, scale: float) -> tuple:
+def _parse_joints(path: str, value, scale: float, external: bool = False) -> tuple:
     if value is None:
         return ()
     if not isinstance(value, list):
         raise _fail(path, "joints", "expected a list of joints")
+    if len(value) > MAX_JOINTS:
+        raise _fail(path, "joints", f"{len(value)} joints; at most {MAX_JOINTS}")
     joints, names = [], set()
     for i, spec in enumerate(value):
         key = f"joints[{i}]"
@@ -528,6 +560,11 @@ def _parse_joints(path: str, value, scale: float) -> tuple:
         if not (math.isfinite(lower) and math.isfinite(upper)) or lower >= upper:
             raise _fail(path, f"{key}.lower/upper",
                         f"limits inverted or empty: lower={lower} must be below upper={upper}")
+        reach = MAX_REVOLUTE if jtype == "revolute" else MAX_TEMPLATE_SIZE / scale
+        if max(abs(lower), abs(upper)) > reach:
+            raise _fail(path, f"{key}.lower/upper",
+                        f"limits beyond ±{reach:.4g} ({'rad' if jtype == 'revolute' else 'mesh units'}):"
+                        f" lower={lower}, upper={upper}")
         torque = spec.get("torque_limit")
         if torque is not None:
             try:
@@ -539,7 +576,8 @@ def _parse_joints(path: str, value, scale: float) -> tuple:
                 raise _fail(path, f"{key}.torque_limit", "must be positive")
         if "moving_mesh" not in spec:
             raise _fail(path, f"{key}.moving_mesh", "missing: the moving part's mesh is required")
-        moving, _, _ = _load_geometry(path, f"{key}.moving_mesh", spec["moving_mesh"], scale)
+        moving, _, _ = _load_geometry(path, f"{key}.moving_mesh", spec["moving_mesh"], scale,
+                                      external)
         if moving is None:
             raise _fail(path, f"{key}.moving_mesh", "the moving part must be a mesh")
         if jtype == "prismatic":
@@ -584,12 +622,19 @@ def load_template(path: str) -> AffordanceTemplate:
     """Load one template YAML file. Raises :class:`TemplateError` naming the file and key."""
     path = str(path)
     try:
+        if os.path.getsize(path) > MAX_YAML_BYTES:
+            raise TemplateError(f"{path}: larger than {MAX_YAML_BYTES // 1000} kB: not a "
+                                f"template file")
         with open(path, encoding="utf-8") as handle:
             doc = yaml.safe_load(handle)
     except OSError as exc:
         raise TemplateError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise TemplateError(f"{path}: not UTF-8 text") from None
     except yaml.YAMLError as exc:
         raise TemplateError(f"{path}: not valid YAML: {exc}".splitlines()[0]) from None
+    except RecursionError:
+        raise TemplateError(f"{path}: YAML nested too deeply") from None
     if not isinstance(doc, dict):
         raise TemplateError(f"{path}: expected a mapping with at least 'name' and 'mesh'")
     unknown = set(doc) - _KNOWN_KEYS
@@ -604,13 +649,16 @@ def load_template(path: str) -> AffordanceTemplate:
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) \
             or scale <= 0:
         raise _fail(path, "mesh_scale", f"expected a positive number, got {scale!r}")
-    mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale))
+    external = doc.get("allow_external_files", False)
+    if external not in (True, False):
+        raise _fail(path, "allow_external_files", f"expected true or false, got {external!r}")
+    mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale), external)
     symmetry = _parse_symmetry(path, doc.get("symmetry"))
-    joints = _parse_joints(path, doc.get("joints"), float(scale))
+    joints = _parse_joints(path, doc.get("joints"), float(scale), external)
     states = _parse_states(path, doc.get("states"), joints)
     base = None
     if "base_mesh" in doc:
-        base, _, _ = _load_geometry(path, "base_mesh", doc["base_mesh"], float(scale))
+        base, _, _ = _load_geometry(path, "base_mesh", doc["base_mesh"], float(scale), external)
     description = doc.get("description", "")
     if not isinstance(description, str):
         raise _fail(path, "description", "expected text")

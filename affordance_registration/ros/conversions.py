@@ -15,9 +15,11 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from ..core.errors import AffordanceError
+from ..core.pointfiles import MAX_POINTS
 from ..core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
-__all__ = ["ConversionError", "pointcloud2_to_xyz", "pointcloud2_field", "xyz_to_pointcloud2", "pose_to_matrix",
+__all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
+           "xyz_to_pointcloud2", "pose_to_matrix",
            "matrix_to_pose", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
            "text_marker", "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
 
@@ -33,8 +35,16 @@ class ConversionError(AffordanceError):
     """A message cannot be converted (the text says what is wrong with it)."""
 
 
-def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
-    """(points (N, 3) float64 with NaN rows kept, (height, width) if organized else None)."""
+def pointcloud2_layout(msg: PointCloud2) -> np.dtype:
+    """Check a PointCloud2's header against its data without reading the points: x, y, z each
+    once, as float32/float64 within ``point_step``, rows that fit ``row_step``, data of the size
+    the header says. Returns the structured dtype of one point; raises ConversionError saying
+    what is wrong."""
+    names = [f.name for f in msg.fields]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ConversionError(f"PointCloud2 has more than one field named "
+                              f"{', '.join(repr(n) for n in duplicates)}")
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in ("x", "y", "z") if n not in fields]
     if missing:
@@ -42,7 +52,7 @@ def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
                               f"(fields: {', '.join(fields) or 'none'})")
     h, w, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
     endian = ">" if msg.is_bigendian else "<"
-    names, formats, offsets = [], [], []
+    formats, offsets = [], []
     for n in ("x", "y", "z"):
         f = fields[n]
         if f.datatype not in _FLOAT_TYPES:
@@ -53,21 +63,31 @@ def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
         if f.offset + _SIZES[f.datatype] > step:
             raise ConversionError(f"PointCloud2 field '{n}' (offset {f.offset}) does not fit in "
                                   f"point_step {step}")
-        names.append(n)
         formats.append(endian + _FLOAT_TYPES[f.datatype])
         offsets.append(int(f.offset))
-    if h * w == 0:
-        return np.zeros((0, 3)), None
-    if row_step < w * step:
+    if h * w > MAX_POINTS:
+        raise ConversionError(f"PointCloud2 has {h * w:,} points, more than the {MAX_POINTS:,} "
+                              f"this node takes (downsample it)")
+    if h * w and row_step < w * step:
         raise ConversionError(f"PointCloud2 row_step {row_step} is smaller than width {w} x "
                               f"point_step {step}")
+    size = len(msg.data)
+    if h * w and size != row_step * h:
+        raise ConversionError(f"PointCloud2 data has {size} bytes but the header says "
+                              f"{h} rows x row_step {row_step} = {row_step * h}")
+    return np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets,
+                     "itemsize": step})
+
+
+def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
+    """(points (N, 3) float64 with NaN rows kept, (height, width) if organized else None)."""
+    dtype = pointcloud2_layout(msg)
+    h, w, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    if h * w == 0:
+        return np.zeros((0, 3)), None
     data = msg.data
     buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else \
         data.view(np.uint8)
-    if buf.size != row_step * h:
-        raise ConversionError(f"PointCloud2 data has {buf.size} bytes but the header says "
-                              f"{h} rows x row_step {row_step} = {row_step * h}")
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     rows = buf.reshape(h, row_step)[:, :w * step]
     if not rows.flags.c_contiguous:
         rows = np.ascontiguousarray(rows)

@@ -36,7 +36,8 @@ from ..core.errors import AffordanceError, EngineStateError
 from ..core.operator import ACTIONS, OperatorStream
 from ..core.templates import TemplateLibrary
 from . import params
-from .conversions import matrix_to_pose, pointcloud2_to_xyz, pose_stamped, pose_to_matrix
+from .conversions import (ConversionError, matrix_to_pose, pointcloud2_layout,
+                          pointcloud2_to_xyz, pose_stamped, pose_to_matrix)
 from .frames import FrameError, StaticFrames
 from .interactive import CorrectionMarkerServer, MarkerCallbacks
 from .markers import state_markers
@@ -84,6 +85,7 @@ class EngineNode(Node):
         self._cloud_count = 0
         self._converted = 0
         self._cloud_status_at = 0.0
+        self._dropped = ""              # why the latest cloud was refused ("" if it was not)
         self._dirty = True
         self._last_publish = 0.0
         self._last_error = ""
@@ -125,7 +127,8 @@ class EngineNode(Node):
                                 qos_profile=SERVICE_QOS, callback_group=services)
         self.interactive = CorrectionMarkerServer(
             MarkerCallbacks(active=self.engine.active_object, frame=self._frame,
-                            view_pose=self.engine.view_pose, template=self.library.__getitem__,
+                            view_pose=self.engine.view_pose,
+                            template=lambda name: self.library[name],
                             pose=lambda T, release: self.stream.pose(T, release,
                                                                      source="marker_feedback"),
                             action=lambda name, arg: self.stream.action(
@@ -136,6 +139,8 @@ class EngineNode(Node):
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_timer(0.05, self._on_timer)
+        self._name_checks = 0
+        self._name_timer = self.create_timer(1.0, self._check_name)
         self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
                                         name="operator-stream", daemon=True)
         self._worker.start()
@@ -157,20 +162,28 @@ class EngineNode(Node):
         if problem:
             return SetParametersResult(successful=False, reason=problem)
         try:
-            library = None
-            if "templates_dir" in changed and new["templates_dir"] != self._p["templates_dir"]:
-                library = TemplateLibrary.load(new["templates_dir"] or None)
-            if library is not None or changed & params.FIT_PARAMETERS:
-                self.engine.configure(params.fit_settings(new), library)
-                self.library = self.engine.library
-            if "static_transforms" in changed:
-                self.frames = StaticFrames(new["static_transforms"])
-            self.stream.configure(params.operator_settings(new))
-            self._set_joint_steps(new)
-            if "interactive_orientation" in changed:
-                self.interactive.orientation = new["interactive_orientation"]
+            return self._apply_parameters(new, changed)
         except AffordanceError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        except Exception as exc:     # the caller always gets an answer, with the reason
+            return SetParametersResult(successful=False, reason=f"internal error: "
+                                                                f"{exc.__class__.__name__}: {exc}")
+
+    def _apply_parameters(self, new: dict, changed: set) -> SetParametersResult:
+        """Use validated new values: a new library or fitting settings rebuild the registrar
+        (refused while objects are open), the rest applies from the next input on."""
+        library = None
+        if "templates_dir" in changed and new["templates_dir"] != self._p["templates_dir"]:
+            library = TemplateLibrary.load(new["templates_dir"] or None)
+        if library is not None or changed & params.FIT_PARAMETERS:
+            self.engine.configure(params.fit_settings(new), library)
+            self.library = self.engine.library
+        if "static_transforms" in changed:
+            self.frames = StaticFrames(new["static_transforms"])
+        self.stream.configure(params.operator_settings(new))
+        self._set_joint_steps(new)
+        if "interactive_orientation" in changed:
+            self.interactive.orientation = new["interactive_orientation"]
         self._p = new
         self._dirty = True
         return SetParametersResult(successful=True)
@@ -205,17 +218,13 @@ class EngineNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_cloud(self, msg: PointCloud2) -> None:
-        n_fields = {f.name for f in msg.fields}
-        expected = int(msg.row_step) * int(msg.height)
-        if not {"x", "y", "z"} <= n_fields:
-            self._error("cloud", f"dropped a PointCloud2 without x/y/z fields (has: "
-                                 f"{', '.join(sorted(n_fields)) or 'none'})")
+        try:                            # the header checked now; the points read when needed
+            pointcloud2_layout(msg)
+        except ConversionError as exc:
+            self._dropped = f"the last PointCloud2 (frame '{msg.header.frame_id}') was dropped: {exc}"
+            self._error("cloud", f"dropped a PointCloud2 in '{msg.header.frame_id}': {exc}")
             return
-        if len(msg.data) != expected:
-            self._error("cloud", f"dropped a PointCloud2 whose data ({len(msg.data)} bytes) "
-                                 f"disagrees with its header (height {msg.height} x row_step "
-                                 f"{msg.row_step} = {expected})")
-            return
+        self._dropped = ""
         with self._lock:
             prev = self._cloud_msg
             self._cloud_msg = msg
@@ -236,7 +245,8 @@ class EngineNode(Node):
         with self._lock:
             msg, count = self._cloud_msg, self._cloud_count
         if msg is None:
-            raise EngineStateError("no point cloud received yet on 'points'")
+            raise EngineStateError(f"no usable point cloud yet on '{self._sub_points.topic_name}'"
+                                   + (f": {self._dropped}" if self._dropped else ""))
         if count == self._converted:
             return
         self._converted = count
@@ -287,14 +297,34 @@ class EngineNode(Node):
         self._dirty = True
 
     def _service(self, action: str):
+        """A service answered once the stream has handled its action. rclpy resumes a waiting
+        callback only when its executor goes round, so the reply wakes it."""
         async def callback(request, response):
             done = Future(executor=self.executor)
-            self.stream.action(action, source=f"~/{action}",
-                               reply=lambda ok, message: done.set_result((ok, message)))
+            executor = self.executor
+
+            def reply(ok, message):
+                done.set_result((ok, message))
+                executor.wake()
+            self.stream.action(action, source=f"~/{action}", reply=reply)
             self._dirty = True
             response.success, response.message = await done
             return response
         return callback
+
+    def _check_name(self) -> None:
+        """Warn once if another node of this name runs in this namespace (both would serve
+        the same services and topics); looked at for the first 10 s, as discovery completes."""
+        self._name_checks += 1
+        ns, name = self.get_namespace(), self.get_name()
+        twins = sum(1 for n, s in self.get_node_names_and_namespaces() if (n, s) == (name, ns))
+        if twins > 1:
+            self.get_logger().warning(
+                f"another node named {self.get_fully_qualified_name()} is running: both serve "
+                f"its services and topics and either may answer; give one another name "
+                f"(--ros-args -r __node:=NAME) or namespace")
+        if twins > 1 or self._name_checks >= 10:
+            self._name_timer.cancel()
 
     # ------------------------------------------------------------------ output
     def _report(self, kind: str, ok: bool, message: str) -> None:

@@ -25,7 +25,6 @@ node: SIGINT first, SIGTERM after ``grace`` seconds, SIGKILL after twice that.
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -113,45 +112,88 @@ def find_executable(pkg: str, executable: str) -> str:
                       f"under lib/{pkg} of AMENT_PREFIX_PATH")
 
 
-_SUBST = re.compile(r"\$\((\w[\w-]*)((?:\s+[^)\s]+)*)\s*\)")
+#: nesting depth of substitutions inside substitutions ($(find-pkg-share $(var pkg)) is 2)
+MAX_SUBSTITUTION_DEPTH = 16
 
 
-def substitute(text, variables: dict, where: str):
+def substitute(text, variables: dict, where: str, depth: int = 0):
+    """Resolve ``$(var NAME)``, ``$(env NAME [default])`` and ``$(find-pkg-share PKG)`` in
+    ``text``, nested ones inside out. What a substitution yields is used as it is, never
+    resolved again (an environment variable holding ``$(env X)`` stays that text), so every
+    substitution terminates."""
     if not isinstance(text, str):
         return text
+    out, i = [], 0
+    while True:
+        j = text.find("$(", i)
+        if j < 0:
+            out.append(text[i:])
+            return "".join(out)
+        out.append(text[i:j])
+        k, level = j + 2, 1               # the matching ')'
+        while k < len(text) and level:
+            if text.startswith("$(", k):
+                level, k = level + 1, k + 2
+                continue
+            level -= text[k] == ")"
+            k += 1
+        if level:
+            raise LaunchError(f"{where}: unclosed substitution in {text!r}")
+        if depth >= MAX_SUBSTITUTION_DEPTH:
+            raise LaunchError(f"{where}: substitutions nested deeper than "
+                              f"{MAX_SUBSTITUTION_DEPTH} levels")
+        inner = substitute(text[j + 2:k - 1], variables, where, depth + 1)
+        out.append(_resolve(inner.split(), variables, where))
+        i = k
 
-    def repl(m):
-        kind, args = m.group(1), m.group(2).split()
-        if kind == "var":
-            if not args or args[0] not in variables:
-                raise LaunchError(f"{where}: unknown launch argument '{args[0] if args else ''}'")
-            return str(variables[args[0]])
-        if kind == "env":
-            if not args:
-                raise LaunchError(f"{where}: $(env) needs a variable name")
-            if args[0] in os.environ:
-                return os.environ[args[0]]
-            if len(args) > 1:
-                return " ".join(args[1:])
-            raise LaunchError(f"{where}: environment variable '{args[0]}' is not set")
-        if kind == "find-pkg-share":
-            return package_share(args[0])
-        raise LaunchError(f"{where}: unsupported substitution $({kind})")
-    out, prev = text, None
-    while out != prev:           # nested substitutions resolve inside out
-        prev, out = out, _SUBST.sub(repl, out)
-    return out
+
+def _resolve(words: list[str], variables: dict, where: str) -> str:
+    kind, args = (words[0], words[1:]) if words else ("", [])
+    if kind == "var":
+        if not args or args[0] not in variables:
+            raise LaunchError(f"{where}: unknown launch argument '{args[0] if args else ''}'")
+        return str(variables[args[0]])
+    if kind == "env":
+        if not args:
+            raise LaunchError(f"{where}: $(env) needs a variable name")
+        if args[0] in os.environ:
+            return os.environ[args[0]]
+        if len(args) > 1:
+            return " ".join(args[1:])
+        raise LaunchError(f"{where}: environment variable '{args[0]}' is not set")
+    if kind == "find-pkg-share":
+        if not args:
+            raise LaunchError(f"{where}: $(find-pkg-share) needs a package name")
+        return package_share(args[0])
+    raise LaunchError(f"{where}: unsupported substitution $({kind})")
+
+
+def _read_yaml(path: str):
+    """A launch file's YAML (one clear LaunchError for anything unreadable)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            return yaml.safe_load(handle)
+    except OSError as exc:
+        raise LaunchError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise LaunchError(f"{path}: not UTF-8 text") from None
+    except yaml.YAMLError as exc:
+        raise LaunchError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    except RecursionError:
+        raise LaunchError(f"{path}: YAML nested too deeply") from None
+
+
+def _entries(body: dict, key: str, where: str) -> list[dict]:
+    """The list of mappings under ``key`` of a node (param, remap)."""
+    value = body.get(key) or []
+    if not isinstance(value, list) or not all(isinstance(e, dict) for e in value):
+        raise LaunchError(f"{where}: '{key}' must be a list of mappings")
+    return value
 
 
 def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeAction]:
     """Parse a YAML launch file into node actions (arguments resolved)."""
-    try:
-        with open(path, encoding="utf-8") as handle:
-            doc = yaml.safe_load(handle)
-    except OSError as exc:
-        raise LaunchError(f"{path}: cannot read: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise LaunchError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    doc = _read_yaml(path)
     if not isinstance(doc, dict) or not isinstance(doc.get("launch"), list):
         raise LaunchError(f"{path}: expected a top-level 'launch:' list")
     given = dict(arguments or {})
@@ -162,9 +204,11 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
         if not isinstance(entry, dict) or len(entry) != 1:
             raise LaunchError(f"{where}: each entry is one action (arg or node)")
         (kind, body), = entry.items()
+        if not isinstance(body, dict):
+            raise LaunchError(f"{where}: '{kind}' needs a mapping, got {body!r}"[:300])
         if kind == "arg":
             name = body.get("name")
-            if not name:
+            if not name or not isinstance(name, str):
                 raise LaunchError(f"{where}: arg needs a name")
             if name in given:
                 variables[name] = given.pop(name)
@@ -174,13 +218,13 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
                 raise LaunchError(f"{where}: launch argument '{name}' has no default; "
                                   f"give it as {name}:=VALUE")
         elif kind == "node":
-            if not isinstance(body, dict) or "pkg" not in body or "exec" not in body:
+            if "pkg" not in body or "exec" not in body:
                 raise LaunchError(f"{where}: node needs 'pkg' and 'exec'")
             sub = (lambda v: substitute(v, variables, where))
             node = NodeAction(pkg=sub(body["pkg"]), executable=sub(body["exec"]),
                               name=sub(body.get("name")), namespace=sub(body.get("namespace")),
                               output=body.get("output", "screen"))
-            for p in body.get("param") or []:
+            for p in _entries(body, "param", where):
                 if "from" in p:
                     file_path = sub(p["from"])
                     if not os.path.isfile(file_path):
@@ -190,7 +234,7 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
                     node.params.append(("value", p["name"], sub(p["value"])))
                 else:
                     raise LaunchError(f"{where}: a param needs 'from' or 'name' and 'value'")
-            for r in body.get("remap") or []:
+            for r in _entries(body, "remap", where):
                 if "from" not in r or "to" not in r:
                     raise LaunchError(f"{where}: a remap needs 'from' and 'to'")
                 node.remaps.append((sub(r["from"]), sub(r["to"])))

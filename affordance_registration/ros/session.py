@@ -23,7 +23,8 @@ from std_srvs.srv import Trigger
 
 from ..core.corrections import view_from_optical
 from ..core.errors import AffordanceError
-from ..core.simulation import SimulatedOperator, failures, load_truth, simulate_taskboard
+from ..core.simulation import (SimulatedOperator, failures, load_truth, operator_correction,
+                               simulate_taskboard, truth_joints)
 from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
 from .bag import bag_info, read_messages
@@ -386,18 +387,6 @@ def _recorded_cloud(bag_path: str) -> np.ndarray:
     return np.zeros((0, 3))
 
 
-def correction(T_true: np.ndarray, centroid: np.ndarray, rng: np.random.Generator,
-               move: float = 0.015, turn: float = math.radians(8.0)) -> np.ndarray:
-    """The benchmark's operator correction: ``T_true`` turned by ``turn`` about a random axis
-    through the object's centre and moved ``move`` in a random direction."""
-    from ..core.transforms import axis_angle_matrix, make_T
-    dR = axis_angle_matrix(rng.normal(size=3), turn)
-    off = rng.normal(size=3)
-    off *= move / np.linalg.norm(off)
-    centre = T_true[:3, :3] @ centroid + T_true[:3, 3]
-    return make_T(dR @ T_true[:3, :3], dR @ (T_true[:3, 3] - centre) + centre + off)
-
-
 def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
                        log=print) -> dict:
     """Over ROS, what the bench's refit row measures in the core: on simulated panels, click an
@@ -436,9 +425,9 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
                     tpl = library[obj.template]
                     operator.click(obj.click)
                     template, T = operator.shown()
-                    goal = correction(obj.T_scene_model, tpl.centroid, rng)
+                    goal = operator_correction(obj.T_scene_model, tpl.centroid, rng)
                     ctx = registrar.prepare(scene, obj.click)
-                    res = registrar.refit(ctx, obj.template, goal, _joints(tpl, obj))
+                    res = registrar.refit(ctx, obj.template, goal, truth_joints(tpl, obj))
                     core_ok += _within(res.T_scene_model, obj, library)
                     c_now = T[:3, :3] @ tpl.centroid + T[:3, 3]
                     c_goal = goal[:3, :3] @ tpl.centroid + goal[:3, 3]
@@ -454,10 +443,6 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
     finally:
         launcher.stop()
     return {"clicks": n, "ros_success": ros_ok / max(n, 1), "core_success": core_ok / max(n, 1)}
-
-
-def _joints(tpl, obj) -> dict:
-    return dict(obj.joints) or ({tpl.joint.name: 0.0} if tpl.joint is not None else {})
 
 
 def _within(T: np.ndarray, obj, library) -> bool:

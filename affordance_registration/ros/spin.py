@@ -39,6 +39,10 @@ def run_node(factory, name: str, args=None, shutdown=None) -> int:
     except (AffordanceError, ParameterException, ValueError, ImportError) as exc:
         sys.stderr.write(f"{name}: cannot start: {exc}\n")
         code = 2
+    except Exception as exc:         # a bug: one line, not a traceback
+        sys.stderr.write(f"{name}: cannot start: internal error: {exc.__class__.__name__}: "
+                         f"{exc}\n")
+        code = 2
     finally:
         if node is not None:
             node.get_logger().info("shutting down")

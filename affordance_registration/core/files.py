@@ -1,0 +1,115 @@
+"""Saved files are written atomically: to temporary files in the destination folder first, then
+renamed into place, so a failure (a full disk, a crash) never leaves a half-written file behind.
+
+Only regular files are ever replaced: a path that is a device, a FIFO, a socket or a folder is
+refused (as root, a rename over ``/dev/something`` would replace the device node). A symbolic
+link is followed: its target is written. A file that existed keeps its permission bits (and, for
+root, its owner); a new one gets the process's umask like any file it creates. Temporary files
+are named ``.<name>.tmp-<pid>-<random>``; those of processes that no longer run (killed while
+saving) are removed by the next write to that folder.
+"""
+from __future__ import annotations
+
+import os
+import re
+import stat
+import tempfile
+import threading
+from typing import Mapping
+
+__all__ = ["write_atomically"]
+
+_UMASK_LOCK = threading.Lock()
+_TEMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-[^.]+$")
+
+
+def _umask() -> int:
+    """The process's umask (from /proc where it can be read without changing it)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    with _UMASK_LOCK:                   # os.umask can only be read by setting it
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return mask
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:        # someone else's process: alive
+        return True
+    return True
+
+
+def _remove_stale(folder: str, name: str) -> None:
+    """Remove temporary files of ``name`` left in ``folder`` by processes that died saving."""
+    try:
+        entries = os.listdir(folder)
+    except OSError:
+        return
+    for entry in entries:
+        m = _TEMP.match(entry)
+        if m and m["name"] == name and int(m["pid"]) != os.getpid() and not _alive(int(m["pid"])):
+            try:
+                path = os.path.join(folder, entry)
+                if stat.S_ISREG(os.lstat(path).st_mode):
+                    os.unlink(path)
+            except OSError:
+                pass
+
+
+def _target(path: str) -> tuple[str, os.stat_result | None]:
+    """The file to write for ``path`` (a symbolic link's target) and its stat (None if new).
+    Raises OSError for anything that is not a regular file."""
+    final = os.path.realpath(os.path.abspath(path))
+    try:
+        st = os.stat(final)
+    except FileNotFoundError:
+        return final, None
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(21, "is a folder, not a file", final)
+    if not stat.S_ISREG(st.st_mode):
+        raise OSError(1, "is not a regular file (a device, FIFO or socket): not replaced", final)
+    return final, st
+
+
+def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
+    """Write every ``path -> content`` of ``files`` (bytes, or text written as UTF-8): all of
+    them to temporary files first, then each renamed over its path. A failure while writing
+    (a full disk, a target that is not a regular file) leaves no file changed -- the temporary
+    ones are removed -- and raises the ``OSError``. Creates missing folders. Returns the
+    absolute paths written, in the order given."""
+    staged: list[tuple[str, str]] = []
+    mode_new = 0o666 & ~_umask()
+    try:
+        for path, content in files.items():
+            final, st = _target(path)
+            folder, name = os.path.split(final)
+            os.makedirs(folder, exist_ok=True)
+            _remove_stale(folder, name)
+            fd, tmp = tempfile.mkstemp(prefix=f".{name}.tmp-{os.getpid()}-", dir=folder)
+            staged.append((tmp, final))
+            data = content.encode("utf-8") if isinstance(content, str) else content
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+                handle.flush()
+                os.fchmod(handle.fileno(), stat.S_IMODE(st.st_mode) if st else mode_new)
+                if st is not None and os.geteuid() == 0:
+                    os.fchown(handle.fileno(), st.st_uid, st.st_gid)
+                os.fsync(handle.fileno())
+        for tmp, final in staged:
+            _target(final)          # still a regular file (or absent) right before the rename
+            os.replace(tmp, final)
+    except BaseException:
+        for tmp, _ in staged:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+    return [final for _, final in staged]

@@ -1,0 +1,254 @@
+"""Point-cloud and mesh files, read safely: a header is checked against the file's size before
+anything is allocated (a PLY that claims a billion vertices and holds one is refused at once),
+what a reader could not read is an error rather than a shorter cloud, and a PCD's ``VIEWPOINT``
+is kept (where the scan was taken from).
+
+Formats: PLY and PCD (read by Open3D), organized ``.npy`` arrays (H, W, 3) of numbers.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SceneError
+
+__all__ = ["PointFile", "read_points", "check_header", "MAX_FILE_BYTES", "MAX_POINTS"]
+
+#: the largest point or mesh file read (bytes) and the most points one may hold
+MAX_FILE_BYTES = 2_000_000_000
+MAX_POINTS = 10_000_000
+_HEADER_LIMIT = 65536           # bytes of header read before giving up on finding its end
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
+              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+              "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+@dataclass(frozen=True)
+class PointFile:
+    """What a point file holds: ``points`` (N, 3) float64 metres (NaN rows kept: holes of an
+    organized cloud), ``organized`` (H, W) or None, ``viewpoint`` (3,) -- the sensor origin a
+    PCD's VIEWPOINT gives -- or None, and ``faces`` (the PLY has faces: a mesh, not a cloud)."""
+
+    points: np.ndarray
+    organized: tuple | None = None
+    viewpoint: np.ndarray | None = None
+    faces: bool = False
+
+
+def _fail(path: str, why: str, error=SceneError) -> Exception:
+    return error(f"{path}: {why}")
+
+
+def _header_lines(path: str, error) -> tuple[list[str], int]:
+    """The text lines of a PLY/PCD header and its length in bytes."""
+    with open(path, "rb") as handle:
+        head = handle.read(_HEADER_LIMIT)
+    lines, pos = [], 0
+    while True:
+        end = head.find(b"\n", pos)
+        if end < 0:
+            raise _fail(path, "no end of the header in its first 64 KB", error)
+        line = head[pos:end].decode("ascii", errors="replace").strip()
+        pos = end + 1
+        lines.append(line)
+        if line == "end_header" or line.upper().startswith("DATA"):
+            return lines, pos
+
+
+def _check_ply(path: str, size: int, error) -> dict:
+    lines, header_bytes = _header_lines(path, error)
+    if not lines or lines[0] != "ply":
+        raise _fail(path, "not a PLY file (no 'ply' magic)", error)
+    fmt = ""
+    elements = []              # [name, count, least bytes of one element, properties]
+    for line in lines[1:]:
+        words = line.split()
+        if words[:1] == ["format"] and len(words) >= 2:
+            fmt = words[1]
+        elif words[:1] == ["element"] and len(words) == 3:
+            try:
+                count = int(words[2])
+            except ValueError:
+                raise _fail(path, f"bad element line {line!r}", error) from None
+            if count < 0:
+                raise _fail(path, f"negative element count in {line!r}", error)
+            elements.append([words[1], count, 0, 0, []])
+        elif words[:1] == ["property"] and elements:
+            kind = words[2] if len(words) >= 5 and words[1] == "list" else \
+                (words[1] if len(words) >= 3 else "")
+            if kind not in _PLY_SIZES:
+                raise _fail(path, f"unknown property type in {line!r}", error)
+            elements[-1][2] += _PLY_SIZES[kind]    # a list holds at least its length
+            elements[-1][3] += 1
+            elements[-1][4].append(words[-1] if words[1] != "list" else None)
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise _fail(path, f"unknown PLY format {fmt!r}", error)
+    # an ASCII value takes at least two bytes (a digit and a separator)
+    needed = sum(count * (2 * props if fmt == "ascii" else least)
+                 for _, count, least, props, _ in elements)
+    counts = {name: count for name, count, _, _, _ in elements}
+    names = [e[0] for e in elements]
+    vertex = elements[names.index("vertex")] if "vertex" in names else None
+    return {"points": counts.get("vertex", 0), "faces": counts.get("face", 0) > 0,
+            "needed": needed, "available": size - header_bytes, "ascii": fmt == "ascii",
+            "header_bytes": header_bytes, "columns": vertex[4] if vertex else [],
+            "skip": sum(e[1] for e in elements[:names.index("vertex")]) if vertex else 0}
+
+
+def _check_pcd(path: str, size: int, error) -> dict:
+    lines, header_bytes = _header_lines(path, error)
+    fields: dict[str, list[str]] = {}
+    for line in lines:
+        words = line.split()
+        if words and not words[0].startswith("#"):
+            fields[words[0].upper()] = words[1:]
+    try:
+        points = int(fields.get("POINTS", ["0"])[0])
+        sizes = [int(v) for v in fields.get("SIZE", [])]
+        counts = [int(v) for v in fields.get("COUNT", ["1"] * len(sizes))]
+        viewpoint = [float(v) for v in fields["VIEWPOINT"]] if "VIEWPOINT" in fields else None
+    except (ValueError, IndexError):
+        raise _fail(path, "malformed PCD header (POINTS, SIZE, COUNT or VIEWPOINT)", error) \
+            from None
+    if points < 0 or len(sizes) != len(counts) or not sizes:
+        raise _fail(path, "malformed PCD header (POINTS, SIZE or COUNT)", error)
+    data = (fields.get("DATA") or [""])[0].lower()
+    point_bytes = sum(s * c for s, c in zip(sizes, counts))
+    needed = {"binary": points * point_bytes, "ascii": points * 2 * len(sizes),
+              "binary_compressed": 8}.get(data)
+    if needed is None:
+        raise _fail(path, f"unknown PCD DATA {data!r}", error)
+    if viewpoint is not None and (len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint))):
+        raise _fail(path, "VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz)", error)
+    columns = []
+    for name, count in zip(fields.get("FIELDS", []), counts):
+        columns += [name] + [None] * (count - 1)
+    return {"points": points, "faces": False, "needed": needed,
+            "available": size - header_bytes, "viewpoint": viewpoint,
+            "ascii": data == "ascii", "header_bytes": header_bytes, "columns": columns,
+            "skip": 0}
+
+
+def check_header(path: str, error=SceneError) -> dict:
+    """Check a PLY or PCD file's header against its size: ``points`` it claims, whether it has
+    ``faces``, and (PCD) the ``viewpoint`` list. Raises ``error`` naming the file."""
+    path = str(path)
+    try:
+        size = os.path.getsize(path)
+    except OSError as exc:
+        raise _fail(path, f"cannot read: {exc.strerror}", error) from None
+    if size > MAX_FILE_BYTES:
+        raise _fail(path, f"{size / 1e9:.1f} GB is more than the {MAX_FILE_BYTES / 1e9:.0f} GB "
+                          f"this reads", error)
+    ext = os.path.splitext(path)[1].lower()
+    try:
+        info = (_check_ply if ext == ".ply" else _check_pcd)(path, size, error)
+    except OSError as exc:
+        raise _fail(path, f"cannot read: {exc.strerror}", error) from None
+    if info["points"] > MAX_POINTS:
+        raise _fail(path, f"its header claims {info['points']:,} points, more than the "
+                          f"{MAX_POINTS:,} this reads", error)
+    if info["needed"] > info["available"]:
+        raise _fail(path, f"its header claims {info['points']:,} points but the file holds "
+                          f"only {max(info['available'], 0):,} bytes of data (truncated or "
+                          f"corrupt)", error)
+    return info
+
+
+@contextlib.contextmanager
+def _quiet_open3d():
+    """Open3D's own console warnings off while it reads (failures become our errors)."""
+    import open3d as o3d
+    level = o3d.utility.get_verbosity_level()
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    try:
+        yield o3d
+    finally:
+        o3d.utility.set_verbosity_level(level)
+
+
+def _viewpoint_origin(viewpoint) -> np.ndarray | None:
+    """The sensor origin of a PCD VIEWPOINT (tx ty tz qw qx qy qz): its translation."""
+    return None if viewpoint is None else np.asarray(viewpoint[:3], dtype=float)
+
+
+def read_points(path: str, error=SceneError) -> PointFile:
+    """Read a PLY, PCD or organized ``.npy`` file. Raises ``error`` (one line naming the file)
+    for anything unreadable, oversized or incomplete."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise _fail(path, "no such file", error)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".npy":
+        return _read_npy(path, error)
+    if ext not in (".ply", ".pcd"):
+        raise _fail(path, f"unsupported point file format '{ext}' (PLY, PCD or .npy)", error)
+    info = check_header(path, error)
+    if info["ascii"]:
+        pts = _read_ascii(path, info, error)
+    else:
+        with _quiet_open3d() as o3d:
+            cloud = o3d.io.read_point_cloud(path)
+        pts = np.asarray(cloud.points, dtype=float)
+    if len(pts) == 0:
+        raise _fail(path, "no points could be read (empty or not a point cloud)", error)
+    if info["points"] and len(pts) != info["points"]:
+        raise _fail(path, f"only {len(pts):,} of the {info['points']:,} points its header "
+                          f"announces could be read (a value that is not a number?)", error)
+    return PointFile(points=pts, viewpoint=_viewpoint_origin(info.get("viewpoint")),
+                     faces=bool(info["faces"]))
+
+
+def _read_ascii(path: str, info: dict, error) -> np.ndarray:
+    """x, y, z of an ASCII PLY's vertices or an ASCII PCD's points, every value checked (Open3D
+    reads a value that is not a number as whatever memory held, or as 0)."""
+    columns = info["columns"]
+    if not all(c in columns for c in "xyz"):
+        raise _fail(path, f"no x, y, z among its fields ({', '.join(map(str, columns))})", error)
+    use = [columns.index(c) for c in "xyz"]
+    with open(path, "rb") as handle:
+        handle.seek(info["header_bytes"])
+        text = handle.read().decode("ascii", errors="replace").splitlines()
+    rows = text[info["skip"]:info["skip"] + info["points"]]
+    if not rows:
+        return np.zeros((0, 3))
+    try:                           # numpy's parser; on failure find the row that broke it
+        return np.loadtxt(rows, usecols=use, dtype=float, ndmin=2, comments=None)
+    except ValueError:
+        pass
+    out = np.empty((len(rows), 3))
+    for i, row in enumerate(rows):
+        words = row.split()
+        try:
+            out[i] = [float(words[k]) for k in use]
+        except (ValueError, IndexError):
+            raise _fail(path, f"point {i}: {row.strip()[:60]!r} does not hold x, y, z as "
+                              f"numbers", error) from None
+    return out
+
+
+def _read_npy(path: str, error) -> PointFile:
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            shape, _, dtype = (np.lib.format.read_array_header_1_0(handle) if version == (1, 0)
+                               else np.lib.format.read_array_header_2_0(handle))
+    except Exception as exc:       # numpy raises several types for a broken header
+        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) \
+            from None
+    if dtype.kind not in "fiu" or dtype.fields is not None:
+        raise _fail(path, f"holds {dtype} values; expected numbers (float or int)", error)
+    if len(shape) != 3 or shape[-1] != 3:
+        raise _fail(path, f"expected an organized (H, W, 3) array, got {shape}", error)
+    if shape[0] * shape[1] > MAX_POINTS:
+        raise _fail(path, f"{shape[0] * shape[1]:,} points is more than the {MAX_POINTS:,} "
+                          f"this reads", error)
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) \
+            from None
+    return PointFile(points=arr.reshape(-1, 3).astype(float), organized=tuple(shape[:2]))

@@ -1,0 +1,20 @@
+"""Random-restart weighted ICP over every template, batched: the :class:`Registrar` composes
+the stages of this package (see :mod:`.registrar` for the algorithm).
+
+settings (parameters, stage constants), results (FitResult, FitReport, rank), model (the posed
+model, the locked cache of samples and KD-trees), solve (closed-form and Gauss-Newton steps),
+visibility, correspondences, icp, scoring (the two-way residual), hypotheses, articulation
+(joint values and scale), refit, paper (the literal baseline), registrar (the composer).
+"""
+from .correspondences import correspondence_weights
+from .model import Model
+from .registrar import Registrar
+from .results import FitReport, FitResult, rank
+from .settings import FitSettings
+from .solve import weighted_rigid_fit
+
+#: the model type every template is fitted as (rigid = joint at zero, scale one)
+PosedTemplate = Model
+
+__all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate", "Model",
+           "correspondence_weights", "weighted_rigid_fit", "rank"]

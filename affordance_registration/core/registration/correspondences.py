@@ -1,0 +1,185 @@
+"""Correspondences of one ICP iteration: posed template samples paired with the nearest scene
+points (forward), scene points paired with the nearest template surface (reverse), and a resting
+template's lowest samples paired with the plane under the click (contact) -- each pair weighted
+by the paper's rule with a scaled distance, :func:`correspondence_weights`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..neighbours import nearest, tree_points
+from ..scene import ClickContext
+from .model import Batch, Model
+from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
+from .visibility import visible
+
+__all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
+           "reverse_rows", "contact_rows", "plane_gap", "in_contact", "stack_samples",
+           "in_sphere"]
+
+
+def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
+    """The paper's correspondence rule: distances beyond ``reject`` are rejected (weight 0), the
+    rest weigh w = 1 / (1 + d / d0). The paper has d0 = 1 (d in metres); the default method uses
+    d0 = ``weight_scale`` (5 mm), without which every useful d weighs about 1."""
+    dist = np.asarray(dist, dtype=float)
+    return np.where(dist <= reject, 1.0 / (1.0 + dist / d0), 0.0)
+
+
+def stack_samples(models, n: int):
+    """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
+    of = {id(m): m.samples(n) for m in models}      # a batch repeats few distinct models
+    P = np.stack([of[id(m)][0] for m in models])
+    N = np.stack([of[id(m)][1] for m in models])
+    return P, N
+
+
+def in_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Which of ``points`` (N, 3) lie within ``radius`` of ``centre`` (3,), (N,) bool."""
+    rel = points - centre
+    return np.einsum("ij,ij->i", rel, rel) <= radius * radius
+
+
+def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
+                  radius: np.ndarray, settings: FitSettings, normals: bool):
+    """Correspondences of posed samples X (B, S, 3) with normals Nw: the nearest ``target``
+    point (Q), its normal when ``normals`` (Nq, else zeros) and the weight w (B, S) -- zero for
+    unseen samples and beyond ``radius`` (B,)."""
+    tree = ctx.cluster_tree if target == CLUSTER else ctx.fine_tree
+    pts = tree_points(tree)
+    B, S = X.shape[:2]
+    vis, _ = visible(ctx, X, Nw, settings)
+    dist = np.full((B, S), np.inf)
+    Q = np.empty_like(X)
+    band = np.zeros_like(vis)
+    if ctx.plane is not None:
+        # The plane band was removed from the targets; a sample in it corresponds to its
+        # projection on the plane, which the sensor did observe (keeps tilt and height
+        # constrained when the rest of the object is degenerate, e.g. a bar seen from above).
+        pd = ctx.plane.distance(X)
+        band = vis & (pd <= PLANE_BAND * ctx.plane_threshold)
+        dist[band] = np.abs(pd[band])
+        Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
+        vis = vis & ~band
+    d_v, i_v = nearest(tree, X[vis], parallel=True)
+    dist[vis] = d_v
+    Q[vis] = pts[i_v]
+    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
+    Q = np.where(np.isfinite(dist)[..., None], Q, X)
+    Nq = np.zeros_like(X)
+    if normals:
+        Nq[vis] = ctx.fine_normals[i_v]
+        if ctx.plane is not None:
+            Nq[band] = ctx.plane.normal
+    return Q, Nq, w
+
+
+def reverse_subset(ctx: ClickContext, limit: int):
+    """The full-resolution scene points (and normals) the fine stage pairs with the template:
+    at most ``limit``, an even, fixed subset (the same one every iteration)."""
+    pts, normals = ctx.fine, ctx.fine_normals
+    if len(pts) > limit:
+        pick = (np.arange(limit) * (len(pts) / limit)).astype(np.int64)
+        pts, normals = pts[pick], normals[pick]
+    return pts, normals
+
+
+def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
+                  normals: np.ndarray, radius: float, d0: float):
+    """Scene -> template pairs of one hypothesis (R (3, 3), t (3,)): each of the scene points
+    ``pts`` (N, 3, with ``normals``) inside the posed model's bounding sphere paired with its
+    nearest template surface sample. Returns (x: that sample in the scene (M, 3), q: the scene
+    point (M, 3), n: its normal, w (M,), local: the sample in the model frame (M, 3), moving:
+    whether it is on the moving part (M,))."""
+    near = in_sphere(pts, R @ model.centroid + t, 0.5 * model.diameter)
+    q = pts[near]
+    d, local, moving = model.nearest((q - t) @ R, parts=True)
+    return (local @ R.T + t, q, normals[near], correspondence_weights(d, radius, d0), local,
+            moving)
+
+
+@dataclass(frozen=True)
+class Pairs:
+    """The correspondences of a batch of B hypotheses, S rows each: the model side X and the
+    scene side Q (B, S, 3), the scene normals N (zeros where a stage does not use them), the
+    weights w (B, S; zero on padding). For the extra unknowns of the fine stage also the model
+    side in the unscaled model frame U (B, S, 3) and whether it lies on the moving part
+    (B, S) -- or None."""
+
+    X: np.ndarray
+    Q: np.ndarray
+    N: np.ndarray
+    w: np.ndarray
+    U: np.ndarray | None = None
+    moving: np.ndarray | None = None
+
+    def joined(self, other: "Pairs") -> "Pairs":
+        """These rows followed by ``other``'s (hypothesis by hypothesis)."""
+        def cat(a, b):
+            return None if a is None or b is None else np.concatenate([a, b], axis=1)
+        return Pairs(cat(self.X, other.X), cat(self.Q, other.Q), cat(self.N, other.N),
+                     cat(self.w, other.w), cat(self.U, other.U), cat(self.moving, other.moving))
+
+
+def _padded(rows: list, fill=0.0) -> np.ndarray:
+    """Ragged per-hypothesis rows (n_b, ...) stacked into (B, max n_b, ...), padded."""
+    width = max(len(r) for r in rows)
+    out = np.full((len(rows), width) + rows[0].shape[1:], fill, dtype=rows[0].dtype)
+    for b, r in enumerate(rows):
+        out[b, :len(r)] = r
+    return out
+
+
+def _pairs_of(rows: list) -> Pairs:
+    """Pairs from per-hypothesis (X, Q, N, w, U, moving) rows of different lengths, padded
+    with zero weights."""
+    fills = (0.0, 0.0, 0.0, 0.0, 0.0, False)
+    return Pairs(*(_padded([r[k] for r in rows], fill) for k, fill in enumerate(fills)))
+
+
+def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings) -> Pairs:
+    """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
+    subset of at most ``reverse_points`` full-resolution scene points, padded with zero
+    weights."""
+    pts, normals = reverse_subset(ctx, settings.reverse_points)
+    rows = []
+    for b, m in enumerate(batch.models):
+        x, q, n, w, local, moving = reverse_pairs(m, batch.R[b], batch.t[b], pts, normals,
+                                                  radius[b], settings.weight_scale)
+        rows.append((x, q, n, w, local / m.scale, moving))
+    return _pairs_of(rows)
+
+
+def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSettings) -> Pairs:
+    """Point-to-plane rows pairing each hypothesis' lowest forward samples (within
+    ``CONTACT_BAND`` of the lowest, seen or not: the object hides them) with the plane under
+    the click, padded with zero weights."""
+    normal = ctx.plane.normal
+    rows = []
+    for b in range(len(forward.X)):
+        pd = ctx.plane.distance(forward.X[b])
+        low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
+        x = forward.X[b][low]
+        rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
+                     correspondence_weights(np.abs(pd[low]), radius[b], settings.weight_scale),
+                     forward.U[b][low], forward.moving[b][low]))
+    return _pairs_of(rows)
+
+
+def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
+    """Signed distance (m) of each hypothesis' lowest of ``n`` samples from the plane under the
+    click (positive: floating above it), (B,)."""
+    P, _ = stack_samples(batch.models, n)
+    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
+    return ctx.plane.distance(X).min(axis=1)
+
+
+def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> bool:
+    """Whether a pose rests on the plane under the click (its lowest sample within
+    ``contact_distance`` of it)."""
+    if ctx.plane is None:
+        return False
+    gap = plane_gap(ctx, Batch.single(model, R, t), REST_SAMPLES)[0]
+    return abs(gap) <= settings.contact_distance

@@ -1,0 +1,188 @@
+"""Where ICP starts: initial hypotheses around the click for every template, the distinct best
+few kept per template, and the winner's sweep about its mounting axis.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene import ClickContext
+from ..templates import AffordanceTemplate
+from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from .model import Batch
+from .results import IcpResult
+from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
+                       REST_SAMPLES, SAMPLE_SEED, FitSettings)
+
+__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "keep_distinct",
+           "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
+
+MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
+
+
+@dataclass(frozen=True)
+class Hypotheses(Batch):
+    """A batch of B poses: ``models`` (B, what each fits), ``R`` (B, 3, 3) and ``t`` (B, 3)
+    model -> scene, ``index`` (B,) which of the given templates each is of, ``family`` (B,)
+    MOUNTED, RESTING or RANDOM; the ICP iterations run on them so far and which converged in
+    the last stage ((B,) bool, or None before any)."""
+
+    index: np.ndarray
+    family: np.ndarray
+    iterations: int = 0
+    converged: np.ndarray | None = None
+
+    def take(self, idx) -> "Hypotheses":
+        """The hypotheses at ``idx`` (an index array), in that order."""
+        idx = np.asarray(idx, dtype=int)
+        return Hypotheses(tuple(self.models[i] for i in idx), self.R[idx], self.t[idx],
+                          self.index[idx], self.family[idx], self.iterations,
+                          None if self.converged is None else self.converged[idx])
+
+    def after(self, stage: IcpResult) -> "Hypotheses":
+        """The same hypotheses as an ICP stage left them."""
+        return Hypotheses(stage.models, stage.R, stage.t, self.index, self.family,
+                          self.iterations + stage.iterations, stage.converged)
+
+    def relabelled(self, index_of: np.ndarray) -> "Hypotheses":
+        """The same hypotheses with ``index`` mapped through ``index_of`` (e.g. from the
+        models they started from to the templates those are of)."""
+        return Hypotheses(self.models, self.R, self.t, np.asarray(index_of)[self.index],
+                          self.family, self.iterations, self.converged)
+
+
+def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
+                       rng: np.random.Generator) -> Hypotheses:
+    """Initial hypotheses for each of ``models`` (anything with ``samples``, ``centroid``,
+    ``diameter`` and ``resting_rotations``: a registration model or a template).
+
+    With a plane under the click: mounted (template +z along the plane normal, a yaw sweep;
+    modes auto and mounted), resting (each stable facet of the template down on the plane,
+    a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
+    Without a plane: uniformly random orientations around the cluster. The template's
+    centroid starts over the cluster points within reach of the click (the cluster may have
+    merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
+    diameter (the paper's restarts use up to the diameter)."""
+    rows = []
+    for i, model in enumerate(models):
+        centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
+        if centre is None:
+            centre = ctx.click
+        for R0, offset, family in _orientations(ctx, model, settings, rng):
+            rows.append((i, R0, _start(ctx, model, R0, centre, offset), family))
+    index, Rs, ts, family = zip(*rows)
+    index = np.array(index)
+    return Hypotheses(tuple(models[i] for i in index), np.stack(Rs), np.stack(ts), index,
+                      np.array(family))
+
+
+def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator):
+    """(R, offset or None, family) of one template's initial hypotheses, in the order they
+    draw from ``rng``."""
+    s, plane = settings, ctx.plane
+    out = []
+    if plane is not None:
+        up = align_z_to(plane.normal)
+        if s.mode in ("auto", "mounted"):
+            for yaw in _yaws(s.yaw_restarts, rng):
+                out.append((up @ axis_angle_matrix([0, 0, 1], yaw), None, MOUNTED))
+        if s.mode in ("auto", "free"):
+            cluster_axis = principal_angle(ctx.cluster @ up)
+            for R_rest, _ in model.resting_rotations(s.resting_poses):
+                if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
+                    continue   # the mounted orientation, already swept
+                yaws = list(_yaws(s.resting_yaws, rng))
+                # and the two yaws that line the resting template's long axis up with the
+                # cluster's (elongated parts lying on a table)
+                tpl_axis = principal_angle(model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
+                                           @ R_rest.T)
+                if cluster_axis is not None and tpl_axis is not None:
+                    yaws += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
+                for yaw in yaws:
+                    out.append((up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest, None, RESTING))
+    n_rand = 0 if s.mode == "mounted" and plane is not None else (
+        s.random_restarts if plane is not None else s.free_restarts)
+    if n_rand:
+        offsets = rng.normal(size=(n_rand, 3))
+        offsets *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
+                    / np.linalg.norm(offsets, axis=1, keepdims=True))
+        for R0, off in zip(random_rotations(n_rand, rng), offsets):
+            out.append((R0, off, RANDOM))
+    return out
+
+
+def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` yaw angles evenly around the circle from a random start (rad)."""
+    return (np.arange(n) + rng.uniform()) * 2 * math.pi / n
+
+
+def _start(ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray, offset) -> np.ndarray:
+    """The translation putting the model's centroid over ``centre`` (plus ``offset``); with a
+    plane, resting on it (the lowest sample touches it)."""
+    t0 = centre - R0 @ model.centroid
+    if offset is not None:
+        t0 = t0 + offset
+    if ctx.plane is not None:
+        low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
+        t0 = t0 - ctx.plane.normal * ctx.plane.distance(low @ R0.T + t0).min()
+    return t0
+
+
+def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: int) -> np.ndarray:
+    """Indices of the best ``keep`` distinct hypotheses per template by ``scores`` (lower is
+    better; distinct: more than ``DISTINCT_DISTANCE`` apart or turned more than
+    ``DISTINCT_ANGLE``, symmetry-aware). The best mounting-prior hypothesis always goes on: few
+    samples cannot judge a tipped-over pose against it reliably."""
+    out = []
+    for i in range(n_templates):
+        idx = np.flatnonzero(hyps.index == i)
+        if not len(idx):
+            continue
+        idx = idx[np.argsort(scores[idx])]
+        tpl = hyps.models[int(idx[0])].template
+        mounted = idx[hyps.family[idx] == MOUNTED]
+        chosen = [mounted[0]] if len(mounted) and keep > 1 else []
+        for j in idx:
+            if all(np.linalg.norm(hyps.t[j] - hyps.t[k]) > DISTINCT_DISTANCE or
+                   symmetric_angle(tpl, hyps.R[k].T @ hyps.R[j]) > DISTINCT_ANGLE
+                   for k in chosen):
+                chosen.append(j)
+            if len(chosen) == keep:
+                break
+        out.extend(chosen)
+    return np.array(out)
+
+
+def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):
+    """A pose turned about its template's z (mounting / symmetry) axis through the centroid
+    in ``steps`` steps over one symmetry period: (R (steps, 3, 3), t (steps, 3))."""
+    sym = model.symmetry
+    period = 2 * math.pi / (sym.order if sym is not None and not sym.continuous else 1)
+    axis_model = np.asarray(sym.axis) if sym is not None else np.array([0.0, 0.0, 1.0])
+    axis = R @ axis_model
+    centre = R @ model.centroid + t
+    Rs, ts = [], []
+    for k in range(steps):
+        dR = axis_angle_matrix(axis, k * period / steps)
+        Rs.append(dR @ R)
+        ts.append(dR @ (t - centre) + centre)
+    return np.stack(Rs), np.stack(ts)
+
+
+def principal_angle(points: np.ndarray) -> float | None:
+    """Angle in the xy plane of the main axis of ``points`` (N, 3), or None when they are not
+    elongated (the two in-plane spreads within 20% of each other)."""
+    xy = points[:, :2] - points[:, :2].mean(axis=0)
+    vals, vecs = np.linalg.eigh(xy.T @ xy)
+    if len(points) < 10 or vals[1] < ELONGATED * max(vals[0], 1e-12):
+        return None
+    return float(math.atan2(vecs[1, 1], vecs[0, 1]))
+
+
+def symmetric_angle(tpl: AffordanceTemplate, R_rel: np.ndarray) -> float:
+    """Rotation angle (rad) of ``R_rel`` up to the template's symmetry."""
+    if tpl.symmetry is None:
+        return float(rotation_angle(R_rel))
+    return tpl.symmetry.residual_angle(R_rel)

@@ -1,0 +1,73 @@
+"""What a fit returns: one :class:`FitResult` per template, ranked into a :class:`FitReport`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..scene import ClickContext
+from .model import Batch
+
+__all__ = ["FitResult", "FitReport", "IcpResult", "rank"]
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """One fitted candidate. Candidates are ranked by ``likelihood`` (higher is better), which is
+    the inverse of ``residual``; ``probability`` is the likelihood normalized over the click's
+    candidates."""
+
+    template: str
+    T_scene_model: np.ndarray = field(repr=False)   #: 4x4, model -> scene
+    residual: float                                  #: m, two-way capped mean distance
+    likelihood: float                                #: 1 / residual (the ranking field)
+    probability: float = 0.0
+    inlier_fraction: float = 0.0                     #: visible samples within the cap
+    iterations: int = 0
+    time_s: float = 0.0
+    rank: int = 0                                    #: 1 = best
+    joints: dict = field(default_factory=dict)       #: joint name -> value (rad or m)
+    scale: float = 1.0                               #: uniform scale of the template
+    state: str | None = None                         #: the nearest named state
+    #: whether the last ICP stage of this candidate converged before its iteration limit
+    #: (None: no ICP ran, e.g. the literal baseline's own loop)
+    converged: bool | None = None
+
+    def to_dict(self) -> dict:
+        return {"rank": self.rank, "template": self.template,
+                "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
+                "scale": round(float(self.scale), 6), "state": self.state,
+                "likelihood": round(self.likelihood, 6), "probability": round(self.probability, 6),
+                "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
+                "iterations": self.iterations, "time_s": round(self.time_s, 6),
+                "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
+
+
+@dataclass(frozen=True)
+class IcpResult(Batch):
+    """What an ICP stage returns for its batch of B hypotheses (like small_gicp's
+    ``RegistrationResult``): the models (their joint values and scales as fitted) and poses,
+    the iterations run and which hypotheses converged (their last step below the thresholds),
+    (B,) bool."""
+
+    iterations: int
+    converged: np.ndarray
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """The ranked candidates of one click (best first) and where the time went."""
+
+    point: np.ndarray
+    candidates: tuple
+    timing_s: dict
+    context: ClickContext = field(repr=False)
+
+
+def rank(results) -> tuple:
+    """``results`` (FitResult) best first by likelihood, with ``rank`` (1 = best) and
+    ``probability`` (the likelihood over the sum of all) filled in."""
+    results = sorted(results, key=lambda r: -r.likelihood)
+    total = sum(r.likelihood for r in results) or 1.0
+    return tuple(replace(r, rank=i, probability=r.likelihood / total)
+                 for i, r in enumerate(results, start=1))

@@ -1,0 +1,104 @@
+"""The residual a candidate is ranked by: two-way and capped -- template -> scene over the
+samples the sensor could have seen (a free-space violation counts as the cap), scene cluster ->
+template, and the click penalty (the operator clicked *on* the object). Its inverse is the
+likelihood.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..neighbours import nearest
+from ..scene import ClickContext
+from ..transforms import make_T
+from .correspondences import stack_samples
+from .model import Batch, Model
+from .results import FitResult
+from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
+                       FitSettings)
+from .visibility import visible
+
+__all__ = ["forward_residual", "backward_residual", "click_penalty",
+           "scores", "result"]
+
+
+def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
+    """Template -> scene capped mean distance over ``n`` samples of each hypothesis, those the
+    sensor could have seen (free-space violations count as the cap), and the fraction of them
+    within the cap. (B,), (B,)."""
+    cap = settings.score_cap
+    P, N = stack_samples(batch.models, n)
+    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
+    Nw = np.einsum("bij,bsj->bsi", batch.R, N)
+    vis, violated = visible(ctx, X, Nw, settings)
+    dist = np.full(vis.shape, cap)
+    d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
+    dist[vis] = np.minimum(d_v, cap)
+    dist[violated] = cap
+    n_vis = vis.sum(axis=1)
+    fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * P.shape[1]),
+                   (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
+    inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
+    return fwd, inl
+
+
+def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.ndarray:
+    """Distances (B, K) from points ``local`` (B, K, 3, each in its hypothesis' model frame)
+    to that model's surface, one query per distinct model."""
+    out = np.empty(local.shape[:2])
+    keys = np.array([id(m) for m in models])
+    for key in dict.fromkeys(keys.tolist()):
+        sel = np.flatnonzero(keys == key)
+        d, _ = models[int(sel[0])].nearest(local[sel].reshape(-1, 3), upper)
+        out[sel] = d.reshape(len(sel), -1)
+    return out
+
+
+def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
+                      cluster_points: int | None = None) -> np.ndarray:
+    """Scene cluster -> template: the capped mean distance (B,) from the cluster points to
+    each posed model's surface (points no sample explains count as the cap, so a template that
+    leaves part of the object unexplained pays for it), on an even, fixed subsample of at most
+    ``cluster_points`` of them (None: all)."""
+    cap = settings.score_cap
+    pts = ctx.cluster
+    if cluster_points is not None and len(pts) > cluster_points:
+        pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
+    local = np.einsum("bji,bnj->bni", batch.R, pts[None] - batch.t[:, None, :])  # (B, K, 3)
+    return np.minimum(_grouped_nearest(batch.models, local, cap), cap).mean(axis=1)
+
+
+def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
+    """The operator clicked on the object: a candidate whose surface passes farther than
+    ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
+    local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
+    d = _grouped_nearest(batch.models, local[:, None, :])[:, 0]
+    return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
+
+
+def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
+           cluster_points: int) -> np.ndarray:
+    """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
+    template -> scene on ``samples`` template samples, cluster -> template on an even
+    subsample of ``cluster_points`` cluster points."""
+    fwd, _ = forward_residual(ctx, batch, samples, settings)
+    bwd = backward_residual(ctx, batch, settings, cluster_points)
+    return 0.5 * (fwd + bwd) + click_penalty(ctx, batch, settings)
+
+
+def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterations: int = 0,
+           converged: bool | None = None) -> FitResult:
+    """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
+    penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
+    the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
+    one = Batch.single(model, R, t)
+    fwd, inl = forward_residual(ctx, one, settings.score_samples, settings)
+    bwd = float(backward_residual(ctx, one, settings)[0])
+    click = float(click_penalty(ctx, one, settings)[0])
+    residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
+    joints = model.joints
+    return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
+                     likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
+                     iterations=int(iterations), joints=joints,
+                     scale=model.scale if model.articulated else 1.0,
+                     state=model.template.nearest_state(joints) if joints else None,
+                     converged=None if converged is None else bool(converged))

@@ -1,0 +1,390 @@
+"""One regression test per row of the hardening table (issue 14): each bad input gets one clear
+answer, the node keeps fitting a fresh click right afterwards, and nothing is written where it
+must not be. Live nodes in their own processes; the CLI as a user runs it."""
+import json
+import math
+import os
+import resource
+import shutil
+import stat
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import yaml
+from geometry_msgs.msg import PointStamped, Twist
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import InteractiveMarkerFeedback
+
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.ros.conversions import matrix_to_pose, xyz_to_pointcloud2
+from ros_helpers import LATCHED, Client, engine_process
+
+NS = "/affordance_engine"
+FRAME = "camera_depth_optical_frame"
+MODELS = os.path.join(os.path.dirname(__file__), "..", "models")
+
+
+def run_cli(*args, limit_gb=2.0, timeout=30):
+    """The CLI in its own process with at most ``limit_gb`` of memory; (code, stderr)."""
+    def limit():
+        size = int(limit_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (size, size))
+    res = subprocess.run([sys.executable, "-m", "affordance_registration.cli", *args],
+                         capture_output=True, text=True, timeout=timeout, preexec_fn=limit)
+    return res.returncode, res.stderr
+
+
+def one_line(code, err):
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, err)
+    return lines[0]
+
+
+# ---------------------------------------------------------------------------- a live node
+@pytest.fixture(scope="module")
+def node(ros_context, tmp_path_factory, library):
+    tmp = tmp_path_factory.mktemp("hardening")
+    proc = engine_process(tmp, {"refit_on_new_cloud": "false"})
+    client = Client("hardening_tester")
+    client.subscribe(String, f"{NS}/status", LATCHED)
+    pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
+            "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
+            "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
+            "feedback": client.node.create_publisher(InteractiveMarkerFeedback,
+                                                     "/affordance_correction/feedback", 100)}
+    sim = simulate_taskboard(library, 7)
+    try:
+        for pub in pubs.values():
+            client.wait_for_subscribers(pub, timeout=30)
+        yield {"proc": proc, "client": client, "pubs": pubs, "sim": sim, "tmp": tmp}
+    finally:
+        client.close()
+        proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])
+
+
+def status(n):
+    return n["client"].status(f"{NS}/status") or {}
+
+
+def wait_error(n, text, timeout=30):
+    return n["client"].wait_for(lambda: text in status(n).get("node", {}).get("last_error", "")
+                                and status(n), timeout, f"an error containing {text!r}")
+
+
+def fit_fresh_click(n, library, k=0):
+    """The node still fits a click right, whatever came before."""
+    obj = n["sim"].objects[k]
+    known = {o["id"] for o in status(n).get("objects", [])}
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
+    n["pubs"]["click"].publish(msg)
+    st = n["client"].wait_for(lambda: [o for o in status(n).get("objects", [])
+                                       if o["id"] not in known and o["active"]], 60,
+                              "a fresh fit")
+    cand = st[0]["candidates"][0]
+    dt, dr = pose_error(np.asarray(cand["pose"]), obj.T_scene_model,
+                        library[obj.template].symmetry)
+    assert cand["template"] == obj.template and dt < 0.005 and dr < math.radians(5)
+    return st[0]
+
+
+def test_a_pointcloud2_with_two_x_fields_is_dropped_and_a_click_names_it(node, library):
+    """Rows 'two fields named x' and 'a click after a dropped cloud'."""
+    bad = xyz_to_pointcloud2(np.zeros((10, 3), np.float32), "broken_frame")
+    bad.fields = list(bad.fields) + [PointField(name="x", offset=12, datatype=7, count=1)]
+    node["pubs"]["points"].publish(bad)
+    wait_error(node, "more than one field named 'x'")
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    node["pubs"]["click"].publish(msg)
+    line = wait_error(node, "no usable point cloud yet")["node"]["last_error"]
+    assert "'broken_frame'" in line and "more than one field named 'x'" in line
+    node["pubs"]["points"].publish(xyz_to_pointcloud2(node["sim"].organized, FRAME))
+    node["client"].wait_for(lambda: (status(node)["node"]["cloud"] or {}).get("frame_id")
+                            == FRAME, 30, "the good cloud")
+    fit_fresh_click(node, library, 0)
+
+
+def test_a_storm_of_service_calls_is_answered_in_full(node):
+    """Row '4 clients x 50 concurrent Trigger calls': 200 of 200 answered."""
+    answers, lock = [], threading.Lock()
+
+    def storm(k):
+        # a client sending 50 calls at once needs room for 50 answers (the default keeps 10)
+        from rclpy.qos import QoSProfile
+        c = node["client"].node.create_client(Trigger, f"{NS}/next_model" if k % 2 else
+                                              f"{NS}/previous_model",
+                                              qos_profile=QoSProfile(depth=100))
+        assert c.wait_for_service(timeout_sec=30)
+        futures = [c.call_async(Trigger.Request()) for _ in range(50)]
+        deadline = time.monotonic() + 120
+        while not all(f.done() for f in futures) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        with lock:
+            answers.extend(f.result() for f in futures if f.done())
+    threads = [threading.Thread(target=storm, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    t0 = time.monotonic()
+    for t in threads:
+        t.join()
+    print(f"200 calls answered in {time.monotonic() - t0:.1f} s")
+    assert len(answers) == 200 and all(a.success for a in answers)
+
+
+def test_bad_template_libraries_are_refused_with_a_reason(node, library, tmp_path):
+    """Row 'templates_dir set to a library whose YAML nests 5000 deep, holds non-UTF-8 bytes,
+    or mesh_scale: 1.0e+300': the SetParameters call answers, with the reason."""
+    cases = {"deep": "name: a\nmesh: " + "[" * 5000 + "]" * 5000 + "\n",
+             "bytes": b"name: \xff\xfe valve\nmesh: x.stl\n",
+             "huge": "name: a\nmesh: m.stl\nmesh_scale: 1.0e+300\n"}
+    reasons = {}
+    for case, text in cases.items():
+        lib = tmp_path / case
+        lib.mkdir()
+        shutil.copy(os.path.join(MODELS, "meshes", "grab_handle.stl"), lib / "m.stl")
+        (lib / "t.yaml").write_bytes(text if isinstance(text, bytes) else text.encode())
+        req = SetParameters.Request(parameters=[Parameter(name="templates_dir", value=ParameterValue(
+            type=ParameterType.PARAMETER_STRING, string_value=str(lib)))])
+        res = node["client"].call(SetParameters, f"{NS}/set_parameters", req, timeout=60)
+        assert not res.results[0].successful
+        reasons[case] = res.results[0].reason
+    assert "nested too deeply" in reasons["deep"] and "not UTF-8" in reasons["bytes"]
+    assert "mesh_scale" in reasons["huge"]
+    assert all("t.yaml" in r for r in reasons.values()), reasons
+
+
+def test_a_huge_twist_and_a_far_marker_pose_are_refused(node, library):
+    """Rows 'one Twist of 1e300' and 'marker feedback with a pose at 1e30': refused with one
+    line; the object stays put, accept and save write a sane pose."""
+    obj = fit_fresh_click(node, library, 2)
+    T0 = np.asarray(obj["candidates"][0]["pose"])
+    huge = Twist()
+    huge.linear.x = 1e300
+    node["pubs"]["twist"].publish(huge)
+    wait_error(node, "ignored a twist of")
+    far = T0.copy()
+    far[:3, 3] = [1e30, 0.0, 0.0]
+    for event in (InteractiveMarkerFeedback.MOUSE_DOWN, InteractiveMarkerFeedback.POSE_UPDATE,
+                  InteractiveMarkerFeedback.MOUSE_UP):
+        fb = InteractiveMarkerFeedback(client_id="/fuzzer", marker_name="affordance_fit",
+                                       event_type=event, pose=matrix_to_pose(far))
+        fb.header.frame_id = FRAME
+        node["pubs"]["feedback"].publish(fb)
+    wait_error(node, "from where it was clicked")
+    assert node["client"].call(Trigger, f"{NS}/accept").success
+    saved = node["client"].call(Trigger, f"{NS}/save")
+    assert saved.success
+    doc = yaml.safe_load((node["tmp"] / "registrations.yaml").read_text())
+    reg = doc["registrations"][-1]
+    assert np.allclose(reg["pose"], T0, atol=1e-6), reg["pose"]
+
+
+def test_another_node_of_the_same_name_is_reported(node, tmp_path):
+    """Row 'two nodes started with the same name': the newcomer says so."""
+    twin = engine_process(tmp_path, name="twin")
+    try:
+        assert twin.wait_output("another node named /affordance_engine is running", 60), \
+            twin.output()[-2000:]
+    finally:
+        twin.interrupt()
+        twin.kill()
+
+
+# ---------------------------------------------------------------------------- the command line
+def test_fit_refuses_unreadable_arrays_and_oversized_files_in_one_line(tmp_path):
+    """Rows '.npy of strings or a structured dtype', 'a PLY whose header claims 1e9 vertices
+    and holds one' (under a 2 GB limit, within 30 s) and 'a PLY holding nan'."""
+    np.save(tmp_path / "text.npy", np.full((2, 2, 3), "a"))
+    np.save(tmp_path / "rec.npy", np.zeros((2, 2), dtype=[("x", "f4"), ("y", "f4"),
+                                                          ("z", "f4")]))
+    (tmp_path / "liar.ply").write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\n"
+        b"property float y\nproperty float z\nend_header\n" + np.zeros(3, "<f4").tobytes())
+    (tmp_path / "nan.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nend_header\n0 0 1\nnot-a-number 0 1\n0 1 1\n")
+    for name, expected in (("text.npy", "expected numbers"), ("rec.npy", "expected numbers"),
+                           ("liar.ply", "1,000,000,000 points"),
+                           ("nan.ply", "does not hold x, y, z as numbers")):
+        line = one_line(*run_cli("fit", "--scene", str(tmp_path / name), "--point", "0", "0",
+                                 "1"))
+        assert name in line and expected in line, line
+
+
+def _library(tmp_path, name, text):
+    lib = tmp_path / name
+    lib.mkdir()
+    shutil.copytree(os.path.join(MODELS, "meshes"), lib / "meshes")
+    (lib / "t.yaml").write_bytes(text if isinstance(text, bytes) else text.encode())
+    return lib
+
+
+def test_bad_template_files_are_one_line(tmp_path):
+    """Rows 'a library with joint limits +-1e300 or non-UTF-8 bytes', 'symmetry: {order:
+    1000000000}' (answered at once) and 'mesh: ../../elsewhere/x.stl or an absolute path'."""
+    base = ("name: v\nmesh: meshes/ball_valve.stl\nbase_mesh: meshes/ball_valve_base.stl\n"
+            "joints:\n- {name: lever, type: revolute, axis: [0, 0, 1], lower: -1e300, "
+            "upper: 1e300, moving_mesh: meshes/ball_valve_lever.stl}\n")
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    shutil.copy(os.path.join(MODELS, "meshes", "grab_handle.stl"), outside / "x.stl")
+    cases = [("limits", base, "limits beyond"),
+             ("bytes", b"name: v\xff\nmesh: meshes/ball_valve.stl\n", "not UTF-8"),
+             ("order", "name: v\nmesh: meshes/ball_valve.stl\nsymmetry: {order: 1000000000}\n",
+              "continuous: true"),
+             ("relative", "name: v\nmesh: ../elsewhere/x.stl\n", "outside the template's folder"),
+             ("absolute", f"name: v\nmesh: {outside / 'x.stl'}\n", "outside the template's folder")]
+    for name, text, expected in cases:
+        lib = _library(tmp_path, name, text)
+        t0 = time.monotonic()
+        line = one_line(*run_cli("simulate", "--out", str(tmp_path / f"out_{name}"),
+                                 "--templates", str(lib)))
+        assert "t.yaml" in line and expected in line, line
+        assert time.monotonic() - t0 < 30
+        assert not (tmp_path / f"out_{name}").exists()
+    # the YAML may opt out of the folder rule explicitly
+    lib = _library(tmp_path, "opted", f"name: v\nmesh: {outside / 'x.stl'}\n"
+                                       f"allow_external_files: true\n")
+    from affordance_registration.core.templates import TemplateLibrary
+    assert TemplateLibrary.load(str(lib))["v"].diameter > 0.05
+
+
+def test_bad_launch_files_are_one_line(tmp_path):
+    """Rows 'launch with a param entry - 5, - arg: 5 or non-UTF-8 bytes' and 'an arg default
+    $(env X) where X contains $(env X) (or a $(var) self-reference)': one line, no hang."""
+    node = "- node: {pkg: affordance_registration, exec: affordance_engine, param: [5]}\n"
+    cases = {"param": "launch:\n" + node, "arg": "launch:\n- arg: 5\n",
+             "bytes": b"launch:\n- arg: {name: \xff}\n",
+             "self_var": "launch:\n- arg: {name: a, default: $(var a)}\n",
+             "env": "launch:\n- arg: {name: a, default: $(env AR_LOOP)}\n"
+                    "- node: {pkg: affordance_registration, exec: affordance_engine, "
+                    "namespace: $(var a)}\n"}
+    env = dict(os.environ, AR_LOOP="$(env AR_LOOP)")
+    for name, text in cases.items():
+        f = tmp_path / f"{name}.launch.yaml"
+        f.write_bytes(text if isinstance(text, bytes) else text.encode())
+        if name == "env":          # resolved once: the node gets the text literally
+            from affordance_registration.ros.launcher import parse_launch_file
+            os.environ["AR_LOOP"] = "$(env AR_LOOP)"
+            try:
+                (action,) = parse_launch_file(str(f))
+            finally:
+                del os.environ["AR_LOOP"]
+            assert action.namespace == "$(env AR_LOOP)"
+            continue
+        res = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "launch",
+                              str(f)], capture_output=True, text=True, timeout=30, env=env)
+        line = one_line(res.returncode, res.stderr)
+        assert f.name in line, line
+
+
+def test_the_spacemouse_fifo_skips_lines_that_are_not_commands(tmp_path):
+    """Row 'the SpaceMouse fifo: backend fed the JSON line 5': the reader keeps going."""
+    from affordance_registration.ros.spacemouse import FifoBackend
+    fifo = tmp_path / "hid"
+    os.mkfifo(fifo)
+    backend = FifoBackend(str(fifo))
+    with open(fifo, "w") as handle:
+        handle.write('5\n"text"\n[1, 2]\n{"plug": 7}\n{"report": "x"}\nnot json\n')
+        handle.write(json.dumps({"plug": {"path": "fake0", "vendor_id": 9583,
+                                          "product_id": 50741}}) + "\n")
+    deadline = time.monotonic() + 30
+    while not backend.enumerate() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert [d["path"] for d in backend.enumerate()] == [b"fake0"]
+
+
+# ---------------------------------------------------------------------------- saving
+def _registrations():
+    from affordance_registration.core.engine import Registration
+    T = np.eye(4)
+    T[:3, 3] = [0.1, 0.2, 0.9]
+    return [Registration(id=1, template="ball_valve", T_scene_model=T, likelihood=1.0,
+                         probability=0.5, residual=0.002, click=T[:3, 3])]
+
+
+def test_saving_never_replaces_what_is_not_a_regular_file(tmp_path):
+    """Row 'registrations_file pointing at a character device, as root': refused, the device
+    intact; likewise a FIFO (without blocking on it) and a folder."""
+    from affordance_registration.core.engine import save_registrations
+    from affordance_registration.core.errors import AffordanceError
+    targets = {"fifo": tmp_path / "fifo", "folder": tmp_path / "folder"}
+    os.mkfifo(targets["fifo"])
+    targets["folder"].mkdir()
+    if os.geteuid() == 0:            # a character device like /dev/null, made here
+        targets["device"] = tmp_path / "null"
+        os.mknod(targets["device"], 0o600 | stat.S_IFCHR, os.makedev(1, 3))
+    for kind, path in targets.items():
+        before = os.lstat(path)
+        with pytest.raises(AffordanceError, match="not a regular file|is a folder"):
+            save_registrations(str(path), _registrations())
+        after = os.lstat(path)
+        assert (after.st_mode, after.st_ino, after.st_rdev) == \
+            (before.st_mode, before.st_ino, before.st_rdev), kind
+    assert sorted(os.listdir(tmp_path)) == sorted(p.name for p in targets.values())
+    # a link to a regular file: the file it points to is written, the link stays
+    real = tmp_path / "real.yaml"
+    real.write_text("old")
+    (tmp_path / "link.yaml").symlink_to(real)
+    save_registrations(str(tmp_path / "link.yaml"), _registrations())
+    assert (tmp_path / "link.yaml").is_symlink() and "ball_valve" in real.read_text()
+
+
+def test_saving_keeps_a_files_mode_and_honours_the_umask(tmp_path):
+    """Row 'a successful ~/save': mode 0600 whatever the umask -- now a new file gets the umask
+    and an existing one keeps its mode."""
+    from affordance_registration.core.engine import save_registrations
+    old = os.umask(0o022)
+    try:
+        save_registrations(str(tmp_path / "new.yaml"), _registrations())
+        assert stat.S_IMODE(os.stat(tmp_path / "new.yaml").st_mode) == 0o644
+        os.umask(0o077)
+        kept = tmp_path / "kept.yaml"
+        kept.write_text("x")
+        os.chmod(kept, 0o640)
+        save_registrations(str(kept), _registrations())
+        assert stat.S_IMODE(os.stat(kept).st_mode) == 0o640
+    finally:
+        os.umask(old)
+
+
+def test_a_save_killed_midway_leaves_nothing_the_next_save_does_not_clean(tmp_path):
+    """Row 'SIGKILL during ~/save': the process is killed while it writes a large file; the
+    old file is intact, and the next save removes the dead process's temporary file."""
+    import signal
+    from affordance_registration.core.engine import save_registrations
+    target = tmp_path / "registrations.yaml"
+    save_registrations(str(target), _registrations())
+    before = target.read_bytes()
+    # the writer stops for good right before its rename (its fsync never returns): a kill then
+    # is a kill in the middle of a save, whatever the machine's speed
+    writer = subprocess.Popen([sys.executable, "-c", (
+        "import os, sys, time\nos.fsync = lambda fd: time.sleep(3600)\n"
+        "from affordance_registration.core.files import write_atomically\n"
+        "write_atomically({sys.argv[1]: b'x' * 2**20})"), str(target)])
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not [
+                p for p in os.listdir(tmp_path) if ".tmp-" in p and os.path.getsize(
+                    tmp_path / p) == 2**20]:
+            time.sleep(0.01)
+        writer.send_signal(signal.SIGKILL)
+    finally:
+        writer.wait()
+    leftovers = [p for p in os.listdir(tmp_path) if ".tmp-" in p]
+    assert leftovers and target.read_bytes() == before
+    save_registrations(str(target), _registrations())
+    assert sorted(os.listdir(tmp_path)) == ["registrations.yaml"]
