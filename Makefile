@@ -12,7 +12,7 @@ TF2_SOURCES := affordance_registration/ros/interfaces/build.py \
 # ROS 2 discovery never leaves this machine (Fast DDS multicasts on the network otherwise).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup syslibs demo test bench models clean
+.PHONY: setup syslibs browser demo test bench models clean
 
 setup: syslibs $(STAMP) $(TF2_STAMP)
 
@@ -38,6 +38,19 @@ syslibs:
 	  fi; \
 	fi
 
+# The station's browser test drives Debian's chromium (headless, software WebGL) with Playwright;
+# install it when missing (root) or say what to do. Only the tests need it, not `make demo`.
+browser:
+	@if ! [ -x /usr/bin/chromium ]; then \
+	  if [ "$$(id -u)" = "0" ]; then \
+	    echo "installing chromium (the station's browser test) with apt"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null || \
+	      { echo "apt-get install chromium failed"; exit 1; }; \
+	  else \
+	    echo "chromium is missing; install it as root: sudo apt-get install chromium"; exit 1; \
+	  fi; \
+	fi
+
 # Re-installs only when setup.py changes (or the venv is new): fast when nothing changed.
 $(STAMP): setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -54,7 +67,7 @@ $(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
 demo: setup
 	$(VENV)/bin/affordance-registration demo
 
-test: setup
+test: setup browser
 	$(PY) -m pytest -q test
 
 bench: setup

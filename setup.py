@@ -19,6 +19,7 @@ CORE_REQUIRES = [
     "hidapi==0.15.0",
     "rosbags==0.11.9",
     "Pillow==13.0.0",
+    "viser==1.1.1",
 ]
 
 # ROS 2 Jazzy from PyPI wheels, for machines without a ROS install. In a colcon
@@ -69,7 +70,7 @@ setup(
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
         "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
-        "test": ["pytest==9.2.0", "hypothesis==6.170.17"],
+        "test": ["pytest==9.2.0", "hypothesis==6.170.17", "playwright==1.65.2"],
         "bench": ["small_gicp==1.0.1"],
     },
     python_requires=">=3.10",
@@ -84,6 +85,8 @@ setup(
             "affordance-registration = affordance_registration.cli:main",
             "affordance_engine = affordance_registration.ros.engine_node:main",
             "affordance_spacemouse = affordance_registration.ros.spacemouse:main",
+            "affordance_station = affordance_registration.ros.station:main",
+            "affordance_simulated_scan = affordance_registration.ros.simulated_scan:main",
         ],
     },
 )

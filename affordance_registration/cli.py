@@ -1,7 +1,7 @@
 """The ``affordance-registration`` command.
 
 Subcommands: fit, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
-spacemouse, when their modules are present). Errors print one line naming the problem and exit
+spacemouse, station, when their modules are present). Errors print one line naming the problem and exit
 with status 2; nothing half-written is left behind.
 """
 from __future__ import annotations
@@ -215,6 +215,55 @@ def cmd_session(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------- station
+def cmd_station(args) -> int:
+    """The browser operator station (``--demo``: with an engine node and a simulated scan)."""
+    from .ros.station import check_port
+    check_port(args.host, args.port)
+    if not args.demo:
+        from .ros.station import main as station_main
+        return station_main(["--ros-args", "-p", f"host:={args.host}", "-p",
+                             f"port:={args.port}"])
+    import signal
+    import threading
+    import urllib.request
+    from .ros.launcher import Launcher, package_share, parse_launch_file
+    os.makedirs(args.out, exist_ok=True)
+    launch = os.path.join(package_share("affordance_registration"), "launch_configs",
+                          "station_demo.launch.yaml")
+    registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
+    nodes = parse_launch_file(launch, {"host": args.host, "port": str(args.port),
+                                       "seed": str(_seed(args.seed)),
+                                       "registrations_file": registrations})
+    log_path = os.path.join(args.out, "station_demo.log")
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    with open(log_path, "w") as log:
+        # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
+        launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
+        launcher.start()
+        url = f"http://{args.host}:{args.port}"
+        deadline = time.monotonic() + 120
+        while not stop.is_set():
+            if any(p.poll() is not None for p in launcher.procs):
+                launcher.stop()
+                raise AffordanceError(f"a node of the demo stopped; see {log_path}")
+            try:
+                urllib.request.urlopen(url, timeout=1).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    launcher.stop()
+                    raise AffordanceError(f"the station did not come up on {url}; see "
+                                          f"{log_path}") from None
+                time.sleep(0.3)
+        print(f"operator station: {url}\n  an engine node and a simulated taskboard scan "
+              f"(seed {_seed(args.seed)}) are running; Save writes {registrations}; node logs "
+              f"in {log_path}; Ctrl-C stops everything", flush=True)
+        return launcher.wait(stop.is_set)
+
+
 # ---------------------------------------------------------------------------- bag
 def cmd_bag(args) -> int:
     from .ros.bag import bag_info
@@ -380,6 +429,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--seed", default="7")
     p.set_defaults(func=cmd_session)
+
+    p = sub.add_parser("station", help="the browser operator station (viser), a client of the "
+                                       "engine node; --demo: with an engine and a simulated scan")
+    p.add_argument("--demo", action="store_true",
+                   help="also start an engine node and a simulated taskboard scan")
+    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--host", default="127.0.0.1", help="0.0.0.0 serves every interface")
+    p.add_argument("--seed", default="7", help="with --demo: the simulated scene")
+    p.add_argument("--out", default="station_output",
+                   help="with --demo: registrations file and node logs")
+    p.set_defaults(func=cmd_station)
+
 
     _add_bag_parser(sub)
 

@@ -11,7 +11,7 @@ def test_importing_core_loads_no_ros():
         "    importlib.import_module(m.name)\n"
         "import affordance_registration.bench\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'sensor_msgs', "
-        "'geometry_msgs', 'visualization_msgs', 'std_msgs', 'std_srvs')]\n"
+        "'geometry_msgs', 'visualization_msgs', 'std_msgs', 'std_srvs', 'viser')]\n"
         "print(','.join(bad))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

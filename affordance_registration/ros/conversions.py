@@ -18,11 +18,15 @@ from ..core.errors import AffordanceError
 from ..core.pointfiles import MAX_POINTS
 from ..core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
-__all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "xyz_to_pointcloud2", "pose_to_matrix",
+__all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
+           "xyz_to_pointcloud2", "pose_to_matrix",
            "matrix_to_pose", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
            "text_marker", "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
 
 _FLOAT_TYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
+_NUMERIC = {PointField.INT8: "i1", PointField.UINT8: "u1", PointField.INT16: "i2",
+            PointField.UINT16: "u2", PointField.INT32: "i4", PointField.UINT32: "u4",
+            PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
 _SIZES = {PointField.INT8: 1, PointField.UINT8: 1, PointField.INT16: 2, PointField.UINT16: 2,
           PointField.INT32: 4, PointField.UINT32: 4, PointField.FLOAT32: 4, PointField.FLOAT64: 8}
 
@@ -91,6 +95,25 @@ def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
     pts = np.empty((h * w, 3), dtype=np.float64)
     pts[:, 0], pts[:, 1], pts[:, 2] = rec["x"], rec["y"], rec["z"]
     return pts, ((h, w) if h > 1 else None)
+
+
+def pointcloud2_field(msg: PointCloud2, name: str) -> np.ndarray | None:
+    """A scalar field (``intensity``, ...) of every point as (N,) float64 in the order of
+    :func:`pointcloud2_to_xyz`, or None when the cloud has no such field. Call it on a cloud that
+    :func:`pointcloud2_to_xyz` accepted (the layout is checked there)."""
+    field = next((f for f in msg.fields if f.name == name), None)
+    if field is None or field.datatype not in _NUMERIC or field.count not in (0, 1):
+        return None
+    h, w, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    if field.offset + _SIZES[field.datatype] > step or h * w == 0:
+        return None if h * w else np.zeros(0)
+    endian = ">" if msg.is_bigendian else "<"
+    dtype = np.dtype({"names": [name], "formats": [endian + _NUMERIC[field.datatype]],
+                      "offsets": [int(field.offset)], "itemsize": step})
+    buf = np.frombuffer(msg.data, dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
+        else msg.data.view(np.uint8)
+    rows = np.ascontiguousarray(buf.reshape(h, row_step)[:, :w * step])
+    return rows.reshape(-1).view(dtype)[name].astype(np.float64)
 
 
 def xyz_to_pointcloud2(points: np.ndarray, frame_id: str, stamp=None) -> PointCloud2:

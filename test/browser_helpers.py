@@ -1,0 +1,153 @@
+"""A real browser for the station's tests: Debian's chromium (headless, software WebGL) driven by
+Playwright, with a fresh profile each time. Playwright's own browser download is not used."""
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import shutil
+import socket
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+CHROMIUM = os.environ.get("AFFORDANCE_CHROMIUM", "/usr/bin/chromium")
+ARGS = ["--headless", "--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--no-first-run"]
+VIEWPORT = {"width": 1100, "height": 700}
+
+
+def chromium_missing() -> str:
+    """'' when the browser test can run, else why not."""
+    if not os.access(CHROMIUM, os.X_OK):
+        return (f"{CHROMIUM} not found: `make test` installs Debian's chromium (as root), or "
+                f"apt-get install chromium")
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        return "playwright is not installed (pip install -e '.[test]')"
+    return ""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def browser_page(url: str, timeout_s: float = 120.0):
+    """A page of a fresh headless chromium at ``url``, once the station's panel is there."""
+    from playwright.sync_api import sync_playwright
+    profile = tempfile.mkdtemp(prefix="ar_chromium_")
+    try:
+        with sync_playwright() as p:
+            ctx = p.chromium.launch_persistent_context(
+                profile, executable_path=CHROMIUM, headless=True, args=ARGS, viewport=VIEWPORT)
+            try:
+                page = ctx.new_page()
+                page.set_default_timeout(timeout_s * 1000)
+                open_station(page, url)
+                try:
+                    yield page
+                except BaseException:
+                    shot = os.path.join(tempfile.gettempdir(), f"ar_station_failure_{os.getpid()}.png")
+                    with contextlib.suppress(Exception):
+                        page.screenshot(path=shot)
+                        sys.stderr.write(f"the page at the failure: {shot}\n")
+                        sys.stderr.write(page.locator("body").inner_text()[:3000] + "\n")
+                    raise
+            finally:
+                ctx.close()
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def open_station(page, url: str) -> None:
+    page.goto(url)
+    page.get_by_text("Affordance station").first.wait_for()
+
+
+def wait_text(page, pattern: str, timeout_s: float = 120.0):
+    """The first visible element whose text matches the regular expression ``pattern``."""
+    loc = page.get_by_text(re.compile(pattern)).first
+    loc.wait_for(state="visible", timeout=timeout_s * 1000)
+    return loc
+
+
+def canvas_box(page) -> dict:
+    return page.locator("canvas").first.bounding_box()
+
+
+def pixel(T_world_optical, fov_deg: float, box: dict, point) -> tuple[float, float]:
+    """Page coordinates of a world point seen through the page's camera."""
+    from affordance_registration.core.display import project
+    uv = project(T_world_optical, math.radians(fov_deg), box["width"], box["height"],
+                 np.asarray(point, dtype=float)[None])[0]
+    return float(box["x"] + uv[0]), float(box["y"] + uv[1])
+
+
+def on_canvas(page, xy: tuple) -> bool:
+    """Whether the page point shows the 3D view (not the panel or the edge of the page)."""
+    if not all(math.isfinite(v) for v in xy):        # behind the camera
+        return False
+    return bool(page.evaluate("([x, y]) => { const e = document.elementFromPoint(x, y); "
+                              "return e !== null && e.tagName === 'CANVAS'; }", list(xy)))
+
+
+def drag(page, start: tuple, end: tuple, steps: int = 12) -> None:
+    """Press at ``start``, move to ``end`` in steps, release (a person dragging)."""
+    page.mouse.move(*start)
+    page.mouse.down()
+    for k in range(1, steps + 1):
+        f = k / steps
+        page.mouse.move(start[0] + f * (end[0] - start[0]), start[1] + f * (end[1] - start[1]))
+        time.sleep(0.05)
+    time.sleep(0.2)
+    page.mouse.up()
+
+
+def station_argv(port: int, **params) -> list[str]:
+    argv = [sys.executable, "-m", "affordance_registration.ros.station", "--ros-args",
+            "-p", f"port:={port}"]
+    for key, value in params.items():
+        argv += ["-p", f"{key}:={value}"]
+    return argv
+
+
+def scan_argv(seed: int = 7, **params) -> list[str]:
+    argv = [sys.executable, "-m", "affordance_registration.ros.simulated_scan", "--ros-args",
+            "-p", f"seed:={seed}"]
+    for key, value in params.items():
+        argv += ["-p", f"{key}:={value}"]
+    return argv
+
+
+def wait_until(predicate, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
+    """The page's camera once it stands at the sensor (the station's first view of a cloud in a
+    sensor frame) and has not moved for a second: the last ``view_pose`` a
+    :class:`ros_helpers.Client` subscribed to ``topic`` (with ``keep=True``) heard."""
+    from affordance_registration.ros.conversions import pose_to_matrix
+
+    def settled():
+        hist = client.history.get(topic) or []
+        if not hist or np.linalg.norm(pose_to_matrix(hist[-1].pose)[:3, 3]) > 1e-3:
+            return None
+        n = len(hist)
+        time.sleep(1.0)
+        return hist[-1] if len(client.history[topic]) == n else None
+    return wait_until(settled, timeout_s, "the page's camera at the sensor")

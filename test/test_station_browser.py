@@ -1,0 +1,156 @@
+"""The browser operator station end to end, in a real browser: the engine node, a simulated scan
+and the station run as separate processes; headless chromium (software WebGL) driven by
+Playwright clicks, drags and presses buttons on the page like an operator."""
+import math
+import re
+import numpy as np
+import pytest
+import yaml
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+from visualization_msgs.msg import MarkerArray
+
+from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.ros.conversions import pose_to_matrix
+from affordance_registration.ros.station import active_object, apply_markers, gizmo_scale
+from browser_helpers import (browser_page, canvas_box, chromium_missing, drag, free_port,
+                             on_canvas, open_station, pixel, scan_argv, settled_view,
+                             station_argv, wait_text)
+from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+
+FRAME = "camera_depth_optical_frame"
+FOV_DEG = 60.0           # the station's default fov_deg
+MARKERS_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _within(T, truth, library) -> tuple[bool, str]:
+    dt, dr = pose_error(np.asarray(T, dtype=float), truth.T_scene_model,
+                        library[truth.template].symmetry)
+    return dt <= POSE_TOL_M and dr <= POSE_TOL_RAD, f"{dt * 1000:.1f} mm, {math.degrees(dr):.1f} deg"
+
+
+def _shown(status):
+    obj = active_object(status)
+    return None if obj is None else obj["candidates"][obj["shown"]]
+
+
+@pytest.fixture
+def processes(tmp_path):
+    started = []
+
+    def start(argv_or_process, name=None):
+        proc = argv_or_process if isinstance(argv_or_process, NodeProcess) else \
+            NodeProcess(argv_or_process, tmp_path / f"{name}.log")
+        started.append(proc)
+        return proc
+    yield start
+    for proc in started:          # SIGINT first: a node killed outright stays in the DDS graph
+        proc.interrupt(timeout=10)    # until its lease expires, and later tests would see it
+        proc.kill()
+
+
+def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_context,
+                                            processes):
+    missing = chromium_missing()
+    assert not missing, missing
+    port = free_port()
+    processes(scan_argv(seed=panel_scene.seed), "scan")
+    station = processes(station_argv(port, display_points=60000), "station")
+    client = Client("station_browser_test")
+    client.subscribe(PoseStamped, "/view_pose", keep=True)
+    client.subscribe(String, "/affordance_engine/status", LATCHED)
+    client.subscribe(MarkerArray, "/affordance_engine/markers", MARKERS_QOS, keep=True)
+    truth = max(panel_scene.objects, key=lambda o: o.visible_points)
+    try:
+        assert station.wait_output("operator station on", 90), station.output()
+        with browser_page(f"http://127.0.0.1:{port}") as page:
+            # no engine yet: the page says so, and recovers when the engine comes up
+            wait_text(page, "Engine not running")
+            processes(engine_process(tmp_path))
+            wait_text(page, r"Engine: /affordance_engine — idle")
+            wait_text(page, rf"points in '{FRAME}'")
+
+            # the page's camera, as the station publishes it on view_pose: the first view of a
+            # sensor-frame cloud stands at the sensor; wait until it has settled there
+            view = settled_view(client)
+            assert view.header.frame_id == FRAME
+            T_view = pose_to_matrix(view.pose)
+
+            # click the object's pixel: the right template, ranked first, on the truth
+            xy = pixel(T_view, FOV_DEG, canvas_box(page), truth.click)
+            assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
+            page.mouse.click(*xy)
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            c = _shown(client.status())
+            ok, err = _within(c["pose"], truth, library)
+            assert c["template"] == truth.template and ok, err
+
+            # Next, Previous
+            page.get_by_role("button", name="Next", exact=True).click()
+            wait_text(page, r"Shown: #1 \w+.*rank 2/5")
+            page.get_by_role("button", name="Previous", exact=True).click()
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            # a candidate picked by name in the dropdown (~/select_model), and back
+            for rank in (3, 1):
+                page.locator("input[value^='1. '], input[value^='2. '], "
+                             "input[value^='3. ']").first.click()
+                page.get_by_role("option", name=re.compile(rf"^{rank}\. ")).click()
+                wait_text(page, rf"Shown: #1 \w+.*rank {rank}/5")
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            client.wait_for(lambda: _shown(client.status())["rank"] == 1 and
+                            client.status()["node"]["idle"], 60, "the first candidate again")
+
+            # drag the gizmo's x arrow 2 cm: the fit follows, and the release refits it
+            drawings = {}
+            for msg in client.history["/affordance_engine/markers"]:
+                drawings = apply_markers(drawings, msg)
+            fit = drawings[("candidate", 1)]
+            T = fit.T
+            scale = gizmo_scale(fit.vertices)
+            grab, goal = T @ [0.9 * scale, 0, 0, 1], T @ [0.9 * scale + 0.02, 0, 0, 1]
+            box = canvas_box(page)
+            n_markers = len(client.history["/affordance_engine/markers"])
+            drag(page, pixel(T_view, FOV_DEG, box, grab[:3]), pixel(T_view, FOV_DEG, box, goal[:3]))
+            status = client.wait_for(
+                lambda: (active_object(client.status()) or {}).get("corrections", 0) >= 1 and
+                ": refit" in client.status()["node"]["last_message"] and
+                client.status()["node"]["idle"] and client.status(), 90, "the refit after the drag")
+            moved = [np.linalg.norm(d.T[:3, 3] - T[:3, 3])
+                     for msg in client.history["/affordance_engine/markers"][n_markers:]
+                     for (ns, mid), d in apply_markers({}, msg).items() if ns == "candidate"]
+            assert max(moved) >= 0.01, f"the drag moved the fit at most {max(moved) * 1000:.1f} mm"
+            c = _shown(status)
+            ok, err = _within(c["pose"], truth, library)
+            assert c["template"] == truth.template and ok, f"refit after the drag: {err}"
+
+            # Refit, Accept, Undo, Accept, Save: the saved registration is the truth (each step
+            # waits for text the step before could not have shown)
+            page.get_by_role("button", name="Refit", exact=True).click()
+            wait_text(page, r"refit: ok — ")
+            page.get_by_role("button", name="Accept", exact=True).click()
+            wait_text(page, r"Objects: 0 open, 1 registered")
+            page.get_by_role("button", name="Undo", exact=True).click()
+            wait_text(page, r"undo: ok — undid accept")
+            wait_text(page, r"Objects: 1 open, 0 registered")
+            page.get_by_role("button", name="Accept", exact=True).click()
+            wait_text(page, r"accept: ok — accepted")
+            wait_text(page, r"Objects: 0 open, 1 registered")
+            page.get_by_role("button", name="Save", exact=True).click()
+            wait_text(page, r"save: ok — saved 1 registration")
+            saved = yaml.safe_load((tmp_path / "registrations.yaml").read_text())
+            regs = saved["registrations"]
+            assert [r["template"] for r in regs] == [truth.template]
+            ok, err = _within(regs[0]["pose"], truth, library)
+            assert ok, f"saved registration: {err}"
+
+            # a second browser shows the same state
+            second = page.context.new_page()
+            open_station(second, f"http://127.0.0.1:{port}")
+            wait_text(second, r"Objects: 0 open, 1 registered")
+            wait_text(second, r"save: ok — saved 1 registration")
+    finally:
+        client.close()
