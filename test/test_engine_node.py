@@ -344,11 +344,11 @@ def test_sigint_stops_the_node_quickly(session):
 
 
 def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path, library):
-    """An engine whose fits take at least 4 s (test-only setting): a SpaceMouse push, a
+    """An engine whose fits take at least 8 s (test-only setting): a SpaceMouse push, a
     next/previous service pair and an accept button sent while a click's fit runs all act, in
     that order, on the object that fit produces -- the push moves it, the refit waiting for the
     push runs before the model changes, and the accept registers it on the object."""
-    proc = engine_process(tmp_path, {"test_slow_fit_s": 4.0, "refit_idle_s": 0.4})
+    proc = engine_process(tmp_path, {"test_slow_fit_s": 8.0, "refit_idle_s": 0.4})
     client = Client("slow_fit_tester")
     try:
         client.subscribe(String, f"{NS}/status", LATCHED)
