@@ -172,6 +172,9 @@ def test_clear_errors(library, registrar, tmp_path):
     with pytest.raises(RegistrationError, match="fine_metric can only be 'plane'"):
         FitSettings(fine_metric="point").validate()
     FitSettings(fine_metric="plane", two_way=True, coarse_two_way=True).validate()
+    for name in ("joint_sweep", "scale_sweep"):     # a sweep of no steps has no step size
+        with pytest.raises(RegistrationError, match=f"{name} must be an integer >= 1"):
+            FitSettings(**{name: 0}).validate()
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100

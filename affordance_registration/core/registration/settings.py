@@ -155,12 +155,13 @@ class FitSettings:
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "paper_restarts", "paper_iterations", "paper_samples"):
+                     "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
+                     "scale_sweep"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
-                     "articulated_candidates", "joint_sweep", "scale_sweep", "articulation_rounds",
+                     "articulated_candidates", "articulation_rounds",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)
