@@ -2,6 +2,7 @@
 a background thread of the test process."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -79,6 +80,33 @@ def engine_process(tmp_path, params: dict | None = None, name="engine") -> NodeP
     for key, value in (params or {}).items():
         args += ["-p", f"{key}:={value}"]
     return NodeProcess(args, tmp_path / f"{name}.log")
+
+
+@contextlib.contextmanager
+def engine_session(tmp_path, params: dict | None, client_name: str, publishers: dict,
+                   subscriptions=(), **extra):
+    """An engine node of its own (``params``) and a client that subscribes to its status (and to
+    ``subscriptions``: (type, topic, qos, keep) tuples) and publishes on ``publishers`` (key ->
+    (type, topic, depth)), each matched to the node before this yields ``{"proc", "client",
+    "pubs", "tmp", **extra}``. The node is stopped with SIGINT, then killed, and the tail of its
+    output printed (pytest shows it for a failed test)."""
+    from std_msgs.msg import String
+    proc = engine_process(tmp_path, params)
+    client = Client(client_name)
+    try:
+        client.subscribe(String, "/affordance_engine/status", LATCHED)
+        for msg_type, topic, qos, keep in subscriptions:
+            client.subscribe(msg_type, topic, qos, keep=keep)
+        pubs = {key: client.node.create_publisher(msg_type, topic, depth)
+                for key, (msg_type, topic, depth) in publishers.items()}
+        for pub in pubs.values():
+            client.wait_for_subscribers(pub, timeout=30)
+        yield {"proc": proc, "client": client, "pubs": pubs, "tmp": tmp_path, **extra}
+    finally:
+        client.close()
+        proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])
 
 
 class Client:

@@ -16,7 +16,7 @@ from std_srvs.srv import Trigger
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2
-from ros_helpers import LATCHED, Client, engine_process
+from ros_helpers import LATCHED, Client, engine_process, engine_session
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
@@ -26,28 +26,16 @@ TOL_M, TOL_RAD = 0.005, math.radians(5)
 @pytest.fixture(scope="module")
 def session(ros_context, tmp_path_factory, library):
     tmp = tmp_path_factory.mktemp("engine_node")
-    proc = engine_process(tmp, {"static_transforms": f"['{FRAME} rviz_frame 0.1 0 0 0 0 0 1']",
-                                "refit_idle_s": 0.4})
-    client = Client("engine_node_tester")
-    client.subscribe(String, f"{NS}/status", LATCHED)
-    client.subscribe(PoseStamped, f"{NS}/fit", keep=True)
-    client.subscribe(PoseArray, f"{NS}/registered", LATCHED)
-    pubs = {
-        "points": client.node.create_publisher(PointCloud2, "/points", 1),
-        "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
-        "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
-        "joy": client.node.create_publisher(Joy, "/spacenav/joy", 10),
-    }
-    sim = simulate_taskboard(library, 7)
-    try:
-        for pub in pubs.values():
-            client.wait_for_subscribers(pub, timeout=30)
-        yield {"proc": proc, "client": client, "pubs": pubs, "sim": sim, "tmp": tmp}
-    finally:
-        client.close()
-        code, took = proc.interrupt()
-        proc.kill()
-        print(proc.output()[-3000:])
+    with engine_session(
+            tmp, {"static_transforms": f"['{FRAME} rviz_frame 0.1 0 0 0 0 0 1']",
+                  "refit_idle_s": 0.4}, "engine_node_tester",
+            {"points": (PointCloud2, "/points", 1),
+             "click": (PointStamped, "/clicked_point", 10),
+             "twist": (Twist, "/spacenav/twist", 10),
+             "joy": (Joy, "/spacenav/joy", 10)},
+            [(PoseStamped, f"{NS}/fit", 10, True), (PoseArray, f"{NS}/registered", LATCHED, False)],
+            sim=simulate_taskboard(library, 7)) as s:
+        yield s
 
 
 def status(s):

@@ -19,14 +19,13 @@ from geometry_msgs.msg import PointStamped, Twist
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import PointCloud2, PointField
-from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import InteractiveMarkerFeedback
 
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.ros.conversions import matrix_to_pose, xyz_to_pointcloud2
-from ros_helpers import LATCHED, Client, engine_process
+from ros_helpers import engine_process, engine_session
 
 NS = "/affordance_engine"
 FRAME = "camera_depth_optical_frame"
@@ -53,24 +52,14 @@ def one_line(code, err):
 @pytest.fixture(scope="module")
 def node(ros_context, tmp_path_factory, library):
     tmp = tmp_path_factory.mktemp("hardening")
-    proc = engine_process(tmp, {"refit_on_new_cloud": "false"})
-    client = Client("hardening_tester")
-    client.subscribe(String, f"{NS}/status", LATCHED)
-    pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
-            "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
-            "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
-            "feedback": client.node.create_publisher(InteractiveMarkerFeedback,
-                                                     "/affordance_correction/feedback", 100)}
-    sim = simulate_taskboard(library, 7)
-    try:
-        for pub in pubs.values():
-            client.wait_for_subscribers(pub, timeout=30)
-        yield {"proc": proc, "client": client, "pubs": pubs, "sim": sim, "tmp": tmp}
-    finally:
-        client.close()
-        proc.interrupt()
-        proc.kill()
-        print(proc.output()[-3000:])
+    with engine_session(
+            tmp, {"refit_on_new_cloud": "false"}, "hardening_tester",
+            {"points": (PointCloud2, "/points", 1),
+             "click": (PointStamped, "/clicked_point", 10),
+             "twist": (Twist, "/spacenav/twist", 10),
+             "feedback": (InteractiveMarkerFeedback, "/affordance_correction/feedback", 100)},
+            sim=simulate_taskboard(library, 7)) as s:
+        yield s
 
 
 def status(n):
