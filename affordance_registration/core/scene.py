@@ -268,7 +268,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     seeds = np.linalg.norm(pts - click, axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    pairs = pairs_within(build_tree(pts), gap)
+    pairs = pairs_within(pts, gap)
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])),
                        shape=(len(pts), len(pts)))
     _, labels = connected_components(graph, directed=False)
