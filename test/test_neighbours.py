@@ -47,7 +47,7 @@ def test_k_nearest_and_pairs_match_scipy():
 
 
 _THREADS = """
-import os, threading
+import os, threading, time
 import numpy as np
 from affordance_registration.core import neighbours
 from pykdtree.kdtree import KDTree
@@ -61,6 +61,9 @@ neighbours.nearest(tree, queries)
 neighbours.k_nearest(tree, queries[:20000], 8)
 worker = threading.Thread(target=neighbours.nearest, args=(tree, queries))
 worker.start(); worker.join()
+deadline = time.monotonic() + 20     # a joined thread may take a moment to leave /proc;
+while threads() > before and time.monotonic() < deadline:   # OpenMP's workers never do
+    time.sleep(0.01)
 after, settings_after = threads(), neighbours.openmp_threads()
 KDTree(data).query(queries)       # pykdtree left to itself starts its OpenMP team
 print(before, after, threads(), settings, settings_after, sep="|")
