@@ -56,11 +56,16 @@ def rotation_angle(R: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
 
 
-def axis_angle_matrix(axis, angle: float) -> np.ndarray:
-    """3x3 rotation about a (not necessarily unit) axis by ``angle`` radians."""
+def axis_angle_matrix(axis, angle) -> np.ndarray:
+    """Rotation about a (not necessarily unit) axis by ``angle`` radians: axis (3,) and a
+    number give (3, 3); axis (3,) or (K, 3) with angles (K,) give (K, 3, 3)."""
     axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
-    return Rotation.from_rotvec(axis * angle).as_matrix()
+    angle = np.asarray(angle, dtype=float)
+    if axis.ndim == 1:
+        unit = axis / np.linalg.norm(axis)
+    else:       # each row's norm as np.linalg.norm gives it for one vector (the same digits)
+        unit = axis / np.sqrt([a @ a for a in axis])[:, None]
+    return Rotation.from_rotvec(unit * angle[..., None]).as_matrix()
 
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:

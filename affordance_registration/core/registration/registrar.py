@@ -53,7 +53,7 @@ from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import result, scores
+from .scoring import result, results, scores
 from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
@@ -170,10 +170,8 @@ class Registrar:
     def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
         """Each template's best hypothesis by the residual, ranked."""
         best: dict[int, FitResult] = {}
-        for k in range(len(hyps)):
-            i = int(hyps.index[k])
-            res = result(ctx, hyps.models[k], hyps.R[k], hyps.t[k], self.settings,
-                         hyps.iterations, hyps.converged[k])
+        for i, res in zip(hyps.index.tolist(), results(ctx, hyps, self.settings,
+                                                       hyps.iterations, hyps.converged)):
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
         return rank(best.values())
@@ -228,8 +226,7 @@ class Registrar:
             return R, t
         Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
         swept = icp(ctx, Batch.of([model] * len(Rs), Rs, ts), s.short, s)
-        residuals = [result(ctx, model, swept.R[k], swept.t[k], s).residual
-                     for k in range(len(Rs))]
+        residuals = [r.residual for r in results(ctx, Batch(swept.models, swept.R, swept.t), s)]
         best = int(np.argmin(residuals))
         return swept.R[best], swept.t[best]
 

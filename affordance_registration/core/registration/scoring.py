@@ -18,7 +18,7 @@ from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty",
-           "scores", "result"]
+           "scores", "result", "results"]
 
 
 def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
@@ -90,15 +90,26 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
     """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
     penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
     the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
-    one = Batch.single(model, R, t)
-    fwd, inl = forward_residual(ctx, one, settings.score_samples, settings)
-    bwd = float(backward_residual(ctx, one, settings)[0])
-    click = float(click_penalty(ctx, one, settings)[0])
-    residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
-    joints = model.joints
-    return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
-                     likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
-                     iterations=int(iterations), joints=joints,
-                     scale=model.scale if model.articulated else 1.0,
-                     state=model.template.nearest_state(joints) if joints else None,
-                     converged=None if converged is None else bool(converged))
+    return results(ctx, Batch.single(model, R, t), settings, iterations,
+                   None if converged is None else [converged])[0]
+
+
+def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0,
+            converged=None) -> list:
+    """:func:`result` of every hypothesis of a batch (scored together), ``converged`` (B,)
+    or None."""
+    fwd, inl = forward_residual(ctx, batch, settings.score_samples, settings)
+    bwd = backward_residual(ctx, batch, settings)
+    click = click_penalty(ctx, batch, settings)
+    out = []
+    for k, model in enumerate(batch.models):
+        residual = max(0.5 * (float(fwd[k]) + float(bwd[k])) + float(click[k]), 1e-6)
+        joints = model.joints
+        out.append(FitResult(
+            template=model.name, T_scene_model=make_T(batch.R[k], batch.t[k]),
+            residual=residual, likelihood=1.0 / residual, inlier_fraction=float(inl[k]),
+            iterations=int(iterations), joints=joints,
+            scale=model.scale if model.articulated else 1.0,
+            state=model.template.nearest_state(joints) if joints else None,
+            converged=None if converged is None else bool(converged[k])))
+    return out

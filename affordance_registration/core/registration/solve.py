@@ -122,8 +122,11 @@ def point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.
 def rotations_from_vectors(omega: np.ndarray) -> np.ndarray:
     """The rotations (B, 3, 3) about each of ``omega`` (B, 3) by its norm (rad)."""
     angle = np.linalg.norm(omega, axis=1)
-    return np.stack([axis_angle_matrix(o, a) if a > 1e-12 else np.eye(3)
-                     for o, a in zip(omega, angle)])
+    R = np.tile(np.eye(3), (len(omega), 1, 1))
+    turning = angle > 1e-12
+    if turning.any():
+        R[turning] = axis_angle_matrix(omega[turning], angle[turning])
+    return R
 
 
 def weighted_rigid_fit(source: np.ndarray, target: np.ndarray, weights=None) -> np.ndarray:
