@@ -6,7 +6,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "finite_vector", "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
+    "finite_vector", "make_T", "invert", "transform_points", "rotate", "pose_points",
+    "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "align_z_to", "align_x_to", "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
@@ -48,6 +49,18 @@ def invert(T: np.ndarray) -> np.ndarray:
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply ``T`` (4x4) to ``points`` (N, 3)."""
     return points @ T[:3, :3].T + T[:3, 3]
+
+
+def rotate(R: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Each of B rotations R (B, 3, 3) applied to its points P (B, S, 3) -- or all to the same
+    points (S, 3): (B, S, 3). (A batched matrix product: many times faster than ``einsum``.)"""
+    return P @ np.swapaxes(R, -1, -2)
+
+
+def pose_points(R: np.ndarray, t: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """B poses (R (B, 3, 3), t (B, 3)) applied to their points P (B, S, 3) or to the same points
+    (S, 3): (B, S, 3)."""
+    return rotate(R, P) + t[:, None, :]
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import ClickContext
+from ..transforms import pose_points, rotate
 from .correspondences import (Pairs, contact_rows, forward_pairs, in_contact, reverse_rows,
                               stack_samples)
 from .model import Batch, Model
@@ -113,8 +114,7 @@ class _Posing:
             N = np.stack([p[1] for p in posed])
             moving = np.stack([mov for _, _, mov in self.parts])
             P = U * np.array([m.scale for m in self.models])[:, None, None]
-        X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
-        return X, np.einsum("bij,bsj->bsi", R, N), U, moving
+        return pose_points(R, t, P), rotate(R, N), U, moving
 
     def columns(self, pairs: Pairs, R) -> np.ndarray | None:
         """d(x . n) / d(value) of every row for each extra unknown, (B, S, k) or None."""
@@ -128,7 +128,7 @@ class _Posing:
                     np.array([m.scale for m in self.models])[:, None, None]
             else:
                 du = pairs.U
-            cols.append(np.einsum("bsi,bsi->bs", np.einsum("bij,bsj->bsi", R, du), pairs.N))
+            cols.append(np.einsum("bsi,bsi->bs", rotate(R, du), pairs.N))
         return np.stack(cols, axis=-1)
 
     @staticmethod

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..neighbours import nearest
 from ..scene import ClickContext
-from ..transforms import make_T
+from ..transforms import make_T, pose_points, rotate
 from .correspondences import stack_samples
 from .model import Batch, Model
 from .results import FitResult
@@ -27,8 +27,8 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
     within the cap. (B,), (B,)."""
     cap = settings.score_cap
     P, N = stack_samples(batch.models, n)
-    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
-    Nw = np.einsum("bij,bsj->bsi", batch.R, N)
+    X = pose_points(batch.R, batch.t, P)
+    Nw = rotate(batch.R, N)
     vis, violated = visible(ctx, X, Nw, settings)
     dist = np.full(vis.shape, cap)
     d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
@@ -63,7 +63,7 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
-    local = np.einsum("bji,bnj->bni", batch.R, pts[None] - batch.t[:, None, :])  # (B, K, 3)
+    local = (pts[None] - batch.t[:, None, :]) @ batch.R      # (B, K, 3), model frames
     return np.minimum(_grouped_nearest(batch.models, local, cap), cap).mean(axis=1)
 
 
