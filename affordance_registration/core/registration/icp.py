@@ -20,6 +20,7 @@ from ..transforms import pose_points, rotate
 from .correspondences import (Pairs, contact_rows, forward_pairs, in_contact, reverse_rows,
                               stack_samples)
 from .model import Batch, Model
+from .parallel import parts, run
 from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
                        JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT, FitSettings, Stage)
@@ -41,8 +42,24 @@ def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, re
     """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
     reach. ``unknowns`` (fine stage only):
     JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
-    samples also pair with the plane under the click (the fit rests on it). A hypothesis
-    that has converged stays where it is: its result does not depend on the others."""
+    samples also pair with the plane under the click (the fit rests on it). A big batch runs
+    in parts side by side (``settings.threads``); each hypothesis' result is its own."""
+    if reject is not None:
+        reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
+    pieces = parts(len(batch), settings.threads)
+    if len(pieces) == 1:
+        return _icp(ctx, batch, stage, settings, reject, unknowns, contact)
+    done = run([lambda idx=idx: _icp(ctx, batch.take(idx), stage, settings,
+                                     None if reject is None else reject[idx], unknowns, contact)
+                for idx in pieces], settings.threads)
+    return IcpResult(sum((r.models for r in done), ()), np.concatenate([r.R for r in done]),
+                     np.concatenate([r.t for r in done]), max(r.iterations for r in done),
+                     np.concatenate([r.converged for r in done]))
+
+
+def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject,
+         unknowns: tuple, contact: bool) -> IcpResult:
+    """:func:`icp` of one batch on the calling thread."""
     fine = stage.target == FINE
     posing = _Posing(batch.models, stage.samples, unknowns)
     R, t = np.array(batch.R, dtype=float), np.array(batch.t, dtype=float)

@@ -51,6 +51,7 @@ from .hypotheses import Hypotheses, initial_hypotheses, keep_distinct, yaw_sweep
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
+from .parallel import run
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import result, results, scores
@@ -185,16 +186,24 @@ class Registrar:
         models: dict[str, Model] = {}
         if not s.articulated:
             return ranked, models
-        for r in ranked[:s.articulated_candidates]:
+
+        def estimate(r: FitResult):
             tpl = self.library[r.template]
-            if not tpl.articulated or r.residual > s.articulated_margin * ranked[0].residual:
-                continue
             start = self.models.model(tpl, tpl.joint_value(r.joints), r.scale, articulated=True)
-            R, t = r.T_scene_model[:3, :3], r.T_scene_model[:3, 3]
-            model, R, t, converged = articulate(ctx, start, R, t, s)
-            res = result(ctx, model, R, t, s, iterations, converged)
-            models[r.template] = model
-            ranked = tuple(res if x.template == r.template else x for x in ranked)
+            model, R, t, converged = articulate(ctx, start, r.T_scene_model[:3, :3],
+                                                r.T_scene_model[:3, 3], s)
+            return model, result(ctx, model, R, t, s, iterations, converged)
+
+        # the best first (the others' margin is to its estimate), then the others side by side
+        leaders = [r for r in ranked[:s.articulated_candidates]
+                   if self.library[r.template].articulated]
+        for first in (True, False):
+            todo = [r for r in leaders if (r.template == ranked[0].template) == first
+                    and r.residual <= s.articulated_margin * ranked[0].residual]
+            for r, (model, res) in zip(todo, run([lambda r=r: estimate(r) for r in todo],
+                                                 s.threads)):
+                models[r.template] = model
+                ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
 
     def _finish_winner(self, ctx: ClickContext, win: FitResult, models: dict,

@@ -12,6 +12,7 @@ from ..scene import ClickContext
 from ..transforms import make_T, pose_points, rotate
 from .correspondences import stack_samples
 from .model import Batch, Model
+from .parallel import over_batch, parts, run
 from .results import FitResult
 from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
                        FitSettings)
@@ -79,7 +80,15 @@ def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
            cluster_points: int) -> np.ndarray:
     """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
     template -> scene on ``samples`` template samples, cluster -> template on an even
-    subsample of ``cluster_points`` cluster points."""
+    subsample of ``cluster_points`` cluster points. A big batch is scored in parts side by
+    side."""
+    return np.concatenate(over_batch(
+        lambda part: _scores(ctx, part, settings, samples, cluster_points), batch,
+        settings.threads))
+
+
+def _scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
+            cluster_points: int) -> np.ndarray:
     fwd, _ = forward_residual(ctx, batch, samples, settings)
     bwd = backward_residual(ctx, batch, settings, cluster_points)
     return 0.5 * (fwd + bwd) + click_penalty(ctx, batch, settings)
@@ -96,8 +105,17 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
 
 def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0,
             converged=None) -> list:
-    """:func:`result` of every hypothesis of a batch (scored together), ``converged`` (B,)
-    or None."""
+    """:func:`result` of every hypothesis of a batch (scored together; a big batch in parts
+    side by side), ``converged`` (B,) or None."""
+    conv = None if converged is None else np.asarray(converged, dtype=bool)
+    done = run([lambda idx=idx: _results(ctx, batch.take(idx), settings, iterations,
+                                         None if conv is None else conv[idx])
+                for idx in parts(len(batch), settings.threads)], settings.threads)
+    return [r for part in done for r in part]
+
+
+def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int,
+             converged) -> list:
     fwd, inl = forward_residual(ctx, batch, settings.score_samples, settings)
     bwd = backward_residual(ctx, batch, settings)
     click = click_penalty(ctx, batch, settings)

@@ -131,6 +131,9 @@ class FitSettings:
     refit_iterations: int = 12
     refit_max_move: float = 0.05       #: a refit may move at most this far from the correction
     refit_max_turn: float = math.radians(30.0)
+    #: threads one click may use (the pieces of a batch side by side; 1: the calling thread
+    #: alone). The numbers do not depend on it.
+    threads: int = 2
     paper_restarts: int = 25
     paper_iterations: int = 100
     paper_samples: int = 500
@@ -155,6 +158,7 @@ class FitSettings:
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
+                     "threads",
                      "paper_restarts", "paper_iterations", "paper_samples"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
