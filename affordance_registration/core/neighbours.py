@@ -89,6 +89,7 @@ def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None) -> np.nd
     ``points`` when one exists already."""
     k = min(k, len(points))
     idx = k_nearest(tree if tree is not None else build_tree(points), points, k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    nb = points[idx]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
     return np.ascontiguousarray(vecs[:, :, 0])

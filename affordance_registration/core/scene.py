@@ -42,8 +42,8 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     dims = keys.max(axis=0) + 1
     flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
     uniq, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    sums = np.zeros((len(uniq), 3))
-    np.add.at(sums, inverse, points)
+    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(uniq))
+                     for k in range(3)], axis=1)
     return sums / counts[:, None]
 
 
