@@ -177,6 +177,24 @@ def test_clear_errors(library, registrar, tmp_path):
     assert Scene(pts).dropped == 100
 
 
+def test_scene_part_around_a_click_is_the_finite_points_within_reach(panel_scene):
+    """A click reads only the part of the cloud near it: the points within the radius of it
+    (holes of the organized cloud dropped there), the same as cropping the finite points; a
+    click far from every point gets no part."""
+    cloud = panel_scene.organized
+    scene = Scene(cloud)
+    assert scene.size == cloud.shape[0] * cloud.shape[1]
+    finite = cloud.reshape(-1, 3)[np.isfinite(cloud.reshape(-1, 3)).all(axis=1)].astype(float)
+    assert scene.dropped == scene.size - len(finite) > 0
+    for obj in panel_scene.objects:
+        part = scene.around(obj.click, 0.2)
+        expected = finite[np.linalg.norm(finite - obj.click, axis=1) <= 0.2]
+        assert len(expected) > 100
+        np.testing.assert_array_equal(part.points, expected)
+        assert np.all(part.sensor_origin == scene.sensor_origin)
+    assert scene.around([10.0, 0.0, 0.0], 0.2) is None
+
+
 def test_model_cache_is_safe_under_threads(library):
     """Concurrent fits share one cache of posed samples and KD-trees: every thread gets the
     samples of the joint value and scale it asked for (even while a small cache evicts), and

@@ -86,11 +86,14 @@ class Registrar:
             self.models.surface(tpl)
 
     def prepare(self, scene: Scene, click) -> ClickContext:
-        """Snap the click to the surface and prepare the crop around it."""
+        """Snap the click to the surface and prepare the crop around it. Only the part of the
+        scene that can be in the crop is read (one pass over the cloud): the points within the
+        crop radius plus the snap distance of the click hold the snapped point and its crop."""
         s = self.settings
-        snapped = scene.snap(click, s.snap_distance)
-        return scene.prepare_click(snapped, radius=s.crop_factor * self.library.max_diameter,
-                                   voxel=s.voxel, seed=s.seed)
+        radius = s.crop_factor * self.library.max_diameter
+        part = scene.around(click, radius + s.snap_distance)
+        snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
+        return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed)
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.
