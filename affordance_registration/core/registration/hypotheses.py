@@ -1,5 +1,6 @@
-"""Where ICP starts: initial hypotheses around the click for every template, the distinct best
-few kept per template, and the winner's sweep about its mounting axis.
+"""Where ICP starts: initial hypotheses around the click for every template, the library
+prefilter after the coarse stage, the distinct best few kept per template, and the winner's
+sweep about its mounting axis.
 """
 from __future__ import annotations
 
@@ -10,14 +11,15 @@ import numpy as np
 
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
-from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from ..transforms import (align_z_to, axis_angle_matrix, make_T, random_rotations,
+                          rotation_angle)
 from .model import Batch
-from .results import IcpResult
+from .results import FitResult, IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
 
-__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "keep_distinct",
-           "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
+__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
+           "keep_distinct", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 
@@ -162,6 +164,34 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
                 break
         out.extend(chosen)
     return np.array(out)
+
+
+def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSettings):
+    """The library prefilter: the hypotheses of the templates worth fitting on, their scores,
+    and a candidate for each template set aside (its best coarse hypothesis, residual = its
+    coarse score, ``prefiltered``). A template is set aside when its best score is more than
+    ``prefilter_margin`` x the best template's and ``prefilter_keep`` templates score better
+    (``prefilter_keep`` 0: none is). ``scores`` (B,), lower is better."""
+    keep_n = settings.prefilter_keep
+    if keep_n <= 0 or len(names) <= keep_n:
+        return hyps, scores, ()
+    best = np.full(len(names), np.inf)
+    np.minimum.at(best, hyps.index, scores)
+    order = np.argsort(best, kind="stable")
+    out = np.zeros(len(names), bool)
+    out[order[keep_n:]] = True
+    out &= best > settings.prefilter_margin * best[order[0]]
+    if not out.any():
+        return hyps, scores, ()
+    aside = []
+    for i in np.flatnonzero(out & np.isfinite(best)):
+        j = int(np.flatnonzero(hyps.index == i)[np.argmin(scores[hyps.index == i])])
+        residual = max(float(scores[j]), 1e-6)
+        aside.append(FitResult(template=names[i], T_scene_model=make_T(hyps.R[j], hyps.t[j]),
+                               residual=residual, likelihood=1.0 / residual,
+                               iterations=hyps.iterations, prefiltered=True))
+    stay = np.flatnonzero(~out[hyps.index])
+    return hyps.take(stay), scores[stay], tuple(aside)
 
 
 def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):

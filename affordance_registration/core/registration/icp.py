@@ -38,9 +38,11 @@ def radius_schedule(reject, floor, it: int, iterations: int):
 
 
 def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject=None,
-        unknowns: tuple = (), contact: bool = False) -> IcpResult:
+        unknowns: tuple = (), contact: bool = False, span: tuple | None = None) -> IcpResult:
     """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
-    reach. ``unknowns`` (fine stage only):
+    reach. ``span`` (first, stop) runs only those of the stage's iterations (its rejection
+    radii as in the whole stage), so a stage can be run in two parts. ``unknowns`` (fine stage
+    only):
     JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
     samples also pair with the plane under the click (the fit rests on it). A big batch runs
     in parts side by side (``settings.threads``); each hypothesis' result is its own."""
@@ -48,9 +50,10 @@ def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, re
         reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
     pieces = parts(len(batch), settings.threads)
     if len(pieces) == 1:
-        return _icp(ctx, batch, stage, settings, reject, unknowns, contact)
+        return _icp(ctx, batch, stage, settings, reject, unknowns, contact, span)
     done = run([lambda idx=idx: _icp(ctx, batch.take(idx), stage, settings,
-                                     None if reject is None else reject[idx], unknowns, contact)
+                                     None if reject is None else reject[idx], unknowns, contact,
+                                     span)
                 for idx in pieces], settings.threads)
     return IcpResult(sum((r.models for r in done), ()), np.concatenate([r.R for r in done]),
                      np.concatenate([r.t for r in done]), max(r.iterations for r in done),
@@ -58,7 +61,7 @@ def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, re
 
 
 def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject,
-         unknowns: tuple, contact: bool) -> IcpResult:
+         unknowns: tuple, contact: bool, span: tuple | None = None) -> IcpResult:
     """:func:`icp` of one batch on the calling thread."""
     fine = stage.target == FINE
     posing = _Posing(batch.models, stage.samples, unknowns)
@@ -69,8 +72,9 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
     floor = np.minimum(reject, settings.reject_floor)
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))        # the hypotheses still moving
-    it = -1
-    for it in range(stage.iterations):
+    first, stop = span if span is not None else (0, stage.iterations)
+    it = first - 1
+    for it in range(first, stop):
         radius = radius_schedule(reject[active], floor[active], it, stage.iterations)
         Ra, ta = R[active], t[active]
         X, Nw, U, moving = posing.posed(Ra, ta, active)
@@ -97,7 +101,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
         active = active[~done]
         if not len(active):
             break
-    return IcpResult(tuple(posing.models), R, t, it + 1, converged)
+    return IcpResult(tuple(posing.models), R, t, it + 1 - first, converged)
 
 
 def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: FitSettings,

@@ -47,7 +47,8 @@ from ..errors import RegistrationError
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
 from .articulation import articulate, prefer_nominal
-from .hypotheses import Hypotheses, initial_hypotheses, keep_distinct, yaw_sweep_starts
+from .hypotheses import (Hypotheses, initial_hypotheses, keep_distinct, prefilter,
+                         yaw_sweep_starts)
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
@@ -142,17 +143,30 @@ class Registrar:
         #    uniform random; a template that comes in sizes also at the ends of its range
         variants, template_of = self._variants(names)
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
-        # 2. coarse ICP, all restarts of all templates together
-        hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
+        # 2. coarse ICP, all restarts of all templates together; a library larger than the
+        #    prefilter keeps: the templates clearly worse than the leaders after the first
+        #    coarse iterations leave there (3.)
+        split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) else 0
+        set_aside = ()
+        if 0 < split < s.coarse_iterations:
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(0, split)))
+            score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
+            hyps, _, set_aside = prefilter(hyps, score, names, s)
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(split, s.coarse_iterations)))
+        else:
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
         score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
-        # 3. the best distinct few per template, refined at medium resolution
+        if not split:
+            hyps, score, set_aside = prefilter(hyps, score, names, s)
+        # 4. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
         hyps = hyps.after(icp(ctx, hyps, s.medium, s))
-        # 4. rank: the best hypothesis per template by the two-way residual
-        ranked = self._best_per_template(ctx, hyps)
-        # 5. articulated templates among the leaders: joint value and scale with the pose
+        # 5. rank: the best hypothesis per template by the two-way residual (the prefilter's
+        #    behind)
+        ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
+        # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
-        # 6. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
+        # 7. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
         #    at full resolution, then (articulated) towards a named state and scale 1
         final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
         total = time.perf_counter() - t0

@@ -101,6 +101,13 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
+    #: the library prefilter: after the coarse stage, the templates whose best coarse score is
+    #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
+    #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
+    prefilter_keep: int = 5
+    prefilter_margin: float = 1.5
+    #: coarse iterations before the prefilter decides (0: after the coarse stage)
+    prefilter_iterations: int = 3
     coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
     medium_samples: int = 256
     medium_iterations: int = 10
@@ -150,7 +157,7 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "contact_distance", "nominal_preference",
+                     "articulated_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -164,7 +171,7 @@ class FitSettings:
             if not (isinstance(v, int) and v >= 1):
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
-                     "articulated_candidates", "joint_sweep", "scale_sweep", "articulation_rounds",
+                     "articulated_candidates", "prefilter_keep", "prefilter_iterations", "joint_sweep", "scale_sweep", "articulation_rounds",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)
