@@ -112,6 +112,94 @@ def _refit_times(registrar, jobs, library, rng):
     return float(np.median(times)), ok / len(jobs)
 
 
+#: the variants of each template the library-size rows add, as (label, x, y, z scale factors):
+#: scaled and stretched copies of the five -- distractors whose shapes are near the truth's
+VARIANT_SCALES = (("s0.75", 0.75, 0.75, 0.75), ("s1.3", 1.3, 1.3, 1.3), ("x1.35", 1.35, 1.0, 1.0),
+                  ("y0.7", 1.0, 0.7, 1.0), ("z0.7", 1.0, 1.0, 0.7), ("z1.4", 1.0, 1.0, 1.4),
+                  ("xy1.2z0.8", 1.2, 1.2, 0.8))
+LIBRARY_SIZES = (5, 10, 20, 40)
+
+
+def variant_library(library: TemplateLibrary, size: int) -> TemplateLibrary:
+    """The library and ``size - len(library)`` rigid variants of its templates (round robin
+    through :data:`VARIANT_SCALES`): each a template's mesh at its joints' zero, scaled by the
+    factors, named ``<template>@<label>``; a uniform scale keeps the symmetry."""
+    from .core.templates import AffordanceTemplate
+    tpls = [library[n] for n in library]
+    for k in range(max(0, size - len(tpls))):
+        base = tpls[k % len(library)]
+        label, *factors = VARIANT_SCALES[(k // len(library)) % len(VARIANT_SCALES)]
+        mesh = base.mesh_at(0.0, 1.0).copy()
+        mesh.apply_transform(np.diag(factors + [1.0]))
+        uniform = len(set(factors)) == 1
+        tpls.append(AffordanceTemplate(f"{base.name}@{label}", base.path, mesh,
+                                       symmetry=base.symmetry if uniform else None,
+                                       description=f"{base.name} scaled {factors}"))
+    return TemplateLibrary(tpls)
+
+
+def _library_rows(library, jobs, sizes=LIBRARY_SIZES) -> list:
+    """The same clicks fitted with libraries of ``sizes`` templates (the five and their
+    variants): median time, its ratio to the first size, the true template ranked first, and
+    how often the library prefilter set templates aside (clicks where it did, templates per
+    click)."""
+    rows = []
+    for size in sizes:
+        reg = Registrar(variant_library(library, size))
+        reg.warm_up()
+        times, top1, decided, aside = [], 0, 0, 0
+        for scene, obj in jobs:
+            t0 = time.perf_counter()
+            cands = reg.fit(scene, obj.click).candidates
+            times.append(time.perf_counter() - t0)
+            top1 += cands[0].template == obj.template
+            n_aside = sum(c.prefiltered for c in cands)
+            decided += n_aside > 0
+            aside += n_aside
+        rows.append({"templates": size, "clicks": len(jobs), "median_s": float(np.median(times)),
+                     "top1": top1 / len(jobs), "prefilter_decided": decided / len(jobs),
+                     "prefilter_set_aside_per_click": aside / len(jobs)})
+    for r in rows:
+        r["ratio_to_first"] = r["median_s"] / rows[0]["median_s"]
+    return rows
+
+
+def _large_cloud_row(library, seeds, log) -> dict:
+    """Click -> result on 1024 x 1024 organized clouds (a simulated camera of that resolution
+    with the Kinect's field of view): ``Scene()`` of the cloud plus the default fit, per click;
+    ``Scene()`` alone too."""
+    from .core.simulation import KINECT_NFOV, CameraIntrinsics, DepthCamera
+    k = KINECT_NFOV
+    camera = DepthCamera(CameraIntrinsics(width=1024, height=1024, fx=k.fx * 1024 / k.width,
+                                          fy=k.fy * 1024 / k.height, cx=511.5, cy=511.5))
+    reg = Registrar(library)
+    reg.warm_up()
+    t_scene, t_click, top1, ok, n = [], [], 0, 0, 0
+    for seed in seeds:
+        sim = simulate_taskboard(library, seed, camera=camera)
+        cloud = sim.organized.reshape(-1, 3).astype(np.float64)   # as PointCloud2 -> numpy gives
+        for obj in sim.objects:
+            if obj.visible_points < MIN_VISIBLE:
+                continue
+            t0 = time.perf_counter()
+            scene = Scene(cloud)
+            t1 = time.perf_counter()
+            best = reg.fit(scene, obj.click).candidates[0]
+            t2 = time.perf_counter()
+            t_scene.append(t1 - t0)
+            t_click.append(t2 - t0)
+            n += 1
+            dt, dr = pose_error(best.T_scene_model, obj.T_scene_model,
+                                library[obj.template].symmetry)
+            top1 += best.template == obj.template
+            ok += best.template == obj.template and dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
+    log(f"1M-point clouds: {n} clicks")
+    return {"points": int(camera.intrinsics.width * camera.intrinsics.height), "clicks": n,
+            "scene_ms": float(np.median(t_scene)) * 1000,
+            "click_to_result_s": float(np.median(t_click)), "top1": top1 / max(n, 1),
+            "pose_success": ok / max(n, 1)}
+
+
 def _articulated_rows(library, seeds) -> dict:
     """Joint values, named states and scale on taskboards whose valve handles sit at random
     angles within their limits, e-stops pressed or released and grab handles in random sizes:
@@ -202,16 +290,27 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
                               jobs, library))
     except ImportError:
         log("small_gicp is not installed: its row is skipped (pip install small_gicp)")
+    log("default method on one thread (threads 1) ...")
+    single = Registrar(library, FitSettings(threads=1))
+    single.warm_up()
+    rows.append(_evaluate("default, 1 thread", lambda s, c: single.fit(s, c).candidates, jobs,
+                          library))
     base = rows[0]["median_s"]
     for r in rows:
         r["ratio_to_default"] = r["median_s"] / base
     refit_med, refit_ok = _refit_times(default, jobs, library, np.random.default_rng(5))
     log("articulated taskboards (joint values, states, scale) ...")
     articulated = _articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
+    lib_jobs = jobs[::max(1, len(jobs) // 40)][:40]
+    log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
+    library_rows = _library_rows(library, lib_jobs)
+    log("click -> result on 1M-point organized clouds ...")
+    large = _large_cloud_row(library, range(1000, 1000 + (2 if quick else 4)), log)
     result = {"scenes": n_scenes, "clicks": len(jobs), "table_clicks": len(table_jobs),
               "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
               "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
-              "articulated": articulated,
+              "articulated": articulated, "library_sizes": library_rows,
+              "large_cloud": large, "threads": FitSettings().threads,
               "machine": {"cpus": os.cpu_count()}}
     extra = _ros_conversion_bench()
     if extra:
@@ -269,10 +368,22 @@ def format_table(result: dict) -> str:
         lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
                      f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
                      f" corrections {pushed['core_success']:.1%}")
+    for r in result.get("library_sizes", ()):
+        lines.append(f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
+                     f"{r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x, true template first "
+                     f"{r['top1']:.1%}; prefilter decided on {r['prefilter_decided']:.0%} of "
+                     f"clicks, {r['prefilter_set_aside_per_click']:.1f} templates set aside")
+    large = result.get("large_cloud")
+    if large:
+        lines.append(f"click -> result from a {large['points']:,}-point organized cloud "
+                     f"(Scene() + fit, {large['clicks']} clicks): median "
+                     f"{large['click_to_result_s']:.3f} s (Scene() {large['scene_ms']:.1f} ms), "
+                     f"top-1 {large['top1']:.1%}, pose ok {large['pose_success']:.1%}")
     conv = result.get("conversions")
     if conv:
         lines.append(f"PointCloud2 -> numpy, {conv['points']:,} organized points: median "
-                     f"{conv['to_numpy_ms']:.1f} ms; numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms")
+                     f"{conv['to_numpy_ms']:.1f} ms, then Scene() {conv['scene_ms']:.1f} ms; "
+                     f"numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms")
     lines.append(f"pose ok = right template first and within {result['pose_tolerance']['m']*1000:.0f} mm "
                  f"and {result['pose_tolerance']['deg']:.0f} deg (symmetry-aware); "
                  f"{result['scenes']} panel scenes, {result['machine']['cpus']} CPUs")
