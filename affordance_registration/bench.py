@@ -8,7 +8,12 @@ when it is installed (``pip install small_gicp``). Success: the right template r
 its pose within 5 mm and 5 degrees of the truth, symmetry-aware. Times are per click, all five
 templates. Speed ratios compare medians measured in this run. The articulated line: taskboards
 with valve handles at random angles, e-stops pressed or released and (in a variant library)
-grab handles in sizes 0.8-1.25, seeds 3000+.
+grab handles in sizes 0.8-1.25, seeds 3000+. Speed lines measured click by click in turn
+(each click fitted by every variant before the next, so load changes hit them alike): the
+default method on 1 and 2 threads, and libraries of 5/10/20/40 templates (the five and
+scaled / stretched variants of them) with how often the library prefilter decided. Click ->
+result from a 1024 x 1024 organized cloud (``Scene()`` plus the fit), and ``Scene()`` after
+the PointCloud2 conversion.
 """
 from __future__ import annotations
 
@@ -140,28 +145,49 @@ def variant_library(library: TemplateLibrary, size: int) -> TemplateLibrary:
 
 def _library_rows(library, jobs, sizes=LIBRARY_SIZES) -> list:
     """The same clicks fitted with libraries of ``sizes`` templates (the five and their
-    variants): median time, its ratio to the first size, the true template ranked first, and
-    how often the library prefilter set templates aside (clicks where it did, templates per
-    click)."""
-    rows = []
-    for size in sizes:
-        reg = Registrar(variant_library(library, size))
+    variants), each click by every library in turn (so a change of the machine's load hits
+    every size alike): median time, the median over clicks of its ratio to the first size's
+    time, the true template ranked first, and how often the library prefilter set templates
+    aside (clicks where it did, templates per click)."""
+    regs = [Registrar(variant_library(library, size)) for size in sizes]
+    for reg in regs:
         reg.warm_up()
-        times, top1, decided, aside = [], 0, 0, 0
-        for scene, obj in jobs:
+    times = np.zeros((len(jobs), len(sizes)))
+    top1, decided, aside = np.zeros(len(sizes)), np.zeros(len(sizes)), np.zeros(len(sizes))
+    for c, (scene, obj) in enumerate(jobs):
+        for k, reg in enumerate(regs):
             t0 = time.perf_counter()
             cands = reg.fit(scene, obj.click).candidates
-            times.append(time.perf_counter() - t0)
-            top1 += cands[0].template == obj.template
-            n_aside = sum(c.prefiltered for c in cands)
-            decided += n_aside > 0
-            aside += n_aside
-        rows.append({"templates": size, "clicks": len(jobs), "median_s": float(np.median(times)),
-                     "top1": top1 / len(jobs), "prefilter_decided": decided / len(jobs),
-                     "prefilter_set_aside_per_click": aside / len(jobs)})
-    for r in rows:
-        r["ratio_to_first"] = r["median_s"] / rows[0]["median_s"]
-    return rows
+            times[c, k] = time.perf_counter() - t0
+            top1[k] += cands[0].template == obj.template
+            n_aside = sum(x.prefiltered for x in cands)
+            decided[k] += n_aside > 0
+            aside[k] += n_aside
+    n = len(jobs)
+    return [{"templates": size, "clicks": n, "median_s": float(np.median(times[:, k])),
+             "ratio_to_first": float(np.median(times[:, k] / times[:, 0])),
+             "top1": float(top1[k] / n), "prefilter_decided": float(decided[k] / n),
+             "prefilter_set_aside_per_click": float(aside[k] / n)} for k, size in enumerate(sizes)]
+
+
+def _threads_rows(library, jobs, threads=(1, 2)) -> list:
+    """The default method with each number of ``threads``, each click by each in turn:
+    median time and the median over clicks of its ratio to the first's."""
+    regs = [Registrar(library, FitSettings(threads=n)) for n in threads]
+    for reg in regs:
+        reg.warm_up()
+        reg.fit(jobs[0][0], jobs[0][1].click)
+    times = np.array([[_timed(reg.fit, scene, obj.click) for reg in regs]
+                      for scene, obj in jobs])
+    return [{"threads": n, "clicks": len(jobs), "median_s": float(np.median(times[:, k])),
+             "ratio_to_first": float(np.median(times[:, k] / times[:, 0]))}
+            for k, n in enumerate(threads)]
+
+
+def _timed(fn, *args) -> float:
+    t0 = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0
 
 
 def _large_cloud_row(library, seeds, log) -> dict:
@@ -290,11 +316,6 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
                               jobs, library))
     except ImportError:
         log("small_gicp is not installed: its row is skipped (pip install small_gicp)")
-    log("default method on one thread (threads 1) ...")
-    single = Registrar(library, FitSettings(threads=1))
-    single.warm_up()
-    rows.append(_evaluate("default, 1 thread", lambda s, c: single.fit(s, c).candidates, jobs,
-                          library))
     base = rows[0]["median_s"]
     for r in rows:
         r["ratio_to_default"] = r["median_s"] / base
@@ -302,6 +323,8 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     log("articulated taskboards (joint values, states, scale) ...")
     articulated = _articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
     lib_jobs = jobs[::max(1, len(jobs) // 40)][:40]
+    log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
+    threads_rows = _threads_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
     library_rows = _library_rows(library, lib_jobs)
     log("click -> result on 1M-point organized clouds ...")
@@ -310,7 +333,7 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
               "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
               "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
               "articulated": articulated, "library_sizes": library_rows,
-              "large_cloud": large, "threads": FitSettings().threads,
+              "large_cloud": large, "threads": threads_rows,
               "machine": {"cpus": os.cpu_count()}}
     extra = _ros_conversion_bench()
     if extra:
@@ -368,6 +391,9 @@ def format_table(result: dict) -> str:
         lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
                      f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
                      f" corrections {pushed['core_success']:.1%}")
+    for r in result.get("threads", ()):
+        lines.append(f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
+                     f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first")
     for r in result.get("library_sizes", ()):
         lines.append(f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
                      f"{r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x, true template first "
