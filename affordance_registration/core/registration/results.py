@@ -32,8 +32,8 @@ class FitResult:
     #: whether the last ICP stage of this candidate converged before its iteration limit
     #: (None: no ICP ran, e.g. the literal baseline's own loop)
     converged: bool | None = None
-    #: set aside by the library prefilter after the coarse stage: pose and residual are that
-    #: stage's (fewer samples), and it ranks behind every candidate that was fitted on
+    #: set aside by the library prefilter during the coarse stage: pose and residual are the
+    #: coarse ones where it left (fewer samples), and it ranks behind every fitted candidate
     prefiltered: bool = False
 
     def to_dict(self) -> dict:
