@@ -11,6 +11,8 @@ PACKAGE = "affordance_registration"
 CORE_REQUIRES = [
     "numpy==2.4.6",
     "scipy==1.17.1",
+    "pykdtree==1.4.3",
+    "threadpoolctl==3.8.0",
     "trimesh==5.2.0",
     "manifold3d==3.5.4",
     "open3d-cpu==0.20.0; platform_system == 'Linux' and platform_machine == 'x86_64'",

@@ -8,7 +8,12 @@ when it is installed (``pip install small_gicp``). Success: the right template r
 its pose within 5 mm and 5 degrees of the truth, symmetry-aware. Times are per click, all five
 templates. Speed ratios compare medians measured in this run. The articulated line: taskboards
 with valve handles at random angles, e-stops pressed or released and (in a variant library)
-grab handles in sizes 0.8-1.25, seeds 3000+.
+grab handles in sizes 0.8-1.25, seeds 3000+. Speed lines measured click by click in turn
+(each click fitted by every variant before the next, so load changes hit them alike): the
+default method on 1 and 2 threads, and libraries of 5/10/20/40 templates (the five and
+scaled / stretched variants of them) with how often the library prefilter decided. Click ->
+result from a 1024 x 1024 organized cloud (``Scene()`` plus the fit), and ``Scene()`` after
+the PointCloud2 conversion.
 """
 from __future__ import annotations
 
@@ -112,6 +117,118 @@ def _refit_times(registrar, jobs, library, rng):
     return float(np.median(times)), ok / len(jobs)
 
 
+#: the variants of each template the library-size rows add, as (label, x, y, z scale factors):
+#: scaled and stretched copies of the five -- distractors whose shapes are near the truth's
+VARIANT_SCALES = (("s0.75", 0.75, 0.75, 0.75), ("s1.3", 1.3, 1.3, 1.3), ("x1.35", 1.35, 1.0, 1.0),
+                  ("y0.7", 1.0, 0.7, 1.0), ("z0.7", 1.0, 1.0, 0.7), ("z1.4", 1.0, 1.0, 1.4),
+                  ("xy1.2z0.8", 1.2, 1.2, 0.8))
+LIBRARY_SIZES = (5, 10, 20, 40)
+
+
+def variant_library(library: TemplateLibrary, size: int) -> TemplateLibrary:
+    """The library and ``size - len(library)`` rigid variants of its templates (round robin
+    through :data:`VARIANT_SCALES`): each a template's mesh at its joints' zero, scaled by the
+    factors, named ``<template>@<label>``; a uniform scale keeps the symmetry."""
+    from .core.templates import AffordanceTemplate
+    tpls = [library[n] for n in library]
+    for k in range(max(0, size - len(tpls))):
+        base = tpls[k % len(library)]
+        label, *factors = VARIANT_SCALES[(k // len(library)) % len(VARIANT_SCALES)]
+        mesh = base.mesh_at(0.0, 1.0).copy()
+        mesh.apply_transform(np.diag(factors + [1.0]))
+        uniform = len(set(factors)) == 1
+        tpls.append(AffordanceTemplate(f"{base.name}@{label}", base.path, mesh,
+                                       symmetry=base.symmetry if uniform else None,
+                                       description=f"{base.name} scaled {factors}"))
+    return TemplateLibrary(tpls)
+
+
+def _library_rows(library, jobs, sizes=LIBRARY_SIZES) -> list:
+    """The same clicks fitted with libraries of ``sizes`` templates (the five and their
+    variants), each click by every library in turn (so a change of the machine's load hits
+    every size alike): median time, the median over clicks of its ratio to the first size's
+    time, the true template ranked first, and how often the library prefilter set templates
+    aside (clicks where it did, templates per click, clicks where the true template was among
+    them)."""
+    regs = [Registrar(variant_library(library, size)) for size in sizes]
+    for reg in regs:
+        reg.warm_up()
+    times = np.zeros((len(jobs), len(sizes)))
+    top1, decided, aside, truth_aside = (np.zeros(len(sizes)) for _ in range(4))
+    for c, (scene, obj) in enumerate(jobs):
+        for k, reg in enumerate(regs):
+            t0 = time.perf_counter()
+            cands = reg.fit(scene, obj.click).candidates
+            times[c, k] = time.perf_counter() - t0
+            top1[k] += cands[0].template == obj.template
+            n_aside = sum(x.prefiltered for x in cands)
+            decided[k] += n_aside > 0
+            aside[k] += n_aside
+            truth_aside[k] += any(x.prefiltered and x.template == obj.template for x in cands)
+    n = len(jobs)
+    return [{"templates": size, "clicks": n, "median_s": float(np.median(times[:, k])),
+             "ratio_to_first": float(np.median(times[:, k] / times[:, 0])),
+             "top1": float(top1[k] / n), "prefilter_decided": float(decided[k] / n),
+             "prefilter_set_aside_per_click": float(aside[k] / n),
+             "true_template_set_aside": int(truth_aside[k])} for k, size in enumerate(sizes)]
+
+
+def _threads_rows(library, jobs, threads=(1, 2)) -> list:
+    """The default method with each number of ``threads``, each click by each in turn:
+    median time and the median over clicks of its ratio to the first's."""
+    regs = [Registrar(library, FitSettings(threads=n)) for n in threads]
+    for reg in regs:
+        reg.warm_up()
+        reg.fit(jobs[0][0], jobs[0][1].click)
+    times = np.array([[_timed(reg.fit, scene, obj.click) for reg in regs]
+                      for scene, obj in jobs])
+    return [{"threads": n, "clicks": len(jobs), "median_s": float(np.median(times[:, k])),
+             "ratio_to_first": float(np.median(times[:, k] / times[:, 0]))}
+            for k, n in enumerate(threads)]
+
+
+def _timed(fn, *args) -> float:
+    t0 = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0
+
+
+def _large_cloud_row(library, seeds, log) -> dict:
+    """Click -> result on 1024 x 1024 organized clouds (a simulated camera of that resolution
+    with the Kinect's field of view): ``Scene()`` of the cloud plus the default fit, per click;
+    ``Scene()`` alone too."""
+    from .core.simulation import KINECT_NFOV, CameraIntrinsics, DepthCamera
+    k = KINECT_NFOV
+    camera = DepthCamera(CameraIntrinsics(width=1024, height=1024, fx=k.fx * 1024 / k.width,
+                                          fy=k.fy * 1024 / k.height, cx=511.5, cy=511.5))
+    reg = Registrar(library)
+    reg.warm_up()
+    t_scene, t_click, top1, ok, n = [], [], 0, 0, 0
+    for seed in seeds:
+        sim = simulate_taskboard(library, seed, camera=camera)
+        cloud = sim.organized.reshape(-1, 3).astype(np.float64)   # as PointCloud2 -> numpy gives
+        for obj in sim.objects:
+            if obj.visible_points < MIN_VISIBLE:
+                continue
+            t0 = time.perf_counter()
+            scene = Scene(cloud)
+            t1 = time.perf_counter()
+            best = reg.fit(scene, obj.click).candidates[0]
+            t2 = time.perf_counter()
+            t_scene.append(t1 - t0)
+            t_click.append(t2 - t0)
+            n += 1
+            dt, dr = pose_error(best.T_scene_model, obj.T_scene_model,
+                                library[obj.template].symmetry)
+            top1 += best.template == obj.template
+            ok += best.template == obj.template and dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
+    log(f"1M-point clouds: {n} clicks")
+    return {"points": int(camera.intrinsics.width * camera.intrinsics.height), "clicks": n,
+            "scene_ms": float(np.median(t_scene)) * 1000,
+            "click_to_result_s": float(np.median(t_click)), "top1": top1 / max(n, 1),
+            "pose_success": ok / max(n, 1)}
+
+
 def _articulated_rows(library, seeds) -> dict:
     """Joint values, named states and scale on taskboards whose valve handles sit at random
     angles within their limits, e-stops pressed or released and grab handles in random sizes:
@@ -208,10 +325,18 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     refit_med, refit_ok = _refit_times(default, jobs, library, np.random.default_rng(5))
     log("articulated taskboards (joint values, states, scale) ...")
     articulated = _articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
+    lib_jobs = jobs[::max(1, len(jobs) // 40)][:40]
+    log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
+    threads_rows = _threads_rows(library, lib_jobs)
+    log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
+    library_rows = _library_rows(library, lib_jobs)
+    log("click -> result on 1M-point organized clouds ...")
+    large = _large_cloud_row(library, range(1000, 1000 + (2 if quick else 4)), log)
     result = {"scenes": n_scenes, "clicks": len(jobs), "table_clicks": len(table_jobs),
               "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
               "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
-              "articulated": articulated,
+              "articulated": articulated, "library_sizes": library_rows,
+              "large_cloud": large, "threads": threads_rows,
               "machine": {"cpus": os.cpu_count()}}
     extra = _ros_conversion_bench()
     if extra:
@@ -269,10 +394,26 @@ def format_table(result: dict) -> str:
         lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
                      f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
                      f" corrections {pushed['core_success']:.1%}")
+    for r in result.get("threads", ()):
+        lines.append(f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
+                     f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first")
+    for r in result.get("library_sizes", ()):
+        lines.append(f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
+                     f"{r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x, true template first "
+                     f"{r['top1']:.1%}; prefilter decided on {r['prefilter_decided']:.0%} of "
+                     f"clicks, {r['prefilter_set_aside_per_click']:.1f} templates set aside, "
+                     f"the true one on {r['true_template_set_aside']} clicks")
+    large = result.get("large_cloud")
+    if large:
+        lines.append(f"click -> result from a {large['points']:,}-point organized cloud "
+                     f"(Scene() + fit, {large['clicks']} clicks): median "
+                     f"{large['click_to_result_s']:.3f} s (Scene() {large['scene_ms']:.1f} ms), "
+                     f"top-1 {large['top1']:.1%}, pose ok {large['pose_success']:.1%}")
     conv = result.get("conversions")
     if conv:
         lines.append(f"PointCloud2 -> numpy, {conv['points']:,} organized points: median "
-                     f"{conv['to_numpy_ms']:.1f} ms; numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms")
+                     f"{conv['to_numpy_ms']:.1f} ms, then Scene() {conv['scene_ms']:.1f} ms; "
+                     f"numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms")
     lines.append(f"pose ok = right template first and within {result['pose_tolerance']['m']*1000:.0f} mm "
                  f"and {result['pose_tolerance']['deg']:.0f} deg (symmetry-aware); "
                  f"{result['scenes']} panel scenes, {result['machine']['cpus']} CPUs")

@@ -180,6 +180,24 @@ def test_clear_errors(library, registrar, tmp_path):
     assert Scene(pts).dropped == 100
 
 
+def test_scene_part_around_a_click_is_the_finite_points_within_reach(panel_scene):
+    """A click reads only the part of the cloud near it: the points within the radius of it
+    (holes of the organized cloud dropped there), the same as cropping the finite points; a
+    click far from every point gets no part."""
+    cloud = panel_scene.organized
+    scene = Scene(cloud)
+    assert scene.size == cloud.shape[0] * cloud.shape[1]
+    finite = cloud.reshape(-1, 3)[np.isfinite(cloud.reshape(-1, 3)).all(axis=1)].astype(float)
+    assert scene.dropped == scene.size - len(finite) > 0
+    for obj in panel_scene.objects:
+        part = scene.around(obj.click, 0.2)
+        expected = finite[np.linalg.norm(finite - obj.click, axis=1) <= 0.2]
+        assert len(expected) > 100
+        np.testing.assert_array_equal(part.points, expected)
+        assert np.all(part.sensor_origin == scene.sensor_origin)
+    assert scene.around([10.0, 0.0, 0.0], 0.2) is None
+
+
 def test_model_cache_is_safe_under_threads(library):
     """Concurrent fits share one cache of posed samples and KD-trees: every thread gets the
     samples of the joint value and scale it asked for (even while a small cache evicts), and
@@ -203,3 +221,33 @@ def test_model_cache_is_safe_under_threads(library):
         P_ref, N_ref = tpl.pose_parts(P0, N0, moving, q, sc)
         assert np.array_equal(P, P_ref) and np.array_equal(N, N_ref), (q, sc, n)
     assert all(s is surfaces[0] for s in surfaces)
+
+
+def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_scene):
+    """With more templates than the prefilter keeps, the clearly worse ones leave after the
+    first coarse iterations: each template still has one candidate, those set aside rank
+    behind the fitted ones, the true template is fitted and ranked first at its pose; with the
+    prefilter off nothing is set aside and the winner is the same."""
+    from affordance_registration.bench import variant_library
+    from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD
+    from affordance_registration.core.transforms import pose_error
+    big = variant_library(library, 15)
+    assert len(big) == 15 and "ball_valve@s0.75" in big
+    scene = Scene(panel_scene.organized)
+    on, off = Registrar(big), Registrar(big, FitSettings(prefilter_keep=0))
+    decided = 0
+    for obj in panel_scene.objects[:3]:
+        cands = on.fit(scene, obj.click).candidates
+        assert sorted(c.template for c in cands) == sorted(big)
+        aside = [c.prefiltered for c in cands]
+        assert aside == sorted(aside)              # the set-aside ones behind the others
+        assert sum(not a for a in aside) >= FitSettings().prefilter_keep
+        decided += any(aside)
+        assert cands[0].template == obj.template and not cands[0].prefiltered
+        dt, dr = pose_error(cands[0].T_scene_model, obj.T_scene_model,
+                            library[obj.template].symmetry)
+        assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
+        plain = off.fit(scene, obj.click).candidates
+        assert not any(c.prefiltered for c in plain)
+        assert plain[0].template == obj.template
+    assert decided >= 1

@@ -252,15 +252,17 @@ class AffordanceEngine:
 
     # ------------------------------------------------------------------ inputs
     def set_scene(self, points, frame_id: str = "", sensor_origin=None) -> int:
-        """Replace the scene (the latest cloud). Returns the number of finite points. Existing
-        objects keep their crops until they are refitted, which re-crops the new scene."""
+        """Replace the scene (the latest cloud). Returns the number of points the cloud has,
+        holes included (counting the finite ones would cost a pass over the cloud that a click
+        does not need). Existing objects keep their crops until they are refitted, which
+        re-crops the new scene."""
         scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
                                                                frame_id=frame_id)
         with self._lock:
             self._scene = scene
             self._scene_version += 1
             self._frame_id = frame_id or scene.frame_id
-        return len(scene)
+        return scene.size
 
     def set_view(self, T_scene_view: np.ndarray | None) -> None:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None

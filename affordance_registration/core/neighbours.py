@@ -1,55 +1,86 @@
-"""Nearest-neighbour search: the one place that builds and queries KD-trees (scipy's cKDTree
-today), and the surface normals estimated from neighbourhoods.
+"""Nearest-neighbour search: the one place that builds and queries KD-trees, and the surface
+normals estimated from neighbourhoods.
 
 Every stage that pairs points -- the crop's segmentation, ICP correspondences, the residual's
 distances, a template's dense surface -- calls :func:`nearest` (or :func:`k_nearest` /
-:func:`pairs_within`), so a faster tree is a change to this module alone.
+:func:`pairs_within`), so the tree is a change to this module alone.
+
+The tree is pykdtree's (about half the time per query of scipy's ``cKDTree`` on the fitter's
+queries, with the same neighbours and distances). pykdtree parallelises a query with OpenMP
+over every core by default; on a loaded machine that made it many times *slower*, and the
+fitter runs its own threads (:mod:`.registration.parallel`). So every query runs on one OpenMP
+thread: the calling thread's OpenMP thread count is set to one for the query and put back
+after it (through ``threadpoolctl``), leaving ``OMP_NUM_THREADS`` and every other library's
+threads as the user set them. ``query_pairs`` (the crop's segmentation) stays scipy's.
 """
 from __future__ import annotations
 
 import numpy as np
+from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
+from threadpoolctl import ThreadpoolController
 
 __all__ = ["KDTree", "build_tree", "tree_points", "nearest", "k_nearest", "pairs_within",
-           "pca_normals"]
+           "pca_normals", "openmp_threads"]
 
-KDTree = cKDTree
-#: a ``parallel`` query of at least this many points uses every core (thread start-up costs
-#: more than it saves below a few thousand points)
-PARALLEL_QUERIES = 8000
+#: the OpenMP runtimes loaded with pykdtree (its wheel brings a private libgomp)
+_OPENMP = tuple(ThreadpoolController().select(user_api="openmp").lib_controllers)
+
+
+def openmp_threads() -> tuple:
+    """The OpenMP thread count the calling thread would use in each OpenMP runtime loaded
+    (pykdtree's among them) -- outside a query, as the user set it."""
+    return tuple(lib.num_threads for lib in _OPENMP)
+
+
+def _query(tree: KDTree, points: np.ndarray, **kwargs):
+    """``tree.query`` on one OpenMP thread (the calling thread's count restored after)."""
+    before = [lib.num_threads for lib in _OPENMP]
+    for lib, n in zip(_OPENMP, before):
+        if n != 1:
+            lib.set_num_threads(1)
+    try:
+        return tree.query(points, **kwargs)
+    finally:
+        for lib, n in zip(_OPENMP, before):
+            if n != 1:
+                lib.set_num_threads(n)
 
 
 def build_tree(points: np.ndarray) -> KDTree:
     """A KD-tree over ``points`` (N, 3) float64, metres."""
-    return cKDTree(points)
+    return KDTree(np.ascontiguousarray(points, dtype=float))
 
 
 def tree_points(tree: KDTree) -> np.ndarray:
     """The points (N, 3) a tree was built over, in their original order."""
-    return tree.data
+    return tree.data.reshape(-1, 3)
 
 
 def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf, parallel: bool = False):
     """Distance (N,) from each of ``points`` (N, 3) to its nearest tree point and that point's
     index (N,) int. Beyond ``upper`` the distance is inf and the index a valid but meaningless
-    one (mask by ``np.isfinite`` of the distance). ``parallel``: a big query (at least
-    ``PARALLEL_QUERIES`` points) uses every core."""
-    n = len(points)
-    d, i = tree.query(points, k=1, distance_upper_bound=upper,
-                      workers=-1 if parallel and n >= PARALLEL_QUERIES else 1)
-    return d, np.minimum(i, tree.n - 1)
+    one (mask by ``np.isfinite`` of the distance). ``parallel`` is accepted for callers that
+    mark their big queries; the query itself runs on the calling thread."""
+    pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.empty(0), np.empty(0, dtype=np.intp)
+    d, i = _query(tree, pts, k=1,
+                  distance_upper_bound=float(upper) if np.isfinite(upper) else None)
+    return d, np.minimum(i, tree.n - 1).astype(np.intp)
 
 
 def k_nearest(tree: KDTree, points: np.ndarray, k: int) -> np.ndarray:
     """Indices (N, k) of the ``k`` nearest tree points of each of ``points`` (N, 3), nearest
     first (``k`` at most the tree's size)."""
-    _, idx = tree.query(points, k=k)
-    return idx.reshape(len(points), k)
+    pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    _, idx = _query(tree, pts, k=k)
+    return idx.reshape(len(pts), k).astype(np.intp)
 
 
-def pairs_within(tree: KDTree, radius: float) -> np.ndarray:
-    """Index pairs (M, 2) of the tree's points closer than ``radius`` (m) to each other."""
-    return tree.query_pairs(radius, output_type="ndarray")
+def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
+    """Index pairs (M, 2) of ``points`` (N, 3) closer than ``radius`` (m) to each other."""
+    return cKDTree(points).query_pairs(radius, output_type="ndarray")
 
 
 def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None) -> np.ndarray:
@@ -58,6 +89,7 @@ def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None) -> np.nd
     ``points`` when one exists already."""
     k = min(k, len(points))
     idx = k_nearest(tree if tree is not None else build_tree(points), points, k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    nb = points[idx]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
     return np.ascontiguousarray(vecs[:, :, 0])

@@ -42,8 +42,8 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     dims = keys.max(axis=0) + 1
     flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
     uniq, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    sums = np.zeros((len(uniq), 3))
-    np.add.at(sums, inverse, points)
+    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(uniq))
+                     for k in range(3)], axis=1)
     return sums / counts[:, None]
 
 
@@ -131,11 +131,17 @@ class ClickContext:
 
 
 class Scene:
-    """The finite points of one scan, (N, 3) float64 metres, and the sensor origin in that frame.
+    """The points of one scan, (N, 3) float64 metres, and the sensor origin in that frame.
 
-    Non-finite rows (NaN holes of organized clouds) are dropped; ``dropped`` counts them. A scene
-    with no finite point is an error.
+    Non-finite rows (NaN holes of organized clouds) are no points: ``points`` holds the finite
+    ones and ``dropped`` counts the others. Both are worked out on first use, not when the scene
+    is made: a click crops the cloud first (:meth:`around`) and drops the holes inside the crop
+    only, so a cloud that is replaced before anyone reads all of it never costs a pass over it.
+    A scene with no finite point is an error.
     """
+
+    #: rows looked at per step while checking that a cloud has a finite point at all
+    _PROBE_ROWS = 65536
 
     def __init__(self, points, sensor_origin=None, frame_id: str = ""):
         try:
@@ -146,17 +152,29 @@ class Scene:
             pts = pts.reshape(-1, 3)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise SceneError(f"scene points must have shape (N, 3), got {pts.shape}")
-        finite = np.all(np.isfinite(pts), axis=1)
-        self.dropped = int(len(pts) - finite.sum())
-        self.points = np.ascontiguousarray(pts[finite])
-        if len(self.points) == 0:
+        self._raw = pts
+        self._points: np.ndarray | None = None
+        if not any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
+                   for i in range(0, len(pts), self._PROBE_ROWS)):
             raise SceneError("the scene has no finite points" +
-                             (f" ({self.dropped} NaN/inf points dropped)" if self.dropped else ""))
+                             (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else ""))
         origin = np.zeros(3) if sensor_origin is None else np.asarray(sensor_origin, dtype=float)
         if origin.shape != (3,) or not np.all(np.isfinite(origin)):
             raise SceneError(f"sensor origin must be 3 finite numbers, got {sensor_origin!r}")
         self.sensor_origin = origin
         self.frame_id = frame_id
+
+    @property
+    def points(self) -> np.ndarray:
+        """The finite points (N, 3) float64, m (one pass over the cloud, on first use)."""
+        if self._points is None:
+            self._points = np.ascontiguousarray(self._raw[np.isfinite(self._raw).all(axis=1)])
+        return self._points
+
+    @property
+    def dropped(self) -> int:
+        """How many rows of the cloud were not finite (holes)."""
+        return len(self._raw) - len(self.points)
 
     @classmethod
     def from_file(cls, path: str, sensor_origin=None) -> "Scene":
@@ -165,6 +183,28 @@ class Scene:
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @property
+    def size(self) -> int:
+        """Rows of the cloud, holes included."""
+        return len(self._raw)
+
+    def around(self, point, radius: float) -> "Scene":
+        """The part of the scene within ``radius`` (m) of ``point`` (3,): a scene of the finite
+        points there, in the same frame with the same sensor origin, or None when there are none.
+        One pass over the cloud (a slab along x, then the ball), holes never copied."""
+        c = _point3(point, "click")
+        pts = self._raw if self._points is None else self._points
+        x = pts[:, 0]
+        idx = np.flatnonzero((x >= c[0] - radius) & (x <= c[0] + radius))  # NaN: outside
+        d = pts[idx] - c
+        near = pts[idx[np.einsum("ij,ij->i", d, d) <= radius * radius]]
+        if len(near) == 0:
+            return None
+        part = Scene.__new__(Scene)
+        part._raw = part._points = np.ascontiguousarray(near)
+        part.sensor_origin, part.frame_id = self.sensor_origin, self.frame_id
+        return part
 
     def snap(self, click, max_distance: float = 0.03) -> np.ndarray:
         """The scene point nearest ``click`` (3,). Farther than ``max_distance`` is an error."""
@@ -268,7 +308,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     seeds = np.linalg.norm(pts - click, axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    pairs = pairs_within(build_tree(pts), gap)
+    pairs = pairs_within(pts, gap)
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])),
                        shape=(len(pts), len(pts)))
     _, labels = connected_components(graph, directed=False)

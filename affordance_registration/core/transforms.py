@@ -6,7 +6,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "finite_vector", "make_T", "invert", "transform_points", "rotation_angle", "pose_error",
+    "finite_vector", "make_T", "invert", "transform_points", "rotate", "pose_points",
+    "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "align_z_to", "align_x_to", "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
@@ -50,17 +51,34 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def rotate(R: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Each of B rotations R (B, 3, 3) applied to its points P (B, S, 3) -- or all to the same
+    points (S, 3): (B, S, 3). (A batched matrix product: many times faster than ``einsum``.)"""
+    return P @ np.swapaxes(R, -1, -2)
+
+
+def pose_points(R: np.ndarray, t: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """B poses (R (B, 3, 3), t (B, 3)) applied to their points P (B, S, 3) or to the same points
+    (S, 3): (B, S, 3)."""
+    return rotate(R, P) + t[:, None, :]
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Rotation angle in radians of a rotation matrix or a stack of them."""
     trace = np.trace(R, axis1=-2, axis2=-1)
     return np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
 
 
-def axis_angle_matrix(axis, angle: float) -> np.ndarray:
-    """3x3 rotation about a (not necessarily unit) axis by ``angle`` radians."""
+def axis_angle_matrix(axis, angle) -> np.ndarray:
+    """Rotation about a (not necessarily unit) axis by ``angle`` radians: axis (3,) and a
+    number give (3, 3); axis (3,) or (K, 3) with angles (K,) give (K, 3, 3)."""
     axis = np.asarray(axis, dtype=float)
-    axis = axis / np.linalg.norm(axis)
-    return Rotation.from_rotvec(axis * angle).as_matrix()
+    angle = np.asarray(angle, dtype=float)
+    if axis.ndim == 1:
+        unit = axis / np.linalg.norm(axis)
+    else:       # each row's norm as np.linalg.norm gives it for one vector (the same digits)
+        unit = axis / np.sqrt([a @ a for a in axis])[:, None]
+    return Rotation.from_rotvec(unit * angle[..., None]).as_matrix()
 
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:

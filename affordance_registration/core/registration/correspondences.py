@@ -11,6 +11,7 @@ import numpy as np
 
 from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
+from ..transforms import pose_points
 from .model import Batch, Model
 from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
 from .visibility import visible
@@ -172,7 +173,7 @@ def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
     """Signed distance (m) of each hypothesis' lowest of ``n`` samples from the plane under the
     click (positive: floating above it), (B,)."""
     P, _ = stack_samples(batch.models, n)
-    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
+    X = pose_points(batch.R, batch.t, P)
     return ctx.plane.distance(X).min(axis=1)
 
 

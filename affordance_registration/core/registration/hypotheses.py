@@ -1,5 +1,6 @@
-"""Where ICP starts: initial hypotheses around the click for every template, the distinct best
-few kept per template, and the winner's sweep about its mounting axis.
+"""Where ICP starts: initial hypotheses around the click for every template, the library
+prefilter after the coarse stage, the distinct best few kept per template, and the winner's
+sweep about its mounting axis.
 """
 from __future__ import annotations
 
@@ -10,14 +11,15 @@ import numpy as np
 
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
-from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from ..transforms import (align_z_to, axis_angle_matrix, make_T, random_rotations,
+                          rotation_angle)
 from .model import Batch
-from .results import IcpResult
+from .results import FitResult, IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
 
-__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "keep_distinct",
-           "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
+__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
+           "keep_distinct", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 
@@ -65,29 +67,32 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
     diameter (the paper's restarts use up to the diameter)."""
-    rows = []
+    index, Rs, ts, family = [], [], [], []
     for i, model in enumerate(models):
         centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
         if centre is None:
             centre = ctx.click
-        for R0, offset, family in _orientations(ctx, model, settings, rng):
-            rows.append((i, R0, _start(ctx, model, R0, centre, offset), family))
-    index, Rs, ts, family = zip(*rows)
-    index = np.array(index)
-    return Hypotheses(tuple(models[i] for i in index), np.stack(Rs), np.stack(ts), index,
-                      np.array(family))
+        R0, offsets, fam = _orientations(ctx, model, settings, rng)
+        index.append(np.full(len(R0), i))
+        Rs.append(R0)
+        ts.append(_starts(ctx, model, R0, centre, offsets))
+        family.append(fam)
+    index = np.concatenate(index)
+    return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
+                      index, np.concatenate(family))
 
 
 def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator):
-    """(R, offset or None, family) of one template's initial hypotheses, in the order they
-    draw from ``rng``."""
+    """One template's initial hypotheses, in the order they draw from ``rng``: rotations
+    (K, 3, 3), translation offsets (K, 3; zero but for the random ones) and families (K,)."""
     s, plane = settings, ctx.plane
-    out = []
+    Rs, families = [], []
     if plane is not None:
         up = align_z_to(plane.normal)
         if s.mode in ("auto", "mounted"):
-            for yaw in _yaws(s.yaw_restarts, rng):
-                out.append((up @ axis_angle_matrix([0, 0, 1], yaw), None, MOUNTED))
+            yaws = _yaws(s.yaw_restarts, rng)
+            Rs.append(up @ axis_angle_matrix([0, 0, 1], yaws).reshape(-1, 3, 3))
+            families.append(np.full(len(yaws), MOUNTED))
         if s.mode in ("auto", "free"):
             cluster_axis = principal_angle(ctx.cluster @ up)
             for R_rest, _ in model.resting_rotations(s.resting_poses):
@@ -100,17 +105,22 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
                                            @ R_rest.T)
                 if cluster_axis is not None and tpl_axis is not None:
                     yaws += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
-                for yaw in yaws:
-                    out.append((up @ axis_angle_matrix([0, 0, 1], yaw) @ R_rest, None, RESTING))
+                if yaws:
+                    Rs.append(up @ axis_angle_matrix([0, 0, 1], np.array(yaws)) @ R_rest)
+                    families.append(np.full(len(yaws), RESTING))
     n_rand = 0 if s.mode == "mounted" and plane is not None else (
         s.random_restarts if plane is not None else s.free_restarts)
+    offsets = [np.zeros((sum(len(f) for f in families), 3))]
     if n_rand:
-        offsets = rng.normal(size=(n_rand, 3))
-        offsets *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
-                    / np.linalg.norm(offsets, axis=1, keepdims=True))
-        for R0, off in zip(random_rotations(n_rand, rng), offsets):
-            out.append((R0, off, RANDOM))
-    return out
+        off = rng.normal(size=(n_rand, 3))
+        off *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
+                / np.linalg.norm(off, axis=1, keepdims=True))
+        Rs.append(random_rotations(n_rand, rng))
+        offsets.append(off)
+        families.append(np.full(n_rand, RANDOM))
+    if not families:
+        return np.empty((0, 3, 3)), np.empty((0, 3)), np.empty(0, dtype=int)
+    return np.concatenate(Rs), np.concatenate(offsets), np.concatenate(families)
 
 
 def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -118,15 +128,16 @@ def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:
     return (np.arange(n) + rng.uniform()) * 2 * math.pi / n
 
 
-def _start(ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray, offset) -> np.ndarray:
-    """The translation putting the model's centroid over ``centre`` (plus ``offset``); with a
-    plane, resting on it (the lowest sample touches it)."""
-    t0 = centre - R0 @ model.centroid
-    if offset is not None:
-        t0 = t0 + offset
+def _starts(ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray,
+            offsets: np.ndarray) -> np.ndarray:
+    """The translations (K, 3) putting the model's centroid over ``centre`` (plus ``offsets``,
+    (K, 3)) for rotations R0 (K, 3, 3); with a plane, resting on it (the lowest sample touches
+    it)."""
+    t0 = centre - R0 @ model.centroid + offsets
     if ctx.plane is not None:
         low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
-        t0 = t0 - ctx.plane.normal * ctx.plane.distance(low @ R0.T + t0).min()
+        lowest = ctx.plane.distance(low @ np.swapaxes(R0, 1, 2) + t0[:, None]).min(axis=1)
+        t0 = t0 - ctx.plane.normal * lowest[:, None]
     return t0
 
 
@@ -153,6 +164,34 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
                 break
         out.extend(chosen)
     return np.array(out)
+
+
+def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSettings):
+    """The library prefilter: the hypotheses of the templates worth fitting on, their scores,
+    and a candidate for each template set aside (its best coarse hypothesis, residual = its
+    coarse score, ``prefiltered``). A template is set aside when its best score is more than
+    ``prefilter_margin`` x the best template's and ``prefilter_keep`` templates score better
+    (``prefilter_keep`` 0: none is). ``scores`` (B,), lower is better."""
+    keep_n = settings.prefilter_keep
+    if keep_n <= 0 or len(names) <= keep_n:
+        return hyps, scores, ()
+    best = np.full(len(names), np.inf)
+    np.minimum.at(best, hyps.index, scores)
+    order = np.argsort(best, kind="stable")
+    out = np.zeros(len(names), bool)
+    out[order[keep_n:]] = True
+    out &= best > settings.prefilter_margin * best[order[0]]
+    if not out.any():
+        return hyps, scores, ()
+    aside = []
+    for i in np.flatnonzero(out & np.isfinite(best)):
+        j = int(np.flatnonzero(hyps.index == i)[np.argmin(scores[hyps.index == i])])
+        residual = max(float(scores[j]), 1e-6)
+        aside.append(FitResult(template=names[i], T_scene_model=make_T(hyps.R[j], hyps.t[j]),
+                               residual=residual, likelihood=1.0 / residual,
+                               iterations=hyps.iterations, prefiltered=True))
+    stay = np.flatnonzero(~out[hyps.index])
+    return hyps.take(stay), scores[stay], tuple(aside)
 
 
 def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):

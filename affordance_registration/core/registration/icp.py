@@ -16,9 +16,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import ClickContext
+from ..transforms import pose_points, rotate
 from .correspondences import (Pairs, contact_rows, forward_pairs, in_contact, reverse_rows,
                               stack_samples)
 from .model import Batch, Model
+from .parallel import parts, run
 from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
                        JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT, FitSettings, Stage)
@@ -36,43 +38,70 @@ def radius_schedule(reject, floor, it: int, iterations: int):
 
 
 def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject=None,
-        unknowns: tuple = (), contact: bool = False) -> IcpResult:
+        unknowns: tuple = (), contact: bool = False, span: tuple | None = None) -> IcpResult:
     """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
-    reach. ``unknowns`` (fine stage only):
+    reach. ``span`` (first, stop) runs only those of the stage's iterations (its rejection
+    radii as in the whole stage), so a stage can be run in two parts. ``unknowns`` (fine stage
+    only):
     JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
-    samples also pair with the plane under the click (the fit rests on it)."""
+    samples also pair with the plane under the click (the fit rests on it). A big batch runs
+    in parts side by side (``settings.threads``); each hypothesis' result is its own."""
+    if reject is not None:
+        reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
+    pieces = parts(len(batch), settings.threads)
+    if len(pieces) == 1:
+        return _icp(ctx, batch, stage, settings, reject, unknowns, contact, span)
+    done = run([lambda idx=idx: _icp(ctx, batch.take(idx), stage, settings,
+                                     None if reject is None else reject[idx], unknowns, contact,
+                                     span)
+                for idx in pieces], settings.threads)
+    return IcpResult(sum((r.models for r in done), ()), np.concatenate([r.R for r in done]),
+                     np.concatenate([r.t for r in done]), max(r.iterations for r in done),
+                     np.concatenate([r.converged for r in done]))
+
+
+def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject,
+         unknowns: tuple, contact: bool, span: tuple | None = None) -> IcpResult:
+    """:func:`icp` of one batch on the calling thread."""
     fine = stage.target == FINE
     posing = _Posing(batch.models, stage.samples, unknowns)
     R, t = np.array(batch.R, dtype=float), np.array(batch.t, dtype=float)
     if reject is None:
         reject = stage.reject * np.array([m.diameter for m in batch.models])
-    reject = np.asarray(reject, dtype=float)
+    reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
     floor = np.minimum(reject, settings.reject_floor)
     converged = np.zeros(len(batch), bool)
-    it = -1
-    for it in range(stage.iterations):
-        radius = radius_schedule(reject, floor, it, stage.iterations)
-        X, Nw, U, moving = posing.posed(R, t)
+    active = np.arange(len(batch))        # the hypotheses still moving
+    first, stop = span if span is not None else (0, stage.iterations)
+    it = first - 1
+    for it in range(first, stop):
+        radius = radius_schedule(reject[active], floor[active], it, stage.iterations)
+        Ra, ta = R[active], t[active]
+        X, Nw, U, moving = posing.posed(Ra, ta, active)
         Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
         pairs = forward = Pairs(X, Q, Nq, w, U, moving)
         if fine:
-            pairs = pairs.joined(reverse_rows(ctx, Batch(tuple(posing.models), R, t), radius,
-                                              settings))
+            pairs = pairs.joined(reverse_rows(ctx, Batch(posing.models_at(active), Ra, ta),
+                                              radius, settings))
         if contact:
             pairs = pairs.joined(contact_rows(ctx, forward, radius, settings))
         if fine:
-            step = plane_step(pairs.X, pairs.Q, pairs.N, pairs.w, posing.columns(pairs, R),
-                              posing.bounds())
+            step = plane_step(pairs.X, pairs.Q, pairs.N, pairs.w,
+                              posing.columns(pairs, Ra, active), posing.bounds(active))
         else:
             step = rigid_step(pairs.X, pairs.Q, pairs.w)
-        R = step.R @ R
-        t = np.einsum("bij,bj->bi", step.R, t) + step.t
-        extra = posing.advance(step.extra)
-        converged = (step.rotation < CONVERGED_ROTATION) & \
+        R[active] = step.R @ Ra
+        t[active] = (step.R @ ta[:, :, None])[:, :, 0] + step.t
+        extra = posing.advance(step.extra, active)
+        done = (step.rotation < CONVERGED_ROTATION) & \
             (step.motion < CONVERGED_TRANSLATION) & (extra < CONVERGED_EXTRA)
-        if converged.all():
+        # a converged hypothesis stays where it is (its result does not depend on the others
+        # in the batch, so a batch may be split across threads)
+        converged[active[done]] = True
+        active = active[~done]
+        if not len(active):
             break
-    return IcpResult(tuple(posing.models), R, t, it + 1, converged)
+    return IcpResult(tuple(posing.models), R, t, it + 1 - first, converged)
 
 
 def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: FitSettings,
@@ -92,7 +121,7 @@ def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: Fi
 class _Posing:
     """The samples of a batch of hypotheses, posed every iteration -- with extra unknowns at
     each model's current joint value and scale -- and those unknowns' columns, bounds and
-    updates."""
+    updates. Every method works on the hypotheses at ``idx`` (an index array)."""
 
     def __init__(self, models, n: int, unknowns: tuple):
         self.models, self.unknowns = list(models), tuple(unknowns)
@@ -101,34 +130,39 @@ class _Posing:
         else:
             self.parts = [m.template.part_samples(n, seed=SAMPLE_SEED) for m in models]
 
-    def posed(self, R, t):
-        """(X, Nw) the samples in the scene (B, S, 3); with extra unknowns also U, the samples
-        unscaled in the model frame (B, S, 3), and which are on the moving part (B, S)."""
+    def models_at(self, idx) -> tuple:
+        return tuple(self.models[i] for i in idx)
+
+    def posed(self, R, t, idx):
+        """(X, Nw) the samples in the scene (b, S, 3) at poses R (b, 3, 3), t (b, 3); with
+        extra unknowns also U, the samples unscaled in the model frame (b, S, 3), and which are
+        on the moving part (b, S)."""
         if not self.unknowns:
-            U, moving, P, N = None, None, self.P, self.N
+            U, moving, P, N = None, None, self.P[idx], self.N[idx]
         else:
+            models, parts = self.models_at(idx), [self.parts[i] for i in idx]
             posed = [m.template.pose_parts(P0, N0, mov, m.q)
-                     for m, (P0, N0, mov) in zip(self.models, self.parts)]
+                     for m, (P0, N0, mov) in zip(models, parts)]
             U = np.stack([p[0] for p in posed])
             N = np.stack([p[1] for p in posed])
-            moving = np.stack([mov for _, _, mov in self.parts])
-            P = U * np.array([m.scale for m in self.models])[:, None, None]
-        X = np.einsum("bij,bsj->bsi", R, P) + t[:, None, :]
-        return X, np.einsum("bij,bsj->bsi", R, N), U, moving
+            moving = np.stack([mov for _, _, mov in parts])
+            P = U * np.array([m.scale for m in models])[:, None, None]
+        return pose_points(R, t, P), rotate(R, N), U, moving
 
-    def columns(self, pairs: Pairs, R) -> np.ndarray | None:
-        """d(x . n) / d(value) of every row for each extra unknown, (B, S, k) or None."""
+    def columns(self, pairs: Pairs, R, idx) -> np.ndarray | None:
+        """d(x . n) / d(value) of every row for each extra unknown, (b, S, k) or None."""
         if not self.unknowns:
             return None
+        models = self.models_at(idx)
         cols = []
         for name in self.unknowns:
             if name == JOINT:
-                du = np.stack([self._joint_motion(m, U) for m, U in zip(self.models, pairs.U)])
+                du = np.stack([self._joint_motion(m, U) for m, U in zip(models, pairs.U)])
                 du = du * pairs.moving[..., None] * \
-                    np.array([m.scale for m in self.models])[:, None, None]
+                    np.array([m.scale for m in models])[:, None, None]
             else:
                 du = pairs.U
-            cols.append(np.einsum("bsi,bsi->bs", np.einsum("bij,bsj->bsi", R, du), pairs.N))
+            cols.append(np.einsum("bsi,bsi->bs", rotate(R, du), pairs.N))
         return np.stack(cols, axis=-1)
 
     @staticmethod
@@ -152,22 +186,22 @@ class _Posing:
                 out.append((model.scale, lo, hi, SCALE_STEP_LIMIT))
         return np.array(out, dtype=float).reshape(len(self.unknowns), 4)
 
-    def bounds(self):
-        """(values, lower, upper) of the extra unknowns, each (B, k), or None."""
+    def bounds(self, idx):
+        """(values, lower, upper) of the extra unknowns, each (b, k), or None."""
         if not self.unknowns:
             return None
-        lim = np.stack([self._limits(m) for m in self.models])
+        lim = np.stack([self._limits(m) for m in self.models_at(idx)])
         return lim[..., 0], lim[..., 1], lim[..., 2]
 
-    def advance(self, increments: np.ndarray) -> np.ndarray:
-        """Apply the extra unknowns' increments (B, k), each limited to its largest step and
-        kept within its bounds; returns the largest step taken per hypothesis (B,)."""
+    def advance(self, increments: np.ndarray, idx) -> np.ndarray:
+        """Apply the extra unknowns' increments (b, k), each limited to its largest step and
+        kept within its bounds; returns the largest step taken per hypothesis (b,)."""
         if not self.unknowns:
-            return np.zeros(len(self.models))
-        lim = np.stack([self._limits(m) for m in self.models])
+            return np.zeros(len(idx))
+        lim = np.stack([self._limits(m) for m in self.models_at(idx)])
         steps = np.clip(increments, -lim[..., 3], lim[..., 3])
         values = np.clip(lim[..., 0] + steps, lim[..., 1], lim[..., 2])
-        for b, m in enumerate(self.models):
+        for b, i in enumerate(idx):
             new = dict(zip(self.unknowns, values[b]))
-            self.models[b] = m.with_values(q=new.get(JOINT), scale=new.get(SCALE))
+            self.models[i] = self.models[i].with_values(q=new.get(JOINT), scale=new.get(SCALE))
         return np.abs(steps).max(axis=1)

@@ -202,3 +202,8 @@ class Batch:
 
     def __len__(self) -> int:
         return len(self.models)
+
+    def take(self, idx) -> "Batch":
+        """The hypotheses at ``idx`` (an index array), in that order."""
+        idx = np.asarray(idx, dtype=int)
+        return Batch(tuple(self.models[i] for i in idx), self.R[idx], self.t[idx])

@@ -47,13 +47,15 @@ from ..errors import RegistrationError
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
 from .articulation import articulate, prefer_nominal
-from .hypotheses import Hypotheses, initial_hypotheses, keep_distinct, yaw_sweep_starts
+from .hypotheses import (Hypotheses, initial_hypotheses, keep_distinct, prefilter,
+                         yaw_sweep_starts)
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
+from .parallel import run
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import result, scores
+from .scoring import result, results, scores
 from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
@@ -85,11 +87,14 @@ class Registrar:
             self.models.surface(tpl)
 
     def prepare(self, scene: Scene, click) -> ClickContext:
-        """Snap the click to the surface and prepare the crop around it."""
+        """Snap the click to the surface and prepare the crop around it. Only the part of the
+        scene that can be in the crop is read (one pass over the cloud): the points within the
+        crop radius plus the snap distance of the click hold the snapped point and its crop."""
         s = self.settings
-        snapped = scene.snap(click, s.snap_distance)
-        return scene.prepare_click(snapped, radius=s.crop_factor * self.library.max_diameter,
-                                   voxel=s.voxel, seed=s.seed)
+        radius = s.crop_factor * self.library.max_diameter
+        part = scene.around(click, radius + s.snap_distance)
+        snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
+        return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed)
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.
@@ -138,17 +143,30 @@ class Registrar:
         #    uniform random; a template that comes in sizes also at the ends of its range
         variants, template_of = self._variants(names)
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
-        # 2. coarse ICP, all restarts of all templates together
-        hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
+        # 2. coarse ICP, all restarts of all templates together; a library larger than the
+        #    prefilter keeps: the templates clearly worse than the leaders after the first
+        #    coarse iterations leave there (3.)
+        split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) else 0
+        set_aside = ()
+        if 0 < split < s.coarse_iterations:
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(0, split)))
+            score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
+            hyps, _, set_aside = prefilter(hyps, score, names, s)
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(split, s.coarse_iterations)))
+        else:
+            hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
         score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
-        # 3. the best distinct few per template, refined at medium resolution
+        if not split:
+            hyps, score, set_aside = prefilter(hyps, score, names, s)
+        # 4. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
         hyps = hyps.after(icp(ctx, hyps, s.medium, s))
-        # 4. rank: the best hypothesis per template by the two-way residual
-        ranked = self._best_per_template(ctx, hyps)
-        # 5. articulated templates among the leaders: joint value and scale with the pose
+        # 5. rank: the best hypothesis per template by the two-way residual (the prefilter's
+        #    behind)
+        ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
+        # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
-        # 6. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
+        # 7. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
         #    at full resolution, then (articulated) towards a named state and scale 1
         final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
         total = time.perf_counter() - t0
@@ -170,10 +188,8 @@ class Registrar:
     def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
         """Each template's best hypothesis by the residual, ranked."""
         best: dict[int, FitResult] = {}
-        for k in range(len(hyps)):
-            i = int(hyps.index[k])
-            res = result(ctx, hyps.models[k], hyps.R[k], hyps.t[k], self.settings,
-                         hyps.iterations, hyps.converged[k])
+        for i, res in zip(hyps.index.tolist(), results(ctx, hyps, self.settings,
+                                                       hyps.iterations, hyps.converged)):
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
         return rank(best.values())
@@ -187,16 +203,24 @@ class Registrar:
         models: dict[str, Model] = {}
         if not s.articulated:
             return ranked, models
-        for r in ranked[:s.articulated_candidates]:
+
+        def estimate(r: FitResult):
             tpl = self.library[r.template]
-            if not tpl.articulated or r.residual > s.articulated_margin * ranked[0].residual:
-                continue
             start = self.models.model(tpl, tpl.joint_value(r.joints), r.scale, articulated=True)
-            R, t = r.T_scene_model[:3, :3], r.T_scene_model[:3, 3]
-            model, R, t, converged = articulate(ctx, start, R, t, s)
-            res = result(ctx, model, R, t, s, iterations, converged)
-            models[r.template] = model
-            ranked = tuple(res if x.template == r.template else x for x in ranked)
+            model, R, t, converged = articulate(ctx, start, r.T_scene_model[:3, :3],
+                                                r.T_scene_model[:3, 3], s)
+            return model, result(ctx, model, R, t, s, iterations, converged)
+
+        # the best first (the others' margin is to its estimate), then the others side by side
+        leaders = [r for r in ranked[:s.articulated_candidates]
+                   if self.library[r.template].articulated]
+        for first in (True, False):
+            todo = [r for r in leaders if (r.template == ranked[0].template) == first
+                    and r.residual <= s.articulated_margin * ranked[0].residual]
+            for r, (model, res) in zip(todo, run([lambda r=r: estimate(r) for r in todo],
+                                                 s.threads)):
+                models[r.template] = model
+                ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
 
     def _finish_winner(self, ctx: ClickContext, win: FitResult, models: dict,
@@ -228,8 +252,7 @@ class Registrar:
             return R, t
         Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
         swept = icp(ctx, Batch.of([model] * len(Rs), Rs, ts), s.short, s)
-        residuals = [result(ctx, model, swept.R[k], swept.t[k], s).residual
-                     for k in range(len(Rs))]
+        residuals = [r.residual for r in results(ctx, Batch(swept.models, swept.R, swept.t), s)]
         best = int(np.argmin(residuals))
         return swept.R[best], swept.t[best]
 

@@ -32,6 +32,9 @@ class FitResult:
     #: whether the last ICP stage of this candidate converged before its iteration limit
     #: (None: no ICP ran, e.g. the literal baseline's own loop)
     converged: bool | None = None
+    #: set aside by the library prefilter during the coarse stage: pose and residual are the
+    #: coarse ones where it left (fewer samples), and it ranks behind every fitted candidate
+    prefiltered: bool = False
 
     def to_dict(self) -> dict:
         return {"rank": self.rank, "template": self.template,
@@ -65,9 +68,10 @@ class FitReport:
 
 
 def rank(results) -> tuple:
-    """``results`` (FitResult) best first by likelihood, with ``rank`` (1 = best) and
-    ``probability`` (the likelihood over the sum of all) filled in."""
-    results = sorted(results, key=lambda r: -r.likelihood)
+    """``results`` (FitResult) best first by likelihood -- those the library prefilter set
+    aside behind the others -- with ``rank`` (1 = best) and ``probability`` (the likelihood
+    over the sum of all) filled in."""
+    results = sorted(results, key=lambda r: (r.prefiltered, -r.likelihood))
     total = sum(r.likelihood for r in results) or 1.0
     return tuple(replace(r, rank=i, probability=r.likelihood / total)
                  for i, r in enumerate(results, start=1))

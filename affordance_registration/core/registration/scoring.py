@@ -9,16 +9,17 @@ import numpy as np
 
 from ..neighbours import nearest
 from ..scene import ClickContext
-from ..transforms import make_T
+from ..transforms import make_T, pose_points, rotate
 from .correspondences import stack_samples
 from .model import Batch, Model
+from .parallel import over_batch, parts, run
 from .results import FitResult
 from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
                        FitSettings)
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty",
-           "scores", "result"]
+           "scores", "result", "results"]
 
 
 def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
@@ -27,8 +28,8 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
     within the cap. (B,), (B,)."""
     cap = settings.score_cap
     P, N = stack_samples(batch.models, n)
-    X = np.einsum("bij,bsj->bsi", batch.R, P) + batch.t[:, None, :]
-    Nw = np.einsum("bij,bsj->bsi", batch.R, N)
+    X = pose_points(batch.R, batch.t, P)
+    Nw = rotate(batch.R, N)
     vis, violated = visible(ctx, X, Nw, settings)
     dist = np.full(vis.shape, cap)
     d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
@@ -63,7 +64,7 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
-    local = np.einsum("bji,bnj->bni", batch.R, pts[None] - batch.t[:, None, :])  # (B, K, 3)
+    local = (pts[None] - batch.t[:, None, :]) @ batch.R      # (B, K, 3), model frames
     return np.minimum(_grouped_nearest(batch.models, local, cap), cap).mean(axis=1)
 
 
@@ -79,7 +80,15 @@ def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
            cluster_points: int) -> np.ndarray:
     """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
     template -> scene on ``samples`` template samples, cluster -> template on an even
-    subsample of ``cluster_points`` cluster points."""
+    subsample of ``cluster_points`` cluster points. A big batch is scored in parts side by
+    side."""
+    return np.concatenate(over_batch(
+        lambda part: _scores(ctx, part, settings, samples, cluster_points), batch,
+        settings.threads))
+
+
+def _scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
+            cluster_points: int) -> np.ndarray:
     fwd, _ = forward_residual(ctx, batch, samples, settings)
     bwd = backward_residual(ctx, batch, settings, cluster_points)
     return 0.5 * (fwd + bwd) + click_penalty(ctx, batch, settings)
@@ -90,15 +99,35 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
     """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
     penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
     the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
-    one = Batch.single(model, R, t)
-    fwd, inl = forward_residual(ctx, one, settings.score_samples, settings)
-    bwd = float(backward_residual(ctx, one, settings)[0])
-    click = float(click_penalty(ctx, one, settings)[0])
-    residual = max(0.5 * (float(fwd[0]) + bwd) + click, 1e-6)
-    joints = model.joints
-    return FitResult(template=model.name, T_scene_model=make_T(R, t), residual=residual,
-                     likelihood=1.0 / residual, inlier_fraction=float(inl[0]),
-                     iterations=int(iterations), joints=joints,
-                     scale=model.scale if model.articulated else 1.0,
-                     state=model.template.nearest_state(joints) if joints else None,
-                     converged=None if converged is None else bool(converged))
+    return results(ctx, Batch.single(model, R, t), settings, iterations,
+                   None if converged is None else [converged])[0]
+
+
+def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0,
+            converged=None) -> list:
+    """:func:`result` of every hypothesis of a batch (scored together; a big batch in parts
+    side by side), ``converged`` (B,) or None."""
+    conv = None if converged is None else np.asarray(converged, dtype=bool)
+    done = run([lambda idx=idx: _results(ctx, batch.take(idx), settings, iterations,
+                                         None if conv is None else conv[idx])
+                for idx in parts(len(batch), settings.threads)], settings.threads)
+    return [r for part in done for r in part]
+
+
+def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int,
+             converged) -> list:
+    fwd, inl = forward_residual(ctx, batch, settings.score_samples, settings)
+    bwd = backward_residual(ctx, batch, settings)
+    click = click_penalty(ctx, batch, settings)
+    out = []
+    for k, model in enumerate(batch.models):
+        residual = max(0.5 * (float(fwd[k]) + float(bwd[k])) + float(click[k]), 1e-6)
+        joints = model.joints
+        out.append(FitResult(
+            template=model.name, T_scene_model=make_T(batch.R[k], batch.t[k]),
+            residual=residual, likelihood=1.0 / residual, inlier_fraction=float(inl[k]),
+            iterations=int(iterations), joints=joints,
+            scale=model.scale if model.articulated else 1.0,
+            state=model.template.nearest_state(joints) if joints else None,
+            converged=None if converged is None else bool(converged[k])))
+    return out

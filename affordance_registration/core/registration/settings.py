@@ -101,6 +101,13 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
+    #: the library prefilter: after the coarse stage, the templates whose best coarse score is
+    #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
+    #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
+    prefilter_keep: int = 5
+    prefilter_margin: float = 1.5
+    #: coarse iterations before the prefilter decides (0: after the coarse stage)
+    prefilter_iterations: int = 3
     coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
     medium_samples: int = 256
     medium_iterations: int = 10
@@ -131,6 +138,9 @@ class FitSettings:
     refit_iterations: int = 12
     refit_max_move: float = 0.05       #: a refit may move at most this far from the correction
     refit_max_turn: float = math.radians(30.0)
+    #: threads one click may use (the pieces of a batch side by side; 1: the calling thread
+    #: alone). The numbers do not depend on it.
+    threads: int = 2
     paper_restarts: int = 25
     paper_iterations: int = 100
     paper_samples: int = 500
@@ -147,7 +157,7 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "contact_distance", "nominal_preference",
+                     "articulated_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -155,13 +165,14 @@ class FitSettings:
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
+                     "threads", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
                      "scale_sweep"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
-                     "articulated_candidates", "articulation_rounds",
+                     "articulated_candidates", "prefilter_keep", "prefilter_iterations",
+                     "articulation_rounds",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)

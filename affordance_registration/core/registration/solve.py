@@ -47,9 +47,9 @@ def rigid_step(X: np.ndarray, Q: np.ndarray, w: np.ndarray) -> Step:
     W = w.sum(axis=1)
     ok = W > 1e-9
     Ws = np.where(ok, W, 1.0)[:, None]
-    mx = np.einsum("bs,bsi->bi", w, X) / Ws
-    mq = np.einsum("bs,bsi->bi", w, Q) / Ws
-    H = np.einsum("bs,bsi,bsj->bij", w, X - mx[:, None], Q - mq[:, None])
+    mx = _weighted_sum(w, X) / Ws
+    mq = _weighted_sum(w, Q) / Ws
+    H = np.swapaxes((X - mx[:, None]) * w[..., None], 1, 2) @ (Q - mq[:, None])
     U, _, Vt = np.linalg.svd(H)
     V = np.swapaxes(Vt, 1, 2)
     det = np.linalg.det(V @ np.swapaxes(U, 1, 2))
@@ -71,7 +71,7 @@ def plane_step(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray,
     :func:`gauss_newton`. X, Q, Nq (B, S, 3); w (B, S)."""
     W = w.sum(axis=1)
     ok = W > 1e-9
-    c = np.einsum("bs,bsi->bi", w, X) / np.where(ok, W, 1.0)[:, None]
+    c = _weighted_sum(w, X) / np.where(ok, W, 1.0)[:, None]
     cols = [np.cross(X - c[:, None], Nq), Nq] + ([] if extra is None else [extra])
     J = np.concatenate(cols, axis=-1)
     r = np.einsum("bsi,bsi->bs", Q - X, Nq)
@@ -95,8 +95,9 @@ def gauss_newton(J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower
     free = np.ones((B, n), bool)
     while True:
         Jf = J * free[:, None, :]
-        A = np.einsum("bs,bsi,bsj->bij", w, Jf, Jf) + 1e-9 * np.eye(n)
-        xi = np.linalg.solve(A, np.einsum("bs,bsi,bs->bi", w, Jf, r)[..., None])[..., 0]
+        JfT = np.swapaxes(Jf, 1, 2)
+        A = (JfT * w[:, None, :]) @ Jf + 1e-9 * np.eye(n)
+        xi = np.linalg.solve(A, JfT @ (w * r)[..., None])[..., 0]
         if values is None or n == 6:
             return xi
         push = xi[:, 6:]
@@ -104,6 +105,11 @@ def gauss_newton(J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower
         if not stuck.any():
             return xi
         free[:, 6:] &= ~stuck
+
+
+def _weighted_sum(w: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """sum_s w[b, s] X[b, s] (B, 3) of weights w (B, S) and points X (B, S, 3)."""
+    return (w[:, None, :] @ X)[:, 0]
 
 
 def kabsch_weighted(X: np.ndarray, Q: np.ndarray, w: np.ndarray):
@@ -122,8 +128,11 @@ def point_to_plane_weighted(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.
 def rotations_from_vectors(omega: np.ndarray) -> np.ndarray:
     """The rotations (B, 3, 3) about each of ``omega`` (B, 3) by its norm (rad)."""
     angle = np.linalg.norm(omega, axis=1)
-    return np.stack([axis_angle_matrix(o, a) if a > 1e-12 else np.eye(3)
-                     for o, a in zip(omega, angle)])
+    R = np.tile(np.eye(3), (len(omega), 1, 1))
+    turning = angle > 1e-12
+    if turning.any():
+        R[turning] = axis_angle_matrix(omega[turning], angle[turning])
+    return R
 
 
 def weighted_rigid_fit(source: np.ndarray, target: np.ndarray, weights=None) -> np.ndarray:
