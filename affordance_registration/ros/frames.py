@@ -14,7 +14,20 @@ import numpy as np
 from ..core.errors import AffordanceError
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["FrameGraph", "StaticFrames", "parse_static_transform", "FrameError"]
+__all__ = ["FrameGraph", "StaticFrames", "parse_static_transform", "FrameError",
+           "T_frame_optical", "R_BODY_OPTICAL"]
+
+#: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
+#: (x right, y down, z forward): R_body_optical
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def T_frame_optical(frame: str) -> np.ndarray:
+    """The optical frame (x right, y down, z forward) of a sensor whose frame is named
+    ``frame``, in that frame: the identity for a frame named ``*optical*`` (REP-105's
+    ``camera_depth_optical_frame``), else a REP-103 body frame looking along its x axis
+    (``base_link``, ``lidar``, ``map``)."""
+    return make_T() if "optical" in frame.lower() else make_T(R_BODY_OPTICAL)
 
 
 class FrameError(AffordanceError):

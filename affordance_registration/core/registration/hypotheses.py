@@ -61,7 +61,8 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     With a plane under the click: mounted (template +z along the plane normal, a yaw sweep;
     modes auto and mounted), resting (each stable facet of the template down on the plane,
     a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
-    Without a plane: uniformly random orientations around the cluster. The template's
+    Without a plane: uniformly random orientations around the cluster (drawn in the frame
+    attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The template's
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
     diameter (the paper's restarts use up to the diameter)."""
@@ -84,7 +85,7 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
     s, plane = settings, ctx.plane
     out = []
     if plane is not None:
-        up = align_z_to(plane.normal)
+        up = align_z_to(plane.normal, hint=ctx.frame[:, 0])   # turns with the scan
         if s.mode in ("auto", "mounted"):
             for yaw in _yaws(s.yaw_restarts, rng):
                 out.append((up @ axis_angle_matrix([0, 0, 1], yaw), None, MOUNTED))
@@ -108,9 +109,31 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
         offsets = rng.normal(size=(n_rand, 3))
         offsets *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
                     / np.linalg.norm(offsets, axis=1, keepdims=True))
-        for R0, off in zip(random_rotations(n_rand, rng), offsets):
+        # drawn in the frame attached to the scan, so they turn with it
+        for R0, off in zip(ctx.frame @ random_rotations(n_rand, rng), offsets @ ctx.frame.T):
             out.append((R0, off, RANDOM))
+    if plane is None:       # a free object: its principal axes on the cluster's too
+        out += [(R0, None, RANDOM) for R0 in _principal_alignments(ctx.cluster, model)]
     return out
+
+
+def _principal_axes(points: np.ndarray) -> np.ndarray:
+    """The principal axes of ``points`` (N, 3) as the columns of a rotation, largest spread
+    first."""
+    rel = points - points.mean(axis=0)
+    axes = np.linalg.eigh(rel.T @ rel)[1][:, ::-1]
+    axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
+    return axes
+
+
+def _principal_alignments(cluster: np.ndarray, model) -> list:
+    """The four rotations (proper: two axes flipped at a time) that put the model's principal
+    axes on the cluster's -- a big free object seen whole is often found from one of them."""
+    if len(cluster) < 10:
+        return []
+    A = _principal_axes(cluster)
+    B = _principal_axes(model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0])
+    return [A @ np.diag(f) @ B.T for f in ((1, 1, 1), (-1, -1, 1), (-1, 1, -1), (1, -1, -1))]
 
 
 def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:

@@ -28,6 +28,12 @@ one-sided scans (the README's benchmark measures both):
   click and pay for a surface that misses the click by more than ``click_tolerance``;
 * directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
   either way: samples there neither pull nor count;
+* every scene frame is alike: visibility is reasoned from the sensor origin (a range image
+  binned about the ray to the click) or left out for a cloud with no single viewpoint, and
+  every random draw and grid is laid out in a frame attached to the scan around the click, so
+  a rigidly moved scene gives the rigidly moved fit;
+* each candidate gets an absolute verdict besides its rank (``coverage``, ``inlier_rmse``,
+  ``fits``): when the best one does not fit, no template fits here;
 * articulated templates (a joint with its moving part, or a scale range) among the leading
   candidates get their joint value and scale with the pose: a sweep across the joint's limits
   (the fixed part held, or moved back with the moving part left where the data put it), local
@@ -53,7 +59,7 @@ from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import result, scores
+from .scoring import judge, result, scores
 from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
@@ -126,6 +132,7 @@ class Registrar:
         model = self._model(template, joints, scale)
         res = refit(ctx, model, T_init, self.settings,
                     hold_joint=bool(joints) if hold_joint is None else hold_joint)
+        res = self._judged(ctx, [res])[0]
         return replace(res, time_s=time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ the default method
@@ -151,9 +158,15 @@ class Registrar:
         # 6. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
         #    at full resolution, then (articulated) towards a named state and scale 1
         final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
+        # 7. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
+        judged = self._judged(ctx, [final] + list(ranked[1:]))
         total = time.perf_counter() - t0
-        return rank([replace(final, time_s=total)] + [replace(r, time_s=total)
-                                                      for r in ranked[1:]])
+        return rank([replace(r, time_s=total) for r in judged])
+
+    def _judged(self, ctx: ClickContext, results) -> list:
+        """Each result with its verdict (:func:`.scoring.judge`)."""
+        return [judge(ctx, self._model(r.template, r.joints, r.scale), r, self.settings)
+                for r in results]
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with
