@@ -51,11 +51,13 @@ def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
 def voxel_downsample(points: np.ndarray, voxel: float, origin=None, frame=None) -> np.ndarray:
     """Centroid of the points in each occupied voxel of edge ``voxel`` (m). (N, 3) -> (M, 3).
     The grid is aligned with the scene's axes at its origin, or with the columns of ``frame``
-    (3, 3) at ``origin`` (3,) -- a grid attached to the data turns with it -- and the voxels come
-    in the order of their grid coordinates."""
+    (3, 3) and centred on ``origin`` (3,) -- a grid attached to the data turns with it -- and the
+    voxels come in the order of their grid coordinates."""
     if len(points) == 0:
         return points.reshape(0, 3)
-    grid = points if frame is None else (points - origin) @ frame
+    # a grid attached to the data has ``origin`` at a voxel's centre (a surface through the
+    # origin, the click, would otherwise be split between two layers of voxels)
+    grid = points if frame is None else (points - origin) @ frame + 0.5 * voxel
     keys = np.floor(grid / voxel).astype(np.int64)
     keys -= keys.min(axis=0)
     dims = keys.max(axis=0) + 1
@@ -79,14 +81,14 @@ class Plane:
 
 
 class RangeImage:
-    """Nearest observed range per angular bin, as seen from the sensor origin.
+    """Nearest observed depth per angular bin, as seen from the sensor origin.
 
-    Directions from the origin are mapped azimuthal-equidistantly about ``frame``'s third
-    column (the ray from the origin to the click): a direction at angle theta from that ray, at
-    azimuth phi about it, lands at theta * (cos phi, sin phi). Bins are squares of edge
-    ``bin_size`` (rad) in that map, so every direction has a bin -- no preferred axis, nothing
-    "behind" the sensor. A lookup gives the observed range along the ray through a point, or
-    NaN where the sensor saw nothing in that bin.
+    The image looks along ``frame``'s third column (the ray from the sensor origin to the
+    click), whatever axes the scene's frame has: a point's depth is its distance along that ray
+    and its bin is square in tangent space (x/z, y/z in ``frame``) with edge ``bin_size``;
+    directions more than 90 degrees off the ray (only where the sensor is inside the crop) have
+    no bin. A lookup gives the observed depth along the ray through a point, or NaN where the
+    sensor saw nothing in that bin.
     """
 
     def __init__(self, points: np.ndarray, origin: np.ndarray, bin_size: float,
@@ -94,40 +96,33 @@ class RangeImage:
         self.origin = np.asarray(origin, dtype=float)
         self.frame = np.asarray(frame, dtype=float)
         self.bin = float(bin_size)
-        u, v, r = self._map(points)
-        keep = r > 1e-3
-        u, v, r = u[keep], v[keep], r[keep]
-        if len(r) == 0:
-            raise SceneError("every scanned point near the click is at the sensor origin")
+        rel = (points - self.origin) @ self.frame
+        z = rel[:, 2]
+        keep = z > 1e-3
+        rel, z = rel[keep], z[keep]
+        if len(z) == 0:
+            raise SceneError("no scanned point near the click lies in front of the sensor origin")
+        u, v = rel[:, 0] / z, rel[:, 1] / z
         self.u0, self.v0 = u.min() - self.bin, v.min() - self.bin
         iu = ((u - self.u0) / self.bin).astype(np.int64)
         iv = ((v - self.v0) / self.bin).astype(np.int64)
         self.nu, self.nv = int(iu.max()) + 2, int(iv.max()) + 2
         depth = np.full(self.nu * self.nv, np.inf)
-        np.minimum.at(depth, iu * self.nv + iv, r)
+        np.minimum.at(depth, iu * self.nv + iv, z)
         depth[np.isinf(depth)] = np.nan
         self.depth = depth
 
-    def _map(self, points: np.ndarray):
-        """(u, v, range) of points (..., 3): their direction's place in the map (rad) and their
-        distance from the origin (m)."""
-        rel = (points - self.origin) @ self.frame
-        rho = np.hypot(rel[..., 0], rel[..., 1])
-        r = np.hypot(rho, rel[..., 2])
-        theta = np.arctan2(rho, rel[..., 2])
-        # theta / rho, and its limit 1 / r along the axis itself
-        scale = np.divide(theta, rho, out=1.0 / np.maximum(r, 1e-12), where=rho > 1e-12)
-        return rel[..., 0] * scale, rel[..., 1] * scale, r
-
     def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(observed range, point range) for points (..., 3); observed is NaN when unknown."""
-        u, v, r = self._map(points)
-        iu = np.floor((u - self.u0) / self.bin).astype(np.int64)
-        iv = np.floor((v - self.v0) / self.bin).astype(np.int64)
-        inside = (iu >= 0) & (iu < self.nu) & (iv >= 0) & (iv < self.nv) & (r > 1e-3)
+        """(observed depth, point depth) for points (..., 3); observed is NaN when unknown."""
+        rel = (points - self.origin) @ self.frame
+        z = rel[..., 2]
+        zs = np.where(z > 1e-3, z, 1e-3)
+        iu = np.floor((rel[..., 0] / zs - self.u0) / self.bin).astype(np.int64)
+        iv = np.floor((rel[..., 1] / zs - self.v0) / self.bin).astype(np.int64)
+        inside = (iu >= 0) & (iu < self.nu) & (iv >= 0) & (iv < self.nv) & (z > 1e-3)
         flat = np.where(inside, iu * self.nv + iv, 0)
         obs = np.where(inside, self.depth[flat], np.nan)
-        return obs, r
+        return obs, z
 
 
 def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None) -> np.ndarray:

@@ -21,7 +21,7 @@ from ..transforms import make_T
 from .correspondences import stack_samples
 from .model import Batch, Model
 from .results import FitResult
-from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
+from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED,
                        FitSettings)
 from .visibility import visible
 
@@ -68,8 +68,9 @@ def judge(ctx: ClickContext, model: Model, res: FitResult, settings: FitSettings
     ``score_samples`` samples that face the sensor where it returned something (hidden behind
     observed surfaces or not: a template sunk into a wall is not covered), not counting those
     its own parts hide, the fraction the sensor saw with scan points within
-    ``coverage_distance`` that do not lie on the dominant plane around the click (a wall
-    explains nothing about an object) -- ``inlier_rmse``, the RMS distance (m) of those
+    ``coverage_distance`` -- not counting those on the dominant plane around the click when
+    they are most of them (at least ``PLANE_COVERED``: a candidate covering a wall explains
+    no object) -- ``inlier_rmse``, the RMS distance (m) of those
     covered samples, and ``fits``: coverage at least ``min_coverage``. Without a viewpoint
     every sample is exposed, and the bar is ``min_coverage_no_viewpoint``."""
     R, t = res.T_scene_model[:3, :3], res.T_scene_model[:3, 3]
@@ -80,7 +81,9 @@ def judge(ctx: ClickContext, model: Model, res: FitResult, settings: FitSettings
     X = P @ R.T + t
     near = vis & (dist <= settings.coverage_distance)
     if ctx.support is not None:
-        near &= np.abs(ctx.support.distance(X)) > ctx.plane_threshold
+        on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
+        if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
+            near &= ~on_plane          # it covers the wall around the click, not an object
     if ctx.sensor_origin is not None:
         exposed = exposed & ~self_hidden(model, P, R.T @ (ctx.sensor_origin - t),
                                          settings.free_space_margin)
@@ -96,14 +99,10 @@ def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) 
     """Which of the model's samples P (S, 3, model frame) its own surface hides from a sensor
     at ``origin`` (3, model frame): the ray to the sample meets the mesh more than ``margin``
     before it. (S,) bool; none for a point-cloud template."""
-    tpl = model.template
-    if tpl.mesh is None:
+    scene = model.raycaster()
+    if scene is None:
         return np.zeros(len(P), bool)
     import open3d as o3d
-    mesh = tpl.mesh_at(model.q, model.scale)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
     d = P - origin
     length = np.linalg.norm(d, axis=1)
     rays = np.concatenate([np.broadcast_to(origin, P.shape), d / length[:, None]], axis=1)

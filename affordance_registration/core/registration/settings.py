@@ -46,6 +46,9 @@ REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at 
 MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
 MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
 PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
+#: a candidate whose covered samples lie on the dominant plane around the click for at least this
+#: fraction covers the wall, not an object: those do not count towards its coverage
+PLANE_COVERED = 0.8
 BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
 CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
 CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing

@@ -1,5 +1,5 @@
 """Which posed template samples the sensor could have seen: the one place that reasons about
-the sensor's view of a hypothesis (a range image of the crop, binned about the ray from the
+the sensor's view of a hypothesis (a range image of the crop looking along the ray from the
 sensor origin to the click: no axis of the scene's frame is special).
 
 A sample counts when it faces the sensor (not beyond the grazing angle) and the sensor's return
@@ -45,10 +45,10 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
     if ctx.range_image is None:
         none = np.zeros_like(front)
         return (front, none, front) if exposed else (front, none)
-    obs, rng = ctx.range_image.lookup(X)
+    obs, depth = ctx.range_image.lookup(X)
     m = settings.free_space_margin
     known = np.isfinite(obs)
-    hidden = known & (obs < rng - m)
-    violated = known & (obs > rng + m)
+    hidden = known & (obs < depth - m)
+    violated = known & (obs > depth + m)
     seen = front & known & ~hidden
     return (seen, front & violated, front & known) if exposed else (seen, front & violated)
