@@ -101,10 +101,11 @@ def _coverage_bar(settings, scene) -> float:
 
 # ---------------------------------------------------------------------------- simulate
 def cmd_simulate(args) -> int:
-    from .core.simulation import simulate_taskboard, write_scene
+    from .core.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
     seed = _seed(args.seed)
     lib = _library(args.templates)
-    sim = simulate_taskboard(lib, seed, layout=args.layout)
+    camera = DepthCamera(faults=FaultModel()) if args.faults else None
+    sim = simulate_taskboard(lib, seed, layout=args.layout, camera=camera)
     paths = write_scene(sim, args.out)
     print(f"simulated {args.layout} scene (seed {seed}): {len(sim.points)} points, "
           f"{len(sim.objects)} objects -> {args.out}")
@@ -391,6 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="0")
     p.add_argument("--layout", choices=("panel", "table"), default="panel")
     p.add_argument("--templates", default=None)
+    p.add_argument("--faults", action="store_true",
+                   help="what real depth cameras do: flying pixels on depth edges, a smooth "
+                        "depth distortion, dropouts on dark patches and at grazing angles, more "
+                        "range noise (core.simulation.FaultModel's defaults)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("bench", help="speed and accuracy against baselines, in one run")

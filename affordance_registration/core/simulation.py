@@ -94,19 +94,19 @@ class FaultModel:
       ``edge_jump`` m to a neighbour) returns a mixed depth -- a point anywhere between the
       foreground and the background (labelled -2 in the label image: no object's);
     * ``distortion``: RMS (m) of a smooth depth error across the image (a sum of
-      ``distortion_waves`` random low-frequency waves, at most that many cycles across it:
-      about three times that from peak to trough);
+      ``distortion_waves`` random low-frequency waves, at most that many cycles across it):
+      1 mm RMS swings by about 5 mm from trough to peak;
     * ``dark_patches`` dark patches of radius up to ``dark_radius`` pixels at random places,
       where a return drops with probability ``dark_dropout``;
     * ``grazing_start_deg``: returns drop at grazing angles from this incidence on (rising to
       certain at ``NoiseModel.drop_full_deg``; the clean model starts at its own
-      ``drop_start_deg``);
+      ``drop_start_deg``; at or beyond ``drop_full_deg``: off);
     * ``noise_scale``: the range-dependent noise of :class:`NoiseModel` times this.
     """
 
     flying_pixels: float = 0.6
     edge_jump: float = 0.02
-    distortion: float = 0.002
+    distortion: float = 0.001
     distortion_waves: int = 3
     dark_patches: int = 6
     dark_radius: int = 40
@@ -181,7 +181,9 @@ class DepthCamera:
         depth = depth + rng.normal(size=depth.shape) * self.noise.sigma(z, theta) * \
             math.sqrt(max(f.noise_scale ** 2 - 1.0, 0.0))
         start, full = map(math.radians, (f.grazing_start_deg, self.noise.drop_full_deg))
-        valid &= rng.random(size=depth.shape) >= np.clip((theta - start) / (full - start), 0, 1)
+        if start < full:
+            valid &= rng.random(size=depth.shape) >= np.clip((theta - start) / (full - start),
+                                                             0, 1)
         v, u = np.mgrid[0:H, 0:W]
         for _ in range(f.dark_patches):
             cu, cv = rng.uniform(0, W), rng.uniform(0, H)
