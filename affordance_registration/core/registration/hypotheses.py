@@ -11,6 +11,7 @@ import numpy as np
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import align_z_to, axis_angle_matrix, random_rotations, rotation_angle
+from .features import feature_alignments
 from .model import Batch
 from .results import IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
@@ -20,6 +21,7 @@ __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "
            "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
+FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
 
 
 @dataclass(frozen=True)
@@ -65,7 +67,8 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The template's
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
-    diameter (the paper's restarts use up to the diameter)."""
+    diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
+    object) also starts from the poses its shape features match (:mod:`.features`)."""
     rows = []
     for i, model in enumerate(models):
         centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
@@ -73,6 +76,11 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
             centre = ctx.click
         for R0, offset, family in _orientations(ctx, model, settings, rng):
             rows.append((i, R0, _start(ctx, model, R0, centre, offset), family))
+        if getattr(getattr(model, "template", model), "is_point_template", False):
+            # a scanned object: poses from matched shape features too (their own generator,
+            # so the other templates' draws stay as they are)
+            features = np.random.default_rng([settings.seed, FEATURE_SEED])
+            rows += [(i, R, t, RANDOM) for R, t in feature_alignments(ctx, model, features)]
     index, Rs, ts, family = zip(*rows)
     index = np.array(index)
     return Hypotheses(tuple(models[i] for i in index), np.stack(Rs), np.stack(ts), index,
