@@ -18,8 +18,7 @@ from affordance_registration.core.registration import NO_MATCH, Registrar
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.simulation import ply_bytes, simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
-from affordance_registration.core.transforms import (axis_angle_matrix, make_T, pose_error,
-                                                     random_rotations)
+from affordance_registration.core.transforms import axis_angle_matrix, make_T, pose_error
 
 #: the frames of issue 18's table: (rotation vector (rad), translation (m))
 Z_UP = (np.array([-math.pi / 2, 0.0, 0.0]) * 1.0, [0.0, 0.0, 1.1])     # optical -> z-up base
@@ -212,10 +211,3 @@ def test_scene_origin_values():
     for bad in ("far", [1, 2], [0, np.nan, 0]):
         with pytest.raises(SceneError):
             Scene(pts, sensor_origin=bad)
-
-
-def test_random_frames_helper_is_rigid():
-    for R in random_rotations(4, np.random.default_rng(2)):
-        T = _T(R[:, 0], [1, 2, 3])
-        assert np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3))
-    assert os.path.basename(__file__) == "test_frames.py"
