@@ -211,3 +211,16 @@ def test_scene_origin_values():
     for bad in ("far", [1, 2], [0, np.nan, 0]):
         with pytest.raises(SceneError):
             Scene(pts, sensor_origin=bad)
+
+
+def test_default_view_convention_by_frame_name():
+    """The node's default view for twists: REP-103 body / world frames look along x (z up);
+    optical frames and other camera frame names keep the optical convention."""
+    from affordance_registration.ros.frames import R_BODY_OPTICAL, T_frame_optical
+    for body in ("base_link", "/map", "odom", "camera_link", "base_footprint", "velodyne"):
+        assert np.allclose(T_frame_optical(body)[:3, :3], R_BODY_OPTICAL), body
+    for optical in ("camera_depth_optical_frame", "cam", "camera_depth", "kinect_rgb_optical"):
+        assert np.allclose(T_frame_optical(optical), np.eye(4)), optical
+    # the optical z (forward) of a body frame is its x; optical y (down) is its -z
+    assert np.allclose(R_BODY_OPTICAL @ [0, 0, 1], [1, 0, 0])
+    assert np.allclose(R_BODY_OPTICAL @ [0, 1, 0], [0, 0, -1])
