@@ -220,7 +220,8 @@ class Registrar:
         model = models.get(win.template)
         if model is None:
             model = self.models.model(self.library[win.template])
-        R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3], win.T_scene_model[:3, 3])
+        model, R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3],
+                                      win.T_scene_model[:3, 3])
         if model.articulated:       # the joint after the sweep, once more
             model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False)
         fit = fine_stage(ctx, model, R, t, s.fine, s)
@@ -235,16 +236,26 @@ class Registrar:
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):
         """The pose turned about its template's mounting / symmetry axis in ``yaw_sweep``
-        steps over one symmetry period, each refined; the best by the residual. (R, t)"""
+        steps over one symmetry period, each refined; the best by the residual. An articulated
+        model is also swept at its template's named states (a valve body turned a quarter with
+        its handle turned back matches the handle alone, and the joint is held in the sweep).
+        (model, R, t)"""
         s = self.settings
         if s.yaw_sweep <= 1:
-            return R, t
-        Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
-        swept = icp(ctx, Batch.of([model] * len(Rs), Rs, ts), s.short, s)
-        residuals = [result(ctx, model, swept.R[k], swept.t[k], s).residual
-                     for k in range(len(Rs))]
+            return model, R, t
+        variants = [model]
+        if model.articulated:
+            tpl = model.template
+            variants += [model.with_values(q=q) for q in sorted(
+                {float(tpl.joint_value(v)) for v in tpl.states.values()}) if q != model.q]
+        starts = [yaw_sweep_starts(m, R, t, s.yaw_sweep) for m in variants]
+        models = [m for m in variants for _ in range(s.yaw_sweep)]
+        swept = icp(ctx, Batch.of(models, np.concatenate([a for a, _ in starts]),
+                                  np.concatenate([b for _, b in starts])), s.short, s)
+        residuals = [result(ctx, models[k], swept.R[k], swept.t[k], s).residual
+                     for k in range(len(models))]
         best = int(np.argmin(residuals))
-        return swept.R[best], swept.t[best]
+        return models[best], swept.R[best], swept.t[best]
 
     def _model(self, template: str, joints: dict | None = None, scale: float = 1.0) -> Model:
         """The model to fit: with ``settings.articulated``, an articulated template posed at
