@@ -42,16 +42,39 @@ def _library(path):
 
 
 # ---------------------------------------------------------------------------- fit
+def _sensor_origin(values):
+    """``--sensor-origin``: None (not given: the file's VIEWPOINT or the frame's origin),
+    ``"none"`` or 3 numbers."""
+    if values is None:
+        return None
+    if len(values) == 1 and values[0].strip().lower() == "none":
+        return "none"
+    try:
+        origin = [float(v) for v in values]
+    except ValueError:
+        origin = []
+    if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
+        raise AffordanceError(f"--sensor-origin takes X Y Z (3 finite numbers) or 'none', got "
+                              f"{' '.join(values)!r}")
+    return origin
+
+
 def cmd_fit(args) -> int:
-    from .core.registration import FitSettings, Registrar
+    from .core.registration import NO_MATCH, FitSettings, Registrar
     from .core.scene import Scene
+    origin = _sensor_origin(args.sensor_origin)
     lib = _library(args.templates)
-    scene = Scene.from_file(args.scene)
+    scene = Scene.from_file(args.scene, sensor_origin=origin)
     settings = FitSettings(seed=_seed(args.seed), method=args.method, mode=args.mode)
     registrar = Registrar(lib, settings)
     registrar.warm_up()   # one-off start-up cost, not part of a click
     report = registrar.fit(scene, args.point)
+    best = report.candidates[0]
+    no_match = best.fits is False
     doc = {"point": [round(float(v), 6) for v in report.point],
+           "sensor_origin": None if scene.sensor_origin is None else
+           [round(float(v), 6) for v in scene.sensor_origin],
+           "verdict": NO_MATCH if no_match else "fits", "no_match": no_match,
            "candidates": [c.to_dict() for c in report.candidates],
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
     if args.json:
@@ -59,20 +82,30 @@ def cmd_fit(args) -> int:
         return 0
     print(f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "
           f"{len(report.candidates)} templates fitted in {report.timing_s['total']:.3f} s")
-    print(f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11}  position (m)")
+    print(f"{NO_MATCH}: the best candidate covers {best.coverage:.0%} of its visible surface "
+          f"(a fit needs {_coverage_bar(settings, scene):.0%})" if no_match else
+          f"{best.template} fits: it covers {best.coverage:.0%} of its visible surface")
+    print(f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
+          f"{'rmse mm':>7}  position (m)")
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
-        print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f}  "
+        print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
+              f"{c.coverage:>8.2f} {c.inlier_rmse * 1000:>7.2f}  "
               f"({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})")
     return 0
 
 
+def _coverage_bar(settings, scene) -> float:
+    return settings.min_coverage if scene.has_viewpoint else settings.min_coverage_no_viewpoint
+
+
 # ---------------------------------------------------------------------------- simulate
 def cmd_simulate(args) -> int:
-    from .core.simulation import simulate_taskboard, write_scene
+    from .core.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
     seed = _seed(args.seed)
     lib = _library(args.templates)
-    sim = simulate_taskboard(lib, seed, layout=args.layout)
+    camera = DepthCamera(faults=FaultModel()) if args.faults else None
+    sim = simulate_taskboard(lib, seed, layout=args.layout, camera=camera)
     paths = write_scene(sim, args.out)
     print(f"simulated {args.layout} scene (seed {seed}): {len(sim.points)} points, "
           f"{len(sim.objects)} objects -> {args.out}")
@@ -396,6 +429,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="0")
     p.add_argument("--method", choices=("default", "paper"), default="default")
     p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto")
+    p.add_argument("--sensor-origin", nargs="+", default=None, metavar="X_Y_Z|none",
+                   help="where the scan was taken from, in the scene's frame (m); 'none' for a "
+                        "cloud with no single viewpoint (an accumulated map: no visibility "
+                        "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
     p.set_defaults(func=cmd_fit)
 
@@ -404,6 +441,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="0")
     p.add_argument("--layout", choices=("panel", "table"), default="panel")
     p.add_argument("--templates", default=None)
+    p.add_argument("--faults", action="store_true",
+                   help="what real depth cameras do: flying pixels on depth edges, a smooth "
+                        "depth distortion, dropouts on dark patches and at grazing angles, more "
+                        "range noise (core.simulation.FaultModel's defaults)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("bench", help="speed and accuracy against baselines, in one run")

@@ -27,12 +27,14 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
     res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
               "--json", check=True)
     doc = json.loads(res.stdout)
-    assert set(doc) == {"point", "candidates", "timing_s"}
-    assert len(doc["point"]) == 3
+    assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "candidates", "timing_s"}
+    assert len(doc["point"]) == 3 and doc["sensor_origin"] == [0.0, 0.0, 0.0]
+    assert doc["verdict"] == "fits" and doc["no_match"] is False
     ranks = [c["rank"] for c in doc["candidates"]]
     assert ranks == sorted(ranks) and ranks[0] == 1
     for c in doc["candidates"]:
-        assert {"rank", "template", "likelihood", "residual", "pose"} <= set(c)
+        assert {"rank", "template", "likelihood", "residual", "pose", "coverage", "inlier_rmse",
+                "fits"} <= set(c)
         assert np.asarray(c["pose"]).shape == (4, 4)
     best = doc["candidates"][0]
     assert best["template"] == obj["template"]
@@ -42,7 +44,9 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
     # the readable table names the templates in rank order
     res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
               check=True)
-    assert res.stdout.splitlines()[2].split()[1] == obj["template"]
+    lines = res.stdout.splitlines()
+    assert lines[1].startswith(f"{obj['template']} fits")          # the verdict, then the table
+    assert lines[2].split()[:2] == ["rank", "template"] and lines[3].split()[1] == obj["template"]
 
 
 def _one_line_error(res):

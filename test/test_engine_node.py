@@ -1,5 +1,6 @@
 """The affordance_engine node end to end: a real node in its own process, a client node here,
 real topics and services (own ROS_DOMAIN_ID, discovery on localhost only)."""
+import contextlib
 import math
 import time
 
@@ -391,12 +392,12 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         print(proc.output()[-3000:])
 
 
-def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, library):
-    """refit_on_new_cloud (default on): the same scene published again 2 cm to the side moves
-    the open object's fit with it."""
-    from affordance_registration.core.transforms import make_T
-    proc = engine_process(tmp_path)
-    client = Client("follow_tester")
+@contextlib.contextmanager
+def _engine_with(tmp_path, params: dict, name: str, cloud: PointCloud2):
+    """A node of its own with ``params``, a client publishing ``cloud`` to it: yields s (as
+    the session's, with the client and the points / click publishers)."""
+    proc = engine_process(tmp_path, params)
+    client = Client(name)
     try:
         client.subscribe(String, f"{NS}/status", LATCHED)
         pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
@@ -404,14 +405,28 @@ def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, libra
         s = {"client": client, "pubs": pubs}
         for pub in pubs.values():
             client.wait_for_subscribers(pub, timeout=30)
-        sim = simulate_taskboard(library, 7)
-        obj = sim.objects[1]
-        pubs["points"].publish(cloud_msg(sim.organized))
+        pubs["points"].publish(cloud)
         client.wait_for(lambda: (status(s) or {}).get("node", {}).get("cloud"), 30, "the cloud")
+        yield s
+    finally:
+        client.close()
+        proc.interrupt()
+        proc.kill()
+        print(proc.output()[-3000:])
+
+
+def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, library):
+    """refit_on_new_cloud (default on): the same scene published again 1 cm to the side moves
+    the open object's fit with it."""
+    from affordance_registration.core.transforms import make_T
+    sim = simulate_taskboard(library, 7)
+    obj = sim.objects[1]
+    with _engine_with(tmp_path, {}, "follow_tester", cloud_msg(sim.organized)) as s:
+        client = s["client"]
         click(s, obj.click)
         client.wait_for(lambda: status(s)["objects"] and status(s)["node"]["idle"], 30, "the fit")
         shift = np.array([0.01, 0.0, 0.0])
-        pubs["points"].publish(cloud_msg(sim.organized + shift.astype(np.float32)))
+        s["pubs"]["points"].publish(cloud_msg(sim.organized + shift.astype(np.float32)))
         moved = make_T(t=shift) @ obj.T_scene_model
 
         def followed():
@@ -420,8 +435,51 @@ def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, libra
             return pose_error(T, moved, library[obj.template].symmetry)[0] < TOL_M
         client.wait_for(followed, 30, "the fit to follow the new cloud")
         assert "followed the new cloud" in status(s)["node"]["last_message"]
-    finally:
-        client.close()
-        proc.interrupt()
-        proc.kill()
-        print(proc.output()[-3000:])
+
+
+def test_a_cloud_in_base_link_with_a_sensor_frame(ros_context, tmp_path, library):
+    """A cloud in base_link, the camera's pose given as a static transform and named by the
+    sensor_frame parameter: the fit is the optical one moved into base_link, and the status
+    carries the verdict (coverage, inlier_rmse, fits)."""
+    from affordance_registration.core.transforms import make_T, matrix_to_quat_xyzw
+    from affordance_registration.ros.frames import R_BODY_OPTICAL
+    # the camera 1.1 m up, looking along base_link's x (REP-103)
+    T_base_camera = make_T(R_BODY_OPTICAL, [0.3, -0.2, 1.1])
+    q = matrix_to_quat_xyzw(T_base_camera[:3, :3])
+    entry = (f"base_link {FRAME} " + " ".join(f"{v:.12f}" for v in T_base_camera[:3, 3]) + " "
+             + " ".join(f"{v:.12f}" for v in q))
+    sim = simulate_taskboard(library, 7)
+    obj = max(sim.objects, key=lambda o: o.visible_points)
+    pts = sim.points @ T_base_camera[:3, :3].T + T_base_camera[:3, 3]
+    params = {"static_transforms": f"['{entry}']", "sensor_frame": FRAME}
+    with _engine_with(tmp_path, params, "base_link_tester", cloud_msg(pts, "base_link")) as s:
+        click(s, T_base_camera[:3, :3] @ obj.click + T_base_camera[:3, 3], "base_link")
+        s["client"].wait_for(lambda: status(s)["objects"] and status(s)["node"]["idle"], 60,
+                             "the fit")
+        st = status(s)
+        best = st["objects"][0]["candidates"][0]
+        assert st["frame_id"] == "base_link" and best["template"] == obj.template
+        assert best["fits"] is True and best["coverage"] >= 0.5 and best["inlier_rmse"] > 0
+        assert st["objects"][0]["verdict"] == "fits" and not st["objects"][0]["no_match"]
+        dt, dr = pose_error(np.asarray(best["pose"]), T_base_camera @ obj.T_scene_model,
+                            library[obj.template].symmetry)
+        assert dt < TOL_M and dr < TOL_RAD
+
+
+def test_sensor_frame_unknown_or_none(ros_context, tmp_path, library):
+    """A sensor frame no transform reaches: the click fails with one line naming it; 'none':
+    fitted without a viewpoint."""
+    sim = simulate_taskboard(library, 7)
+    obj = max(sim.objects, key=lambda o: o.visible_points)
+    with _engine_with(tmp_path, {"sensor_frame": "nowhere_frame"}, "sensor_frame_tester",
+                      cloud_msg(sim.organized)) as s:
+        click(s, obj.click)
+        wait_error(s, "the sensor frame 'nowhere_frame' has no known transform")
+        req = SetParameters.Request()
+        req.parameters = [Parameter(name="sensor_frame", value=ParameterValue(
+            type=ParameterType.PARAMETER_STRING, string_value="none"))]
+        assert s["client"].call(SetParameters, f"{NS}/set_parameters", req).results[0].successful
+        click(s, obj.click)
+        s["client"].wait_for(lambda: status(s)["objects"] and status(s)["node"]["idle"], 60,
+                             "the fit")
+        assert status(s)["objects"][0]["candidates"][0]["template"] == obj.template

@@ -6,7 +6,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from affordance_registration.core.errors import RegistrationError, SceneError
-from affordance_registration.core.registration import (FitSettings, Registrar,
+from affordance_registration.core.registration import (NO_MATCH_RESIDUAL, FitSettings,
+                                                       Registrar,
                                                        correspondence_weights,
                                                        weighted_rigid_fit)
 from affordance_registration.core.registration.solve import point_to_plane_weighted
@@ -113,7 +114,11 @@ def test_right_template_first_and_pose_within_tolerance(seed, library, registrar
         dt, dr = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
         assert dt <= TOL_M and dr <= TOL_RAD, (obj.template, dt, math.degrees(dr))
         assert [c.rank for c in rep.candidates] == list(range(1, len(library) + 1))
-        assert sum(c.probability for c in rep.candidates) == pytest.approx(1.0)
+        # probabilities share 1 with "no template fits here" (likelihood 1/NO_MATCH_RESIDUAL)
+        total = sum(c.likelihood for c in rep.candidates)
+        assert sum(c.probability for c in rep.candidates) == \
+            pytest.approx(total / (total + 1.0 / NO_MATCH_RESIDUAL))
+        assert best.fits and best.coverage >= registrar.settings.min_coverage
         assert all(a.likelihood >= b.likelihood for a, b in zip(rep.candidates, rep.candidates[1:]))
 
 

@@ -151,3 +151,36 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     # without articulated=True nothing moves: the seed gives the same scene as before
     plain = simulate_taskboard(library, 4)
     assert all(x.joints == {} and x.scale == 1.0 for x in plain.objects)
+
+
+def test_depth_camera_fault_model_does_what_its_options_say(library):
+    """Each documented fault alone, against the clean rendering of the same scene: off values
+    change nothing; the distortion is smooth with the RMS asked for; flying pixels are returns
+    between a depth edge's two sides (label -2); dark patches and grazing angles drop returns."""
+    import math
+    from affordance_registration.core.simulation import DepthCamera, FaultModel, simulate_taskboard
+    off = dict(flying_pixels=0.0, distortion=0.0, dark_patches=0, grazing_start_deg=90.0,
+               noise_scale=1.0)
+
+    def render(**kw):
+        faults = None if kw.pop("clean", False) else FaultModel(**{**off, **kw})
+        return simulate_taskboard(library, 1001, camera=DepthCamera(faults=faults))
+    clean = render(clean=True)
+    z0 = clean.organized[..., 2]
+    same = render()
+    assert np.array_equal(np.isfinite(z0), np.isfinite(same.organized[..., 2]))
+    assert np.allclose(z0[np.isfinite(z0)], same.organized[..., 2][np.isfinite(z0)])
+    warped = render(distortion=0.002).organized[..., 2]
+    both = np.isfinite(z0) & np.isfinite(warped)
+    dz = (warped - z0)[both]
+    assert 0.0012 < math.sqrt(np.mean(dz ** 2)) < 0.0035
+    rows = np.where(both[:-1] & both[1:])
+    step = np.abs((warped - z0)[1:][rows] - (warped - z0)[:-1][rows])
+    assert np.median(step) < 1e-4                       # smooth: neighbours move alike
+    flying = render(flying_pixels=1.0)
+    mixed = flying.labels == -2
+    assert mixed.sum() > 100 and np.all(np.isfinite(flying.organized[mixed]))
+    assert np.count_nonzero(np.isfinite(render(dark_patches=8, dark_dropout=1.0)
+                                        .organized[..., 2])) < np.count_nonzero(np.isfinite(z0))
+    assert np.count_nonzero(np.isfinite(render(grazing_start_deg=30.0).organized[..., 2])) < \
+        np.count_nonzero(np.isfinite(z0))

@@ -170,18 +170,57 @@ def test_duplicate_names_and_empty_directory(tmp_path):
         TemplateLibrary.load(str(empty))
 
 
-def test_point_cloud_template(tmp_path, library):
-    """A scan of an object (PLY without faces) is a template: its points are the samples."""
-    from affordance_registration.core.simulation import ply_bytes
-    pts = library["emergency_stop"].samples(3000, seed=9)[0]
-    (tmp_path / "scan.ply").write_bytes(ply_bytes(pts))
-    path = _write(tmp_path, {"name": "scanned_stop", "mesh": "scan.ply"}, mesh=False)
+def _pcd_bytes(points: np.ndarray, normals=None, ascii: bool = False) -> bytes:
+    """A PCD file of points (N, 3), with normal_x.. fields when ``normals`` (N, 3) are given."""
+    fields = "x y z" + (" normal_x normal_y normal_z" if normals is not None else "")
+    cols = points if normals is None else np.hstack([points, normals])
+    k = cols.shape[1]
+    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {' '.join(['4'] * k)}\n"
+              f"TYPE {' '.join(['F'] * k)}\nCOUNT {' '.join(['1'] * k)}\nWIDTH {len(cols)}\n"
+              f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(cols)}\n"
+              f"DATA {'ascii' if ascii else 'binary'}\n").encode()
+    if ascii:
+        return header + "".join(" ".join(f"{v:.7g}" for v in row) + "\n"
+                                for row in cols).encode()
+    return header + cols.astype("<f4").tobytes()
+
+
+@pytest.mark.parametrize("kind", ["ply", "pcd_ascii", "pcd_binary_normals"])
+def test_point_cloud_template(tmp_path, library, kind):
+    """A scan of an object (PLY without faces, or PCD) is a template, read like a scene: its
+    points are the samples; the file's normals are used where it has them, else estimated
+    (pointing away from the centroid); and it fits the object in a simulated scan."""
+    from affordance_registration.core.simulation import ply_bytes, simulate_taskboard
+    from affordance_registration.core.registration import Registrar
+    from affordance_registration.core.scene import Scene
+    from affordance_registration.core.transforms import pose_error
+    pts, true_normals = library["emergency_stop"].samples(3000, seed=9)
+    if kind == "ply":
+        (tmp_path / "scan.ply").write_bytes(ply_bytes(pts))
+    else:
+        given = true_normals if kind == "pcd_binary_normals" else None
+        (tmp_path / "scan.pcd").write_bytes(_pcd_bytes(pts, given, ascii=kind == "pcd_ascii"))
+    mesh = "scan.ply" if kind == "ply" else "scan.pcd"
+    path = _write(tmp_path, {"name": "scanned_stop", "mesh": mesh}, mesh=False)
     tpl = load_template(path)
     assert tpl.is_point_template
     s, n = tpl.samples(400)
-    assert cKDTree(pts).query(s)[0].max() < 1e-6      # float32 round trip
-    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    d, idx = cKDTree(pts).query(s)
+    assert d.max() < 1e-6      # float32 round trip
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    agree = np.einsum("ij,ij->i", n, true_normals[idx])
+    if kind == "pcd_binary_normals":
+        assert agree.min() > 0.999                       # the file's own normals
+    else:
+        assert np.median(agree) > 0.9                    # estimated, outward (mostly right)
     assert tpl.diameter == pytest.approx(library["emergency_stop"].diameter, rel=0.05)
+    sim = simulate_taskboard(library, 1001)
+    obj = next(o for o in sim.objects if o.template == "emergency_stop")
+    lib = TemplateLibrary([tpl] + [library[n] for n in library if n != "emergency_stop"])
+    best = Registrar(lib).fit(Scene(sim.points), obj.click).candidates[0]
+    assert best.template == "scanned_stop"
+    dt, dr = pose_error(best.T_scene_model, obj.T_scene_model, library["emergency_stop"].symmetry)
+    assert dt <= 0.005 and dr <= math.radians(5)
 
 
 def test_scale_converts_mesh_units(tmp_path):

@@ -19,7 +19,7 @@ import yaml
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError
 from .files import write_atomically
-from .registration import FitResult, FitSettings, Registrar
+from .registration import NO_MATCH, FitResult, FitSettings, Registrar
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
 from .transforms import matrix_to_quat_xyzw
@@ -54,7 +54,14 @@ class TrackedObject:
         return {"id": self.id, "active": self.id == active_id, "shown": self.active,
                 "click": [round(float(v), 6) for v in self.click],
                 "corrections": self.corrections, "model_changes": self.model_changes,
+                "no_match": self.no_match, "verdict": NO_MATCH if self.no_match else "fits",
                 "candidates": [c.to_dict() for c in self.candidates]}
+
+    @property
+    def no_match(self) -> bool:
+        """The absolute verdict: the best candidate does not fit (``FitResult.fits`` false):
+        no template fits here (the candidates are still listed)."""
+        return bool(self.candidates) and self.candidates[0].fits is False
 
 
 @dataclass(frozen=True)
@@ -192,6 +199,7 @@ class AffordanceEngine:
         self._scene_version = 0
         self._frame_id = ""
         self._T_scene_view: np.ndarray | None = None
+        self._T_scene_optical: np.ndarray | None = None
         self._last_action = ""
         self._last_timing: dict = {}
 
@@ -251,22 +259,34 @@ class AffordanceEngine:
         return obj
 
     # ------------------------------------------------------------------ inputs
-    def set_scene(self, points, frame_id: str = "", sensor_origin=None) -> int:
+    def set_scene(self, points, frame_id: str = "", sensor_origin=None,
+                  T_scene_optical: np.ndarray | None = None) -> int:
         """Replace the scene (the latest cloud). Returns the number of points the cloud has,
         holes included (counting the finite ones would cost a pass over the cloud that a click
         does not need). Existing objects keep their crops until they are refitted, which
-        re-crops the new scene."""
+        re-crops the new scene.
+
+        ``sensor_origin`` as for :class:`~affordance_registration.core.scene.Scene` (None: the
+        frame's origin; ``"none"``: no single viewpoint). ``T_scene_optical`` (4x4): the
+        sensor's pose as an optical frame (x right, y down, z forward) in the scene frame, for
+        the default view of twists; None: an optical frame with the scene frame's axes at the
+        sensor origin (a cloud in its camera's optical frame)."""
         scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
                                                                frame_id=frame_id)
+        if T_scene_optical is not None:
+            T_scene_optical = np.asarray(T_scene_optical, dtype=float)
+            if T_scene_optical.shape != (4, 4) or not np.all(np.isfinite(T_scene_optical)):
+                raise AffordanceError("the sensor pose must be a finite 4x4 transform")
         with self._lock:
             self._scene = scene
             self._scene_version += 1
             self._frame_id = frame_id or scene.frame_id
+            self._T_scene_optical = T_scene_optical
         return scene.size
 
     def set_view(self, T_scene_view: np.ndarray | None) -> None:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
-        for the default: looking through the sensor (its optical frame is the scene frame)."""
+        for the default: looking through the sensor (see :meth:`set_scene`)."""
         if T_scene_view is not None:
             T = np.asarray(T_scene_view, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -279,9 +299,11 @@ class AffordanceEngine:
         with self._lock:
             if self._T_scene_view is not None:
                 return self._T_scene_view
-            origin = self._scene.sensor_origin if self._scene is not None else np.zeros(3)
+            if self._T_scene_optical is not None:
+                return view_from_optical(self._T_scene_optical)
+            origin = None if self._scene is None else self._scene.sensor_origin
             T = np.eye(4)
-            T[:3, 3] = origin
+            T[:3, 3] = np.zeros(3) if origin is None else origin
             return view_from_optical(T)
 
     # ------------------------------------------------------------------ actions
@@ -318,8 +340,11 @@ class AffordanceEngine:
         extra = f" — {c.state}" if c.state else ""
         if c.scale != 1.0:
             extra += f" — scale {c.scale:.2f}"
-        return (f"{c.template}{extra} — rank {obj.active + 1}/{len(obj.candidates)} — "
-                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}")
+        verdict = f"{NO_MATCH} (best coverage {obj.candidates[0].coverage:.2f}); showing " \
+            if obj.no_match else ""
+        return (f"{verdict}{c.template}{extra} — rank {obj.active + 1}/{len(obj.candidates)} — "
+                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
+                f"{c.coverage:.2f}")
 
     def _cycle(self, step: int) -> str:
         with self._lock:

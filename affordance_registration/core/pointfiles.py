@@ -36,6 +36,8 @@ class PointFile:
     organized: tuple | None = None
     viewpoint: np.ndarray | None = None
     faces: bool = False
+    #: unit normals (N, 3) where a binary PLY / PCD holds them (nx ny nz, normal_x ...), or None
+    normals: np.ndarray | None = None
 
 
 def _fail(path: str, why: str, error=SceneError) -> Exception:
@@ -187,19 +189,26 @@ def read_points(path: str, error=SceneError) -> PointFile:
     if ext not in (".ply", ".pcd"):
         raise _fail(path, f"unsupported point file format '{ext}' (PLY, PCD or .npy)", error)
     info = check_header(path, error)
+    normals = None
     if info["ascii"]:
         pts = _read_ascii(path, info, error)
     else:
         with _quiet_open3d() as o3d:
             cloud = o3d.io.read_point_cloud(path)
         pts = np.asarray(cloud.points, dtype=float)
+        if cloud.has_normals():
+            normals = np.asarray(cloud.normals, dtype=float)
+            length = np.linalg.norm(normals, axis=1)
+            normals = normals / np.maximum(length, 1e-12)[:, None] \
+                if len(normals) == len(pts) and np.all(np.isfinite(normals)) and \
+                np.all(length > 1e-6) else None
     if len(pts) == 0:
         raise _fail(path, "no points could be read (empty or not a point cloud)", error)
     if info["points"] and len(pts) != info["points"]:
         raise _fail(path, f"only {len(pts):,} of the {info['points']:,} points its header "
                           f"announces could be read (a value that is not a number?)", error)
     return PointFile(points=pts, viewpoint=_viewpoint_origin(info.get("viewpoint")),
-                     faces=bool(info["faces"]))
+                     faces=bool(info["faces"]), normals=normals)
 
 
 def _read_ascii(path: str, info: dict, error) -> np.ndarray:

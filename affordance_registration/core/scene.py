@@ -1,10 +1,17 @@
 """Scenes: the scanned points, and the per-click preparation the fitting runs on.
 
-A :class:`Scene` holds the finite points of one cloud (metres) in the sensor's frame (or with a
-given sensor origin). No KD-tree is ever built over the whole scene: a click is snapped to the
-surface by a vectorised nearest-point search, then :meth:`Scene.prepare_click` crops around it,
-voxelizes, finds the dominant plane (RANSAC), keeps the cluster connected to the click and builds
-a small range image for visibility tests (:class:`ClickContext`).
+A :class:`Scene` holds the finite points of one cloud (metres) in any frame -- a camera optical
+frame, ``base_link``, ``map`` -- and where the sensor was in that frame (``sensor_origin``), or
+:data:`NO_VIEWPOINT` for a cloud with no single viewpoint (an accumulated map). No KD-tree is
+ever built over the whole scene: a click is snapped to the surface by a vectorised
+nearest-point search, then :meth:`Scene.prepare_click` crops around it, voxelizes, finds the
+dominant plane (RANSAC), keeps the cluster connected to the click and builds a small range image
+for visibility tests (:class:`ClickContext`).
+
+Nothing here assumes an axis: the voxel grid, the range image's bins and every random draw of
+the fit are laid out in a frame attached to the scan around the click (``ClickContext.frame``:
+its z towards the sensor, its x along the main axis of the points), so fitting a rigidly moved
+scene (its points, click and sensor origin) gives the rigidly moved answer.
 """
 from __future__ import annotations
 
@@ -18,9 +25,17 @@ from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
-from .transforms import finite_vector
+from .transforms import align_z_to, finite_vector
 
-__all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points"]
+__all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
+           "local_frame", "NO_VIEWPOINT"]
+
+#: a click within this many plane thresholds of the dominant plane is on it: the plane is then
+#: the clicked object's surface (or a bare wall), not a surface it is mounted on
+ON_PLANE = 1.5
+#: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
+#: the visibility terms
+NO_VIEWPOINT = "none"
 
 
 def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
@@ -33,11 +48,17 @@ def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
     return f.points, f.organized
 
 
-def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Centroid of the points in each occupied voxel of edge ``voxel`` (m). (N, 3) -> (M, 3)."""
+def voxel_downsample(points: np.ndarray, voxel: float, origin=None, frame=None) -> np.ndarray:
+    """Centroid of the points in each occupied voxel of edge ``voxel`` (m). (N, 3) -> (M, 3).
+    The grid is aligned with the scene's axes at its origin, or with the columns of ``frame``
+    (3, 3) and centred on ``origin`` (3,) -- a grid attached to the data turns with it -- and the
+    voxels come in the order of their grid coordinates."""
     if len(points) == 0:
         return points.reshape(0, 3)
-    keys = np.floor(points / voxel).astype(np.int64)
+    # a grid attached to the data has ``origin`` at a voxel's centre (a surface through the
+    # origin, the click, would otherwise be split between two layers of voxels)
+    grid = points if frame is None else (points - origin) @ frame + 0.5 * voxel
+    keys = np.floor(grid / voxel).astype(np.int64)
     keys -= keys.min(axis=0)
     dims = keys.max(axis=0) + 1
     flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
@@ -62,17 +83,25 @@ class Plane:
 class RangeImage:
     """Nearest observed depth per angular bin, as seen from the sensor origin.
 
-    Bins are square in tangent space (x/z, y/z) with edge ``bin_size``; a lookup gives the observed
-    depth along the ray through a point, or NaN where the sensor saw nothing in that bin.
+    The image looks along ``frame``'s third column (the ray from the sensor origin to the
+    click), whatever axes the scene's frame has: a point's depth is its distance along that ray
+    and its bin is square in tangent space (x/z, y/z in ``frame``) with edge ``bin_size``;
+    directions more than 90 degrees off the ray (only where the sensor is inside the crop) have
+    no bin. A lookup gives the observed depth along the ray through a point, or NaN where the
+    sensor saw nothing in that bin.
     """
 
-    def __init__(self, points: np.ndarray, origin: np.ndarray, bin_size: float):
-        rel = points - origin
+    def __init__(self, points: np.ndarray, origin: np.ndarray, bin_size: float,
+                 frame: np.ndarray):
+        self.origin = np.asarray(origin, dtype=float)
+        self.frame = np.asarray(frame, dtype=float)
+        self.bin = float(bin_size)
+        rel = (points - self.origin) @ self.frame
         z = rel[:, 2]
         keep = z > 1e-3
         rel, z = rel[keep], z[keep]
-        self.origin = origin
-        self.bin = float(bin_size)
+        if len(z) == 0:
+            raise SceneError("no scanned point near the click lies in front of the sensor origin")
         u, v = rel[:, 0] / z, rel[:, 1] / z
         self.u0, self.v0 = u.min() - self.bin, v.min() - self.bin
         iu = ((u - self.u0) / self.bin).astype(np.int64)
@@ -85,7 +114,7 @@ class RangeImage:
 
     def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(observed depth, point depth) for points (..., 3); observed is NaN when unknown."""
-        rel = points - self.origin
+        rel = (points - self.origin) @ self.frame
         z = rel[..., 2]
         zs = np.where(z > 1e-3, z, 1e-3)
         iu = np.floor((rel[..., 0] / zs - self.u0) / self.bin).astype(np.int64)
@@ -96,29 +125,64 @@ class RangeImage:
         return obs, z
 
 
+def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None) -> np.ndarray:
+    """A rotation (3, 3) attached to the scan around a click, whatever frame it is given in:
+    third column towards the sensor ``origin`` (without one: the direction in which
+    ``points`` (N, 3) spread least), first column their main axis across it; the signs of the
+    axes from the points' third moments along them. Rigidly moving the points, the click and the
+    origin turns this frame with them."""
+    rel = points - points.mean(axis=0)
+    cov = rel.T @ rel
+
+    def signed(axis):       # the side the points' distribution leans to
+        return axis if np.sum((rel @ axis) ** 3) >= 0 else -axis
+
+    if origin is not None and np.linalg.norm(origin - click) > 1e-9:
+        z = (origin - click) / np.linalg.norm(origin - click)
+    else:
+        z = signed(np.linalg.eigh(cov)[1][:, 0])
+    across = np.eye(3) - np.outer(z, z)
+    x = signed(np.linalg.eigh(across @ cov @ across)[1][:, 2])
+    x = x - z * (x @ z)
+    if np.linalg.norm(x) < 1e-9:        # no spread across z at all: any perpendicular
+        x = align_z_to(z)[:, 0]
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
 @dataclass
 class ClickContext:
     """Everything the fitting needs around one click (built once, reused for refits).
 
     ``cluster`` are the voxelized points connected to the click with the dominant plane removed
     (the ICP target); ``crop`` all voxelized points of the crop (the scoring target); ``fine`` the
-    full-resolution cluster points (the final refinement target).
+    full-resolution cluster points (the final refinement target). ``frame`` (3, 3) is the
+    rotation attached to the scan around the click (:func:`local_frame`): random draws and
+    grids are laid out in it. Without a viewpoint ``sensor_origin`` and ``range_image`` are
+    None (no visibility terms).
     """
 
     click: np.ndarray
     radius: float
     voxel: float
-    sensor_origin: np.ndarray
+    sensor_origin: np.ndarray | None
     crop: np.ndarray = field(repr=False)
     cluster: np.ndarray = field(repr=False)
     fine: np.ndarray = field(repr=False)
     plane: Plane | None
     plane_threshold: float
-    range_image: RangeImage = field(repr=False)
+    range_image: RangeImage | None = field(repr=False)
     crop_tree: KDTree = field(repr=False)
     cluster_tree: KDTree = field(repr=False)
     fine_tree: KDTree = field(repr=False)
     fine_normals: np.ndarray = field(repr=False)
+    #: the dominant plane of the crop even where nothing stands off it (``plane`` is then None)
+    support: Plane | None = None
+    frame: np.ndarray = field(repr=False, default_factory=lambda: np.eye(3))
+
+    @property
+    def has_viewpoint(self) -> bool:
+        return self.sensor_origin is not None
 
     def cluster_mean_near(self, point: np.ndarray, radius: float,
                           min_points: int = 1) -> np.ndarray | None:
@@ -133,6 +197,9 @@ class ClickContext:
 class Scene:
     """The points of one scan, (N, 3) float64 metres, and the sensor origin in that frame.
 
+    ``sensor_origin``: where the scan was taken from, (3,) in the points' frame; None: the
+    frame's origin (a cloud in its sensor's frame); :data:`NO_VIEWPOINT` (``"none"``): no single
+    viewpoint -- fitted without the visibility terms, normals estimated from the data.
     Non-finite rows (NaN holes of organized clouds) are no points: ``points`` holds the finite
     ones and ``dropped`` counts the others. Both are worked out on first use, not when the scene
     is made: a click crops the cloud first (:meth:`around`) and drops the holes inside the crop
@@ -158,10 +225,7 @@ class Scene:
                    for i in range(0, len(pts), self._PROBE_ROWS)):
             raise SceneError("the scene has no finite points" +
                              (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else ""))
-        origin = np.zeros(3) if sensor_origin is None else np.asarray(sensor_origin, dtype=float)
-        if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-            raise SceneError(f"sensor origin must be 3 finite numbers, got {sensor_origin!r}")
-        self.sensor_origin = origin
+        self.sensor_origin = _origin(sensor_origin)
         self.frame_id = frame_id
 
     @property
@@ -178,8 +242,17 @@ class Scene:
 
     @classmethod
     def from_file(cls, path: str, sensor_origin=None) -> "Scene":
-        pts, _ = load_points(path)
-        return cls(pts, sensor_origin=sensor_origin)
+        """The scene in a PLY, PCD or .npy file. ``sensor_origin`` as for :class:`Scene`;
+        None: a PCD's ``VIEWPOINT`` where it has one, else the frame's origin."""
+        from .pointfiles import read_points
+        f = read_points(path)
+        if sensor_origin is None and f.viewpoint is not None:
+            sensor_origin = f.viewpoint
+        return cls(f.points, sensor_origin=sensor_origin)
+
+    @property
+    def has_viewpoint(self) -> bool:
+        return self.sensor_origin is not None
 
     def __len__(self) -> int:
         return len(self.points)
@@ -227,8 +300,17 @@ class Scene:
         raw = self.points[d2 <= radius * radius]
         if len(raw) < 10:
             raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click")
-        crop = voxel_downsample(raw, voxel)
-        plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, self.sensor_origin, seed)
+        origin = self.sensor_origin
+        if origin is not None and np.linalg.norm(origin - c) < 1e-3:
+            raise SceneError("the sensor origin is at the click: the scan cannot have been "
+                             "taken from there (give where the sensor was, or 'none')")
+        frame = local_frame(raw, c, origin)
+        crop = voxel_downsample(raw, voxel, c, frame)
+        _check_spread(crop, voxel, radius)
+        plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
+        support = plane
+        if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold:
+            plane = None    # the click is on the plane: it is the object's, not a mount's
         gap = cluster_gap if cluster_gap is not None else 0.025
         keep = np.ones(len(crop), bool) if plane is None else plane.distance(crop) > plane_threshold
         cluster = _connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
@@ -245,15 +327,20 @@ class Scene:
             fine = fine[plane_for_fine.distance(fine) > plane_threshold]
         if len(fine) < 10:
             fine = cluster
-        depth = max(float(np.linalg.norm(c - self.sensor_origin)), 0.2)
-        range_image = RangeImage(raw, self.sensor_origin, bin_size=voxel / depth)
+        range_image = None
+        if origin is not None:
+            depth = max(float(np.linalg.norm(c - origin)), 0.2)
+            # the image's axis runs from the sensor to the click: the frame's z turned round
+            range_image = RangeImage(raw, origin, bin_size=voxel / depth,
+                                     frame=frame * np.array([1.0, -1.0, -1.0]))
         fine_tree = build_tree(fine)
         ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
-                           sensor_origin=self.sensor_origin, crop=crop, cluster=cluster, fine=fine,
+                           sensor_origin=origin, crop=crop, cluster=cluster, fine=fine,
                            plane=plane_for_fine, plane_threshold=plane_threshold,
                            range_image=range_image, crop_tree=build_tree(crop),
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=pca_normals(fine, 12, fine_tree))
+                           fine_normals=pca_normals(fine, 12, fine_tree), support=support,
+                           frame=frame)
         return ctx
 
 
@@ -261,10 +348,35 @@ def _point3(value, what: str) -> np.ndarray:
     return finite_vector(value, what, SceneError)
 
 
+def _origin(value) -> np.ndarray | None:
+    """A sensor origin: (3,) finite, None for :data:`NO_VIEWPOINT`; None given: zeros."""
+    if value is None:
+        return np.zeros(3)
+    if isinstance(value, str):
+        if value.strip().lower() == NO_VIEWPOINT:
+            return None
+        raise SceneError(f"sensor origin must be 3 finite numbers or '{NO_VIEWPOINT}', "
+                         f"got {value!r}")
+    return finite_vector(value, "sensor origin", SceneError)
+
+
+def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:
+    """Refuse a crop that is no surface at all: a handful of distinct places, or points on one
+    line (nothing can be fitted to them)."""
+    if len(crop) < 10:
+        raise SceneError(f"the scan around the click holds only {len(crop)} distinct points "
+                         f"(at {voxel * 1000:.0f} mm): nothing to fit")
+    spread = np.linalg.svd(crop - crop.mean(axis=0), compute_uv=False) / math.sqrt(len(crop))
+    if spread[1] < 0.5 * voxel:
+        raise SceneError("the scanned points around the click lie on a line: nothing to fit")
+
+
 def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
-                  origin: np.ndarray, seed: int, hypotheses: int = 96) -> Plane | None:
+                  origin: np.ndarray | None, seed: int,
+                  hypotheses: int = 96) -> Plane | None:
     """Dominant plane by vectorised RANSAC + least-squares refit; None if it holds fewer than
-    ``min_fraction`` of the points."""
+    ``min_fraction`` of the points. Its normal faces the sensor ``origin``; without one, the
+    side of the plane holding more of the points off it (the objects on it)."""
     n = len(points)
     if n < 50:
         return None
@@ -292,7 +404,12 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     frac = float(np.mean(np.abs(points @ normal + d) < threshold))
     if frac < min_fraction:
         return None
-    if normal @ (origin - centre) < 0:
+    if origin is not None:
+        flip = normal @ (origin - centre) < 0
+    else:
+        off = points @ normal + d
+        flip = np.count_nonzero(off > threshold) < np.count_nonzero(off < -threshold)
+    if flip:
         normal, d = -normal, -d
     return Plane(normal=normal, d=float(d), inlier_fraction=frac)
 

@@ -25,7 +25,7 @@ from .files import write_atomically
 from .templates import TemplateLibrary, mesh_distance
 from .transforms import axis_angle_matrix, invert, make_T
 
-__all__ = ["CameraIntrinsics", "NoiseModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
+__all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
            "SimulatedOperator", "failures", "operator_correction", "truth_joints",
            "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV",
@@ -85,12 +85,46 @@ class NoiseModel:
                 + self.c / np.sqrt(z) * theta ** 2 / (math.pi / 2 - theta) ** 2)
 
 
-class DepthCamera:
-    """Renders organized point clouds of posed meshes by ray casting."""
+@dataclass(frozen=True)
+class FaultModel:
+    """What real depth cameras do to a scan besides :class:`NoiseModel`'s noise (the paper's
+    Kinect run failed on such distortion). Every option is a documented knob; ``off`` values
+    (0) switch one fault off.
 
-    def __init__(self, intrinsics: CameraIntrinsics = KINECT_NFOV, noise: NoiseModel | None = None):
+    * ``flying_pixels``: probability that a pixel on a depth edge (a step of more than
+      ``edge_jump`` m to a neighbour) returns a mixed depth -- a point anywhere between the
+      foreground and the background (labelled -2 in the label image: no object's);
+    * ``distortion``: RMS (m) of a smooth depth error across the image (a sum of
+      ``distortion_waves`` random low-frequency waves, at most that many cycles across it):
+      1 mm RMS swings by about 5 mm from trough to peak;
+    * ``dark_patches`` dark patches of radius up to ``dark_radius`` pixels at random places,
+      where a return drops with probability ``dark_dropout``;
+    * ``grazing_start_deg``: returns drop at grazing angles from this incidence on (rising to
+      certain at ``NoiseModel.drop_full_deg``; the clean model starts at its own
+      ``drop_start_deg``; at or beyond ``drop_full_deg``: off);
+    * ``noise_scale``: the range-dependent noise of :class:`NoiseModel` times this.
+    """
+
+    flying_pixels: float = 0.6
+    edge_jump: float = 0.02
+    distortion: float = 0.001
+    distortion_waves: int = 3
+    dark_patches: int = 6
+    dark_radius: int = 40
+    dark_dropout: float = 0.7
+    grazing_start_deg: float = 60.0
+    noise_scale: float = 1.5
+
+
+class DepthCamera:
+    """Renders organized point clouds of posed meshes by ray casting; ``faults`` (a
+    :class:`FaultModel`) adds what real depth cameras do to a scan."""
+
+    def __init__(self, intrinsics: CameraIntrinsics = KINECT_NFOV, noise: NoiseModel | None = None,
+                 faults: FaultModel | None = None):
         self.intrinsics = intrinsics
         self.noise = noise if noise is not None else NoiseModel()
+        self.faults = faults
         u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
         #: the ray through each pixel, (H, W, 3) in the optical frame, scaled to z = 1 (a hit's
         #: distance along it is its depth); read-only
@@ -133,10 +167,56 @@ class DepthCamera:
             p_drop = np.clip((theta - start) / (full - start), 0.0, 1.0)
             valid &= rng.random(size=depth.shape) >= p_drop
             labels = np.where(valid, labels, -1).astype(np.int32)
+            if self.faults is not None:
+                depth, valid, labels = self._faults(depth, valid, labels, theta, z, rng)
         points = dirs * np.where(valid, depth, np.nan)[..., None]
         if return_normals:
             return points.astype(np.float32), labels, normals
         return points.astype(np.float32), labels
+
+    def _faults(self, depth, valid, labels, theta, z, rng: np.random.Generator):
+        """The :class:`FaultModel`'s faults on a noisy depth image (H, W): more noise, grazing
+        and dark-patch dropouts, a smooth distortion, flying pixels on depth edges."""
+        f = self.faults
+        H, W = depth.shape
+        depth = depth + rng.normal(size=depth.shape) * self.noise.sigma(z, theta) * \
+            math.sqrt(max(f.noise_scale ** 2 - 1.0, 0.0))
+        start, full = map(math.radians, (f.grazing_start_deg, self.noise.drop_full_deg))
+        if start < full:
+            valid &= rng.random(size=depth.shape) >= np.clip((theta - start) / (full - start),
+                                                             0, 1)
+        v, u = np.mgrid[0:H, 0:W]
+        for _ in range(f.dark_patches):
+            cu, cv = rng.uniform(0, W), rng.uniform(0, H)
+            r = rng.uniform(0.3, 1.0) * f.dark_radius
+            dark = (u - cu) ** 2 + (v - cv) ** 2 <= r * r
+            valid &= ~(dark & (rng.random(size=depth.shape) < f.dark_dropout))
+        if f.distortion > 0 and f.distortion_waves > 0:
+            field = np.zeros(depth.shape)
+            for _ in range(f.distortion_waves):
+                k = rng.uniform(-f.distortion_waves, f.distortion_waves, size=2) * 2 * math.pi
+                field += np.cos(k[0] * u / W + k[1] * v / H + rng.uniform(0, 2 * math.pi))
+            depth = depth + f.distortion * field / math.sqrt(f.distortion_waves / 2)
+        labels = np.where(valid, labels, -1).astype(np.int32)
+        if f.flying_pixels > 0:
+            d = np.where(valid, depth, np.nan)
+            mixed = np.zeros(depth.shape, bool)
+            new = depth.copy()
+            for axis in (0, 1):             # each pixel against its next neighbour down / right
+                a = d
+                nb = np.roll(a, -1, axis=axis)
+                edge = np.isfinite(a) & np.isfinite(nb) & (np.abs(a - nb) > f.edge_jump)
+                if axis == 0:
+                    edge[-1, :] = False
+                else:
+                    edge[:, -1] = False
+                fly = edge & ~mixed & (rng.random(size=depth.shape) < f.flying_pixels)
+                lam = rng.uniform(size=depth.shape)
+                new = np.where(fly, lam * a + (1 - lam) * nb, new)
+                mixed |= fly
+            depth = new
+            labels = np.where(mixed, -2, labels).astype(np.int32)
+        return depth, valid, labels
 
 
 @dataclass(frozen=True)

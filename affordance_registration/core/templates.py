@@ -4,7 +4,8 @@ A template is a YAML file (``models/<name>.yaml``)::
 
     name: ball_valve                 # required, unique in a library
     mesh: meshes/ball_valve.stl      # required, relative to the YAML; STL/OBJ/PLY mesh, or a
-                                     # PLY/PCD point cloud (a scan of the object)
+                                     # PLY/PCD point cloud (a scan of the object: its normals
+                                     # from the file, or estimated when it has none)
     mesh_scale: 1.0                  # factor from mesh units to metres
     scale: [0.8, 1.25]               # optional: the design comes in sizes; scale is estimated
     symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}
@@ -451,12 +452,15 @@ def _load_geometry(yaml_path: str, key: str, rel: str, scale: float,
         raise _fail(yaml_path, key, f"unsupported file type '{ext}' (STL, OBJ, PLY, PCD)")
     fail = (lambda msg: _fail(yaml_path, key, msg))
     if ext in (".ply", ".pcd") and not check_header(path, fail)["faces"]:
-        pts = read_points(path, fail).points
-        pts = pts[np.all(np.isfinite(pts), axis=1)] * scale
+        f = read_points(path, fail)
+        finite = np.all(np.isfinite(f.points), axis=1)
+        pts = f.points[finite] * scale
         if len(pts) < 10:
             raise _fail(yaml_path, key, f"{path}: fewer than 10 finite points")
         _check_extent(yaml_path, key, pts)
-        return None, pts, _estimate_normals(pts)
+        # the file's normals (a scan's, oriented towards its scanner) or estimated ones
+        normals = f.normals[finite] if f.normals is not None else _estimate_normals(pts)
+        return None, pts, normals
     try:
         geom = trimesh.load(path, process=True)
         if isinstance(geom, trimesh.Scene):

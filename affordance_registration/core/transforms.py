@@ -88,13 +88,19 @@ def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
-def align_z_to(normal) -> np.ndarray:
-    """A rotation whose third column is the unit vector ``normal`` (the first column is chosen
-    deterministically perpendicular to it)."""
+def align_z_to(normal, hint=None) -> np.ndarray:
+    """A rotation whose third column is the unit vector ``normal``; the first column is ``hint``
+    (3,) made perpendicular to it -- pass a direction attached to the data, so the result turns
+    with the data -- or, without a hint (or one along ``normal``), a coordinate axis."""
     z = np.asarray(normal, dtype=float)
     z = z / np.linalg.norm(z)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = helper - z * (helper @ z)
+    x = None
+    if hint is not None:
+        x = np.asarray(hint, dtype=float) - z * (np.asarray(hint, dtype=float) @ z)
+        x = x if np.linalg.norm(x) > 1e-6 else None
+    if x is None:
+        helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x = helper - z * (helper @ z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return np.stack([x, y, z], axis=1)

@@ -34,11 +34,12 @@ from ..core.corrections import view_from_optical
 from ..core.engine import AffordanceEngine
 from ..core.errors import AffordanceError, EngineStateError
 from ..core.operator import ACTIONS, OperatorStream
+from ..core.scene import NO_VIEWPOINT
 from ..core.templates import TemplateLibrary
 from . import params
 from .conversions import (ConversionError, matrix_to_pose, pointcloud2_layout,
                           pointcloud2_to_xyz, pose_stamped, pose_to_matrix)
-from .frames import FrameError, StaticFrames
+from .frames import FrameError, StaticFrames, T_frame_optical
 from .interactive import CorrectionMarkerServer, MarkerCallbacks
 from .markers import state_markers
 from .spin import run_node
@@ -180,6 +181,8 @@ class EngineNode(Node):
             self.library = self.engine.library
         if "static_transforms" in changed:
             self.frames = StaticFrames(new["static_transforms"])
+        if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
+            self._converted = -1        # the next fit converts the cloud again
         self.stream.configure(params.operator_settings(new))
         self._set_joint_steps(new)
         if "interactive_orientation" in changed:
@@ -252,14 +255,34 @@ class EngineNode(Node):
         self._converted = count
         try:
             pts, _ = pointcloud2_to_xyz(msg)
-            self.engine.set_scene(pts, frame_id=msg.header.frame_id,
-                                  sensor_origin=self._p["sensor_origin"])
+            origin, T_optical = self._sensor(msg.header.frame_id)
+            self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
+                                  T_scene_optical=T_optical)
         except AffordanceError as exc:
             if not self.engine.has_scene:
                 raise AffordanceError(f"the cloud in '{msg.header.frame_id}' is unusable: "
                                       f"{exc}") from None
             self._error("cloud", f"the latest cloud is unusable ({exc}); still using the "
                                  f"previous one")
+
+    def _sensor(self, cloud_frame: str):
+        """(sensor origin or "none", the sensor's optical pose 4x4) in ``cloud_frame``: from the
+        ``sensor_frame`` parameter through TF, or the ``sensor_origin`` parameter; the pose is
+        the default view for twists."""
+        name = self._p["sensor_frame"].strip()
+        if name.lower() == NO_VIEWPOINT:
+            return NO_VIEWPOINT, T_frame_optical(cloud_frame)
+        if not name:
+            T = T_frame_optical(cloud_frame)
+            T[:3, 3] = self._p["sensor_origin"]
+            return list(self._p["sensor_origin"]), T
+        try:
+            T_cloud_sensor = self._lookup(cloud_frame, name)
+        except FrameError:
+            raise AffordanceError(f"the sensor frame '{name}' has no known transform to the "
+                                  f"cloud frame '{cloud_frame}' (publish it on TF, or give it "
+                                  f"in static_transforms)") from None
+        return T_cloud_sensor[:3, 3].copy(), T_cloud_sensor @ T_frame_optical(name)
 
     def _on_click(self, msg: PointStamped) -> None:
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)

@@ -205,7 +205,7 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
             raise LaunchError(f"{where}: each entry is one action (arg or node)")
         (kind, body), = entry.items()
         if not isinstance(body, dict):
-            raise LaunchError(f"{where}: '{kind}' needs a mapping, got {body!r}"[:300])
+            raise LaunchError(f"{where}: {kind!r} needs a mapping, got {body!r}"[:300])
         if kind == "arg":
             name = body.get("name")
             if not name or not isinstance(name, str):
@@ -243,9 +243,9 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
                 node.args = sub(str(args)).split()
             nodes.append(node)
         else:
-            raise LaunchError(f"{where}: unsupported action '{kind}' (arg and node are supported)")
+            raise LaunchError(f"{where}: unsupported action {kind!r} (arg and node are supported)")
     if given:
-        raise LaunchError(f"{path}: unknown launch argument(s): {', '.join(given)}")
+        raise LaunchError(f"{path}: unknown launch argument(s): {', '.join(map(repr, given))}")
     return nodes
 
 

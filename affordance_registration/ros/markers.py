@@ -1,5 +1,7 @@
 """The engine's state drawn as RViz markers (``~/markers``): the shown candidate of each open
-object, its moving part, its label and the click; registered objects in their own colour."""
+object, its moving part, its label and the click; registered objects in their own colour. An
+object where no template fits (the verdict) is grey and its label starts "no template fits
+here"."""
 from __future__ import annotations
 
 import math
@@ -8,11 +10,13 @@ import numpy as np
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..core.registration import NO_MATCH
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
 __all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
+NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
 REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
 
 
@@ -52,10 +56,12 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         c = obj.shown
         tpl = library[c.template]
         T = c.T_scene_model
+        colour = NO_MATCH_COLOR if obj.no_match else likelihood_color(c.probability)
         markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
-                                           likelihood_color(c.probability), stamp)
+                                           colour, stamp)
         top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        label = (f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)} — rank "
+        label = (f"{NO_MATCH + ' — ' if obj.no_match else ''}"
+                 f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)} — rank "
                  f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))

@@ -59,7 +59,13 @@ PARAMETERS = {
     "static_transforms": ([], "'parent child x y z qx qy qz qw' entries for frames TF does not "
                           "know", None),
     "registrations_file": ("affordance_registrations.yaml", "where ~/save writes (YAML)", None),
-    "sensor_origin": ([0.0, 0.0, 0.0], "sensor position in the cloud frame (m)", None),
+    "sensor_origin": ([0.0, 0.0, 0.0], "sensor position in the cloud frame (m), used when "
+                      "sensor_frame is ''", None),
+    "sensor_frame": ("", "where the scans are taken from: '' = sensor_origin in the cloud frame "
+                         "(default: the cloud frame's origin); a frame name = that frame's "
+                         "origin, looked up through TF / static_transforms (a cloud in "
+                         "base_link or map); 'none' = no single viewpoint (an accumulated map: "
+                         "fitted without the visibility terms)", None),
     "points_reliable": (True, "subscribe to points with reliable QoS (false: best effort, for "
                               "sensor drivers publishing with SensorDataQoS); read at start", None),
     "publish_rate": (20.0, "highest rate of marker/status updates (Hz)", (1.0, 100.0)),

@@ -9,7 +9,7 @@ two-way residual), hypotheses, articulation (joint values and scale), refit, pap
 from .correspondences import correspondence_weights
 from .model import Model
 from .registrar import Registrar
-from .results import FitReport, FitResult, rank
+from .results import NO_MATCH, NO_MATCH_RESIDUAL, FitReport, FitResult, rank
 from .settings import FitSettings
 from .solve import weighted_rigid_fit
 
@@ -17,4 +17,5 @@ from .solve import weighted_rigid_fit
 PosedTemplate = Model
 
 __all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate", "Model",
-           "correspondence_weights", "weighted_rigid_fit", "rank"]
+           "correspondence_weights", "weighted_rigid_fit", "rank", "NO_MATCH",
+           "NO_MATCH_RESIDUAL"]

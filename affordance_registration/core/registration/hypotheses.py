@@ -13,6 +13,7 @@ from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import (align_z_to, axis_angle_matrix, make_T, random_rotations,
                           rotation_angle)
+from .features import feature_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
 from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
@@ -22,6 +23,7 @@ __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "
            "keep_distinct", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
+FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
 
 
 @dataclass(frozen=True)
@@ -63,10 +65,12 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     With a plane under the click: mounted (template +z along the plane normal, a yaw sweep;
     modes auto and mounted), resting (each stable facet of the template down on the plane,
     a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
-    Without a plane: uniformly random orientations around the cluster. The template's
+    Without a plane: uniformly random orientations around the cluster (drawn in the frame
+    attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The template's
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
-    diameter (the paper's restarts use up to the diameter)."""
+    diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
+    object) also starts from the poses its shape features match (:mod:`.features`)."""
     index, Rs, ts, family = [], [], [], []
     for i, model in enumerate(models):
         centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
@@ -77,6 +81,16 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, offsets))
         family.append(fam)
+        if getattr(getattr(model, "template", model), "is_point_template", False):
+            # a scanned object: poses from matched shape features too (their own generator,
+            # so the other templates' draws stay as they are)
+            features = np.random.default_rng([settings.seed, FEATURE_SEED])
+            matched = feature_alignments(ctx, model, features)
+            if matched:
+                index.append(np.full(len(matched), i))
+                Rs.append(np.stack([R for R, _ in matched]))
+                ts.append(np.stack([t for _, t in matched]))
+                family.append(np.full(len(matched), RANDOM))
     index = np.concatenate(index)
     return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
                       index, np.concatenate(family))
@@ -88,7 +102,7 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
     s, plane = settings, ctx.plane
     Rs, families = [], []
     if plane is not None:
-        up = align_z_to(plane.normal)
+        up = align_z_to(plane.normal, hint=ctx.frame[:, 0])   # turns with the scan
         if s.mode in ("auto", "mounted"):
             yaws = _yaws(s.yaw_restarts, rng)
             Rs.append(up @ axis_angle_matrix([0, 0, 1], yaws).reshape(-1, 3, 3))
@@ -115,12 +129,38 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
         off = rng.normal(size=(n_rand, 3))
         off *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
                 / np.linalg.norm(off, axis=1, keepdims=True))
-        Rs.append(random_rotations(n_rand, rng))
-        offsets.append(off)
+        # drawn in the frame attached to the scan, so they turn with it
+        Rs.append(ctx.frame @ random_rotations(n_rand, rng))
+        offsets.append(off @ ctx.frame.T)
         families.append(np.full(n_rand, RANDOM))
+    if plane is None:       # a free object: its principal axes on the cluster's too
+        aligned = _principal_alignments(ctx.cluster, model)
+        if aligned:
+            Rs.append(np.stack(aligned))
+            offsets.append(np.zeros((len(aligned), 3)))
+            families.append(np.full(len(aligned), RANDOM))
     if not families:
         return np.empty((0, 3, 3)), np.empty((0, 3)), np.empty(0, dtype=int)
     return np.concatenate(Rs), np.concatenate(offsets), np.concatenate(families)
+
+
+def _principal_axes(points: np.ndarray) -> np.ndarray:
+    """The principal axes of ``points`` (N, 3) as the columns of a rotation, largest spread
+    first."""
+    rel = points - points.mean(axis=0)
+    axes = np.linalg.eigh(rel.T @ rel)[1][:, ::-1]
+    axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
+    return axes
+
+
+def _principal_alignments(cluster: np.ndarray, model) -> list:
+    """The four rotations (proper: two axes flipped at a time) that put the model's principal
+    axes on the cluster's -- a big free object seen whole is often found from one of them."""
+    if len(cluster) < 10:
+        return []
+    A = _principal_axes(cluster)
+    B = _principal_axes(model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0])
+    return [A @ np.diag(f) @ B.T for f in ((1, 1, 1), (-1, -1, 1), (-1, 1, -1), (1, -1, -1))]
 
 
 def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:

@@ -31,6 +31,17 @@ class Surface:
         jointed = template.joint is not None and len(self.moving_points) > 0
         self.base = build_tree(self.base_points) if jointed else None
         self.moving_part = build_tree(self.moving_points) if jointed else None
+        #: the mesh as it is, ready for ray casting (a point-cloud template has none)
+        self.raycaster = raycaster(template.mesh) if template.mesh is not None else None
+
+
+def raycaster(mesh):
+    """An Open3D ray-casting scene of a trimesh mesh (its own frame)."""
+    import open3d as o3d
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    return scene
 
 
 class ModelCache:
@@ -174,6 +185,15 @@ class Model:
         if parts:
             return d * self.scale, pts * self.scale, closer
         return d * self.scale, pts * self.scale
+
+    def raycaster(self):
+        """An Open3D ray-casting scene of this model's mesh (at its joint value and scale,
+        model frame), or None for a point-cloud template. The template's own is cached."""
+        if self.template.mesh is None:
+            return None
+        if self._as_is:
+            return self.cache.surface(self.template).raycaster
+        return raycaster(self.template.mesh_at(self.q, self.scale))
 
     def resting_rotations(self, max_poses: int = 6):
         """The template's resting orientations (those at joint zero; scale does not change

@@ -46,8 +46,8 @@ class PaperMethod:
         diam = tpl.diameter
         best = None
         total_iters = 0
-        for R0 in random_rotations(s.paper_restarts, rng):
-            off = rng.normal(size=3)
+        for R0 in ctx.frame @ random_rotations(s.paper_restarts, rng):   # turn with the scan
+            off = ctx.frame @ rng.normal(size=3)
             off *= diam * rng.uniform() ** (1 / 3) / np.linalg.norm(off)
             R, t, iters = self._icp(ctx, P, diam, R0, ctx.click + off)
             total_iters += iters

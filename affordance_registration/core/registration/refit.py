@@ -65,10 +65,11 @@ def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,
             snapped[:3, 3] -= ctx.plane.normal * (ctx.plane.normal @ (snapped[:3, 3] - T0[:3, 3]))
         Ts.append(snapped)
     while len(Ts) < s.refit_restarts:
-        axis = rng.normal(size=3)
+        axis = ctx.frame @ rng.normal(size=3)       # drawn in the frame attached to the scan
         dR = axis_angle_matrix(axis, REFIT_TURN * rng.uniform(0.5, 1.0))
         R = dR @ T0[:3, :3]
-        t = dR @ (T0[:3, 3] - centre) + centre + rng.normal(scale=s.refit_spread, size=3)
+        t = dR @ (T0[:3, 3] - centre) + centre + \
+            ctx.frame @ rng.normal(scale=s.refit_spread, size=3)
         Ts.append(make_T(R, t))
     return np.stack(Ts)
 

@@ -28,6 +28,12 @@ one-sided scans (the README's benchmark measures both):
   click and pay for a surface that misses the click by more than ``click_tolerance``;
 * directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
   either way: samples there neither pull nor count;
+* every scene frame is alike: visibility is reasoned from the sensor origin (a range image
+  binned about the ray to the click) or left out for a cloud with no single viewpoint, and
+  every random draw and grid is laid out in a frame attached to the scan around the click, so
+  a rigidly moved scene gives the rigidly moved fit;
+* each candidate gets an absolute verdict besides its rank (``coverage``, ``inlier_rmse``,
+  ``fits``): when the best one does not fit, no template fits here;
 * articulated templates (a joint with its moving part, or a scale range) among the leading
   candidates get their joint value and scale with the pose: a sweep across the joint's limits
   (the fixed part held, or moved back with the moving part left where the data put it), local
@@ -55,7 +61,7 @@ from .paper import PaperMethod
 from .parallel import run
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import result, results, scores
+from .scoring import judge, result, results, scores
 from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
@@ -131,6 +137,7 @@ class Registrar:
         model = self._model(template, joints, scale)
         res = refit(ctx, model, T_init, self.settings,
                     hold_joint=bool(joints) if hold_joint is None else hold_joint)
+        res = self._judged(ctx, [res])[0]
         return replace(res, time_s=time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ the default method
@@ -169,9 +176,15 @@ class Registrar:
         # 7. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
         #    at full resolution, then (articulated) towards a named state and scale 1
         final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
+        # 7. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
+        judged = self._judged(ctx, [final] + list(ranked[1:]))
         total = time.perf_counter() - t0
-        return rank([replace(final, time_s=total)] + [replace(r, time_s=total)
-                                                      for r in ranked[1:]])
+        return rank([replace(r, time_s=total) for r in judged])
+
+    def _judged(self, ctx: ClickContext, results) -> list:
+        """Each result with its verdict (:func:`.scoring.judge`)."""
+        return [judge(ctx, self._model(r.template, r.joints, r.scale), r, self.settings)
+                for r in results]
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with
@@ -231,7 +244,8 @@ class Registrar:
         model = models.get(win.template)
         if model is None:
             model = self.models.model(self.library[win.template])
-        R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3], win.T_scene_model[:3, 3])
+        model, R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3],
+                                      win.T_scene_model[:3, 3])
         if model.articulated:       # the joint after the sweep, once more
             model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False)
         fit = fine_stage(ctx, model, R, t, s.fine, s)
@@ -246,15 +260,25 @@ class Registrar:
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):
         """The pose turned about its template's mounting / symmetry axis in ``yaw_sweep``
-        steps over one symmetry period, each refined; the best by the residual. (R, t)"""
+        steps over one symmetry period, each refined; the best by the residual. An articulated
+        model is also swept at its template's named states (a valve body turned a quarter with
+        its handle turned back matches the handle alone, and the joint is held in the sweep).
+        (model, R, t)"""
         s = self.settings
         if s.yaw_sweep <= 1:
-            return R, t
-        Rs, ts = yaw_sweep_starts(model, R, t, s.yaw_sweep)
-        swept = icp(ctx, Batch.of([model] * len(Rs), Rs, ts), s.short, s)
+            return model, R, t
+        variants = [model]
+        if model.articulated:
+            tpl = model.template
+            variants += [model.with_values(q=q) for q in sorted(
+                {float(tpl.joint_value(v)) for v in tpl.states.values()}) if q != model.q]
+        starts = [yaw_sweep_starts(m, R, t, s.yaw_sweep) for m in variants]
+        models = [m for m in variants for _ in range(s.yaw_sweep)]
+        swept = icp(ctx, Batch.of(models, np.concatenate([a for a, _ in starts]),
+                                  np.concatenate([b for _, b in starts])), s.short, s)
         residuals = [r.residual for r in results(ctx, Batch(swept.models, swept.R, swept.t), s)]
         best = int(np.argmin(residuals))
-        return swept.R[best], swept.t[best]
+        return models[best], swept.R[best], swept.t[best]
 
     def _model(self, template: str, joints: dict | None = None, scale: float = 1.0) -> Model:
         """The model to fit: with ``settings.articulated``, an articulated template posed at

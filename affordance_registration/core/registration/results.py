@@ -8,14 +8,28 @@ import numpy as np
 from ..scene import ClickContext
 from .model import Batch
 
-__all__ = ["FitResult", "FitReport", "IcpResult", "rank"]
+__all__ = ["FitResult", "FitReport", "IcpResult", "rank", "NO_MATCH", "NO_MATCH_RESIDUAL"]
+
+
+#: the residual (m) at which a fit is as likely as "no template fits here": the likelihood of
+#: that answer, 1 / NO_MATCH_RESIDUAL, takes part in every click's probabilities, so a poor fit
+#: never reads 1.00 however few templates there are
+NO_MATCH_RESIDUAL = 0.005
+#: the verdict's text when the best candidate does not fit (``FitResult.fits`` false)
+NO_MATCH = "no template fits here"
 
 
 @dataclass(frozen=True)
 class FitResult:
     """One fitted candidate. Candidates are ranked by ``likelihood`` (higher is better), which is
     the inverse of ``residual``; ``probability`` is the likelihood normalized over the click's
-    candidates."""
+    candidates and the answer "no template fits here" (likelihood 1 / ``NO_MATCH_RESIDUAL``).
+
+    The absolute verdict, whatever the other candidates score: ``coverage`` is the fraction of
+    the template surface the sensor could have seen that has scan points within
+    ``FitSettings.coverage_distance``; ``inlier_rmse`` the RMS distance of those points (m);
+    ``fits`` whether coverage reaches ``FitSettings.min_coverage`` (None: not judged, as for
+    the literal baseline)."""
 
     template: str
     T_scene_model: np.ndarray = field(repr=False)   #: 4x4, model -> scene
@@ -32,8 +46,11 @@ class FitResult:
     #: whether the last ICP stage of this candidate converged before its iteration limit
     #: (None: no ICP ran, e.g. the literal baseline's own loop)
     converged: bool | None = None
-    #: set aside by the library prefilter during the coarse stage: pose and residual are the
-    #: coarse ones where it left (fewer samples), and it ranks behind every fitted candidate
+    coverage: float = 0.0
+    inlier_rmse: float = 0.0                         #: m
+    fits: bool | None = None
+    #: set aside by the library prefilter after the coarse stage: pose and residual are that
+    #: stage's (fewer samples), and it ranks behind every candidate that was fitted on
     prefiltered: bool = False
 
     def to_dict(self) -> dict:
@@ -42,6 +59,8 @@ class FitResult:
                 "scale": round(float(self.scale), 6), "state": self.state,
                 "likelihood": round(self.likelihood, 6), "probability": round(self.probability, 6),
                 "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
+                "coverage": round(float(self.coverage), 4),
+                "inlier_rmse": round(float(self.inlier_rmse), 9), "fits": self.fits,
                 "iterations": self.iterations, "time_s": round(self.time_s, 6),
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
 
@@ -67,11 +86,12 @@ class FitReport:
     context: ClickContext = field(repr=False)
 
 
-def rank(results) -> tuple:
+def rank(results, no_match_likelihood: float = 1.0 / NO_MATCH_RESIDUAL) -> tuple:
     """``results`` (FitResult) best first by likelihood -- those the library prefilter set
     aside behind the others -- with ``rank`` (1 = best) and ``probability`` (the likelihood
-    over the sum of all) filled in."""
+    over the sum of all and ``no_match_likelihood``, that of "no template fits here"; 0 for a
+    ranking of scores that are not likelihoods) filled in."""
     results = sorted(results, key=lambda r: (r.prefiltered, -r.likelihood))
-    total = sum(r.likelihood for r in results) or 1.0
+    total = (sum(r.likelihood for r in results) + no_match_likelihood) or 1.0
     return tuple(replace(r, rank=i, probability=r.likelihood / total)
                  for i, r in enumerate(results, start=1))

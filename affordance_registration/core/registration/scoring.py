@@ -2,8 +2,16 @@
 samples the sensor could have seen (a free-space violation counts as the cap), scene cluster ->
 template, and the click penalty (the operator clicked *on* the object). Its inverse is the
 likelihood.
+
+And the absolute verdict on a candidate, whatever the others score: its ``coverage`` (the
+fraction of the template surface the sensor could have seen that has scan points within
+``coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
+``min_coverage`` no template fits here.
 """
 from __future__ import annotations
+
+import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -14,32 +22,93 @@ from .correspondences import stack_samples
 from .model import Batch, Model
 from .parallel import over_batch, parts, run
 from .results import FitResult
-from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES,
+from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED,
                        FitSettings)
 from .visibility import visible
 
-__all__ = ["forward_residual", "backward_residual", "click_penalty",
+__all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "self_hidden",
            "scores", "result", "results"]
+
+
+def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
+    """The capped distances (B, n) from ``n`` posed samples of each hypothesis to the scene
+    (free-space violations at the cap), which of the samples the sensor could have seen and
+    which face it where it returned something (hidden or not)."""
+    cap = settings.score_cap
+    P, N = stack_samples(batch.models, n)
+    X = pose_points(batch.R, batch.t, P)
+    Nw = rotate(batch.R, N)
+    vis, violated, exposed = visible(ctx, X, Nw, settings, exposed=True)
+    dist = np.full(vis.shape, cap)
+    d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
+    dist[vis] = np.minimum(d_v, cap)
+    dist[violated] = cap
+    return dist, vis, exposed
+
+
+def _forward(dist: np.ndarray, vis: np.ndarray, settings: FitSettings):
+    """(forward residual, inlier fraction) of :func:`forward_residual` from the distances."""
+    cap = settings.score_cap
+    n_vis = vis.sum(axis=1)
+    fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * dist.shape[1]),
+                   (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
+    inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
+    return fwd, inl
 
 
 def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
     """Template -> scene capped mean distance over ``n`` samples of each hypothesis, those the
     sensor could have seen (free-space violations count as the cap), and the fraction of them
     within the cap. (B,), (B,)."""
-    cap = settings.score_cap
-    P, N = stack_samples(batch.models, n)
-    X = pose_points(batch.R, batch.t, P)
-    Nw = rotate(batch.R, N)
-    vis, violated = visible(ctx, X, Nw, settings)
-    dist = np.full(vis.shape, cap)
-    d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
-    dist[vis] = np.minimum(d_v, cap)
-    dist[violated] = cap
-    n_vis = vis.sum(axis=1)
-    fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * P.shape[1]),
-                   (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
-    inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
-    return fwd, inl
+    dist, vis, _ = _forward_distances(ctx, batch, n, settings)
+    return _forward(dist, vis, settings)
+
+
+def judge(ctx: ClickContext, model: Model, res: FitResult, settings: FitSettings) -> FitResult:
+    """``res`` (a fit of ``model``) with its absolute verdict: ``coverage`` -- of the template's
+    ``score_samples`` samples that face the sensor where it returned something (hidden behind
+    observed surfaces or not: a template sunk into a wall is not covered), not counting those
+    its own parts hide, the fraction the sensor saw with scan points within
+    ``coverage_distance`` -- not counting those on the dominant plane around the click when
+    they are most of them (at least ``PLANE_COVERED``: a candidate covering a wall explains
+    no object) -- ``inlier_rmse``, the RMS distance (m) of those
+    covered samples, and ``fits``: coverage at least ``min_coverage``. Without a viewpoint
+    every sample is exposed, and the bar is ``min_coverage_no_viewpoint``."""
+    R, t = res.T_scene_model[:3, :3], res.T_scene_model[:3, 3]
+    dist, vis, exposed = _forward_distances(ctx, Batch.single(model, R, t),
+                                            settings.score_samples, settings)
+    dist, vis, exposed = dist[0], vis[0], exposed[0]
+    P = model.samples(settings.score_samples)[0]
+    X = P @ R.T + t
+    near = vis & (dist <= settings.coverage_distance)
+    if ctx.support is not None:
+        on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
+        if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
+            near &= ~on_plane          # it covers the wall around the click, not an object
+    if ctx.sensor_origin is not None:
+        exposed = exposed & ~self_hidden(model, P, R.T @ (ctx.sensor_origin - t),
+                                         settings.free_space_margin)
+    n_exposed, n_near = int(exposed.sum()), int((near & exposed).sum())
+    cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
+    rmse = math.sqrt(float((dist[near & exposed] ** 2).sum()) / max(n_near, 1))
+    bar = settings.min_coverage if ctx.sensor_origin is not None else \
+        settings.min_coverage_no_viewpoint
+    return replace(res, coverage=cov, inlier_rmse=rmse, fits=cov >= bar)
+
+
+def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) -> np.ndarray:
+    """Which of the model's samples P (S, 3, model frame) its own surface hides from a sensor
+    at ``origin`` (3, model frame): the ray to the sample meets the mesh more than ``margin``
+    before it. (S,) bool; none for a point-cloud template."""
+    scene = model.raycaster()
+    if scene is None:
+        return np.zeros(len(P), bool)
+    import open3d as o3d
+    d = P - origin
+    length = np.linalg.norm(d, axis=1)
+    rays = np.concatenate([np.broadcast_to(origin, P.shape), d / length[:, None]], axis=1)
+    hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+    return hit < length - margin
 
 
 def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.ndarray:

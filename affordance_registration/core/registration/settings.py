@@ -46,6 +46,9 @@ REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at 
 MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
 MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
 PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
+#: a candidate whose covered samples lie on the dominant plane around the click for at least this
+#: fraction covers the wall, not an object: those do not count towards its coverage
+PLANE_COVERED = 0.8
 BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
 CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
 CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing
@@ -91,6 +94,13 @@ class FitSettings:
     score_cap: float = 0.01            #: per-point distance cap of the residual
     reject_floor: float = 0.015        #: ICP rejection radius shrinks to this within a stage
     free_space_margin: float = 0.01    #: depth tolerance of the visibility tests
+    #: the verdict: a sample the sensor could have seen is covered with scan points this close
+    coverage_distance: float = 0.005
+    #: ... and a candidate fits when at least this fraction of those samples is covered
+    min_coverage: float = 0.5
+    #: the same without a viewpoint, where every sample counts (a one-sided scan covers about
+    #: half of an object)
+    min_coverage_no_viewpoint: float = 0.3
     grazing_angle: float = math.radians(89.0)  #: samples seen more obliquely count as unseen
     score_samples: int = 600           #: template samples per candidate in the residual
     yaw_restarts: int = 12             #: plane-prior restarts per template (yaw sweep)
@@ -156,7 +166,8 @@ class FitSettings:
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
-                     "free_space_margin", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
+                     "free_space_margin", "coverage_distance", "min_coverage",
+                     "min_coverage_no_viewpoint", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
                      "articulated_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
@@ -178,6 +189,8 @@ class FitSettings:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise RegistrationError(f"{name} must be an integer >= 0, got {v!r}")
+        if self.min_coverage > 1 or self.min_coverage_no_viewpoint > 1:
+            raise RegistrationError("min_coverage must be at most 1")
         if self.yaw_restarts + self.random_restarts == 0 or self.free_restarts == 0:
             raise RegistrationError("at least one restart per template is needed")
         return self

@@ -1,0 +1,112 @@
+"""Initial poses from local shape features, for scanned (point-cloud) templates.
+
+A scanned template is usually a large, free-standing object with no mounting base, and a click
+may land anywhere on it (a leg of a statue): random restarts about the click rarely start ICP in
+its basin. Here FPFH descriptors (Open3D) of the template's samples are matched to those of the
+crop, and a RANSAC over three-point correspondences (drawn from a generator of their own, and
+the descriptors -- normals towards the sensor -- do not depend on the scene's frame) proposes a
+few distinct poses; they join the other initial hypotheses and compete in the same coarse
+stage. (Mesh templates do not use them: the taskboard parts are found by the mounting prior,
+and their results stay as they were.)
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from scipy.spatial import cKDTree
+
+from ..neighbours import pca_normals
+from ..scene import ClickContext
+from ..transforms import rotation_angle
+from .solve import rigid_step
+
+__all__ = ["feature_alignments"]
+
+FEATURE_RADIUS = 10.0      #: FPFH radius, in voxels
+FEATURE_SAMPLES = 20000    #: template samples the template's descriptors are computed on
+RANSAC_TRIALS = 60000      #: three-point draws
+EDGE_TOLERANCE = 0.1       #: a draw's edges must agree to this fraction (rigid)
+INLIER_VOXELS = 2.0        #: a correspondence within this many voxels is an inlier
+MAX_EVALUATED = 4000       #: rigid draws whose inliers are counted
+MAX_PAIRS = 1500           #: at most this many crop points (evenly spread) get a partner
+CHUNK = 250                #: hypotheses whose inliers are counted at once
+KEEP = 4                   #: distinct poses returned per template
+DISTINCT_TURN = math.radians(20.0)
+
+
+def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
+    """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3)."""
+    import open3d as o3d
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    cloud.normals = o3d.utility.Vector3dVector(normals)
+    feat = o3d.pipelines.registration.compute_fpfh_feature(
+        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100))
+    return np.asarray(feat.data).T.copy()
+
+
+def _template_features(model, voxel: float):
+    """One sample per voxel of the model's surface (model frame), its normals and descriptors;
+    cached with the model."""
+    def build():
+        P, N = model.samples(FEATURE_SAMPLES)
+        _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
+        first = np.sort(first)
+        P, N = P[first], N[first]
+        return P, N, _fpfh(P, N, FEATURE_RADIUS * voxel)
+    return model.cache.posed(("fpfh", model.template, model.q, model.scale, float(voxel)), build)
+
+
+def _scene_features(ctx: ClickContext):
+    """The crop's descriptors (normals towards the sensor, or away from the crop's centre
+    without one)."""
+    normals = pca_normals(ctx.crop, 12, ctx.crop_tree)
+    if ctx.sensor_origin is not None:
+        flip = np.einsum("ij,ij->i", normals, ctx.sensor_origin - ctx.crop) < 0
+    else:
+        flip = np.einsum("ij,ij->i", normals, ctx.crop - ctx.crop.mean(axis=0)) < 0
+    normals[flip] *= -1
+    return _fpfh(ctx.crop, normals, FEATURE_RADIUS * ctx.voxel)
+
+
+def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> list:
+    """Up to ``KEEP`` distinct poses (R (3, 3), t (3,)), model -> scene, that bring the model's
+    descriptors onto the crop's with the most inliers, best first; [] when too few match."""
+    if len(ctx.crop) < 10:
+        return []
+    P, _, F = _template_features(model, ctx.voxel)
+    G = _scene_features(ctx)
+    # each crop point's nearest template descriptor (33-D: scipy's tree, not the spatial one)
+    s_idx = np.unique(np.linspace(0, len(G) - 1, min(len(G), MAX_PAIRS)).astype(int))
+    if len(s_idx) < 6:
+        return []
+    _, i_sm = cKDTree(F).query(G[s_idx])
+    src, dst = P[i_sm], ctx.crop[s_idx]
+    picks = rng.integers(0, len(src), size=(RANSAC_TRIALS, 3))
+    X, Q = src[picks], dst[picks]
+    ex = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2)
+    eq = np.linalg.norm(Q - np.roll(Q, 1, axis=1), axis=2)
+    rigid = np.all(np.abs(ex - eq) <= EDGE_TOLERANCE * np.maximum(eq, 1e-9), axis=1) & \
+        np.all(eq > 2 * ctx.voxel, axis=1)
+    if not rigid.any():
+        return []
+    keep = np.flatnonzero(rigid)[:MAX_EVALUATED]
+    step = rigid_step(X[keep], Q[keep], np.ones((len(keep), 3)))
+    inliers = np.concatenate([
+        np.linalg.norm(np.einsum("bij,nj->bni", step.R[k:k + CHUNK], src)
+                       + step.t[k:k + CHUNK, None, :] - dst, axis=2) <= INLIER_VOXELS * ctx.voxel
+        for k in range(0, len(keep), CHUNK)])
+    counts = inliers.sum(axis=1)
+    out = []
+    for k in np.argsort(-counts, kind="stable"):
+        if counts[k] < 6 or len(out) >= KEEP:
+            break
+        inl = inliers[k]
+        refined = rigid_step(src[inl][None], dst[inl][None], np.ones((1, int(inl.sum()))))
+        R, t = refined.R[0], refined.t[0]
+        if all(rotation_angle(R.T @ R2) > DISTINCT_TURN or
+               np.linalg.norm(R @ model.centroid + t - R2 @ model.centroid - t2) >
+               0.1 * model.diameter for R2, t2 in out):
+            out.append((R, t))
+    return out
