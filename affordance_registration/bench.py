@@ -393,6 +393,35 @@ def _articulated_rows(library, seeds) -> dict:
             "time_ratio_to_rigid": float(np.median(t_art) / np.median(t_rigid))}
 
 
+def _jobs(library, seeds, layout: str = "panel", camera=None) -> list:
+    """(scene, object) of every object of the simulated scenes of ``seeds`` with enough
+    visible points."""
+    jobs = []
+    for seed in seeds:
+        sim = simulate_taskboard(library, seed, layout=layout, camera=camera)
+        scene = Scene(sim.organized)
+        jobs += [(scene, o) for o in sim.objects if o.visible_points >= MIN_VISIBLE]
+    return jobs
+
+
+def _any_frame_rows(default: Registrar, jobs, library, optical, n_scenes: int, log) -> list:
+    """Issue 18's rows: the panel clicks in four non-optical frames (against the optical
+    row's ``optical`` outcomes on the same clicks), without a viewpoint, and the panel scenes
+    rendered with the depth-camera fault model."""
+    def fit(scene, click):
+        return default.fit(scene, click).candidates
+
+    log("the panel clicks in four non-optical frames ...")
+    rows = [_frames_row(fit, jobs, library, optical)]
+    log("the panel clicks without a viewpoint (sensor origin none) ...")
+    blind = {id(sc): Scene(sc.points, sensor_origin="none") for sc, _ in jobs}
+    rows.append(_evaluate("no viewpoint", fit, [(blind[id(sc)], o) for sc, o in jobs], library))
+    log("the panel scenes with the depth-camera fault model on ...")
+    faulty = _jobs(library, range(1000, 1000 + n_scenes), camera=DepthCamera(faults=FaultModel()))
+    rows.append(_evaluate("sensor faults", fit, faulty, library))
+    return rows
+
+
 def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int | None = None,
               out: str | None = "bench_output/bench.json", log=print) -> dict:
     """Run the benchmark; returns (and writes as JSON) the table."""
@@ -400,15 +429,8 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     n_scenes = scenes if scenes is not None else (4 if quick else 20)
     n_paper = paper_clicks if paper_clicks is not None else (5 if quick else 25)
     log(f"simulating {n_scenes} panel and {max(2, n_scenes // 2)} table scenes ...")
-    jobs, table_jobs = [], []
-    for seed in range(n_scenes):
-        sim = simulate_taskboard(library, 1000 + seed)
-        scene = Scene(sim.organized)
-        jobs += [(scene, o) for o in sim.objects if o.visible_points >= MIN_VISIBLE]
-    for seed in range(max(2, n_scenes // 2)):
-        sim = simulate_taskboard(library, 2000 + seed, layout="table")
-        scene = Scene(sim.organized)
-        table_jobs += [(scene, o) for o in sim.objects if o.visible_points >= MIN_VISIBLE]
+    jobs = _jobs(library, range(1000, 1000 + n_scenes))
+    table_jobs = _jobs(library, range(2000, 2000 + max(2, n_scenes // 2)), layout="table")
     default = Registrar(library)
     paper = Registrar(library, FitSettings(method="paper"))
     default.fit(jobs[0][0], jobs[0][1].click)   # warm the template caches
@@ -437,21 +459,7 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
                               jobs, library))
     except ImportError:
         log("small_gicp is not installed: its row is skipped (pip install small_gicp)")
-    optical = rows[0]["outcomes"]
-    log("the panel clicks in four non-optical frames ...")
-    rows.append(_frames_row(lambda s, c: default.fit(s, c).candidates, jobs, library, optical))
-    log("the panel clicks without a viewpoint (sensor origin none) ...")
-    blind = {id(sc): Scene(sc.points, sensor_origin="none") for sc, _ in jobs}
-    rows.append(_evaluate("no viewpoint", lambda s, c: default.fit(s, c).candidates,
-                          [(blind[id(sc)], o) for sc, o in jobs], library))
-    log("the panel scenes with the depth-camera fault model on ...")
-    faulty = []
-    for seed in range(n_scenes):
-        sim = simulate_taskboard(library, 1000 + seed, camera=DepthCamera(faults=FaultModel()))
-        scene = Scene(sim.organized)
-        faulty += [(scene, o) for o in sim.objects if o.visible_points >= MIN_VISIBLE]
-    rows.append(_evaluate("sensor faults", lambda s, c: default.fit(s, c).candidates, faulty,
-                          library))
+    rows += _any_frame_rows(default, jobs, library, rows[0]["outcomes"], n_scenes, log)
     base = rows[0]["median_s"]
     for r in rows:
         r["ratio_to_default"] = r["median_s"] / base

@@ -471,6 +471,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", default="7")
     p.set_defaults(func=cmd_session)
 
+    _add_station_and_tool_parsers(sub)
+    return parser
+
+
+def _add_station_and_tool_parsers(sub) -> None:
+    """The ``station``, ``bag``, ``launch``, ``spacemouse`` and ``generate-models`` commands."""
     p = sub.add_parser("station", help="the browser operator station (viser), a client of the "
                                        "engine node; --demo: with an engine and a simulated scan")
     p.add_argument("--demo", action="store_true",
@@ -481,7 +487,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="station_output",
                    help="with --demo: registrations file and node logs")
     p.set_defaults(func=cmd_station)
-
 
     _add_bag_parser(sub)
 
@@ -501,7 +506,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
     p.add_argument("--out", default="models")
     p.set_defaults(func=cmd_generate_models)
-    return parser
 
 
 def main(argv=None) -> int:

@@ -4,7 +4,6 @@ over random frames and the four of issue 18), clouds without a viewpoint, the se
 degenerate input as one clear line."""
 import json
 import math
-import os
 
 import numpy as np
 import pytest

@@ -10,7 +10,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings, strategies as st
 from sensor_msgs.msg import PointCloud2, PointField
 
-from affordance_registration.core.errors import AffordanceError, TemplateError
+from affordance_registration.core.errors import TemplateError
 from affordance_registration.core.templates import load_template
 from affordance_registration.ros.bag import BagError, bag_info
 from affordance_registration.ros.conversions import (ConversionError, pointcloud2_to_xyz,

@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import invert, make_T, pose_error, \
     quat_xyzw_to_matrix
-from affordance_registration.ros.conversions import (matrix_to_transform, pose_to_matrix,
+from affordance_registration.ros.conversions import (matrix_to_transform,
                                                      transform_to_matrix, xyz_to_pointcloud2)
 from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 

@@ -63,6 +63,19 @@ class TrackedObject:
         no template fits here (the candidates are still listed)."""
         return bool(self.candidates) and self.candidates[0].fits is False
 
+    def describe(self) -> str:
+        """One line on the shown candidate: the verdict, template, state, scale, rank,
+        probability, likelihood and coverage."""
+        c = self.shown
+        extra = f" — {c.state}" if c.state else ""
+        if c.scale != 1.0:
+            extra += f" — scale {c.scale:.2f}"
+        verdict = f"{NO_MATCH} (best coverage {self.candidates[0].coverage:.2f}); showing " \
+            if self.no_match else ""
+        return (f"{verdict}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)} — "
+                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
+                f"{c.coverage:.2f}")
+
 
 @dataclass(frozen=True)
 class Registration:
@@ -274,9 +287,7 @@ class AffordanceEngine:
         scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
                                                                frame_id=frame_id)
         if T_scene_optical is not None:
-            T_scene_optical = np.asarray(T_scene_optical, dtype=float)
-            if T_scene_optical.shape != (4, 4) or not np.all(np.isfinite(T_scene_optical)):
-                raise AffordanceError("the sensor pose must be a finite 4x4 transform")
+            T_scene_optical = _transform(T_scene_optical, "the sensor pose")
         with self._lock:
             self._scene = scene
             self._scene_version += 1
@@ -288,10 +299,7 @@ class AffordanceEngine:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
         for the default: looking through the sensor (see :meth:`set_scene`)."""
         if T_scene_view is not None:
-            T = np.asarray(T_scene_view, dtype=float)
-            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-                raise AffordanceError("view pose must be a finite 4x4 transform")
-            T_scene_view = T
+            T_scene_view = _transform(T_scene_view, "view pose")
         with self._lock:
             self._T_scene_view = T_scene_view
 
@@ -323,7 +331,7 @@ class AffordanceEngine:
                 if np.linalg.norm(p - centre) <= self.select_radius * tpl.diameter:
                     if obj.id != self._state.active_id:
                         self._commit(replace(self._state, active_id=obj.id), "select")
-                    return f"selected object {obj.id}: {self._describe(obj)}"
+                    return f"selected object {obj.id}: {obj.describe()}"
         report = self.registrar.fit(scene, p)          # outside the lock: fitting takes time
         with self._lock:
             obj = TrackedObject(id=self._state.next_id, click=report.point,
@@ -333,18 +341,7 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=self._state.objects + (obj,),
                                  active_id=obj.id, next_id=obj.id + 1), "click")
             self._last_timing = dict(report.timing_s)
-            return f"object {obj.id}: {self._describe(obj)} ({report.timing_s['total']:.2f} s)"
-
-    def _describe(self, obj: TrackedObject) -> str:
-        c = obj.shown
-        extra = f" — {c.state}" if c.state else ""
-        if c.scale != 1.0:
-            extra += f" — scale {c.scale:.2f}"
-        verdict = f"{NO_MATCH} (best coverage {obj.candidates[0].coverage:.2f}); showing " \
-            if obj.no_match else ""
-        return (f"{verdict}{c.template}{extra} — rank {obj.active + 1}/{len(obj.candidates)} — "
-                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
-                f"{c.coverage:.2f}")
+            return f"object {obj.id}: {obj.describe()} ({report.timing_s['total']:.2f} s)"
 
     def _cycle(self, step: int) -> str:
         with self._lock:
@@ -372,7 +369,7 @@ class AffordanceEngine:
             new = replace(current, active=active, candidates=candidates, refined=refined,
                           model_changes=current.model_changes + 1)
             self._commit(self._replace_object(new), "cycle")
-            return f"object {new.id}: {self._describe(new)}"
+            return f"object {new.id}: {new.describe()}"
 
     def select_model(self, template: str) -> str:
         """Show the selected object's candidate of ``template`` (by name, any rank)."""
@@ -384,7 +381,7 @@ class AffordanceEngine:
                                        f"(candidates: {', '.join(names)})")
             index = names.index(template)
             if index == obj.active:
-                return f"object {obj.id}: {self._describe(obj)} (already shown)"
+                return f"object {obj.id}: {obj.describe()} (already shown)"
         return self._show(obj, index)
 
     def next_model(self) -> str:
@@ -581,3 +578,10 @@ class AffordanceEngine:
                                "undo": len(self._undo)},
                     "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()}}
 
+
+def _transform(T, what: str) -> np.ndarray:
+    """``T`` as a finite 4x4 float array; anything else is an error naming ``what``."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise AffordanceError(f"{what} must be a finite 4x4 transform")
+    return T

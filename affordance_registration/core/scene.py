@@ -16,7 +16,6 @@ scene (its points, click and sensor origin) gives the rigidly moved answer.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
