@@ -34,7 +34,8 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
     assert ranks == sorted(ranks) and ranks[0] == 1
     for c in doc["candidates"]:
         assert {"rank", "template", "likelihood", "residual", "pose", "coverage", "inlier_rmse",
-                "fits"} <= set(c)
+                "fits", "converged", "prefiltered"} <= set(c)
+        assert c["prefiltered"] is False        # five templates: the prefilter does not act
         assert np.asarray(c["pose"]).shape == (4, 4)
     best = doc["candidates"][0]
     assert best["template"] == obj["template"]

@@ -246,6 +246,7 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
         assert sorted(c.template for c in cands) == sorted(big)
         aside = [c.prefiltered for c in cands]
         assert aside == sorted(aside)              # the set-aside ones behind the others
+        assert [c.to_dict()["prefiltered"] for c in cands] == aside    # what status / --json say
         assert sum(not a for a in aside) >= FitSettings().prefilter_keep
         decided += any(aside)
         assert cands[0].template == obj.template and not cands[0].prefiltered

@@ -61,7 +61,8 @@ class FitResult:
                 "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
                 "coverage": round(float(self.coverage), 4),
                 "inlier_rmse": round(float(self.inlier_rmse), 9), "fits": self.fits,
-                "iterations": self.iterations, "time_s": round(self.time_s, 6),
+                "iterations": self.iterations, "converged": self.converged,
+                "prefiltered": self.prefiltered, "time_s": round(self.time_s, 6),
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
 
 
