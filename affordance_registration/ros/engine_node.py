@@ -139,7 +139,7 @@ class EngineNode(Node):
             server_id=self.get_fully_qualified_name())
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(0.05, self._on_timer)
+        self.create_timer(0.02, self._on_timer)      # a change is published within 20 ms
         self._name_checks = 0
         self._name_timer = self.create_timer(1.0, self._check_name)
         self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
