@@ -220,7 +220,8 @@ def test_accept_right_after_a_twist_takes_the_refitted_pose(session, library):
     s = session
     obj = s["sim"].objects[3]                  # fitted and selected by test_click_frames
     client = s["client"]
-    n = len(client.latest[f"{NS}/registered"].poses)
+    n = len(client.wait_for(lambda: client.latest.get(f"{NS}/registered"),
+                            what="the latched ~/registered").poses)
     twist = Twist()
     twist.linear.y = -0.5                      # about 1.5 cm to the right over 0.3 s
     t0 = time.monotonic()

@@ -17,7 +17,7 @@ from affordance_registration.ros.conversions import pose_to_matrix
 from affordance_registration.ros.station import active_object, apply_markers, gizmo_scale
 from browser_helpers import (browser_page, canvas_box, chromium_missing, drag, free_port,
                              on_canvas, open_station, pixel, scan_argv, settled_view,
-                             station_argv, wait_text)
+                             station_argv, wait_text, wait_until)
 from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 
 FRAME = "camera_depth_optical_frame"
@@ -36,6 +36,21 @@ def _within(T, truth, library) -> tuple[bool, str]:
 def _shown(status):
     obj = active_object(status)
     return None if obj is None else obj["candidates"][obj["shown"]]
+
+
+def _drawn_fit(client, pose):
+    """The open object's candidate mesh as the markers this client heard last draw it, once it
+    is at ``pose`` (4x4)."""
+    drawings = {}
+    for msg in client.history["/affordance_engine/markers"]:
+        drawings = apply_markers(drawings, msg)
+    fit = drawings.get(("candidate", 1))
+    return fit if fit is not None and np.allclose(fit.T, pose, atol=1e-5) else None
+
+
+def _last_drawn(station) -> str:
+    """The label the station last logged as drawn for object 1 ('' before any)."""
+    return (re.findall(r"drawn: object 1 as (.*)", station.output()) or [""])[-1]
 
 
 @pytest.fixture
@@ -103,12 +118,13 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
             client.wait_for(lambda: _shown(client.status())["rank"] == 1 and
                             client.status()["node"]["idle"], 60, "the first candidate again")
-
-            # drag the gizmo's x arrow 2 cm: the fit follows, and the release refits it
-            drawings = {}
-            for msg in client.history["/affordance_engine/markers"]:
-                drawings = apply_markers(drawings, msg)
-            fit = drawings[("candidate", 1)]
+            # the status comes before the markers: wait until this client has the markers of
+            # that candidate and the page has drawn them (the station logs what it draws)
+            # before grabbing its gizmo
+            pose = np.asarray(_shown(client.status())["pose"])
+            fit = client.wait_for(lambda: _drawn_fit(client, pose), 60, "the markers of the fit")
+            wait_until(lambda: _last_drawn(station).startswith(truth.template) and
+                       "rank 1/5" in _last_drawn(station), 90, "the page drawing the fit")
             T = fit.T
             scale = gizmo_scale(fit.vertices)
             grab, goal = T @ [0.9 * scale, 0, 0, 1], T @ [0.9 * scale + 0.02, 0, 0, 1]

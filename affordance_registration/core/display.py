@@ -11,13 +11,14 @@ camera coordinates to the world (the cloud's frame).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from .errors import AffordanceError
 from .transforms import finite_vector, make_T
 
-__all__ = ["thin_for_display", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
+__all__ = ["thin", "Thinned", "thin_for_display", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
            "project", "pixel_ray", "initial_view"]
 
 #: colour map of :func:`scalar_colors`: near/low (dark slate) -> far/high (light sand), muted so
@@ -34,23 +35,39 @@ def _voxel_keys(offsets: np.ndarray, voxel: float) -> np.ndarray:
     return (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
 
 
-def _occupied(keys: np.ndarray) -> int:
-    """How many distinct voxel keys there are."""
-    k = np.sort(keys)
-    return int(np.count_nonzero(k[1:] != k[:-1])) + 1
+def _one_per_voxel(keys: np.ndarray) -> np.ndarray:
+    """Indices of one point per distinct voxel key (one sort)."""
+    order = np.argsort(keys)
+    k = keys[order]
+    first = np.empty(len(k), dtype=bool)
+    first[:1] = True
+    np.not_equal(k[1:], k[:-1], out=first[1:])
+    return order[first]
 
 
-def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np.ndarray:
-    """Indices (M,) into ``points`` (N, 3) of at most ``budget`` points for display: one point of
-    the cloud per occupied voxel, the voxel edge chosen so that M is close to (not above) the
-    budget. A cloud within the budget is returned whole; a cloud is never dropped, only thinned.
+@dataclass(frozen=True)
+class Thinned:
+    """A cloud thinned for display: ``indices`` (M,) into the cloud, and the voxel edge (m) they
+    were taken at (0 when the cloud was within the budget) -- the start for the next cloud of
+    the same stream."""
 
-    The voxel edge starts from the extent of a surface-like cloud and is corrected by
-    sqrt(count / budget) per iteration (counting occupied voxels only; the indices are taken
-    once, for the chosen edge); should the voxels not get there, the set is strided down to the
+    indices: np.ndarray
+    voxel: float
+
+
+def thin(points: np.ndarray, budget: int, iterations: int = 6,
+         start_voxel: float | None = None) -> Thinned:
+    """At most ``budget`` points of ``points`` (N, 3) for display: one point of the cloud per
+    occupied voxel, the voxel edge chosen so that M is close to (not above) the budget. A cloud
+    within the budget is returned whole; a cloud is never dropped, only thinned.
+
+    The voxel edge starts at ``start_voxel`` (the previous cloud's :attr:`Thinned.voxel`: a
+    stream of similar clouds then costs one pass) or from the extent of a surface-like cloud,
+    and is corrected by sqrt(count / budget) per iteration (one sort each, which gives the
+    indices too); should the voxels not get there, the fullest set found is strided down to the
     budget. Non-finite rows must have been removed.
     """
-    pts = np.asarray(points, dtype=float)
+    pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise AffordanceError(f"points must be (N, 3), got {pts.shape}")
     budget = int(budget)
@@ -58,22 +75,35 @@ def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np
         raise AffordanceError(f"the display budget must be at least 1 point, got {budget}")
     n = len(pts)
     if n <= budget:
-        return np.arange(n)
-    offsets = (pts - pts.min(axis=0)).astype(np.float32)
+        return Thinned(np.arange(n), 0.0)
+    pts = pts.astype(np.float32, copy=False)
+    offsets = pts - pts.min(axis=0)
     extent = np.sort(offsets.max(axis=0))[::-1].astype(float)
     voxel = max(math.sqrt(max(extent[0] * extent[1], 1e-12) / budget), 1e-6)
-    best = None                                   # (count, voxel) of the fullest set in budget
+    if start_voxel is not None and math.isfinite(start_voxel) and start_voxel > 0:
+        voxel = float(start_voxel)
+    best = None                                   # (indices, voxel) of the fullest set in budget
+    fewest = None                                 # the smallest set over the budget
     for _ in range(iterations):
-        count = _occupied(_voxel_keys(offsets, voxel))
-        if count <= budget and (best is None or count > best[0]):
-            best = (count, voxel)
+        idx = _one_per_voxel(_voxel_keys(offsets, voxel))
+        count = len(idx)
+        if count <= budget and (best is None or count > len(best[0])):
+            best = (idx, voxel)
+        elif count > budget and (fewest is None or count < len(fewest[0])):
+            fewest = (idx, voxel)
         if budget * 0.7 <= count <= budget:
             break
         voxel *= math.sqrt(count / budget) * (1.04 if count > budget else 0.98)
-    idx = np.unique(_voxel_keys(offsets, best[1] if best else voxel), return_index=True)[1]
+    idx, voxel = best if best is not None else fewest
     if len(idx) > budget:
-        idx = idx[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
-    return np.sort(idx)
+        idx = np.sort(idx)[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
+    return Thinned(np.sort(idx), voxel)
+
+
+def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np.ndarray:
+    """Indices (M,) into ``points`` (N, 3) of at most ``budget`` points for display (see
+    :func:`thin`)."""
+    return thin(points, budget, iterations).indices
 
 
 def offset_surface(vertices: np.ndarray, faces: np.ndarray,

@@ -275,35 +275,44 @@ class AffordanceTemplate:
             N[moving] = N[moving] @ T[:3, :3].T
         return P * scale, N
 
-    def mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh:
-        """The template's mesh with the moving part at ``q``, scaled by ``scale`` (cached)."""
-        key = ("mesh", round(float(q), 5), round(float(scale), 5))
+    def _cached_mesh(self, key: tuple, build):
+        """A mesh from the cache (``key[0]`` names its kind: at most 256 kept), else built."""
         with self._lock:
             hit = self._cache.get(key)
         if hit is not None:
             return hit
-        if self.joint is not None and q:
-            mesh = trimesh.util.concatenate([self.base_mesh, self.moving_mesh_at(q)])
-        else:
-            mesh = self.mesh.copy()
-        if scale != 1.0:
-            mesh.apply_scale(scale)
+        mesh = build()
         with self._lock:
             if len(self._cache) > 256:
-                for k in [k for k in self._cache if k[0] == "mesh"][:128]:
+                for k in [k for k in self._cache if k[0] == key[0]][:128]:
                     del self._cache[k]
             self._cache[key] = mesh
         return mesh
 
+    def mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh:
+        """The template's mesh with the moving part at ``q``, scaled by ``scale`` (cached)."""
+        def build():
+            if self.joint is not None and q:
+                mesh = trimesh.util.concatenate([self.base_mesh, self.moving_mesh_at(q)])
+            else:
+                mesh = self.mesh.copy()
+            if scale != 1.0:
+                mesh.apply_scale(scale)
+            return mesh
+        return self._cached_mesh(("mesh", round(float(q), 5), round(float(scale), 5)), build)
+
     def moving_mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh | None:
-        """The moving part alone at joint value ``q``, scaled (None without a joint)."""
+        """The moving part alone at joint value ``q``, scaled (None without a joint; cached)."""
         if self.joint is None:
             return None
-        moving = self.joint.moving_mesh.copy()
-        moving.apply_transform(self.joint_transform(q))
-        if scale != 1.0:
-            moving.apply_scale(scale)
-        return moving
+
+        def build():
+            moving = self.joint.moving_mesh.copy()
+            moving.apply_transform(self.joint_transform(q))
+            if scale != 1.0:
+                moving.apply_scale(scale)
+            return moving
+        return self._cached_mesh(("moving", round(float(q), 5), round(float(scale), 5)), build)
 
     def joint_frame(self, q: float = 0.0, scale: float = 1.0) -> np.ndarray:
         """4x4 pose in the template frame of the joint at value ``q``: origin on the joint

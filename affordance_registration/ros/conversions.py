@@ -198,7 +198,9 @@ def likelihood_color(probability: float, alpha: float = 0.85) -> ColorRGBA:
                      b=0.1, a=alpha)
 
 
+#: id(mesh) -> (mesh, its triangle corners as Points), the most recently made last
 _TRIANGLE_CACHE: dict = {}
+_TRIANGLE_CACHE_SIZE = 256
 
 
 def _triangle_points(mesh) -> list:
@@ -208,6 +210,9 @@ def _triangle_points(mesh) -> list:
         tri = np.asarray(mesh.vertices)[np.asarray(mesh.faces)].reshape(-1, 3)
         pts = [Point(x=float(a), y=float(b), z=float(c)) for a, b, c in tri]
         hit = (mesh, pts)
+        _TRIANGLE_CACHE.pop(key, None)
+        while len(_TRIANGLE_CACHE) >= _TRIANGLE_CACHE_SIZE:      # bounded: the oldest go
+            del _TRIANGLE_CACHE[next(iter(_TRIANGLE_CACHE))]
         _TRIANGLE_CACHE[key] = hit
     return hit[1]
 

@@ -139,7 +139,7 @@ class EngineNode(Node):
             server_id=self.get_fully_qualified_name())
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(0.05, self._on_timer)
+        self.create_timer(0.02, self._on_timer)      # a change is published within 20 ms
         self._name_checks = 0
         self._name_timer = self.create_timer(1.0, self._check_name)
         self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
@@ -409,7 +409,6 @@ class EngineNode(Node):
         stamp = self.get_clock().now().to_msg()
         state = self.engine.state
         up = self.engine.view_pose()[:3, 1]        # labels go below the objects on the screen
-        self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up))
         active = self.engine.active_object()
         if active is not None:
             self.pub_fit.publish(pose_stamped(active.shown.T_scene_model, frame, stamp))
@@ -420,7 +419,10 @@ class EngineNode(Node):
         self._tf_out.publish_registrations(state.registered, frame, stamp)
         self._tf_out.publish_candidate(None if active is None else active.shown.T_scene_model,
                                        frame, stamp)
+        # the status before the markers: it is small, and a client showing it (the station's
+        # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
+        self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up))
         self.interactive.sync()
 
     def shutdown(self) -> None:

@@ -69,7 +69,7 @@ PARAMETERS = {
     "interactive_namespace": ("/affordance_correction", "the engine's interactive markers"),
     "points_reliable": (True, "reliable 'points' subscription (false: best effort, for drivers "
                               "that publish with SensorDataQoS)"),
-    "display_points": (200000, "most cloud points sent to the page (the cloud is thinned)"),
+    "display_points": (100000, "most cloud points sent to the page (the cloud is thinned)"),
     "point_size": (0.003, "m, drawn size of a cloud point"),
     "color_by": ("auto", "auto (intensity when the cloud has it, else depth) | depth | intensity"),
     "up": ("auto", "the world's up axis on the page: auto (-y for optical frames, else +z) | "
@@ -604,6 +604,8 @@ class StationNode(Node):
         self._cloud_frame = ""
         self._cloud_text = "none received yet on " + self.resolve_topic_name("points")
         self._cloud_shown_at = -math.inf
+        self._thin_voxel = None                      # the last cloud's display voxel edge
+        self._drawn_label = ""                       # the open object's label as last drawn
         self._first_view_frame = None
         self._last_action = ""
         self._view_pending = None
@@ -790,9 +792,6 @@ class StationNode(Node):
         if inbox.status_new:
             self._status = inbox.status
             refresh = True
-        for msg in inbox.markers:
-            self._drawings = apply_markers(self._drawings, msg)
-            refresh = True
         connected = self.count_publishers(self.status_topic) > 0
         if connected != self._connected:
             self._connected, refresh = connected, True
@@ -801,8 +800,12 @@ class StationNode(Node):
         if calling is not None and (not connected or now - calling[1] > CALL_TIMEOUT_S):
             self._give_up_calls("the engine is not running" if not connected else
                                 f"waited {CALL_TIMEOUT_S:.0f} s")
-        if refresh:
-            self._render()
+        if refresh:                     # the panel first: the meshes can take longer
+            self._render_panel()
+        for msg in inbox.markers:
+            self._drawings = apply_markers(self._drawings, msg)
+        if refresh or inbox.markers:
+            self._render_scene()
         if view is not None and self._frame() and \
                 now - self._view_sent_at >= 1.0 / self.p["view_rate"]:
             with self._lock:
@@ -817,7 +820,7 @@ class StationNode(Node):
                 if self._drag_last is drag:
                     self._drag_last = (drag[0], now)
 
-    def _render(self) -> None:
+    def _render_panel(self) -> None:
         status = self._status if self._connected else None
         obj = active_object(self._status)
         label = candidate_label(obj)
@@ -829,10 +832,20 @@ class StationNode(Node):
         self.page.show_candidates(candidate_options(obj),
                                   obj["candidates"][obj["shown"]]["template"] if obj else None)
         self.page.enable(self._connected)
+
+    def _render_scene(self) -> None:
+        obj = active_object(self._status)
+        label = candidate_label(obj)
         frame = self._frame()
         drawings = {k: d for k, d in self._drawings.items()
                     if not frame or not d.frame or d.frame.lstrip("/") == frame.lstrip("/")}
         self.page.show_scene(drawings, obj["id"] if obj else None, label)
+        drawn = drawings.get(("candidate_label", obj["id"])) if obj else None
+        if drawn is not None and drawn.text != self._drawn_label:
+            # what the 3D view now draws for the open object (from the engine's markers; the
+            # panel's label follows the status, which comes first)
+            self._drawn_label = drawn.text
+            self.get_logger().info(f"drawn: object {obj['id']} as {drawn.text}")
 
     def _show_cloud(self, msg: PointCloud2) -> None:
         try:
@@ -842,16 +855,23 @@ class StationNode(Node):
             self.get_logger().warning(f"points: {exc}")
             return
         finite = np.all(np.isfinite(pts), axis=1)
-        values = None
+        if not finite.all():
+            pts = pts[finite]
+        thinned = display.thin(pts, int(self.p["display_points"]),
+                               start_voxel=self._thin_voxel) if len(pts) else \
+            display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
+        self._thin_voxel = thinned.voxel or None
+        keep = thinned.indices
+        values = None                   # the colour values of the shown points only
         if self.p["color_by"] in ("auto", "intensity"):
             values = pointcloud2_field(msg, "intensity")
+            if values is not None:
+                values = (values[finite] if not finite.all() else values)[keep]
         if values is None:
             if self.p["color_by"] == "intensity":
                 self._cloud_text = "the cloud has no intensity field: coloured by depth"
-            values = np.linalg.norm(pts, axis=1)
-        pts, values = pts[finite], values[finite]
-        keep = display.thin_for_display(pts, int(self.p["display_points"])) if len(pts) else \
-            np.zeros(0, dtype=np.int64)
+            shown = pts[keep]
+            values = np.sqrt(np.einsum("ij,ij->i", shown, shown))
         frame = msg.header.frame_id
         with self._lock:
             self._cloud_points, self._cloud_frame = pts, frame
@@ -861,7 +881,7 @@ class StationNode(Node):
                           ((0, -1, 0) if "optical" in frame else (0, 0, 1)), dtype=float)
             position, look_at = display.initial_view(pts, up)
             self.page.set_view(up, position, look_at)
-        self.page.show_cloud(pts[keep], display.scalar_colors(values[keep]))
+        self.page.show_cloud(pts[keep], display.scalar_colors(values))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self._cloud_text = (f"{len(pts):,} points in '{frame}', {len(keep):,} shown "
                             f"(stamp {stamp:.3f})")
