@@ -173,11 +173,12 @@ class Registrar:
         ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
         # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
-        # 7. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
-        #    at full resolution, then (articulated) towards a named state and scale 1
-        final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
-        # 7. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
-        judged = self._judged(ctx, [final] + list(ranked[1:]))
+        # 7. the leaders -- the winner and the runners-up close to it: each a sweep about its
+        #    mounting axis (near-symmetric handles), then alone at full resolution, then
+        #    (articulated) towards a named state and scale 1; ranked again on those residuals
+        ranked = self._finish_leaders(ctx, ranked, models, hyps.iterations)
+        # 8. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
+        judged = self._judged(ctx, ranked)
         total = time.perf_counter() - t0
         return rank([replace(r, time_s=total) for r in judged])
 
@@ -235,6 +236,24 @@ class Registrar:
                 models[r.template] = model
                 ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
+
+    def _finish_leaders(self, ctx: ClickContext, ranked: tuple, models: dict,
+                        iterations: int) -> tuple:
+        """The leading candidates finished (:meth:`_finish_winner`) side by side and ranked
+        again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
+        aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
+        near shapes (a template and a squeezed copy of it) can swap places at medium
+        resolution; the fine stage tells them apart. A finished residual is never above the
+        one it started from, and every candidate left out ranked behind those finished, so
+        the ranking stays consistent."""
+        s = self.settings
+        n = 1
+        while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
+                ranked[n].residual <= s.finish_margin * ranked[0].residual:
+            n += 1
+        done = run([lambda r=r: self._finish_winner(ctx, r, models, iterations)
+                    for r in ranked[:n]], s.threads)
+        return rank(done + list(ranked[n:]))
 
     def _finish_winner(self, ctx: ClickContext, win: FitResult, models: dict,
                        iterations: int) -> FitResult:

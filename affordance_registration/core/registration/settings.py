@@ -127,6 +127,11 @@ class FitSettings:
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
+    #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
+    #: winner and, of the next ``finish_candidates - 1``, those with a residual within
+    #: ``finish_margin`` x the winner's (1: the winner alone)
+    finish_candidates: int = 1
+    finish_margin: float = 1.15
     #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
     articulated: bool = True
     articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
@@ -168,7 +173,7 @@ class FitSettings:
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "coverage_distance", "min_coverage",
                      "min_coverage_no_viewpoint", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "contact_distance", "nominal_preference", "prefilter_margin",
+                     "articulated_margin", "finish_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -176,7 +181,7 @@ class FitSettings:
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "threads", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
+                     "threads", "finish_candidates", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
                      "scale_sweep"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
