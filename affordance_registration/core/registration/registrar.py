@@ -152,7 +152,7 @@ class Registrar:
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
         # 2. coarse ICP, all restarts of all templates together; a library larger than the
         #    prefilter keeps: the templates clearly worse than the leaders after the first
-        #    coarse iterations leave there (3.)
+        #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
         split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) else 0
         set_aside = ()
         if 0 < split < s.coarse_iterations:
@@ -163,8 +163,9 @@ class Registrar:
         else:
             hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
         score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
-        if not split:
-            hyps, score, set_aside = prefilter(hyps, score, names, s)
+        # (and again on the whole coarse stage's evidence: the medium stage is the dearer one)
+        hyps, score, late = prefilter(hyps, score, names, s)
+        set_aside += late
         # 4. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
         hyps = hyps.after(icp(ctx, hyps, s.medium, s))
