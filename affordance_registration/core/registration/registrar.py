@@ -19,7 +19,8 @@ one-sided scans (the README's benchmark measures both):
   inside a big object can win;
 * all restarts of all templates advance together (one KD query per iteration, a batched weighted
   SVD), coarse to fine: 64 samples for every restart -> the best 3 per template at 256 -> rank ->
-  the winner at 1500;
+  the winner and the runners-up close to it at 1500 -> ranked again (near shapes, such as a
+  template and a squeezed copy of it, can swap places at 256 samples);
 * initial orientations come from the mounting plane under the click (template +z along its
   normal, a yaw sweep), from the template's stable resting facets on that plane (objects lying
   on a table) and from uniform random ones; the best mounted hypothesis always reaches the

@@ -111,12 +111,13 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
-    #: the library prefilter: after the coarse stage, the templates whose best coarse score is
+    #: the library prefilter: in the coarse stage, the templates whose best coarse score is
     #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
     #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
     prefilter_keep: int = 5
     prefilter_margin: float = 1.5
-    #: coarse iterations before the prefilter decides (0: after the coarse stage)
+    #: coarse iterations before the prefilter first decides (0: only after the coarse stage;
+    #: it decides again there, on the whole stage's evidence)
     prefilter_iterations: int = 3
     coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
     medium_samples: int = 256
@@ -130,8 +131,8 @@ class FitSettings:
     #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
     #: winner and, of the next ``finish_candidates - 1``, those with a residual within
     #: ``finish_margin`` x the winner's (1: the winner alone)
-    finish_candidates: int = 1
-    finish_margin: float = 1.15
+    finish_candidates: int = 4
+    finish_margin: float = 1.3
     #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
     articulated: bool = True
     articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
