@@ -241,7 +241,7 @@ class Registrar:
 
     def _finish_leaders(self, ctx: ClickContext, ranked: tuple, models: dict,
                         iterations: int) -> tuple:
-        """The leading candidates finished (:meth:`_finish_winner`) side by side and ranked
+        """The leading candidates finished (:meth:`_finish`) side by side and ranked
         again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
         aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
         near shapes (a template and a squeezed copy of it) can swap places at medium
@@ -253,13 +253,13 @@ class Registrar:
         while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
                 ranked[n].residual <= s.finish_margin * ranked[0].residual:
             n += 1
-        done = run([lambda r=r: self._finish_winner(ctx, r, models, iterations)
+        done = run([lambda r=r: self._finish(ctx, r, models, iterations)
                     for r in ranked[:n]], s.threads)
         return rank(done + list(ranked[n:]))
 
-    def _finish_winner(self, ctx: ClickContext, win: FitResult, models: dict,
-                       iterations: int) -> FitResult:
-        """The winner's yaw sweep, its fine stage (joint and scale once more, articulated) and
+    def _finish(self, ctx: ClickContext, win: FitResult, models: dict,
+                iterations: int) -> FitResult:
+        """A leader's yaw sweep, its fine stage (joint and scale once more, articulated) and
         Occam's razor for its joint value and scale; never worse than ``win``."""
         s = self.settings
         model = models.get(win.template)

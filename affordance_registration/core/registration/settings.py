@@ -29,7 +29,7 @@ COARSE_REJECT = 0.5        #: rejection radius at a stage's start, fraction of t
 MEDIUM_REJECT = 0.25
 SWEEP_REJECT = 0.15        #: the joint / scale sweep's hypotheses
 FINE_REJECT = 0.1
-SHORT_ICP = 6              #: ICP iterations of the winner's yaw sweep and a refit's restarts
+SHORT_ICP = 6              #: ICP iterations of the leaders' yaw sweep and a refit's restarts
 LOCAL_ICP = 4              #: ICP iterations after each local joint / scale step
 CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
 CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
@@ -127,7 +127,7 @@ class FitSettings:
     fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
-    yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
+    yaw_sweep: int = 8                 #: leaders re-tried at this many angles about their axis
     #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
     #: winner and, of the next ``finish_candidates - 1``, those with a residual within
     #: ``finish_margin`` x the winner's (1: the winner alone)
@@ -207,12 +207,12 @@ class FitSettings:
     medium = _stage("medium_samples", "medium_iterations", MEDIUM_REJECT,
                     doc="The best few restarts per template.")
     short = _stage("medium_samples", SHORT_ICP, MEDIUM_REJECT,
-                   doc="The winner's yaw sweep and a refit's restarts.")
+                   doc="The leaders' yaw sweep and a refit's restarts.")
     sweep = _stage("medium_samples", "articulation_icp", SWEEP_REJECT,
                    doc="Each joint value / scale hypothesis of the articulated sweep.")
     local = _stage("medium_samples", LOCAL_ICP, SWEEP_REJECT,
                    doc="Each local joint / scale step after the sweep.")
     fine = _stage("fine_samples", "fine_iterations", FINE_REJECT, FINE,
-                  doc="The winner alone, on the full-resolution cluster.")
+                  doc="Each leader alone, on the full-resolution cluster.")
     refit_fine = _stage("refit_samples", "refit_iterations", FINE_REJECT, FINE,
                         doc="A refit's best restart on the full-resolution cluster.")
