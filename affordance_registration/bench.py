@@ -243,15 +243,17 @@ VARIANT_SCALES = (("s0.75", 0.75, 0.75, 0.75), ("s1.3", 1.3, 1.3, 1.3), ("x1.35"
 LIBRARY_SIZES = (5, 10, 20, 40)
 
 
-def variant_library(library: TemplateLibrary, size: int) -> TemplateLibrary:
+def variant_library(library: TemplateLibrary, size: int,
+                    scales: tuple = VARIANT_SCALES) -> TemplateLibrary:
     """The library and ``size - len(library)`` rigid variants of its templates (round robin
-    through :data:`VARIANT_SCALES`): each a template's mesh at its joints' zero, scaled by the
-    factors, named ``<template>@<label>``; a uniform scale keeps the symmetry."""
+    through ``scales``, (label, x, y, z) factors): each a template's mesh at its joints'
+    zero, scaled by the factors, named ``<template>@<label>``; a uniform scale keeps the
+    symmetry."""
     from .core.templates import AffordanceTemplate
     tpls = [library[n] for n in library]
     for k in range(max(0, size - len(tpls))):
         base = tpls[k % len(library)]
-        label, *factors = VARIANT_SCALES[(k // len(library)) % len(VARIANT_SCALES)]
+        label, *factors = scales[(k // len(library)) % len(scales)]
         mesh = base.mesh_at(0.0, 1.0).copy()
         mesh.apply_transform(np.diag(factors + [1.0]))
         uniform = len(set(factors)) == 1

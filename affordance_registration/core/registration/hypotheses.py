@@ -72,11 +72,15 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
     object) also starts from the poses its shape features match (:mod:`.features`)."""
     index, Rs, ts, family = [], [], [], []
+    up = cluster_axis = None
+    if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
+        up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
+        cluster_axis = principal_angle(ctx.cluster @ up)
     for i, model in enumerate(models):
         centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
         if centre is None:
             centre = ctx.click
-        R0, offsets, fam = _orientations(ctx, model, settings, rng)
+        R0, offsets, fam = _orientations(ctx, model, settings, rng, up, cluster_axis)
         index.append(np.full(len(R0), i))
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, offsets))
@@ -96,27 +100,26 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
                       index, np.concatenate(family))
 
 
-def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator):
+def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator,
+                  up: np.ndarray | None, cluster_axis: float | None):
     """One template's initial hypotheses, in the order they draw from ``rng``: rotations
-    (K, 3, 3), translation offsets (K, 3; zero but for the random ones) and families (K,)."""
+    (K, 3, 3), translation offsets (K, 3; zero but for the random ones) and families (K,).
+    ``up`` (3, 3): the plane's frame (z along its normal; None without a plane);
+    ``cluster_axis``: the cluster's main axis in it (:func:`principal_angle`)."""
     s, plane = settings, ctx.plane
     Rs, families = [], []
     if plane is not None:
-        up = align_z_to(plane.normal, hint=ctx.frame[:, 0])   # turns with the scan
         if s.mode in ("auto", "mounted"):
             yaws = _yaws(s.yaw_restarts, rng)
             Rs.append(up @ axis_angle_matrix([0, 0, 1], yaws).reshape(-1, 3, 3))
             families.append(np.full(len(yaws), MOUNTED))
         if s.mode in ("auto", "free"):
-            cluster_axis = principal_angle(ctx.cluster @ up)
-            for R_rest, _ in model.resting_rotations(s.resting_poses):
+            for R_rest, tpl_axis in _resting_axes(model, s.resting_poses):
                 if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
                     continue   # the mounted orientation, already swept
                 yaws = list(_yaws(s.resting_yaws, rng))
                 # and the two yaws that line the resting template's long axis up with the
                 # cluster's (elongated parts lying on a table)
-                tpl_axis = principal_angle(model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
-                                           @ R_rest.T)
                 if cluster_axis is not None and tpl_axis is not None:
                     yaws += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
                 if yaws:
@@ -142,6 +145,23 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
     if not families:
         return np.empty((0, 3, 3)), np.empty((0, 3)), np.empty(0, dtype=int)
     return np.concatenate(Rs), np.concatenate(offsets), np.concatenate(families)
+
+
+def _resting_axes(model, max_poses: int) -> list:
+    """The model's resting rotations R_rest (3, 3) with the main-axis angle of its samples
+    turned by each (:func:`principal_angle`, rad or None): [(R_rest, angle)]; computed once
+    per registration model (a template is asked each time)."""
+    def compute():
+        low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
+        rests = [R for R, _ in model.resting_rotations(max_poses)]
+        angles = [principal_angle(low @ R.T) for R in rests]
+        return (np.array(rests).reshape(-1, 3, 3),
+                np.array([np.nan if a is None else a for a in angles], dtype=float))
+    cache = getattr(model, "cache", None)
+    rests, angles = compute() if cache is None else cache.posed(
+        ("resting axes", model.template, model.q, model.scale, model.moving_only,
+         int(max_poses)), compute)
+    return [(R, None if math.isnan(a) else float(a)) for R, a in zip(rests, angles)]
 
 
 def _principal_axes(points: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ one-sided scans (the README's benchmark measures both):
   inside a big object can win;
 * all restarts of all templates advance together (one KD query per iteration, a batched weighted
   SVD), coarse to fine: 64 samples for every restart -> the best 3 per template at 256 -> rank ->
-  the winner at 1500;
+  the winner and the runners-up close to it at 1500 -> ranked again (near shapes, such as a
+  template and a squeezed copy of it, can swap places at 256 samples);
 * initial orientations come from the mounting plane under the click (template +z along its
   normal, a yaw sweep), from the template's stable resting facets on that plane (objects lying
   on a table) and from uniform random ones; the best mounted hypothesis always reaches the
@@ -152,7 +153,7 @@ class Registrar:
         hyps = initial_hypotheses(ctx, variants, s, rng).relabelled(template_of)
         # 2. coarse ICP, all restarts of all templates together; a library larger than the
         #    prefilter keeps: the templates clearly worse than the leaders after the first
-        #    coarse iterations leave there (3.)
+        #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
         split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) else 0
         set_aside = ()
         if 0 < split < s.coarse_iterations:
@@ -163,8 +164,9 @@ class Registrar:
         else:
             hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
         score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
-        if not split:
-            hyps, score, set_aside = prefilter(hyps, score, names, s)
+        # (and again on the whole coarse stage's evidence: the medium stage is the dearer one)
+        hyps, score, late = prefilter(hyps, score, names, s)
+        set_aside += late
         # 4. the best distinct few per template, refined at medium resolution
         hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
         hyps = hyps.after(icp(ctx, hyps, s.medium, s))
@@ -173,11 +175,12 @@ class Registrar:
         ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
         # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
-        # 7. the winner: a sweep about its mounting axis (near-symmetric handles), then alone
-        #    at full resolution, then (articulated) towards a named state and scale 1
-        final = self._finish_winner(ctx, ranked[0], models, hyps.iterations)
-        # 7. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
-        judged = self._judged(ctx, [final] + list(ranked[1:]))
+        # 7. the leaders -- the winner and the runners-up close to it: each a sweep about its
+        #    mounting axis (near-symmetric handles), then alone at full resolution, then
+        #    (articulated) towards a named state and scale 1; ranked again on those residuals
+        ranked = self._finish_leaders(ctx, ranked, models, hyps.iterations)
+        # 8. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
+        judged = self._judged(ctx, ranked)
         total = time.perf_counter() - t0
         return rank([replace(r, time_s=total) for r in judged])
 
@@ -236,9 +239,27 @@ class Registrar:
                 ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
 
-    def _finish_winner(self, ctx: ClickContext, win: FitResult, models: dict,
-                       iterations: int) -> FitResult:
-        """The winner's yaw sweep, its fine stage (joint and scale once more, articulated) and
+    def _finish_leaders(self, ctx: ClickContext, ranked: tuple, models: dict,
+                        iterations: int) -> tuple:
+        """The leading candidates finished (:meth:`_finish`) side by side and ranked
+        again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
+        aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
+        near shapes (a template and a squeezed copy of it) can swap places at medium
+        resolution; the fine stage tells them apart. A finished residual is never above the
+        one it started from, and every candidate left out ranked behind those finished, so
+        the ranking stays consistent."""
+        s = self.settings
+        n = 1
+        while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
+                ranked[n].residual <= s.finish_margin * ranked[0].residual:
+            n += 1
+        done = run([lambda r=r: self._finish(ctx, r, models, iterations)
+                    for r in ranked[:n]], s.threads)
+        return rank(done + list(ranked[n:]))
+
+    def _finish(self, ctx: ClickContext, win: FitResult, models: dict,
+                iterations: int) -> FitResult:
+        """A leader's yaw sweep, its fine stage (joint and scale once more, articulated) and
         Occam's razor for its joint value and scale; never worse than ``win``."""
         s = self.settings
         model = models.get(win.template)

@@ -29,7 +29,7 @@ COARSE_REJECT = 0.5        #: rejection radius at a stage's start, fraction of t
 MEDIUM_REJECT = 0.25
 SWEEP_REJECT = 0.15        #: the joint / scale sweep's hypotheses
 FINE_REJECT = 0.1
-SHORT_ICP = 6              #: ICP iterations of the winner's yaw sweep and a refit's restarts
+SHORT_ICP = 6              #: ICP iterations of the leaders' yaw sweep and a refit's restarts
 LOCAL_ICP = 4              #: ICP iterations after each local joint / scale step
 CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
 CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
@@ -111,12 +111,13 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
-    #: the library prefilter: after the coarse stage, the templates whose best coarse score is
+    #: the library prefilter: in the coarse stage, the templates whose best coarse score is
     #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
     #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
     prefilter_keep: int = 5
     prefilter_margin: float = 1.5
-    #: coarse iterations before the prefilter decides (0: after the coarse stage)
+    #: coarse iterations before the prefilter first decides (0: only after the coarse stage;
+    #: it decides again there, on the whole stage's evidence)
     prefilter_iterations: int = 3
     coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
     medium_samples: int = 256
@@ -126,7 +127,12 @@ class FitSettings:
     fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
-    yaw_sweep: int = 8                 #: winner re-tried at this many angles about its axis
+    yaw_sweep: int = 8                 #: leaders re-tried at this many angles about their axis
+    #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
+    #: winner and, of the next ``finish_candidates - 1``, those with a residual within
+    #: ``finish_margin`` x the winner's (1: the winner alone)
+    finish_candidates: int = 4
+    finish_margin: float = 1.3
     #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
     articulated: bool = True
     articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
@@ -168,7 +174,7 @@ class FitSettings:
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "coverage_distance", "min_coverage",
                      "min_coverage_no_viewpoint", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "contact_distance", "nominal_preference", "prefilter_margin",
+                     "articulated_margin", "finish_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -176,7 +182,7 @@ class FitSettings:
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "threads", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
+                     "threads", "finish_candidates", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
                      "scale_sweep"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -201,12 +207,12 @@ class FitSettings:
     medium = _stage("medium_samples", "medium_iterations", MEDIUM_REJECT,
                     doc="The best few restarts per template.")
     short = _stage("medium_samples", SHORT_ICP, MEDIUM_REJECT,
-                   doc="The winner's yaw sweep and a refit's restarts.")
+                   doc="The leaders' yaw sweep and a refit's restarts.")
     sweep = _stage("medium_samples", "articulation_icp", SWEEP_REJECT,
                    doc="Each joint value / scale hypothesis of the articulated sweep.")
     local = _stage("medium_samples", LOCAL_ICP, SWEEP_REJECT,
                    doc="Each local joint / scale step after the sweep.")
     fine = _stage("fine_samples", "fine_iterations", FINE_REJECT, FINE,
-                  doc="The winner alone, on the full-resolution cluster.")
+                  doc="Each leader alone, on the full-resolution cluster.")
     refit_fine = _stage("refit_samples", "refit_iterations", FINE_REJECT, FINE,
                         doc="A refit's best restart on the full-resolution cluster.")
