@@ -1,5 +1,8 @@
 """Both cores for one click: the pieces of a batch side by side give the same fits as one
 thread, and the pool passes errors on and never waits on itself."""
+import os
+import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -69,3 +72,55 @@ def test_parts_and_thread_setting():
     assert np.array_equal(np.concatenate(parallel.parts(77, 3, 10)), np.arange(77))
     with pytest.raises(RegistrationError, match="threads"):
         FitSettings(threads=0).validate()
+
+
+
+_BLAS = """
+import threading
+from threadpoolctl import threadpool_info
+from affordance_registration.core.errors import RegistrationError
+from affordance_registration.core.registration import Registrar, parallel
+from affordance_registration.core.scene import Scene
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.core.templates import TemplateLibrary
+
+def blas():
+    return sorted({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
+
+seen = [blas()]
+a_in, b_out = threading.Event(), threading.Event()
+def a():
+    with parallel.single_threaded_blas():
+        a_in.set()
+        b_out.wait(60)
+        seen.append(blas())          # B has left, A is still inside
+worker = threading.Thread(target=a)
+worker.start()
+a_in.wait(60)
+with parallel.single_threaded_blas():
+    seen.append(blas())
+b_out.set()
+worker.join(60)
+seen.append(blas())
+library = TemplateLibrary.load()
+sim = simulate_taskboard(library, 11)
+obj = next(o for o in sim.objects if o.visible_points >= 200)
+Registrar(library).fit(Scene(sim.organized), obj.click)
+seen.append(blas())
+try:
+    Registrar(library).fit(Scene(sim.organized), obj.click, templates=[])
+except RegistrationError:
+    seen.append(blas())
+print(seen)
+"""
+
+
+def test_blas_runs_on_one_thread_while_any_fit_runs_and_is_put_back_after():
+    """With OPENBLAS_NUM_THREADS=2 (OpenBLAS allows at most the core count): BLAS stays on one thread until the last of concurrent
+    blocks leaves, then has the user's count again -- also after a real fit and after a fit
+    that failed."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+    out = subprocess.run([sys.executable, "-c", _BLAS], capture_output=True, text=True,
+                         env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[[2], [1], [1], [2], [2], [2]]"

@@ -221,7 +221,7 @@ class Scene:
         self._raw = pts
         self._points: np.ndarray | None = None
         if not any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
-                   for i in range(0, len(pts), self._PROBE_ROWS)):
+                   for i in _middle_first(len(pts), self._PROBE_ROWS)):
             raise SceneError("the scene has no finite points" +
                              (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else ""))
         self.sensor_origin = _origin(sensor_origin)
@@ -319,11 +319,12 @@ class Scene:
         else:
             plane_for_fine = plane
         # full-resolution points of the cluster's voxels (final refinement target)
+        # (the points on the plane first left out: most of a crop's, and none of them fine)
         cluster_tree = build_tree(cluster)
-        near, _ = nearest(cluster_tree, raw, voxel)
-        fine = raw[np.isfinite(near)]
-        if plane_for_fine is not None:
-            fine = fine[plane_for_fine.distance(fine) > plane_threshold]
+        fine = raw if plane_for_fine is None else \
+            raw[plane_for_fine.distance(raw) > plane_threshold]
+        near, _ = nearest(cluster_tree, fine, voxel)
+        fine = fine[np.isfinite(near)]
         if len(fine) < 10:
             fine = cluster
         range_image = None
@@ -430,3 +431,11 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     _, labels = connected_components(graph, directed=False)
     wanted = np.unique(labels[seeds])
     return pts[np.isin(labels, wanted)]
+
+
+def _middle_first(n: int, step: int):
+    """Start rows of the ``step``-row chunks of ``n`` rows, the middle chunk first, then
+    outwards (an organized cloud's holes are mostly at its borders)."""
+    starts = list(range(0, n, step))
+    mid = len(starts) // 2
+    return sorted(starts, key=lambda i: abs(i // step - mid))

@@ -59,7 +59,7 @@ from .hypotheses import (Hypotheses, initial_hypotheses, keep_distinct, prefilte
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
-from .parallel import run
+from .parallel import run, single_threaded_blas
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
@@ -99,24 +99,26 @@ class Registrar:
         crop radius plus the snap distance of the click hold the snapped point and its crop."""
         s = self.settings
         radius = s.crop_factor * self.library.max_diameter
-        part = scene.around(click, radius + s.snap_distance)
-        snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
-        return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed)
+        with single_threaded_blas():
+            part = scene.around(click, radius + s.snap_distance)
+            snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
+            return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed)
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.
 
         Returns the candidates ranked best first, one per template."""
         t0 = time.perf_counter()
-        ctx = self.prepare(scene, click)
-        t1 = time.perf_counter()
-        names = list(self.library) if templates is None else list(templates)
-        if not names:
-            raise RegistrationError("no templates to fit")
-        if self.settings.method == "paper":
-            candidates = self.paper.fit(ctx, names)
-        else:
-            candidates = self._fit_default(ctx, names)
+        with single_threaded_blas():
+            ctx = self.prepare(scene, click)
+            t1 = time.perf_counter()
+            names = list(self.library) if templates is None else list(templates)
+            if not names:
+                raise RegistrationError("no templates to fit")
+            if self.settings.method == "paper":
+                candidates = self.paper.fit(ctx, names)
+            else:
+                candidates = self._fit_default(ctx, names)
         t2 = time.perf_counter()
         timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
         return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
@@ -136,9 +138,10 @@ class Registrar:
         the pose -- and one that is not given is estimated."""
         t0 = time.perf_counter()
         model = self._model(template, joints, scale)
-        res = refit(ctx, model, T_init, self.settings,
-                    hold_joint=bool(joints) if hold_joint is None else hold_joint)
-        res = self._judged(ctx, [res])[0]
+        with single_threaded_blas():
+            res = refit(ctx, model, T_init, self.settings,
+                        hold_joint=bool(joints) if hold_joint is None else hold_joint)
+            res = self._judged(ctx, [res])[0]
         return replace(res, time_s=time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ the default method
