@@ -5,7 +5,8 @@ frame, ``base_link``, ``map`` -- and where the sensor was in that frame (``senso
 :data:`NO_VIEWPOINT` for a cloud with no single viewpoint (an accumulated map). No KD-tree is
 ever built over the whole scene: a click is snapped to the surface by a vectorised
 nearest-point search, then :meth:`Scene.prepare_click` crops around it, voxelizes, finds the
-dominant plane (RANSAC), keeps the cluster connected to the click and builds a small range image
+dominant plane (RANSAC; kept only where the surface it cuts is flat, not a slab through a curved
+object), keeps the cluster connected to the click and builds a small range image
 for visibility tests (:class:`ClickContext`).
 
 Nothing here assumes an axis: the voxel grid, the range image's bins and every random draw of
@@ -23,7 +24,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
-from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
+from .neighbours import KDTree, build_tree, k_nearest, nearest, pairs_within, pca_normals
 from .transforms import align_z_to, finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
@@ -32,6 +33,15 @@ __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "
 #: a click within this many plane thresholds of the dominant plane is on it: the plane is then
 #: the clicked object's surface (or a bare wall), not a surface it is mounted on
 ON_PLANE = 1.5
+#: a support plane is flat: at least this fraction of its inliers have a surface normal (PCA of
+#: FLAT_NEIGHBOURS crop points, a patch of about 3 voxels' radius) within FLAT_DEG of the
+#: plane's. A slab cut through a curved object (the back of a statue holds 40% of its crop
+#: within the plane threshold) has a third of its inliers so; a wall or table under depth-camera
+#: faults over nine tenths.
+FLAT_FRACTION = 0.7
+FLAT_DEG = 25.0
+FLAT_NEIGHBOURS = 30
+FLAT_SAMPLES = 300       #: inliers whose normals are looked at (evenly spread over them)
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
 NO_VIEWPOINT = "none"
@@ -306,7 +316,10 @@ class Scene:
         frame = local_frame(raw, c, origin)
         crop = voxel_downsample(raw, voxel, c, frame)
         _check_spread(crop, voxel, radius)
+        crop_tree = build_tree(crop)
         plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
+        if plane is not None and not _is_flat(plane, crop, crop_tree, plane_threshold):
+            plane = None    # a slab through a curved object: no support under it
         support = plane
         if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold:
             plane = None    # the click is on the plane: it is the object's, not a mount's
@@ -336,7 +349,7 @@ class Scene:
         ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
                            sensor_origin=origin, crop=crop, cluster=cluster, fine=fine,
                            plane=plane_for_fine, plane_threshold=plane_threshold,
-                           range_image=range_image, crop_tree=build_tree(crop),
+                           range_image=range_image, crop_tree=crop_tree,
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
                            fine_normals=pca_normals(fine, 12, fine_tree), support=support,
                            frame=frame)
@@ -411,6 +424,21 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     if flip:
         normal, d = -normal, -d
     return Plane(normal=normal, d=float(d), inlier_fraction=frac)
+
+
+def _is_flat(plane: Plane, crop: np.ndarray, tree: KDTree, threshold: float) -> bool:
+    """Whether the surface ``plane``'s inliers in ``crop`` (N, 3) lie on is flat: enough of
+    them (FLAT_FRACTION) have a local normal within FLAT_DEG of the plane's (``tree``: over
+    ``crop``)."""
+    inliers = np.flatnonzero(np.abs(plane.distance(crop)) < threshold)
+    if len(inliers) > FLAT_SAMPLES:
+        inliers = inliers[np.linspace(0, len(inliers) - 1, FLAT_SAMPLES).astype(np.int64)]
+    k = min(FLAT_NEIGHBOURS, len(crop))
+    nb = crop[k_nearest(tree, crop[inliers], k)]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
+    agree = np.abs(vecs[:, :, 0] @ plane.normal) >= math.cos(math.radians(FLAT_DEG))
+    return bool(np.mean(agree) >= FLAT_FRACTION)
 
 
 def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,
