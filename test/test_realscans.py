@@ -109,11 +109,15 @@ def _held_by_others(view, views) -> float:
 
 
 def test_a_template_of_the_other_views_finds_each_view_it_covers(tmp_path, views):
-    """The other views merged as the template: each view whose surface they hold (most of its
-    points within 2 mm of theirs -- ArmadilloBack_0 and _330; _60 holds half, _180 a seventh,
-    see the bench's real-scans row) is found within 5 mm / 5 deg and judged to fit."""
-    covered = [v for v in views if _held_by_others(v, views) >= 0.7]
-    assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_330"}
+    """The other views merged as the template: each view whose surface they hold (at least
+    two fifths of its points within 2 mm of theirs -- ArmadilloBack_0 and _330 most, _60 half;
+    _180 a seventh, see the bench's real-scans row) is found within 5 mm / 5 deg; where they
+    hold most of it, it is judged to fit (on _60 under half of the template's seen surface is
+    covered: the verdict says so)."""
+    held = {v.name: _held_by_others(v, views) for v in views}
+    covered = [v for v in views if held[v.name] >= 0.4]
+    assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_60",
+                                         "ArmadilloBack_330"}
     for view in covered:
         tpl = load_template(write_point_template([v for v in views if v is not view],
                                                  str(tmp_path / view.name), "armadillo"))
@@ -121,7 +125,7 @@ def test_a_template_of_the_other_views_finds_each_view_it_covers(tmp_path, views
             Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)).candidates[0]
         dt, dr = pose_error(best.T_scene_model, view_truth(view))
         assert dt <= 0.005 and dr <= math.radians(5), (view.name, dt, math.degrees(dr))
-        assert best.fits, view.name
+        assert best.fits == (held[view.name] >= 0.7), (view.name, best.coverage)
 
 
 def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path, views,
