@@ -29,13 +29,15 @@ from .core.transforms import invert, make_T, quat_xyzw_to_matrix
 
 __all__ = ["OR_PCD", "GROUND_TRUTH_VIEWS", "ScanView", "fetch_or_pcd", "read_conf",
            "armadillo_views", "scan_sensor_origin", "write_point_template", "view_truth",
-           "default_cache"]
+           "default_cache", "view_click", "STATUE_UP", "LOW_FRACTION"]
 
 OR_PCD = "or-pcd==0.0.1b7"
 #: the views ArmadilloBack.conf aligns (the other scans have no ground truth)
 GROUND_TRUTH_VIEWS = ("ArmadilloBack_0", "ArmadilloBack_60", "ArmadilloBack_180",
                       "ArmadilloBack_330")
 SENSOR_HEIGHT = 1.0        #: m above a scan's centre along +z: where its scanner looks from
+STATUE_UP = 1              #: the common frame's axis the Armadillo stands along (y)
+LOW_FRACTION = 0.05        #: a low click: among this fraction of a view's lowest points
 
 
 def default_cache() -> str:
@@ -164,6 +166,19 @@ def write_point_template(views, out_dir: str, name: str, voxel: float = 0.002,
     write_atomically({ply: header + cloud.tobytes(),
                       yml: yaml.safe_dump(doc, sort_keys=False).encode()})
     return yml
+
+
+def view_click(view: ScanView, low: bool = False) -> np.ndarray:
+    """Where an operator clicks the statue in ``view`` (3,), scan frame: the scan point nearest
+    the median of its points, or (``low``) of its lowest ``LOW_FRACTION`` along the statue's up
+    (``STATUE_UP`` of the common frame) -- its feet and the base of its legs, where a small
+    template fits part of it."""
+    pts = view.points
+    if low:
+        T = view.T_common_scan
+        height = pts @ T[:3, :3][STATUE_UP] + T[STATUE_UP, 3]
+        pts = pts[height <= np.quantile(height, LOW_FRACTION)]
+    return pts[np.argmin(np.linalg.norm(pts - np.median(pts, axis=0), axis=1))]
 
 
 def view_truth(view: ScanView, T_template_common: np.ndarray | None = None) -> np.ndarray:

@@ -17,7 +17,7 @@ from affordance_registration.core.templates import TemplateLibrary, load_templat
 from affordance_registration.core.transforms import invert, make_T, pose_error, random_rotations
 from affordance_registration.realscans import (GROUND_TRUTH_VIEWS, armadillo_views,
                                                default_cache, fetch_or_pcd, read_conf,
-                                               view_truth, write_point_template)
+                                               view_click, view_truth, write_point_template)
 
 
 @pytest.fixture(scope="session")
@@ -31,11 +31,6 @@ def or_pcd():
 @pytest.fixture(scope="session")
 def views(or_pcd):
     return armadillo_views(or_pcd)
-
-
-def _click(points: np.ndarray) -> np.ndarray:
-    """The scan point nearest the median: where an operator would click the statue."""
-    return points[np.argmin(np.linalg.norm(points - np.median(points, axis=0), axis=1))]
 
 
 def _overlap_mm(a: np.ndarray, b: np.ndarray) -> float:
@@ -81,7 +76,7 @@ def test_a_scan_as_its_own_template_comes_back_exactly(tmp_path, views, name):
                                T_template_common=invert(view.T_common_scan))
     registrar = Registrar(TemplateLibrary([load_template(yml)]))
     best = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
-                         _click(view.points)).candidates[0]
+                         view_click(view)).candidates[0]
     dt, dr = pose_error(best.T_scene_model, np.eye(4))
     assert dt <= 0.001 and dr <= math.radians(0.5), (name, dt, math.degrees(dr))
     assert best.fits
@@ -97,7 +92,7 @@ def test_a_raw_range_scan_is_a_template(tmp_path, or_pcd, views):
     view = next(v for v in views if v.name == "ArmadilloBack_0")
     assert tpl.is_point_template and len(tpl.points) == len(view.points)
     best = Registrar(TemplateLibrary([tpl])).fit(
-        Scene(view.points, sensor_origin=view.sensor_origin), _click(view.points)).candidates[0]
+        Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)).candidates[0]
     dt, dr = pose_error(best.T_scene_model, np.eye(4))
     assert dt <= 0.001 and dr <= math.radians(0.5), (dt, math.degrees(dr))
 
@@ -114,37 +109,44 @@ def _held_by_others(view, views) -> float:
 
 
 def test_a_template_of_the_other_views_finds_each_view_it_covers(tmp_path, views):
-    """The other views merged as the template: each view whose surface they hold (most of its
-    points within 2 mm of theirs -- ArmadilloBack_0 and _330; _60 holds half, _180 a seventh,
-    see the bench's real-scans row) is found within 5 mm / 5 deg and judged to fit."""
-    covered = [v for v in views if _held_by_others(v, views) >= 0.7]
-    assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_330"}
+    """The other views merged as the template: each view whose surface they hold (at least
+    two fifths of its points within 2 mm of theirs -- ArmadilloBack_0 and _330 most, _60 half;
+    _180 a seventh, see the bench's real-scans row) is found within 5 mm / 5 deg; where they
+    hold most of it, it is judged to fit (on _60 under half of the template's seen surface is
+    covered: the verdict says so)."""
+    held = {v.name: _held_by_others(v, views) for v in views}
+    covered = [v for v in views if held[v.name] >= 0.4]
+    assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_60",
+                                         "ArmadilloBack_330"}
     for view in covered:
         tpl = load_template(write_point_template([v for v in views if v is not view],
                                                  str(tmp_path / view.name), "armadillo"))
         best = Registrar(TemplateLibrary([tpl])).fit(
-            Scene(view.points, sensor_origin=view.sensor_origin), _click(view.points)).candidates[0]
+            Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)).candidates[0]
         dt, dr = pose_error(best.T_scene_model, view_truth(view))
         assert dt <= 0.005 and dr <= math.radians(5), (view.name, dt, math.degrees(dr))
-        assert best.fits, view.name
+        assert best.fits == (held[view.name] >= 0.7), (view.name, best.coverage)
 
 
 def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path, views,
                                                                          library):
     """The four views merged as a template, in the taskboard library: on a click on each view
-    it ranks first with its pose within 5 mm / 5 deg -- the small valve and handle templates,
-    which fit parts of the statue, lose to it; a valve template alone on the statue never reads
-    a probability near 1."""
+    -- in the middle of the statue, and low on it (among its lowest 5% of points, its feet and
+    legs, where a flat-ish slab of its back once passed for a support plane and cut it down to
+    a leg) -- it ranks first with its pose within 5 mm / 5 deg: the small valve and handle
+    templates, which fit parts of the statue, lose to it; a valve template alone on the statue
+    never reads a probability near 1."""
     statue = load_template(write_point_template(views, str(tmp_path), "armadillo"))
     mixed = Registrar(TemplateLibrary([statue] + [library[n] for n in library]))
     valve_only = Registrar(TemplateLibrary([library["gate_valve"]]))
     for view in views:
         scene = Scene(view.points, sensor_origin=view.sensor_origin)
-        best = mixed.fit(scene, _click(view.points)).candidates[0]
-        assert best.template == "armadillo", view.name
-        dt, dr = pose_error(best.T_scene_model, view_truth(view))
-        assert dt <= 0.005 and dr <= math.radians(5), (view.name, dt, math.degrees(dr))
-        lone = valve_only.fit(scene, _click(view.points)).candidates[0]
+        for low in (False, True):
+            best = mixed.fit(scene, view_click(view, low)).candidates[0]
+            assert best.template == "armadillo", (view.name, low, best.template)
+            dt, dr = pose_error(best.T_scene_model, view_truth(view))
+            assert dt <= 0.005 and dr <= math.radians(5), (view.name, low, dt, math.degrees(dr))
+        lone = valve_only.fit(scene, view_click(view)).candidates[0]
         assert lone.probability < 0.9, view.name         # never 1.00 for a poor fit
 
 
@@ -155,7 +157,7 @@ def test_a_real_scan_moved_rigidly_gives_the_moved_fit(tmp_path, views):
     tpl = load_template(write_point_template([v for v in views if v is not view],
                                              str(tmp_path), "armadillo"))
     registrar = Registrar(TemplateLibrary([tpl]))
-    click = _click(view.points)
+    click = view_click(view)
     original = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
                              click).candidates[0]
     rng = np.random.default_rng(18)

@@ -5,8 +5,10 @@ frame, ``base_link``, ``map`` -- and where the sensor was in that frame (``senso
 :data:`NO_VIEWPOINT` for a cloud with no single viewpoint (an accumulated map). No KD-tree is
 ever built over the whole scene: a click is snapped to the surface by a vectorised
 nearest-point search, then :meth:`Scene.prepare_click` crops around it, voxelizes, finds the
-dominant plane (RANSAC), keeps the cluster connected to the click and builds a small range image
-for visibility tests (:class:`ClickContext`).
+dominant plane (RANSAC; kept only where the surface it cuts is flat, not a slab through a curved
+object), keeps the cluster connected to the click -- off the plane, less the plane's own points
+that the scan's noise lifted past its threshold -- and builds a small range image for visibility
+tests (:class:`ClickContext`).
 
 Nothing here assumes an axis: the voxel grid, the range image's bins and every random draw of
 the fit are laid out in a frame attached to the scan around the click (``ClickContext.frame``:
@@ -23,7 +25,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
-from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
+from .neighbours import KDTree, build_tree, k_nearest, nearest, pairs_within, pca_normals
 from .transforms import align_z_to, finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
@@ -32,6 +34,21 @@ __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "
 #: a click within this many plane thresholds of the dominant plane is on it: the plane is then
 #: the clicked object's surface (or a bare wall), not a surface it is mounted on
 ON_PLANE = 1.5
+#: a support plane is flat: at least this fraction of its inliers have a surface normal (PCA of
+#: FLAT_NEIGHBOURS crop points, a patch of about 3 voxels' radius) within FLAT_DEG of the
+#: plane's. A slab cut through a curved object (the back of a statue holds 40% of its crop
+#: within the plane threshold) has a third of its inliers so; a wall or table under depth-camera
+#: faults over nine tenths.
+FLAT_FRACTION = 0.7
+FLAT_DEG = 25.0
+FLAT_NEIGHBOURS = 30
+FLAT_SAMPLES = 300       #: points near the plane whose normals are looked at (evenly spread)
+#: the support's own points -- flat, their normals along the plane's -- are looked for this many
+#: plane thresholds from it; their spread sigma (a depth camera's noise) widens the band taken
+#: off the support for the cluster to SUPPORT_SIGMAS sigma, between one and SUPPORT_REACH
+#: thresholds (a clean scan: the threshold)
+SUPPORT_REACH = 3.0
+SUPPORT_SIGMAS = 3.0
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
 NO_VIEWPOINT = "none"
@@ -306,12 +323,27 @@ class Scene:
         frame = local_frame(raw, c, origin)
         crop = voxel_downsample(raw, voxel, c, frame)
         _check_spread(crop, voxel, radius)
+        crop_tree = build_tree(crop)
         plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
+        band = plane_threshold          # taken off the support plane for the cluster
+        if plane is not None:
+            flat, sigma = _flatness(plane, crop, crop_tree, plane_threshold)
+            if flat < FLAT_FRACTION:
+                plane = None    # a slab through a curved object: no support under it
+            else:
+                band = min(max(SUPPORT_SIGMAS * sigma, plane_threshold),
+                           SUPPORT_REACH * plane_threshold)
         support = plane
         if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold:
             plane = None    # the click is on the plane: it is the object's, not a mount's
         gap = cluster_gap if cluster_gap is not None else 0.025
-        keep = np.ones(len(crop), bool) if plane is None else plane.distance(crop) > plane_threshold
+        if plane is None:
+            keep = np.ones(len(crop), bool)
+        else:       # off the plane, but not the support's own surface lifted by the noise
+            off = plane.distance(crop)
+            keep = off > plane_threshold
+            lifted = np.flatnonzero(keep & (off <= band))
+            keep[lifted] = ~_along(plane, crop[lifted], crop, crop_tree)
         cluster = _connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
         if len(cluster) < 10:       # nothing off the plane near the click: fit to the whole crop
             cluster = crop
@@ -337,7 +369,7 @@ class Scene:
         ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
                            sensor_origin=origin, crop=crop, cluster=cluster, fine=fine,
                            plane=plane_for_fine, plane_threshold=plane_threshold,
-                           range_image=range_image, crop_tree=build_tree(crop),
+                           range_image=range_image, crop_tree=crop_tree,
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
                            fine_normals=pca_normals(fine, 12, fine_tree), support=support,
                            frame=frame)
@@ -412,6 +444,37 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     if flip:
         normal, d = -normal, -d
     return Plane(normal=normal, d=float(d), inlier_fraction=frac)
+
+
+def _along(plane: Plane, points: np.ndarray, crop: np.ndarray, tree: KDTree) -> np.ndarray:
+    """Whether the surface at each of ``points`` (N, 3) -- the normal of its FLAT_NEIGHBOURS
+    nearest ``crop`` points (``tree``: over them) -- runs along ``plane`` (within FLAT_DEG).
+    (N,) bool."""
+    if len(points) == 0:
+        return np.zeros(0, bool)
+    nb = crop[k_nearest(tree, points, min(FLAT_NEIGHBOURS, len(crop)))]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
+    return np.abs(vecs[:, :, 0] @ plane.normal) >= math.cos(math.radians(FLAT_DEG))
+
+
+def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
+              threshold: float) -> tuple[float, float]:
+    """How flat the surface under ``plane`` is, from up to FLAT_SAMPLES crop (N, 3) points within
+    SUPPORT_REACH thresholds of it (``tree``: over ``crop``): the fraction of those inside the
+    ``threshold`` whose local normal is within FLAT_DEG of the plane's, and the spread (robust
+    standard deviation, m) of the distances to the plane of all those whose normal is -- the
+    scan's noise on the support."""
+    d = plane.distance(crop)
+    near = np.flatnonzero(np.abs(d) < SUPPORT_REACH * threshold)
+    if len(near) > FLAT_SAMPLES:
+        near = near[np.linspace(0, len(near) - 1, FLAT_SAMPLES).astype(np.int64)]
+    agree = _along(plane, crop[near], crop, tree)
+    inside = np.abs(d[near]) < threshold
+    if not inside.any() or not agree.any():
+        return 0.0, 0.0
+    on = d[near][agree]
+    return float(np.mean(agree[inside])), float(1.4826 * np.median(np.abs(on - np.median(on))))
 
 
 def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,
