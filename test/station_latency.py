@@ -90,7 +90,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--clicks", type=int, default=10)
     ap.add_argument("--clouds", type=int, default=5)
-    ap.add_argument("--display-points", type=int, default=100000)
+    ap.add_argument("--display-points", type=int, default=60000)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--screenshot", default=None)
     args = ap.parse_args()

@@ -69,7 +69,7 @@ PARAMETERS = {
     "interactive_namespace": ("/affordance_correction", "the engine's interactive markers"),
     "points_reliable": (True, "reliable 'points' subscription (false: best effort, for drivers "
                               "that publish with SensorDataQoS)"),
-    "display_points": (100000, "most cloud points sent to the page (the cloud is thinned)"),
+    "display_points": (60000, "most cloud points sent to the page (the cloud is thinned)"),
     "point_size": (0.003, "m, drawn size of a cloud point"),
     "color_by": ("auto", "auto (intensity when the cloud has it, else depth) | depth | intensity"),
     "up": ("auto", "the world's up axis on the page: auto (-y for optical frames, else +z) | "
