@@ -83,12 +83,15 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
     return cKDTree(points).query_pairs(radius, output_type="ndarray")
 
 
-def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None) -> np.ndarray:
+def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None,
+                at: np.ndarray | None = None) -> np.ndarray:
     """Unit normals (N, 3) of a sampled surface: the direction of least spread of each point's
     ``k`` nearest neighbours (at most all points); the sign is arbitrary. ``tree``: a tree over
-    ``points`` when one exists already."""
+    ``points`` when one exists already. ``at`` (M, 3): the normals at these places instead,
+    from their nearest ``points`` ((M, 3) returned)."""
     k = min(k, len(points))
-    idx = k_nearest(tree if tree is not None else build_tree(points), points, k)
+    idx = k_nearest(tree if tree is not None else build_tree(points),
+                    points if at is None else at, k)
     nb = points[idx]
     nb = nb - nb.mean(axis=1, keepdims=True)
     _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)

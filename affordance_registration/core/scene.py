@@ -25,7 +25,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
-from .neighbours import KDTree, build_tree, k_nearest, nearest, pairs_within, pca_normals
+from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .transforms import align_z_to, finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
@@ -452,10 +452,8 @@ def _along(plane: Plane, points: np.ndarray, crop: np.ndarray, tree: KDTree) -> 
     (N,) bool."""
     if len(points) == 0:
         return np.zeros(0, bool)
-    nb = crop[k_nearest(tree, points, min(FLAT_NEIGHBOURS, len(crop)))]
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
-    return np.abs(vecs[:, :, 0] @ plane.normal) >= math.cos(math.radians(FLAT_DEG))
+    normals = pca_normals(crop, FLAT_NEIGHBOURS, tree, at=points)
+    return np.abs(normals @ plane.normal) >= math.cos(math.radians(FLAT_DEG))
 
 
 def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
