@@ -124,10 +124,12 @@ def test_the_first_view_stands_at_the_sensor_or_above_a_map():
 
 # ------------------------------------------------------------------ display thinning, colours
 @settings(max_examples=40, deadline=None)
-@given(st.integers(1, 30000), st.integers(1000, 20000), st.integers(0, 1000))
-def test_thinning_keeps_at_most_the_budget_and_only_cloud_points(n, budget, seed):
+@given(st.integers(1, 30000), st.integers(1000, 20000), st.integers(0, 1000),
+       st.none() | st.floats(1e-5, 10.0))
+def test_thinning_keeps_at_most_the_budget_and_only_cloud_points(n, budget, seed, start):
+    """Whatever voxel edge it starts from (the station passes the previous cloud's)."""
     pts = np.random.default_rng(seed).normal(size=(n, 3)) * [1.0, 0.5, 0.01]
-    keep = display.thin_for_display(pts, budget)
+    keep = display.thin(pts, budget, start_voxel=start).indices
     assert len(keep) <= budget and len(np.unique(keep)) == len(keep)
     assert keep.min() >= 0 and keep.max() < n
     if n <= budget:
@@ -136,12 +138,12 @@ def test_thinning_keeps_at_most_the_budget_and_only_cloud_points(n, budget, seed
 
 def test_a_cloud_over_the_budget_is_thinned_evenly_not_dropped():
     pts = _grid(n=600, spacing=0.002)                    # 360k points on a 1.2 m square
-    keep = display.thin_for_display(pts, 50000)
+    keep = display.thin(pts, 50000).indices
     assert 0.5 * 50000 <= len(keep) <= 50000
     cells = {tuple(c) for c in np.floor(pts[keep, :2] / 0.05).astype(int)}
     assert len(cells) == 24 * 24                         # every 5 cm cell keeps points
     with pytest.raises(AffordanceError):
-        display.thin_for_display(pts, 0)
+        display.thin(pts, 0)
 
 
 def test_scalar_colors_run_from_near_to_far():

@@ -18,7 +18,7 @@ import numpy as np
 from .errors import AffordanceError
 from .transforms import finite_vector, make_T
 
-__all__ = ["thin", "Thinned", "thin_for_display", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
+__all__ = ["thin", "Thinned", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
            "project", "pixel_ray", "initial_view"]
 
 #: colour map of :func:`scalar_colors`: near/low (dark slate) -> far/high (light sand), muted so
@@ -62,8 +62,8 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
     within the budget is returned whole; a cloud is never dropped, only thinned.
 
     The voxel edge starts at ``start_voxel`` (the previous cloud's :attr:`Thinned.voxel`: a
-    stream of similar clouds then costs one pass) or from the extent of a surface-like cloud,
-    and is corrected by sqrt(count / budget) per iteration (one sort each, which gives the
+    stream of similar clouds then costs one pass; a hint far off -- another kind of cloud --
+    is dropped after that pass) or from the extent of a surface-like cloud, and is corrected by sqrt(count / budget) per iteration (one sort each, which gives the
     indices too); should the voxels not get there, the fullest set found is strided down to the
     budget. Non-finite rows must have been removed.
     """
@@ -79,12 +79,13 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
     pts = pts.astype(np.float32, copy=False)
     offsets = pts - pts.min(axis=0)
     extent = np.sort(offsets.max(axis=0))[::-1].astype(float)
-    voxel = max(math.sqrt(max(extent[0] * extent[1], 1e-12) / budget), 1e-6)
-    if start_voxel is not None and math.isfinite(start_voxel) and start_voxel > 0:
-        voxel = float(start_voxel)
+    floor = extent[0] / 2e6             # at most 2e6 cells a side: the keys fit in int64
+    estimate = max(math.sqrt(max(extent[0] * extent[1], 1e-12) / budget), 1e-6, floor)
+    hinted = start_voxel is not None and math.isfinite(start_voxel) and start_voxel > 0
+    voxel = max(float(start_voxel), floor) if hinted else estimate
     best = None                                   # (indices, voxel) of the fullest set in budget
     fewest = None                                 # the smallest set over the budget
-    for _ in range(iterations):
+    for attempt in range(iterations):
         idx = _one_per_voxel(_voxel_keys(offsets, voxel))
         count = len(idx)
         if count <= budget and (best is None or count > len(best[0])):
@@ -93,17 +94,15 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
             fewest = (idx, voxel)
         if budget * 0.7 <= count <= budget:
             break
-        voxel *= math.sqrt(count / budget) * (1.04 if count > budget else 0.98)
+        if attempt == 0 and hinted and not budget / 4 <= count <= 2 * budget:
+            voxel = estimate            # a different cloud: the hint says little
+            continue
+        voxel = max(voxel * math.sqrt(count / budget) * (1.04 if count > budget else 0.98),
+                    floor)
     idx, voxel = best if best is not None else fewest
     if len(idx) > budget:
         idx = np.sort(idx)[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
     return Thinned(np.sort(idx), voxel)
-
-
-def thin_for_display(points: np.ndarray, budget: int, iterations: int = 6) -> np.ndarray:
-    """Indices (M,) into ``points`` (N, 3) of at most ``budget`` points for display (see
-    :func:`thin`)."""
-    return thin(points, budget, iterations).indices
 
 
 def offset_surface(vertices: np.ndarray, faces: np.ndarray,
