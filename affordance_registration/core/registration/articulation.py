@@ -4,6 +4,8 @@ steps, and -- after the fine stage -- Occam's razor towards a named state and th
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..scene import ClickContext
@@ -132,7 +134,10 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
     moving part stays, the template scaled about its origin or its centroid -- and keep
     that when its residual is within ``nominal_preference`` (joint) plus
     ``nominal_scale_preference`` (scale) of the free fit's. Valves mostly
-    sit open or closed, and most objects come in their nominal size."""
+    sit open or closed, and most objects come in their nominal size. Where scale 1 is tried,
+    both sides are compared with samples beyond ``scale_grazing_angle`` unseen (a sensor
+    returns little there, and such samples count against the larger size); the result keeps
+    the residual every candidate is ranked by."""
     tpl = model.template
     s = settings
     qs, scales = [model.q], [model.scale]
@@ -145,6 +150,11 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
         scales.append(1.0)
     T = res.T_scene_model
     centre = T[:3, :3] @ model.centroid + T[:3, 3]
+    # the scale is judged with samples at grazing angles unseen (both sides alike)
+    judge_s = replace(s, grazing_angle=s.scale_grazing_angle) \
+        if len(scales) > 1 and s.scale_grazing_angle < s.grazing_angle else s
+    free = res if judge_s is s else result(ctx, model, T[:3, :3], T[:3, 3], judge_s,
+                                           res.iterations, res.converged)
     best = None
     for q in qs:
         for sc in scales:
@@ -152,7 +162,7 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
                 continue
             allowed = (1.0 + (s.nominal_preference if q != model.q else 0.0)
                        + (s.nominal_scale_preference if sc != model.scale else 0.0)) \
-                * res.residual
+                * free.residual
             m = model.with_values(q=q, scale=sc)
             starts = [T]
             if q != model.q:
@@ -164,11 +174,17 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
                 # as it is, and refined (the fine stage's objective is not the residual)
                 fit = fine_stage(ctx, m, T0[:3, :3], T0[:3, 3], s.refit_fine, s,
                                  hold_joint=True, hold_scale=True)
-                refined = result(ctx, m, fit.R[0], fit.t[0], s,
+                refined = result(ctx, m, fit.R[0], fit.t[0], judge_s,
                                  iterations_before + fit.iterations, fit.converged[0])
-                as_is = result(ctx, m, T0[:3, :3], T0[:3, 3], s, res.iterations, res.converged)
+                as_is = result(ctx, m, T0[:3, :3], T0[:3, 3], judge_s, res.iterations,
+                               res.converged)
                 for cand in (as_is, refined):
                     if cand.residual <= allowed and (best is None or
                                                      cand.residual < best.residual):
-                        best = cand
-    return best if best is not None else res
+                        best, best_model = cand, m
+    if best is None:
+        return res
+    if judge_s is s:
+        return best
+    T_b = best.T_scene_model      # reported with the residual every candidate is ranked by
+    return result(ctx, best_model, T_b[:3, :3], T_b[:3, 3], s, best.iterations, best.converged)

@@ -41,7 +41,8 @@ one-sided scans (the README's benchmark measures both):
   steps, and a fine stage whose point-to-plane Gauss-Newton step has a column for the joint and
   one for the scale besides the six of the pose. A fit resting on the plane under the click keeps
   resting on it, and a joint value or scale the data cannot tell from a named state or scale 1 is
-  reported there, so the extra unknowns cost no rigid accuracy.
+  reported there, so the extra unknowns cost no rigid accuracy (scale 1 judged with samples at
+  grazing angles beyond ``scale_grazing_angle`` unseen: they count against the larger size).
 """
 from __future__ import annotations
 

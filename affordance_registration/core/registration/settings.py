@@ -146,6 +146,11 @@ class FitSettings:
     #: fraction) is reported at that state; likewise a scale and the nominal scale 1
     nominal_preference: float = 0.02
     nominal_scale_preference: float = 0.005
+    #: where a scale is decided (against the nominal scale 1), samples seen more obliquely
+    #: than this count as unseen: a sensor returns little from ~70 deg on, and samples it
+    #: could not have returned count against the larger of two sizes (pose ranking keeps
+    #: ``grazing_angle``)
+    scale_grazing_angle: float = math.radians(80.0)
     articulation_rounds: int = 3
     articulation_icp: int = 5          #: ICP iterations per sweep hypothesis
     refit_restarts: int = 10
@@ -173,7 +178,7 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "coverage_distance", "min_coverage",
-                     "min_coverage_no_viewpoint", "grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
+                     "min_coverage_no_viewpoint", "grazing_angle", "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
                      "articulated_margin", "finish_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
