@@ -312,3 +312,27 @@ def test_a_support_plane_is_flat_not_a_slab_through_a_curved_object(seed):
     assert ctx.support is not None and abs(ctx.support.normal[2]) > 0.99
     assert ctx.plane is not None
     assert np.all(np.abs(ctx.cluster[:, :2]).max(axis=0) < 0.035)
+
+
+def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library, panel_scene):
+    """After the first coarse iterations a template's restarts beyond its best ``coarse_keep``
+    leave (its best mounted one always goes on); any scores, any template."""
+    from affordance_registration.core.registration.hypotheses import (MOUNTED,
+                                                                      best_per_template,
+                                                                      initial_hypotheses)
+    reg = Registrar(library)
+    ctx = reg.prepare(Scene(panel_scene.organized), panel_scene.objects[0].click)
+    variants, _ = reg._variants(list(library))
+    hyps = initial_hypotheses(ctx, variants, reg.settings, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    for keep in (1, 3, 8):
+        score = rng.uniform(size=len(hyps))
+        kept = best_per_template(hyps, score, keep)
+        assert np.all(np.diff(kept) > 0)
+        for i in np.unique(hyps.index):
+            mine = np.flatnonzero(hyps.index == i)
+            best = set(mine[np.argsort(score[mine])[:keep]].tolist())
+            mounted = mine[hyps.family[mine] == MOUNTED]
+            wanted = best | ({int(mounted[np.argmin(score[mounted])])} if len(mounted) else set())
+            assert set(kept[hyps.index[kept] == i].tolist()) == wanted, (keep, i)
+    assert np.array_equal(best_per_template(hyps, score, 0), np.arange(len(hyps)))

@@ -21,7 +21,7 @@ __all__ = ["articulate", "prefer_nominal"]
 
 
 def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
-               sweep: bool = True):
+               sweep: bool = True, rounds: int | None = None):
     """Estimate the joint value and the scale of articulated ``model`` (starting at its own
     values) with the pose (R (3, 3), t (3,)).
 
@@ -31,7 +31,7 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     across the range. Every hypothesis gets a short batched ICP and is judged by the two-way
     residual plus the moving part's own fit (and, resting on the plane under the click, by its
     gap to the plane). Rounds of local joint/scale steps (each with a short ICP) follow,
-    halving the step. Returns (Model, R, t, whether its last ICP converged)."""
+    halving the step (``rounds``, default ``settings.articulation_rounds``). Returns (Model, R, t, whether its last ICP converged)."""
     s = settings
     tpl = model.template
     joint, lo_hi = tpl.joint, tpl.scale_range
@@ -45,7 +45,7 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
     if not sweep:
         q_step, s_step = q_step / 2, s_step / 2
-    for _ in range(s.articulation_rounds):
+    for _ in range(s.articulation_rounds if rounds is None else rounds):
         models = [model]
         if joint is not None:
             models += [model.with_values(q=float(np.clip(model.q + d * q_step, joint.lower,

@@ -20,7 +20,7 @@ from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFS
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
-           "keep_distinct", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
+           "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
@@ -224,6 +224,23 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
                 break
         out.extend(chosen)
     return np.array(out)
+
+
+def best_per_template(hyps: Hypotheses, scores: np.ndarray, keep: int) -> np.ndarray:
+    """Indices (in their order) of each template's best ``keep`` hypotheses by ``scores``
+    (lower is better) and its best mounting-prior one (:func:`keep_distinct` always takes it
+    on); all of them with ``keep`` 0."""
+    if keep <= 0:
+        return np.arange(len(hyps))
+    chosen = np.zeros(len(hyps), bool)
+    for i in np.unique(hyps.index):
+        idx = np.flatnonzero(hyps.index == i)
+        idx = idx[np.argsort(scores[idx], kind="stable")]
+        chosen[idx[:keep]] = True
+        mounted = idx[hyps.family[idx] == MOUNTED]
+        if len(mounted):
+            chosen[mounted[0]] = True
+    return np.flatnonzero(chosen)
 
 
 def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSettings):

@@ -55,8 +55,8 @@ from ..errors import RegistrationError
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
 from .articulation import articulate, prefer_nominal
-from .hypotheses import (Hypotheses, initial_hypotheses, keep_distinct, prefilter,
-                         yaw_sweep_starts)
+from .hypotheses import (Hypotheses, best_per_template, initial_hypotheses, keep_distinct,
+                         prefilter, yaw_sweep_starts)
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
@@ -158,12 +158,15 @@ class Registrar:
         # 2. coarse ICP, all restarts of all templates together; a library larger than the
         #    prefilter keeps: the templates clearly worse than the leaders after the first
         #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
-        split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) else 0
+        #    (and each template's restarts beyond its best ``coarse_keep`` leave there too)
+        split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) or \
+            s.coarse_keep else 0
         set_aside = ()
         if 0 < split < s.coarse_iterations:
             hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(0, split)))
             score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
-            hyps, _, set_aside = prefilter(hyps, score, names, s)
+            hyps, score, set_aside = prefilter(hyps, score, names, s)
+            hyps = hyps.take(best_per_template(hyps, score, s.coarse_keep))
             hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(split, s.coarse_iterations)))
         else:
             hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
@@ -272,7 +275,8 @@ class Registrar:
         model, R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3],
                                       win.T_scene_model[:3, 3])
         if model.articulated:       # the joint after the sweep, once more
-            model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False)
+            model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False,
+                                        rounds=s.finish_articulation_rounds)
         fit = fine_stage(ctx, model, R, t, s.fine, s)
         final = result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations + fit.iterations,
                        fit.converged[0])
@@ -301,8 +305,14 @@ class Registrar:
         models = [m for m in variants for _ in range(s.yaw_sweep)]
         swept = icp(ctx, Batch.of(models, np.concatenate([a for a, _ in starts]),
                                   np.concatenate([b for _, b in starts])), s.short, s)
-        residuals = [r.residual for r in results(ctx, Batch(swept.models, swept.R, swept.t), s)]
-        best = int(np.argmin(residuals))
+        swept = Batch(swept.models, swept.R, swept.t)
+        # ranked on the medium residual; the best few again on the full one
+        keep = np.arange(len(swept))
+        if 0 < s.yaw_sweep_keep < len(swept):
+            cheap = scores(ctx, swept, s, s.medium_samples, s.medium_samples)
+            keep = np.sort(np.argsort(cheap, kind="stable")[:s.yaw_sweep_keep])
+        residuals = [r.residual for r in results(ctx, swept.take(keep), s)]
+        best = int(keep[int(np.argmin(residuals))])
         return models[best], swept.R[best], swept.t[best]
 
     def _model(self, template: str, joints: dict | None = None, scale: float = 1.0) -> Model:

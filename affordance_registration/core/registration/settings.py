@@ -111,6 +111,9 @@ class FitSettings:
     coarse_samples: int = 64
     coarse_iterations: int = 8
     keep_per_template: int = 3
+    #: after ``prefilter_iterations`` coarse iterations, each template's best this many restarts
+    #: (and its best mounted one) go on through the coarse stage (0: all)
+    coarse_keep: int = 8
     #: the library prefilter: in the coarse stage, the templates whose best coarse score is
     #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
     #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
@@ -128,6 +131,8 @@ class FitSettings:
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
     yaw_sweep: int = 8                 #: leaders re-tried at this many angles about their axis
+    #: ... ranked on the medium residual, the best this many again on the full one (0: all)
+    yaw_sweep_keep: int = 3
     #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
     #: winner and, of the next ``finish_candidates - 1``, those with a residual within
     #: ``finish_margin`` x the winner's (1: the winner alone)
@@ -152,6 +157,8 @@ class FitSettings:
     #: ``grazing_angle``)
     scale_grazing_angle: float = math.radians(80.0)
     articulation_rounds: int = 3
+    #: rounds of local joint / scale steps in a leader's finish (after its yaw sweep)
+    finish_articulation_rounds: int = 1
     articulation_icp: int = 5          #: ICP iterations per sweep hypothesis
     refit_restarts: int = 10
     refit_spread: float = 0.015        #: translation spread of the refit's restarts (m)
@@ -194,7 +201,7 @@ class FitSettings:
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
                      "articulated_candidates", "prefilter_keep", "prefilter_iterations",
-                     "articulation_rounds",
+                     "articulation_rounds", "finish_articulation_rounds", "yaw_sweep_keep", "coarse_keep",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)
