@@ -31,10 +31,15 @@ def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
 
 def stack_samples(models, n: int):
     """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
-    of = {id(m): m.samples(n) for m in models}      # a batch repeats few distinct models
-    P = np.stack([of[id(m)][0] for m in models])
-    N = np.stack([of[id(m)][1] for m in models])
-    return P, N
+    first: dict = {}                # a batch repeats few distinct models: each sampled once
+    which = np.array([first.setdefault(id(m), len(first)) for m in models])
+    distinct = list({id(m): m for m in models}.values())
+    if len(distinct) == 1:
+        P, N = distinct[0].samples(n)
+        return np.broadcast_to(P, (len(models),) + P.shape).copy(), \
+            np.broadcast_to(N, (len(models),) + N.shape).copy()
+    samples = [m.samples(n) for m in distinct]
+    return np.stack([s[0] for s in samples])[which], np.stack([s[1] for s in samples])[which]
 
 
 def in_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
