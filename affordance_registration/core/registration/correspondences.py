@@ -136,6 +136,8 @@ class Pairs:
 
 def _padded(rows: list, fill=0.0) -> np.ndarray:
     """Ragged per-hypothesis rows (n_b, ...) stacked into (B, max n_b, ...), padded."""
+    if len(rows) == 1:
+        return np.asarray(rows[0])[None]        # one hypothesis: nothing to pad
     width = max(len(r) for r in rows)
     out = np.full((len(rows), width) + rows[0].shape[1:], fill, dtype=rows[0].dtype)
     for b, r in enumerate(rows):
