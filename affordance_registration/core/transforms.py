@@ -85,7 +85,8 @@ def axis_angle_matrix(axis, angle) -> np.ndarray:
         return np.array(_rotvec_matrix(*rotvec.tolist()))
     if len(rotvec) > _FEW_ROTATIONS:
         return Rotation.from_rotvec(rotvec).as_matrix()
-    return np.array([_rotvec_matrix(*r) for r in rotvec.tolist()]).reshape(rotvec.shape[:-1] + (3, 3))
+    matrices = np.array([_rotvec_matrix(*r) for r in rotvec.tolist()])
+    return matrices.reshape(rotvec.shape[:-1] + (3, 3))
 
 
 #: up to this many rotations at once, :func:`axis_angle_matrix` composes them in plain Python

@@ -55,15 +55,18 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
     them; violated = facing it while the sensor saw through where they would be. With
     ``exposed`` also the samples facing the sensor in a direction it returned something, hidden
     or not (what a fit's coverage is judged over)."""
-    if ctx.sensor_origin is None:
+    origin, image = ctx.sensor_origin, ctx.range_image
+    if origin is None:
         front = np.ones(X.shape[:-1], bool)
     else:
-        D = X - ctx.sensor_origin           # shared by the facing test and the range image
+        D = X - origin          # the offsets the facing test and the range image share
         front = _facing(D, Nw, settings.grazing_angle)
-    if ctx.range_image is None:
+    if image is None:
         none = np.zeros_like(front)
         return (front, none, front) if exposed else (front, none)
-    obs, depth = ctx.range_image.lookup_offsets(D)
+    shared = origin is not None and (image.origin is origin or
+                                     np.array_equal(image.origin, origin))
+    obs, depth = image.lookup_offsets(D) if shared else image.lookup(X)
     m = settings.free_space_margin
     # NaN (no return) compares False: an unknown direction is neither hidden nor violated
     known = front & (obs == obs) if exposed else None
