@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -130,15 +131,24 @@ class RangeImage:
 
     def lookup(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(observed depth, point depth) for points (..., 3); observed is NaN when unknown."""
-        rel = (points - self.origin) @ self.frame
+        return self.lookup_offsets(points - self.origin)
+
+    def lookup_offsets(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`lookup` of points given as their offsets (..., 3) from the sensor origin."""
+        rel = offsets @ self.frame
         z = rel[..., 2]
-        zs = np.where(z > 1e-3, z, 1e-3)
+        zs = np.maximum(z, 1e-3)
         iu = np.floor((rel[..., 0] / zs - self.u0) / self.bin).astype(np.int64)
         iv = np.floor((rel[..., 1] / zs - self.v0) / self.bin).astype(np.int64)
-        inside = (iu >= 0) & (iu < self.nu) & (iv >= 0) & (iv < self.nv) & (z > 1e-3)
-        flat = np.where(inside, iu * self.nv + iv, 0)
-        obs = np.where(inside, self.depth[flat], np.nan)
-        return obs, z
+        # a negative bin wraps to a huge unsigned one: one comparison per axis
+        inside = (iu.view(np.uint64) < self.nu) & (iv.view(np.uint64) < self.nv) & (z > 1e-3)
+        flat = np.where(inside, iu * self.nv + iv, self.nu * self.nv)     # outside: the NaN
+        return self._depth_or_nan[flat], z
+
+    @cached_property
+    def _depth_or_nan(self) -> np.ndarray:
+        """``depth`` followed by one NaN (what a lookup outside the image reads)."""
+        return np.append(self.depth, np.nan)
 
 
 def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None) -> np.ndarray:

@@ -266,13 +266,15 @@ class AffordanceTemplate:
 
     def pose_parts(self, P, N, moving, q: float = 0.0, scale: float = 1.0):
         """Samples with the moving part at joint value ``q`` and the whole template scaled
-        about its origin (the mounting base centre)."""
+        about its origin (the mounting base centre). ``N`` None: only the points are posed
+        (None returned for the normals)."""
         P = np.array(P, dtype=float)
-        N = np.array(N, dtype=float)
+        N = None if N is None else np.array(N, dtype=float)
         if q and self.joints and moving.any():
             T = self.joint_transform(q)
             P[moving] = P[moving] @ T[:3, :3].T + T[:3, 3]
-            N[moving] = N[moving] @ T[:3, :3].T
+            if N is not None:
+                N[moving] = N[moving] @ T[:3, :3].T
         return P * scale, N
 
     def _cached_mesh(self, key: tuple, build):

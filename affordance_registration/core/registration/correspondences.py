@@ -31,10 +31,15 @@ def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
 
 def stack_samples(models, n: int):
     """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
-    of = {id(m): m.samples(n) for m in models}      # a batch repeats few distinct models
-    P = np.stack([of[id(m)][0] for m in models])
-    N = np.stack([of[id(m)][1] for m in models])
-    return P, N
+    first: dict = {}                # a batch repeats few distinct models: each sampled once
+    which = np.array([first.setdefault(id(m), len(first)) for m in models])
+    distinct = list({id(m): m for m in models}.values())
+    if len(distinct) == 1:
+        P, N = distinct[0].samples(n)
+        return np.broadcast_to(P, (len(models),) + P.shape).copy(), \
+            np.broadcast_to(N, (len(models),) + N.shape).copy()
+    samples = [m.samples(n) for m in distinct]
+    return np.stack([s[0] for s in samples])[which], np.stack([s[1] for s in samples])[which]
 
 
 def in_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
@@ -50,31 +55,36 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
     unseen samples and beyond ``radius`` (B,)."""
     tree = ctx.cluster_tree if target == CLUSTER else ctx.fine_tree
     pts = tree_points(tree)
-    B, S = X.shape[:2]
+    shape = X.shape[:2]
     vis, _ = visible(ctx, X, Nw, settings)
-    dist = np.full((B, S), np.inf)
-    Q = np.empty_like(X)
-    band = np.zeros_like(vis)
+    # flat rows, addressed by index: the samples nothing pairs with keep Q = X, d = inf
+    Xf = X.reshape(-1, 3)
+    dist = np.full(Xf.shape[0], np.inf)
+    Q = Xf.copy()
+    Nq = np.zeros_like(Xf)
     if ctx.plane is not None:
         # The plane band was removed from the targets; a sample in it corresponds to its
         # projection on the plane, which the sensor did observe (keeps tilt and height
         # constrained when the rest of the object is degenerate, e.g. a bar seen from above).
-        pd = ctx.plane.distance(X)
-        band = vis & (pd <= PLANE_BAND * ctx.plane_threshold)
-        dist[band] = np.abs(pd[band])
-        Q[band] = X[band] - pd[band][:, None] * ctx.plane.normal
-        vis = vis & ~band
-    d_v, i_v = nearest(tree, X[vis], parallel=True)
-    dist[vis] = d_v
-    Q[vis] = pts[i_v]
-    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
-    Q = np.where(np.isfinite(dist)[..., None], Q, X)
-    Nq = np.zeros_like(X)
-    if normals:
-        Nq[vis] = ctx.fine_normals[i_v]
-        if ctx.plane is not None:
+        pd = ctx.plane.distance(Xf)
+        in_band = vis.reshape(-1) & (pd <= PLANE_BAND * ctx.plane_threshold)
+        band = np.flatnonzero(in_band)
+        pb = pd[band]
+        dist[band] = np.abs(pb)
+        Q[band] = Xf[band] - pb[:, None] * ctx.plane.normal
+        if normals:
             Nq[band] = ctx.plane.normal
-    return Q, Nq, w
+        rows = np.flatnonzero(vis.reshape(-1) & ~in_band)
+    else:
+        rows = np.flatnonzero(vis)
+    d_v, i_v = nearest(tree, Xf[rows], parallel=True)
+    dist[rows] = d_v
+    Q[rows] = pts[i_v]
+    if normals:
+        Nq[rows] = ctx.fine_normals[i_v]
+    dist = dist.reshape(shape)
+    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
+    return Q.reshape(X.shape), Nq.reshape(X.shape), w
 
 
 def reverse_subset(ctx: ClickContext, limit: int):
@@ -126,6 +136,8 @@ class Pairs:
 
 def _padded(rows: list, fill=0.0) -> np.ndarray:
     """Ragged per-hypothesis rows (n_b, ...) stacked into (B, max n_b, ...), padded."""
+    if len(rows) == 1:
+        return np.asarray(rows[0])[None]        # one hypothesis: nothing to pad
     width = max(len(r) for r in rows)
     out = np.full((len(rows), width) + rows[0].shape[1:], fill, dtype=rows[0].dtype)
     for b, r in enumerate(rows):

@@ -138,7 +138,9 @@ class _Posing:
         extra unknowns also U, the samples unscaled in the model frame (b, S, 3), and which are
         on the moving part (b, S)."""
         if not self.unknowns:
-            U, moving, P, N = None, None, self.P[idx], self.N[idx]
+            U, moving = None, None
+            # every hypothesis still moving: the samples as they are, no copy
+            P, N = (self.P, self.N) if len(idx) == len(self.P) else (self.P[idx], self.N[idx])
         else:
             models, parts = self.models_at(idx), [self.parts[i] for i in idx]
             posed = [m.template.pose_parts(P0, N0, mov, m.q)

@@ -139,8 +139,8 @@ class Model:
             return self.template.centroid
 
         def compute():
-            P, N, moving = self.template.part_samples(CENTROID_SAMPLES, seed=CENTROID_SEED)
-            return self.template.pose_parts(P, N, moving, self.q, self.scale)[0].mean(axis=0)
+            P, _, moving = self.template.part_samples(CENTROID_SAMPLES, seed=CENTROID_SEED)
+            return self.template.pose_parts(P, None, moving, self.q, self.scale)[0].mean(axis=0)
         return self.cache.posed(("centroid", self.template, self.q, self.scale), compute)
 
     def samples(self, n: int, seed: int = SAMPLE_SEED) -> tuple[np.ndarray, np.ndarray]:

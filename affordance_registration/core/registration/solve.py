@@ -57,8 +57,9 @@ def rigid_step(X: np.ndarray, Q: np.ndarray, w: np.ndarray) -> Step:
     D[:, 2] = np.sign(det) + (det == 0)
     R = (V * D[:, None, :]) @ np.swapaxes(U, 1, 2)
     t = mq - np.einsum("bij,bj->bi", R, mx)
-    R[~ok] = np.eye(3)
-    t[~ok] = 0.0
+    if not ok.all():
+        R[~ok] = np.eye(3)
+        t[~ok] = 0.0
     return Step(R, t, mx, np.zeros((len(X), 0)))
 
 
@@ -72,15 +73,24 @@ def plane_step(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray,
     W = w.sum(axis=1)
     ok = W > 1e-9
     c = _weighted_sum(w, X) / np.where(ok, W, 1.0)[:, None]
-    cols = [np.cross(X - c[:, None], Nq), Nq] + ([] if extra is None else [extra])
-    J = np.concatenate(cols, axis=-1)
+    # the Jacobian's columns written in place: (x - c) x n, n, then the extra unknowns'
+    # (the cross and dot products of three components spelled out, as np.cross computes them)
+    A = X - c[:, None]
+    J = np.empty(X.shape[:2] + (6 + (0 if extra is None else extra.shape[-1]),))
+    J[..., 0] = A[..., 1] * Nq[..., 2] - A[..., 2] * Nq[..., 1]
+    J[..., 1] = A[..., 2] * Nq[..., 0] - A[..., 0] * Nq[..., 2]
+    J[..., 2] = A[..., 0] * Nq[..., 1] - A[..., 1] * Nq[..., 0]
+    J[..., 3:6] = Nq
+    if extra is not None:
+        J[..., 6:] = extra
     r = np.einsum("bsi,bsi->bs", Q - X, Nq)
     xi = gauss_newton(J, r, w, *(bounds if bounds is not None else (None, None, None)))
     R = rotations_from_vectors(xi[:, :3])
     t = c + xi[:, 3:6] - np.einsum("bij,bj->bi", R, c)
-    R[~ok] = np.eye(3)
-    t[~ok] = 0.0
-    xi[~ok] = 0.0
+    if not ok.all():
+        R[~ok] = np.eye(3)
+        t[~ok] = 0.0
+        xi[~ok] = 0.0
     return Step(R, t, c, xi[:, 6:])
 
 
@@ -94,7 +104,7 @@ def gauss_newton(J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower
     B, _, n = J.shape
     free = np.ones((B, n), bool)
     while True:
-        Jf = J * free[:, None, :]
+        Jf = J if free.all() else J * free[:, None, :]
         JfT = np.swapaxes(Jf, 1, 2)
         A = (JfT * w[:, None, :]) @ Jf + 1e-9 * np.eye(n)
         xi = np.linalg.solve(A, JfT @ (w * r)[..., None])[..., 0]

@@ -29,9 +29,23 @@ def facing(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettin
     viewpoint."""
     if ctx.sensor_origin is None:
         return np.ones(X.shape[:-1], bool)
-    ray = ctx.sensor_origin - X
-    cos_in = np.einsum("bsi,bsi->bs", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=-1), 1e-9)
-    return cos_in > math.cos(settings.grazing_angle)
+    return _facing(X - ctx.sensor_origin, Nw, settings.grazing_angle)
+
+
+def _facing(D: np.ndarray, Nw: np.ndarray, grazing_angle: float) -> np.ndarray:
+    """:func:`facing` of the samples' offsets D (..., 3) from the sensor origin: the cosine of
+    the angle between a normal and the ray back to the sensor, -Nw . D / |D|, above
+    cos(grazing_angle) -- compared squared, without a division or a square root (the sums of
+    three products written out: a reduction over a last axis of length 3 costs more than the
+    arithmetic)."""
+    c = math.cos(grazing_angle)
+    dn = D * Nw
+    dot = dn[..., 0] + dn[..., 1] + dn[..., 2]            # -|D| cos(incidence)
+    dd = D * D
+    n2 = np.maximum(dd[..., 0] + dd[..., 1] + dd[..., 2], 1e-18)
+    if c >= 0.0:
+        return (dot < 0.0) & (dot * dot > (c * c) * n2)
+    return (dot < 0.0) | (dot * dot < (c * c) * n2)
 
 
 def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettings,
@@ -41,14 +55,21 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
     them; violated = facing it while the sensor saw through where they would be. With
     ``exposed`` also the samples facing the sensor in a direction it returned something, hidden
     or not (what a fit's coverage is judged over)."""
-    front = facing(ctx, X, Nw, settings)
-    if ctx.range_image is None:
+    origin, image = ctx.sensor_origin, ctx.range_image
+    if origin is None:
+        front = np.ones(X.shape[:-1], bool)
+    else:
+        D = X - origin          # the offsets the facing test and the range image share
+        front = _facing(D, Nw, settings.grazing_angle)
+    if image is None:
         none = np.zeros_like(front)
         return (front, none, front) if exposed else (front, none)
-    obs, depth = ctx.range_image.lookup(X)
+    shared = origin is not None and (image.origin is origin or
+                                     np.array_equal(image.origin, origin))
+    obs, depth = image.lookup_offsets(D) if shared else image.lookup(X)
     m = settings.free_space_margin
-    known = np.isfinite(obs)
-    hidden = known & (obs < depth - m)
-    violated = known & (obs > depth + m)
-    seen = front & known & ~hidden
-    return (seen, front & violated, front & known) if exposed else (seen, front & violated)
+    # NaN (no return) compares False: an unknown direction is neither hidden nor violated
+    known = front & (obs == obs) if exposed else None
+    seen = front & (obs >= depth - m)
+    violated = front & (obs > depth + m)
+    return (seen, violated, known) if exposed else (seen, violated)

@@ -1,0 +1,117 @@
+"""The fitter's hand-rolled fast paths give the digits of the slower, general code they replace
+(the golden fits depend on it): checked against that code on random input."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from affordance_registration.core.transforms import axis_angle_matrix
+
+_axis = st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=3).filter(
+    lambda a: math.fsum(x * x for x in a) > 1e-12)
+_angle = st.one_of(st.floats(-10.0, 10.0), st.floats(-2e-3, 2e-3))
+
+
+def _scipy_axis_angle(axis, angle):
+    axis = np.asarray(axis, dtype=float)
+    angle = np.asarray(angle, dtype=float)
+    unit = axis / np.linalg.norm(axis) if axis.ndim == 1 else \
+        axis / np.sqrt([a @ a for a in axis])[:, None]
+    return Rotation.from_rotvec(unit * angle[..., None]).as_matrix()
+
+
+@settings(max_examples=300, deadline=None)
+@given(axes=st.lists(_axis, min_size=1, max_size=12), angles=st.data())
+def test_axis_angle_matrix_has_scipys_digits(axes, angles):
+    angle = angles.draw(st.lists(_angle, min_size=len(axes), max_size=len(axes)))
+    for a, q in ((axes, angle), (axes[0], angle[0]), (axes[0], angle)):
+        got, want = axis_angle_matrix(a, q if np.ndim(q) == 0 else np.array(q)), \
+            _scipy_axis_angle(a, q)
+        assert got.shape == want.shape
+        assert np.array_equal(got, want)
+
+
+# -- visibility: one pass over the offsets from the sensor, against the formulas it replaced --
+
+import pytest  # noqa: E402
+
+from affordance_registration.core.registration import FitSettings, Registrar  # noqa: E402
+from affordance_registration.core.registration.correspondences import stack_samples  # noqa: E402
+from affordance_registration.core.registration.visibility import facing, visible  # noqa: E402
+from affordance_registration.core.scene import Scene  # noqa: E402
+from affordance_registration.core.simulation import simulate_taskboard  # noqa: E402
+from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
+from affordance_registration.core.transforms import random_rotations  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def clicked():
+    """(registrar, prepared click context) on a simulated panel scene."""
+    library = TemplateLibrary.load()
+    sim = simulate_taskboard(library, 1000)
+    registrar = Registrar(library)
+    return registrar, registrar.prepare(Scene(sim.organized), sim.objects[0].click)
+
+
+def _reference_visible(ctx, X, Nw, settings):
+    """The visibility terms as first written: cosine by division, range image by masks."""
+    ray = ctx.sensor_origin - X
+    cos_in = np.einsum("bsi,bsi->bs", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=-1), 1e-9)
+    front = cos_in > math.cos(settings.grazing_angle)
+    img = ctx.range_image
+    rel = (X - img.origin) @ img.frame
+    z = rel[..., 2]
+    zs = np.where(z > 1e-3, z, 1e-3)
+    iu = np.floor((rel[..., 0] / zs - img.u0) / img.bin).astype(np.int64)
+    iv = np.floor((rel[..., 1] / zs - img.v0) / img.bin).astype(np.int64)
+    inside = (iu >= 0) & (iu < img.nu) & (iv >= 0) & (iv < img.nv) & (z > 1e-3)
+    obs = np.where(inside, img.depth[np.where(inside, iu * img.nv + iv, 0)], np.nan)
+    known = np.isfinite(obs)
+    m = settings.free_space_margin
+    hidden = known & (obs < z - m)
+    violated = known & (obs > z + m)
+    return cos_in, front, obs, z, (front & known & ~hidden, front & violated, front & known)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), grazing=st.sampled_from([60.0, 80.0, 89.0, 95.0]))
+def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
+    registrar, ctx = clicked
+    s = FitSettings(grazing_angle=math.radians(grazing))
+    rng = np.random.default_rng(seed)
+    models = [registrar.models.model(t) for t in registrar.library.values()]
+    models = [models[i] for i in rng.integers(0, len(models), 6)]
+    P, N = stack_samples(models, 128)
+    R = random_rotations(len(models), rng)
+    t = ctx.click + rng.normal(scale=0.05, size=(len(models), 3))
+    t[-1] = ctx.click + 2.0 * ctx.frame[:, 0]           # off the range image: no returns
+    X = P @ np.swapaxes(R, 1, 2) + t[:, None]
+    Nw = N @ np.swapaxes(R, 1, 2)
+    cos_in, front, obs, z, want = _reference_visible(ctx, X, Nw, s)
+    got = visible(ctx, X, Nw, s, exposed=True)
+    # the facing test compares squares instead of dividing: it may differ only on the edge
+    edge = np.abs(cos_in - math.cos(s.grazing_angle)) < 1e-12
+    assert np.array_equal(facing(ctx, X, Nw, s) | edge, front | edge)
+    for g, w in zip(got, want):
+        assert np.array_equal(g | edge, w | edge)
+    got_obs, got_z = ctx.range_image.lookup(X)
+    assert np.array_equal(got_z, z)
+    assert np.array_equal(got_obs, obs, equal_nan=True)
+    assert np.isnan(obs).any() and np.isfinite(obs).any()      # both cases exercised
+
+
+def test_stacked_samples_are_each_models_own(clicked):
+    registrar, _ = clicked
+    models = [registrar.models.model(t) for t in registrar.library.values()]
+    articulated = next(m for m in models if m.template.joint is not None)
+    models.append(articulated.with_values(q=0.3, scale=1.1))
+    for batch in (models[:1], models[:1] * 4, models * 3 + models[::-1]):
+        P, N = stack_samples(batch, 64)
+        assert P.shape == N.shape == (len(batch), 64, 3)
+        for b, m in enumerate(batch):
+            assert np.array_equal(P[b], m.samples(64)[0])
+            assert np.array_equal(N[b], m.samples(64)[1])
