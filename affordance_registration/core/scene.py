@@ -282,7 +282,7 @@ class Scene:
     def points(self) -> np.ndarray:
         """The finite points (N, 3) float64, m (one pass over the cloud, on first use)."""
         if self._points is None:
-            self._points = np.ascontiguousarray(self._raw[np.isfinite(self._raw).all(axis=1)])
+            self._points = np.compress(np.isfinite(self._raw).all(axis=1), self._raw, axis=0)
         return self._points
 
     @property
@@ -320,8 +320,8 @@ class Scene:
         pts = self._raw if self._points is None else self._points
         x = pts[:, 0]
         idx = np.flatnonzero((x >= c[0] - radius) & (x <= c[0] + radius))  # NaN: outside
-        d = pts[idx] - c
-        near = pts[idx[np.einsum("ij,ij->i", d, d) <= radius * radius]]
+        d = np.take(pts, idx, axis=0) - c
+        near = np.take(pts, np.compress(np.einsum("ij,ij->i", d, d) <= radius * radius, idx), axis=0)
         if len(near) == 0:
             return None
         part = Scene.__new__(Scene)
@@ -347,7 +347,7 @@ class Scene:
         """Crop ``radius`` around the (already snapped) click and prepare the fitting targets."""
         c = _point3(click, "click")
         d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
-        raw = self.points[d2 <= radius * radius]
+        raw = np.compress(d2 <= radius * radius, self.points, axis=0)
         if len(raw) < 10:
             raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click")
         origin = self.sensor_origin
@@ -377,7 +377,7 @@ class Scene:
             off = plane.distance(crop)
             keep = off > plane_threshold
             lifted = np.flatnonzero(keep & (off <= band))
-            keep[lifted] = ~_along(plane, crop[lifted], crop, crop_tree)
+            keep[lifted] = ~_along(plane, np.take(crop, lifted, axis=0), crop, crop_tree)
         cluster = _connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
         if len(cluster) < 10:       # nothing off the plane near the click: fit to the whole crop
             cluster = crop
@@ -388,9 +388,9 @@ class Scene:
         # (the points on the plane first left out: most of a crop's, and none of them fine)
         cluster_tree = build_tree(cluster)
         fine = raw if plane_for_fine is None else \
-            raw[plane_for_fine.distance(raw) > plane_threshold]
+            np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
         near, _ = nearest(cluster_tree, fine, voxel)
-        fine = fine[np.isfinite(near)]
+        fine = np.compress(np.isfinite(near), fine, axis=0)
         if len(fine) < 10:
             fine = cluster
         range_image = None
@@ -447,8 +447,8 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     if n < 50:
         return None
     rng = np.random.default_rng(seed)
-    sub = points if n <= 3000 else points[rng.choice(n, 3000, replace=False)]
-    tri = sub[rng.integers(0, len(sub), size=(hypotheses, 3))]
+    sub = points if n <= 3000 else np.take(points, rng.choice(n, 3000, replace=False), axis=0)
+    tri = np.take(sub, rng.integers(0, len(sub), size=(hypotheses, 3)), axis=0)
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(normals, axis=1)
     ok = norm > 1e-9
@@ -460,7 +460,7 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     best = int(np.argmax(counts))
     normal, d = normals[best], ds[best]
     for _ in range(2):   # least-squares refit on the inliers
-        inl = points[np.abs(points @ normal + d) < threshold]
+        inl = np.compress(np.abs(points @ normal + d) < threshold, points, axis=0)
         if len(inl) < 3:
             return None
         centre = inl.mean(axis=0)
@@ -501,7 +501,7 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
     near = np.flatnonzero(np.abs(d) < SUPPORT_REACH * threshold)
     if len(near) > FLAT_SAMPLES:
         near = near[np.linspace(0, len(near) - 1, FLAT_SAMPLES).astype(np.int64)]
-    agree = _along(plane, crop[near], crop, tree)
+    agree = _along(plane, np.take(crop, near, axis=0), crop, tree)
     inside = np.abs(d[near]) < threshold
     if not inside.any() or not agree.any():
         return 0.0, 0.0
@@ -514,7 +514,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     """The kept points connected (steps <= ``gap``) to any kept point within ``reach`` of the
     click. (Occlusion splits one object into parts at different depths; reaching out from the
     click gathers them.)"""
-    pts = points[keep]
+    pts = np.compress(keep, points, axis=0)
     if len(pts) == 0:
         return pts
     seeds = np.linalg.norm(pts - click, axis=1) <= reach
@@ -525,7 +525,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
                        shape=(len(pts), len(pts)))
     _, labels = connected_components(graph, directed=False)
     wanted = np.unique(labels[seeds])
-    return pts[np.isin(labels, wanted)]
+    return np.compress(np.isin(labels, wanted), pts, axis=0)
 
 
 def _middle_first(n: int, step: int):
