@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
@@ -520,12 +520,23 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
     seeds = np.linalg.norm(pts - click, axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    pairs = pairs_within(pts, gap)
-    graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])),
-                       shape=(len(pts), len(pts)))
-    _, labels = connected_components(graph, directed=False)
+    labels = _components(len(pts), pairs_within(pts, gap))
     wanted = np.unique(labels[seeds])
     return np.compress(np.isin(labels, wanted), pts, axis=0)
+
+
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Connected-component label (n,) of each of ``n`` nodes joined by the edges ``pairs``
+    (M, 2). The graph goes to scipy as rows of neighbours (CSR) grouped by a stable sort of
+    the first indices -- a radix sort for up to 65536 nodes -- rather than as coordinates,
+    whose conversion sorts every row's neighbours as well (the slow part; the components do
+    not need it)."""
+    rows, cols = pairs[:, 0], pairs[:, 1]
+    order = np.argsort(rows.astype(np.uint16) if n <= 65536 else rows, kind="stable")
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    graph = csr_matrix((np.ones(len(rows)), np.take(cols, order), indptr), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 def _middle_first(n: int, step: int):
