@@ -269,6 +269,7 @@ class Scene:
             raise SceneError(f"scene points must have shape (N, 3), got {pts.shape}")
         self._raw = pts
         self._points: np.ndarray | None = None
+        self._squared_to: tuple | None = None
         mid = len(pts) // 2
         if not (np.isfinite(pts[mid:mid + self._FIRST_PROBE]).all(axis=1).any() or
                 any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
@@ -321,18 +322,26 @@ class Scene:
         x = pts[:, 0]
         idx = np.flatnonzero((x >= c[0] - radius) & (x <= c[0] + radius))  # NaN: outside
         d = np.take(pts, idx, axis=0) - c
-        near = np.take(pts, np.compress(np.einsum("ij,ij->i", d, d) <= radius * radius, idx), axis=0)
+        d2 = np.einsum("ij,ij->i", d, d)
+        inside = d2 <= radius * radius
+        near = np.take(pts, np.compress(inside, idx), axis=0)
         if len(near) == 0:
             return None
         part = Scene.__new__(Scene)
-        part._raw = part._points = np.ascontiguousarray(near)
+        part._raw = part._points = near
+        # the squared distances of its points to ``point``, for a snap to it (the same numbers
+        # a pass over the part would give: each is its own row's sum)
+        part._squared_to = (c, np.compress(inside, d2))
         part.sensor_origin, part.frame_id = self.sensor_origin, self.frame_id
         return part
 
     def snap(self, click, max_distance: float = 0.03) -> np.ndarray:
         """The scene point nearest ``click`` (3,). Farther than ``max_distance`` is an error."""
         c = _point3(click, "click")
-        d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
+        if self._squared_to is not None and np.array_equal(self._squared_to[0], c):
+            d2 = self._squared_to[1]        # a part cut around this very point
+        else:
+            d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
         i = int(np.argmin(d2))
         dist = math.sqrt(d2[i])
         if dist > max_distance:
@@ -432,7 +441,12 @@ def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:
     if len(crop) < 10:
         raise SceneError(f"the scan around the click holds only {len(crop)} distinct points "
                          f"(at {voxel * 1000:.0f} mm): nothing to fit")
-    spread = np.linalg.svd(crop - crop.mean(axis=0), compute_uv=False) / math.sqrt(len(crop))
+    rel = crop - crop.mean(axis=0)
+    # the singular values from the eigenvalues of the (3, 3) Gram matrix (an SVD of the crop
+    # costs ten times more); within rounding of the limit, from the SVD
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(rel.T @ rel)[::-1], 0.0) / len(crop))
+    if abs(spread[1] - 0.5 * voxel) <= 1e-6 * spread[0]:
+        spread = np.linalg.svd(rel, compute_uv=False) / math.sqrt(len(crop))
     if spread[1] < 0.5 * voxel:
         raise SceneError("the scanned points around the click lie on a line: nothing to fit")
 
@@ -456,7 +470,9 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
         return None
     normals = normals[ok] / norm[ok, None]
     ds = -np.einsum("ij,ij->i", normals, tri[ok, 0])
-    counts = (np.abs(sub @ normals.T + ds) < threshold).sum(axis=0)
+    off = sub @ normals.T
+    off += ds
+    counts = np.count_nonzero(np.abs(off, out=off) < threshold, axis=0)
     best = int(np.argmax(counts))
     normal, d = normals[best], ds[best]
     for _ in range(2):   # least-squares refit on the inliers
