@@ -96,6 +96,8 @@ def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None,
     # order -- but over (k, M, 3) gathered neighbours-first, where each step is one contiguous
     # add; ``np.take`` gathers rows several times faster than fancy indexing
     centre = np.take(points, idx.T, axis=0).sum(axis=0) / k
-    nb = np.take(points, idx, axis=0) - centre[:, None]
+    nb = np.take(points, idx, axis=0)
+    for j in range(3):      # less the means, column by column (broadcasting over a last axis
+        nb[:, :, j] -= centre[:, j, None]       # of three is several times slower)
     _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
     return np.ascontiguousarray(vecs[:, :, 0])
