@@ -400,8 +400,7 @@ class Scene:
         cluster_tree = build_tree(cluster)
         fine = raw if plane_for_fine is None else \
             np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
-        near, _ = nearest(cluster_tree, fine, voxel)
-        fine = np.compress(np.isfinite(near), fine, axis=0)
+        fine = _within(fine, cluster, cluster_tree, voxel)
         if len(fine) < 10:
             fine = cluster
         range_image = None
@@ -534,6 +533,22 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
         return 0.0, 0.0
     on = d[near][agree]
     return float(np.mean(agree[inside])), float(1.4826 * np.median(np.abs(on - np.median(on))))
+
+
+def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree,
+            distance: float) -> np.ndarray:
+    """The ``points`` (N, 3) within ``distance`` (m) of any of ``targets`` (M, 3) (``tree``:
+    over them), in their order. Only those inside the targets' bounding box widened by the
+    distance are looked up in the tree: the others are farther from every target."""
+    reach = distance * (1 + 1e-6)
+    inside = np.ones(len(points), bool)
+    for k in range(3):
+        col = points[:, k]
+        inside &= col >= targets[:, k].min() - reach
+        inside &= col <= targets[:, k].max() + reach
+    idx = np.flatnonzero(inside)
+    near, _ = nearest(tree, np.take(points, idx, axis=0), distance)
+    return np.take(points, np.compress(np.isfinite(near), idx), axis=0)
 
 
 def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,
