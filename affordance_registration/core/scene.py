@@ -174,14 +174,7 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
     cov = rel.T @ rel
 
     def signed(axis):       # the side the points' distribution leans to
-        along = rel @ axis
-        cubes = along * along * along       # ``** 3`` is a pow() per point, ten times slower
-        lean = cubes.sum()
-        if abs(lean) <= 1e-9 * np.abs(cubes).sum():
-            # too close to call from products rounded twice: the sign of the exact cubes
-            # (the products differ from them by a few ulp, their sums by far less than this)
-            lean = np.sum(along ** 3)
-        return axis if lean >= 0 else -axis
+        return axis if _leans_forward(rel @ axis) else -axis
 
     if origin is not None and np.linalg.norm(origin - click) > 1e-9:
         z = (origin - click) / np.linalg.norm(origin - click)
@@ -194,6 +187,19 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
         x = align_z_to(z)[:, 0]
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _leans_forward(along: np.ndarray) -> bool:
+    """Whether the sum of the cubes of ``along`` (N,) is at least zero, as
+    ``np.sum(along ** 3) >= 0`` decides it. The cubes are products (``** 3`` is a pow() per
+    value, ten times slower); they differ from pow()'s by a few ulp and their sum by far less
+    than 1e-9 of the sum of their sizes, so a sum closer to zero than that is decided by
+    pow()'s cubes."""
+    cubes = along * along * along
+    lean = cubes.sum()
+    if abs(lean) <= 1e-9 * np.abs(cubes).sum():
+        lean = np.sum(along ** 3)
+    return bool(lean >= 0)
 
 
 @dataclass
