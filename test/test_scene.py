@@ -14,7 +14,8 @@ from scipy.sparse.csgraph import connected_components
 
 from affordance_registration.core import scene as S
 from affordance_registration.core.errors import SceneError
-from affordance_registration.core.neighbours import build_tree, k_nearest, nearest, pca_normals
+from affordance_registration.core.neighbours import (build_tree, k_nearest, nearest,
+                                                     pairs_within, pca_normals)
 
 
 def _voxel_reference(points, voxel, origin=None, frame=None):
@@ -57,6 +58,22 @@ def test_components_are_scipys(seed, n, m):
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, ref = connected_components(graph, directed=False)
     # the same partition: a one-to-one map between the two labellings
+    assert len(set(zip(labels.tolist(), ref.tolist()))) == len(set(ref.tolist())) \
+        == len(set(labels.tolist()))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), blobs=st.integers(1, 12), n=st.integers(1, 600),
+       gap=st.sampled_from([0.01, 0.025, 0.06]))
+def test_gap_components_are_those_of_every_pair_within_the_gap(seed, blobs, n, gap):
+    # clumps and specks at about the gap from each other: joined or not by a few steps
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-0.1, 0.1, size=(blobs, 3))
+    pts = centres[rng.integers(0, blobs, n)] + rng.normal(size=(n, 3)) * 0.01
+    labels = S._gap_components(pts, gap)
+    _, ref = connected_components(
+        coo_matrix((np.ones(len(p := pairs_within(pts, gap)), bool), (p[:, 0], p[:, 1])),
+                   shape=(n, n)), directed=False)
     assert len(set(zip(labels.tolist(), ref.tolist()))) == len(set(ref.tolist())) \
         == len(set(labels.tolist()))
 
