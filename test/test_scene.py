@@ -114,6 +114,15 @@ def test_normals_are_the_neighbourhoods_plain_pca(seed, n, k, scale):
     assert np.array_equal(pca_normals(pts, k), ref)
 
 
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 60000))
+def test_the_mean_of_rows_is_numpys(seed, n):
+    # values over twelve orders of magnitude: any other order of the sums shows
+    rng = np.random.default_rng(seed)
+    pts = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-6, 6, size=(n, 3))
+    assert np.array_equal(S._mean_rows(pts), pts.mean(axis=0))
+
+
 def _frame_reference(points, click, origin):
     rel = points - points.mean(axis=0)
     cov = rel.T @ rel
