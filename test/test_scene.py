@@ -192,3 +192,18 @@ def test_a_snap_from_the_part_around_the_click_is_the_whole_scenes(panel_scene):
         # the cached distances are to that point only
         other = click + np.array([0.01, 0.0, 0.0])
         assert np.array_equal(part.snap(other), scene.snap(other))
+
+
+def test_two_threads_prepare_the_same_click(panel_scene):
+    """The fine points' normals in parts side by side: the same context, bit for bit."""
+    from affordance_registration.core.registration.parallel import single_threaded_blas
+    scene = S.Scene(panel_scene.organized)
+    for obj in panel_scene.objects[:3]:
+        part = scene.around(obj.click, 0.27)
+        c = part.snap(obj.click)
+        with single_threaded_blas():
+            one = part.prepare_click(c, radius=0.24)
+            two = part.prepare_click(c, radius=0.24, threads=2)
+        assert len(one.fine) > 2 * S.MIN_NORMALS_PART
+        for name in ("crop", "cluster", "fine", "fine_normals", "frame"):
+            assert np.array_equal(getattr(one, name), getattr(two, name)), name

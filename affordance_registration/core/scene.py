@@ -359,8 +359,11 @@ class Scene:
 
     def prepare_click(self, click, radius: float, voxel: float = 0.005,
                       plane_threshold: float = 0.006, min_plane_fraction: float = 0.15,
-                      cluster_gap: float | None = None, seed: int = 0) -> ClickContext:
-        """Crop ``radius`` around the (already snapped) click and prepare the fitting targets."""
+                      cluster_gap: float | None = None, seed: int = 0,
+                      threads: int = 1) -> ClickContext:
+        """Crop ``radius`` around the (already snapped) click and prepare the fitting targets.
+        ``threads``: the fine points' normals (most of the time) in that many parts side by side
+        (the same numbers)."""
         c = _point3(click, "click")
         rel = _minus(self.points, c)
         d2 = np.einsum("ij,ij->i", rel, rel)
@@ -421,7 +424,7 @@ class Scene:
                            plane=plane_for_fine, plane_threshold=plane_threshold,
                            range_image=range_image, crop_tree=crop_tree,
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=pca_normals(fine, 12, fine_tree), support=support,
+                           fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
                            frame=frame)
         return ctx
 
@@ -545,6 +548,23 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
         return 0.0, 0.0
     on = d[near][agree]
     return float(np.mean(agree[inside])), float(1.4826 * np.median(np.abs(on - np.median(on))))
+
+
+#: the fine points' normals are split between threads in parts of at least this many points
+MIN_NORMALS_PART = 256
+
+
+def _fine_normals(fine: np.ndarray, tree: KDTree, threads: int) -> np.ndarray:
+    """:func:`pca_normals` (12 neighbours) of the fine points (N, 3) (``tree``: over them) in
+    contiguous parts on up to ``threads`` threads (KD queries and numpy's batched eigh release
+    the GIL): each point's normal is its own neighbourhood's, the same numbers either way."""
+    from .registration.parallel import parts, run    # (the fitter imports this module)
+    pieces = parts(len(fine), threads, MIN_NORMALS_PART)
+    if len(pieces) == 1:
+        return pca_normals(fine, 12, tree)
+    return np.concatenate(run([lambda idx=idx: pca_normals(fine, 12, tree,
+                                                           at=np.take(fine, idx, axis=0))
+                               for idx in pieces], threads))
 
 
 def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree,
