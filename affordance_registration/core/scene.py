@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
@@ -74,15 +74,37 @@ def voxel_downsample(points: np.ndarray, voxel: float, origin=None, frame=None) 
         return points.reshape(0, 3)
     # a grid attached to the data has ``origin`` at a voxel's centre (a surface through the
     # origin, the click, would otherwise be split between two layers of voxels)
-    grid = points if frame is None else (points - origin) @ frame + 0.5 * voxel
+    grid = points if frame is None else _minus(points, origin) @ frame + 0.5 * voxel
     keys = np.floor(grid / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    dims = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    uniq, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(uniq))
+    cols = [keys[:, k] - keys[:, k].min() for k in range(3)]     # column by column: no
+    dims = [int(col.max()) + 1 for col in cols]                   # (N, 3) reductions
+    flat = (cols[0] * dims[1] + cols[1]) * dims[2] + cols[2]
+    inverse, counts = _group(flat, dims[0] * dims[1] * dims[2])
+    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(counts))
                      for k in range(3)], axis=1)
     return sums / counts[:, None]
+
+
+#: a voxel grid of at most this many cells per point is grouped through a table of its cells
+#: (no sort); a sparser one by sorting the cells' keys
+DENSE_CELLS_PER_POINT = 64
+
+
+def _group(keys: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Group integer ``keys`` (N,) in [0, ``cells``): the rank of each key among the distinct
+    keys, ascending (N,) int, and how many times each distinct key occurs (M,) -- what
+    ``np.unique(keys, return_inverse=True, return_counts=True)`` gives, without its sort when
+    the keys are dense enough for a table of every cell."""
+    if cells > DENSE_CELLS_PER_POINT * len(keys):
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        return inverse, counts
+    occupied = np.zeros(cells, bool)
+    occupied[keys] = True
+    uniq = np.flatnonzero(occupied)
+    rank = np.empty(cells, np.intp)
+    rank[uniq] = np.arange(len(uniq))
+    inverse = rank[keys]
+    return inverse, np.bincount(inverse, minlength=len(uniq))
 
 
 @dataclass(frozen=True)
@@ -113,10 +135,11 @@ class RangeImage:
         self.origin = np.asarray(origin, dtype=float)
         self.frame = np.asarray(frame, dtype=float)
         self.bin = float(bin_size)
-        rel = (points - self.origin) @ self.frame
+        rel = _minus(points, self.origin) @ self.frame
         z = rel[:, 2]
         keep = z > 1e-3
-        rel, z = rel[keep], z[keep]
+        if not keep.all():          # (only where the sensor is inside the crop)
+            rel, z = rel[keep], z[keep]
         if len(z) == 0:
             raise SceneError("no scanned point near the click lies in front of the sensor origin")
         u, v = rel[:, 0] / z, rel[:, 1] / z
@@ -157,11 +180,11 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
     ``points`` (N, 3) spread least), first column their main axis across it; the signs of the
     axes from the points' third moments along them. Rigidly moving the points, the click and the
     origin turns this frame with them."""
-    rel = points - points.mean(axis=0)
+    rel = _minus(points, _mean_rows(points))
     cov = rel.T @ rel
 
     def signed(axis):       # the side the points' distribution leans to
-        return axis if np.sum((rel @ axis) ** 3) >= 0 else -axis
+        return axis if _leans_forward(rel @ axis) else -axis
 
     if origin is not None and np.linalg.norm(origin - click) > 1e-9:
         z = (origin - click) / np.linalg.norm(origin - click)
@@ -174,6 +197,19 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
         x = align_z_to(z)[:, 0]
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _leans_forward(along: np.ndarray) -> bool:
+    """Whether the sum of the cubes of ``along`` (N,) is at least zero, as
+    ``np.sum(along ** 3) >= 0`` decides it. The cubes are products (``** 3`` is a pow() per
+    value, ten times slower); they differ from pow()'s by a few ulp and their sum by far less
+    than 1e-9 of the sum of their sizes, so a sum closer to zero than that is decided by
+    pow()'s cubes."""
+    cubes = along * along * along
+    lean = cubes.sum()
+    if abs(lean) <= 1e-9 * np.abs(cubes).sum():
+        lean = np.sum(along ** 3)
+    return bool(lean >= 0)
 
 
 @dataclass
@@ -233,8 +269,10 @@ class Scene:
     A scene with no finite point is an error.
     """
 
-    #: rows looked at per step while checking that a cloud has a finite point at all
+    #: rows looked at per step while checking that a cloud has a finite point at all (after
+    #: the _FIRST_PROBE rows in the middle of the cloud, which nearly always hold one)
     _PROBE_ROWS = 65536
+    _FIRST_PROBE = 1024
 
     def __init__(self, points, sensor_origin=None, frame_id: str = ""):
         try:
@@ -247,8 +285,11 @@ class Scene:
             raise SceneError(f"scene points must have shape (N, 3), got {pts.shape}")
         self._raw = pts
         self._points: np.ndarray | None = None
-        if not any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
-                   for i in _middle_first(len(pts), self._PROBE_ROWS)):
+        self._squared_to: tuple | None = None
+        mid = len(pts) // 2
+        if not (np.isfinite(pts[mid:mid + self._FIRST_PROBE]).all(axis=1).any() or
+                any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
+                    for i in _middle_first(len(pts), self._PROBE_ROWS))):
             raise SceneError("the scene has no finite points" +
                              (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else ""))
         self.sensor_origin = _origin(sensor_origin)
@@ -258,7 +299,7 @@ class Scene:
     def points(self) -> np.ndarray:
         """The finite points (N, 3) float64, m (one pass over the cloud, on first use)."""
         if self._points is None:
-            self._points = np.ascontiguousarray(self._raw[np.isfinite(self._raw).all(axis=1)])
+            self._points = np.compress(np.isfinite(self._raw).all(axis=1), self._raw, axis=0)
         return self._points
 
     @property
@@ -296,19 +337,28 @@ class Scene:
         pts = self._raw if self._points is None else self._points
         x = pts[:, 0]
         idx = np.flatnonzero((x >= c[0] - radius) & (x <= c[0] + radius))  # NaN: outside
-        d = pts[idx] - c
-        near = pts[idx[np.einsum("ij,ij->i", d, d) <= radius * radius]]
+        d = _minus(np.take(pts, idx, axis=0), c)
+        d2 = np.einsum("ij,ij->i", d, d)
+        inside = d2 <= radius * radius
+        near = np.take(pts, np.compress(inside, idx), axis=0)
         if len(near) == 0:
             return None
         part = Scene.__new__(Scene)
-        part._raw = part._points = np.ascontiguousarray(near)
+        part._raw = part._points = near
+        # the squared distances of its points to ``point``, for a snap to it (the same numbers
+        # a pass over the part would give: each is its own row's sum)
+        part._squared_to = (c, np.compress(inside, d2))
         part.sensor_origin, part.frame_id = self.sensor_origin, self.frame_id
         return part
 
     def snap(self, click, max_distance: float = 0.03) -> np.ndarray:
         """The scene point nearest ``click`` (3,). Farther than ``max_distance`` is an error."""
         c = _point3(click, "click")
-        d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
+        if self._squared_to is not None and np.array_equal(self._squared_to[0], c):
+            d2 = self._squared_to[1]        # a part cut around this very point
+        else:
+            rel = _minus(self.points, c)
+            d2 = np.einsum("ij,ij->i", rel, rel)
         i = int(np.argmin(d2))
         dist = math.sqrt(d2[i])
         if dist > max_distance:
@@ -319,11 +369,15 @@ class Scene:
 
     def prepare_click(self, click, radius: float, voxel: float = 0.005,
                       plane_threshold: float = 0.006, min_plane_fraction: float = 0.15,
-                      cluster_gap: float | None = None, seed: int = 0) -> ClickContext:
-        """Crop ``radius`` around the (already snapped) click and prepare the fitting targets."""
+                      cluster_gap: float | None = None, seed: int = 0,
+                      threads: int = 1) -> ClickContext:
+        """Crop ``radius`` around the (already snapped) click and prepare the fitting targets.
+        ``threads``: the fine points' normals (most of the time) in that many parts side by side
+        (the same numbers)."""
         c = _point3(click, "click")
-        d2 = np.einsum("ij,ij->i", self.points - c, self.points - c)
-        raw = self.points[d2 <= radius * radius]
+        rel = _minus(self.points, c)
+        d2 = np.einsum("ij,ij->i", rel, rel)
+        raw = np.compress(d2 <= radius * radius, self.points, axis=0)
         if len(raw) < 10:
             raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click")
         origin = self.sensor_origin
@@ -353,7 +407,7 @@ class Scene:
             off = plane.distance(crop)
             keep = off > plane_threshold
             lifted = np.flatnonzero(keep & (off <= band))
-            keep[lifted] = ~_along(plane, crop[lifted], crop, crop_tree)
+            keep[lifted] = ~_along(plane, np.take(crop, lifted, axis=0), crop, crop_tree)
         cluster = _connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
         if len(cluster) < 10:       # nothing off the plane near the click: fit to the whole crop
             cluster = crop
@@ -364,9 +418,8 @@ class Scene:
         # (the points on the plane first left out: most of a crop's, and none of them fine)
         cluster_tree = build_tree(cluster)
         fine = raw if plane_for_fine is None else \
-            raw[plane_for_fine.distance(raw) > plane_threshold]
-        near, _ = nearest(cluster_tree, fine, voxel)
-        fine = fine[np.isfinite(near)]
+            np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
+        fine = _within(fine, cluster, cluster_tree, voxel)
         if len(fine) < 10:
             fine = cluster
         range_image = None
@@ -381,9 +434,24 @@ class Scene:
                            plane=plane_for_fine, plane_threshold=plane_threshold,
                            range_image=range_image, crop_tree=crop_tree,
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=pca_normals(fine, 12, fine_tree), support=support,
+                           fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
                            frame=frame)
         return ctx
+
+
+def _minus(points: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """``points - point`` for points (N, 3) and a point (3,), column by column: the same
+    numbers, three times faster than broadcasting over a last axis of length three."""
+    out = np.empty(points.shape, np.result_type(points, point))
+    for k in range(3):
+        np.subtract(points[:, k], point[k], out=out[:, k])
+    return out
+
+
+def _mean_rows(points: np.ndarray) -> np.ndarray:
+    """``points.mean(axis=0)`` of points (N, 3), N >= 1: the same numbers -- numpy adds the
+    rows one after the other there, as a running sum of each column does -- twice as fast."""
+    return np.array([np.add.accumulate(points[:, k])[-1] for k in range(3)]) / len(points)
 
 
 def _point3(value, what: str) -> np.ndarray:
@@ -408,7 +476,12 @@ def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:
     if len(crop) < 10:
         raise SceneError(f"the scan around the click holds only {len(crop)} distinct points "
                          f"(at {voxel * 1000:.0f} mm): nothing to fit")
-    spread = np.linalg.svd(crop - crop.mean(axis=0), compute_uv=False) / math.sqrt(len(crop))
+    rel = _minus(crop, _mean_rows(crop))
+    # the singular values from the eigenvalues of the (3, 3) Gram matrix (an SVD of the crop
+    # costs ten times more); within rounding of the limit, from the SVD
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(rel.T @ rel)[::-1], 0.0) / len(crop))
+    if abs(spread[1] - 0.5 * voxel) <= 1e-6 * spread[0]:
+        spread = np.linalg.svd(rel, compute_uv=False) / math.sqrt(len(crop))
     if spread[1] < 0.5 * voxel:
         raise SceneError("the scanned points around the click lie on a line: nothing to fit")
 
@@ -423,8 +496,8 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     if n < 50:
         return None
     rng = np.random.default_rng(seed)
-    sub = points if n <= 3000 else points[rng.choice(n, 3000, replace=False)]
-    tri = sub[rng.integers(0, len(sub), size=(hypotheses, 3))]
+    sub = points if n <= 3000 else np.take(points, rng.choice(n, 3000, replace=False), axis=0)
+    tri = np.take(sub, rng.integers(0, len(sub), size=(hypotheses, 3)), axis=0)
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(normals, axis=1)
     ok = norm > 1e-9
@@ -432,15 +505,17 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
         return None
     normals = normals[ok] / norm[ok, None]
     ds = -np.einsum("ij,ij->i", normals, tri[ok, 0])
-    counts = (np.abs(sub @ normals.T + ds) < threshold).sum(axis=0)
+    off = sub @ normals.T
+    off += ds
+    counts = np.count_nonzero(np.abs(off, out=off) < threshold, axis=0)
     best = int(np.argmax(counts))
     normal, d = normals[best], ds[best]
     for _ in range(2):   # least-squares refit on the inliers
-        inl = points[np.abs(points @ normal + d) < threshold]
+        inl = np.compress(np.abs(points @ normal + d) < threshold, points, axis=0)
         if len(inl) < 3:
             return None
-        centre = inl.mean(axis=0)
-        _, _, vt = np.linalg.svd(inl - centre, full_matrices=False)
+        centre = _mean_rows(inl)
+        _, _, vt = np.linalg.svd(_minus(inl, centre), full_matrices=False)
         normal = vt[2]
         d = -normal @ centre
     frac = float(np.mean(np.abs(points @ normal + d) < threshold))
@@ -477,7 +552,7 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
     near = np.flatnonzero(np.abs(d) < SUPPORT_REACH * threshold)
     if len(near) > FLAT_SAMPLES:
         near = near[np.linspace(0, len(near) - 1, FLAT_SAMPLES).astype(np.int64)]
-    agree = _along(plane, crop[near], crop, tree)
+    agree = _along(plane, np.take(crop, near, axis=0), crop, tree)
     inside = np.abs(d[near]) < threshold
     if not inside.any() or not agree.any():
         return 0.0, 0.0
@@ -485,23 +560,92 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
     return float(np.mean(agree[inside])), float(1.4826 * np.median(np.abs(on - np.median(on))))
 
 
+#: the fine points' normals are split between threads in parts of at least this many points
+MIN_NORMALS_PART = 256
+
+
+def _fine_normals(fine: np.ndarray, tree: KDTree, threads: int) -> np.ndarray:
+    """:func:`pca_normals` (12 neighbours) of the fine points (N, 3) (``tree``: over them) in
+    contiguous parts on up to ``threads`` threads (KD queries and numpy's batched eigh release
+    the GIL): each point's normal is its own neighbourhood's, the same numbers either way."""
+    from .registration.parallel import parts, run    # (the fitter imports this module)
+    pieces = parts(len(fine), threads, MIN_NORMALS_PART)
+    if len(pieces) == 1:
+        return pca_normals(fine, 12, tree)
+    return np.concatenate(run([lambda idx=idx: pca_normals(fine, 12, tree,
+                                                           at=np.take(fine, idx, axis=0))
+                               for idx in pieces], threads))
+
+
+def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree,
+            distance: float) -> np.ndarray:
+    """The ``points`` (N, 3) within ``distance`` (m) of any of ``targets`` (M, 3) (``tree``:
+    over them), in their order. Only those inside the targets' bounding box widened by the
+    distance are looked up in the tree: the others are farther from every target."""
+    reach = distance * (1 + 1e-6)
+    inside = np.ones(len(points), bool)
+    for k in range(3):
+        col = points[:, k]
+        inside &= col >= targets[:, k].min() - reach
+        inside &= col <= targets[:, k].max() + reach
+    idx = np.flatnonzero(inside)
+    near, _ = nearest(tree, np.take(points, idx, axis=0), distance)
+    return np.take(points, np.compress(np.isfinite(near), idx), axis=0)
+
+
 def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,
                   reach: float) -> np.ndarray:
     """The kept points connected (steps <= ``gap``) to any kept point within ``reach`` of the
     click. (Occlusion splits one object into parts at different depths; reaching out from the
     click gathers them.)"""
-    pts = points[keep]
+    pts = np.compress(keep, points, axis=0)
     if len(pts) == 0:
         return pts
-    seeds = np.linalg.norm(pts - click, axis=1) <= reach
+    seeds = np.linalg.norm(_minus(pts, click), axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    pairs = pairs_within(pts, gap)
-    graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])),
-                       shape=(len(pts), len(pts)))
-    _, labels = connected_components(graph, directed=False)
+    labels = _gap_components(pts, gap)
     wanted = np.unique(labels[seeds])
-    return pts[np.isin(labels, wanted)]
+    return np.compress(np.isin(labels, wanted), pts, axis=0)
+
+
+#: the cluster's components are first those of the steps within this fraction of the gap (a
+#: surface sampled at a voxel holds a sixth of its pairs within the gap there)
+FIRST_GAP = 0.4
+
+
+def _gap_components(points: np.ndarray, gap: float) -> np.ndarray:
+    """Component label (N,) of each of ``points`` (N, 3), joined by steps of at most ``gap``
+    (m): the components of the steps within FIRST_GAP of it, joined where points of two of them
+    are within the gap -- pairs looked for only among the points outside the largest one and
+    those of it within the gap of them (every such step has an end outside it). The same
+    components as those of every pair within the gap, for a fraction of the pairs."""
+    n = len(points)
+    first = _components(n, pairs_within(points, FIRST_GAP * gap))
+    outside = first != np.argmax(np.bincount(first))
+    if not outside.any():
+        return first
+    near, _ = nearest(build_tree(np.compress(outside, points, axis=0)), points,
+                      gap * (1 + 1e-6))
+    idx = np.flatnonzero(outside | np.isfinite(near))
+    pairs = pairs_within(np.take(points, idx, axis=0), gap)
+    a, b = first[np.take(idx, pairs[:, 0])], first[np.take(idx, pairs[:, 1])]
+    join = a != b
+    return _components(n, np.stack([a[join], b[join]], axis=1))[first]
+
+
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Connected-component label (n,) of each of ``n`` nodes joined by the edges ``pairs``
+    (M, 2). The graph goes to scipy as rows of neighbours (CSR) grouped by a stable sort of
+    the first indices -- a radix sort for up to 65536 nodes -- rather than as coordinates,
+    whose conversion sorts every row's neighbours as well (the slow part; the components do
+    not need it)."""
+    rows, cols = pairs[:, 0], pairs[:, 1]
+    order = np.argsort(rows.astype(np.uint16) if n <= 65536 else rows, kind="stable")
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    graph = csr_matrix((np.ones(len(rows)), np.take(cols, order), indptr), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 def _middle_first(n: int, step: int):
