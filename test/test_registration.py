@@ -11,7 +11,7 @@ from affordance_registration.core.registration import (NO_MATCH_RESIDUAL, FitSet
                                                        correspondence_weights,
                                                        weighted_rigid_fit)
 from affordance_registration.core.registration.solve import point_to_plane_weighted
-from affordance_registration.core.scene import Scene
+from affordance_registration.core.scene import NO_VIEWPOINT, Scene
 from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import make_T, pose_error, random_rotations
@@ -121,6 +121,26 @@ def test_right_template_first_and_pose_within_tolerance(seed, library, registrar
         assert best.fits and best.coverage >= registrar.settings.min_coverage
         assert all(a.likelihood >= b.likelihood for a, b in zip(rep.candidates, rep.candidates[1:]))
 
+
+
+@pytest.mark.parametrize("viewpoint", [True, False])
+def test_every_candidate_judged_together_gets_the_verdict_it_gets_alone(library, viewpoint):
+    """The verdicts of a click's candidates come from one pass over all of them; each must be
+    exactly what judging that candidate alone gives (and the winner fits, the rest vary)."""
+    from affordance_registration.core.registration.scoring import judge
+    sim = simulate_taskboard(library, 12)
+    scene = Scene(sim.organized, sensor_origin=None if viewpoint else NO_VIEWPOINT)
+    reg = Registrar(library)
+    for obj in sim.objects[:3]:
+        rep = reg.fit(scene, obj.click)
+        models = [reg._model(c.template, c.joints, c.scale) for c in rep.candidates]
+        together = judge(rep.context, models, rep.candidates, reg.settings)
+        alone = [judge(rep.context, [m], [c], reg.settings)[0]
+                 for m, c in zip(models, rep.candidates)]
+        assert [(c.coverage, c.inlier_rmse, c.fits) for c in together] == \
+            [(c.coverage, c.inlier_rmse, c.fits) for c in alone] == \
+            [(c.coverage, c.inlier_rmse, c.fits) for c in rep.candidates]
+        assert together[0].fits and len({c.coverage for c in together}) > 1
 
 def test_objects_lying_on_a_table(library, registrar):
     sim = simulate_taskboard(library, 6, layout="table")

@@ -194,8 +194,9 @@ class Registrar:
 
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
-        return [judge(ctx, self._model(r.template, r.joints, r.scale), r, self.settings)
-                for r in results]
+        results = list(results)
+        return judge(ctx, [self._model(r.template, r.joints, r.scale) for r in results],
+                     results, self.settings)
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with

@@ -64,36 +64,45 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
     return _forward(dist, vis, settings)
 
 
-def judge(ctx: ClickContext, model: Model, res: FitResult, settings: FitSettings) -> FitResult:
-    """``res`` (a fit of ``model``) with its absolute verdict: ``coverage`` -- of the template's
-    ``score_samples`` samples that face the sensor where it returned something (hidden behind
-    observed surfaces or not: a template sunk into a wall is not covered), not counting those
-    its own parts hide, the fraction the sensor saw with scan points within
-    ``coverage_distance`` -- not counting those on the dominant plane around the click when
-    they are most of them (at least ``PLANE_COVERED``: a candidate covering a wall explains
-    no object) -- ``inlier_rmse``, the RMS distance (m) of those
+def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
+    """Each of ``fits`` (a fit of the model at the same place in ``models``) with its absolute
+    verdict: ``coverage`` -- of the template's ``score_samples`` samples that face the sensor
+    where it returned something (hidden behind observed surfaces or not: a template sunk into a
+    wall is not covered), not counting those its own parts hide, the fraction the sensor saw
+    with scan points within ``coverage_distance`` -- not counting those on the dominant plane
+    around the click when they are most of them (at least ``PLANE_COVERED``: a candidate
+    covering a wall explains no object) -- ``inlier_rmse``, the RMS distance (m) of those
     covered samples, and ``fits``: coverage at least ``min_coverage``. Without a viewpoint
-    every sample is exposed, and the bar is ``min_coverage_no_viewpoint``."""
-    R, t = res.T_scene_model[:3, :3], res.T_scene_model[:3, 3]
-    dist, vis, exposed = _forward_distances(ctx, Batch.single(model, R, t),
+    every sample is exposed, and the bar is ``min_coverage_no_viewpoint``. The distances of
+    all of them come from one pass (each candidate's numbers are its own)."""
+    fits = list(fits)
+    if not fits:
+        return []
+    T = np.stack([r.T_scene_model for r in fits])
+    dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
                                             settings.score_samples, settings)
-    dist, vis, exposed = dist[0], vis[0], exposed[0]
-    P = model.samples(settings.score_samples)[0]
-    X = P @ R.T + t
-    near = vis & (dist <= settings.coverage_distance)
-    if ctx.support is not None:
-        on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
-        if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
-            near &= ~on_plane          # it covers the wall around the click, not an object
-    if ctx.sensor_origin is not None:
-        exposed = exposed & ~self_hidden(model, P, R.T @ (ctx.sensor_origin - t),
-                                         settings.free_space_margin)
-    n_exposed, n_near = int(exposed.sum()), int((near & exposed).sum())
-    cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
-    rmse = math.sqrt(float((dist[near & exposed] ** 2).sum()) / max(n_near, 1))
     bar = settings.min_coverage if ctx.sensor_origin is not None else \
         settings.min_coverage_no_viewpoint
-    return replace(res, coverage=cov, inlier_rmse=rmse, fits=cov >= bar)
+    out = []
+    for k, (model, res) in enumerate(zip(models, fits)):
+        R, t = T[k, :3, :3], T[k, :3, 3]
+        P = model.samples(settings.score_samples)[0]
+        X = P @ R.T + t
+        near = vis[k] & (dist[k] <= settings.coverage_distance)
+        if ctx.support is not None:
+            on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
+            if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
+                near &= ~on_plane          # it covers the wall around the click, not an object
+        seen = exposed[k].copy()
+        rows = np.flatnonzero(seen)
+        if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
+            seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
+                                  settings.free_space_margin)]] = False
+        n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
+        cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
+        rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
+        out.append(replace(res, coverage=cov, inlier_rmse=rmse, fits=cov >= bar))
+    return out
 
 
 def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) -> np.ndarray:
