@@ -113,7 +113,7 @@ class FitSettings:
     keep_per_template: int = 3
     #: after ``prefilter_iterations`` coarse iterations, each template's best this many restarts
     #: (and its best mounted one) go on through the coarse stage (0: all)
-    coarse_keep: int = 8
+    coarse_keep: int = 12
     #: the library prefilter: in the coarse stage, the templates whose best coarse score is
     #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
     #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
