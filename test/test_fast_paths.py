@@ -115,3 +115,42 @@ def test_stacked_samples_are_each_models_own(clicked):
         for b, m in enumerate(batch):
             assert np.array_equal(P[b], m.samples(64)[0])
             assert np.array_equal(N[b], m.samples(64)[1])
+
+
+def _reference_distances(models, local, upper):
+    """Distances to each model's surface, one query per distinct model (the code it replaced)."""
+    out = np.empty(local.shape[:2])
+    keys = np.array([id(m) for m in models])
+    for key in dict.fromkeys(keys.tolist()):
+        sel = np.flatnonzero(keys == key)
+        d, _ = models[int(sel[0])].nearest(local[sel].reshape(-1, 3), upper)
+        out[sel] = d.reshape(len(sel), -1)
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(picks=st.lists(st.tuples(st.integers(0, 4), st.sampled_from([0.0, -0.4, 0.3, 0.7]),
+                                st.sampled_from([1.0, 0.9, 1.15]), st.booleans()),
+                      min_size=1, max_size=12),
+       k=st.integers(1, 40), upper=st.sampled_from([np.inf, 0.01, 0.05]), seed=st.integers(0, 99))
+def test_surface_distances_of_a_batch_are_each_models_own(clicked, picks, k, upper, seed):
+    """One query per template and scale gives the distances each model's own query gives --
+    models repeated (shared by hypotheses) or not, joints at zero or turned, any scale."""
+    from affordance_registration.core.registration.model import surface_distances
+    registrar, ctx = clicked
+    tpls = list(registrar.library.values())
+    made = {}
+    models = []
+    for i, q, g, shared in picks:
+        tpl = tpls[i]
+        key = (i, q, g)
+        m = made.get(key) if shared else None
+        if m is None:
+            m = registrar.models.model(tpl, q if tpl.joint is not None else 0.0, g,
+                                       articulated=True)
+            made[key] = m
+        models.append(m)
+    rng = np.random.default_rng(seed)
+    local = rng.normal(scale=0.05, size=(len(models), k, 3))
+    got = surface_distances(models, local, upper)
+    assert np.array_equal(got, _reference_distances(models, local, upper))

@@ -15,7 +15,7 @@ from ..templates import AffordanceTemplate
 from .settings import (CENTROID_SAMPLES, CENTROID_SEED, DENSE_SAMPLES, DENSE_SEED,
                        MOVING_OVERSAMPLING, SAMPLE_SEED)
 
-__all__ = ["Model", "ModelCache", "Surface", "Batch"]
+__all__ = ["Model", "ModelCache", "Surface", "Batch", "surface_distances"]
 
 
 class Surface:
@@ -186,6 +186,10 @@ class Model:
             return d * self.scale, pts * self.scale, closer
         return d * self.scale, pts * self.scale
 
+    def _distance_key(self) -> tuple:
+        """Models with equal keys answer :func:`surface_distances` from one query per tree."""
+        return (id(self.cache.surface(self.template)), self.scale, self.q == 0.0)
+
     def raycaster(self):
         """An Open3D ray-casting scene of this model's mesh (at its joint value and scale,
         model frame), or None for a point-cloud template. The template's own is cached."""
@@ -199,6 +203,42 @@ class Model:
         """The template's resting orientations (those at joint zero; scale does not change
         them)."""
         return self.template.resting_rotations(max_poses)
+
+
+def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.ndarray:
+    """Distances (B, K) from points ``local`` (B, K, 3, each in its model's frame) to each of
+    ``models``' dense surface, as :meth:`Model.nearest` gives them one model at a time (the
+    same numbers): the models of one template at one scale share one query per tree (the
+    joint values of a sweep, the hypotheses of a stage)."""
+    out = np.empty(local.shape[:2])
+    groups: dict = {}
+    for b, m in enumerate(models):
+        groups.setdefault(m._distance_key(), []).append(b)
+    for sel in groups.values():
+        first = models[sel[0]]
+        surface, scale = first.cache.surface(first.template), first.scale
+        u = np.asarray(local[sel], dtype=float) / scale
+        ub, flat = upper / scale, u.reshape(-1, 3)
+        if first.q == 0.0 or surface.moving_part is None:
+            d, _ = nearest(surface.whole, flat, ub)
+        else:
+            d, _ = nearest(surface.base, flat, ub)
+            # into the moving part's zero pose, model by model (hypotheses of one model
+            # together, as the model's own query turns them)
+            rows = np.arange(len(sel) * u.shape[1]).reshape(len(sel), -1)
+            ids = np.array([id(models[b]) for b in sel])
+            order, um = [], []
+            for key in dict.fromkeys(ids.tolist()):
+                mine = np.flatnonzero(ids == key)
+                T = first.template.joint_transform(models[sel[int(mine[0])]].q)
+                order.append(rows[mine].ravel())
+                um.append((u[mine].reshape(-1, 3) - T[:3, 3]) @ T[:3, :3])
+            order = np.concatenate(order)
+            dm = np.empty(len(flat))
+            dm[order], _ = nearest(surface.moving_part, np.concatenate(um), ub)
+            d = np.where(dm < d, dm, d)
+        out[sel] = (d * scale).reshape(len(sel), -1)
+    return out
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from ..neighbours import nearest
 from ..scene import ClickContext
 from ..transforms import make_T, pose_points, rotate
 from .correspondences import stack_samples
-from .model import Batch, Model
+from .model import Batch, Model, surface_distances
 from .parallel import over_batch, parts, run
 from .results import FitResult
 from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED,
@@ -120,18 +120,6 @@ def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) 
     return hit < length - margin
 
 
-def _grouped_nearest(models, local: np.ndarray, upper: float = np.inf) -> np.ndarray:
-    """Distances (B, K) from points ``local`` (B, K, 3, each in its hypothesis' model frame)
-    to that model's surface, one query per distinct model."""
-    out = np.empty(local.shape[:2])
-    keys = np.array([id(m) for m in models])
-    for key in dict.fromkeys(keys.tolist()):
-        sel = np.flatnonzero(keys == key)
-        d, _ = models[int(sel[0])].nearest(local[sel].reshape(-1, 3), upper)
-        out[sel] = d.reshape(len(sel), -1)
-    return out
-
-
 def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
                       cluster_points: int | None = None) -> np.ndarray:
     """Scene cluster -> template: the capped mean distance (B,) from the cluster points to
@@ -143,14 +131,14 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
     local = (pts[None] - batch.t[:, None, :]) @ batch.R      # (B, K, 3), model frames
-    return np.minimum(_grouped_nearest(batch.models, local, cap), cap).mean(axis=1)
+    return np.minimum(surface_distances(batch.models, local, cap), cap).mean(axis=1)
 
 
 def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
     """The operator clicked on the object: a candidate whose surface passes farther than
     ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
     local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
-    d = _grouped_nearest(batch.models, local[:, None, :])[:, 0]
+    d = surface_distances(batch.models, local[:, None, :])[:, 0]
     return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
 
 
