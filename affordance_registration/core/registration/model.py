@@ -188,7 +188,7 @@ class Model:
 
     def _distance_key(self) -> tuple:
         """Models with equal keys answer :func:`surface_distances` from one query per tree."""
-        return (id(self.cache.surface(self.template)), self.scale, self.q == 0.0)
+        return (id(self.cache), id(self.template), self.scale, self.q == 0.0)
 
     def raycaster(self):
         """An Open3D ray-casting scene of this model's mesh (at its joint value and scale,
@@ -211,9 +211,12 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
     same numbers): the models of one template at one scale share one query per tree (the
     joint values of a sweep, the hypotheses of a stage)."""
     out = np.empty(local.shape[:2])
-    groups: dict = {}
+    same: dict = {}             # the hypotheses of each model, then the models of each key
     for b, m in enumerate(models):
-        groups.setdefault(m._distance_key(), []).append(b)
+        same.setdefault(id(m), []).append(b)
+    groups: dict = {}
+    for sel in same.values():
+        groups.setdefault(models[sel[0]]._distance_key(), []).extend(sel)
     for sel in groups.values():
         first = models[sel[0]]
         surface, scale = first.cache.surface(first.template), first.scale
