@@ -90,11 +90,12 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
 def reverse_subset(ctx: ClickContext, limit: int):
     """The full-resolution scene points (and normals) the fine stage pairs with the template:
     at most ``limit``, an even, fixed subset (the same one every iteration)."""
-    pts, normals = ctx.fine, ctx.fine_normals
+    pts = ctx.fine
+    pick = np.arange(len(pts))
     if len(pts) > limit:
         pick = (np.arange(limit) * (len(pts) / limit)).astype(np.int64)
-        pts, normals = pts[pick], normals[pick]
-    return pts, normals
+        pts = pts[pick]
+    return pts, ctx.fine_normals[pick]
 
 
 def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
