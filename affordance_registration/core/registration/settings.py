@@ -126,7 +126,7 @@ class FitSettings:
     medium_samples: int = 256
     medium_iterations: int = 10
     fine_samples: int = 1500
-    fine_iterations: int = 25
+    fine_iterations: int = 20
     fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
