@@ -142,7 +142,7 @@ class FitSettings:
     articulated: bool = True
     articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
     articulated_margin: float = 1.3    #: those with a residual within this factor of the best
-    joint_sweep: int = 13              #: joint values tried across a revolute joint's limits
+    joint_sweep: int = 11              #: joint values tried across a revolute joint's limits
     scale_sweep: int = 7               #: scales tried across a template's scale range
     #: an articulated candidate whose rigid fit touches the plane under the click (within this)
     #: keeps touching it: the joint must not be traded for the whole object floating off it
