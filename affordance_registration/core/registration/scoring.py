@@ -169,12 +169,6 @@ def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterati
                    None if converged is None else [converged])[0]
 
 
-#: :func:`results` splits a batch into parts of at least this many hypotheses: each is scored
-#: on every sample and every cluster point (heavy enough to pay for the hand-over; 2 threads:
-#: 0.97x the click time, interleaved on 50 clicks, against parts of ``MIN_PART``)
-RESULT_MIN_PART = 4
-
-
 def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0,
             converged=None) -> list:
     """:func:`result` of every hypothesis of a batch (scored together; a big batch in parts
@@ -182,8 +176,7 @@ def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: 
     conv = None if converged is None else np.asarray(converged, dtype=bool)
     done = run([lambda idx=idx: _results(ctx, batch.take(idx), settings, iterations,
                                          None if conv is None else conv[idx])
-                for idx in parts(len(batch), settings.threads, RESULT_MIN_PART)],
-               settings.threads)
+                for idx in parts(len(batch), settings.threads)], settings.threads)
     return [r for part in done for r in part]
 
 
