@@ -94,6 +94,16 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             view = settled_view(client)
             assert view.header.frame_id == FRAME
             T_view = pose_to_matrix(view.pose)
+            # a subscriber that joins once the camera is at rest (an engine started later) is
+            # sent that view too, not left waiting until the operator moves the camera
+            late = Client("station_browser_late")
+            try:
+                late.subscribe(PoseStamped, "/view_pose")
+                got = late.wait_for(lambda: late.latest.get("/view_pose"), 60,
+                                    "the view for a subscriber that joined late")
+                assert np.allclose(pose_to_matrix(got.pose), T_view, atol=1e-6)
+            finally:
+                late.close()
 
             # click the object's pixel: the right template, ranked first, on the truth
             xy = pixel(T_view, FOV_DEG, canvas_box(page), truth.click)
