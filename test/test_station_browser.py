@@ -110,7 +110,10 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
-            c = _shown(client.status())
+            # the page shows the status the station heard: this client hears it on its own
+            c = client.wait_for(lambda: (_shown(client.status()) or {}).get("rank") == 1 and
+                                client.status()["node"]["idle"] and _shown(client.status()),
+                                60, "the fit in this client's status")
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, err
 
