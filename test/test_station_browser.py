@@ -94,13 +94,26 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             view = settled_view(client)
             assert view.header.frame_id == FRAME
             T_view = pose_to_matrix(view.pose)
+            # a subscriber that joins once the camera is at rest (an engine started later) is
+            # sent that view too, not left waiting until the operator moves the camera
+            late = Client("station_browser_late")
+            try:
+                late.subscribe(PoseStamped, "/view_pose")
+                got = late.wait_for(lambda: late.latest.get("/view_pose"), 60,
+                                    "the view for a subscriber that joined late")
+                assert np.allclose(pose_to_matrix(got.pose), T_view, atol=1e-6)
+            finally:
+                late.close()
 
             # click the object's pixel: the right template, ranked first, on the truth
             xy = pixel(T_view, FOV_DEG, canvas_box(page), truth.click)
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
-            c = _shown(client.status())
+            # the page shows the status the station heard: this client hears it on its own
+            c = client.wait_for(lambda: (_shown(client.status()) or {}).get("rank") == 1 and
+                                client.status()["node"]["idle"] and _shown(client.status()),
+                                60, "the fit in this client's status")
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, err
 

@@ -610,6 +610,8 @@ class StationNode(Node):
         self._last_action = ""
         self._view_pending = None
         self._view_sent_at = -math.inf
+        self._view_sent = None                       # T_world_optical (4x4) last on view_pose
+        self._view_readers = 0                       # view_pose subscriptions when last looked
         self._drag_id = f"affordance_station_{int(time.time() * 1e6):x}"
         self._drag_last = None                       # (T, time) of the drag in progress
         self._calls: deque = deque()                 # buttons waiting for the call in flight
@@ -806,13 +808,23 @@ class StationNode(Node):
             self._drawings = apply_markers(self._drawings, msg)
         if refresh or inbox.markers:
             self._render_scene()
+        # view_pose is volatile and the camera is only reported when it moves: a subscriber that
+        # joins after the browser's camera came to rest (an engine started later) gets the view
+        # it would otherwise wait for until the operator moves the camera
+        readers = self.pub_view.get_subscription_count()
+        if readers > self._view_readers and view is None and self._view_sent is not None:
+            with self._lock:
+                if self._view_pending is None:
+                    self._view_pending = self._view_sent
+                view = self._view_pending
+        self._view_readers = readers
         if view is not None and self._frame() and \
                 now - self._view_sent_at >= 1.0 / self.p["view_rate"]:
             with self._lock:
                 self._view_pending = None
             self.pub_view.publish(pose_stamped(view, self._frame(),
                                                self.get_clock().now().to_msg()))
-            self._view_sent_at = now
+            self._view_sent_at, self._view_sent = now, view
         if drag is not None and now - drag[1] >= DRAG_KEEP_ALIVE_S:
             self.pub_feedback.publish(feedback_message(InteractiveMarkerFeedback.KEEP_ALIVE,
                                                        drag[0], self._frame(), self._drag_id))
