@@ -820,8 +820,9 @@ class StationNode(Node):
         self._view_readers = readers
         if view is not None and self._frame() and \
                 now - self._view_sent_at >= 1.0 / self.p["view_rate"]:
-            with self._lock:
-                self._view_pending = None
+            with self._lock:        # (a newer view the camera sent meanwhile stays pending)
+                if self._view_pending is view:
+                    self._view_pending = None
             self.pub_view.publish(pose_stamped(view, self._frame(),
                                                self.get_clock().now().to_msg()))
             self._view_sent_at, self._view_sent = now, view
