@@ -207,27 +207,3 @@ def test_two_threads_prepare_the_same_click(panel_scene):
         assert len(one.fine) > 2 * S.MIN_NORMALS_PART
         for name in ("crop", "cluster", "fine", "fine_normals", "frame"):
             assert np.array_equal(getattr(one, name), getattr(two, name)), name
-
-
-@settings(max_examples=40, deadline=None)
-@given(reads=st.lists(st.lists(st.integers(0, 10**6), min_size=0, max_size=700), min_size=1,
-                      max_size=5),
-       threads=st.integers(1, 3), seed=st.integers(0, 9))
-def test_fine_normals_read_in_any_pieces_are_those_computed_at_once(reads, threads, seed):
-    """Normals computed as they are first read -- any pieces, repeats, any order, on threads
-    side by side -- are the digits of computing them all at once."""
-    from affordance_registration.core.neighbours import pca_normals
-    from affordance_registration.core.registration.parallel import run
-    rng = np.random.default_rng(seed)
-    pts = rng.normal(size=(1500, 3)) * [0.1, 0.05, 0.01]
-    tree = build_tree(pts)
-    want = pca_normals(pts, 12, tree)
-    lazy = S.FineNormals(pts, tree, threads)
-    pieces = [np.array(r, dtype=int) % len(pts) for r in reads]
-    got = run([lambda p=p: lazy[p] for p in pieces], 2)
-    for p, g in zip(pieces, got):
-        assert np.array_equal(g, want[p])
-    mask = np.zeros(len(pts), bool)
-    mask[::7] = True
-    assert np.array_equal(lazy[mask], want[mask])
-    assert np.array_equal(np.asarray(lazy), want)

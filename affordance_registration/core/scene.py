@@ -237,7 +237,7 @@ class ClickContext:
     crop_tree: KDTree = field(repr=False)
     cluster_tree: KDTree = field(repr=False)
     fine_tree: KDTree = field(repr=False)
-    fine_normals: "FineNormals" = field(repr=False)
+    fine_normals: np.ndarray = field(repr=False)
     #: the dominant plane of the crop even where nothing stands off it (``plane`` is then None)
     support: Plane | None = None
     frame: np.ndarray = field(repr=False, default_factory=lambda: np.eye(3))
@@ -434,7 +434,7 @@ class Scene:
                            plane=plane_for_fine, plane_threshold=plane_threshold,
                            range_image=range_image, crop_tree=crop_tree,
                            cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=FineNormals(fine, fine_tree, threads), support=support,
+                           fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
                            frame=frame)
         return ctx
 
@@ -564,46 +564,17 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
 MIN_NORMALS_PART = 256
 
 
-class FineNormals:
-    """The fine points' normals (:func:`pca_normals`, 12 neighbours; ``tree``: over the
-    points), each computed the first time it is read -- a fit reads a part of them (about 60%
-    on a default crop, 30% on a 1024 x 1024 camera's) -- in contiguous parts on up to
-    ``threads`` threads when there are many at once (KD queries and numpy's batched eigh
-    release the GIL). Each normal is its own neighbourhood's: indexing gives the numbers that
-    computing them all at once gives. Safe to read from several threads."""
-
-    def __init__(self, points: np.ndarray, tree: KDTree, threads: int = 1):
-        self._points, self._tree, self._threads = points, tree, int(threads)
-        self._normals = np.empty_like(points)
-        self._done = np.zeros(len(points), bool)
-
-    def __len__(self) -> int:
-        return len(self._points)
-
-    def __getitem__(self, idx) -> np.ndarray:
-        """The normals (M, 3) of the points at ``idx`` (an index array)."""
-        idx = np.asarray(idx)
-        idx = np.flatnonzero(idx) if idx.dtype == bool else idx.astype(np.intp, copy=False)
-        if not self._done[idx].all():
-            todo = np.unique(idx)
-            todo = todo[~self._done[todo]]
-            # the values first, then the flags: a concurrent reader never sees a flag
-            # without its value (two threads may compute one twice, to the same digits)
-            self._normals[todo] = self._compute(todo)
-            self._done[todo] = True
-        return self._normals[idx]
-
-    def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        out = self[np.arange(len(self))]
-        return out if dtype is None else out.astype(dtype)
-
-    def _compute(self, todo: np.ndarray) -> np.ndarray:
-        from .registration.parallel import parts, run    # (the fitter imports this module)
-        pieces = parts(len(todo), self._threads, MIN_NORMALS_PART)
-        return np.concatenate(run(
-            [lambda sel=todo[idx]: pca_normals(self._points, 12, self._tree,
-                                                at=np.take(self._points, sel, axis=0))
-             for idx in pieces], self._threads))
+def _fine_normals(fine: np.ndarray, tree: KDTree, threads: int) -> np.ndarray:
+    """:func:`pca_normals` (12 neighbours) of the fine points (N, 3) (``tree``: over them) in
+    contiguous parts on up to ``threads`` threads (KD queries and numpy's batched eigh release
+    the GIL): each point's normal is its own neighbourhood's, the same numbers either way."""
+    from .registration.parallel import parts, run    # (the fitter imports this module)
+    pieces = parts(len(fine), threads, MIN_NORMALS_PART)
+    if len(pieces) == 1:
+        return pca_normals(fine, 12, tree)
+    return np.concatenate(run([lambda idx=idx: pca_normals(fine, 12, tree,
+                                                           at=np.take(fine, idx, axis=0))
+                               for idx in pieces], threads))
 
 
 def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree,

@@ -90,12 +90,11 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
 def reverse_subset(ctx: ClickContext, limit: int):
     """The full-resolution scene points (and normals) the fine stage pairs with the template:
     at most ``limit``, an even, fixed subset (the same one every iteration)."""
-    pts = ctx.fine
-    pick = np.arange(len(pts))
+    pts, normals = ctx.fine, ctx.fine_normals
     if len(pts) > limit:
         pick = (np.arange(limit) * (len(pts) / limit)).astype(np.int64)
-        pts = pts[pick]
-    return pts, ctx.fine_normals[pick]
+        pts, normals = pts[pick], normals[pick]
+    return pts, normals
 
 
 def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
