@@ -31,7 +31,8 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     across the range. Every hypothesis gets a short batched ICP and is judged by the two-way
     residual plus the moving part's own fit (and, resting on the plane under the click, by its
     gap to the plane). Rounds of local joint/scale steps (each with a short ICP) follow,
-    halving the step (``rounds``, default ``settings.articulation_rounds``). Returns (Model, R, t, whether its last ICP converged)."""
+    halving the step (``rounds``, default ``settings.articulation_rounds``). Returns (Model, R,
+    t, whether its last ICP converged)."""
     s = settings
     tpl = model.template
     joint, lo_hi = tpl.joint, tpl.scale_range

@@ -31,9 +31,9 @@ def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
 
 def stack_samples(models, n: int):
     """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
-    first: dict = {}                # a batch repeats few distinct models: each sampled once
-    which = np.array([first.setdefault(id(m), len(first)) for m in models])
-    distinct = list({id(m): m for m in models}.values())
+    index: dict = {}                # a batch repeats few distinct models: each sampled once
+    which = np.array([index.setdefault(id(m), (len(index), m))[0] for m in models])
+    distinct = [m for _, m in index.values()]
     if len(distinct) == 1:
         P, N = distinct[0].samples(n)
         return np.broadcast_to(P, (len(models),) + P.shape).copy(), \

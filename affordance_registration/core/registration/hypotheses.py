@@ -20,7 +20,8 @@ from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFS
                        REST_SAMPLES, SAMPLE_SEED, FitSettings)
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
-           "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle", "symmetric_angle"]
+           "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",
+           "symmetric_angle"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``

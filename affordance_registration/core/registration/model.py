@@ -175,8 +175,7 @@ class Model:
         else:
             d, i = nearest(surface.base, u, ub)
             pts = surface.base_points[i]
-            T = self.template.joint_transform(self.q)
-            um = (u - T[:3, 3]) @ T[:3, :3]          # into the moving part's zero pose
+            um, T = self._to_moving_part(u)
             dm, im = nearest(surface.moving_part, um, ub)
             closer = dm < d
             d = np.where(closer, dm, d)
@@ -185,6 +184,12 @@ class Model:
         if parts:
             return d * self.scale, pts * self.scale, closer
         return d * self.scale, pts * self.scale
+
+    def _to_moving_part(self, u: np.ndarray):
+        """Points ``u`` (N, 3, unscaled model frame) in the moving part's zero pose, and the
+        joint transform (4, 4) at this model's joint value."""
+        T = self.template.joint_transform(self.q)
+        return (u - T[:3, 3]) @ T[:3, :3], T
 
     def _distance_key(self) -> tuple:
         """Models with equal keys answer :func:`surface_distances` from one query per tree."""
@@ -233,9 +238,8 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
             order, um = [], []
             for key in dict.fromkeys(ids.tolist()):
                 mine = np.flatnonzero(ids == key)
-                T = first.template.joint_transform(models[sel[int(mine[0])]].q)
                 order.append(rows[mine].ravel())
-                um.append((u[mine].reshape(-1, 3) - T[:3, 3]) @ T[:3, :3])
+                um.append(models[sel[int(mine[0])]]._to_moving_part(u[mine].reshape(-1, 3))[0])
             order = np.concatenate(order)
             dm = np.empty(len(flat))
             dm[order], _ = nearest(surface.moving_part, np.concatenate(um), ub)

@@ -201,7 +201,8 @@ class FitSettings:
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
                      "articulated_candidates", "prefilter_keep", "prefilter_iterations",
-                     "articulation_rounds", "finish_articulation_rounds", "yaw_sweep_keep", "coarse_keep",
+                     "articulation_rounds", "finish_articulation_rounds", "yaw_sweep_keep",
+                     "coarse_keep",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)
