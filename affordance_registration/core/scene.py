@@ -250,10 +250,20 @@ class ClickContext:
                           min_points: int = 1) -> np.ndarray | None:
         """Mean (3,) of the cluster points within ``radius`` (m) of ``point`` (3,), or None when
         fewer than ``min_points`` are."""
-        near = np.linalg.norm(self.cluster - point, axis=1) <= radius
+        point = np.asarray(point, dtype=float)
+        if np.array_equal(point, self.click):       # (asked once per template: the same
+            dist = self._cluster_to_click              # distances each time)
+        else:
+            dist = np.linalg.norm(self.cluster - point, axis=1)
+        near = dist <= radius
         if near.sum() < max(min_points, 1):
             return None
         return self.cluster[near].mean(axis=0)
+
+    @cached_property
+    def _cluster_to_click(self) -> np.ndarray:
+        """Distances (N,) of the cluster points to the click."""
+        return np.linalg.norm(self.cluster - self.click, axis=1)
 
 
 class Scene:

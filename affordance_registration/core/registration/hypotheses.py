@@ -110,22 +110,28 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
     s, plane = settings, ctx.plane
     Rs, families = [], []
     if plane is not None:
+        # yaws about the plane's normal (all of them turned at once below), each with the
+        # template's orientation it turns: identity (mounted) or a resting facet
+        yaws, bases = [], []
         if s.mode in ("auto", "mounted"):
-            yaws = _yaws(s.yaw_restarts, rng)
-            Rs.append(up @ axis_angle_matrix([0, 0, 1], yaws).reshape(-1, 3, 3))
-            families.append(np.full(len(yaws), MOUNTED))
+            yaws.append(_yaws(s.yaw_restarts, rng))
+            bases.append(np.broadcast_to(np.eye(3), (s.yaw_restarts, 3, 3)))
+            families.append(np.full(s.yaw_restarts, MOUNTED))
         if s.mode in ("auto", "free"):
             for R_rest, tpl_axis in _resting_axes(model, s.resting_poses):
-                if s.mode == "auto" and (R_rest @ [0, 0, 1.0])[2] > 0.95:
+                if s.mode == "auto" and R_rest[2, 2] > 0.95:
                     continue   # the mounted orientation, already swept
-                yaws = list(_yaws(s.resting_yaws, rng))
+                facet = list(_yaws(s.resting_yaws, rng))
                 # and the two yaws that line the resting template's long axis up with the
                 # cluster's (elongated parts lying on a table)
                 if cluster_axis is not None and tpl_axis is not None:
-                    yaws += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
-                if yaws:
-                    Rs.append(up @ axis_angle_matrix([0, 0, 1], np.array(yaws)) @ R_rest)
-                    families.append(np.full(len(yaws), RESTING))
+                    facet += [cluster_axis - tpl_axis, cluster_axis - tpl_axis + math.pi]
+                if facet:
+                    yaws.append(np.array(facet))
+                    bases.append(np.broadcast_to(R_rest, (len(facet), 3, 3)))
+                    families.append(np.full(len(facet), RESTING))
+        if yaws:
+            Rs.append(up @ _about_z(np.concatenate(yaws)) @ np.concatenate(bases))
     n_rand = 0 if s.mode == "mounted" and plane is not None else (
         s.random_restarts if plane is not None else s.free_restarts)
     offsets = [np.zeros((sum(len(f) for f in families), 3))]
@@ -184,6 +190,17 @@ def _principal_alignments(cluster: np.ndarray, model) -> list:
     return [A @ np.diag(f) @ B.T for f in ((1, 1, 1), (-1, -1, 1), (-1, 1, -1), (1, -1, -1))]
 
 
+def _about_z(angles: np.ndarray) -> np.ndarray:
+    """Rotations (K, 3, 3) about z by ``angles`` (K,) rad."""
+    c, s = np.cos(angles), np.sin(angles)
+    R = np.zeros((len(angles), 3, 3))
+    R[:, 0, 0] = R[:, 1, 1] = c
+    R[:, 1, 0] = s
+    R[:, 0, 1] = -s
+    R[:, 2, 2] = 1.0
+    return R
+
+
 def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` yaw angles evenly around the circle from a random start (rad)."""
     return (np.arange(n) + rng.uniform()) * 2 * math.pi / n
@@ -197,8 +214,10 @@ def _starts(ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray,
     t0 = centre - R0 @ model.centroid + offsets
     if ctx.plane is not None:
         low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
-        lowest = ctx.plane.distance(low @ np.swapaxes(R0, 1, 2) + t0[:, None]).min(axis=1)
-        t0 = t0 - ctx.plane.normal * lowest[:, None]
+        # a posed sample's height over the plane is n . (R p + t) + d = (R^T n) . p + n . t + d
+        n = ctx.plane.normal
+        lowest = (low @ (n @ R0).T).min(axis=0) + t0 @ n + ctx.plane.d
+        t0 = t0 - n * lowest[:, None]
     return t0
 
 
