@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
 __all__ = ["KDTree", "build_tree", "tree_points", "nearest", "k_nearest", "pairs_within",
-           "pca_normals", "openmp_threads"]
+           "pca_normals", "least_spread", "openmp_threads"]
 
 #: the OpenMP runtimes loaded with pykdtree (its wheel brings a private libgomp)
 _OPENMP = tuple(ThreadpoolController().select(user_api="openmp").lib_controllers)
@@ -99,5 +99,47 @@ def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None,
     nb = np.take(points, idx, axis=0)
     for j in range(3):      # less the means, column by column (broadcasting over a last axis
         nb[:, :, j] -= centre[:, j, None]       # of three is several times slower)
-    _, vecs = np.linalg.eigh(np.swapaxes(nb, 1, 2) @ nb)
-    return np.ascontiguousarray(vecs[:, :, 0])
+    return least_spread(np.swapaxes(nb, 1, 2) @ nb)
+
+
+#: :func:`least_spread` leaves to LAPACK the matrices whose two smallest eigenvalues are
+#: closer than this fraction of the largest (a line-like neighbourhood: no clear normal)
+CLOSE_EIGENVALUES = 1e-3
+
+
+def least_spread(C: np.ndarray) -> np.ndarray:
+    """Unit eigenvectors (M, 3) of the smallest eigenvalue of symmetric positive semidefinite
+    matrices C (M, 3, 3) (the sign is arbitrary), in closed form: the eigenvalues from the
+    characteristic cubic (trigonometric solution), the vector as the largest cross product of
+    two rows of C - lambda_min I. Six times faster than ``np.linalg.eigh`` on the fitter's
+    neighbourhoods, within 1e-11 rad of it; where the two smallest eigenvalues are close (the
+    cross products lose their digits) ``eigh`` answers."""
+    a, b, c = C[:, 0, 0], C[:, 1, 1], C[:, 2, 2]
+    d, e, f = C[:, 0, 1], C[:, 0, 2], C[:, 1, 2]
+    q = (a + b + c) / 3
+    aq, bq, cq = a - q, b - q, c - q
+    p = np.sqrt((aq * aq + bq * bq + cq * cq + 2 * (d * d + e * e + f * f)) / 6)
+    ps = np.where(p > 0, p, 1.0)
+    det = aq * (bq * cq - f * f) - d * (d * cq - f * e) + e * (d * f - bq * e)
+    phi = np.arccos(np.clip(det / (2 * ps * ps * ps), -1.0, 1.0)) / 3
+    lo = q + 2 * p * np.cos(phi + 2 * np.pi / 3)
+    hi = q + 2 * p * np.cos(phi)
+    A, B, Z = a - lo, b - lo, c - lo       # the diagonal of C - lo I
+    crosses = ((d * f - e * B, e * d - A * f, A * B - d * d),      # rows 0 x 1,
+               (d * Z - e * f, e * e - A * Z, A * f - d * e),      # 0 x 2,
+               (B * Z - f * f, f * e - d * Z, d * f - B * e))      # 1 x 2
+    v, n2 = crosses[0], sum(x * x for x in crosses[0])
+    for cand in crosses[1:]:
+        m2 = sum(x * x for x in cand)
+        larger = m2 > n2
+        v, n2 = [np.where(larger, x, y) for x, y in zip(cand, v)], np.where(larger, m2, n2)
+    norm = np.sqrt(n2)
+    ok = (3 * q - hi - 2 * lo > CLOSE_EIGENVALUES * hi) & (norm > 0)   # (mid - lo)
+    inv = 1.0 / np.where(ok, norm, 1.0)
+    out = np.empty((len(C), 3))
+    for k in range(3):
+        out[:, k] = v[k] * inv
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        out[bad] = np.linalg.eigh(C[bad])[1][:, :, 0]
+    return out
