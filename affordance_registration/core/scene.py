@@ -380,10 +380,11 @@ class Scene:
     def prepare_click(self, click, radius: float, voxel: float = 0.005,
                       plane_threshold: float = 0.006, min_plane_fraction: float = 0.15,
                       cluster_gap: float | None = None, seed: int = 0,
-                      threads: int = 1) -> ClickContext:
+                      threads: int = 1, fine_points: int = 0) -> ClickContext:
         """Crop ``radius`` around the (already snapped) click and prepare the fitting targets.
         ``threads``: the fine points' normals (most of the time) in that many parts side by side
-        (the same numbers)."""
+        (the same numbers). ``fine_points``: at most this many full-resolution points (an even
+        subset of them in the scan's order; 0: all)."""
         c = _point3(click, "click")
         rel = _minus(self.points, c)
         d2 = np.einsum("ij,ij->i", rel, rel)
@@ -432,6 +433,9 @@ class Scene:
         fine = _within(fine, cluster, cluster_tree, voxel)
         if len(fine) < 10:
             fine = cluster
+        if 0 < fine_points < len(fine):     # a dense sensor's: the fine stage needs no more
+            fine = np.take(fine, (np.arange(fine_points) * (len(fine) / fine_points))
+                           .astype(np.int64), axis=0)
         range_image = None
         if origin is not None:
             depth = max(float(np.linalg.norm(c - origin)), 0.2)

@@ -104,7 +104,7 @@ class Registrar:
             part = scene.around(click, radius + s.snap_distance)
             snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
             return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed,
-                                     threads=s.threads)
+                                     threads=s.threads, fine_points=s.fine_points)
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.

@@ -127,6 +127,9 @@ class FitSettings:
     medium_iterations: int = 10
     fine_samples: int = 1500
     fine_iterations: int = 20
+    #: at most this many full-resolution cluster points are the fine stage's target (an even
+    #: subset of a dense sensor's; 0: all of them)
+    fine_points: int = 0
     fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
     two_way: bool = True               #: fixed: the final stage also pairs scene points with it
     reverse_points: int = 600          #: at most this many scene points in those pairs
@@ -202,7 +205,7 @@ class FitSettings:
         for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
                      "articulated_candidates", "prefilter_keep", "prefilter_iterations",
                      "articulation_rounds", "finish_articulation_rounds", "yaw_sweep_keep",
-                     "coarse_keep",
+                     "coarse_keep", "fine_points",
                      "articulation_icp",
                      "resting_poses", "resting_yaws"):
             v = getattr(self, name)
