@@ -89,9 +89,10 @@ def cmd_fit(args) -> int:
           f"{'rmse mm':>7}  position (m)")
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
+        judged = f"{c.coverage:>8.2f} {c.inlier_rmse * 1000:>7.2f}" if c.fits is not None \
+            else f"{'-':>8} {'-':>7}"       # not judged (the prefilter set it aside)
         print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
-              f"{c.coverage:>8.2f} {c.inlier_rmse * 1000:>7.2f}  "
-              f"({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})")
+              f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})")
     return 0
 
 

@@ -267,6 +267,9 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
         aside = [c.prefiltered for c in cands]
         assert aside == sorted(aside)              # the set-aside ones behind the others
         assert [c.to_dict()["prefiltered"] for c in cands] == aside    # what status / --json say
+        # the fitted ones carry the verdict; the coarse poses set aside are not judged
+        assert [c.fits is None for c in cands] == aside
+        assert all(c.coverage == 0.0 and c.inlier_rmse == 0.0 for c in cands if c.prefiltered)
         assert sum(not a for a in aside) >= FitSettings().prefilter_keep
         decided += any(aside)
         assert cands[0].template == obj.template and not cands[0].prefiltered
@@ -277,6 +280,27 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
         assert not any(c.prefiltered for c in plain)
         assert plain[0].template == obj.template
     assert decided >= 1
+
+
+def test_a_template_set_aside_is_fitted_and_judged_when_shown(library, panel_scene):
+    """The operator shows a candidate the prefilter set aside: the engine fits it then (its
+    pose was the coarse stage's) and it gets its verdict; it stays ranked where it was."""
+    from affordance_registration.bench import variant_library
+    from affordance_registration.core.engine import AffordanceEngine
+    engine = AffordanceEngine(variant_library(library, 15))
+    engine.set_scene(panel_scene.organized, frame_id="cam")
+    obj = panel_scene.objects[0]
+    engine.click(obj.click)
+    before = engine.status()["objects"][0]["candidates"]
+    k, aside = next((k, c) for k, c in enumerate(before) if c["prefiltered"])
+    assert aside["fits"] is None
+    engine.select_model(aside["template"])
+    after = engine.status()["objects"][0]
+    shown = after["candidates"][after["shown"]]
+    assert after["shown"] == k and shown["template"] == aside["template"]
+    assert shown["fits"] is not None and not shown["prefiltered"]
+    assert shown["coverage"] > 0.0 and shown["rank"] == aside["rank"]
+    assert shown["pose"] != aside["pose"]
 
 
 def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):

@@ -352,13 +352,14 @@ class AffordanceEngine:
 
     def _show(self, obj: TrackedObject, active: int) -> str:
         """Show candidate ``active`` of ``obj`` (refined at full resolution the first time it
-        is shown; the refit runs outside the lock)."""
+        is shown -- one the library prefilter set aside is fitted then: its pose and residual
+        were the coarse stage's, and it had no verdict; the refit runs outside the lock)."""
         ctx, candidates, refined = obj.context, obj.candidates, obj.refined
         if active not in refined and ctx is not None:
             cand = candidates[active]
             better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
                                           cand.scale)
-            if better.likelihood >= cand.likelihood:
+            if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = candidates[:active] + (cand,) + candidates[active + 1:]
             refined = refined | {active}

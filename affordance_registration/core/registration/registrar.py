@@ -187,8 +187,11 @@ class Registrar:
         #    mounting axis (near-symmetric handles), then alone at full resolution, then
         #    (articulated) towards a named state and scale 1; ranked again on those residuals
         ranked = self._finish_leaders(ctx, ranked, models, hyps.iterations)
-        # 8. the absolute verdict on every candidate: coverage, inlier RMSE, fits or not
-        judged = self._judged(ctx, ranked)
+        # 8. the absolute verdict on every fitted candidate: coverage, inlier RMSE, fits or
+        #    not (those the prefilter set aside have coarse poses: not judged, ``fits`` None,
+        #    until a refit fits them -- the engine's when one is first shown)
+        fitted = [r for r in ranked if not r.prefiltered]
+        judged = self._judged(ctx, fitted) + [r for r in ranked if r.prefiltered]
         total = time.perf_counter() - t0
         return rank([replace(r, time_s=total) for r in judged])
 

@@ -29,7 +29,8 @@ class FitResult:
     the template surface the sensor could have seen that has scan points within
     ``FitSettings.coverage_distance``; ``inlier_rmse`` the RMS distance of those points (m);
     ``fits`` whether coverage reaches ``FitSettings.min_coverage`` (None: not judged, as for
-    the literal baseline)."""
+    the literal baseline and the candidates the library prefilter set aside; their coverage and
+    inlier_rmse are then 0)."""
 
     template: str
     T_scene_model: np.ndarray = field(repr=False)   #: 4x4, model -> scene
