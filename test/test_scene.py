@@ -209,3 +209,26 @@ def test_two_threads_prepare_the_same_click(panel_scene):
         assert len(one.fine) > 2 * S.MIN_NORMALS_PART
         for name in ("crop", "cluster", "fine", "fine_normals", "frame"):
             assert np.array_equal(getattr(one, name), getattr(two, name)), name
+
+
+def test_the_fine_points_are_capped_by_an_even_subset(panel_scene):
+    """``fine_points`` keeps at most that many full-resolution points: an even subset of the
+    uncapped ones in their order, spread over the whole cluster (a click on a large flat
+    surface holds tens of thousands); everything else about the click is the same."""
+    scene = S.Scene(panel_scene.organized)
+    obj = max(panel_scene.objects, key=lambda o: o.visible_points)
+    part = scene.around(obj.click, 0.27)
+    c = part.snap(obj.click)
+    full = part.prepare_click(c, radius=0.24)
+    cap = len(full.fine) // 3
+    capped = part.prepare_click(c, radius=0.24, fine_points=cap)
+    assert len(capped.fine) == cap < len(full.fine)
+    rows = {tuple(p) for p in full.fine.tolist()}
+    assert all(tuple(p) in rows for p in capped.fine.tolist())
+    # even: nearly every full-resolution point has a kept one within two voxels (the first
+    # third of them, say, would leave the rest of the cluster 2 to 11 cm from any)
+    d, _ = nearest(build_tree(capped.fine), full.fine)
+    assert np.percentile(d, 99) < 2 * full.voxel, np.percentile(d, [50, 99])
+    for name in ("crop", "cluster", "frame"):
+        assert np.array_equal(getattr(full, name), getattr(capped, name)), name
+    assert len(part.prepare_click(c, radius=0.24, fine_points=0).fine) == len(full.fine)
