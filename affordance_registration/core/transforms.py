@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "finite_vector", "make_T", "invert", "transform_points", "rotate", "pose_points",
     "rotation_angle", "pose_error",
-    "axis_angle_matrix", "random_rotations", "align_z_to", "align_x_to", "quat_xyzw_to_matrix",
+    "axis_angle_matrix", "random_rotations", "unit_quaternions", "align_z_to", "align_x_to",
+    "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
 
@@ -114,9 +115,14 @@ def _rotvec_matrix(x: float, y: float, z: float) -> list:
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` rotations drawn uniformly from SO(3), shape (n, 3, 3)."""
+    return Rotation.from_quat(unit_quaternions(n, rng)).as_matrix()
+
+
+def unit_quaternions(n: int, rng: np.random.Generator) -> np.ndarray:
+    """The unit quaternions (n, 4) of :func:`random_rotations` (the same draws)."""
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return Rotation.from_quat(q).as_matrix()
+    return q
 
 
 def align_z_to(normal, hint=None) -> np.ndarray:

@@ -8,11 +8,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
-from ..transforms import (align_z_to, axis_angle_matrix, make_T, random_rotations,
-                          rotation_angle)
+from ..transforms import (align_z_to, axis_angle_matrix, make_T, rotation_angle,
+                          unit_quaternions)
 from .features import feature_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
@@ -72,20 +73,41 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
     diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
     object) also starts from the poses its shape features match (:mod:`.features`)."""
-    index, Rs, ts, family = [], [], [], []
     up = cluster_axis = None
     if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
         up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
         cluster_axis = principal_angle(ctx.cluster @ up)
-    for i, model in enumerate(models):
+    # every template's draws in turn, then the rotations of all of them composed at once
+    draws = [_draws(ctx, model, settings, rng, cluster_axis) for model in models]
+    yawed = random = None
+    if any(len(d.yaws) for d in draws):
+        yawed = up @ _about_z(np.concatenate([d.yaws for d in draws])) @ \
+            np.concatenate([d.bases for d in draws])
+    if any(len(d.quats) for d in draws):   # drawn in the frame attached to the scan
+        random = ctx.frame @ Rotation.from_quat(np.concatenate([d.quats for d in draws])) \
+            .as_matrix()
+        shifted = np.concatenate([d.offsets for d in draws]) @ ctx.frame.T
+    index, Rs, ts, family = [], [], [], []
+    n_yawed = n_random = 0
+    for i, (model, d) in enumerate(zip(models, draws)):
         centre = ctx.cluster_mean_near(ctx.click, 0.5 * model.diameter)
         if centre is None:
             centre = ctx.click
-        R0, offsets, fam = _orientations(ctx, model, settings, rng, up, cluster_axis)
+        k, n = len(d.yaws), len(d.quats)
+        R0 = [yawed[n_yawed:n_yawed + k]] if k else []
+        offsets = [np.zeros((k, 3))]
+        if n:
+            R0.append(random[n_random:n_random + n])
+            offsets.append(shifted[n_random:n_random + n])
+        n_yawed, n_random = n_yawed + k, n_random + n
+        if d.aligned:
+            R0.append(np.stack(d.aligned))
+            offsets.append(np.zeros((len(d.aligned), 3)))
+        R0 = np.concatenate(R0) if R0 else np.empty((0, 3, 3))
         index.append(np.full(len(R0), i))
         Rs.append(R0)
-        ts.append(_starts(ctx, model, R0, centre, offsets))
-        family.append(fam)
+        ts.append(_starts(ctx, model, R0, centre, np.concatenate(offsets)))
+        family.append(np.concatenate([d.families, np.full(len(R0) - k, RANDOM)]))
         if getattr(getattr(model, "template", model), "is_point_template", False):
             # a scanned object: poses from matched shape features too (their own generator,
             # so the other templates' draws stay as they are)
@@ -98,21 +120,35 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
                 family.append(np.full(len(matched), RANDOM))
     index = np.concatenate(index)
     return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
-                      index, np.concatenate(family))
+                      index, np.concatenate(family).astype(int))
 
 
-def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator,
-                  up: np.ndarray | None, cluster_axis: float | None):
-    """One template's initial hypotheses, in the order they draw from ``rng``: rotations
-    (K, 3, 3), translation offsets (K, 3; zero but for the random ones) and families (K,).
-    ``up`` (3, 3): the plane's frame (z along its normal; None without a plane);
-    ``cluster_axis``: the cluster's main axis in it (:func:`principal_angle`)."""
+@dataclass(frozen=True)
+class _Draws:
+    """One template's draws: yaws (K,) about the plane's normal with the orientations they
+    turn (K, 3, 3) and their families (K,); random rotations as unit quaternions (n, 4) with
+    their offsets (n, 3, in the frame attached to the scan); the principal-axes alignments
+    (rotations, without a plane)."""
+
+    yaws: np.ndarray
+    bases: np.ndarray
+    families: np.ndarray
+    quats: np.ndarray
+    offsets: np.ndarray
+    aligned: list
+
+
+def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator,
+           cluster_axis: float | None) -> _Draws:
+    """One template's initial orientations, drawn from ``rng`` in their order: mounted and
+    resting yaw sweeps (with a plane), random rotations and offsets, principal axes (without
+    one). ``cluster_axis``: the cluster's main axis in the plane's frame
+    (:func:`principal_angle`)."""
     s, plane = settings, ctx.plane
-    Rs, families = [], []
+    yaws, bases, families = [], [], []
     if plane is not None:
-        # yaws about the plane's normal (all of them turned at once below), each with the
-        # template's orientation it turns: identity (mounted) or a resting facet
-        yaws, bases = [], []
+        # yaws about the plane's normal, each with the template's orientation it turns:
+        # identity (mounted) or a resting facet
         if s.mode in ("auto", "mounted"):
             yaws.append(_yaws(s.yaw_restarts, rng))
             bases.append(np.broadcast_to(np.eye(3), (s.yaw_restarts, 3, 3)))
@@ -130,28 +166,19 @@ def _orientations(ctx: ClickContext, model, settings: FitSettings, rng: np.rando
                     yaws.append(np.array(facet))
                     bases.append(np.broadcast_to(R_rest, (len(facet), 3, 3)))
                     families.append(np.full(len(facet), RESTING))
-        if yaws:
-            Rs.append(up @ _about_z(np.concatenate(yaws)) @ np.concatenate(bases))
     n_rand = 0 if s.mode == "mounted" and plane is not None else (
         s.random_restarts if plane is not None else s.free_restarts)
-    offsets = [np.zeros((sum(len(f) for f in families), 3))]
+    quats, off = np.empty((0, 4)), np.empty((0, 3))
     if n_rand:
         off = rng.normal(size=(n_rand, 3))
         off *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
                 / np.linalg.norm(off, axis=1, keepdims=True))
-        # drawn in the frame attached to the scan, so they turn with it
-        Rs.append(ctx.frame @ random_rotations(n_rand, rng))
-        offsets.append(off @ ctx.frame.T)
-        families.append(np.full(n_rand, RANDOM))
-    if plane is None:       # a free object: its principal axes on the cluster's too
-        aligned = _principal_alignments(ctx.cluster, model)
-        if aligned:
-            Rs.append(np.stack(aligned))
-            offsets.append(np.zeros((len(aligned), 3)))
-            families.append(np.full(len(aligned), RANDOM))
-    if not families:
-        return np.empty((0, 3, 3)), np.empty((0, 3)), np.empty(0, dtype=int)
-    return np.concatenate(Rs), np.concatenate(offsets), np.concatenate(families)
+        quats = unit_quaternions(n_rand, rng)
+    aligned = _principal_alignments(ctx.cluster, model) if plane is None else []
+    return _Draws(np.concatenate(yaws) if yaws else np.empty(0),
+                  np.concatenate(bases) if bases else np.empty((0, 3, 3)),
+                  np.concatenate(families) if families else np.empty(0, dtype=int),
+                  quats, off, aligned)
 
 
 def _resting_axes(model, max_poses: int) -> list:
