@@ -2,8 +2,8 @@
 per iteration); the rejection radius shrinks from the stage's reach to ``reject_floor``; the
 loop stops once every hypothesis has converged (its step turns it less than
 ``CONVERGED_ROTATION``, moves its weighted centroid less than ``CONVERGED_TRANSLATION`` and
-changes its joint value and scale less than ``CONVERGED_EXTRA``) or at the stage's iteration
-limit.
+changes its joint value and scale less than ``CONVERGED_EXTRA``; ``FINE_CONVERGED`` times those
+on the full-resolution cluster) or at the stage's iteration limit.
 
 On the voxelized cluster the step is point to point (closed-form weighted SVD). On the
 full-resolution cluster (the fine stage) scene points are paired with the template too, and the
@@ -23,7 +23,8 @@ from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
 from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
-                       JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT, FitSettings, Stage)
+                       FINE_CONVERGED, JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT,
+                       FitSettings, Stage)
 from .solve import plane_step, rigid_step
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
@@ -70,6 +71,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
         reject = stage.reject * np.array([m.diameter for m in batch.models])
     reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
     floor = np.minimum(reject, settings.reject_floor)
+    small = FINE_CONVERGED if fine else 1.0     # a step this many times the thresholds
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))        # the hypotheses still moving
     first, stop = span if span is not None else (0, stage.iterations)
@@ -93,8 +95,8 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
         R[active] = step.R @ Ra
         t[active] = (step.R @ ta[:, :, None])[:, :, 0] + step.t
         extra = posing.advance(step.extra, active)
-        done = (step.rotation < CONVERGED_ROTATION) & \
-            (step.motion < CONVERGED_TRANSLATION) & (extra < CONVERGED_EXTRA)
+        done = (step.rotation < small * CONVERGED_ROTATION) & \
+            (step.motion < small * CONVERGED_TRANSLATION) & (extra < small * CONVERGED_EXTRA)
         # a converged hypothesis stays where it is (its result does not depend on the others
         # in the batch, so a batch may be split across threads)
         converged[active[done]] = True

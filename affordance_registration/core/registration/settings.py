@@ -34,6 +34,10 @@ LOCAL_ICP = 4              #: ICP iterations after each local joint / scale step
 CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
 CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
 CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
+#: the fine stage (and a refit's) has converged at this many times those steps: 0.03 deg and
+#: 0.15 mm a step are far below the pose tolerance, and its iterations are the dearest (it
+#: stops within 0.2 deg of the fully converged pose, a handwheel turned about its axis)
+FINE_CONVERGED = 3.0
 
 # --------------------------------------------------------------------------- hypotheses
 RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
