@@ -417,3 +417,29 @@ def test_the_fine_stage_stops_close_to_where_it_would_converge_fully(library, pa
         dt, dr = pose_error(ends[True], ends[False])
         assert dt <= 3e-4 and dr <= math.radians(0.3), (obj.template, dt, math.degrees(dr))
     assert its[True] < its[False]
+
+
+def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypatch):
+    """Seed 1006's grab handle in the 40-template bench library: the handle and its copy
+    squeezed to 0.7 in y finish within 0.1% of each other when the fine stage stops at
+    ``FINE_CONVERGED`` x the step thresholds, and the copy ranks first; finished again to the
+    plain thresholds (the leaders within ``NEAR_TIE``), the handle does, 1% ahead."""
+    from affordance_registration.bench import MIN_VISIBLE, variant_library
+    from affordance_registration.core.registration import registrar as registrar_module
+    big = variant_library(library, 40)
+    assert "grab_handle@y0.7" in big
+    sim = simulate_taskboard(library, 1006)
+    obj = [o for o in sim.objects if o.visible_points >= MIN_VISIBLE][3]
+    assert obj.template == "grab_handle"
+    scene, fitter = Scene(sim.organized), Registrar(big)
+    near_tie = registrar_module.NEAR_TIE
+    assert near_tie > 1.001
+    firsts = {}
+    for tie in (near_tie, 1.0):
+        monkeypatch.setattr(registrar_module, "NEAR_TIE", tie)
+        cands = fitter.fit(scene, obj.click).candidates
+        firsts[tie] = [c.template for c in cands[:2]]
+        assert sorted(firsts[tie]) == ["grab_handle", "grab_handle@y0.7"]
+        if tie == 1.0:      # stopped early, the two are a coin flip apart
+            assert cands[1].residual <= 1.001 * cands[0].residual
+    assert firsts[near_tie][0] == "grab_handle" and firsts[1.0][0] == "grab_handle@y0.7"

@@ -129,7 +129,7 @@ def _scale_sweep(ctx: ClickContext, model: Model, R, t, settings: FitSettings):
 
 
 def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: FitSettings,
-                   iterations_before: int) -> FitResult:
+                   iterations_before: int, converge: float | None = None) -> FitResult:
     """Occam's razor for the extra unknowns: refit at the nearest named state's joint value
     and/or at the nominal scale 1 (within the range) -- the fixed part held or moved so the
     moving part stays, the template scaled about its origin or its centroid -- and keep
@@ -138,7 +138,8 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
     sit open or closed, and most objects come in their nominal size. Where scale 1 is tried,
     both sides are compared with samples beyond ``scale_grazing_angle`` unseen (a sensor
     returns little there, and such samples count against the larger size); the result keeps
-    the residual every candidate is ranked by."""
+    the residual every candidate is ranked by. ``converge``: the refits' step thresholds'
+    factor (:func:`.icp.icp`)."""
     tpl = model.template
     s = settings
     qs, scales = [model.q], [model.scale]
@@ -174,7 +175,7 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
             for T0 in starts:
                 # as it is, and refined (the fine stage's objective is not the residual)
                 fit = fine_stage(ctx, m, T0[:3, :3], T0[:3, 3], s.refit_fine, s,
-                                 hold_joint=True, hold_scale=True)
+                                 hold_joint=True, hold_scale=True, converge=converge)
                 refined = result(ctx, m, fit.R[0], fit.t[0], judge_s,
                                  iterations_before + fit.iterations, fit.converged[0])
                 as_is = result(ctx, m, T0[:3, :3], T0[:3, 3], judge_s, res.iterations,

@@ -39,22 +39,25 @@ def radius_schedule(reject, floor, it: int, iterations: int):
 
 
 def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject=None,
-        unknowns: tuple = (), contact: bool = False, span: tuple | None = None) -> IcpResult:
+        unknowns: tuple = (), contact: bool = False, span: tuple | None = None,
+        converge: float | None = None) -> IcpResult:
     """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
     reach. ``span`` (first, stop) runs only those of the stage's iterations (its rejection
     radii as in the whole stage), so a stage can be run in two parts. ``unknowns`` (fine stage
     only):
     JOINT and/or SCALE, fitted with the pose (every model has them); ``contact``: the lowest
-    samples also pair with the plane under the click (the fit rests on it). A big batch runs
-    in parts side by side (``settings.threads``); each hypothesis' result is its own."""
+    samples also pair with the plane under the click (the fit rests on it). ``converge``: the
+    step thresholds' factor (None: ``FINE_CONVERGED`` on the full-resolution target, else 1).
+    A big batch runs in parts side by side (``settings.threads``); each hypothesis' result is
+    its own."""
     if reject is not None:
         reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
     pieces = parts(len(batch), settings.threads)
     if len(pieces) == 1:
-        return _icp(ctx, batch, stage, settings, reject, unknowns, contact, span)
+        return _icp(ctx, batch, stage, settings, reject, unknowns, contact, span, converge)
     done = run([lambda idx=idx: _icp(ctx, batch.take(idx), stage, settings,
                                      None if reject is None else reject[idx], unknowns, contact,
-                                     span)
+                                     span, converge)
                 for idx in pieces], settings.threads)
     return IcpResult(sum((r.models for r in done), ()), np.concatenate([r.R for r in done]),
                      np.concatenate([r.t for r in done]), max(r.iterations for r in done),
@@ -62,7 +65,8 @@ def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, re
 
 
 def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject,
-         unknowns: tuple, contact: bool, span: tuple | None = None) -> IcpResult:
+         unknowns: tuple, contact: bool, span: tuple | None = None,
+         converge: float | None = None) -> IcpResult:
     """:func:`icp` of one batch on the calling thread."""
     fine = stage.target == FINE
     posing = _Posing(batch.models, stage.samples, unknowns)
@@ -71,7 +75,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
         reject = stage.reject * np.array([m.diameter for m in batch.models])
     reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
     floor = np.minimum(reject, settings.reject_floor)
-    small = FINE_CONVERGED if fine else 1.0     # a step this many times the thresholds
+    small = converge if converge is not None else FINE_CONVERGED if fine else 1.0
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))        # the hypotheses still moving
     first, stop = span if span is not None else (0, stage.iterations)
@@ -107,17 +111,19 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
 
 
 def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: FitSettings,
-               hold_joint: bool = False, hold_scale: bool = False) -> IcpResult:
+               hold_joint: bool = False, hold_scale: bool = False,
+               converge: float | None = None) -> IcpResult:
     """One hypothesis alone on the full-resolution target. An articulated model's joint value
     and scale are unknowns besides the pose (``hold_joint`` / ``hold_scale`` keep them as
-    given); such a fit resting on the plane under the click keeps resting on it."""
+    given); such a fit resting on the plane under the click keeps resting on it.
+    ``converge``: as :func:`icp`'s (None: ``FINE_CONVERGED``)."""
     tpl = model.template
     unknowns = () if not model.articulated else \
         ((JOINT,) if tpl.joint is not None and not hold_joint else ()) + \
         ((SCALE,) if tpl.scale_range is not None and not hold_scale else ())
     contact = bool(unknowns) and in_contact(ctx, model, R, t, settings)
     return icp(ctx, Batch.single(model, R, t), stage, settings, unknowns=unknowns,
-               contact=contact)
+               contact=contact, converge=converge)
 
 
 class _Posing:

@@ -64,7 +64,7 @@ from .parallel import run, single_threaded_blas
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
-from .settings import BACKWARD_SUBSAMPLE, REST_SAMPLES, SAMPLE_SEED, FitSettings
+from .settings import BACKWARD_SUBSAMPLE, NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
 
@@ -265,14 +265,27 @@ class Registrar:
         while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
                 ranked[n].residual <= s.finish_margin * ranked[0].residual:
             n += 1
-        done = run([lambda r=r: self._finish(ctx, r, models, iterations)
-                    for r in ranked[:n]], s.threads)
-        return rank(done + list(ranked[n:]))
+        def lead(win):
+            swept = self._before_fine(ctx, win, models)
+            return swept, self._finish(ctx, win, swept, iterations)
 
-    def _finish(self, ctx: ClickContext, win: FitResult, models: dict,
-                iterations: int) -> FitResult:
-        """A leader's yaw sweep, its fine stage (joint and scale once more, articulated) and
-        Occam's razor for its joint value and scale; never worse than ``win``."""
+        swept, done = map(list, zip(*run([lambda r=r: lead(r) for r in ranked[:n]],
+                                         s.threads)))
+        # a near tie -- a template and a squeezed copy of it can finish within 0.1% of each
+        # other -- is decided on fine stages run to the plain step thresholds (not
+        # FINE_CONVERGED x them)
+        best = min(r.residual for r in done)
+        tied = [k for k in range(n) if done[k].residual <= NEAR_TIE * best]
+        if len(tied) > 1:
+            again = run([lambda k=k: self._finish(ctx, ranked[k], swept[k], iterations, 1.0)
+                         for k in tied], s.threads)
+            for k, r in zip(tied, again):
+                done[k] = r
+        return rank(list(done) + list(ranked[n:]))
+
+    def _before_fine(self, ctx: ClickContext, win: FitResult, models: dict) -> tuple:
+        """A leader's yaw sweep (and, articulated, its joint once more after it):
+        (model, R, t) for its fine stage."""
         s = self.settings
         model = models.get(win.template)
         if model is None:
@@ -282,14 +295,23 @@ class Registrar:
         if model.articulated:       # the joint after the sweep, once more
             model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False,
                                         rounds=s.finish_articulation_rounds)
-        fit = fine_stage(ctx, model, R, t, s.fine, s)
+        return model, R, t
+
+    def _finish(self, ctx: ClickContext, win: FitResult, swept: tuple, iterations: int,
+                converge: float | None = None) -> FitResult:
+        """A leader's fine stage from ``swept`` (:meth:`_before_fine`; joint and scale once
+        more, articulated) and Occam's razor for its joint value and scale (``converge``: as
+        :func:`.icp.icp`'s); never worse than ``win``."""
+        s = self.settings
+        model, R, t = swept
+        fit = fine_stage(ctx, model, R, t, s.fine, s, converge=converge)
         final = result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations + fit.iterations,
                        fit.converged[0])
         if final.likelihood < win.likelihood:
             final = win
         if model.articulated:
             final = prefer_nominal(ctx, self._model(final.template, final.joints, final.scale),
-                                   final, s, iterations)
+                                   final, s, iterations, converge)
         return final
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):

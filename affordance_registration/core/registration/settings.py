@@ -38,6 +38,10 @@ CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and sca
 #: 0.15 mm a step are far below the pose tolerance, and its iterations are the dearest (it
 #: stops within 0.2 deg of the fully converged pose, a handwheel turned about its axis)
 FINE_CONVERGED = 3.0
+#: finished leaders within this factor of the best one's residual are finished again with the
+#: plain step thresholds before the final ranking (a near tie is decided on fully converged
+#: fits)
+NEAR_TIE = 1.02
 
 # --------------------------------------------------------------------------- hypotheses
 RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
