@@ -120,7 +120,7 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
                 family.append(np.full(len(matched), RANDOM))
     index = np.concatenate(index)
     return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
-                      index, np.concatenate(family).astype(int))
+                      index, np.concatenate(family))
 
 
 @dataclass(frozen=True)

@@ -257,14 +257,16 @@ class Registrar:
         again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
         aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
         near shapes (a template and a squeezed copy of it) can swap places at medium
-        resolution; the fine stage tells them apart. A finished residual is never above the
-        one it started from, and every candidate left out ranked behind those finished, so
-        the ranking stays consistent."""
+        resolution; the fine stage tells them apart (and where they finish within
+        ``NEAR_TIE`` of each other, fine stages run to the plain step thresholds do). A
+        finished residual is never above the one it started from, and every candidate left
+        out ranked behind those finished, so the ranking stays consistent."""
         s = self.settings
         n = 1
         while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
                 ranked[n].residual <= s.finish_margin * ranked[0].residual:
             n += 1
+
         def lead(win):
             swept = self._before_fine(ctx, win, models)
             return swept, self._finish(ctx, win, swept, iterations)
