@@ -146,6 +146,29 @@ def test_bad_template_files_name_the_file_and_key(tmp_path, doc, key):
     assert path in msg and f"key '{key}'" in msg
 
 
+def test_a_prismatic_joints_states_are_in_the_mesh_units_of_its_limits(tmp_path):
+    """A mesh in millimetres (``mesh_scale: 0.001``) with a button that travels 8 (mm): its
+    limits, origin and named states are all in those units, and all come out in metres; a
+    state past the limits is refused with the limits in the file's units."""
+    trimesh.creation.box(extents=[80, 80, 50]).export(tmp_path / "box_mm.stl")
+    doc = {"name": "stop_mm", "mesh": "box_mm.stl", "mesh_scale": 0.001,
+           "base_mesh": "box_mm.stl",
+           "joints": [{"name": "button", "type": "prismatic", "axis": [0, 0, -1],
+                       "origin": [0, 0, 68], "lower": 0.0, "upper": 8.0,
+                       "moving_mesh": "box_mm.stl"},
+                      {"name": "turn", "type": "revolute", "axis": [0, 0, 1],
+                       "lower": 0.0, "upper": 1.5, "moving_mesh": "box_mm.stl"}],
+           "states": {"pressed": {"button": 8.0, "turn": 1.5}, "half": {"button": 4}}}
+    tpl = load_template(_write(tmp_path, doc, mesh=False))
+    button = next(j for j in tpl.joints if j.name == "button")
+    assert button.upper == pytest.approx(0.008) and button.origin[2] == pytest.approx(0.068)
+    assert tpl.states["pressed"] == pytest.approx({"button": 0.008, "turn": 1.5})
+    assert tpl.states["half"] == pytest.approx({"button": 0.004})
+    doc["states"] = {"through": {"button": 9.0}}
+    with pytest.raises(TemplateError, match=r"key 'states.through.button'.*\[0, 8\]"):
+        load_template(_write(tmp_path, doc, mesh=False))
+
+
 def test_a_mesh_that_does_not_load(tmp_path):
     (tmp_path / "broken.stl").write_bytes(b"solid x\nfacet normal 0 0 1\n outer loop\n vertex 1 nan")
     path = _write(tmp_path, {"name": "x", "mesh": "broken.stl"}, mesh=False)

@@ -16,6 +16,9 @@ A template is a YAML file (``models/<name>.yaml``)::
     states: {open: {lever: 0.0}, closed: {lever: 1.5708}}
     description: free text
 
+Lengths in the file -- a joint's origin, a prismatic joint's limits and its named states -- are
+in the mesh's units (``mesh_scale`` turns them into metres); angles are radians.
+
 Template frame: origin at the centre of the mounting base, +z out of the mounting surface, metres.
 """
 from __future__ import annotations
@@ -606,7 +609,9 @@ def _parse_joints(path: str, value, scale: float, external: bool = False) -> tup
     return tuple(joints)
 
 
-def _parse_states(path: str, value, joints: tuple) -> dict:
+def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
+    """Named joint values: radians, or for a prismatic joint the mesh's units as its limits are
+    (times ``scale``, metres like them)."""
     if value is None:
         return {}
     if not isinstance(value, dict):
@@ -625,11 +630,14 @@ def _parse_states(path: str, value, joints: tuple) -> dict:
             except (TypeError, ValueError):
                 raise _fail(path, f"states.{state}.{jname}", f"expected a number, got {v!r}") \
                     from None
+            unit = scale if joint.type == "prismatic" else 1.0
             tol = 1e-6 * max(1.0, abs(joint.upper - joint.lower))
-            if not joint.lower - tol <= v <= joint.upper + tol:
+            if not joint.lower - tol <= v * unit <= joint.upper + tol:
                 raise _fail(path, f"states.{state}.{jname}",
-                            f"{v} is outside the joint limits [{joint.lower}, {joint.upper}]")
-        states[str(state)] = {k: float(v) for k, v in values.items()}
+                            f"{v} is outside the joint limits [{joint.lower / unit:.6g}, "
+                            f"{joint.upper / unit:.6g}]")
+        states[str(state)] = {k: float(v) * (scale if by_name[k].type == "prismatic" else 1.0)
+                              for k, v in values.items()}
     return states
 
 
@@ -670,7 +678,7 @@ def load_template(path: str) -> AffordanceTemplate:
     mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale), external)
     symmetry = _parse_symmetry(path, doc.get("symmetry"))
     joints = _parse_joints(path, doc.get("joints"), float(scale), external)
-    states = _parse_states(path, doc.get("states"), joints)
+    states = _parse_states(path, doc.get("states"), joints, float(scale))
     base = None
     if "base_mesh" in doc:
         base, _, _ = _load_geometry(path, "base_mesh", doc["base_mesh"], float(scale), external)
