@@ -83,3 +83,35 @@ def test_fit_bad_input(tmp_path):
                                         "end_header\n")
     line = _one_line_error(run("fit", "--scene", str(tmp_path / "empty.ply"), "--point", "0", "0", "1"))
     assert "no points" in line
+
+
+def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
+    """With 15 templates (the five and copies of them scaled 0.75 and 1.4) the prefilter sets
+    clearly worse ones aside: --json gives them ``fits`` null and coverage 0, the table a '-'
+    where their coverage and RMSE would be; the fitted ones carry their verdict."""
+    from affordance_registration.core.templates import default_models_dir
+    import shutil
+    models = default_models_dir()
+    lib = tmp_path / "templates"
+    shutil.copytree(f"{models}/meshes", lib / "meshes")
+    for name in library:
+        with open(f"{models}/{name}.yaml", encoding="utf-8") as f:
+            doc = yaml.safe_load(f)
+        for label, scale in (("", 1.0), ("_small", 0.75), ("_large", 1.4)):
+            (lib / f"{name}{label}.yaml").write_text(yaml.safe_dump(
+                dict(doc, name=f"{name}{label}", mesh_scale=scale)))
+    out = tmp_path / "scene"
+    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
+    args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
+            "--templates", str(lib))
+    cands = json.loads(run(*args, "--json", check=True).stdout)["candidates"]
+    assert len(cands) == 15 and cands[0]["template"] == obj["template"]
+    aside = [c for c in cands if c["prefiltered"]]
+    assert aside and all(c["fits"] is None and c["coverage"] == 0 for c in aside)
+    assert all(isinstance(c["fits"], bool) for c in cands if not c["prefiltered"])
+    rows = {line.split()[1]: line.split() for line in run(*args, check=True).stdout.splitlines()
+            if line.split()[:1] and line.split()[0].isdigit()}
+    assert len(rows) == 15
+    for c in cands:
+        assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
