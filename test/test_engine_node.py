@@ -234,7 +234,10 @@ def test_accept_right_after_a_twist_takes_the_refitted_pose(session, library):
     assert res.success and obj.template in res.message, res.message
     client.wait_for(lambda: len(client.latest[f"{NS}/registered"].poses) == n + 1,
                     what="~/registered")
-    reg = status(s)["registered"][-1]
+    # the status topic is published on its own (rate-limited): wait for the one with it too
+    st = client.wait_for(lambda: len(status(s)["registered"]) == n + 1 and status(s),
+                         what="the status with the new registration")
+    reg = st["registered"][-1]
     dt, dr = pose_error(np.asarray(reg["pose"]), obj.T_scene_model, library[obj.template].symmetry)
     assert reg["template"] == obj.template and dt < TOL_M and dr < TOL_RAD, (dt, dr)
 
