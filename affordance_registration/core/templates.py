@@ -621,6 +621,7 @@ def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
     for state, values in value.items():
         if not isinstance(values, dict):
             raise _fail(path, f"states.{state}", "expected a mapping of joint name to value")
+        states[str(state)] = checked = {}
         for jname, v in values.items():
             if jname not in by_name:
                 raise _fail(path, f"states.{state}.{jname}", "no joint of that name")
@@ -636,8 +637,7 @@ def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
                 raise _fail(path, f"states.{state}.{jname}",
                             f"{v} is outside the joint limits [{joint.lower / unit:.6g}, "
                             f"{joint.upper / unit:.6g}]")
-        states[str(state)] = {k: float(v) * (scale if by_name[k].type == "prismatic" else 1.0)
-                              for k, v in values.items()}
+            checked[jname] = v * unit
     return states
 
 
