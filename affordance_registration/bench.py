@@ -430,7 +430,7 @@ def _any_frame_rows(default: Registrar, jobs, library, optical, n_scenes: int, l
 def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int | None = None,
               out: str | None = "bench_output/bench.json", log=print) -> dict:
     """Run the benchmark; returns (and writes as JSON) the table."""
-    library = TemplateLibrary.load()
+    library = TemplateLibrary.load().specific()     # the taskboard library (rows as before)
     n_scenes = scenes if scenes is not None else (4 if quick else 20)
     n_paper = paper_clicks if paper_clicks is not None else (5 if quick else 25)
     log(f"simulating {n_scenes} panel and {max(2, n_scenes // 2)} table scenes ...")

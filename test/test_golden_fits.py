@@ -59,7 +59,7 @@ def run_cases() -> tuple[dict, dict]:
     from affordance_registration.core.templates import TemplateLibrary
     from affordance_registration.core.transforms import axis_angle_matrix, make_T
 
-    library = TemplateLibrary.load()
+    library = TemplateLibrary.load().specific()   # the taskboard library (no primitives)
     sized = sized_library(library)
     default = Registrar(library)
     registrars = {"default": default, "sized": Registrar(sized),

@@ -26,7 +26,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from .errors import SceneError
-from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
+from .neighbours import KDTree, build_tree, k_nearest, nearest, pairs_within, pca_normals
 from .transforms import align_z_to, finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
@@ -50,6 +50,17 @@ FLAT_SAMPLES = 300       #: points near the plane whose normals are looked at (e
 #: thresholds (a clean scan: the threshold)
 SUPPORT_REACH = 3.0
 SUPPORT_SIGMAS = 3.0
+#: the scan's noise around a click (``ClickContext.noise``): the spread off their plane of
+#: this many nearest full-resolution neighbours, at up to NOISE_SAMPLES places
+NOISE_NEIGHBOURS = 16
+NOISE_SAMPLES = 300
+#: the cluster's segments (``ClickContext.segments``): voxels this many voxel edges apart are
+#: neighbours, their normals from SEGMENT_NEIGHBOURS points; a pair stays joined where the
+#: normals are within SEGMENT_FLAT_DEG (one surface, with a real sensor's noise) or meet
+#: convexly
+SEGMENT_REACH = 1.8
+SEGMENT_NEIGHBOURS = 12
+SEGMENT_FLAT_DEG = 20.0
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
 NO_VIEWPOINT = "none"
@@ -264,6 +275,45 @@ class ClickContext:
     def _cluster_to_click(self) -> np.ndarray:
         """Distances (N,) of the cluster points to the click."""
         return np.linalg.norm(self.cluster - self.click, axis=1)
+
+    @cached_property
+    def noise(self) -> float:
+        """The scan's measured noise around the click (m): the median, over up to
+        NOISE_SAMPLES full-resolution cluster points spread evenly, of the spread of each
+        one's NOISE_NEIGHBOURS nearest neighbours off their own plane (the square root of the
+        smallest eigenvalue of their covariance). A simulated Kinect at 1 m reads about
+        1.3 mm, with the fault model about 2 mm."""
+        P = self.fine
+        if len(P) < NOISE_NEIGHBOURS:
+            return 0.0
+        idx = np.linspace(0, len(P) - 1, min(NOISE_SAMPLES, len(P))).astype(np.int64)
+        nb = np.take(P, k_nearest(self.fine_tree, np.take(P, idx, axis=0), NOISE_NEIGHBOURS),
+                     axis=0)
+        nb = nb - nb.mean(axis=1, keepdims=True)
+        lam = np.linalg.eigvalsh(np.swapaxes(nb, 1, 2) @ nb / NOISE_NEIGHBOURS)[:, 0]
+        return float(np.median(np.sqrt(np.maximum(lam, 0.0))))
+
+    @cached_property
+    def segments(self) -> np.ndarray:
+        """A segment label (N,) for each cluster point: the cluster cut where two touching
+        surfaces meet in a concave edge (the contact of two objects, of an object and what it
+        stands on) -- neighbours SEGMENT_REACH voxels apart stay joined where their normals
+        are within SEGMENT_FLAT_DEG of each other or meet convexly (a box's edges). A convex
+        object is one segment; the verdict asks which segments a candidate explains."""
+        P = self.cluster
+        if len(P) < 3:
+            return np.zeros(len(P), np.int64)
+        n = pca_normals(P, SEGMENT_NEIGHBOURS, self.cluster_tree)
+        towards = (self.sensor_origin - P) if self.sensor_origin is not None else \
+            (P - P.mean(axis=0))           # outwards from the middle without a viewpoint
+        n[np.einsum("ij,ij->i", n, towards) < 0] *= -1
+        pairs = pairs_within(P, SEGMENT_REACH * self.voxel)
+        a, b = pairs[:, 0], pairs[:, 1]
+        step = np.take(P, a, axis=0) - np.take(P, b, axis=0)
+        na, nb = np.take(n, a, axis=0), np.take(n, b, axis=0)
+        flat = np.einsum("ij,ij->i", na, nb) >= math.cos(math.radians(SEGMENT_FLAT_DEG))
+        convex = np.einsum("ij,ij->i", na - nb, step) > 0
+        return _components(len(P), pairs[flat | convex])
 
 
 class Scene:

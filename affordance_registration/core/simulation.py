@@ -314,8 +314,8 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
                        templates=None, camera: DepthCamera | None = None,
                        articulated: bool = False, joints: dict | None = None,
                        scales: dict | None = None) -> SimulatedScene:
-    """Render a seeded taskboard: a 1 m x 0.6 m panel with every template (or the named
-    ``templates``) at a random position.
+    """Render a seeded taskboard: a 1 m x 0.6 m panel with every template but the primitives
+    (or the named ``templates``) at a random position.
 
     ``layout="panel"``: objects are mounted on the panel (template +z along the panel normal) with
     a random rotation about their z axis. ``layout="table"``: the panel is a table top and objects
@@ -333,7 +333,8 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
     if layout not in ("panel", "table"):
         raise AffordanceError(f"layout must be 'panel' or 'table', got {layout!r}")
-    names = list(library) if templates is None else list(templates)
+    names = [n for n in library if library[n].primitive is None] if templates is None \
+        else list(templates)
     if not names:
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))

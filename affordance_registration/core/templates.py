@@ -20,6 +20,22 @@ Lengths in the file -- a joint's origin, a prismatic joint's limits and its name
 in the mesh's units (``mesh_scale`` turns them into metres); angles are radians.
 
 Template frame: origin at the centre of the mounting base, +z out of the mounting surface, metres.
+
+A template may instead be a parametric *primitive* (an object outside the library: a box, a
+pipe, a can), its dimensions fitted with its pose from the click::
+
+    name: box
+    primitive: box
+    size: {x: [0.02, 0.6], y: [0.02, 0.6], z: [0.01, 0.6]}   # metres, [min, max] each
+    ---
+    name: cylinder
+    primitive: cylinder
+    radius: [0.01, 0.25]
+    length: [0.02, 0.6]
+
+A box's frame: origin at the centre of its base face, +z out of the surface it stands on, x
+along its longer horizontal edge (dimensions x >= y, full edge lengths). A cylinder's: origin
+at the centre of one end face, +z along its axis.
 """
 from __future__ import annotations
 
@@ -38,10 +54,16 @@ from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
 from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
-__all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir"]
+__all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir",
+           "PRIMITIVES", "primitive_mesh"]
 
 _KNOWN_KEYS = {"name", "mesh", "mesh_scale", "symmetry", "joints", "states", "description",
-               "base_mesh", "scale", "allow_external_files"}
+               "base_mesh", "scale", "allow_external_files", "primitive", "size", "radius",
+               "length"}
+#: the primitive kinds and the dimensions each is fitted with (metres)
+PRIMITIVES = {"box": ("x", "y", "z"), "cylinder": ("radius", "length")}
+MIN_DIMENSION = 0.002            #: m, the smallest dimension a primitive may be given
+CYLINDER_SECTIONS = 48           #: facets around a primitive cylinder's mesh
 #: bounds on what a template file may ask for, checked before any work is done
 MAX_YAML_BYTES = 1_000_000
 MAX_TEMPLATE_SIZE = 100.0        #: m, largest extent of a (scaled) template
@@ -106,7 +128,9 @@ class AffordanceTemplate:
                  points: np.ndarray | None = None, point_normals: np.ndarray | None = None,
                  mesh_scale: float = 1.0, symmetry: Symmetry | None = None,
                  joints: tuple = (), states: Mapping | None = None, description: str = "",
-                 base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None):
+                 base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None,
+                 primitive: str | None = None, dimension_ranges: Mapping | None = None,
+                 dimensions: Mapping | None = None):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
         self.name = name
@@ -121,6 +145,12 @@ class AffordanceTemplate:
         self.description = description
         self.base_mesh = base_mesh
         self.scale_range = scale_range
+        #: a parametric primitive ("box", "cylinder") or None; its dimensions' [min, max]
+        #: ranges (m) and the dimensions its mesh has (the middle of the ranges, or those of
+        #: a fit: :meth:`sized`)
+        self.primitive = primitive
+        self.dimension_ranges = dict(dimension_ranges or {})
+        self.dimensions = dict(dimensions or {})
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -130,6 +160,26 @@ class AffordanceTemplate:
     @property
     def is_point_template(self) -> bool:
         return self.mesh is None
+
+    def clip_dimensions(self, dimensions: Mapping) -> dict:
+        """A primitive's ``dimensions`` (name -> m) within its ranges (a box's x >= y kept)."""
+        out = {k: float(np.clip(float(dimensions[k]), *self.dimension_ranges[k]))
+               for k in PRIMITIVES[self.primitive]}
+        return out
+
+    def sized(self, dimensions: Mapping) -> "AffordanceTemplate":
+        """This primitive with the given dimensions (clipped to its ranges, rounded to 0.1
+        mm): a template of the same name whose mesh has that size. The last SIZED_KEPT are
+        cached, so a refit at the same size reuses its samples and surface."""
+        dims = {k: round(v, 4) for k, v in self.clip_dimensions(dimensions).items()}
+        key = ("sized",) + tuple(dims.values())
+
+        def build():
+            return AffordanceTemplate(self.name, self.path, primitive_mesh(self.primitive, dims),
+                                      symmetry=self.symmetry, description=self.description,
+                                      primitive=self.primitive,
+                                      dimension_ranges=self.dimension_ranges, dimensions=dims)
+        return self._cached_mesh(key, build)
 
     @property
     def vertices(self) -> np.ndarray:
@@ -346,6 +396,63 @@ class AffordanceTemplate:
             if d < best_d:
                 best, best_d = state, d
         return best
+
+
+def primitive_mesh(kind: str, dimensions: Mapping) -> trimesh.Trimesh:
+    """The closed mesh of a primitive of ``dimensions`` (m) in its frame: a box's origin at
+    the centre of its base face, a cylinder's at the centre of one end face, +z up / along
+    the axis."""
+    if kind == "box":
+        ext = [float(dimensions["x"]), float(dimensions["y"]), float(dimensions["z"])]
+        mesh = trimesh.creation.box(extents=ext)
+        mesh.apply_translation([0.0, 0.0, ext[2] / 2])
+    else:
+        r, h = float(dimensions["radius"]), float(dimensions["length"])
+        mesh = trimesh.creation.cylinder(radius=r, height=h, sections=CYLINDER_SECTIONS)
+        mesh.apply_translation([0.0, 0.0, h / 2])
+    return mesh
+
+
+def _primitive_template(path: str, doc: dict, name: str, description: str) -> AffordanceTemplate:
+    """A ``primitive:`` template: the kind and its dimension ranges checked, its mesh at the
+    middle of the ranges."""
+    kind = doc.get("primitive")
+    if kind not in PRIMITIVES:
+        raise _fail(path, "primitive", f"expected one of {', '.join(PRIMITIVES)}, got {kind!r}")
+    other = sorted(set(doc) & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale",
+                               "symmetry"})
+    if other:
+        raise _fail(path, other[0], "a primitive template has dimensions, not a mesh, joints "
+                                    "or a scale range")
+    given = {"box": ("size",), "cylinder": ("radius", "length")}[kind]
+    stray = sorted(set(doc) & {"size", "radius", "length"} - set(given))
+    if stray:
+        raise _fail(path, stray[0], f"not a dimension of a {kind} (it has "
+                                    f"{', '.join(given)})")
+    if kind == "box":
+        size = doc.get("size")
+        if not isinstance(size, dict) or set(size) != {"x", "y", "z"}:
+            raise _fail(path, "size", f"expected {{x: [min, max], y: [min, max], z: [min, max]}} "
+                                      f"in metres, got {size!r}")
+        specs = {f"size.{k}": size[k] for k in "xyz"}
+    else:
+        specs = {k: doc.get(k) for k in ("radius", "length")}
+    ranges = {}
+    for key, value in specs.items():
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise _fail(path, key, f"expected [min, max] in metres, got {value!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and MIN_DIMENSION <= lo <= hi
+                and hi <= MAX_TEMPLATE_SIZE):
+            raise _fail(path, key, f"expected {MIN_DIMENSION} <= min <= max <= "
+                                   f"{MAX_TEMPLATE_SIZE:.0f} (metres), got {value!r}")
+        ranges[key.split(".")[-1]] = (lo, hi)
+    middle = {k: 0.5 * (lo + hi) for k, (lo, hi) in ranges.items()}
+    symmetry = Symmetry(order=2) if kind == "box" else Symmetry(continuous=True)
+    return AffordanceTemplate(name, path, primitive_mesh(kind, middle), symmetry=symmetry,
+                              description=description, primitive=kind,
+                              dimension_ranges=ranges, dimensions=middle)
 
 
 def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
@@ -666,6 +773,11 @@ def load_template(path: str) -> AffordanceTemplate:
     name = doc.get("name")
     if not isinstance(name, str) or not name.strip():
         raise _fail(path, "name", "missing or empty")
+    if "primitive" in doc:
+        description = doc.get("description", "")
+        if not isinstance(description, str):
+            raise _fail(path, "description", "expected text")
+        return _primitive_template(path, doc, name.strip(), description)
     if "mesh" not in doc:
         raise _fail(path, "mesh", "missing")
     scale = doc.get("mesh_scale", 1.0)
@@ -761,4 +873,11 @@ class TemplateLibrary(Mapping):
 
     @property
     def max_diameter(self) -> float:
-        return max(t.diameter for t in self._templates.values())
+        """The largest template's diameter (m): it sets the crop around a click. Primitives
+        count only in a library of primitives alone (their size is what a fit finds)."""
+        specific = [t for t in self._templates.values() if t.primitive is None]
+        return max(t.diameter for t in (specific or self._templates.values()))
+
+    def specific(self) -> "TemplateLibrary":
+        """The library less its primitives."""
+        return TemplateLibrary(t for t in self._templates.values() if t.primitive is None)

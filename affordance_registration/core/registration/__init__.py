@@ -4,12 +4,14 @@ the stages of this package (see :mod:`.registrar` for the algorithm).
 settings (parameters, stage constants), results (FitResult, FitReport, rank), model (the posed
 model, the locked cache of samples and KD-trees), solve (closed-form and Gauss-Newton steps),
 visibility, correspondences, icp, parallel (pieces of a batch side by side), scoring (the
-two-way residual), hypotheses, articulation (joint values and scale), refit, paper (the literal baseline), registrar (the composer).
+two-way residual), hypotheses, articulation (joint values and scale), refit, primitives (boxes and cylinders, measured), paper (the literal baseline), registrar
+(the composer).
 """
 from .correspondences import correspondence_weights
 from .model import Model
 from .registrar import Registrar
-from .results import NO_MATCH, NO_MATCH_RESIDUAL, FitReport, FitResult, rank
+from .results import (NO_MATCH, NO_MATCH_RESIDUAL, FitReport, FitResult, describe_primitive,
+                      no_match, rank, verdict)
 from .settings import FitSettings
 from .solve import weighted_rigid_fit
 
@@ -18,4 +20,4 @@ PosedTemplate = Model
 
 __all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate", "Model",
            "correspondence_weights", "weighted_rigid_fit", "rank", "NO_MATCH",
-           "NO_MATCH_RESIDUAL"]
+           "NO_MATCH_RESIDUAL", "no_match", "verdict", "describe_primitive"]

@@ -17,6 +17,9 @@ from .settings import (CENTROID_SAMPLES, CENTROID_SEED, DENSE_SAMPLES, DENSE_SEE
 
 __all__ = ["Model", "ModelCache", "Surface", "Batch", "surface_distances"]
 
+#: surfaces of sized primitives a cache keeps (each fit and correction of one makes a size)
+MAX_SIZED = 64
+
 
 class Surface:
     """Dense surface samples of a template (joint at zero, scale one, template frame), each
@@ -51,7 +54,7 @@ class ModelCache:
 
     def __init__(self, max_posed: int = 512):
         self._lock = threading.Lock()
-        self._surfaces: dict[AffordanceTemplate, Surface] = {}
+        self._surfaces: OrderedDict[AffordanceTemplate, Surface] = OrderedDict()
         self._posed: OrderedDict = OrderedDict()
         self._max_posed = int(max_posed)
 
@@ -62,14 +65,22 @@ class ModelCache:
         return Model(template, self, float(q), float(scale), articulated=articulated)
 
     def surface(self, template: AffordanceTemplate) -> Surface:
-        """The template's :class:`Surface` (built once; templates are keys by identity)."""
+        """The template's :class:`Surface` (built once; templates are keys by identity). A
+        primitive's sizes come and go with its fits: the last MAX_SIZED are kept."""
         with self._lock:
             hit = self._surfaces.get(template)
+            if hit is not None and template.primitive is not None:
+                self._surfaces.move_to_end(template)
         if hit is not None:
             return hit
         surface = Surface(template)
         with self._lock:
-            return self._surfaces.setdefault(template, surface)
+            surface = self._surfaces.setdefault(template, surface)
+            if template.primitive is not None:
+                sized = [t for t in self._surfaces if t.primitive is not None]
+                for old in sized[:max(0, len(sized) - MAX_SIZED)]:
+                    del self._surfaces[old]
+            return surface
 
     def posed(self, key: tuple, compute):
         """The value cached under ``key``, or ``compute()`` (then cached, the oldest dropped

@@ -60,6 +60,7 @@ from .hypotheses import (Hypotheses, best_per_template, initial_hypotheses, keep
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
+from .primitives import fit_primitive
 from .parallel import run, single_threaded_blas
 from .refit import refit
 from .results import FitReport, FitResult, rank
@@ -117,17 +118,21 @@ class Registrar:
             names = list(self.library) if templates is None else list(templates)
             if not names:
                 raise RegistrationError("no templates to fit")
+            specific = [n for n in names if self.library[n].primitive is None]
+            primitives = [n for n in names if self.library[n].primitive is not None]
             if self.settings.method == "paper":
-                candidates = self.paper.fit(ctx, names)
+                candidates = self.paper.fit(ctx, specific) if specific else ()
             else:
-                candidates = self._fit_default(ctx, names)
+                candidates = self._fit_default(ctx, specific) if specific else ()
+            if primitives:
+                candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives))
         t2 = time.perf_counter()
         timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
         return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
               joints: dict | None = None, scale: float = 1.0,
-              hold_joint: bool | None = None) -> FitResult:
+              hold_joint: bool | None = None, dimensions: dict | None = None) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
         ``refit_max_move`` / ``refit_max_turn`` from ``T_init``: a refit that would jump back to a
@@ -137,8 +142,15 @@ class Registrar:
         ``settings.articulated``). ``hold_joint`` keeps the joint value as given and refines the
         pose and scale only; by default (None) a joint value that is given is kept -- estimated
         once with the click, then changed by the operator's joint corrections, not by refits of
-        the pose -- and one that is not given is estimated."""
+        the pose -- and one that is not given is estimated. A primitive keeps ``dimensions`` as given (the operator's
+        or the click's); without them its dimensions are measured again."""
         t0 = time.perf_counter()
+        if self.library[template].primitive is not None:
+            with single_threaded_blas():
+                res = fit_primitive(ctx, self.library[template], self.models, self.settings,
+                                    dimensions, T_init)
+                res = self._judged(ctx, [res])[0]
+            return replace(res, time_s=time.perf_counter() - t0)
         model = self._model(template, joints, scale)
         with single_threaded_blas():
             res = refit(ctx, model, T_init, self.settings,
@@ -198,8 +210,17 @@ class Registrar:
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
         results = list(results)
-        return judge(ctx, [self._model(r.template, r.joints, r.scale) for r in results],
-                     results, self.settings)
+        return judge(ctx, [self._model(r.template, r.joints, r.scale, r.dimensions)
+                           for r in results], results, self.settings)
+
+    def _fit_primitives(self, ctx: ClickContext, names: list[str]) -> list:
+        """The primitive templates ``names``, measured and refined (:mod:`.primitives`),
+        judged."""
+        t0 = time.perf_counter()
+        fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings)
+                  for n in names]
+        total = time.perf_counter() - t0
+        return [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with
@@ -344,10 +365,14 @@ class Registrar:
         best = int(keep[int(np.argmin(residuals))])
         return models[best], swept.R[best], swept.t[best]
 
-    def _model(self, template: str, joints: dict | None = None, scale: float = 1.0) -> Model:
+    def _model(self, template: str, joints: dict | None = None, scale: float = 1.0,
+               dimensions: dict | None = None) -> Model:
         """The model to fit: with ``settings.articulated``, an articulated template posed at
-        ``joints`` (clipped to its limits) and ``scale`` (clipped to its range); else rigid."""
+        ``joints`` (clipped to its limits) and ``scale`` (clipped to its range); else rigid.
+        A primitive at ``dimensions`` (clipped to its ranges)."""
         base = self.library[template]
+        if base.primitive is not None:
+            return self.models.model(base.sized(dimensions or base.dimensions))
         if not (self.settings.articulated and base.articulated):
             return self.models.model(base)
         j = base.joint

@@ -8,7 +8,8 @@ import numpy as np
 from ..scene import ClickContext
 from .model import Batch
 
-__all__ = ["FitResult", "FitReport", "IcpResult", "rank", "NO_MATCH", "NO_MATCH_RESIDUAL"]
+__all__ = ["FitResult", "FitReport", "IcpResult", "rank", "NO_MATCH", "NO_MATCH_RESIDUAL",
+           "no_match", "verdict", "describe_primitive"]
 
 
 #: the residual (m) at which a fit is as likely as "no template fits here": the likelihood of
@@ -53,6 +54,14 @@ class FitResult:
     #: set aside by the library prefilter after the coarse stage: pose and residual are that
     #: stage's (fewer samples), and it ranks behind every candidate that was fitted on
     prefiltered: bool = False
+    #: the share of the clicked object's points on the candidate's surface (the verdict)
+    explained: float = 0.0
+    noise: float = 0.0                               #: m, the scan's noise around the click
+    reason: str | None = None                        #: why it does not fit (None: it fits)
+    #: a primitive template's kind ("box", "cylinder") and fitted dimensions (m: a box's
+    #: "x", "y", "z", a cylinder's "radius", "length"); None and {} for a specific template
+    primitive: str | None = None
+    dimensions: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"rank": self.rank, "template": self.template,
@@ -61,7 +70,12 @@ class FitResult:
                 "likelihood": round(self.likelihood, 6), "probability": round(self.probability, 6),
                 "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
                 "coverage": round(float(self.coverage), 4),
-                "inlier_rmse": round(float(self.inlier_rmse), 9), "fits": self.fits,
+                "inlier_rmse": round(float(self.inlier_rmse), 9),
+                "explained": round(float(self.explained), 4),
+                "noise": round(float(self.noise), 9), "fits": self.fits, "reason": self.reason,
+                "primitive": self.primitive,
+                "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
+                if self.primitive else None,
                 "iterations": self.iterations, "converged": self.converged,
                 "prefiltered": self.prefiltered, "time_s": round(self.time_s, 6),
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
@@ -92,8 +106,48 @@ def rank(results, no_match_likelihood: float = 1.0 / NO_MATCH_RESIDUAL) -> tuple
     """``results`` (FitResult) best first by likelihood -- those the library prefilter set
     aside behind the others -- with ``rank`` (1 = best) and ``probability`` (the likelihood
     over the sum of all and ``no_match_likelihood``, that of "no template fits here"; 0 for a
-    ranking of scores that are not likelihoods) filled in."""
-    results = sorted(results, key=lambda r: (r.prefiltered, -r.likelihood))
-    total = (sum(r.likelihood for r in results) + no_match_likelihood) or 1.0
-    return tuple(replace(r, rank=i, probability=r.likelihood / total)
+    ranking of scores that are not likelihoods) filled in.
+
+    Primitives describe the "no template fits here" answer: a specific template that fits
+    ranks above every primitive; when none fits, a primitive that fits leads; otherwise the
+    specific templates come first. Their probabilities are shared among the specific
+    templates; a primitive's among the primitives (each with the no-match answer)."""
+    results = list(results)
+    fits = {p: any(r.fits and (r.primitive is not None) == p for r in results)
+            for p in (False, True)}
+
+    def group(r: FitResult) -> int:
+        if r.primitive is None:
+            return 0 if fits[False] or not fits[True] else 1
+        return 0 if fits[True] and not fits[False] else 1
+    results.sort(key=lambda r: (r.prefiltered, group(r), -r.likelihood))
+    total = {p: (sum(r.likelihood for r in results if (r.primitive is not None) == p) +
+                 no_match_likelihood) or 1.0 for p in (False, True)}
+    return tuple(replace(r, rank=i, probability=r.likelihood / total[r.primitive is not None])
                  for i, r in enumerate(results, start=1))
+
+
+def no_match(candidates) -> bool:
+    """The verdict on a click's ranked ``candidates``: no specific template fits -- the best is
+    refused (``fits`` False) or is a primitive."""
+    return bool(candidates) and (candidates[0].fits is False or
+                                 candidates[0].primitive is not None)
+
+
+def describe_primitive(r: FitResult) -> str:
+    """'a box 0.21 x 0.12 x 0.08 m', 'a cylinder r 0.035 m x 0.12 m'."""
+    d = r.dimensions
+    if r.primitive == "box":
+        return f"a box {d['x']:.2f} x {d['y']:.2f} x {d['z']:.2f} m"
+    return f"a cylinder r {d['radius']:.3f} m x {d['length']:.2f} m"
+
+
+def verdict(candidates) -> str:
+    """The verdict's text: "fits", "no template fits here", or "no template fits here;
+    fitted as a box 0.21 x 0.12 x 0.08 m" when the best is a primitive that fits."""
+    if not no_match(candidates):
+        return "fits"
+    best = candidates[0]
+    if best.primitive is not None and best.fits:
+        return f"{NO_MATCH}; fitted as {describe_primitive(best)}"
+    return NO_MATCH

@@ -83,12 +83,16 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
                                             settings.score_samples, settings)
     bar = settings.min_coverage if ctx.sensor_origin is not None else \
         settings.min_coverage_no_viewpoint
+    widen = max(1.0, ctx.noise / settings.noise_reference)      # a noisier scan: wider
+    covered_within = widen * settings.coverage_distance
+    explained = _explained(ctx, models, T, widen * settings.explained_distance)
+    max_residual = widen * settings.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
         R, t = T[k, :3, :3], T[k, :3, 3]
         P = model.samples(settings.score_samples)[0]
         X = P @ R.T + t
-        near = vis[k] & (dist[k] <= settings.coverage_distance)
+        near = vis[k] & (dist[k] <= covered_within)
         if ctx.support is not None:
             on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
             if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
@@ -101,7 +105,42 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
         rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
-        out.append(replace(res, coverage=cov, inlier_rmse=rmse, fits=cov >= bar))
+        why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
+               if cov < bar else "",
+               f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
+               f"{settings.min_explained:.0%})" if explained[k] < settings.min_explained else "",
+               f"its surface runs {res.residual * 1e3:.1f} mm from the scan on average (a fit "
+               f"is within {max_residual * 1e3:.1f} mm)" if res.residual > max_residual else ""]
+        why = "; ".join(w for w in why if w)
+        out.append(replace(res, coverage=cov, inlier_rmse=rmse, explained=float(explained[k]),
+                           noise=ctx.noise, fits=not why, reason=why or None))
+    return out
+
+
+#: a cluster segment of which at least this share lies on a candidate is part of the object
+#: the candidate stands for (with the clicked segment); one that merely touches it (less) is a
+#: neighbour
+OBJECT_SEGMENT = 0.3
+
+
+def _explained(ctx: ClickContext, models, T: np.ndarray, within: float) -> np.ndarray:
+    """The share (B,) of the clicked object's cluster points within ``within`` of each posed
+    candidate's surface. The object is the clicked segment of the cluster and every segment
+    (``ClickContext.segments``) the candidate lies on for at least ``OBJECT_SEGMENT`` of its
+    points: touching neighbours, and a sensor's mixed pixels bridging to them, do not count
+    against a candidate; the rest of an object it is too small for does."""
+    pts, labels = ctx.cluster, ctx.segments
+    local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]          # (B, K, 3) model frames
+    on = surface_distances(list(models), local, within * 2) <= within
+    counts = np.bincount(labels)
+    clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    out = np.empty(len(T))
+    for k in range(len(T)):
+        share = np.bincount(labels, weights=on[k], minlength=len(counts)) / counts
+        part = share >= OBJECT_SEGMENT
+        part[clicked] = True
+        mine = part[labels]
+        out[k] = float(on[k][mine].mean())
     return out
 
 

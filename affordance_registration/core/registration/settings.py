@@ -109,6 +109,19 @@ class FitSettings:
     #: the same without a viewpoint, where every sample counts (a one-sided scan covers about
     #: half of an object)
     min_coverage_no_viewpoint: float = 0.3
+    #: ... and the template explains the clicked object: at least this share of the object's
+    #: points (the cluster's segments it overlaps, ``ClickContext.segments``) lie within
+    #: ``explained_distance`` of its surface -- a valve inside a box's points covers itself
+    #: but explains a fraction of the box
+    min_explained: float = 0.8
+    explained_distance: float = 0.008
+    #: ... and its residual is at most this: a template whose surface runs several
+    #: millimetres off the object is some other object's
+    max_residual: float = 0.005
+    #: the verdict's distances (``coverage_distance``, ``explained_distance``,
+    #: ``max_residual``) hold for a scan whose measured noise around the click
+    #: (``ClickContext.noise``) is at most this; a noisier scan widens them in proportion
+    noise_reference: float = 0.0015
     grazing_angle: float = math.radians(89.0)  #: samples seen more obliquely count as unseen
     score_samples: int = 600           #: template samples per candidate in the residual
     yaw_restarts: int = 12             #: plane-prior restarts per template (yaw sweep)
@@ -200,7 +213,8 @@ class FitSettings:
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
         for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
                      "free_space_margin", "coverage_distance", "min_coverage",
-                     "min_coverage_no_viewpoint", "grazing_angle", "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
+                     "min_coverage_no_viewpoint", "min_explained", "explained_distance",
+                     "max_residual", "noise_reference", "grazing_angle", "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
                      "articulated_margin", "finish_margin", "contact_distance", "nominal_preference", "prefilter_margin",
                      "nominal_scale_preference"):
             v = getattr(self, name)
@@ -223,8 +237,8 @@ class FitSettings:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise RegistrationError(f"{name} must be an integer >= 0, got {v!r}")
-        if self.min_coverage > 1 or self.min_coverage_no_viewpoint > 1:
-            raise RegistrationError("min_coverage must be at most 1")
+        if self.min_coverage > 1 or self.min_coverage_no_viewpoint > 1 or self.min_explained > 1:
+            raise RegistrationError("min_coverage and min_explained must be at most 1")
         if self.yaw_restarts + self.random_restarts == 0 or self.free_restarts == 0:
             raise RegistrationError("at least one restart per template is needed")
         return self
