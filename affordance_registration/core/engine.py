@@ -19,7 +19,7 @@ import yaml
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError
 from .files import write_atomically
-from .registration import NO_MATCH, FitResult, FitSettings, Registrar
+from .registration import FitResult, FitSettings, Registrar, describe_primitive, no_match, verdict
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
 from .transforms import matrix_to_quat_xyzw
@@ -54,14 +54,16 @@ class TrackedObject:
         return {"id": self.id, "active": self.id == active_id, "shown": self.active,
                 "click": [round(float(v), 6) for v in self.click],
                 "corrections": self.corrections, "model_changes": self.model_changes,
-                "no_match": self.no_match, "verdict": NO_MATCH if self.no_match else "fits",
+                "no_match": self.no_match, "verdict": verdict(self.candidates),
+                "reason": self.candidates[0].reason if self.candidates else None,
                 "candidates": [c.to_dict() for c in self.candidates]}
 
     @property
     def no_match(self) -> bool:
-        """The absolute verdict: the best candidate does not fit (``FitResult.fits`` false):
-        no template fits here (the candidates are still listed)."""
-        return bool(self.candidates) and self.candidates[0].fits is False
+        """The absolute verdict: no specific template fits here -- the best candidate is
+        refused (``FitResult.fits`` false, its ``reason`` says why) or is a primitive (the
+        candidates are still listed)."""
+        return no_match(self.candidates)
 
     def describe(self) -> str:
         """One line on the shown candidate: the verdict, template, state, scale, rank,
@@ -70,9 +72,13 @@ class TrackedObject:
         extra = f" — {c.state}" if c.state else ""
         if c.scale != 1.0:
             extra += f" — scale {c.scale:.2f}"
-        verdict = f"{NO_MATCH} (best coverage {self.candidates[0].coverage:.2f}); showing " \
-            if self.no_match else ""
-        return (f"{verdict}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)} — "
+        if c.primitive is not None:
+            extra += f" — {describe_primitive(c)}"
+        best = self.candidates[0]
+        said = verdict(self.candidates)
+        why = f" ({best.reason})" if best.reason else ""
+        said = f"{said}{why}; showing " if self.no_match else ""
+        return (f"{said}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)} — "
                 f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
                 f"{c.coverage:.2f}")
 
@@ -92,6 +98,8 @@ class Registration:
     joints: dict = field(default_factory=dict)      #: joint name -> value (rad or m)
     state: str | None = None                        #: the nearest named state
     scale: float = 1.0                              #: uniform scale of the template
+    primitive: str | None = None                    #: "box" / "cylinder" for a primitive
+    dimensions: dict = field(default_factory=dict)  #: a primitive's dimensions (m)
     ranked_first: str = ""                  #: the template the fit ranked first
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
@@ -104,7 +112,8 @@ class Registration:
         return cls(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
                    likelihood=c.likelihood, probability=c.probability, residual=c.residual,
                    click=obj.click, frame_id=frame_id, joints=dict(c.joints), state=c.state,
-                   scale=c.scale, ranked_first=obj.candidates[0].template,
+                   scale=c.scale, primitive=c.primitive, dimensions=dict(c.dimensions),
+                   ranked_first=obj.candidates[0].template,
                    model_changes=obj.model_changes, corrections=obj.corrections,
                    fit_s=obj.fit_s)
 
@@ -120,6 +129,9 @@ class Registration:
                 "click": [round(float(v), 6) for v in self.click],
                 "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
                 "state": self.state, "scale": round(float(self.scale), 6),
+                "primitive": self.primitive,
+                "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
+                if self.primitive else None,
                 "ranked_first": self.ranked_first, "model_changes": self.model_changes,
                 "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6)}
 
@@ -168,6 +180,8 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
             raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
         if library is not None and template not in library:
             raise AffordanceError(f"{where}: unknown template '{template}'")
+        primitive, dims = _primitive_of(entry, where, library[template] if library is not None
+                                        else None)
         out.append(Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
                                 likelihood=float(entry.get("likelihood", 0.0)),
                                 probability=float(entry.get("probability", 0.0)),
@@ -177,11 +191,38 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
                                 joints={str(k): float(v) for k, v in
                                         (entry.get("joints") or {}).items()},
                                 state=entry.get("state"), scale=float(entry.get("scale", 1.0)),
+                                primitive=primitive, dimensions=dims,
                                 ranked_first=str(entry.get("ranked_first", "")),
                                 model_changes=int(entry.get("model_changes", 0)),
                                 corrections=int(entry.get("corrections", 0)),
                                 fit_s=float(entry.get("fit_s", 0.0))))
     return tuple(out)
+
+
+def _primitive_of(entry: dict, where: str, template) -> tuple:
+    """A saved registration's primitive kind and dimensions, checked (positive, finite; within
+    the template's ranges when the library is known)."""
+    dims = entry.get("dimensions")
+    if template is not None and template.primitive is None:
+        return None, {}
+    if not dims:
+        if template is not None:
+            raise AffordanceError(f"{where}: the primitive '{template.name}' needs its "
+                                  f"'dimensions'")
+        return None, {}
+    try:
+        dims = {str(k): float(v) for k, v in dict(dims).items()}
+    except (TypeError, ValueError):
+        raise AffordanceError(f"{where}: 'dimensions' must map names to metres") from None
+    if not all(math.isfinite(v) and v > 0 for v in dims.values()):
+        raise AffordanceError(f"{where}: 'dimensions' must be positive finite metres")
+    kind = entry.get("primitive") if template is None else template.primitive
+    if template is not None:
+        if set(dims) != set(template.dimension_ranges):
+            raise AffordanceError(f"{where}: a {kind} has dimensions "
+                                  f"{', '.join(template.dimension_ranges)}")
+        dims = template.clip_dimensions(dims)
+    return (str(kind) if kind else None), dims
 
 
 class AffordanceEngine:
@@ -196,7 +237,7 @@ class AffordanceEngine:
     def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
                  select_radius: float = 0.4, undo_depth: int = 200,
                  joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002,
-                 reach_m: float = 1.0):
+                 reach_m: float = 1.0, dimension_step_m: float = 0.005):
         self.reach_m = float(reach_m)       #: corrections keep an object this close to its click
         self.registrar = Registrar(library, settings)
         self.registrar.warm_up()
@@ -205,6 +246,7 @@ class AffordanceEngine:
         self.undo_depth = int(undo_depth)
         self.joint_step_rad = float(joint_step_rad)    #: one joint nudge, revolute (rad)
         self.joint_step_m = float(joint_step_m)        #: one joint nudge, prismatic (m)
+        self.dimension_step_m = float(dimension_step_m)  #: one nudge of a primitive's size (m)
         self._lock = threading.RLock()
         self._state = EngineState()
         self._undo: list[tuple[EngineState, str]] = []
@@ -326,7 +368,7 @@ class AffordanceEngine:
                 raise SceneError(f"click must be 3 finite numbers, got {point!r}")
             for obj in self._state.objects:
                 T = obj.shown.T_scene_model
-                tpl = self.library[obj.shown.template]
+                tpl = self._geometry(obj.shown)
                 centre = T[:3, :3] @ tpl.centroid + T[:3, 3]
                 if np.linalg.norm(p - centre) <= self.select_radius * tpl.diameter:
                     if obj.id != self._state.active_id:
@@ -358,7 +400,7 @@ class AffordanceEngine:
         if active not in refined and ctx is not None:
             cand = candidates[active]
             better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
-                                          cand.scale)
+                                          cand.scale, dimensions=cand.dimensions or None)
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = candidates[:active] + (cand,) + candidates[active + 1:]
@@ -399,7 +441,7 @@ class AffordanceEngine:
         with self._lock:
             obj = self._require_active()
             view = self.view_pose() if T_scene_view is None else np.asarray(T_scene_view, float)
-            tpl = self.library[obj.shown.template]
+            tpl = self._geometry(obj.shown)
             T = apply_twist(obj.shown.T_scene_model, linear, angular, dt, view, tpl.centroid)
             first = self._last_action != "twist"
             new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
@@ -424,7 +466,7 @@ class AffordanceEngine:
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
                 not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
             raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
-        tpl = self.library[obj.shown.template]
+        tpl = self._geometry(obj.shown)
         away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
         if away > self.reach_m:
             raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
@@ -468,6 +510,48 @@ class AffordanceEngine:
             msg += "; " + self.refit(hold_joint=True, coalesce=True)
         return msg
 
+    def correct_dimension(self, name: str, value: float | None = None,
+                          steps: float | None = None, refit: bool = True) -> str:
+        """Set the shown primitive's dimension ``name`` (a box's "x", "y", "z", a cylinder's
+        "radius", "length") to ``value`` (m) or change it by ``steps`` of ``dimension_step_m``,
+        clipped to the template's range; then, with ``refit``, refit the pose with the
+        dimensions held where the operator put them. One correction (one undo step with its
+        refit); later refits keep the dimensions."""
+        with self._lock:
+            obj = self._require_active()
+            tpl = self.library[obj.shown.template]
+            if tpl.primitive is None:
+                raise EngineStateError(f"{tpl.name} is not a primitive: it has no dimensions "
+                                       f"to set")
+            if name not in tpl.dimension_ranges:
+                raise AffordanceError(f"a {tpl.primitive} has the dimensions "
+                                      f"{', '.join(tpl.dimension_ranges)}, not {name!r}")
+            dims = dict(obj.shown.dimensions or tpl.dimensions)
+            if value is not None:
+                new_value = float(value)
+            elif steps is not None:
+                new_value = dims[name] + float(steps) * self.dimension_step_m
+            else:
+                raise AffordanceError("give a dimension value (m) or a number of steps")
+            if not math.isfinite(new_value):
+                raise AffordanceError(f"a dimension must be a finite number, got {value!r}")
+            dims[name] = new_value
+            dims = tpl.clip_dimensions(dims)
+            cand = replace(obj.shown, dimensions=dims)
+            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
+            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            self._commit(self._replace_object(new), "dimension")
+        msg = f"object {obj.id}: {tpl.name} {name} {dims[name] * 1000:.1f} mm"
+        if refit:
+            msg += "; " + self.refit(coalesce=True)
+        return msg
+
+    def _geometry(self, candidate: FitResult):
+        """The template a candidate is drawn and placed with (a primitive at its size)."""
+        tpl = self.library[candidate.template]
+        return tpl.sized(candidate.dimensions) if tpl.primitive is not None and \
+            candidate.dimensions else tpl
+
     def refit(self, hold_joint: bool | None = None, coalesce: bool = False) -> str:
         """Refit the shown candidate locally from its current (possibly corrected) pose, joint
         values and scale. Joint values the candidate has are kept (``hold_joint=False``:
@@ -478,7 +562,7 @@ class AffordanceEngine:
         ctx = obj.context
         if scene is not None and (ctx is None or obj.scene_version != version):
             # a newer cloud arrived: re-crop it around the object's current centre
-            tpl = self.library[obj.shown.template]
+            tpl = self._geometry(obj.shown)
             T = obj.shown.T_scene_model
             try:
                 ctx = self.registrar.prepare(scene, T[:3, :3] @ tpl.centroid + T[:3, 3])
@@ -489,14 +573,16 @@ class AffordanceEngine:
         t0 = time.perf_counter()
         shown = obj.shown
         res = self.registrar.refit(ctx, shown.template, shown.T_scene_model, shown.joints,
-                                   shown.scale, hold_joint=hold_joint)
+                                   shown.scale, hold_joint=hold_joint,
+                                   dimensions=shown.dimensions or None)
         if hold_joint and shown.joints:       # the operator's value, whatever the settings
             res = replace(res, joints=dict(shown.joints), state=shown.state)
         with self._lock:
             current = self._find(obj.id)
             if current is None or current.shown.template != obj.shown.template or \
                     not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model) or \
-                    current.shown.joints != shown.joints:
+                    current.shown.joints != shown.joints or \
+                    current.shown.dimensions != shown.dimensions:
                 raise EngineStateError("the object changed during the refit; refit again")
             cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
             cands = current.candidates[:current.active] + (cand,) + \
