@@ -60,7 +60,7 @@ def _sensor_origin(values):
 
 
 def cmd_fit(args) -> int:
-    from .core.registration import NO_MATCH, FitSettings, Registrar
+    from .core.registration import FitSettings, Registrar, describe_primitive, no_match, verdict
     from .core.scene import Scene
     origin = _sensor_origin(args.sensor_origin)
     lib = _library(args.templates)
@@ -70,11 +70,12 @@ def cmd_fit(args) -> int:
     registrar.warm_up()   # one-off start-up cost, not part of a click
     report = registrar.fit(scene, args.point)
     best = report.candidates[0]
-    no_match = best.fits is False
+    refused = no_match(report.candidates)
     doc = {"point": [round(float(v), 6) for v in report.point],
            "sensor_origin": None if scene.sensor_origin is None else
            [round(float(v), 6) for v in scene.sensor_origin],
-           "verdict": NO_MATCH if no_match else "fits", "no_match": no_match,
+           "verdict": verdict(report.candidates), "no_match": refused,
+           "reason": best.reason, "noise": round(float(best.noise), 9),
            "candidates": [c.to_dict() for c in report.candidates],
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
     if args.json:
@@ -82,22 +83,24 @@ def cmd_fit(args) -> int:
         return 0
     print(f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "
           f"{len(report.candidates)} templates fitted in {report.timing_s['total']:.3f} s")
-    print(f"{NO_MATCH}: the best candidate covers {best.coverage:.0%} of its visible surface "
-          f"(a fit needs {_coverage_bar(settings, scene):.0%})" if no_match else
-          f"{best.template} fits: it covers {best.coverage:.0%} of its visible surface")
+    if not refused:
+        print(f"{best.template} fits: it covers {best.coverage:.0%} of its visible surface and "
+              f"explains {best.explained:.0%} of the clicked object")
+    else:
+        specific = next((c for c in report.candidates if c.primitive is None), None)
+        why = f" (the best template, {specific.template}: {specific.reason})" \
+            if specific is not None and specific.reason else ""
+        print(f"{verdict(report.candidates)}{why}")
     print(f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
-          f"{'rmse mm':>7}  position (m)")
+          f"{'explained':>9} {'rmse mm':>7}  position (m)")
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
-        judged = f"{c.coverage:>8.2f} {c.inlier_rmse * 1000:>7.2f}" if c.fits is not None \
-            else f"{'-':>8} {'-':>7}"       # not judged (the prefilter set it aside)
+        judged = f"{c.coverage:>8.2f} {c.explained:>9.2f} {c.inlier_rmse * 1000:>7.2f}" \
+            if c.fits is not None else f"{'-':>8} {'-':>9} {'-':>7}"   # set aside: not judged
+        size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
-              f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})")
+              f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}")
     return 0
-
-
-def _coverage_bar(settings, scene) -> float:
-    return settings.min_coverage if scene.has_viewpoint else settings.min_coverage_no_viewpoint
 
 
 # ---------------------------------------------------------------------------- simulate

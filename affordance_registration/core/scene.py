@@ -30,7 +30,7 @@ from .neighbours import KDTree, build_tree, k_nearest, nearest, pairs_within, pc
 from .transforms import align_z_to, finite_vector
 
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
-           "local_frame", "NO_VIEWPOINT"]
+           "local_frame", "segment", "NO_VIEWPOINT"]
 
 #: a click within this many plane thresholds of the dominant plane is on it: the plane is then
 #: the clicked object's surface (or a bare wall), not a surface it is mounted on
@@ -300,20 +300,7 @@ class ClickContext:
         stands on) -- neighbours SEGMENT_REACH voxels apart stay joined where their normals
         are within SEGMENT_FLAT_DEG of each other or meet convexly (a box's edges). A convex
         object is one segment; the verdict asks which segments a candidate explains."""
-        P = self.cluster
-        if len(P) < 3:
-            return np.zeros(len(P), np.int64)
-        n = pca_normals(P, SEGMENT_NEIGHBOURS, self.cluster_tree)
-        towards = (self.sensor_origin - P) if self.sensor_origin is not None else \
-            (P - P.mean(axis=0))           # outwards from the middle without a viewpoint
-        n[np.einsum("ij,ij->i", n, towards) < 0] *= -1
-        pairs = pairs_within(P, SEGMENT_REACH * self.voxel)
-        a, b = pairs[:, 0], pairs[:, 1]
-        step = np.take(P, a, axis=0) - np.take(P, b, axis=0)
-        na, nb = np.take(n, a, axis=0), np.take(n, b, axis=0)
-        flat = np.einsum("ij,ij->i", na, nb) >= math.cos(math.radians(SEGMENT_FLAT_DEG))
-        convex = np.einsum("ij,ij->i", na - nb, step) > 0
-        return _components(len(P), pairs[flat | convex])
+        return segment(self.cluster, self.sensor_origin, self.voxel, self.cluster_tree)
 
 
 class Scene:
@@ -501,6 +488,25 @@ class Scene:
                            fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
                            frame=frame)
         return ctx
+
+
+def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
+            tree: KDTree | None = None) -> np.ndarray:
+    """Segment labels (N,) of voxelized ``points`` (N, 3) cut at concave edges (see
+    ``ClickContext.segments``); ``tree``: a tree over them when one exists."""
+    P = points
+    if len(P) < 3:
+        return np.zeros(len(P), np.int64)
+    n = pca_normals(P, SEGMENT_NEIGHBOURS, tree)
+    towards = (origin - P) if origin is not None else (P - P.mean(axis=0))
+    n[np.einsum("ij,ij->i", n, towards) < 0] *= -1      # towards the sensor, or outwards
+    pairs = pairs_within(P, SEGMENT_REACH * voxel)
+    a, b = pairs[:, 0], pairs[:, 1]
+    step = np.take(P, a, axis=0) - np.take(P, b, axis=0)
+    na, nb = np.take(n, a, axis=0), np.take(n, b, axis=0)
+    flat = np.einsum("ij,ij->i", na, nb) >= math.cos(math.radians(SEGMENT_FLAT_DEG))
+    convex = np.einsum("ij,ij->i", na - nb, step) > 0
+    return _components(len(P), pairs[flat | convex])
 
 
 def _minus(points: np.ndarray, point: np.ndarray) -> np.ndarray:

@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..neighbours import nearest
-from ..scene import ClickContext
+from ..neighbours import build_tree, nearest
+from ..scene import ClickContext, _ransac_plane, segment
 from ..templates import AffordanceTemplate
 from ..transforms import make_T
 from .model import ModelCache
@@ -34,7 +34,7 @@ from .results import FitResult
 from .scoring import result
 from .settings import FitSettings
 
-__all__ = ["fit_primitive", "measure"]
+__all__ = ["fit_primitive", "object_points"]
 
 #: points this close to the support (m) reach down to it: the base lies on the support
 BASE_REACH = 0.03
@@ -42,6 +42,10 @@ BASE_REACH = 0.03
 LOW, HIGH = 1.0, 99.0
 #: a cylinder's side points: normals within this of perpendicular to the axis (cosine)
 SIDE_COS = 0.5
+#: a click on the crop's dominant plane: the support is a plane across it holding at least
+#: this fraction of the points off it, turned at least FLOOR_ANGLE (deg) from it
+FLOOR_FRACTION = 0.15
+FLOOR_ANGLE = 60.0
 #: measure, refine, measure again: this many rounds
 ROUNDS = 2
 
@@ -52,13 +56,13 @@ def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelC
     """The primitive ``template`` fitted to the clicked object: pose and dimensions measured
     from the object's points, then the pose refined. ``dimensions`` (and ``T_init``, the
     pose to refine from): the operator's, kept as given -- only the pose is refined."""
-    points, normals = object_points(ctx)
+    points, normals, support = object_points(ctx)
     if dimensions is not None:
-        T = _as_pose(T_init) if T_init is not None else measure(ctx, template.primitive,
-                                                               points, normals)[0]
+        T = _as_pose(T_init) if T_init is not None else \
+            next(_hypotheses(ctx, template.primitive, points, normals, support))[0]
         return _refined(ctx, template, cache, settings, T, template.clip_dimensions(dimensions))
     best = None
-    for T, dims in _hypotheses(ctx, template.primitive, points, normals):
+    for T, dims in _hypotheses(ctx, template.primitive, points, normals, support):
         for _ in range(ROUNDS):
             res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
             T = res.T_scene_model
@@ -82,30 +86,45 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
 
 
 def object_points(ctx: ClickContext):
-    """The clicked object's full-resolution points and their normals: those whose nearest
-    cluster voxel lies in the clicked segment of the cluster."""
-    labels = ctx.segments
+    """The clicked object's full-resolution points, their normals and the surface it stands
+    on (a :class:`~..scene.Plane`, or None): the points whose nearest cluster voxel lies in
+    the clicked segment of the cluster. Where the click is on the crop's dominant plane (a
+    box's large face), that plane is the object's and the cluster holds what it stands on
+    too: the largest plane across it (FLOOR_FRACTION of the points off the face, turned at
+    least FLOOR_ANGLE from it) is the support, and the object is cut from what lies above it."""
+    cluster, labels, support = ctx.cluster, ctx.segments, ctx.support
     clicked = labels[int(np.argmin(ctx._cluster_to_click))]
-    _, idx = nearest(ctx.cluster_tree, ctx.fine)
-    mine = labels[idx] == clicked
+    if ctx.plane is None and support is not None and \
+            abs(support.distance(ctx.click[None])[0]) <= 2 * ctx.plane_threshold:
+        off = np.abs(support.distance(cluster)) > ctx.plane_threshold
+        floor = _ransac_plane(cluster[off], ctx.plane_threshold, FLOOR_FRACTION,
+                              ctx.sensor_origin, 0) if off.sum() >= 50 else None
+        if floor is not None and abs(floor.normal @ support.normal) < \
+                math.cos(math.radians(FLOOR_ANGLE)):
+            side = np.sign(floor.distance(ctx.click[None])[0]) or 1.0
+            above = side * floor.distance(cluster) > ctx.plane_threshold
+            if above.sum() >= 10:
+                cluster = cluster[above]
+                labels = segment(cluster, ctx.sensor_origin, ctx.voxel)
+                clicked = labels[int(np.argmin(np.linalg.norm(cluster - ctx.click, axis=1)))]
+                support = floor
+    tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
+    d, idx = nearest(tree, ctx.fine, ctx.voxel)
+    mine = np.isfinite(d)
+    mine[mine] = labels[idx[mine]] == clicked
     if mine.sum() < 10:
-        return ctx.fine, ctx.fine_normals
-    return ctx.fine[mine], ctx.fine_normals[mine]
+        return ctx.fine, ctx.fine_normals, support
+    return ctx.fine[mine], ctx.fine_normals[mine], support
 
 
-def measure(ctx: ClickContext, kind: str, points: np.ndarray, normals: np.ndarray):
-    """The best-scored first measurement (T_scene_model, dimensions) of a primitive of
-    ``kind`` from the object's points (no refinement)."""
-    return next(iter(_hypotheses(ctx, kind, points, normals)))
-
-
-def _hypotheses(ctx: ClickContext, kind: str, points: np.ndarray, normals: np.ndarray):
+def _hypotheses(ctx: ClickContext, kind: str, points: np.ndarray, normals: np.ndarray,
+                support):
     """(T_scene_model, dimensions) measured for each way the primitive may stand."""
-    up = _up(ctx, points)
+    up = _up(support, points)
     if kind == "box":
-        yield _box(points, up, ctx)
+        yield _box(points, up, support, ctx)
         return
-    yield _standing_cylinder(points, normals, up, ctx)
+    yield _standing_cylinder(points, normals, up, support, ctx)
     axis = _least_normal_direction(normals)
     if up is not None:
         axis = axis - (axis @ up) * up
@@ -115,12 +134,12 @@ def _hypotheses(ctx: ClickContext, kind: str, points: np.ndarray, normals: np.nd
     yield _lying_cylinder(points, normals, axis, up)
 
 
-def _up(ctx: ClickContext, points: np.ndarray) -> np.ndarray | None:
+def _up(support, points: np.ndarray) -> np.ndarray | None:
     """The support's normal on the object's side, or None without a support."""
-    if ctx.support is None:
+    if support is None:
         return None
-    n = np.asarray(ctx.support.normal, float)
-    return n if np.mean(ctx.support.distance(points)) >= 0 else -n
+    n = np.asarray(support.normal, float)
+    return n if np.mean(support.distance(points)) >= 0 else -n
 
 
 def _basis(z: np.ndarray, x_hint: np.ndarray | None = None):
@@ -133,7 +152,7 @@ def _basis(z: np.ndarray, x_hint: np.ndarray | None = None):
     return x, np.cross(z, x)
 
 
-def _frame_up(points: np.ndarray, up: np.ndarray | None, ctx: ClickContext):
+def _frame_up(points: np.ndarray, up: np.ndarray | None, support, ctx: ClickContext):
     """(z, base height, heights) of the object: +z along ``up`` (or the points' least spread
     towards the sensor without a support); heights of the points above the support (or
     above their lowest)."""
@@ -146,13 +165,13 @@ def _frame_up(points: np.ndarray, up: np.ndarray | None, ctx: ClickContext):
             z = -z
         h = points @ z
         return z, 0.0, h - np.percentile(h, LOW)     # the base on the far side
-    h = ctx.support.distance(points) * (1.0 if up @ ctx.support.normal > 0 else -1.0)
+    h = support.distance(points) * (1.0 if up @ support.normal > 0 else -1.0)
     low = float(np.percentile(h, LOW))
     return up, (0.0 if low <= BASE_REACH else low), h
 
 
-def _box(points: np.ndarray, up, ctx: ClickContext):
-    z, base, h = _frame_up(points, up, ctx)
+def _box(points: np.ndarray, up, support, ctx: ClickContext):
+    z, base, h = _frame_up(points, up, support, ctx)
     x0, y0 = _basis(z, ctx.frame[:, 0])
     uv = np.stack([points @ x0, points @ y0], axis=1)
     best = None
@@ -215,8 +234,8 @@ def _circle(uv: np.ndarray):
     return c, abs(r)
 
 
-def _standing_cylinder(points, normals, up, ctx: ClickContext):
-    z, base, h = _frame_up(points, up, ctx)
+def _standing_cylinder(points, normals, up, support, ctx: ClickContext):
+    z, base, h = _frame_up(points, up, support, ctx)
     x, y = _basis(z, ctx.frame[:, 0])
     side = np.abs(normals @ z) < SIDE_COS
     use = points[side] if side.sum() >= 10 else points
