@@ -39,14 +39,15 @@ from .errors import AffordanceError
 
 __all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS"]
 
-#: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value`` and
-#: ``select_model`` carry an argument (the joint value, the template name) in ``argument``
+#: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value``,
+#: ``select_model`` and ``dimension`` carry an argument (the joint value, the template name, a
+#: primitive's (dimension name, value in m or None, steps or None)) in ``argument``
 ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "undo", "discard",
-           "save", "joint_plus", "joint_minus", "joint_value")
+           "save", "joint_plus", "joint_minus", "joint_value", "dimension")
 #: inputs that leave the shown object: a refit still waiting for the twists to stop runs first
 LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
 #: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
-SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value")
+SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value", "dimension")
 #: the actions Joy buttons can be mapped to
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
                   "joint_plus", "joint_minus")
@@ -343,7 +344,7 @@ class OperatorStream:
         self._settle(action)
         if action == "save":
             return True, self.engine.save(self._registrations_file())
-        if action in ("refit", "joint_plus", "joint_minus", "joint_value"):
+        if action in ("refit", "joint_plus", "joint_minus", "joint_value", "dimension"):
             self._refresh_scene()
         if action == "refit":
             return True, self.engine.refit()
@@ -351,6 +352,9 @@ class OperatorStream:
             return True, self.engine.correct_joint(steps=1.0 if action == "joint_plus" else -1.0)
         if action == "joint_value":
             return True, self.engine.correct_joint(value=argument)
+        if action == "dimension":
+            name, value, steps = argument
+            return True, self.engine.correct_dimension(name, value=value, steps=steps)
         if action == "select_model":
             return True, self.engine.select_model(argument)
         return True, getattr(self.engine, action)()

@@ -70,6 +70,31 @@ def _stamp_s(info) -> float | None:
     return ns * 1e-9 if ns > 0 else None
 
 
+#: the longest ``~/set_dimension`` message read (longer ones are refused unread)
+MAX_DIMENSION_TEXT = 64
+
+
+def parse_dimension(text: str) -> tuple:
+    """(name, value in m or None, steps or None) of a ``~/set_dimension`` message:
+    "radius=0.045", "x+", "x-". AffordanceError (one line) for anything else."""
+    text = str(text)
+    if len(text) > MAX_DIMENSION_TEXT:
+        raise AffordanceError(f"a message of {len(text)} characters; expected NAME=METRES, "
+                              f"NAME+ or NAME-")
+    text = text.strip()
+    if text.endswith(("+", "-")) and text[:-1].strip().isidentifier():
+        return text[:-1].strip(), None, 1.0 if text.endswith("+") else -1.0
+    name, eq, value = text.partition("=")
+    try:
+        metres = float(value)
+    except ValueError:
+        metres = math.nan
+    if not eq or not name.strip().isidentifier() or not math.isfinite(metres):
+        raise AffordanceError(f"expected NAME=METRES, NAME+ or NAME- (e.g. radius=0.045), got "
+                              f"{text!r}")
+    return name.strip(), metres, None
+
+
 class EngineNode(Node):
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
@@ -114,8 +139,10 @@ class EngineNode(Node):
                                                   INPUT_QOS)
         self._sub_select = self.create_subscription(String, "~/select_model", self._on_select,
                                                     INPUT_QOS)
+        self._sub_dimension = self.create_subscription(String, "~/set_dimension",
+                                                       self._on_dimension, INPUT_QOS)
         self._input_subscriptions = (self._sub_click, self._sub_twist, self._sub_joy,
-                                     self._sub_view, self._sub_select)
+                                     self._sub_view, self._sub_select, self._sub_dimension)
         self.pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
         self.pub_fit = self.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
@@ -152,6 +179,7 @@ class EngineNode(Node):
     def _set_joint_steps(self, p: dict) -> None:
         self.engine.joint_step_rad = math.radians(float(p["joint_step_deg"]))
         self.engine.joint_step_m = float(p["joint_step_mm"]) / 1000.0
+        self.engine.dimension_step_m = float(p["dimension_step_mm"]) / 1000.0
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         new = dict(self._p)
@@ -317,6 +345,17 @@ class EngineNode(Node):
 
     def _on_select(self, msg: String) -> None:
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
+        self._dirty = True
+
+    def _on_dimension(self, msg: String) -> None:
+        """``~/set_dimension``: "NAME=VALUE" sets the shown primitive's dimension (m), "NAME+"
+        / "NAME-" steps it by ``dimension_step_mm``; then the pose is refit with it held."""
+        try:
+            argument = parse_dimension(msg.data)
+        except AffordanceError as exc:
+            self._error("dimension", f"~/set_dimension: {exc}")
+            return
+        self.stream.action("dimension", argument, source=self._sub_dimension.topic_name)
         self._dirty = True
 
     def _service(self, action: str):

@@ -10,7 +10,7 @@ import numpy as np
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.registration import NO_MATCH
+from ..core.registration import describe_primitive, verdict
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
 __all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
@@ -20,9 +20,18 @@ NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits 
 REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
 
 
-def joint_text(tpl, joints: dict, state, scale: float) -> str:
-    """' (closed, lever 88 deg, x1.10)' for labels; '' for a rigid template at scale 1."""
+def _geometry(library, template: str, dimensions: dict):
+    """The template a candidate or registration is drawn with (a primitive at its size)."""
+    tpl = library[template]
+    return tpl.sized(dimensions) if tpl.primitive is not None and dimensions else tpl
+
+
+def joint_text(tpl, joints: dict, state, scale: float, size=None) -> str:
+    """' (closed, lever 88 deg, x1.10)' for labels, ' (a box 0.21 x 0.12 x 0.08 m)' for a
+    primitive (``size``: its candidate or registration); '' for a rigid template at scale 1."""
     parts = [state] if state else []
+    if size is not None and getattr(size, "primitive", None):
+        parts.append(describe_primitive(size))
     for j in tpl.joints:
         if j.name in joints:
             v = joints[j.name]
@@ -54,14 +63,14 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
     markers.markers.append(clear)
     for obj in state.objects:
         c = obj.shown
-        tpl = library[c.template]
+        tpl = _geometry(library, c.template, c.dimensions)
         T = c.T_scene_model
         colour = NO_MATCH_COLOR if obj.no_match else likelihood_color(c.probability)
         markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
                                            colour, stamp)
         top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        label = (f"{NO_MATCH + ' — ' if obj.no_match else ''}"
-                 f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)} — rank "
+        label = (f"{verdict(obj.candidates) + ' — ' if obj.no_match else ''}"
+                 f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale, c)} — rank "
                  f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))
@@ -69,10 +78,11 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
     for reg in state.registered:
         if reg.template not in library:
             continue
-        tpl = library[reg.template]
+        tpl = _geometry(library, reg.template, reg.dimensions)
         markers.markers += _object_markers(tpl, reg.T_scene_model, reg.joints, reg.scale, frame,
                                            "registered", reg.id, REGISTERED_COLOR, stamp)
-        text = f"{reg.template} #{reg.id}{joint_text(tpl, reg.joints, reg.state, reg.scale)}"
+        text = f"{reg.template} #{reg.id}" \
+            f"{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}"
         markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - 0.5 * tpl.diameter
                                            * up, frame, "registered_label", reg.id, stamp))
     return markers

@@ -56,6 +56,8 @@ PARAMETERS = {
     "joint_axis_threshold": (0.5, "how far joint_axis must be pushed to step", (0.05, 1.0)),
     "joint_step_deg": (5.0, "one joint step of a revolute joint (deg)", (0.1, 90.0)),
     "joint_step_mm": (2.0, "one joint step of a prismatic joint (mm)", (0.1, 100.0)),
+    "dimension_step_mm": (5.0, "one step of a primitive's dimension (mm), ~/set_dimension "
+                               "NAME+ / NAME-", (0.1, 100.0)),
     "static_transforms": ([], "'parent child x y z qx qy qz qw' entries for frames TF does not "
                           "know", None),
     "registrations_file": ("affordance_registrations.yaml", "where ~/save writes (YAML)", None),

@@ -42,31 +42,34 @@ BASE_REACH = 0.03
 LOW, HIGH = 1.0, 99.0
 #: a cylinder's side points: normals within this of perpendicular to the axis (cosine)
 SIDE_COS = 0.5
-#: a click on the crop's dominant plane: the support is a plane across it holding at least
-#: this fraction of the points off it, turned at least FLOOR_ANGLE (deg) from it
+#: a box's face points: normals within this of the face's (cosine); a face is seen with at
+#: least FACE_POINTS of them
+FACE_COS = 0.8
+FACE_POINTS = 20
+#: an object's sides are seen where at least this share of its points face sideways
+SIDES_SEEN = 0.05
+#: a click on the crop's dominant plane: the support is a plane holding at least this fraction
+#: of the points off it, the click above it
 FLOOR_FRACTION = 0.15
-FLOOR_ANGLE = 60.0
-#: measure, refine, measure again: this many rounds
-ROUNDS = 2
 
 
 def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
                   settings: FitSettings, dimensions: dict | None = None,
                   T_init: np.ndarray | None = None) -> FitResult:
     """The primitive ``template`` fitted to the clicked object: pose and dimensions measured
-    from the object's points, then the pose refined. ``dimensions`` (and ``T_init``, the
-    pose to refine from): the operator's, kept as given -- only the pose is refined."""
-    points, normals, support = object_points(ctx)
+    from the object's points, the pose refined, the dimensions measured again in the refined
+    frame. ``dimensions`` (and ``T_init``, the pose to refine from): the operator's, kept as
+    given -- only the pose is refined."""
+    points, normals, support, up = object_points(ctx)
     if dimensions is not None:
         T = _as_pose(T_init) if T_init is not None else \
-            next(_hypotheses(ctx, template.primitive, points, normals, support))[0]
+            next(_hypotheses(template.primitive, points, normals, up, support))[0]
         return _refined(ctx, template, cache, settings, T, template.clip_dimensions(dimensions))
     best = None
-    for T, dims in _hypotheses(ctx, template.primitive, points, normals, support):
-        for _ in range(ROUNDS):
-            res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
-            T = res.T_scene_model
-            dims = _extents(template.primitive, T, points)
+    for T, dims in _hypotheses(template.primitive, points, normals, up, support):
+        res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
+        T, dims = _measure_in(template.primitive, res.T_scene_model, points, normals, up,
+                              support)
         res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims),
                        refine=False)
         if best is None or res.likelihood > best.likelihood:
@@ -86,52 +89,68 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
 
 
 def object_points(ctx: ClickContext):
-    """The clicked object's full-resolution points, their normals and the surface it stands
-    on (a :class:`~..scene.Plane`, or None): the points whose nearest cluster voxel lies in
+    """The clicked object's full-resolution points, their normals (towards the sensor), the
+    surface it stands
+    on (a :class:`~..scene.Plane`, or None) and the object's up direction (None: unknown): the
+    points whose nearest cluster voxel lies in
     the clicked segment of the cluster. Where the click is on the crop's dominant plane (a
     box's large face), that plane is the object's and the cluster holds what it stands on
-    too: the largest plane across it (FLOOR_FRACTION of the points off the face, turned at
-    least FLOOR_ANGLE from it) is the support, and the object is cut from what lies above it."""
+    too: the largest plane among the points off that face (FLOOR_FRACTION of them at least),
+    with the click on its sensor's side, is the support (a table under a box's top face, or
+    across from its side), and the object is cut from what lies above it; without one the
+    face is the object's top."""
     cluster, labels, support = ctx.cluster, ctx.segments, ctx.support
     clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    up = None
     if ctx.plane is None and support is not None and \
             abs(support.distance(ctx.click[None])[0]) <= 2 * ctx.plane_threshold:
-        off = np.abs(support.distance(cluster)) > ctx.plane_threshold
+        # (without a floor, the face is the object's top: +z out of it, the base unseen)
+        face, support, up = support, None, np.asarray(support.normal, float)
+        off = np.abs(face.distance(cluster)) > ctx.plane_threshold
         floor = _ransac_plane(cluster[off], ctx.plane_threshold, FLOOR_FRACTION,
                               ctx.sensor_origin, 0) if off.sum() >= 50 else None
-        if floor is not None and abs(floor.normal @ support.normal) < \
-                math.cos(math.radians(FLOOR_ANGLE)):
-            side = np.sign(floor.distance(ctx.click[None])[0]) or 1.0
-            above = side * floor.distance(cluster) > ctx.plane_threshold
+        if floor is not None and floor.distance(ctx.click[None])[0] > 2 * ctx.plane_threshold:
+            above = floor.distance(cluster) > ctx.plane_threshold
             if above.sum() >= 10:
                 cluster = cluster[above]
                 labels = segment(cluster, ctx.sensor_origin, ctx.voxel)
                 clicked = labels[int(np.argmin(np.linalg.norm(cluster - ctx.click, axis=1)))]
-                support = floor
+                support, up = floor, None
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
     d, idx = nearest(tree, ctx.fine, ctx.voxel)
     mine = np.isfinite(d)
     mine[mine] = labels[idx[mine]] == clicked
     if mine.sum() < 10:
-        return ctx.fine, ctx.fine_normals, support
-    return ctx.fine[mine], ctx.fine_normals[mine], support
+        mine[:] = True
+    points, normals = ctx.fine[mine], np.array(ctx.fine_normals[mine])
+    towards = (ctx.sensor_origin - points) if ctx.sensor_origin is not None else \
+        (points - points.mean(axis=0))           # outwards without a viewpoint
+    normals[np.einsum("ij,ij->i", normals, towards) < 0] *= -1
+    return points, normals, support, (_up(support, points) if up is None else up)
 
 
-def _hypotheses(ctx: ClickContext, kind: str, points: np.ndarray, normals: np.ndarray,
-                support):
-    """(T_scene_model, dimensions) measured for each way the primitive may stand."""
-    up = _up(support, points)
+def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support):
+    """(T_scene_model, dimensions) measured for each way the primitive may stand: a box
+    upright on the support, its yaw from its side faces; a cylinder upright, and lying along
+    the direction its normals leave out."""
+    if up is None:                   # no support: the points' least spread, seen side up
+        c = points - points.mean(axis=0)
+        up = np.linalg.eigh(c.T @ c)[1][:, 0]
+        if up @ normals.mean(axis=0) < 0:
+            up = -up
     if kind == "box":
-        yield _box(points, up, support, ctx)
+        x = _yaw_axis(points, normals, up)
+        yield _measure_in(kind, _frame(x, up, points.mean(axis=0)), points, normals, up,
+                          support)
         return
-    yield _standing_cylinder(points, normals, up, support, ctx)
+    yield _measure_in(kind, _frame(_basis(up)[0], up, points.mean(axis=0)), points, normals,
+                      up, support)
     axis = _least_normal_direction(normals)
-    if up is not None:
-        axis = axis - (axis @ up) * up
-        if np.linalg.norm(axis) < 1e-6:
-            return
+    axis = axis - (axis @ up) * up
+    if np.linalg.norm(axis) > 1e-6:
         axis /= np.linalg.norm(axis)
-    yield _lying_cylinder(points, normals, axis, up)
+        yield _measure_in(kind, _frame(up, axis, points.mean(axis=0)), points, normals, None,
+                          None)
 
 
 def _up(support, points: np.ndarray) -> np.ndarray | None:
@@ -152,55 +171,31 @@ def _basis(z: np.ndarray, x_hint: np.ndarray | None = None):
     return x, np.cross(z, x)
 
 
-def _frame_up(points: np.ndarray, up: np.ndarray | None, support, ctx: ClickContext):
-    """(z, base height, heights) of the object: +z along ``up`` (or the points' least spread
-    towards the sensor without a support); heights of the points above the support (or
-    above their lowest)."""
-    if up is None:
-        c = points - points.mean(axis=0)
-        z = np.linalg.eigh(c.T @ c)[1][:, 0]
-        toward = (ctx.sensor_origin - points.mean(axis=0)) if ctx.sensor_origin is not None \
-            else -points.mean(axis=0)
-        if z @ toward < 0:
-            z = -z
-        h = points @ z
-        return z, 0.0, h - np.percentile(h, LOW)     # the base on the far side
-    h = support.distance(points) * (1.0 if up @ support.normal > 0 else -1.0)
-    low = float(np.percentile(h, LOW))
-    return up, (0.0 if low <= BASE_REACH else low), h
+def _frame(x_hint, z, origin) -> np.ndarray:
+    """A pose with +z along ``z`` and x along ``x_hint`` (made perpendicular), at ``origin``."""
+    z = np.asarray(z, float) / np.linalg.norm(z)
+    x, y = _basis(z, x_hint)
+    return make_T(np.stack([x, y, z], axis=1), origin)
 
 
-def _box(points: np.ndarray, up, support, ctx: ClickContext):
-    z, base, h = _frame_up(points, up, support, ctx)
-    x0, y0 = _basis(z, ctx.frame[:, 0])
-    uv = np.stack([points @ x0, points @ y0], axis=1)
-    best = None
-    for angle in _edge_angles(uv):
-        c, s = math.cos(angle), math.sin(angle)
-        rot = uv @ np.array([[c, -s], [s, c]])
-        lo, hi = np.percentile(rot, [LOW, HIGH], axis=0)
-        area = float(np.prod(hi - lo))
-        if best is None or area < best[0]:
-            best = (area, angle, lo, hi)
-    _, angle, lo, hi = best
-    c, s = math.cos(angle), math.sin(angle)
-    ex, ey = c * x0 + s * y0, -s * x0 + c * y0
-    size = hi - lo
-    centre2 = (lo + hi) / 2
-    if size[1] > size[0]:                          # x along the longer edge
-        ex, ey, size = ey, -ex, size[::-1]
-    top = float(np.percentile(h, HIGH))
-    origin = _on_axis(points, z, centre2[0] * (c * x0 + s * y0) + centre2[1] * (-s * x0 + c * y0),
-                      h, base)
-    dims = {"x": float(size[0]), "y": float(size[1]), "z": max(top - base, 1e-3)}
-    return make_T(np.stack([ex, ey, z], axis=1), origin), dims
-
-
-def _on_axis(points, z, in_plane, h, base):
-    """The point at height ``base`` above the support below the in-plane position
-    ``in_plane`` (the sum of its x, y components)."""
-    heights = points @ z - h                       # the support's level along z, per point
-    return in_plane + (float(np.median(heights)) + base) * z
+def _yaw_axis(points, normals, up) -> np.ndarray:
+    """A box's x direction about ``up``: the side faces' normals (their angle folded four
+    times onto one direction), else the footprint's smallest enclosing rectangle."""
+    x0, y0 = _basis(up)
+    side = np.abs(normals @ up) < SIDE_COS
+    if side.sum() >= FACE_POINTS:
+        a = np.arctan2(normals[side] @ y0, normals[side] @ x0)
+        theta = math.atan2(np.sin(4 * a).sum(), np.cos(4 * a).sum()) / 4
+    else:
+        uv = np.stack([points @ x0, points @ y0], axis=1)
+        areas = []
+        for angle in _edge_angles(uv):
+            c, s = math.cos(angle), math.sin(angle)
+            rot = uv @ np.array([[c, -s], [s, c]])
+            lo, hi = np.percentile(rot, [LOW, HIGH], axis=0)
+            areas.append((float(np.prod(hi - lo)), angle))
+        theta = min(areas)[1]
+    return math.cos(theta) * x0 + math.sin(theta) * y0
 
 
 def _edge_angles(uv: np.ndarray) -> np.ndarray:
@@ -215,64 +210,81 @@ def _edge_angles(uv: np.ndarray) -> np.ndarray:
     return np.unique(np.round(np.mod(np.arctan2(d[:, 1], d[:, 0]), math.pi / 2), 4))
 
 
+def _bounds(along: np.ndarray, face_pos, face_neg) -> tuple[float, float]:
+    """The extent (lo, hi) of the points ``along`` an axis: a face seen on either side is
+    where its points' median lies (a face's noise averages out), an unseen one where the
+    points end (percentiles, past mixed pixels)."""
+    lo, hi = np.percentile(along, [LOW, HIGH])
+    if face_pos.sum() >= FACE_POINTS:
+        hi = float(np.median(along[face_pos]))
+    if face_neg.sum() >= FACE_POINTS:
+        lo = float(np.median(along[face_neg]))
+    return float(lo), float(hi)
+
+
+def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
+    """The primitive measured in the frame ``T`` (its axes kept, its origin found): a box's
+    faces and a cylinder's side and end; the base on the support where the points reach down
+    to it. Returns (T_scene_model, dimensions)."""
+    R = T[:3, :3]
+    local, nl = (points - T[:3, 3]) @ R, normals @ R
+    z = local[:, 2]
+    top = nl[:, 2] > FACE_COS
+    lo_z, hi_z = _bounds(z, top, nl[:, 2] < -FACE_COS)
+    if support is not None and up is not None:
+        floor = float(-(support.d + support.normal @ T[:3, 3]) / (support.normal @ up))
+        sides = np.abs(nl[:, 2]) < SIDE_COS
+        # it stands on the support where its points reach down to it, or where its sides
+        # are not seen (from above) -- seen sides ending higher up stand on something else
+        if lo_z - floor <= BASE_REACH or sides.sum() < max(FACE_POINTS, SIDES_SEEN * len(nl)):
+            lo_z = floor
+    if kind == "box":
+        lo_x, hi_x = _bounds(local[:, 0], nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS)
+        lo_y, hi_y = _bounds(local[:, 1], nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS)
+        size = [hi_x - lo_x, hi_y - lo_y]
+        centre = np.array([(lo_x + hi_x) / 2, (lo_y + hi_y) / 2, lo_z])
+        axes = R
+        if size[1] > size[0]:                      # x along the longer edge
+            axes = np.stack([R[:, 1], -R[:, 0], R[:, 2]], axis=1)
+            size = size[::-1]
+        dims = {"x": float(size[0]), "y": float(size[1]), "z": float(max(hi_z - lo_z, 1e-3))}
+        return make_T(axes, T[:3, 3] + R @ centre), dims
+    side = np.abs(nl[:, 2]) < SIDE_COS
+    use = side if side.sum() >= FACE_POINTS else np.ones(len(local), bool)
+    c2, r = _circle(local[use, :2])
+    lo_xy, hi_xy = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
+    if not (np.isfinite(r) and np.all(np.abs(c2 - (lo_xy + hi_xy) / 2) <= hi_xy - lo_xy)):
+        c2, r = (lo_xy + hi_xy) / 2, float(np.max(hi_xy - lo_xy) / 2)   # a failed circle
+    centre = np.array([c2[0], c2[1], lo_z])
+    return make_T(R, T[:3, 3] + R @ centre), \
+        {"radius": float(r), "length": float(max(hi_z - lo_z, 1e-3))}
+
+
 def _circle(uv: np.ndarray):
-    """Centre (2,) and radius of the circle through 2-D points: the algebraic fit, then a few
-    geometric (Gauss-Newton) steps."""
+    """Centre (2,) and radius of the circle through 2-D points: the algebraic fit, then
+    geometric (Gauss-Newton) steps, the points farther than 3 sigma from it left out."""
     A = np.column_stack([2 * uv, np.ones(len(uv))])
     b = (uv ** 2).sum(axis=1)
     sol = np.linalg.lstsq(A, b, rcond=None)[0]
     c = sol[:2]
     r = math.sqrt(max(sol[2] + c @ c, 1e-12))
+    keep = np.ones(len(uv), bool)
     for _ in range(10):
-        d = uv - c
+        d = uv[keep] - c
         dist = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-        J = np.column_stack([-d / dist[:, None], -np.ones(len(uv))])
+        J = np.column_stack([-d / dist[:, None], -np.ones(len(d))])
         step = np.linalg.lstsq(J, -(dist - r), rcond=None)[0]
         c, r = c + step[:2], r + step[2]
-        if np.linalg.norm(step) < 1e-7:
+        res = np.abs(np.linalg.norm(uv - c, axis=1) - r)
+        keep = res <= max(3 * float(np.std(res[keep])), 1e-4)
+        if np.linalg.norm(step) < 1e-7 or keep.sum() < 5:
             break
-    return c, abs(r)
-
-
-def _standing_cylinder(points, normals, up, support, ctx: ClickContext):
-    z, base, h = _frame_up(points, up, support, ctx)
-    x, y = _basis(z, ctx.frame[:, 0])
-    side = np.abs(normals @ z) < SIDE_COS
-    use = points[side] if side.sum() >= 10 else points
-    c2, r = _circle(np.stack([use @ x, use @ y], axis=1))
-    top = float(np.percentile(h, HIGH))
-    origin = _on_axis(points, z, c2[0] * x + c2[1] * y, h, base)
-    return make_T(np.stack([x, y, z], axis=1), origin), \
-        {"radius": float(r), "length": max(top - base, 1e-3)}
+    return c, abs(float(r))
 
 
 def _least_normal_direction(normals: np.ndarray) -> np.ndarray:
     """The direction the normals leave out (least spread of them): a cylinder's axis."""
     return np.linalg.eigh(normals.T @ normals)[1][:, 0]
-
-
-def _lying_cylinder(points, normals, axis, up):
-    z = axis / np.linalg.norm(axis)
-    x, y = _basis(z, up)
-    c2, r = _circle(np.stack([points @ x, points @ y], axis=1))
-    along = points @ z
-    lo, hi = np.percentile(along, [LOW, HIGH])
-    origin = c2[0] * x + c2[1] * y + lo * z
-    return make_T(np.stack([x, y, z], axis=1), origin), \
-        {"radius": float(r), "length": float(max(hi - lo, 1e-3))}
-
-
-def _extents(kind: str, T: np.ndarray, points: np.ndarray) -> dict:
-    """The dimensions the object's points give in the primitive's frame ``T`` (its centre
-    and axes kept): a box's extents about its centre, a cylinder's radius (median distance
-    from the axis of the side points) and length."""
-    local = (points - T[:3, 3]) @ T[:3, :3]
-    lo, hi = np.percentile(local, [LOW, HIGH], axis=0)
-    if kind == "box":
-        half = np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))
-        return {"x": float(2 * half[0]), "y": float(2 * half[1]), "z": float(max(hi[2], 1e-3))}
-    return {"radius": float(np.percentile(np.linalg.norm(local[:, :2], axis=1), 90)),
-            "length": float(max(hi[2], 1e-3))}
 
 
 def _as_pose(T) -> np.ndarray:
