@@ -22,7 +22,7 @@ from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFS
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
            "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",
-           "symmetric_angle"]
+           "symmetric_angle", "shape_axes"]
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
@@ -104,6 +104,9 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
             R0.append(np.stack(d.aligned))
             offsets.append(np.zeros((len(d.aligned), 3)))
         R0 = np.concatenate(R0) if R0 else np.empty((0, 3, 3))
+        C = shape_axes(model)
+        if C is not None:           # a scanned object's drawn orientations are of its own axes
+            R0[:k + n] = R0[:k + n] @ C.T
         index.append(np.full(len(R0), i))
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, np.concatenate(offsets)))
@@ -198,6 +201,34 @@ def _resting_axes(model, max_poses: int) -> list:
     return [(R, None if math.isnan(a) else float(a)) for R, a in zip(rests, angles)]
 
 
+#: samples whose principal axes are a scanned object's own axes (:func:`shape_axes`)
+AXES_SAMPLES = 2048
+
+
+def shape_axes(model) -> np.ndarray | None:
+    """A point-cloud template's own axes in its file's frame, (3, 3) rotation columns: its
+    samples' principal axes, largest spread first, each pointing where the samples' third
+    moment along it is positive (right-handed). The orientations drawn for it are composed
+    with them, so its fit does not depend on the frame its file is in (a scan's points lie
+    wherever the scanner put them); None for a mesh, whose frame is the documented one
+    (+z out of the mounting surface)."""
+    tpl = getattr(model, "template", model)
+    if not getattr(tpl, "is_point_template", False):
+        return None
+
+    def compute():
+        P = tpl.samples(AXES_SAMPLES, seed=SAMPLE_SEED)[0]
+        rel = P - P.mean(axis=0)
+        axes = np.linalg.eigh(rel.T @ rel)[1][:, ::-1].copy()
+        for k in range(2):
+            if np.sum((rel @ axes[:, k]) ** 3) < 0:
+                axes[:, k] *= -1
+        axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
+        return axes
+    cache = getattr(model, "cache", None)
+    return compute() if cache is None else cache.posed(("shape axes", tpl), compute)
+
+
 def _principal_axes(points: np.ndarray) -> np.ndarray:
     """The principal axes of ``points`` (N, 3) as the columns of a rotation, largest spread
     first."""
@@ -262,8 +293,12 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
         tpl = hyps.models[int(idx[0])].template
         mounted = idx[hyps.family[idx] == MOUNTED]
         chosen = [mounted[0]] if len(mounted) and keep > 1 else []
+        # where each pose puts the template: its origin, or a scanned object's centroid
+        # (its file's origin may lie anywhere)
+        at = hyps.t if not tpl.is_point_template else \
+            hyps.t + hyps.R @ hyps.models[int(idx[0])].centroid
         for j in idx:
-            if all(np.linalg.norm(hyps.t[j] - hyps.t[k]) > DISTINCT_DISTANCE or
+            if all(np.linalg.norm(at[j] - at[k]) > DISTINCT_DISTANCE or
                    symmetric_angle(tpl, hyps.R[k].T @ hyps.R[j]) > DISTINCT_ANGLE
                    for k in chosen):
                 chosen.append(j)
@@ -323,7 +358,9 @@ def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):
     in ``steps`` steps over one symmetry period: (R (steps, 3, 3), t (steps, 3))."""
     sym = model.symmetry
     period = 2 * math.pi / (sym.order if sym is not None and not sym.continuous else 1)
-    axis_model = np.asarray(sym.axis) if sym is not None else np.array([0.0, 0.0, 1.0])
+    C = shape_axes(model)
+    axis_model = np.asarray(sym.axis) if sym is not None else \
+        np.array([0.0, 0.0, 1.0]) if C is None else C[:, 2]
     axis = R @ axis_model
     centre = R @ model.centroid + t
     Rs, ts = [], []
