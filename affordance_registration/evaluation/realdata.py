@@ -16,7 +16,6 @@ face, +z along its axis; ``{"radius", "length"}``: it spans radius r about the z
 """
 from __future__ import annotations
 
-import math
 import os
 import re
 import time
