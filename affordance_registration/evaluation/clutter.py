@@ -70,13 +70,16 @@ class ClutterScene:
         return self.points[self.is_object]
 
 
-def armadillo_template(out_dir: str, name: str = "armadillo", views=None) -> str:
+def armadillo_template(out_dir: str, name: str = "armadillo", views=None,
+                       voxel: float = 0.002) -> str:
     """Write the Armadillo point-cloud template (all ground-truth views merged, the common
-    frame) into ``out_dir``; returns its YAML path. ``views``: or-pcd's views (fetched with
-    pip by default; :class:`AffordanceError` when pip cannot get them)."""
+    frame, one point per ``voxel`` m) into ``out_dir``; returns its YAML path. ``views``:
+    or-pcd's views (fetched with pip by default; :class:`AffordanceError` when pip cannot get
+    them). The clutter scene is made of the template's own points: a finer ``voxel`` gives a
+    denser Armadillo in it (at 2 mm it has fewer points than the camera's pixels there)."""
     from ..realscans import armadillo_views, fetch_or_pcd, write_point_template
     views = armadillo_views(fetch_or_pcd()) if views is None else views
-    return write_point_template(views, out_dir, name)
+    return write_point_template(views, out_dir, name, voxel=voxel)
 
 
 def _template_points(yaml_path: str) -> np.ndarray:

@@ -30,7 +30,8 @@ from ..core.pointfiles import _header_lines, check_header
 __all__ = ["DATA_ENV", "SKIP_REASON", "SCENE_KINDS", "HELD_OUT", "MIN_OBJECT_POINTS",
            "MIN_TOLERANCE", "NOISE_SIGMAS", "PASS_RECALL", "PASS_PRECISION",
            "shared_data_dir", "osd_dir", "osd_scene_paths", "scene_name", "scene_kind",
-           "is_held_out", "LabelledCloud", "read_labelled_pcd", "Intrinsics",
+           "is_held_out", "ALL_OF_KIND", "uniform_kind", "LabelledCloud", "read_labelled_pcd",
+           "Intrinsics",
            "fit_intrinsics", "LabelledObject", "labelled_objects", "click_in_middle",
            "table_points", "fit_plane", "box_distance", "cylinder_distance",
            "primitive_distance", "inside_region", "local_noise", "PrimitiveScore",
@@ -51,6 +52,12 @@ SCENE_KINDS = {
     "occluded objects": (25, 28, 32),
     "cylinders": (33, 37, 41, 44),
 }
+#: the scenes whose labelled objects are all of one primitive kind, checked by looking at the
+#: data (colour images and fits of each kind): every object of the box and stacked-box scenes is
+#: a box; of the cylinder scenes only learn41 (a container standing on a round tin) and learn44
+#: (a tube, a mug, a round tin) -- learn33 and learn37 hold a bowl each, learn37 a tin lying
+#: on its side
+ALL_OF_KIND = {"box": (0, 4, 8, 12, 16, 17, 20, 24), "cylinder": (41, 44)}
 #: held out of any tuning: one scene of each kind, the last of its group (the highest number:
 #: no reason to prefer any, and the last of each group is the rule anyone can re-derive). Of
 #: the cylinder group, learn44 is also the one with an object split into two labelled parts,
@@ -110,6 +117,13 @@ def scene_kind(name: str) -> str:
         if number in numbers:
             return kind
     raise AffordanceError(f"{name}: not one of the shared learn scenes")
+
+
+def uniform_kind(name: str) -> str | None:
+    """The primitive kind every object of a learn scene is ("box" | "cylinder"), or None
+    (:data:`ALL_OF_KIND`)."""
+    number = _scene_number(name)
+    return next((k for k, numbers in ALL_OF_KIND.items() if number in numbers), None)
 
 
 def is_held_out(name: str) -> bool:
@@ -471,7 +485,8 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
     ``registrar`` (a :class:`core.registration.Registrar`) -- the sensor at the origin -- and
     return one record per object:
 
-    ``scene``, ``kind``, ``held_out``, ``object`` (id), ``n_points``, ``click`` (3 floats),
+    ``scene``, ``kind``, ``uniform_kind`` (:func:`uniform_kind`), ``held_out``, ``object``
+    (id), ``n_points``, ``click`` (3 floats),
     ``template`` (the best candidate's), ``fits``, ``primitive``, ``dimensions``, ``explained``
     (these three read with getattr: None where the registrar does not give them), ``score``
     (:meth:`PrimitiveScore.to_dict` when the best candidate is a box or cylinder with
@@ -483,11 +498,13 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
     scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
     try:
         kind, held = scene_kind(cloud.name), is_held_out(cloud.name)
+        uniform = uniform_kind(cloud.name)
     except AffordanceError:
-        kind, held = None, None
+        kind, held, uniform = None, None, None
     records = []
     for obj in labelled_objects(cloud, min_points):
-        rec = {"scene": cloud.name, "kind": kind, "held_out": held, "object": obj.id,
+        rec = {"scene": cloud.name, "kind": kind, "uniform_kind": uniform, "held_out": held,
+               "object": obj.id,
                "n_points": obj.n_points, "click": [round(float(v), 6) for v in obj.click],
                "template": None, "fits": None, "primitive": None, "dimensions": None,
                "explained": None, "score": None, "time_s": None, "error": None}

@@ -50,9 +50,8 @@ def _kinect_summary(records: list) -> dict:
     scored = [r["score"] for r in records]
     kind_flags = []
     for r in records:
-        want = {"boxes": "box", "cylinders": "cylinder"}.get(r["kind"])
-        if want is not None:
-            kind_flags.append(r["primitive"] == want)
+        if r["uniform_kind"] is not None:
+            kind_flags.append(r["primitive"] == r["uniform_kind"])
     return {
         "scenes": len({r["scene"] for r in records}), "objects": len(records),
         "errors": sum(r["error"] is not None and r["template"] is None for r in records),
@@ -77,8 +76,9 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
     a summary: ``scenes``, ``objects``, ``errors``, ``called_fits`` (a specific template
     said to fit), ``refused_by_library`` (share whose best is not a fitting specific template),
     ``primitive_recall`` / ``primitive_precision`` (medians of the label score),
-    ``primitive_pass`` (share passing it), ``kind_right`` (box scenes fitted as a box,
-    cylinder scenes as a cylinder), ``median_s`` per click. None where the registrar gives no
+    ``primitive_pass`` (share passing it), ``kind_right`` (share of the objects of the
+    scenes whose objects are all boxes or all cylinders, ``realdata.ALL_OF_KIND``, fitted as
+    that primitive), ``median_s`` per click. None where the registrar gives no
     primitives (or there is no data: every summary then has 0 objects)."""
     from ..core.registration import Registrar
     factory = registrar_factory or Registrar
