@@ -32,7 +32,7 @@ from ..core.transforms import axis_angle_matrix, make_T
 from .realdata import (SENSOR_ORIGIN, click_in_middle, fit_intrinsics, fit_plane,
                        labelled_objects, read_labelled_pcd, shared_data_dir, table_points)
 
-__all__ = ["CONTACT", "SPLAT", "SELF_OCCLUSION", "MIN_VISIBLE", "ClutterScene",
+__all__ = ["CONTACT", "BODY_GAP", "SPLAT", "SELF_OCCLUSION", "MIN_VISIBLE", "ClutterScene",
            "armadillo_template", "armadillo_clutter", "MilkCase", "milk_carton_case",
            "milk_paths"]
 
@@ -42,6 +42,8 @@ CONTACT = 0.004
 SPLAT = 1
 #: an Armadillo point this far (m) behind the nearest of its splats is hidden (self-occlusion)
 SELF_OCCLUSION = 0.005
+#: a template point is on the statue's body when its 8th nearest neighbour is this close (m)
+BODY_GAP = 0.008
 #: a placement is kept when at least this many Armadillo points are visible
 MIN_VISIBLE = 1500
 
@@ -51,7 +53,8 @@ class ClutterScene:
     """A cluttered real scene with ground truth: ``points`` (H, W, 3) organized, NaN holes
     (optical frame, metres), ``sensor_origin`` (3,), ``click`` (3,) on the Armadillo,
     ``T_scene_model`` the template's true pose, ``is_object`` (H, W) bool -- the pixels that
-    hold Armadillo points -- ``touches`` the ids of the mOSD objects some Armadillo point lies
+    hold Armadillo points -- ``labels`` (H, W) mOSD's labels with -1 at those pixels,
+    ``touches`` the ids of the mOSD objects some Armadillo body point lies
     within 1 cm of, ``base`` the mOSD scene's name and ``seed``."""
 
     base: str
@@ -161,37 +164,49 @@ def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: i
     others = flat[valid & (obj_ids > 0)]
     other_ids = obj_ids[valid & (obj_ids > 0)]
     tree = cKDTree(others)
+    a = np.cross(normal, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    table = table_points(cloud)
+    table_tree = cKDTree(np.stack([table @ a, table @ b], axis=1))
     model = _template_points(template_yaml)
+    # the statue's body: the range scans hold a few stray returns centimetres off it, which
+    # must not decide where it rests or what it touches
+    gap8, _ = cKDTree(model).query(model, k=9)
+    body = gap8[:, -1] <= BODY_GAP
     rng = np.random.default_rng(seed)
     for _ in range(tries):
         R = _upright(normal, rng.uniform(0, 2 * np.pi))
-        posed = model @ R.T
+        posed = model[body] @ R.T
         target = objs[int(rng.integers(len(objs)))]
         centre = flat[target.indices].mean(axis=0)
         centre = centre - normal * (normal @ centre + d)          # onto the plane
         angle = rng.uniform(0, 2 * np.pi)
-        a = np.cross(normal, [1.0, 0.0, 0.0])
-        a /= np.linalg.norm(a)
-        b = np.cross(normal, a)
         direction = np.cos(angle) * a + np.sin(angle) * b
         # on the plane: the lowest point 1 mm above it, the centroid over the sliding point
         height = 0.001 - d - float((posed @ normal).min())
         mean = posed.mean(axis=0)
         T = None
-        for step in np.arange(0.6, -0.003, -0.003):          # slide in until contact
+        for i, step in enumerate(np.arange(0.6, -0.003, -0.003)):   # slide in until contact
             t = centre + direction * step - mean
             t = t - normal * (t @ normal) + normal * height
             dist, _ = tree.query(posed + t, distance_upper_bound=CONTACT)
             if np.isfinite(dist).any():
-                T = make_T(R, t)
+                T = make_T(R, t) if i > 0 else None      # in contact from the start: inside
                 break
         if T is None:
             continue
         pts = model @ T[:3, :3].T + T[:3, 3]
+        # it stands on the table: the table was scanned under its feet (its lowest points)
+        h = pts[body] @ normal + d
+        feet = pts[body][h <= np.quantile(h, 0.05)]
+        gap, _ = table_tree.query(np.stack([feet @ a, feet @ b], axis=1))
+        if gap.max() > 0.02:
+            continue
         merged, is_model, n_visible = _render(cloud.points, pts, intr)
         if n_visible < MIN_VISIBLE:
             continue
-        near, which = tree.query(pts, distance_upper_bound=0.01)
+        near, which = tree.query(pts[body], distance_upper_bound=0.01)
         touches = tuple(sorted({int(other_ids[i]) for i in which[np.isfinite(near)]}))
         if not touches:
             continue
