@@ -1,0 +1,4 @@
+"""Evaluation on real and simulated data with ground truth: readers for the shared real scans
+(mOSD, PCL's milk carton), a label-based scoring of primitive fits, cluttered real scenes built
+from them, and the bench rows they give. ROS-free, like ``core``; nothing here is run by a
+click (the product never imports it)."""

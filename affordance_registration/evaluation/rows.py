@@ -1,0 +1,327 @@
+"""Bench rows of issue 26, each run with a ``registrar_factory(library) -> Registrar``
+(``core.registration.Registrar`` itself will do): real Kinect scenes (mOSD learn, tuning and
+held-out reported apart), primitives on simulated boxes and cylinders with true dimensions, and
+known objects in real clutter (the Armadillo among mOSD's objects, PCL's milk carton). Fields a
+registrar does not give yet (``primitive``, ``dimensions``) read as None, and so do the figures
+made of them.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import time
+
+import numpy as np
+
+from ..core.errors import AffordanceError
+from ..core.transforms import axis_angle_matrix, invert, make_T, pose_error
+from .realdata import (HELD_OUT, click_in_middle, evaluate_scene,
+                       osd_scene_paths, scene_name)
+
+__all__ = ["real_kinect_rows", "simulated_primitive_rows", "clutter_rows", "simulate_primitives",
+           "primitive_pose_error", "DIM_TOL", "POSE_TOL_M", "POSE_TOL_DEG"]
+
+DIM_TOL = 0.005                 #: m: a fitted dimension is right within this
+POSE_TOL_M = 0.005
+POSE_TOL_DEG = 5.0
+
+
+def _bundled():
+    from ..core.templates import TemplateLibrary
+    return TemplateLibrary.load()
+
+
+def _share(flags) -> float | None:
+    flags = [f for f in flags if f is not None]
+    return None if not flags else float(np.mean(flags))
+
+
+def _median(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return None if not values else float(np.median(values))
+
+
+# ---------------------------------------------------------------------------- real Kinect
+def _kinect_summary(records: list) -> dict:
+    any_primitive = any(r["primitive"] is not None for r in records)
+    ok = [r for r in records if r["error"] is None or r["template"] is not None]
+    refused = [r["primitive"] is not None or r["fits"] is not True for r in ok]
+    scored = [r["score"] for r in records]
+    kind_flags = []
+    for r in records:
+        if r["uniform_kind"] is not None:
+            kind_flags.append(r["primitive"] == r["uniform_kind"])
+    return {
+        "scenes": len({r["scene"] for r in records}), "objects": len(records),
+        "errors": sum(r["error"] is not None and r["template"] is None for r in records),
+        "called_fits": sum(r["fits"] is True and r["primitive"] is None for r in records),
+        "refused_by_library": _share(refused),
+        "primitive_recall": _median([s["recall"] for s in scored if s]) if any_primitive
+        else None,
+        "primitive_precision": _median([s["precision"] for s in scored if s]) if any_primitive
+        else None,
+        "primitive_pass": _share([bool(s and s["passes"]) for s in scored])
+        if any_primitive else None,
+        "kind_right": _share(kind_flags) if any_primitive and kind_flags else None,
+        "median_s": _median([r["time_s"] for r in records]),
+    }
+
+
+def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None) -> dict:
+    """The "real Kinect (mOSD learn)" rows: every labelled object (>= 1500 points) of
+    ``scenes`` (paths; default all shared learn scenes) clicked in its middle with
+    ``registrar_factory(library)`` (default ``Registrar``; ``library`` default the bundled
+    one). Returns {"tuning": summary, "held_out": summary, "all": summary, "records": [...]},
+    a summary: ``scenes``, ``objects``, ``errors``, ``called_fits`` (a specific template
+    said to fit), ``refused_by_library`` (share whose best is not a fitting specific template),
+    ``primitive_recall`` / ``primitive_precision`` (medians of the label score),
+    ``primitive_pass`` (share passing it), ``kind_right`` (share of the objects of the
+    scenes whose objects are all boxes or all cylinders, ``realdata.ALL_OF_KIND``, fitted as
+    that primitive), ``median_s`` per click. None where the registrar gives no
+    primitives (or there is no data: every summary then has 0 objects)."""
+    from ..core.registration import Registrar
+    factory = registrar_factory or Registrar
+    registrar = factory(library if library is not None else _bundled())
+    paths = list(scenes) if scenes is not None else osd_scene_paths()
+    records = []
+    for path in paths:
+        if log:
+            log(f"real Kinect: {scene_name(path)} ...")
+        records += evaluate_scene(registrar, path)
+    held = [r for r in records if r["held_out"]]
+    tune = [r for r in records if not r["held_out"]]
+    return {"tuning": _kinect_summary(tune), "held_out": _kinect_summary(held),
+            "all": _kinect_summary(records), "held_out_scenes": [f"learn{n}" for n in HELD_OUT],
+            "records": records}
+
+
+# ---------------------------------------------------------------------------- simulated
+def _mosd_camera():
+    """The camera of the mOSD scans: a Kinect's 640 x 480 at fx = fy = 525 (their pixels
+    obey it: :func:`.realdata.fit_intrinsics`)."""
+    from ..core.simulation import CameraIntrinsics
+    return CameraIntrinsics(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
+
+TABLE = (1.2, 0.8, 0.03)        #: the simulated table top (m), its top face at z = 0
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """T_table_cam of an optical-frame camera at ``eye`` looking at ``target`` (z forward,
+    y down, the table's +z up in the image)."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    y = -(np.array([0.0, 0.0, 1.0]) - z * z[2])
+    y /= np.linalg.norm(y)
+    return make_T(np.stack([np.cross(y, z), y, z], axis=1), eye)
+
+
+def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
+    """A seeded table with ``n_objects`` boxes and standing cylinders of random dimensions,
+    rendered by ``core.simulation.DepthCamera`` (noise on, the mOSD camera by default) from
+    0.8-1.3 m at 35-65 deg above the table. Returns (organized (H, W, 3), objects), each object
+    a dict: ``kind``, ``dimensions``, ``T_scene_model`` (the frame convention of
+    :mod:`.realdata`), ``click`` (3,) or None, ``visible`` (points)."""
+    import trimesh
+    from ..core.simulation import DepthCamera
+    rng = np.random.default_rng(seed)
+    cam = camera or DepthCamera(_mosd_camera())
+    objects, meshes, placed = [], [], []
+    table = trimesh.creation.box(extents=TABLE)
+    T_table_mesh = make_T(None, [0.0, 0.0, -TABLE[2] / 2])
+    for _ in range(n_objects):
+        if rng.random() < 0.5:
+            x = rng.uniform(0.08, 0.30)
+            y = rng.uniform(0.05, x - 0.01)
+            dims = {"x": x, "y": y, "z": rng.uniform(0.04, 0.25)}
+            mesh = trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"]))
+            offset = make_T(None, [0, 0, dims["z"] / 2])    # model frame: base face centre
+            radius, kind = 0.5 * math.hypot(x, y), "box"
+        else:
+            dims = {"radius": rng.uniform(0.025, 0.07), "length": rng.uniform(0.06, 0.25)}
+            mesh = trimesh.creation.cylinder(radius=dims["radius"], height=dims["length"],
+                                             sections=64)
+            offset = make_T(None, [0, 0, dims["length"] / 2])
+            radius, kind = dims["radius"], "cylinder"
+        for _ in range(500):
+            p = rng.uniform([-0.35, -0.2], [0.35, 0.2])
+            if all(np.linalg.norm(p - q) > radius + r + 0.03 for q, r in placed):
+                break
+        else:
+            continue
+        placed.append((p, radius))
+        T_table_model = make_T(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)),
+                               [p[0], p[1], 0.0])
+        objects.append({"kind": kind, "dimensions": {k: float(v) for k, v in dims.items()},
+                        "T_table_model": T_table_model})
+        meshes.append((mesh, T_table_model @ offset))
+    dist, elev = rng.uniform(0.8, 1.3), math.radians(rng.uniform(35, 65))
+    az = rng.uniform(-0.5, 0.5) - math.pi / 2
+    eye = dist * np.array([math.cos(elev) * math.cos(az), math.cos(elev) * math.sin(az),
+                           math.sin(elev)])
+    T_cam_table = invert(_look_at(eye, np.zeros(3)))
+    scene_meshes = [(table, T_cam_table @ T_table_mesh)] + \
+        [(m, T_cam_table @ T) for m, T in meshes]
+    organized, labels = cam.render(scene_meshes, rng)
+    for i, obj in enumerate(objects, start=1):
+        mask = labels == i
+        obj["visible"] = int(mask.sum())
+        obj["click"] = click_in_middle(organized, mask)[0] if obj["visible"] else None
+        obj["T_scene_model"] = T_cam_table @ obj.pop("T_table_model")
+    return organized, objects
+
+
+def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
+                         dims_true: dict) -> tuple[float, float]:
+    """(m, rad) pose error of a primitive fit, symmetry-aware: a box is the same under a half
+    turn about its z; a cylinder under any turn about its axis, and either end face may be its
+    origin (the error is the smaller of the two ends: the other end's frame is the true one
+    moved ``length`` along +z and flipped)."""
+    if kind == "box":
+        flip = make_T(axis_angle_matrix([0, 0, 1], math.pi))
+        return min((pose_error(T_est, T) for T in (T_true, T_true @ flip)),
+                   key=lambda e: (e[0] > POSE_TOL_M) + e[1])
+    z_est = T_est[:3, 2]
+    best = None
+    for T in (T_true, T_true @ make_T(axis_angle_matrix([1, 0, 0], math.pi),
+                                      [0, 0, dims_true["length"]])):
+        dt = float(np.linalg.norm(T_est[:3, 3] - T[:3, 3]))
+        dr = float(math.acos(np.clip(z_est @ T[:3, 2], -1.0, 1.0)))
+        if best is None or dt < best[0]:
+            best = (dt, dr)
+    return best
+
+
+def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), library=None,
+                             n_objects: int = 3, min_visible: int = 500) -> dict:
+    """"Primitives on simulated boxes and cylinders": each object of the
+    :func:`simulate_primitives` scenes of ``seeds`` with at least ``min_visible`` points,
+    clicked in its middle. Per kind and overall: ``clicks``, ``kind_right`` (the best
+    candidate is that primitive), ``dims_within_5mm`` (every dimension), ``pose_ok`` (within
+    5 mm / 5 deg, :func:`primitive_pose_error`), ``median_s``; the rates None where the
+    registrar reports no primitives."""
+    from ..core.registration import Registrar
+    from ..core.scene import Scene
+    registrar = (registrar_factory or Registrar)(library if library is not None else _bundled())
+    recs = []
+    for seed in seeds:
+        organized, objects = simulate_primitives(seed, n_objects)
+        scene = Scene(organized)
+        for obj in objects:
+            if obj["visible"] < min_visible:
+                continue
+            t0 = time.perf_counter()
+            try:
+                best = registrar.fit(scene, obj["click"]).candidates[0]
+            except AffordanceError:
+                recs.append({"kind": obj["kind"], "primitive": None, "dims": None,
+                             "pose": None, "time_s": time.perf_counter() - t0})
+                continue
+            dt = time.perf_counter() - t0
+            primitive = getattr(best, "primitive", None)
+            dims = getattr(best, "dimensions", None)
+            dims_ok = pose_ok = None
+            if primitive is not None:
+                dims_ok = pose_ok = False
+            if primitive == obj["kind"] and dims:
+                dims_ok = all(abs(float(dims[k]) - v) <= DIM_TOL
+                              for k, v in obj["dimensions"].items())
+                e_t, e_r = primitive_pose_error(obj["kind"], best.T_scene_model,
+                                                obj["T_scene_model"], obj["dimensions"])
+                pose_ok = e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG
+            recs.append({"kind": obj["kind"], "primitive": primitive, "dims": dims_ok,
+                         "pose": pose_ok, "time_s": dt})
+
+    def summary(rows):
+        any_primitive = any(r["primitive"] is not None for r in rows)
+        return {"clicks": len(rows),
+                "kind_right": _share([r["primitive"] == r["kind"] for r in rows])
+                if any_primitive else None,
+                "dims_within_5mm": _share([bool(r["dims"]) for r in rows]) if any_primitive
+                else None,
+                "pose_ok": _share([bool(r["pose"]) for r in rows]) if any_primitive else None,
+                "median_s": _median([r["time_s"] for r in rows])}
+    return {"all": summary(recs), "box": summary([r for r in recs if r["kind"] == "box"]),
+            "cylinder": summary([r for r in recs if r["kind"] == "cylinder"]),
+            "end_face": "either end face of a cylinder is accepted as its origin"}
+
+
+# ---------------------------------------------------------------------------- clutter
+def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
+                 with_library: bool = True, milk: bool = True) -> dict:
+    """The clutter rows. "armadillo": the Armadillo template (all four views merged) in a
+    library with the bundled templates (``with_library``), clicked in
+    :func:`.clutter.armadillo_clutter` scenes (each of ``base_scenes`` -- default the shared
+    learn0 and learn20 -- with each of ``seeds``): ``ranked_first``, ``found`` (ranked first
+    within 5 mm / 5 deg), ``fits`` (the verdict accepts it when ranked first), ``median_s``.
+    "milk": PCL's milk carton as a point-cloud template in the bundled library, clicked on the
+    carton: ranked first, within 2 mm / 2 deg of the identity, accepted. A row whose data is
+    absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
+    from ..core.registration import Registrar
+    from ..core.scene import Scene
+    from ..core.templates import TemplateLibrary, load_template
+    from .clutter import armadillo_clutter, armadillo_template, milk_carton_case
+    from .realdata import osd_dir
+    factory = registrar_factory or Registrar
+    out = {}
+    bundled = [t for t in _bundled().values()] if with_library else []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = osd_dir()
+        try:
+            yml = armadillo_template(os.path.join(tmp, "armadillo"))
+        except (AffordanceError, OSError) as exc:
+            yml, out["armadillo_why"] = None, str(exc)
+        if yml is not None and folder is not None:
+            tpl = load_template(yml)
+            registrar = factory(TemplateLibrary([tpl] + bundled))
+            bases = base_scenes or [os.path.join(folder, f) for f in ("learn0.pcd",
+                                                                       "learn20.pcd")]
+            first, found, fits, times, cases = 0, 0, 0, [], 0
+            for base in bases:
+                for seed in seeds:
+                    case = armadillo_clutter(yml, base, seed)
+                    cases += 1
+                    t0 = time.perf_counter()
+                    try:
+                        best = registrar.fit(Scene(case.points.reshape(-1, 3),
+                                                   sensor_origin=case.sensor_origin),
+                                             case.click).candidates[0]
+                    except AffordanceError:
+                        times.append(time.perf_counter() - t0)
+                        continue
+                    times.append(time.perf_counter() - t0)
+                    if best.template == tpl.name:
+                        first += 1
+                        fits += best.fits is True
+                        e_t, e_r = pose_error(best.T_scene_model, case.T_scene_model)
+                        found += e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG
+            out["armadillo"] = {"clicks": cases, "ranked_first": first / max(cases, 1),
+                                "found": found / max(cases, 1), "fits": fits / max(cases, 1),
+                                "median_s": _median(times)}
+        elif yml is not None:
+            out["armadillo"], out["armadillo_why"] = None, "no shared mOSD data"
+        else:
+            out["armadillo"] = None
+        if milk:
+            try:
+                case = milk_carton_case(os.path.join(tmp, "milk"))
+            except AffordanceError as exc:
+                out["milk"], out["milk_why"] = None, str(exc)
+            else:
+                tpl = load_template(case.template)
+                registrar = factory(TemplateLibrary([tpl] + [t for t in _bundled().values()]))
+                t0 = time.perf_counter()
+                try:
+                    best = registrar.fit(Scene.from_file(case.scene), case.click).candidates[0]
+                    e_t, e_r = pose_error(best.T_scene_model, case.T_scene_model)
+                    out["milk"] = {"ranked_first": best.template == tpl.name,
+                                   "error_mm": round(1000 * e_t, 2),
+                                   "error_deg": round(math.degrees(e_r), 2),
+                                   "within_2mm_2deg": best.template == tpl.name and
+                                   e_t <= 0.002 and math.degrees(e_r) <= 2.0,
+                                   "fits": best.fits, "template": best.template,
+                                   "time_s": time.perf_counter() - t0}
+                except AffordanceError as exc:
+                    out["milk"], out["milk_why"] = None, str(exc)
+    return out
+
