@@ -114,12 +114,17 @@ def test_right_template_first_and_pose_within_tolerance(seed, library, registrar
         dt, dr = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
         assert dt <= TOL_M and dr <= TOL_RAD, (obj.template, dt, math.degrees(dr))
         assert [c.rank for c in rep.candidates] == list(range(1, len(library) + 1))
-        # probabilities share 1 with "no template fits here" (likelihood 1/NO_MATCH_RESIDUAL)
-        total = sum(c.likelihood for c in rep.candidates)
-        assert sum(c.probability for c in rep.candidates) == \
-            pytest.approx(total / (total + 1.0 / NO_MATCH_RESIDUAL))
+        # the specific templates' probabilities share 1 with "no template fits here"
+        # (likelihood 1/NO_MATCH_RESIDUAL); the primitives' among themselves
+        for pool in (False, True):
+            cands = [c for c in rep.candidates if (c.primitive is not None) == pool]
+            total = sum(c.likelihood for c in cands)
+            assert sum(c.probability for c in cands) == \
+                pytest.approx(total / (total + 1.0 / NO_MATCH_RESIDUAL))
         assert best.fits and best.coverage >= registrar.settings.min_coverage
-        assert all(a.likelihood >= b.likelihood for a, b in zip(rep.candidates, rep.candidates[1:]))
+        specific = [c for c in rep.candidates if c.primitive is None]
+        assert rep.candidates[:len(specific)] == tuple(specific)   # primitives after them
+        assert all(a.likelihood >= b.likelihood for a, b in zip(specific, specific[1:]))
 
 
 
@@ -256,7 +261,7 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
     from affordance_registration.bench import variant_library
     from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD
     from affordance_registration.core.transforms import pose_error
-    big = variant_library(library, 15)
+    big = variant_library(library.specific(), 15)
     assert len(big) == 15 and "ball_valve@s0.75" in big
     scene = Scene(panel_scene.organized)
     on, off = Registrar(big), Registrar(big, FitSettings(prefilter_keep=0))
@@ -287,7 +292,7 @@ def test_a_template_set_aside_is_fitted_and_judged_when_shown(library, panel_sce
     pose was the coarse stage's) and it gets its verdict; it stays ranked where it was."""
     from affordance_registration.bench import variant_library
     from affordance_registration.core.engine import AffordanceEngine
-    engine = AffordanceEngine(variant_library(library, 15))
+    engine = AffordanceEngine(variant_library(library.specific(), 15))
     engine.set_scene(panel_scene.organized, frame_id="cam")
     obj = panel_scene.objects[0]
     engine.click(obj.click)
@@ -313,7 +318,7 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
     pose (with the winner alone finished, as before, all three ranked the wrong template first)."""
     from affordance_registration.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
     squeezed = tuple(v for v in VARIANT_SCALES if v[0] in ("y0.7", "z0.7"))
-    big = variant_library(library, 15, squeezed)
+    big = variant_library(library.specific(), 15, squeezed)
     assert "grab_handle@y0.7" in big and "ball_valve@z0.7" in big
     for lib, seed, k in ((big, 1001, 3), (big, 1006, 0), (library, 1015, 0)):
         sim = simulate_taskboard(library, seed)
@@ -426,7 +431,7 @@ def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypat
     plain thresholds (the leaders within ``NEAR_TIE``), the handle does, 1% ahead."""
     from affordance_registration.bench import MIN_VISIBLE, variant_library
     from affordance_registration.core.registration import registrar as registrar_module
-    big = variant_library(library, 40)
+    big = variant_library(library.specific(), 40)
     assert "grab_handle@y0.7" in big
     sim = simulate_taskboard(library, 1006)
     obj = [o for o in sim.objects if o.visible_points >= MIN_VISIBLE][3]

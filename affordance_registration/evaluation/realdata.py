@@ -58,11 +58,11 @@ SCENE_KINDS = {
 #: (a tube, a mug, a round tin) -- learn33 and learn37 hold a bowl each, learn37 a tin lying
 #: on its side
 ALL_OF_KIND = {"box": (0, 4, 8, 12, 16, 17, 20, 24), "cylinder": (41, 44)}
-#: held out of any tuning: one scene of each kind, the last of its group (the highest number:
-#: no reason to prefer any, and the last of each group is the rule anyone can re-derive). Of
-#: the cylinder group, learn44 is also the one with an object split into two labelled parts,
-#: which keeps a hard case out of the tuning.
-HELD_OUT = (16, 24, 32, 44)
+#: held out of any tuning: one scene of each kind -- learn12 of the boxes (learn16 was looked
+#: at while the verdict was developed), the last of the other groups. Of the cylinder group,
+#: learn44 is also the one with an object split into two labelled parts, which keeps a hard
+#: case out of the tuning.
+HELD_OUT = (12, 24, 32, 44)
 #: a labelled object counts when it has at least this many valid points
 MIN_OBJECT_POINTS = 1500
 

@@ -38,14 +38,20 @@ __all__ = ["fit_primitive", "object_points"]
 
 #: points this close to the support (m) reach down to it: the base lies on the support
 BASE_REACH = 0.03
-#: extents are read between these percentiles of the points (mixed pixels at the edges)
+#: extents are read between these percentiles of the points (mixed pixels at the edges), or
+#: of a top face's points up to this one (they end at the edge)
 LOW, HIGH = 1.0, 99.0
+EDGE = 99.8
 #: a cylinder's side points: normals within this of perpendicular to the axis (cosine)
 SIDE_COS = 0.5
 #: a box's face points: normals within this of the face's (cosine); a face is seen with at
 #: least FACE_POINTS of them
 FACE_COS = 0.8
 FACE_POINTS = 20
+#: at most this many of the object's points are measured (an even subset)
+MEASURE_POINTS = 2000
+#: rounds of pose refinement (the fine stage) and measuring again before the final measure
+REFINE_ROUNDS = 0
 #: an object's sides are seen where at least this share of its points face sideways
 SIDES_SEEN = 0.05
 #: a click on the crop's dominant plane: the support is a plane holding at least this fraction
@@ -55,21 +61,23 @@ FLOOR_FRACTION = 0.15
 
 def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
                   settings: FitSettings, dimensions: dict | None = None,
-                  T_init: np.ndarray | None = None) -> FitResult:
+                  T_init: np.ndarray | None = None, measured=None) -> FitResult:
     """The primitive ``template`` fitted to the clicked object: pose and dimensions measured
-    from the object's points, the pose refined, the dimensions measured again in the refined
-    frame. ``dimensions`` (and ``T_init``, the pose to refine from): the operator's, kept as
-    given -- only the pose is refined."""
-    points, normals, support, up = object_points(ctx)
+    from the object's points (and, with REFINE_ROUNDS, the pose refined and the dimensions
+    measured again in the refined frame). ``dimensions`` (and ``T_init``, the pose to refine
+    from): the operator's, kept as given -- only the pose is refined. ``measured``: what
+    :func:`object_points` gives for this click (computed when None)."""
+    points, normals, support, up = measured if measured is not None else object_points(ctx)
     if dimensions is not None:
         T = _as_pose(T_init) if T_init is not None else \
             next(_hypotheses(template.primitive, points, normals, up, support))[0]
         return _refined(ctx, template, cache, settings, T, template.clip_dimensions(dimensions))
     best = None
     for T, dims in _hypotheses(template.primitive, points, normals, up, support):
-        res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
-        T, dims = _measure_in(template.primitive, res.T_scene_model, points, normals, up,
-                              support)
+        for _ in range(REFINE_ROUNDS):
+            res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
+            T, dims = _measure_in(template.primitive, res.T_scene_model, points, normals, up,
+                                  support)
         res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims),
                        refine=False)
         if best is None or res.likelihood > best.likelihood:
@@ -126,6 +134,9 @@ def object_points(ctx: ClickContext):
     towards = (ctx.sensor_origin - points) if ctx.sensor_origin is not None else \
         (points - points.mean(axis=0))           # outwards without a viewpoint
     normals[np.einsum("ij,ij->i", normals, towards) < 0] *= -1
+    if len(points) > MEASURE_POINTS:         # an even subset measures as well
+        keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
+        points, normals = points[keep], normals[keep]
     return points, normals, support, (_up(support, points) if up is None else up)
 
 
@@ -210,11 +221,15 @@ def _edge_angles(uv: np.ndarray) -> np.ndarray:
     return np.unique(np.round(np.mod(np.arctan2(d[:, 1], d[:, 0]), math.pi / 2), 4))
 
 
-def _bounds(along: np.ndarray, face_pos, face_neg) -> tuple[float, float]:
+def _bounds(along: np.ndarray, face_pos, face_neg, top=None) -> tuple[float, float]:
     """The extent (lo, hi) of the points ``along`` an axis: a face seen on either side is
     where its points' median lies (a face's noise averages out), an unseen one where the
-    points end (percentiles, past mixed pixels)."""
-    lo, hi = np.percentile(along, [LOW, HIGH])
+    points end -- the points of the ``top`` face where it is seen (a top face has no mixed
+    pixels along its edges' outside), else all of them (percentiles, past mixed pixels)."""
+    if top is not None and top.sum() >= FACE_POINTS:
+        lo, hi = np.percentile(along[top], [100 - EDGE, EDGE])
+    else:
+        lo, hi = np.percentile(along, [LOW, HIGH])
     if face_pos.sum() >= FACE_POINTS:
         hi = float(np.median(along[face_pos]))
     if face_neg.sum() >= FACE_POINTS:
@@ -239,8 +254,8 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
         if lo_z - floor <= BASE_REACH or sides.sum() < max(FACE_POINTS, SIDES_SEEN * len(nl)):
             lo_z = floor
     if kind == "box":
-        lo_x, hi_x = _bounds(local[:, 0], nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS)
-        lo_y, hi_y = _bounds(local[:, 1], nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS)
+        lo_x, hi_x = _bounds(local[:, 0], nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS, top)
+        lo_y, hi_y = _bounds(local[:, 1], nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS, top)
         size = [hi_x - lo_x, hi_y - lo_y]
         centre = np.array([(lo_x + hi_x) / 2, (lo_y + hi_y) / 2, lo_z])
         axes = R
@@ -265,7 +280,7 @@ def _circle(uv: np.ndarray):
     geometric (Gauss-Newton) steps, the points farther than 3 sigma from it left out."""
     A = np.column_stack([2 * uv, np.ones(len(uv))])
     b = (uv ** 2).sum(axis=1)
-    sol = np.linalg.lstsq(A, b, rcond=None)[0]
+    sol = _least_squares(A, b)
     c = sol[:2]
     r = math.sqrt(max(sol[2] + c @ c, 1e-12))
     keep = np.ones(len(uv), bool)
@@ -273,13 +288,21 @@ def _circle(uv: np.ndarray):
         d = uv[keep] - c
         dist = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
         J = np.column_stack([-d / dist[:, None], -np.ones(len(d))])
-        step = np.linalg.lstsq(J, -(dist - r), rcond=None)[0]
+        step = _least_squares(J, -(dist - r))
         c, r = c + step[:2], r + step[2]
         res = np.abs(np.linalg.norm(uv - c, axis=1) - r)
         keep = res <= max(3 * float(np.std(res[keep])), 1e-4)
         if np.linalg.norm(step) < 1e-7 or keep.sum() < 5:
             break
     return c, abs(float(r))
+
+
+def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x minimising |A x - b| for a tall, well-conditioned A (N, 3): the normal equations."""
+    try:
+        return np.linalg.solve(A.T @ A, A.T @ b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
 def _least_normal_direction(normals: np.ndarray) -> np.ndarray:

@@ -60,7 +60,7 @@ from .hypotheses import (Hypotheses, best_per_template, initial_hypotheses, keep
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
-from .primitives import fit_primitive
+from .primitives import fit_primitive, object_points
 from .parallel import run, single_threaded_blas
 from .refit import refit
 from .results import FitReport, FitResult, rank
@@ -124,10 +124,13 @@ class Registrar:
                 candidates = self.paper.fit(ctx, specific) if specific else ()
             else:
                 candidates = self._fit_default(ctx, specific) if specific else ()
+            t_prim = time.perf_counter()
             if primitives:
                 candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives))
         t2 = time.perf_counter()
         timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
+        if primitives:
+            timing["primitives"] = t2 - t_prim
         return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
@@ -217,8 +220,9 @@ class Registrar:
         """The primitive templates ``names``, measured and refined (:mod:`.primitives`),
         judged."""
         t0 = time.perf_counter()
-        fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings)
-                  for n in names]
+        measured = object_points(ctx)          # the clicked object, once for every primitive
+        fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
+                                measured=measured) for n in names]
         total = time.perf_counter() - t0
         return [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
 
