@@ -138,7 +138,7 @@ def test_every_candidate_judged_together_gets_the_verdict_it_gets_alone(library,
     reg = Registrar(library)
     for obj in sim.objects[:3]:
         rep = reg.fit(scene, obj.click)
-        models = [reg._model(c.template, c.joints, c.scale) for c in rep.candidates]
+        models = [reg._model(c.template, c.joints, c.scale, c.dimensions) for c in rep.candidates]
         together = judge(rep.context, models, rep.candidates, reg.settings)
         alone = [judge(rep.context, [m], [c], reg.settings)[0]
                  for m, c in zip(models, rep.candidates)]
