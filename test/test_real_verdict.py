@@ -1,0 +1,127 @@
+"""The verdict and the primitives on real captures (issue 26): mOSD's Kinect tabletop scans and
+PCL's milk carton scene from ../shared/data (or $AFFORDANCE_SHARED_DATA; skipped with one line
+when absent), and the frame a scanned template's file is in (the Armadillo scans of or-pcd).
+
+The figures asserted are what this code reaches (see the bench's rows for them, tuning and
+held-out scenes apart), set so that a regression fails."""
+import math
+import os
+import tempfile
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from affordance_registration.core.registration import Registrar, no_match
+from affordance_registration.core.scene import Scene
+from affordance_registration.core.templates import AffordanceTemplate, TemplateLibrary, load_template
+from affordance_registration.core.transforms import make_T, pose_error, random_rotations
+from affordance_registration.evaluation import realdata as rd
+from affordance_registration.evaluation.clutter import milk_carton_case
+
+
+@pytest.fixture(scope="module")
+def data_dir():
+    folder = rd.shared_data_dir()
+    if folder is None or rd.osd_dir(folder) is None:
+        pytest.skip(rd.SKIP_REASON)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def kinect_records(data_dir, library):
+    """Every labelled object (>= 1500 points) of the shared mOSD learn scenes, clicked in its
+    middle, fitted with the default library (the taskboard templates, a box, a cylinder)."""
+    registrar = Registrar(library)
+    registrar.warm_up()
+    records = []
+    for path in rd.osd_scene_paths(data_dir):
+        records += rd.evaluate_scene(registrar, path)
+    return records
+
+
+def test_the_library_refuses_every_real_kinect_object(kinect_records):
+    """No box, can or bowl of mOSD is called a valve, an e-stop or a handle: at least 95% of
+    the labelled objects get 'no template fits here' (this code: all 37, tuning and held-out
+    scenes alike), each with a reason."""
+    assert len(kinect_records) >= 30
+    assert not [r for r in kinect_records if r["error"]]
+    refused = [r["primitive"] is not None or r["fits"] is not True for r in kinect_records]
+    assert np.mean(refused) >= 0.95, [(r["scene"], r["object"], r["template"])
+                                      for r, ok in zip(kinect_records, refused) if not ok]
+    for held in (True, False):
+        part = [ok for r, ok in zip(kinect_records, refused) if r["held_out"] == held]
+        assert part and np.mean(part) >= 0.9
+
+
+def test_primitives_on_the_boxes_of_real_scans(kinect_records):
+    """The single boxes of learn0-16 (no box touching another): the box primitive is the best
+    candidate and explains the labels -- of the object's points at least 90% on its surface,
+    of the scan's points on its surface at least 90% the object's -- on most of them."""
+    boxes = [r for r in kinect_records if r["kind"] == "boxes"]
+    assert len(boxes) >= 10
+    as_box = [r["primitive"] == "box" for r in boxes]
+    passes = [bool(r["score"] and r["score"]["passes"]) for r in boxes]
+    assert np.mean(as_box) >= 0.8 and np.mean(passes) >= 0.7, (np.mean(as_box), np.mean(passes))
+
+
+def test_primitive_kind_on_scenes_of_one_kind(kinect_records):
+    """On the scenes whose objects are all boxes or all cylinders, the primitive shown is of
+    that kind for at least half the objects (stacked boxes and touching cans are where it is
+    not yet right: the bench's rows say how often)."""
+    of_kind = [r for r in kinect_records if r["uniform_kind"] is not None]
+    assert len(of_kind) >= 15
+    right = [r["primitive"] == r["uniform_kind"] for r in of_kind]
+    assert np.mean(right) >= 0.5
+
+
+def test_the_milk_carton_is_found_in_its_real_scene(data_dir, library, tmp_path):
+    """PCL's milk carton (a point-cloud template segmented from the scene: its true pose is the
+    identity) in the default library: ranked first, accepted, within 2 mm where the carton is
+    and 2 deg of the identity -- its file's origin lies 0.8 m from its points, where the
+    error is measured at the centroid (a 0.1 deg turn moves that far origin 1.4 mm)."""
+    case = milk_carton_case(str(tmp_path), data_dir)
+    tpl = load_template(case.template)
+    registrar = Registrar(TemplateLibrary([tpl] + list(library.values())))
+    rep = registrar.fit(Scene.from_file(case.scene), case.click)
+    best = rep.candidates[0]
+    assert best.template == tpl.name and best.fits is True and not no_match(rep.candidates)
+    c = tpl.centroid
+    moved = best.T_scene_model[:3, :3] @ c + best.T_scene_model[:3, 3]
+    assert np.linalg.norm(moved - c) <= 0.002
+    assert math.degrees(pose_error(best.T_scene_model, np.eye(4))[1]) <= 2.0
+
+
+@pytest.fixture(scope="module")
+def armadillo():
+    from affordance_registration.realscans import (armadillo_views, default_cache,
+                                                   fetch_or_pcd, view_click,
+                                                   write_point_template)
+    try:
+        views = armadillo_views(fetch_or_pcd(default_cache()))
+    except Exception as exc:          # a failed download fails the tests, with the reason
+        pytest.fail(f"the real-scan data could not be fetched: {exc}", pytrace=False)
+    view = views[0]
+    tpl = load_template(write_point_template(views[1:], tempfile.mkdtemp(), "armadillo"))
+    scene = Scene(view.points, sensor_origin=view.sensor_origin)
+    click = view_click(view)
+    T = Registrar(TemplateLibrary([tpl])).fit(scene, click).candidates[0].T_scene_model
+    return tpl, scene, click, T
+
+
+@settings(max_examples=4, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2 ** 31 - 1), far=st.floats(0.0, 2.0))
+def test_a_scanned_templates_file_frame_does_not_matter(armadillo, seed, far):
+    """The same scanned points in any rigid frame (turned anyhow, their origin up to 2 m
+    away): the fit composed back into the first frame is the same pose."""
+    tpl, scene, click, T0 = armadillo
+    rng = np.random.default_rng(seed)
+    B = make_T(random_rotations(1, rng)[0], far * rng.normal(size=3) / math.sqrt(3))
+    moved = AffordanceTemplate(tpl.name, tpl.path, None,
+                               points=tpl.points @ B[:3, :3].T + B[:3, 3],
+                               point_normals=tpl.point_normals @ B[:3, :3].T)
+    T = Registrar(TemplateLibrary([moved])).fit(scene, click).candidates[0].T_scene_model
+    dt, dr = pose_error(T @ B, T0)
+    assert dt <= 1e-4 and math.degrees(dr) <= 0.01, (dt, math.degrees(dr))
