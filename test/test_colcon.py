@@ -134,38 +134,24 @@ def test_every_console_script_is_installed_for_ros2_run(workspaces, kind):
         assert path.is_file() and os.access(path, os.X_OK), path
     out = ws.run([ws.lib / "affordance-registration", "--help"])
     assert out.returncode == 0 and "station" in out.stdout, out.stderr
-
-
-def test_installed_fit_uses_the_installed_library(workspaces, library, panel_scene, tmp_path):
-    """The CLI of the symlink install (the case that broke) fits a simulated scene with the
-    library in the install's share folder, a folder of links, and ranks the clicked object
-    first."""
-    from affordance_registration.core.simulation import write_scene
-    ws = workspaces["symlink"]
-    scene = write_scene(panel_scene, tmp_path)["scene.ply"]
-    obj = max(panel_scene.objects, key=lambda o: o.visible_points)
-    out = ws.run([ws.lib / "affordance-registration", "fit", "--scene", scene, "--point",
-                  *obj.click, "--templates", ws.share / "models", "--json"])
-    assert out.returncode == 0, out.stderr
-    doc = json.loads(out.stdout)
-    assert doc["candidates"][0]["template"] == obj.template
-    assert len(doc["candidates"]) == len(library)
-    # the installed code ran, not this checkout's
+    # the installed code runs, not this checkout's
     where = ws.run([VENV_BIN / "python", "-c", "import affordance_registration as a; "
                     "print(a.__file__)"])
-    assert str(ws.root) in where.stdout, where.stdout
+    assert where.stdout.startswith(str(ws.root)), where.stdout + where.stderr
 
 
 @pytest.mark.parametrize("kind", ["plain", "symlink"])
 def test_installed_nodes_start_and_talk(workspaces, kind, tmp_path):
     """``ros2 run``-style: the installed engine loads the installed library (the plain
-    install's by default, the symlink install's given as its share folder of links), the
+    install's by default, the symlink install's given as its share folder of links: the case
+    that failed the template folder check), the
     installed simulated scan feeds it, the installed station serves its page; each stops on
     SIGINT."""
     ws = workspaces[kind]
     port = free_port()
     procs = {}
-    logs = {name: tmp_path / f"{name}.log" for name in ("engine", "scan", "station")}
+    logs = {name: tmp_path / f"{name}.log" for name in ("engine", "scan", "station",
+                                                        "spacemouse")}
     library = [] if kind == "plain" else ["-p", f"templates_dir:={ws.share / 'models'}"]
     try:
         procs["engine"] = ws.start([ws.lib / "affordance_engine", "--ros-args", *library, "-p",
@@ -173,6 +159,9 @@ def test_installed_nodes_start_and_talk(workspaces, kind, tmp_path):
                                    logs["engine"])
         procs["scan"] = ws.start([ws.lib / "affordance_simulated_scan", "--ros-args", "-p",
                                   "seed:=3"], logs["scan"])
+        if kind == "plain":        # no device here: it says it is looking for one, and waits
+            procs["spacemouse"] = ws.start([ws.lib / "affordance_spacemouse"], logs["spacemouse"])
+            _wait_log(logs["spacemouse"], procs["spacemouse"], "looking for a SpaceMouse", 120)
         if kind == "symlink":
             procs["station"] = ws.start([ws.lib / "affordance_station", "--ros-args", "-p",
                                          f"port:={port}"], logs["station"])
