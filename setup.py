@@ -94,6 +94,7 @@ setup(
             "affordance_spacemouse = affordance_registration.ros.spacemouse:main",
             "affordance_station = affordance_registration.ros.station:main",
             "affordance_simulated_scan = affordance_registration.ros.simulated_scan:main",
+            "affordance_file_scan = affordance_registration.ros.station_scene:main",
         ],
     },
 )

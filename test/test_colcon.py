@@ -30,7 +30,7 @@ IGNORE = shutil.ignore_patterns(".venv", ".git", "__pycache__", "*.egg-info", ".
                                 ".hypothesis", "demo_output", "bench_output", "station_output",
                                 "build", "install", "log")
 SCRIPTS = ("affordance-registration", "affordance_engine", "affordance_spacemouse",
-           "affordance_station", "affordance_simulated_scan")
+           "affordance_station", "affordance_simulated_scan", "affordance_file_scan")
 
 pytestmark = pytest.mark.colcon
 
