@@ -94,8 +94,9 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
     path, obj = mm_scan
     port = free_port()
     out_dir = tmp_path / "out"
-    station = NodeProcess([*CLI, "station", "--scene", path, "--units", "mm", "--up=-y",
-                           "--port", port, "--out", out_dir], tmp_path / "station.log")
+    station = NodeProcess([*CLI, "station", "--scene", str(path), "--units", "mm", "--up=-y",
+                           "--port", str(port), "--out", str(out_dir)],
+                          tmp_path / "station.log")
     client = Client("station_scene_test")
     try:
         client.subscribe(PoseStamped, "/view_pose", keep=True)
