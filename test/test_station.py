@@ -230,10 +230,12 @@ def test_markers_become_drawings_and_deleteall_clears():
 
 STATUS = {
     "frame_id": "cam", "active_id": 3,
-    "objects": [{"id": 3, "active": True, "shown": 1, "corrections": 0, "candidates": [
-        {"rank": 1, "template": "gate_valve", "probability": 0.45, "state": "closed"},
-        {"rank": 2, "template": "ball_valve", "probability": 0.30, "state": None,
-         "verdict": {"verdict": "no template fits here"}}]}],
+    "objects": [{"id": 3, "active": True, "shown": 1, "corrections": 0, "no_match": False,
+                 "verdict": "fits", "candidates": [
+                     {"rank": 1, "template": "gate_valve", "probability": 0.45, "fits": True,
+                      "state": "closed"},
+                     {"rank": 2, "template": "ball_valve", "probability": 0.15, "fits": False,
+                      "state": None}]}],
     "registered": [], "counts": {"objects": 1, "registered": 0, "undo": 2},
     "timing_s": {"total": 0.21},
     "node": {"busy": None, "queued": 0, "idle": True, "last_message": "object 3: ...",
@@ -242,15 +244,25 @@ STATUS = {
 
 def test_labels_and_the_status_panel():
     obj = STATUS["objects"][0]
-    assert candidate_label(obj) == "#3 ball_valve — rank 2/2 — p 0.30 — no template fits here"
+    assert candidate_label(obj) == "#3 ball_valve — rank 2/2 — does not fit, 0.33x the best"
     first = dict(obj, shown=0)
-    assert candidate_label(first) == "#3 gate_valve (closed) — rank 1/2 — p 0.45"
+    assert candidate_label(first) == "#3 gate_valve (closed) — rank 1/2 — fits, 3.0x the next"
+    refused = dict(first, no_match=True, verdict="no template fits here")
+    assert candidate_label(refused) == \
+        "#3 no template fits here — best guess gate_valve (closed) — rank 1/2"
     assert candidate_label(None) == ""
     assert [t for _, t in candidate_options(obj)] == ["gate_valve", "ball_valve"]
+    assert [t for t, _ in candidate_options(obj)] == ["1. gate_valve (fits)",
+                                                      "2. ball_valve (does not fit)"]
     md = status_markdown(STATUS, True, "/affordance_engine", "10 points", "next_model: ok")
     for text in ("/affordance_engine — idle", "rank 2/2", "1 open, 0 registered",
-                 "0.21 s", "click refused", "10 points", "next_model: ok"):
+                 "0.21 s", "click refused", "10 points", "next_model: ok", "refused"):
         assert text in md
+    assert "Fitting" not in md
+    md = status_markdown(dict(STATUS, objects=[first]), True, "/affordance_engine", "", "",
+                         fitting="clicked (0.1, 0.2, 0.3)", stale_error=True)
+    assert "**Fitting**: clicked (0.1, 0.2, 0.3)" in md
+    assert "click refused" not in md and "refused" not in md     # a fit, and a stale error
     down = status_markdown(STATUS, False, "/affordance_engine", "10 points", "")
     assert down.startswith("**Engine not running**")
 

@@ -96,6 +96,9 @@ class Registration:
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
     fit_s: float = 0.0                      #: time the click's fit took
+    #: accepted against the verdict (an operator override): the object's verdict was "no
+    #: template fits here", or the accepted candidate does not fit (``fits`` false)
+    override: bool = False
 
     @classmethod
     def of(cls, obj: TrackedObject, frame_id: str) -> "Registration":
@@ -106,7 +109,7 @@ class Registration:
                    click=obj.click, frame_id=frame_id, joints=dict(c.joints), state=c.state,
                    scale=c.scale, ranked_first=obj.candidates[0].template,
                    model_changes=obj.model_changes, corrections=obj.corrections,
-                   fit_s=obj.fit_s)
+                   fit_s=obj.fit_s, override=obj.no_match or c.fits is False)
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -121,7 +124,8 @@ class Registration:
                 "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
                 "state": self.state, "scale": round(float(self.scale), 6),
                 "ranked_first": self.ranked_first, "model_changes": self.model_changes,
-                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6)}
+                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6),
+                "override": self.override}
 
 
 @dataclass(frozen=True)
@@ -180,7 +184,8 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
                                 ranked_first=str(entry.get("ranked_first", "")),
                                 model_changes=int(entry.get("model_changes", 0)),
                                 corrections=int(entry.get("corrections", 0)),
-                                fit_s=float(entry.get("fit_s", 0.0))))
+                                fit_s=float(entry.get("fit_s", 0.0)),
+                                override=entry.get("override") is True))
     return tuple(out)
 
 
@@ -531,7 +536,9 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            return (f"accepted {reg.template} as object {obj.id} "
+            why = f" as an operator override ({NO_MATCH})" if obj.no_match else \
+                " as an operator override (it does not fit)" if reg.override else ""
+            return (f"accepted {reg.template} as object {obj.id}{why} "
                     f"({len(self._state.registered)} registered)")
 
     def discard(self) -> str:

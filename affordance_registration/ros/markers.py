@@ -10,7 +10,7 @@ import numpy as np
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.registration import NO_MATCH
+from ..core.labels import REFUSED_PREFIX, standing
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
 __all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
@@ -60,9 +60,12 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
                                            colour, stamp)
         top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        label = (f"{NO_MATCH + ' — ' if obj.no_match else ''}"
-                 f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)} — rank "
-                 f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
+        verdict, _ = standing(obj.no_match, obj.active, [r.probability for r in obj.candidates],
+                              [r.fits for r in obj.candidates])
+        name = f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale)}"
+        rank = f"rank {obj.active + 1}/{len(obj.candidates)}"
+        label = (f"{verdict} {name} — {rank}" if verdict == REFUSED_PREFIX else
+                 f"{name} — {rank} — {verdict}")
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))
         markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
