@@ -16,10 +16,16 @@ from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD, pl
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.ros.conversions import pose_to_matrix
 from browser_helpers import (browser_page, canvas_box, chromium_missing, free_port, on_canvas,
-                             pixel, settled_view, wait_text)
+                             pixel, settled_view, wait_text, wait_until)
 from ros_helpers import Client, NodeProcess
+from test_override import bare_wall_point
 
 CLI = [sys.executable, "-m", "affordance_registration.cli"]
+#: records whether the page ever showed the "Fitting" line of the panel
+SAW_FITTING = """() => { window.__sawFitting = false;
+  new MutationObserver(() => { if (document.body.innerText.includes('Fitting:'))
+    window.__sawFitting = true; }).observe(document.body,
+    {subtree: true, childList: true, characterData: true}); }"""
 
 
 @pytest.fixture
@@ -87,7 +93,7 @@ def test_station_scene_refuses_a_bad_file_in_one_line(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, library,
+def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, library, panel_scene,
                                                        ros_context):
     missing = chromium_missing()
     assert not missing, missing
@@ -108,16 +114,39 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             view = settled_view(client)
             assert view.header.frame_id == "scan"
             T_view = pose_to_matrix(view.pose)
+            # the panel says "Fitting" while the engine works on the click (seen by the page)
+            page.evaluate(SAW_FITTING)
             xy = pixel(T_view, 60.0, canvas_box(page), obj.click)     # metres on the page
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
-            wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/5")
+            wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/5 — fits, \d+\.\dx the next")
+            assert page.evaluate("window.__sawFitting === true")
+            node_log = out_dir / "station_scene.log"       # every node's output
+            wait_until(lambda: "fitting marker cleared" in node_log.read_text(), 60,
+                       "the fitting marker cleared")
+            log = node_log.read_text()
+            assert log.index("fitting marker shown") < log.index("fitting marker cleared")
+            assert "Fitting:" not in page.locator("body").inner_text()
             page.get_by_role("button", name="Accept", exact=True).click()
             wait_text(page, r"Objects: 0 open, 1 registered")
+
+            # bare panel wall: the best guess is labelled and drawn as refused, and accepting
+            # it is an operator override
+            wall = bare_wall_point(panel_scene)
+            xy = pixel(T_view, 60.0, canvas_box(page), wall)
+            assert on_canvas(page, xy), f"the wall's pixel {xy} is not on the 3D view"
+            page.mouse.click(*xy)
+            wait_text(page, r"Shown: #2 no template fits here — best guess \w+.* — rank 1/5")
+            wait_text(page, r"Verdict: the shown candidate is refused")
+            wait_until(lambda: "drawn as refused outlines: objects [2]" in node_log.read_text(),
+                       60, "the refused candidate drawn as an outline")
+            page.get_by_role("button", name="Accept", exact=True).click()
+            wait_text(page, r"accept: ok — accepted \w+ as object 2 as an operator override")
             page.get_by_role("button", name="Save", exact=True).click()
-            wait_text(page, r"save: ok — saved 1 registration")
+            wait_text(page, r"save: ok — saved 2 registration")
         saved = yaml.safe_load((out_dir / "registrations.yaml").read_text())["registrations"]
-        assert [r["template"] for r in saved] == [obj.template]
+        assert [r["template"] for r in saved][0] == obj.template
+        assert [r["override"] for r in saved] == [False, True]
         dt, dr = pose_error(np.asarray(saved[0]["pose"], dtype=float), obj.T_scene_model,
                             library[obj.template].symmetry)
         assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD, \
