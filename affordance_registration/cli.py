@@ -179,7 +179,8 @@ def print_session_table(rows, out=print) -> None:
             f"{r['corrections']:>11} {r['fit_s']:>6.2f} {err:>14}  {verdict}")
     n = len(rows)
     ok = sum(r["ok"] for r in rows)
-    out(f"{ok}/{n} objects registered within tolerance; {sum(r['ranked_first'] == r['template'] for r in rows)}/{n} "
+    first = sum(r['ranked_first'] == r['template'] for r in rows)
+    out(f"{ok}/{n} objects registered within tolerance; {first}/{n} "
         f"ranked first; {sum(r['model_changes'] for r in rows) / max(n, 1):.1f} model changes and "
         f"{sum(r['corrections'] for r in rows) / max(n, 1):.1f} corrections per object; mean fit "
         f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)")

@@ -9,7 +9,6 @@ idle machine. ``colcon test`` is checked to discover and run the package's tests
 on one quick test file (the whole suite inside it would repeat ``make test``)."""
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal

@@ -63,7 +63,8 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
 
     The voxel edge starts at ``start_voxel`` (the previous cloud's :attr:`Thinned.voxel`: a
     stream of similar clouds then costs one pass; a hint far off -- another kind of cloud --
-    is dropped after that pass) or from the extent of a surface-like cloud, and is corrected by sqrt(count / budget) per iteration (one sort each, which gives the
+    is dropped after that pass) or from the extent of a surface-like cloud, and is corrected
+    by sqrt(count / budget) per iteration (one sort each, which gives the
     indices too); should the voxels not get there, the fullest set found is strided down to the
     budget. Non-finite rows must have been removed.
     """
