@@ -122,6 +122,24 @@ def test_the_first_view_stands_at_the_sensor_or_above_a_map():
     assert position[2] > target[2] + 1.0
 
 
+@given(st.floats(20, 100), st.floats(0.5, 5.0), st.floats(0.2, 3.0))
+def test_the_first_view_of_a_sensor_cloud_frames_it(fov_deg, distance, half_width):
+    """Stepped back from the sensor along the view until 99% of the cloud is in the picture
+    (at least the page's narrower field of view), and no farther than it takes."""
+    fov = math.radians(fov_deg)
+    g = np.linspace(-half_width, half_width, 41)
+    x, y = np.meshgrid(g, g)
+    cloud = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, distance)])
+    position, target = display.initial_view(cloud, [0, -1, 0], fov)
+    assert abs(position[0]) < 1e-9 and abs(position[1]) < 1e-9 and position[2] <= 0
+    rel = cloud - position
+    off_axis = np.arctan2(np.linalg.norm(rel[:, :2], axis=1), rel[:, 2])
+    inside = np.mean(off_axis <= 0.5 * fov + 1e-9)
+    assert inside >= 0.99 - 1e-9
+    if position[2] < -1e-9:       # it stepped back: not more than to get 99% in
+        assert np.mean(off_axis <= 0.5 * fov * 0.97) < 0.99
+
+
 # ------------------------------------------------------------------ display thinning, colours
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 30000), st.integers(1000, 20000), st.integers(0, 1000),

@@ -971,7 +971,7 @@ class StationNode(Node):
             self._first_view_frame = frame
             up = np.array(UP_AXES[self.p["up"]] if self.p["up"] != "auto" else
                           ((0, -1, 0) if "optical" in frame else (0, 0, 1)), dtype=float)
-            position, look_at = display.initial_view(pts, up)
+            position, look_at = display.initial_view(pts, up, math.radians(self.p["fov_deg"]))
             self.page.set_view(up, position, look_at)
         self.page.show_cloud(pts[keep], display.scalar_colors(values))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
