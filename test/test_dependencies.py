@@ -13,8 +13,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LOCAL = {"affordance_registration", "conftest", "ros_helpers", "browser_helpers",
-         "station_latency"}
+#: this package, and the test folder's own modules (helpers, tests importing each other)
+LOCAL = {"affordance_registration"} | {p.stem for p in (ROOT / "test").glob("*.py")}
 #: import name -> its rosdep key (ROS packages: the package name itself)
 ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
           "trimesh": "python3-trimesh-pip", "open3d": "python3-open3d-pip",
