@@ -278,10 +278,11 @@ def cmd_station(args) -> int:
     from .ros.launcher import Launcher, package_share, parse_launch_file
     os.makedirs(args.out, exist_ok=True)
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
-    given = {"host": args.host, "port": str(args.port), "registrations_file": registrations}
+    given = {"host": args.host, "port": str(args.port), "registrations_file": registrations,
+             "up": args.up}
     if scene:
         launch_name, log_name = "station_scene.launch.yaml", "station_scene.log"
-        given.update(scene=scene, units=args.units, up=args.up)
+        given.update(scene=scene, units=args.units)
         what = f"an engine node and the scan {scene} (in {args.units})"
     else:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
