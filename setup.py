@@ -56,7 +56,10 @@ def data_files():
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ]
-    for folder in ("launch_configs", "models", "models/meshes", "msg_docs"):
+    # the bundled operator session is what `affordance-registration demo` replays: installed at
+    # the same place relative to models/ as in the source tree
+    for folder in ("launch_configs", "models", "models/meshes", "msg_docs",
+                   "test/data/session", "test/data/session/bag"):
         paths = [p for p in glob(f"{folder}/*") if os.path.isfile(p)]
         if paths:
             files.append((f"share/{PACKAGE}/{folder}", paths))
@@ -72,7 +75,10 @@ setup(
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
         "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
-        "test": ["pytest==9.2.0", "hypothesis==6.170.17", "playwright==1.65.2"],
+        # colcon and ament_package: test/test_colcon.py builds a colcon workspace of the package
+        "test": ["pytest==9.2.0", "hypothesis==6.170.17", "playwright==1.65.2",
+                 "colcon-common-extensions==0.3.0", "ros-jazzy-ament-package==0.16.4",
+                 "ruff==0.17.5"],
         "bench": ["small_gicp==1.0.1"],
     },
     python_requires=">=3.10",
@@ -81,7 +87,6 @@ setup(
     maintainer_email="affordance-registration@users.noreply.example.org",
     description="Affordance template registration via human-in-the-loop corrections (ROS 2).",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "affordance-registration = affordance_registration.cli:main",
@@ -89,6 +94,7 @@ setup(
             "affordance_spacemouse = affordance_registration.ros.spacemouse:main",
             "affordance_station = affordance_registration.ros.station:main",
             "affordance_simulated_scan = affordance_registration.ros.simulated_scan:main",
+            "affordance_file_scan = affordance_registration.ros.station_scene:main",
         ],
     },
 )

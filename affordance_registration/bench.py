@@ -622,7 +622,8 @@ def format_table(result: dict) -> str:
             f"{k}: ranked first {v['ranked_first']:.0%}, pose ok {v['pose_success']:.0%}, "
             f"median {v['median_s']:.2f} s" for k, v in real.items()))
     lines += _real_capture_lines(result)
-    lines.append(f"refit after a correction (1.5 cm, 8 deg): median {result['refit']['median_s']*1000:.1f} ms, "
+    lines.append(f"refit after a correction (1.5 cm, 8 deg): median "
+                 f"{result['refit']['median_s']*1000:.1f} ms, "
                  f"lands within tolerance {result['refit']['success']:.1%}")
     a = result.get("articulated")
     if a:

@@ -61,14 +61,17 @@ def _sensor_origin(values):
 
 def cmd_fit(args) -> int:
     from .core.registration import FitSettings, Registrar, describe_primitive, no_match, verdict
-    from .core.scene import Scene
+    from .core.scene import UNITS, Scene
     origin = _sensor_origin(args.sensor_origin)
+    unit = UNITS[args.units]            # --point, --sensor-origin and the file: in --units
+    if isinstance(origin, list):
+        origin = [v * unit for v in origin]
     lib = _library(args.templates)
-    scene = Scene.from_file(args.scene, sensor_origin=origin)
+    scene = Scene.from_file(args.scene, sensor_origin=origin, scale=unit)
     settings = FitSettings(seed=_seed(args.seed), method=args.method, mode=args.mode)
     registrar = Registrar(lib, settings)
     registrar.warm_up()   # one-off start-up cost, not part of a click
-    report = registrar.fit(scene, args.point)
+    report = registrar.fit(scene, [v * unit for v in args.point])
     best = report.candidates[0]
     refused = no_match(report.candidates)
     doc = {"point": [round(float(v), 6) for v in report.point],
@@ -179,7 +182,8 @@ def print_session_table(rows, out=print) -> None:
             f"{r['corrections']:>11} {r['fit_s']:>6.2f} {err:>14}  {verdict}")
     n = len(rows)
     ok = sum(r["ok"] for r in rows)
-    out(f"{ok}/{n} objects registered within tolerance; {sum(r['ranked_first'] == r['template'] for r in rows)}/{n} "
+    first = sum(r['ranked_first'] == r['template'] for r in rows)
+    out(f"{ok}/{n} objects registered within tolerance; {first}/{n} "
         f"ranked first; {sum(r['model_changes'] for r in rows) / max(n, 1):.1f} model changes and "
         f"{sum(r['corrections'] for r in rows) / max(n, 1):.1f} corrections per object; mean fit "
         f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)")
@@ -254,25 +258,43 @@ def cmd_session(args) -> int:
 
 # ---------------------------------------------------------------------------- station
 def cmd_station(args) -> int:
-    """The browser operator station (``--demo``: with an engine node and a simulated scan)."""
+    """The browser operator station (``--demo``: with an engine node and a simulated scan;
+    ``--scene FILE``: with an engine node and that scan)."""
     from .ros.station import check_port
+    if args.demo and args.scene:
+        raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
+    scene = None
+    if args.scene:      # the file is checked here, so a bad one is one line before any node starts
+        from .ros.station_scene import read_scan
+        scene = os.path.abspath(args.scene)
+        _, warning = read_scan(scene, args.units)
+        if warning:
+            print(f"affordance-registration: warning: {warning}", file=sys.stderr)
     check_port(args.host, args.port)
-    if not args.demo:
+    if not args.demo and not scene:
         from .ros.station import main as station_main
         return station_main(["--ros-args", "-p", f"host:={args.host}", "-p",
-                             f"port:={args.port}"])
+                             f"port:={args.port}", "-p", f"up:={args.up}"])
     import signal
     import threading
     import urllib.request
     from .ros.launcher import Launcher, package_share, parse_launch_file
     os.makedirs(args.out, exist_ok=True)
-    launch = os.path.join(package_share("affordance_registration"), "launch_configs",
-                          "station_demo.launch.yaml")
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
-    nodes = parse_launch_file(launch, {"host": args.host, "port": str(args.port),
-                                       "seed": str(_seed(args.seed)),
-                                       "registrations_file": registrations})
-    log_path = os.path.join(args.out, "station_demo.log")
+    given = {"host": args.host, "port": str(args.port), "registrations_file": registrations,
+             "up": args.up}
+    if scene:
+        launch_name, log_name = "station_scene.launch.yaml", "station_scene.log"
+        given.update(scene=scene, units=args.units)
+        what = f"an engine node and the scan {scene} (in {args.units})"
+    else:
+        launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
+        given["seed"] = str(_seed(args.seed))
+        what = f"an engine node and a simulated taskboard scan (seed {_seed(args.seed)})"
+    launch = os.path.join(package_share("affordance_registration"), "launch_configs",
+                          launch_name)
+    nodes = parse_launch_file(launch, given)
+    log_path = os.path.join(args.out, log_name)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
@@ -285,7 +307,7 @@ def cmd_station(args) -> int:
         while not stop.is_set():
             if any(p.poll() is not None for p in launcher.procs):
                 launcher.stop()
-                raise AffordanceError(f"a node of the demo stopped; see {log_path}")
+                raise AffordanceError(f"a node stopped; see {log_path}")
             try:
                 urllib.request.urlopen(url, timeout=1).close()
                 break
@@ -295,9 +317,8 @@ def cmd_station(args) -> int:
                     raise AffordanceError(f"the station did not come up on {url}; see "
                                           f"{log_path}") from None
                 time.sleep(0.3)
-        print(f"operator station: {url}\n  an engine node and a simulated taskboard scan "
-              f"(seed {_seed(args.seed)}) are running; Save writes {registrations}; node logs "
-              f"in {log_path}; Ctrl-C stops everything", flush=True)
+        print(f"operator station: {url}\n  {what} are running; Save writes "
+              f"{registrations}; node logs in {log_path}; Ctrl-C stops everything", flush=True)
         return launcher.wait(stop.is_set)
 
 
@@ -396,15 +417,15 @@ def _add_bag_parser(sub) -> None:
     p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
     bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
     b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
-    b.add_argument("out")
-    b.add_argument("topics", nargs="+")
+    b.add_argument("out", help="the new bag's folder")
+    b.add_argument("topics", nargs="+", help="topics to record")
     b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
     b = bsub.add_parser("play", help="republish a bag with its original timing")
-    b.add_argument("bag")
-    b.add_argument("--rate", type=float, default=1.0)
+    b.add_argument("bag", help="the bag's folder")
+    b.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
     b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
-    b.add_argument("--topics", nargs="*", default=None)
-    b.add_argument("--loop", action="store_true")
+    b.add_argument("--topics", nargs="*", default=None, help="play only these (default: all)")
+    b.add_argument("--loop", action="store_true", help="start again at the end")
     b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
                    help="wait up to this long for a subscriber on every topic first")
     b.add_argument("--paced", action="store_true",
@@ -416,7 +437,7 @@ def _add_bag_parser(sub) -> None:
     b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
                    help="with --paced: give up when the node takes longer than this")
     b = bsub.add_parser("info", help="topics, types, counts, duration")
-    b.add_argument("bag")
+    b.add_argument("bag", help="the bag's folder")
     p.set_defaults(func=cmd_bag)
 
 
@@ -427,14 +448,25 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
-    p.add_argument("--scene", required=True, help="scene file: PLY, PCD or organized .npy (m)")
-    p.add_argument("--point", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"))
+    p.add_argument("--scene", required=True,
+                   help="scene file: PLY, PCD or organized .npy (in --units)")
+    p.add_argument("--point", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="the click: a point on the object, in the scene's frame and --units "
+                        "(snapped to the nearest scanned point within 3 cm)")
+    p.add_argument("--units", choices=("m", "cm", "mm"), default="m",
+                   help="units of the scene file, --point and --sensor-origin (default m); "
+                        "the output is in metres")
     p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--seed", default="0")
-    p.add_argument("--method", choices=("default", "paper"), default="default")
-    p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto")
+    p.add_argument("--seed", default="0", help="seed of the random restarts (default 0; the "
+                                                "same seed gives the same fit)")
+    p.add_argument("--method", choices=("default", "paper"), default="default",
+                   help="default: this package's fitter; paper: the paper's method implemented "
+                        "literally (slow; the bench's baseline)")
+    p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto",
+                   help="auto (default): mounting-plane prior, resting poses and random "
+                        "restarts; mounted: the plane prior only; free: no mounting prior")
     p.add_argument("--sensor-origin", nargs="+", default=None, metavar="X_Y_Z|none",
-                   help="where the scan was taken from, in the scene's frame (m); 'none' for a "
+                   help="where the scan was taken from, in the scene's frame (--units); 'none' for a "
                         "cloud with no single viewpoint (an accumulated map: no visibility "
                         "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
@@ -442,9 +474,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
     p.add_argument("--out", required=True, help="output folder (scene.ply, truth.yaml, ...)")
-    p.add_argument("--seed", default="0")
-    p.add_argument("--layout", choices=("panel", "table"), default="panel")
-    p.add_argument("--templates", default=None)
+    p.add_argument("--seed", default="0", help="the simulated scene (default 0)")
+    p.add_argument("--layout", choices=("panel", "table"), default="panel",
+                   help="panel (default): objects mounted on a wall panel; table: lying on a "
+                        "table in resting poses")
+    p.add_argument("--templates", default=None, help="template directory (default: package models)")
     p.add_argument("--faults", action="store_true",
                    help="what real depth cameras do: flying pixels on depth edges, a smooth "
                         "depth distortion, dropouts on dark patches and at grazing angles, more "
@@ -462,17 +496,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "
                                     "live engine node, print the results, write demo_output/")
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
-    p.add_argument("--out", default="demo_output")
+    p.add_argument("--out", default="demo_output",
+                   help="output folder (default demo_output)")
     p.add_argument("--core", action="store_true",
                    help="no ROS: a simulated operator on the core engine in this process")
-    p.add_argument("--seed", default="7", help="with --core: the simulated scene")
-    p.add_argument("--templates", default=None)
+    p.add_argument("--seed", default="7", help="with --core: the simulated scene (default 7)")
+    p.add_argument("--templates", default=None,
+                   help="with --core: template directory (default: package models)")
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("session", help="record a simulated operator session (scene, engine node, "
                                        "operator over ROS) as a rosbag2 bag")
-    p.add_argument("--out", required=True)
-    p.add_argument("--seed", default="7")
+    p.add_argument("--out", required=True, help="folder for the bag and truth.yaml")
+    p.add_argument("--seed", default="7", help="the simulated scene (default 7)")
     p.set_defaults(func=cmd_session)
 
     _add_station_and_tool_parsers(sub)
@@ -485,11 +521,22 @@ def _add_station_and_tool_parsers(sub) -> None:
                                        "engine node; --demo: with an engine and a simulated scan")
     p.add_argument("--demo", action="store_true",
                    help="also start an engine node and a simulated taskboard scan")
-    p.add_argument("--port", type=int, default=8080)
-    p.add_argument("--host", default="127.0.0.1", help="0.0.0.0 serves every interface")
-    p.add_argument("--seed", default="7", help="with --demo: the simulated scene")
+    p.add_argument("--scene", default=None, metavar="FILE",
+                   help="also start an engine node and publish this PLY, PCD or .npy scan: "
+                        "look at it, click, correct, accept and save (no sensor needed)")
+    p.add_argument("--units", choices=("m", "cm", "mm"), default="m",
+                   help="with --scene: units of the file (default m)")
+    p.add_argument("--up", default="auto", choices=("auto", "+x", "-x", "+y", "-y", "+z", "-z"),
+                   help="the scan's up axis on the page (default auto: -y for an optical "
+                        "frame, else +z; a leading '-' needs the form --up=-y)")
+    p.add_argument("--port", type=int, default=8080, help="TCP port of the page (default 8080)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address the page is served on (default 127.0.0.1: this machine "
+                        "only; 0.0.0.0 serves every interface)")
+    p.add_argument("--seed", default="7", help="with --demo: the simulated scene (default 7)")
     p.add_argument("--out", default="station_output",
-                   help="with --demo: registrations file and node logs")
+                   help="with --demo or --scene: registrations file and node logs (default "
+                        "station_output)")
     p.set_defaults(func=cmd_station)
 
     _add_bag_parser(sub)
@@ -508,7 +555,7 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.set_defaults(func=cmd_spacemouse)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
-    p.add_argument("--out", default="models")
+    p.add_argument("--out", default="models", help="output folder (default models)")
     p.set_defaults(func=cmd_generate_models)
 
 

@@ -137,15 +137,24 @@ def wait_until(predicate, timeout_s: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
+def _at_sensor(T: np.ndarray) -> bool:
+    """The station's first view of a cloud in a sensor frame: at the sensor, or stepped back
+    from it along the view (to frame the cloud): on the line through the frame's origin along
+    the camera's z axis, behind the origin."""
+    p, z = T[:3, 3], T[:3, 2]
+    return bool(np.linalg.norm(np.cross(p, z)) < 1e-3 and p @ z <= 1e-6)
+
+
 def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
-    """The page's camera once it stands at the sensor (the station's first view of a cloud in a
-    sensor frame) and has not moved for a second: the last ``view_pose`` a
-    :class:`ros_helpers.Client` subscribed to ``topic`` (with ``keep=True``) heard."""
+    """The page's camera once it stands at the sensor or behind it along its view (the
+    station's first view of a cloud in a sensor frame) and has not moved for a second: the last
+    ``view_pose`` a :class:`ros_helpers.Client` subscribed to ``topic`` (with ``keep=True``)
+    heard."""
     from affordance_registration.ros.conversions import pose_to_matrix
 
     def settled():
         hist = client.history.get(topic) or []
-        if not hist or np.linalg.norm(pose_to_matrix(hist[-1].pose)[:3, 3]) > 1e-3:
+        if not hist or not _at_sensor(pose_to_matrix(hist[-1].pose)):
             return None
         n = len(hist)
         time.sleep(1.0)

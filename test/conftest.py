@@ -1,6 +1,7 @@
 """Shared fixtures. Every test process gets its own ROS domain and log folder, and ROS discovery
 stays on this machine (set before anything can import rclpy)."""
 import os
+import sys
 import tempfile
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -8,6 +9,18 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
 
 import pytest  # noqa: E402
+
+try:      # a clear line, not a traceback, where the package's dependencies are missing
+    import numpy  # noqa: E402,F401
+    import scipy  # noqa: E402,F401
+    import trimesh  # noqa: E402,F401
+    import yaml  # noqa: E402,F401
+except ImportError as exc:
+    raise pytest.UsageError(
+        f"the tests need the package's Python dependencies ({exc}); install them into the "
+        f"Python that runs the tests ({sys.executable}): pip install -r requirements.txt "
+        f"-e '.[test]' (in a checkout `make setup` does that; for `colcon test`, into the "
+        f"Python colcon runs with)") from None
 
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
 

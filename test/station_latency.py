@@ -11,7 +11,8 @@
   moment the text appeared in the DOM, not when Playwright noticed).
 
 The engine node, the simulated scan and the station run as separate processes, as in the
-browser test. Prints the medians. ``--screenshot PATH`` instead writes the README's picture (docs/station.png):
+browser test. Prints the medians. ``--screenshot PATH`` instead writes the README's picture
+(docs/station.png):
 two objects accepted, a third one shown.
 """
 import argparse

@@ -116,9 +116,9 @@ print(seen)
 
 
 def test_blas_runs_on_one_thread_while_any_fit_runs_and_is_put_back_after():
-    """With OPENBLAS_NUM_THREADS=2 (OpenBLAS allows at most the core count): BLAS stays on one thread until the last of concurrent
-    blocks leaves, then has the user's count again -- also after a real fit and after a fit
-    that failed."""
+    """With OPENBLAS_NUM_THREADS=2 (OpenBLAS allows at most the core count): BLAS stays on one
+    thread until the last of concurrent blocks leaves, then has the user's count again -- also
+    after a real fit and after a fit that failed."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
     out = subprocess.run([sys.executable, "-c", _BLAS], capture_output=True, text=True,
                          env=env, timeout=300)

@@ -5,7 +5,6 @@ when absent), and the frame a scanned template's file is in (the Armadillo scans
 The figures asserted are what this code reaches (see the bench's rows for them, tuning and
 held-out scenes apart), set so that a regression fails."""
 import math
-import os
 import tempfile
 
 import numpy as np

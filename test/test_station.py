@@ -122,6 +122,24 @@ def test_the_first_view_stands_at_the_sensor_or_above_a_map():
     assert position[2] > target[2] + 1.0
 
 
+@given(st.floats(20, 100), st.floats(0.5, 5.0), st.floats(0.2, 3.0))
+def test_the_first_view_of_a_sensor_cloud_frames_it(fov_deg, distance, half_width):
+    """Stepped back from the sensor along the view until 99% of the cloud is in the picture
+    (at least the page's narrower field of view), and no farther than it takes."""
+    fov = math.radians(fov_deg)
+    g = np.linspace(-half_width, half_width, 41)
+    x, y = np.meshgrid(g, g)
+    cloud = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, distance)])
+    position, target = display.initial_view(cloud, [0, -1, 0], fov)
+    assert abs(position[0]) < 1e-9 and abs(position[1]) < 1e-9 and position[2] <= 0
+    rel = cloud - position
+    off_axis = np.arctan2(np.linalg.norm(rel[:, :2], axis=1), rel[:, 2])
+    inside = np.mean(off_axis <= 0.5 * fov + 1e-9)
+    assert inside >= 0.99 - 1e-9
+    if position[2] < -1e-9:       # it stepped back: not more than to get 99% in
+        assert np.mean(off_axis <= 0.5 * fov * 0.97) < 0.99
+
+
 # ------------------------------------------------------------------ display thinning, colours
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 30000), st.integers(1000, 20000), st.integers(0, 1000),
@@ -230,10 +248,12 @@ def test_markers_become_drawings_and_deleteall_clears():
 
 STATUS = {
     "frame_id": "cam", "active_id": 3,
-    "objects": [{"id": 3, "active": True, "shown": 1, "corrections": 0, "candidates": [
-        {"rank": 1, "template": "gate_valve", "probability": 0.45, "state": "closed"},
-        {"rank": 2, "template": "ball_valve", "probability": 0.30, "state": None,
-         "verdict": {"verdict": "no template fits here"}}]}],
+    "objects": [{"id": 3, "active": True, "shown": 1, "corrections": 0, "no_match": False,
+                 "verdict": "fits", "candidates": [
+                     {"rank": 1, "template": "gate_valve", "probability": 0.45, "fits": True,
+                      "state": "closed"},
+                     {"rank": 2, "template": "ball_valve", "probability": 0.15, "fits": False,
+                      "state": None}]}],
     "registered": [], "counts": {"objects": 1, "registered": 0, "undo": 2},
     "timing_s": {"total": 0.21},
     "node": {"busy": None, "queued": 0, "idle": True, "last_message": "object 3: ...",
@@ -242,15 +262,25 @@ STATUS = {
 
 def test_labels_and_the_status_panel():
     obj = STATUS["objects"][0]
-    assert candidate_label(obj) == "#3 ball_valve — rank 2/2 — p 0.30 — no template fits here"
+    assert candidate_label(obj) == "#3 ball_valve — rank 2/2 — does not fit, 0.33x the best"
     first = dict(obj, shown=0)
-    assert candidate_label(first) == "#3 gate_valve (closed) — rank 1/2 — p 0.45"
+    assert candidate_label(first) == "#3 gate_valve (closed) — rank 1/2 — fits, 3.0x the next"
+    refused = dict(first, no_match=True, verdict="no template fits here")
+    assert candidate_label(refused) == \
+        "#3 no template fits here — best guess gate_valve (closed) — rank 1/2"
     assert candidate_label(None) == ""
     assert [t for _, t in candidate_options(obj)] == ["gate_valve", "ball_valve"]
+    assert [t for t, _ in candidate_options(obj)] == ["1. gate_valve (fits)",
+                                                      "2. ball_valve (does not fit)"]
     md = status_markdown(STATUS, True, "/affordance_engine", "10 points", "next_model: ok")
     for text in ("/affordance_engine — idle", "rank 2/2", "1 open, 0 registered",
-                 "0.21 s", "click refused", "10 points", "next_model: ok"):
+                 "0.21 s", "click refused", "10 points", "next_model: ok", "refused"):
         assert text in md
+    assert "Fitting" not in md
+    md = status_markdown(dict(STATUS, objects=[first]), True, "/affordance_engine", "", "",
+                         fitting="clicked (0.1, 0.2, 0.3)", stale_error=True)
+    assert "**Fitting**: clicked (0.1, 0.2, 0.3)" in md
+    assert "click refused" not in md and "refused" not in md     # a fit, and a stale error
     down = status_markdown(STATUS, False, "/affordance_engine", "10 points", "")
     assert down.startswith("**Engine not running**")
 

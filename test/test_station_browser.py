@@ -90,7 +90,8 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             wait_text(page, rf"points in '{FRAME}'")
 
             # the page's camera, as the station publishes it on view_pose: the first view of a
-            # sensor-frame cloud stands at the sensor; wait until it has settled there
+            # sensor-frame cloud stands at the sensor, or behind it along its view to frame the
+            # cloud; wait until it has settled there
             view = settled_view(client)
             assert view.header.frame_id == FRAME
             T_view = pose_to_matrix(view.pose)

@@ -63,7 +63,8 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
 
     The voxel edge starts at ``start_voxel`` (the previous cloud's :attr:`Thinned.voxel`: a
     stream of similar clouds then costs one pass; a hint far off -- another kind of cloud --
-    is dropped after that pass) or from the extent of a surface-like cloud, and is corrected by sqrt(count / budget) per iteration (one sort each, which gives the
+    is dropped after that pass) or from the extent of a surface-like cloud, and is corrected
+    by sqrt(count / budget) per iteration (one sort each, which gives the
     indices too); should the voxels not get there, the fullest set found is strided down to the
     budget. Non-finite rows must have been removed.
     """
@@ -236,12 +237,16 @@ def pixel_ray(T_world_optical: np.ndarray, fov_y: float, width: float, height: f
     return T[:3, 3].copy(), d / np.linalg.norm(d)
 
 
-def initial_view(points: np.ndarray, up) -> tuple[np.ndarray, np.ndarray]:
+def initial_view(points: np.ndarray, up, fov: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Where a first view of a cloud stands and looks: (camera position (3,), look-at point (3,)).
 
     A cloud seen from its frame's origin (a sensor frame: the origin lies outside the cloud's
-    bounding box, within 20 m of it) is viewed from there; any other cloud (a map) from above
-    and in front of its centre -- ``up`` (3,) is the world's up -- at 1.5 times its size.
+    bounding box, within 20 m of it) is viewed from there -- stepped back along the view, with
+    ``fov`` (rad, the page's narrower field of view), as far as it takes for 99% of the points to
+    be in the picture (a sensor's field of view is often wider than the page's); any other cloud
+    (a map) from above and in front of its centre -- ``up`` (3,) is the world's up -- at 1.5
+    times its size.
     """
     pts = np.asarray(points, dtype=float)
     if len(pts) == 0:
@@ -250,7 +255,13 @@ def initial_view(points: np.ndarray, up) -> tuple[np.ndarray, np.ndarray]:
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     outside = bool(np.any((lo > 0) | (hi < 0)))
     if outside and np.linalg.norm(target) < 20.0:
-        return np.zeros(3), target
+        if fov is None or np.linalg.norm(target) < 1e-9:
+            return np.zeros(3), target
+        d = target / np.linalg.norm(target)
+        depth = pts @ d                                  # along the view
+        lateral = np.linalg.norm(pts - np.outer(depth, d), axis=1)
+        back = float(np.percentile(lateral / math.tan(0.5 * fov) - depth, 99))
+        return -max(back, 0.0) * d, target
     u = finite_vector(up, "up direction", AffordanceError)
     u /= max(np.linalg.norm(u), 1e-12)
     side = np.cross(u, [1.0, 0.0, 0.0])

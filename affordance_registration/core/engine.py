@@ -19,7 +19,8 @@ import yaml
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError
 from .files import write_atomically
-from .registration import FitResult, FitSettings, Registrar, describe_primitive, no_match, verdict
+from .registration import (NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive,
+                           no_match, verdict)
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
 from .transforms import matrix_to_quat_xyzw
@@ -104,6 +105,10 @@ class Registration:
     model_changes: int = 0                  #: next/previous presses before accepting
     corrections: int = 0                    #: correction bursts before accepting
     fit_s: float = 0.0                      #: time the click's fit took
+    #: accepted against the verdict (an operator override): the accepted candidate does not
+    #: fit (``fits`` false), or the object's verdict was "no template fits here" and it is not
+    #: the primitive that fits there
+    override: bool = False
 
     @classmethod
     def of(cls, obj: TrackedObject, frame_id: str) -> "Registration":
@@ -115,7 +120,8 @@ class Registration:
                    scale=c.scale, primitive=c.primitive, dimensions=dict(c.dimensions),
                    ranked_first=obj.candidates[0].template,
                    model_changes=obj.model_changes, corrections=obj.corrections,
-                   fit_s=obj.fit_s)
+                   fit_s=obj.fit_s, override=c.fits is False or
+                   (obj.no_match and not (c.primitive is not None and c.fits)))
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -133,7 +139,8 @@ class Registration:
                 "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
                 if self.primitive else None,
                 "ranked_first": self.ranked_first, "model_changes": self.model_changes,
-                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6)}
+                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6),
+                "override": self.override}
 
 
 @dataclass(frozen=True)
@@ -195,7 +202,8 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
                                 ranked_first=str(entry.get("ranked_first", "")),
                                 model_changes=int(entry.get("model_changes", 0)),
                                 corrections=int(entry.get("corrections", 0)),
-                                fit_s=float(entry.get("fit_s", 0.0))))
+                                fit_s=float(entry.get("fit_s", 0.0)),
+                                override=entry.get("override") is True))
     return tuple(out)
 
 
@@ -617,7 +625,9 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            return (f"accepted {reg.template} as object {obj.id} "
+            why = "" if not reg.override else " as an operator override (it does not fit)" \
+                if obj.shown.fits is False else f" as an operator override ({NO_MATCH})"
+            return (f"accepted {reg.template} as object {obj.id}{why} "
                     f"({len(self._state.registered)} registered)")
 
     def discard(self) -> str:

@@ -64,6 +64,11 @@ SEGMENT_FLAT_DEG = 20.0
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
 NO_VIEWPOINT = "none"
+#: m: a scan larger than this across may not be in metres (a click error says so); a scan in
+#: millimetres of a 3 cm object already reads as 30 m, while a room or a workcell is < 25 m
+MM_LOOKING_EXTENT = 25.0
+#: metres per unit of a scan file (``fit --units``, ``station --scene FILE --units``)
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
@@ -333,6 +338,7 @@ class Scene:
         self._raw = pts
         self._points: np.ndarray | None = None
         self._squared_to: tuple | None = None
+        self._whole: "Scene | None" = None       # the scene a part was cut from (units hint)
         mid = len(pts) // 2
         if not (np.isfinite(pts[mid:mid + self._FIRST_PROBE]).all(axis=1).any() or
                 any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
@@ -355,14 +361,16 @@ class Scene:
         return len(self._raw) - len(self.points)
 
     @classmethod
-    def from_file(cls, path: str, sensor_origin=None) -> "Scene":
-        """The scene in a PLY, PCD or .npy file. ``sensor_origin`` as for :class:`Scene`;
-        None: a PCD's ``VIEWPOINT`` where it has one, else the frame's origin."""
+    def from_file(cls, path: str, sensor_origin=None, scale: float = 1.0) -> "Scene":
+        """The scene in a PLY, PCD or .npy file. ``sensor_origin`` as for :class:`Scene` (in
+        metres); None: a PCD's ``VIEWPOINT`` where it has one, else the frame's origin.
+        ``scale``: metres per unit of the file (``UNITS``: 0.001 for a scan in millimetres);
+        the points and the file's viewpoint are scaled by it."""
         from .pointfiles import read_points
         f = read_points(path)
         if sensor_origin is None and f.viewpoint is not None:
-            sensor_origin = f.viewpoint
-        return cls(f.points, sensor_origin=sensor_origin)
+            sensor_origin = np.asarray(f.viewpoint, dtype=float) * scale
+        return cls(f.points * scale if scale != 1.0 else f.points, sensor_origin=sensor_origin)
 
     @property
     def has_viewpoint(self) -> bool:
@@ -396,7 +404,25 @@ class Scene:
         # a pass over the part would give: each is its own row's sum)
         part._squared_to = (c, np.compress(inside, d2))
         part.sensor_origin, part.frame_id = self.sensor_origin, self.frame_id
+        part._whole = self._whole or self
         return part
+
+    def units_hint(self) -> str:
+        """'' -- or, for a scan (the whole one a part was cut from) more than
+        ``MM_LOOKING_EXTENT`` across, a sentence saying that it may not be in metres: a
+        scan in millimetres of a 30 cm object reads as 300 m across. Computed when an error
+        needs it (a pass over the cloud)."""
+        whole = self._whole or self
+        pts = whole._raw if whole._points is None else whole._points
+        finite = pts[np.all(np.isfinite(pts), axis=1)] if len(pts) else pts
+        if len(finite) == 0:
+            return ""
+        extent = float(np.max(finite.max(axis=0) - finite.min(axis=0)))
+        if extent <= MM_LOOKING_EXTENT:
+            return ""
+        return (f"; the scan is {extent:.0f} units across, which as metres is larger than a "
+                f"room: if it is in millimetres or centimetres, give its units (--units mm or "
+                f"cm) so that it is scaled to metres")
 
     def snap(self, click, max_distance: float = 0.03) -> np.ndarray:
         """The scene point nearest ``click`` (3,). Farther than ``max_distance`` is an error."""
@@ -411,7 +437,7 @@ class Scene:
         if dist > max_distance:
             raise SceneError(f"the click ({c[0]:.3f}, {c[1]:.3f}, {c[2]:.3f}) is {dist * 100:.1f} cm "
                              f"from the nearest scanned point (limit {max_distance * 100:.1f} cm): "
-                             f"click on the object's surface")
+                             f"click on the object's surface{self.units_hint()}")
         return self.points[i].copy()
 
     def prepare_click(self, click, radius: float, voxel: float = 0.005,
@@ -427,7 +453,8 @@ class Scene:
         d2 = np.einsum("ij,ij->i", rel, rel)
         raw = np.compress(d2 <= radius * radius, self.points, axis=0)
         if len(raw) < 10:
-            raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click")
+            raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click"
+                             f"{self.units_hint()}")
         origin = self.sensor_origin
         if origin is not None and np.linalg.norm(origin - c) < 1e-3:
             raise SceneError("the sensor origin is at the click: the scan cannot have been "

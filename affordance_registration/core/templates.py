@@ -546,14 +546,20 @@ def _scale_range(value) -> tuple:
 
 def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
     """The file a template key names: relative to the YAML, and inside the YAML's folder unless
-    the template says ``allow_external_files: true``."""
+    the template says ``allow_external_files: true``.
+
+    The check follows symlinks: the file's real path must lie in the real path of the YAML's
+    folder, or -- for a YAML that is itself a symlink, as in a ``colcon build --symlink-install``
+    share folder, where every file is linked on its own -- in the folder of the YAML's real file.
+    A path that resolves anywhere else is refused."""
     if not isinstance(rel, str) or not rel:
         raise _fail(yaml_path, key, "expected a file path relative to the YAML file")
     folder = os.path.dirname(os.path.abspath(yaml_path))
     path = os.path.join(folder, rel)
     if not allow_external:
-        root = os.path.realpath(folder)
-        if os.path.commonpath([os.path.realpath(path), root]) != root:
+        real = os.path.realpath(path)
+        roots = {os.path.realpath(folder), os.path.dirname(os.path.realpath(yaml_path))}
+        if not any(os.path.commonpath([real, root]) == root for root in roots):
             raise _fail(yaml_path, key, f"{rel} is outside the template's folder {folder} "
                                         f"(set 'allow_external_files: true' to allow that)")
     if not os.path.isfile(path):

@@ -10,6 +10,7 @@ import numpy as np
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..core.labels import REFUSED_PREFIX, standing
 from ..core.registration import describe_primitive, verdict
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
@@ -69,9 +70,13 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
                                            colour, stamp)
         top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        label = (f"{verdict(obj.candidates) + ' — ' if obj.no_match else ''}"
-                 f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale, c)} — rank "
-                 f"{obj.active + 1}/{len(obj.candidates)} — {c.probability:.2f}")
+        said, _ = standing(obj.no_match, obj.active, [r.probability for r in obj.candidates],
+                           [r.fits for r in obj.candidates], c.primitive is not None,
+                           verdict(obj.candidates))
+        name = f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale, c)}"
+        rank = f"rank {obj.active + 1}/{len(obj.candidates)}"
+        label = (f"{said} {name} — {rank}" if said == REFUSED_PREFIX else
+                 f"{name} — {rank} — {said}")
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))
         markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))

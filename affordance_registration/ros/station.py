@@ -46,6 +46,7 @@ from visualization_msgs.msg import InteractiveMarkerFeedback, Marker, MarkerArra
 
 from ..core import display
 from ..core.errors import AffordanceError
+from ..core.labels import REFUSED_PREFIX, standing
 from ..core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .conversions import (ConversionError, matrix_to_pose, pointcloud2_field, pointcloud2_to_xyz,
                           pose_stamped, pose_to_matrix)
@@ -81,6 +82,10 @@ PARAMETERS = {
 }
 MARKER_NAME = "affordance_fit"          # the engine's interactive marker for the shown fit
 MESH_MARGIN = 0.005                     # m: meshes are drawn this far out of their surface
+REFUSED_RGB = (150, 150, 150)           # a candidate the verdict refuses: a grey outline ...
+REFUSED_OPACITY = 0.5                   # ... half transparent
+PENDING_RGB = (255, 140, 0)             # the click being fitted
+PENDING_RADIUS = 0.008                  # m
 DRAG_KEEP_ALIVE_S = 1.0                 # the engine drops a silent drag after 3 s
 CALL_TIMEOUT_S = 120.0                  # a button's call unanswered this long is given up
 UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
@@ -186,42 +191,51 @@ def active_object(status: dict | None) -> dict | None:
     return None
 
 
-def _verdict(c: dict) -> str:
-    """The fit verdict of a candidate, when the engine reports one (a string, or a dict with a
-    ``verdict``/``label``/``text``)."""
-    v = c.get("verdict")
-    if isinstance(v, dict):
-        v = v.get("verdict") or v.get("label") or v.get("text") or ""
-    return str(v) if v else ""
+def candidate_standing(obj: dict | None) -> tuple[str, bool]:
+    """(verdict text, refused) of an object's shown candidate, from what the engine's status
+    has per object (``no_match``) and per candidate (``fits``, ``probability``):
+    ``core.labels.standing``. ('', False) without an object."""
+    if not obj or not obj.get("candidates"):
+        return "", False
+    cands = obj["candidates"]
+    shown = int(obj.get("shown", 0))
+    primitive = 0 <= shown < len(cands) and cands[shown].get("primitive") is not None
+    return standing(bool(obj.get("no_match")), shown,
+                    [float(c.get("probability") or 0.0) for c in cands],
+                    [c.get("fits") for c in cands], primitive, str(obj.get("verdict") or ""))
 
 
 def candidate_label(obj: dict | None) -> str:
-    """'#3 ball_valve (closed) — rank 1/5 — p 0.41' for the shown candidate of an object (and
-    ' — <verdict>' when the status has one); '' without an object."""
+    """'#3 ball_valve (closed) — rank 1/5 — fits, 3.5x the next' for the shown candidate of an
+    object; '#3 no template fits here — best guess gate_valve — rank 1/5' when the verdict
+    refuses it; '' without an object."""
     if not obj or not obj.get("candidates"):
         return ""
     shown = int(obj.get("shown", 0))
     c = obj["candidates"][shown]
     state = f" ({c['state']})" if c.get("state") else ""
-    text = (f"#{obj.get('id', '?')} {c.get('template', '?')}{state} — rank {shown + 1}/"
-            f"{len(obj['candidates'])} — p {float(c.get('probability', 0.0)):.2f}")
-    verdict = _verdict(c)
-    return f"{text} — {verdict}" if verdict else text
+    text, _ = candidate_standing(obj)
+    rank = f"rank {shown + 1}/{len(obj['candidates'])}"
+    if text == REFUSED_PREFIX:
+        return f"#{obj.get('id', '?')} {text} {c.get('template', '?')}{state} — {rank}"
+    return f"#{obj.get('id', '?')} {c.get('template', '?')}{state} — {rank} — {text}"
 
 
 def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
     """(option text, template) of every ranked candidate of an object, best first."""
     out = []
     for i, c in enumerate((obj or {}).get("candidates") or []):
-        out.append((f"{i + 1}. {c['template']} (p {float(c.get('probability', 0.0)):.2f})",
-                    c["template"]))
+        verdict = {True: "fits", False: "does not fit"}.get(c.get("fits"), "not judged")
+        out.append((f"{i + 1}. {c['template']} ({verdict})", c["template"]))
     return out
 
 
 def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
-                    last_action: str) -> str:
-    """The status panel: engine connection, open object, counts, fit time, what the engine is
-    doing, its last message and error, the cloud, the reply to the last button."""
+                    last_action: str, fitting: str = "", stale_error: bool = False) -> str:
+    """The status panel: engine connection, a click being fitted (``fitting``), open object and
+    its verdict, counts, fit time, what the engine is doing, its last message and error (left
+    out when ``stale_error``: a later message came after it), the cloud, the reply to the last
+    button."""
     lines = []
     if not connected:
         lines.append(f"**Engine not running**: nothing publishes {engine}/status (start "
@@ -233,9 +247,14 @@ def status_markdown(status: dict | None, connected: bool, engine: str, cloud: st
         doing = node.get("busy") or ("refit pending" if node.get("pending_refit") else "idle")
         lines.append(f"**Engine**: {engine} — {doing}"
                      + (f", {node['queued']} queued" if node.get("queued") else ""))
+    if fitting:
+        lines.append(f"**Fitting**: {fitting}")
     st = status or {}
     obj = active_object(st)
     lines.append(f"**Open object**: {candidate_label(obj) if obj else 'none (click an object)'}")
+    if obj and candidate_standing(obj)[1]:
+        lines.append("**Verdict**: the shown candidate is refused (drawn as a grey outline); "
+                     "Accept registers it anyway, marked as an operator override")
     counts = st.get("counts") or {}
     lines.append(f"**Objects**: {counts.get('objects', 0)} open, "
                  f"{counts.get('registered', len(st.get('registered') or []))} registered, "
@@ -246,7 +265,7 @@ def status_markdown(status: dict | None, connected: bool, engine: str, cloud: st
     node = st.get("node") or {}
     if node.get("last_message"):
         lines.append(f"**Last message**: {node['last_message']}")
-    if node.get("last_error"):
+    if node.get("last_error") and not stale_error:
         lines.append(f"**Last error**: {node['last_error']}")
     lines.append(f"**Cloud**: {cloud}")
     if last_action:
@@ -487,8 +506,8 @@ class StationPage:
             if button.disabled == connected:
                 button.disabled = not connected
 
-    def _mesh(self, name: str, d: MeshDrawing, T: np.ndarray) -> None:
-        digest = d.digest
+    def _mesh(self, name: str, d: MeshDrawing, T: np.ndarray, refused: bool = False) -> None:
+        digest = d.digest + ("/refused" if refused else "")
         old = self._nodes.get(name)
         if old is not None and old[1] == digest:
             old[0].position, old[0].wxyz = T[:3, 3], _wxyz(T)
@@ -496,10 +515,28 @@ class StationPage:
         # opaque, its surface a few mm out: the fit shows in front of the points it was
         # fitted to (the pose sent back is the gizmo's, unaffected)
         vertices, faces = display.offset_surface(d.vertices, d.faces, MESH_MARGIN)
+        # a candidate the verdict refuses is a translucent grey outline, not a solid fit
+        style = {"wireframe": True, "opacity": REFUSED_OPACITY} if refused else {}
         handle = self.server.scene.add_mesh_simple(
-            name, vertices, faces, color=d.color, side="double",
-            position=T[:3, 3], wxyz=_wxyz(T))
+            name, vertices, faces, color=REFUSED_RGB if refused else d.color, side="double",
+            position=T[:3, 3], wxyz=_wxyz(T), **style)
         self._nodes[name] = (handle, digest)
+
+    def show_pending_click(self, point: np.ndarray | None) -> None:
+        """A marker and a "fitting…" label where the operator clicked, until the engine has
+        handled the click (None removes them)."""
+        with self._lock:
+            for name in ("/pending/click", "/pending/label"):
+                old = self._nodes.pop(name, None)
+                if old is not None:
+                    old[0].remove()
+            if point is None:
+                return
+            p = np.asarray(point, dtype=float)
+            self._nodes["/pending/click"] = (self.server.scene.add_icosphere(
+                "/pending/click", radius=PENDING_RADIUS, color=PENDING_RGB, position=p), "")
+            self._nodes["/pending/label"] = (self.server.scene.add_label(
+                "/pending/label", "fitting…", position=p, anchor="bottom-center"), "")
 
     def _other(self, name: str, d) -> None:
         key = repr(d)
@@ -518,12 +555,14 @@ class StationPage:
                                                      position=d.position)
         self._nodes[name] = (handle, key)
 
-    def show_scene(self, drawings: dict, active_id: int | None, label: str) -> None:
+    def show_scene(self, drawings: dict, active_id: int | None, label: str,
+                   refused: frozenset = frozenset()) -> None:
         """Draw the engine's markers: the active object's candidate under the gizmo (so a drag
         moves it in the browser at once), the rest where the engine put them; ``label`` replaces
-        the active candidate's label text."""
+        the active candidate's label text; the candidates of the objects in ``refused`` are
+        drawn as outlines."""
         with self._lock:
-            wanted = set()
+            wanted = {name for name in self._nodes if name.startswith("/pending/")}
             fit = drawings.get(("candidate", active_id)) if active_id is not None else None
             if fit is not None and isinstance(fit, MeshDrawing):
                 self._place_gizmo(fit)
@@ -532,12 +571,13 @@ class StationPage:
             for (ns, mid), d in sorted(drawings.items(), key=lambda kv: (kv[0][0], kv[0][1])):
                 active = mid == active_id and ns.startswith("candidate") and fit is not None
                 if isinstance(d, MeshDrawing):
+                    outline = mid in refused and ns.startswith("candidate")
                     if active:
                         name = f"/fit/{ns}"
-                        self._mesh(name, d, invert(fit.T) @ d.T)
+                        self._mesh(name, d, invert(fit.T) @ d.T, outline)
                     else:
                         name = f"/objects/{ns}_{mid}"
-                        self._mesh(name, d, d.T)
+                        self._mesh(name, d, d.T, outline)
                 elif isinstance(d, TextDrawing):
                     if active and ns == "candidate_label":
                         d = TextDrawing(label, d.position, d.frame)
@@ -606,6 +646,7 @@ class StationNode(Node):
         self._cloud_shown_at = -math.inf
         self._thin_voxel = None                      # the last cloud's display voxel edge
         self._drawn_label = ""                       # the open object's label as last drawn
+        self._drawn_refused = frozenset()            # objects last drawn as refused outlines
         self._first_view_frame = None
         self._last_action = ""
         self._view_pending = None
@@ -617,6 +658,9 @@ class StationNode(Node):
         self._calls: deque = deque()                 # buttons waiting for the call in flight
         self._calling = None                         # (action, time sent) of the call in flight
         self._refresh = True
+        self._pending = None               # (point, click note, handled count, time) being fitted
+        self._pending_drawn = None
+        self._seen_error = ("", "")        # (last_error, last_message when it first showed)
 
         self.create_subscription(
             PointCloud2, "points", self._on_cloud,
@@ -685,8 +729,17 @@ class StationNode(Node):
                        if len(points) else "click ignored: no cloud received yet")
             return
         point = points[i]
+        note = f"clicked ({', '.join(f'{v:.3f}' for v in point)}) in '{frame}'"
+        with self._lock:     # fitting until the engine's status counts one more handled click
+            self._pending = (point.copy(), note, self._clicks_handled(self._status),
+                             time.monotonic())
         self.pub_click.publish(click_message(point, frame, self.get_clock().now().to_msg()))
-        self._note(f"clicked ({', '.join(f'{v:.3f}' for v in point)}) in '{frame}': fitting")
+        self._note(f"{note}: fitting")
+
+    def _clicks_handled(self, status: dict | None) -> int:
+        """How many clicks on this station's topic the engine's status says it has handled."""
+        handled = ((status or {}).get("node") or {}).get("handled") or {}
+        return int(handled.get(self.pub_click.topic_name, 0) or 0)
 
     def _action(self, action: str) -> None:
         """A button: its service is called once the station's previous call was answered, so
@@ -794,6 +847,21 @@ class StationNode(Node):
         if inbox.status_new:
             self._status = inbox.status
             refresh = True
+        with self._lock:
+            pending = self._pending
+            if pending is not None and (self._clicks_handled(self._status) > pending[2] or
+                                        now - pending[3] > CALL_TIMEOUT_S):
+                self._pending = None          # handled (fitted or refused): the status says
+                if self._last_action == f"{pending[1]}: fitting":
+                    self._last_action = ""    # what happened is in Shown and Last message
+                refresh = True
+            pending = self._pending
+        point = None if pending is None else pending[0]
+        if point is not self._pending_drawn:
+            self.page.show_pending_click(point)
+            self._pending_drawn = point
+            self.get_logger().info("fitting marker shown" if pending else
+                                   "fitting marker cleared")
         connected = self.count_publishers(self.status_topic) > 0
         if connected != self._connected:
             self._connected, refresh = connected, True
@@ -839,9 +907,17 @@ class StationNode(Node):
         label = candidate_label(obj)
         with self._lock:
             last_action = self._last_action
+            pending = self._pending
+        node = (self._status or {}).get("node") or {}
+        error, message = node.get("last_error") or "", node.get("last_message") or ""
+        if error != self._seen_error[0]:
+            self._seen_error = (error, message)
+        # an error goes stale once the engine reports something after it
+        stale = bool(error) and message != self._seen_error[1]
+        fitting = "" if pending is None else f"{pending[1]} — the engine is fitting it"
         self.page.show_text(f"**Shown**: {label}" if label else "**Shown**: nothing selected",
                             status_markdown(status, self._connected, self.engine,
-                                            self._cloud_text, last_action))
+                                            self._cloud_text, last_action, fitting, stale))
         self.page.show_candidates(candidate_options(obj),
                                   obj["candidates"][obj["shown"]]["template"] if obj else None)
         self.page.enable(self._connected)
@@ -852,7 +928,12 @@ class StationNode(Node):
         frame = self._frame()
         drawings = {k: d for k, d in self._drawings.items()
                     if not frame or not d.frame or d.frame.lstrip("/") == frame.lstrip("/")}
-        self.page.show_scene(drawings, obj["id"] if obj else None, label)
+        refused = frozenset(o.get("id") for o in (self._status or {}).get("objects") or []
+                            if candidate_standing(o)[1])
+        self.page.show_scene(drawings, obj["id"] if obj else None, label, refused)
+        if refused != self._drawn_refused:
+            self._drawn_refused = refused
+            self.get_logger().info(f"drawn as refused outlines: objects {sorted(refused)}")
         drawn = drawings.get(("candidate_label", obj["id"])) if obj else None
         if drawn is not None and drawn.text != self._drawn_label:
             # what the 3D view now draws for the open object (from the engine's markers; the
@@ -892,7 +973,7 @@ class StationNode(Node):
             self._first_view_frame = frame
             up = np.array(UP_AXES[self.p["up"]] if self.p["up"] != "auto" else
                           ((0, -1, 0) if "optical" in frame else (0, 0, 1)), dtype=float)
-            position, look_at = display.initial_view(pts, up)
+            position, look_at = display.initial_view(pts, up, math.radians(self.p["fov_deg"]))
             self.page.set_view(up, position, look_at)
         self.page.show_cloud(pts[keep], display.scalar_colors(values))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9

@@ -4,8 +4,8 @@ the stages of this package (see :mod:`.registrar` for the algorithm).
 settings (parameters, stage constants), results (FitResult, FitReport, rank), model (the posed
 model, the locked cache of samples and KD-trees), solve (closed-form and Gauss-Newton steps),
 visibility, correspondences, icp, parallel (pieces of a batch side by side), scoring (the
-two-way residual), hypotheses, articulation (joint values and scale), refit, primitives (boxes and cylinders, measured), paper (the literal baseline), registrar
-(the composer).
+two-way residual), hypotheses, articulation (joint values and scale), refit, primitives
+(boxes and cylinders, measured), paper (the literal baseline), registrar (the composer).
 """
 from .correspondences import correspondence_weights
 from .model import Model

@@ -145,8 +145,8 @@ class Registrar:
         ``settings.articulated``). ``hold_joint`` keeps the joint value as given and refines the
         pose and scale only; by default (None) a joint value that is given is kept -- estimated
         once with the click, then changed by the operator's joint corrections, not by refits of
-        the pose -- and one that is not given is estimated. A primitive keeps ``dimensions`` as given (the operator's
-        or the click's); without them its dimensions are measured again."""
+        the pose -- and one that is not given is estimated. A primitive keeps ``dimensions``
+        as given (the operator's or the click's); without them they are measured again."""
         t0 = time.perf_counter()
         if self.library[template].primitive is not None:
             with single_threaded_blas():

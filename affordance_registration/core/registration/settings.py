@@ -211,20 +211,21 @@ class FitSettings:
                                         f"removed), got {getattr(self, name)!r}")
         if self.mode not in ("auto", "mounted", "free"):
             raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
-        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread", "weight_scale", "score_cap",
-                     "free_space_margin", "coverage_distance", "min_coverage",
-                     "min_coverage_no_viewpoint", "min_explained", "explained_distance",
-                     "max_residual", "noise_reference", "grazing_angle", "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "finish_margin", "contact_distance", "nominal_preference", "prefilter_margin",
-                     "nominal_scale_preference"):
+        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread",
+                     "weight_scale", "score_cap", "free_space_margin", "coverage_distance",
+                     "min_coverage", "min_coverage_no_viewpoint", "min_explained",
+                     "explained_distance", "max_residual", "noise_reference", "grazing_angle",
+                     "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
+                     "articulated_margin", "finish_margin", "contact_distance",
+                     "nominal_preference", "prefilter_margin", "nominal_scale_preference"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise RegistrationError(f"{name} must be a positive number, got {v!r}")
         for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
                      "medium_iterations", "fine_samples", "score_samples", "reverse_points",
                      "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "threads", "finish_candidates", "paper_restarts", "paper_iterations", "paper_samples", "joint_sweep",
-                     "scale_sweep"):
+                     "threads", "finish_candidates", "paper_restarts", "paper_iterations",
+                     "paper_samples", "joint_sweep", "scale_sweep"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
