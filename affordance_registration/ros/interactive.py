@@ -47,13 +47,24 @@ from ..core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
 
 __all__ = ["CorrectionMarkerServer", "MarkerCallbacks", "MARKER_NAME", "JOINT_MARKER_NAME",
-           "MENU", "DRAG_EXPIRY_S"]
+           "MENU", "DRAG_EXPIRY_S", "menu_of"]
 
 MARKER_NAME = "affordance_fit"
 JOINT_MARKER_NAME = "affordance_joint"
 MENU = (("next_model", "Next model"), ("previous_model", "Previous model"), ("refit", "Refit"),
         ("accept", "Accept"), ("undo", "Undo"), ("discard", "Discard"))
 KEEP_ALIVE_S = 0.5
+
+
+def menu_of(candidate) -> list:
+    """The marker's menu for the shown ``candidate``: [(action, argument, title)] -- MENU, and
+    for a primitive a step up and down of each dimension ("dimension", (name, None, +-1))."""
+    entries = [(action, None, title) for action, title in MENU]
+    if candidate is not None and candidate.primitive is not None:
+        for name in candidate.dimensions:
+            entries += [("dimension", (name, None, 1.0), f"{name} +"),
+                        ("dimension", (name, None, -1.0), f"{name} -")]
+    return entries
 #: a drag belongs to the client that started it while that client keeps sending feedback (poses
 #: or keep-alives); after this long without any, another client may take over
 DRAG_EXPIRY_S = 3.0
@@ -217,9 +228,12 @@ class CorrectionMarkerServer:
         im.description = f"{cand.template} — rank {obj.active + 1}/{len(obj.candidates)}"
         im.pose = matrix_to_pose(cand.T_scene_model)
         im.scale = float(max(0.1, 1.2 * tpl.diameter))
+        self._menu = menu_of(cand)
         im.menu_entries = [MenuEntry(id=i, parent_id=0, title=title, command="",
                                      command_type=MenuEntry.FEEDBACK)
-                           for i, (_, title) in enumerate(MENU, start=1)]
+                           for i, (_, _, title) in enumerate(self._menu, start=1)]
+        if cand.primitive is not None and cand.dimensions:     # drawn at its size
+            tpl = tpl.sized(cand.dimensions)
         visual = InteractiveMarkerControl(name="mesh", always_visible=True,
                                           interaction_mode=InteractiveMarkerControl.MENU)
         mesh = mesh_marker(tpl.mesh_at(tpl.joint_value(cand.joints), cand.scale), np.eye(4), "",
@@ -273,10 +287,12 @@ class CorrectionMarkerServer:
             self._ignore("drag", f"client '{fb.client_id}' while '{owner}' is dragging")
             return
         if fb.event_type == F.MENU_SELECT:
-            if not 1 <= fb.menu_entry_id <= len(MENU):
+            menu = getattr(self, "_menu", None) or menu_of(None)
+            if not 1 <= fb.menu_entry_id <= len(menu):
                 self._ignore("menu", f"unknown menu entry {fb.menu_entry_id}")
                 return
-            self.cb.action(MENU[fb.menu_entry_id - 1][0], None)
+            action, argument, _ = menu[fb.menu_entry_id - 1]
+            self.cb.action(action, argument)
             return
         if fb.event_type == F.MOUSE_DOWN:
             self._drag = (fb.client_id, self.clock())

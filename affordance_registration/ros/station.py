@@ -58,6 +58,8 @@ __all__ = ["StationNode", "StationPage", "PageHandlers", "MeshDrawing", "TextDra
            "check_port", "gizmo_scale", "ACTIONS", "PARAMETERS", "main"]
 
 #: the buttons, in page order: (engine service, button label)
+#: a primitive's dimensions, each a field of the page (m)
+DIMENSIONS = ("x", "y", "z", "radius", "length")
 ACTIONS = (("previous_model", "Previous"), ("next_model", "Next"), ("accept", "Accept"),
            ("refit", "Refit"), ("undo", "Undo"), ("discard", "Discard"), ("save", "Save"),
            ("joint_minus", "Joint −"), ("joint_plus", "Joint +"))
@@ -363,6 +365,8 @@ class PageHandlers:
     select: Callable
     drag: Callable
     camera: Callable
+    #: ``dimension(name, metres)``: a primitive's dimension set in its field
+    dimension: Callable = lambda name, value: None
 
 
 class StationPage:
@@ -396,6 +400,13 @@ class StationPage:
             button = gui.add_button(label)
             button.on_click(lambda event, action=action: self.h.action(action))
             self.buttons[action] = button
+        # a primitive's dimensions (m), shown while the shown candidate is one
+        self.dimensions = {}
+        for name in DIMENSIONS:
+            field = gui.add_number(f"{name} (m)", initial_value=0.1, min=0.001, max=100.0,
+                                   step=0.001, visible=False)
+            field.on_update(lambda event, name=name: self._on_dimension(event, name))
+            self.dimensions[name] = field
         self.status = gui.add_markdown("**Engine**: starting")
         self.server.scene.on_click()(self._on_click)
         self.server.on_client_connect(self._on_connect)
@@ -419,6 +430,11 @@ class StationPage:
         template = self._options.get(self.candidates.value)
         if template:
             self.h.select(template)
+
+    def _on_dimension(self, event, name: str) -> None:
+        if event.client is None:              # set by the station, not by an operator
+            return
+        self.h.dimension(name, float(self.dimensions[name].value))
 
     def _on_connect(self, client) -> None:
         with self._lock:
@@ -500,6 +516,16 @@ class StationPage:
             self.candidates.options = texts
         if self.candidates.value != value:
             self.candidates.value = value
+
+    def show_dimensions(self, dimensions: dict | None) -> None:
+        """The shown primitive's dimension fields (m), or none of them."""
+        dimensions = dimensions or {}
+        for name, field in self.dimensions.items():
+            visible = name in dimensions
+            if field.visible != visible:
+                field.visible = visible
+            if visible and abs(float(field.value) - float(dimensions[name])) > 1e-6:
+                field.value = round(float(dimensions[name]), 4)
 
     def enable(self, connected: bool) -> None:
         for button in self.buttons.values():
@@ -677,6 +703,7 @@ class StationNode(Node):
         self.pub_click = self.create_publisher(PointStamped, "clicked_point", INPUT)
         self.pub_view = self.create_publisher(PoseStamped, "view_pose", INPUT)
         self.pub_select = self.create_publisher(String, f"{self.engine}/select_model", INPUT)
+        self.pub_dimension = self.create_publisher(String, f"{self.engine}/set_dimension", INPUT)
         ns = "/" + p["interactive_namespace"].strip("/")
         self.pub_feedback = self.create_publisher(InteractiveMarkerFeedback, f"{ns}/feedback",
                                                   INPUT)
@@ -685,7 +712,7 @@ class StationNode(Node):
         self.page = StationPage(p["host"], p["port"], p["fov_deg"], p["point_size"],
                                 PageHandlers(click=self._click, action=self._action,
                                              select=self._select, drag=self._drag,
-                                             camera=self._camera))
+                                             camera=self._camera, dimension=self._dimension))
         self.url = f"http://{p['host']}:{self.page.port}"
         self._worker = threading.Thread(target=self._run, name="station-page", daemon=True)
         self._worker.start()
@@ -790,6 +817,13 @@ class StationNode(Node):
     def _select(self, template: str) -> None:
         self.pub_select.publish(String(data=template))
         self._note(f"select {template}: sent")
+
+    def _dimension(self, name: str, value: float) -> None:
+        if not math.isfinite(value) or value <= 0:
+            self._note(f"{name}: {value!r} is not a size in metres")
+            return
+        self.pub_dimension.publish(String(data=f"{name}={value:.6g}"))
+        self._note(f"{name} {value * 1000:.1f} mm: sent")
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
         F = InteractiveMarkerFeedback
@@ -920,6 +954,8 @@ class StationNode(Node):
                                             self._cloud_text, last_action, fitting, stale))
         self.page.show_candidates(candidate_options(obj),
                                   obj["candidates"][obj["shown"]]["template"] if obj else None)
+        shown = obj["candidates"][obj["shown"]] if obj else {}
+        self.page.show_dimensions(shown.get("dimensions") if shown.get("primitive") else None)
         self.page.enable(self._connected)
 
     def _render_scene(self) -> None:
