@@ -403,10 +403,10 @@ class StationPage:
         # a primitive's dimensions (m), shown while the shown candidate is one
         self.dimensions = {}
         for name in DIMENSIONS:
-            field = gui.add_number(f"{name} (m)", initial_value=0.1, min=0.001, max=100.0,
-                                   step=0.001, visible=False)
-            field.on_update(lambda event, name=name: self._on_dimension(event, name))
-            self.dimensions[name] = field
+            box = gui.add_number(f"{name} (m)", initial_value=0.1, min=0.001, max=100.0,
+                                 step=0.001, visible=False)
+            box.on_update(lambda event, name=name: self._on_dimension(event, name))
+            self.dimensions[name] = box
         self.status = gui.add_markdown("**Engine**: starting")
         self.server.scene.on_click()(self._on_click)
         self.server.on_client_connect(self._on_connect)
@@ -520,12 +520,12 @@ class StationPage:
     def show_dimensions(self, dimensions: dict | None) -> None:
         """The shown primitive's dimension fields (m), or none of them."""
         dimensions = dimensions or {}
-        for name, field in self.dimensions.items():
+        for name, box in self.dimensions.items():
             visible = name in dimensions
-            if field.visible != visible:
-                field.visible = visible
-            if visible and abs(float(field.value) - float(dimensions[name])) > 1e-6:
-                field.value = round(float(dimensions[name]), 4)
+            if box.visible != visible:
+                box.visible = visible
+            if visible and abs(float(box.value) - float(dimensions[name])) > 1e-6:
+                box.value = round(float(dimensions[name]), 4)
 
     def enable(self, connected: bool) -> None:
         for button in self.buttons.values():
