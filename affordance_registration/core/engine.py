@@ -560,6 +560,14 @@ class AffordanceEngine:
         written = save_registrations(path, regs, frame)
         return f"saved {len(regs)} registration(s) to {written}"
 
+    def resume(self, registrations) -> None:
+        """Start from ``registrations`` (a session resumed from its file): they become the
+        registered objects, not an undo step -- undo cannot drop what was saved before."""
+        regs = tuple(registrations)
+        with self._lock:
+            next_id = max([self._state.next_id] + [r.id + 1 for r in regs])
+            self._state = replace(self._state, registered=regs, next_id=next_id)
+
     def load(self, path: str) -> str:
         regs = load_registrations(path, self.library)
         with self._lock:

@@ -136,7 +136,12 @@ class OperatorStream:
     (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
     every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
     after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
-    ``registrations_file()`` gives the path ``save`` writes to.
+    ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
+    given, replaces that: it is called with ``True`` for ``save`` and with ``False`` right after
+    any input that changed the registrations (accept, undo, a Joy accept...), *before* that
+    input is replied to, so what is acknowledged is durable; it returns a message to add to the
+    reply ("" for none) or raises :class:`AffordanceError` (the input then fails with the reason;
+    the registrations stay in memory).
 
     Submit from any thread; handle with :meth:`run` (a worker thread) or, in tests,
     :meth:`process_pending`.
@@ -144,7 +149,7 @@ class OperatorStream:
 
     def __init__(self, engine, settings: OperatorSettings | None = None, clock=time.monotonic,
                  sleep=time.sleep, *, refresh_scene=None, to_scene_frame=None, report=None,
-                 on_change=None, on_busy=None, registrations_file=None):
+                 on_change=None, on_busy=None, registrations_file=None, persist=None):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
@@ -154,6 +159,7 @@ class OperatorStream:
         self._on_change = on_change or (lambda: None)
         self._on_busy = on_busy or (lambda text: None)
         self._registrations_file = registrations_file or (lambda: "affordance_registrations.yaml")
+        self._persist = persist
         self._cv = threading.Condition()
         self._queue: collections.deque[OperatorInput] = collections.deque()
         self._busy: str | None = None
@@ -261,12 +267,21 @@ class OperatorStream:
                 return False
             item = self._queue.popleft()
             self._busy = _describe(item, len(self._queue))
+        registered = self.engine.state.registered
         try:
             ok, message = self._handle(item)
         except AffordanceError as exc:
             ok, message = False, str(exc)
         except Exception as exc:     # a bug must not kill the worker or leave a caller waiting
             ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
+        if self._persist is not None and self.engine.state.registered is not registered:
+            try:                     # durable before it is acknowledged
+                saved = self._persist(False)
+                message = "; ".join(m for m in (message, saved) if m)
+            except AffordanceError as exc:
+                ok, message = False, f"{message}; NOT saved: {exc}"
+            except Exception as exc:
+                ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
             self._report(_kind(item), ok, message)
         if item.reply is not None:
@@ -342,6 +357,8 @@ class OperatorStream:
             raise AffordanceError(f"unknown action {action!r}")
         self._settle(action)
         if action == "save":
+            if self._persist is not None:
+                return True, self._persist(True)
             return True, self.engine.save(self._registrations_file())
         if action in ("refit", "joint_plus", "joint_minus", "joint_value"):
             self._refresh_scene()

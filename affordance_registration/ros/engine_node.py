@@ -34,6 +34,7 @@ from ..core.corrections import view_from_optical
 from ..core.engine import AffordanceEngine
 from ..core.errors import AffordanceError, EngineStateError
 from ..core.operator import ACTIONS, OperatorStream
+from ..core.persistence import RegistrationStore
 from ..core.scene import NO_VIEWPOINT
 from ..core.templates import TemplateLibrary
 from . import params
@@ -77,6 +78,9 @@ class EngineNode(Node):
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
+        self._store = RegistrationStore(self._p["registrations_file"])
+        self._unsaved = False           # registrations changed and not written (autosave off)
+        self._resume()
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
@@ -97,7 +101,8 @@ class EngineNode(Node):
             self.engine, params.operator_settings(self._p), refresh_scene=self._ensure_scene,
             to_scene_frame=self._to_scene_frame, report=self._report, on_change=self._changed,
             on_busy=lambda text: self.pub_status.publish(String(data=json.dumps(self.status()))),
-            registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]))
+            registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]),
+            persist=self._persist)
 
         cloud_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                                reliability=ReliabilityPolicy.RELIABLE if self._p["points_reliable"]
@@ -148,6 +153,40 @@ class EngineNode(Node):
         self.get_logger().info(f"ready: {len(self.library)} templates "
                                f"({', '.join(self.library)}); waiting for 'points' and clicks")
 
+    # ------------------------------------------------------------------ registrations file
+    def _resume(self) -> None:
+        """Resume the session from ``registrations_file`` (unless ``resume`` is off). A file
+        that is not a registrations file stops the start with one line: it is never replaced
+        unread."""
+        path = self._store.path
+        if not self._p["resume"]:
+            if os.path.lexists(path):
+                self.get_logger().info(f"fresh session (resume is off): {path} is kept as a "
+                                       f"backup when it is first replaced")
+            return
+        try:
+            regs = self._store.resume(self.library)
+        except AffordanceError as exc:
+            raise AffordanceError(f"cannot resume the session: {exc} (fix or move the file, or "
+                                  f"start a fresh session with resume:=false: the file is then "
+                                  f"kept as a backup)") from None
+        self.engine.resume(regs)
+        if regs:
+            self.get_logger().info(f"resumed {len(regs)} registration(s) from {path}")
+
+    def _persist(self, explicit: bool) -> str:
+        """Write the registrations (stream worker): for ``~/save`` (``explicit``), and after
+        every change when ``autosave`` is on. Returns the reply's words."""
+        if not explicit and not self._p["autosave"]:
+            self._unsaved = True
+            return ""
+        regs = self.engine.state.registered
+        path, backup = self._store.write(regs, self.engine.frame_id)
+        self._unsaved = False
+        self._dirty = True
+        text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
+        return text + (f" (the file it replaced is kept as {backup})" if backup else "")
+
     # ------------------------------------------------------------------ parameters
     def _set_joint_steps(self, p: dict) -> None:
         self.engine.joint_step_rad = math.radians(float(p["joint_step_deg"]))
@@ -181,6 +220,10 @@ class EngineNode(Node):
             self.library = self.engine.library
         if "static_transforms" in changed:
             self.frames = StaticFrames(new["static_transforms"])
+        if "registrations_file" in changed and new["registrations_file"] != \
+                self._p["registrations_file"]:
+            self._store = RegistrationStore(new["registrations_file"])
+            self._unsaved = bool(self.engine.state.registered)
         if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
             self._converted = -1        # the next fit converts the cloud again
         self.stream.configure(params.operator_settings(new))
@@ -401,7 +444,10 @@ class EngineNode(Node):
                 "cloud": None if msg is None else {
                     "frame_id": msg.header.frame_id, "width": msg.width, "height": msg.height,
                     "received": self._cloud_count},
-                "last_message": self._last_message, "last_error": self._last_error}
+                "last_message": self._last_message, "last_error": self._last_error,
+                "registrations_file": {"path": self._store.path, "saved": self._store.count,
+                                       "unsaved": self._unsaved,
+                                       "backup": self._store.last_backup}}
         return st
 
     def publish_all(self) -> None:
@@ -428,6 +474,11 @@ class EngineNode(Node):
     def shutdown(self) -> None:
         self._stop.set()
         self._worker.join(timeout=1.0)
+        if self._unsaved:               # autosave off: what was accepted is not lost either
+            try:
+                self.get_logger().info(self._persist(True) + " (at shutdown)")
+            except AffordanceError as exc:
+                self.get_logger().error(f"registrations NOT saved at shutdown: {exc}")
 
 
 def main(args=None) -> int:
