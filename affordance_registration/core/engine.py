@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from .corrections import apply_twist, view_from_optical
-from .errors import AffordanceError, EngineStateError, SceneError
+from .errors import AffordanceError, EngineStateError, SceneError, bounded
 from .files import write_atomically
 from .registration import NO_MATCH, FitResult, FitSettings, Registrar
 from .scene import ClickContext, Scene
@@ -378,7 +378,7 @@ class AffordanceEngine:
             obj = self._require_active()
             names = [c.template for c in obj.candidates]
             if template not in names:
-                raise EngineStateError(f"object {obj.id} has no candidate '{template}' "
+                raise EngineStateError(f"object {obj.id} has no candidate '{bounded(template)}' "
                                        f"(candidates: {', '.join(names)})")
             index = names.index(template)
             if index == obj.active:

@@ -37,7 +37,8 @@ import numpy as np
 from .corrections import R_VIEW_SPACENAV
 from .errors import AffordanceError
 
-__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS"]
+__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS",
+           "MAX_QUEUED_PER_SOURCE"]
 
 #: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value`` and
 #: ``select_model`` carry an argument (the joint value, the template name) in ``argument``
@@ -47,6 +48,12 @@ ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "u
 LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
 #: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
 SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value")
+#: inputs queued between an unstarted click and a newer click from the same source that do not
+#: belong to the older click's object: the newer click may supersede it (see ``submit``)
+INDEPENDENT_KINDS = ("view", "cloud")
+#: inputs one source may have waiting; more are refused (a flood cannot grow the queue)
+MAX_QUEUED_PER_SOURCE = 500
+
 #: the actions Joy buttons can be mapped to
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
                   "joint_plus", "joint_minus")
@@ -184,11 +191,40 @@ class OperatorStream:
 
     # ------------------------------------------------------------------ input
     def submit(self, item: OperatorInput) -> None:
-        """Append an input to the stream (any thread)."""
+        """Append an input to the stream (any thread).
+
+        Bounded per source: a click supersedes an older click of the same source that has not
+        started, when only views and clouds were queued after it (so nothing queued meant that
+        click's object) -- a flood of clicks from one client leaves one waiting, the newest; the
+        superseded one is reported (and replied to) as such. A source with
+        :data:`MAX_QUEUED_PER_SOURCE` inputs waiting has any further one refused."""
+        dropped = []
         with self._cv:
-            self._queue.append(_arrived(item, self.clock()))
             self._received[item.source] = self._received.get(item.source, 0) + 1
+            if item.kind == "click":
+                for i in range(len(self._queue) - 1, -1, -1):
+                    old = self._queue[i]
+                    if old.kind == "click" and old.source == item.source:
+                        del self._queue[i]       # by position: inputs hold arrays (no ==)
+                        dropped.append((old, "superseded by a newer click from the same "
+                                             "source before its fit started"))
+                        break
+                    if old.kind not in INDEPENDENT_KINDS:
+                        break
+            waiting = sum(1 for q in self._queue if q.source == item.source)
+            if waiting >= MAX_QUEUED_PER_SOURCE:
+                dropped.append((item, f"refused: {waiting} inputs from this source are "
+                                      f"already waiting"))
+            else:
+                self._queue.append(_arrived(item, self.clock()))
+            for old, _ in dropped:
+                self._handled[old.source] = self._handled.get(old.source, 0) + 1
             self._cv.notify_all()
+        for old, why in dropped:
+            self._report("queue", False, f"{_kind(old).replace('_', ' ')} from "
+                                         f"{old.source or 'an input'} {why}")
+            if old.reply is not None:
+                old.reply(False, f"{_kind(old).replace('_', ' ')} {why}")
 
     def click(self, point, frame: str = "", source: str = "click", reply=None) -> None:
         self.submit(OperatorInput("click", np.asarray(point, dtype=float), frame=frame,

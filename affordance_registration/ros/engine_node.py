@@ -32,7 +32,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.corrections import view_from_optical
 from ..core.engine import AffordanceEngine
-from ..core.errors import AffordanceError, EngineStateError
+from ..core.errors import AffordanceError, EngineStateError, bounded
 from ..core.operator import ACTIONS, OperatorStream
 from ..core.persistence import RegistrationStore
 from ..core.scene import NO_VIEWPOINT
@@ -49,8 +49,12 @@ from .tf import TfBroadcaster, TfListener
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
             "joint_plus", "joint_minus")
 #: inputs whose errors repeat with a stream of bad messages: logged as throttled warnings
-STREAMED = ("twist", "joy", "view", "pose", "cloud")
+STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click")
 THROTTLE_S = 2.0
+#: the longest frame id, template name or other name taken from a message (longer: refused)
+MAX_NAME = 256
+#: the longest log line / status message the node writes about one input
+MAX_MESSAGE = 2000
 
 #: reliable, deep enough for a SpaceMouse burst or a storm of calls while a fit runs
 INPUT_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
@@ -265,10 +269,14 @@ class EngineNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:                            # the header checked now; the points read when needed
+            if len(msg.header.frame_id) > MAX_NAME:
+                raise ConversionError(f"its frame id has {len(msg.header.frame_id):,} "
+                                      f"characters (at most {MAX_NAME})")
             pointcloud2_layout(msg)
         except ConversionError as exc:
-            self._dropped = f"the last PointCloud2 (frame '{msg.header.frame_id}') was dropped: {exc}"
-            self._error("cloud", f"dropped a PointCloud2 in '{msg.header.frame_id}': {exc}")
+            frame = bounded(msg.header.frame_id, 80)
+            self._dropped = f"the last PointCloud2 (frame '{frame}') was dropped: {exc}"
+            self._error("cloud", f"dropped a PointCloud2 in '{frame}': {exc}")
             return
         self._dropped = ""
         with self._lock:
@@ -328,6 +336,10 @@ class EngineNode(Node):
         return T_cloud_sensor[:3, 3].copy(), T_cloud_sensor @ T_frame_optical(name)
 
     def _on_click(self, msg: PointStamped) -> None:
+        if len(msg.header.frame_id) > MAX_NAME:
+            self._error("click", f"click refused: its frame id has "
+                                 f"{len(msg.header.frame_id):,} characters (at most {MAX_NAME})")
+            return
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
         self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name)
         self._dirty = True      # the status shows what is queued
@@ -359,6 +371,10 @@ class EngineNode(Node):
         self._dirty = True
 
     def _on_select(self, msg: String) -> None:
+        if len(msg.data) > MAX_NAME:
+            self._error("select_model", f"select model refused: the name has "
+                                        f"{len(msg.data):,} characters (at most {MAX_NAME})")
+            return
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
         self._dirty = True
 
@@ -396,6 +412,7 @@ class EngineNode(Node):
     def _report(self, kind: str, ok: bool, message: str) -> None:
         """An outcome of the stream: successes are logged as info; failures as errors, or as
         warnings throttled per kind for inputs that come in streams."""
+        message = bounded(message, MAX_MESSAGE)
         if ok:
             self._last_message = message
             self.get_logger().info(message)
@@ -406,6 +423,7 @@ class EngineNode(Node):
     def _error(self, kind: str, msg: str) -> None:
         """Log an error; for inputs that come in streams (``STREAMED`` kinds), at most one line
         per kind every THROTTLE_S, as a warning."""
+        msg = bounded(msg, MAX_MESSAGE)
         self._last_error = msg
         self._dirty = True
         if kind in STREAMED:

@@ -42,7 +42,7 @@ from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
                                     InteractiveMarkerUpdate, MenuEntry)
 from visualization_msgs.srv import GetInteractiveMarkers
 
-from ..core.errors import AffordanceError
+from ..core.errors import AffordanceError, bounded
 from ..core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
 
@@ -249,7 +249,7 @@ class CorrectionMarkerServer:
         now = self.clock()
         if now - self._warned.get(kind, -math.inf) >= WARN_EVERY_S:
             self._warned[kind] = now
-            self.cb.warn(f"interactive marker feedback ignored: {text}")
+            self.cb.warn(f"interactive marker feedback ignored: {bounded(text, 400)}")
 
     def _owner(self) -> str | None:
         """The client whose drag is in progress (None when nobody's, or it went silent)."""
