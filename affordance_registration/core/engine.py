@@ -215,6 +215,8 @@ class AffordanceEngine:
         self._T_scene_optical: np.ndarray | None = None
         self._last_action = ""
         self._last_timing: dict = {}
+        #: the drag in progress: (object id, candidate index, pose and corrections before it)
+        self._drag_start: tuple | None = None
 
     def configure(self, settings: FitSettings | None = None,
                   library: TemplateLibrary | None = None) -> None:
@@ -414,8 +416,35 @@ class AffordanceEngine:
             obj = self._require_active()
             first = not (drag and self._last_action == "drag")
             new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
+            if drag and (first or self._drag_start is None or self._drag_start[0] != obj.id):
+                self._drag_start = (obj.id, obj.active, obj.shown.T_scene_model,
+                                    obj.corrections)
             self._commit(self._replace_object(new), "drag" if drag else "pose", coalesce=drag)
             return f"object {obj.id}: {obj.shown.template} placed"
+
+    def end_drag(self) -> None:
+        """The drag in progress was released (its pose stays)."""
+        with self._lock:
+            self._drag_start = None
+
+    def cancel_drag(self, object_id: int | None = None) -> str:
+        """Put the object of the drag in progress back where the drag started (its client went
+        away or fell silent): the drag is not committed. ``object_id``: the object the drag
+        started on (None: whichever it was). One undo step."""
+        with self._lock:
+            start, self._drag_start = self._drag_start, None
+            if start is None or (object_id is not None and start[0] != object_id):
+                raise EngineStateError("no drag in progress to cancel")
+            obj_id, index, T_before, corrections = start
+            obj = self._find(obj_id)
+            if obj is None or index >= len(obj.candidates):
+                raise EngineStateError(f"the dragged object {obj_id} is gone: nothing to cancel")
+            cand = replace(obj.candidates[index], T_scene_model=T_before)
+            cands = obj.candidates[:index] + (cand,) + obj.candidates[index + 1:]
+            self._commit(self._replace_object(replace(obj, candidates=cands,
+                                                      corrections=corrections)), "cancel drag")
+            return (f"object {obj_id}: the unfinished drag was cancelled; "
+                    f"{cand.template} is back where the drag started")
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
         """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid

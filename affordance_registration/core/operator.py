@@ -131,6 +131,9 @@ class OperatorInput:
     source: str = ""
     reply: object = field(default=None, compare=False)
     arrived: float = 0.0
+    #: the object the input was meant for (a drag carries the object it started on): refused
+    #: when another object is selected by the time it is handled; None: the selected one
+    target: int | None = None
 
 
 class OperatorStream:
@@ -245,9 +248,15 @@ class OperatorStream:
     def view(self, T_scene_view, source: str = "view") -> None:
         self.submit(OperatorInput("view", np.asarray(T_scene_view, dtype=float), source=source))
 
-    def pose(self, T_scene_model, release: bool = False, source: str = "pose") -> None:
+    def pose(self, T_scene_model, release: bool = False, source: str = "pose",
+             target: int | None = None) -> None:
         self.submit(OperatorInput("pose", np.asarray(T_scene_model, dtype=float), bool(release),
-                                  source=source))
+                                  source=source, target=target))
+
+    def cancel_drag(self, target: int | None = None, source: str = "pose") -> None:
+        """The drag of ``target`` ended without a release (its client went away or silent):
+        the object goes back where the drag started."""
+        self.submit(OperatorInput("cancel", source=source, target=target))
 
     def new_cloud(self) -> None:
         """A new cloud arrived: the selected object follows it (in order with the operator's
@@ -362,6 +371,8 @@ class OperatorStream:
             return self._act(item.value, item.argument)
         if kind == "cloud":
             return self._follow()
+        if kind == "cancel":
+            return True, self.engine.cancel_drag(item.target)
         raise AffordanceError(f"unknown operator input {kind!r}")
 
     def _settle(self, action: str) -> None:
@@ -478,10 +489,18 @@ class OperatorStream:
         return True, message
 
     def _on_pose(self, item: OperatorInput) -> tuple[bool, str]:
+        if item.target is not None:
+            active = self.engine.active_object()
+            if active is None or active.id != item.target:
+                now = f"object {active.id} is" if active is not None else "no object is"
+                raise AffordanceError(f"{'release' if item.argument else 'drag'} refused: it "
+                                      f"started on object {item.target}, and {now} selected "
+                                      f"now")
         self._settle("pose")
         message = self.engine.correct_pose(item.value, drag=True)
         if not item.argument:
             return True, ""
+        self.engine.end_drag()
         self._refresh_scene()
         return True, f"{message}; {self.engine.refit()}"
 
@@ -498,6 +517,6 @@ def _kind(item: OperatorInput) -> str:
 def _describe(item: OperatorInput, queued: int) -> str:
     what = {"click": "fitting a click", "action": f"{item.value}", "twist": "moving the object",
             "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object",
-            "cloud": "following the new cloud"}
+            "cloud": "following the new cloud", "cancel": "cancelling a drag"}
     text = what.get(item.kind, item.kind)
     return f"{text} ({queued} more queued)" if queued else text

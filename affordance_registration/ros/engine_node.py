@@ -139,8 +139,10 @@ class EngineNode(Node):
             MarkerCallbacks(active=self.engine.active_object, frame=self._frame,
                             view_pose=self.engine.view_pose,
                             template=lambda name: self.library[name],
-                            pose=lambda T, release: self.stream.pose(T, release,
-                                                                     source="marker_feedback"),
+                            pose=lambda T, release, target: self.stream.pose(
+                                T, release, source="marker_feedback", target=target),
+                            cancel=lambda target: self.stream.cancel_drag(
+                                target, source="marker_feedback"),
                             action=lambda name, arg: self.stream.action(
                                 name, arg, source="marker_feedback"),
                             warn=self.get_logger().warning),
@@ -439,6 +441,7 @@ class EngineNode(Node):
         self._dirty = True
 
     def _on_timer(self) -> None:
+        self.interactive.expire()           # a silent drag is cancelled, not left hanging
         now = time.monotonic()
         if self._dirty and now - self._last_publish >= 1.0 / self._p["publish_rate"]:
             self._dirty = False

@@ -443,9 +443,22 @@ class StationPage:
     async def _on_gizmo(self, event) -> None:
         # async: viser runs it on its event loop, so the phases arrive in order
         phase = event.phase
+        # one browser drags at a time; a drag "ended" because its browser went away (viser
+        # synthesizes the end after removing the client) is cancelled, not released
+        owner, cid = getattr(self, "_drag_client", None), event.client_id
+        if phase == "start":
+            if owner is not None and owner != cid and owner in self.server.get_clients():
+                return
+            self._drag_client = cid
+        elif owner is not None and cid != owner:
+            return
+        if phase == "end":
+            self._drag_client = None
+            if cid is not None and cid not in self.server.get_clients():
+                phase = "cancel"
         if phase == "start":
             self._dragging = True
-        elif phase == "end":
+        elif phase in ("end", "cancel"):
             self._dragging = False
         self.h.drag(phase, _pose_of(event.target))
 
@@ -753,6 +766,11 @@ class StationNode(Node):
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
         F = InteractiveMarkerFeedback
+        if phase == "cancel":       # no keep-alives: the engine cancels the silent drag
+            with self._lock:
+                self._drag_last = None
+            self._note("the dragging browser went away: its drag is cancelled")
+            return
         kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
         if kind is None or not self._cloud_frame:
             return
