@@ -1,0 +1,113 @@
+"""Every input acts on its own object: a real engine process, interactive-marker feedback, clicks
+and TF over real topics."""
+import time
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import InteractiveMarkerFeedback
+
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.ros.conversions import matrix_to_pose, xyz_to_pointcloud2
+from affordance_registration.ros.interactive import DRAG_EXPIRY_S
+from ros_helpers import engine_session
+
+FRAME = "camera_depth_optical_frame"
+NS = "/affordance_engine"
+F = InteractiveMarkerFeedback
+
+
+@pytest.fixture
+def s(ros_context, tmp_path, library):
+    with engine_session(tmp_path, {"refit_on_new_cloud": "false"}, "own_object_tester",
+                        {"points": (PointCloud2, "/points", 1),
+                         "click": (PointStamped, "/clicked_point", 10),
+                         "feedback": (InteractiveMarkerFeedback,
+                                      "/affordance_correction/feedback", 100)},
+                        sim=simulate_taskboard(library, 7)) as s:
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(s["sim"].organized, FRAME))
+        s["client"].wait_for(lambda: (s["client"].status() or {}).get("node", {}).get("cloud"),
+                             30, "the cloud")
+        yield s
+
+
+def _status(s):
+    return s["client"].status() or {}
+
+
+def _pose(s, obj_id):
+    for o in _status(s).get("objects", []):
+        if o["id"] == obj_id:
+            return np.asarray(o["candidates"][o["shown"]]["pose"])
+    return None
+
+
+def _click(s, obj):
+    n = len(_status(s).get("objects", []))
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
+    s["pubs"]["click"].publish(msg)
+    st = s["client"].wait_for(lambda: len(_status(s).get("objects", [])) == n + 1 and
+                              _status(s)["node"]["idle"] and _status(s), 60, "the fitted object")
+    return st["active_id"]
+
+
+def _feedback(s, event, T, client):
+    fb = InteractiveMarkerFeedback(client_id=client, marker_name="affordance_fit",
+                                   event_type=event)
+    fb.header.frame_id = FRAME
+    fb.pose = matrix_to_pose(T)
+    s["pubs"]["feedback"].publish(fb)
+
+
+def _wait_log(s, text, timeout=30):
+    s["client"].wait_for(lambda: text in s["proc"].output(), timeout, repr(text))
+
+
+def test_a_silent_drag_is_cancelled_and_its_late_release_moves_nothing(s):
+    sim = s["sim"]
+    first = _click(s, sim.objects[0])
+    before = _pose(s, first)
+    moved = before.copy()
+    moved[:3, 3] += [0.05, 0.0, 0.0]
+    _feedback(s, F.MOUSE_DOWN, before, "/browser_a")
+    _feedback(s, F.POSE_UPDATE, moved, "/browser_a")
+    s["client"].wait_for(lambda: np.allclose(_pose(s, first), moved, atol=1e-6), 30,
+                         "the drag to move the object")
+    # browser A falls silent: after DRAG_EXPIRY_S the drag is cancelled, the object is back
+    s["client"].wait_for(lambda: np.allclose(_pose(s, first), before, atol=1e-6),
+                         DRAG_EXPIRY_S + 30, "the silent drag to be cancelled")
+    _wait_log(s, "the unfinished drag was cancelled")
+    # browser B opens another object; A's late release must not move it
+    second = _click(s, sim.objects[2])
+    assert second != first
+    opened = _pose(s, second)
+    far = opened.copy()
+    far[:3, 3] += [0.0, 0.3, 0.0]
+    _feedback(s, F.MOUSE_UP, far, "/browser_a")
+    _wait_log(s, "after its drag was cancelled")
+    time.sleep(0.5)
+    assert np.allclose(_pose(s, second), opened, atol=1e-9)
+    assert np.allclose(_pose(s, first), before, atol=1e-9)
+
+
+def test_a_release_for_an_object_no_longer_selected_is_refused(s):
+    sim = s["sim"]
+    first = _click(s, sim.objects[1])
+    before = _pose(s, first)
+    _feedback(s, F.MOUSE_DOWN, before, "/browser_a")
+    nudged = before.copy()
+    nudged[:3, 3] += [0.0, 0.0, 0.01]
+    _feedback(s, F.POSE_UPDATE, nudged, "/browser_a")
+    s["client"].wait_for(lambda: np.allclose(_pose(s, first), nudged, atol=1e-6), 30, "the drag")
+    second = _click(s, sim.objects[3])      # while A holds the drag (keep-alives below)
+    _feedback(s, F.KEEP_ALIVE, nudged, "/browser_a")
+    opened = _pose(s, second)
+    away = opened.copy()
+    away[:3, 3] += [0.2, 0.0, 0.0]
+    _feedback(s, F.MOUSE_UP, away, "/browser_a")
+    s["client"].wait_for(lambda: f"release refused: it started on object {first}" in
+                         _status(s)["node"]["last_error"], 30, "the refusal")
+    assert np.allclose(_pose(s, second), opened, atol=1e-9)
