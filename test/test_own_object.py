@@ -111,3 +111,81 @@ def test_a_release_for_an_object_no_longer_selected_is_refused(s):
     s["client"].wait_for(lambda: f"release refused: it started on object {first}" in
                          _status(s)["node"]["last_error"], 30, "the refusal")
     assert np.allclose(_pose(s, second), opened, atol=1e-9)
+
+
+# ---------------------------------------------------------------------------- TF in time order
+def _tf_message(parent, child, x, stamp_s):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+    t = TransformStamped()
+    t.header.frame_id, t.child_frame_id = parent, child
+    t.header.stamp.sec = int(stamp_s)
+    t.header.stamp.nanosec = int(round((stamp_s % 1) * 1e9))
+    t.transform.translation.x = float(x)
+    t.transform.rotation.w = 1.0
+    return TFMessage(transforms=[t])
+
+
+def test_an_old_tf_arriving_after_a_new_one_changes_nothing(ros_context, tmp_path, library):
+    from tf2_msgs.msg import TFMessage
+    sim = simulate_taskboard(library, 7)
+    with engine_session(tmp_path, {"refit_on_new_cloud": "false"}, "tf_order_tester",
+                        {"points": (PointCloud2, "/points", 1),
+                         "click": (PointStamped, "/clicked_point", 10),
+                         "tf": (TFMessage, "/tf", 100)}) as s:
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(sim.organized, FRAME))
+        s["client"].wait_for(lambda: _status(s).get("node", {}).get("cloud"), 30, "the cloud")
+        target = sim.objects[2]
+        other = min((o for o in sim.objects if o.template != target.template),
+                    key=lambda o: abs(np.linalg.norm(o.click - target.click) - 0.0))
+        shift = float(other.click[0] - target.click[0])
+        # pointer_frame = the cloud frame moved by +0.1 m in x (stamp 100 s); an old message
+        # (stamp 95 s) that would put the click on another object arrives afterwards
+        s["pubs"]["tf"].publish(_tf_message(FRAME, "pointer_frame", 0.1, 100.0))
+        time.sleep(0.3)
+        s["pubs"]["tf"].publish(_tf_message(FRAME, "pointer_frame", 0.1 + shift, 95.0))
+        time.sleep(0.5)
+        msg = PointStamped()
+        msg.header.frame_id = "pointer_frame"
+        msg.point.x, msg.point.y, msg.point.z = map(float, target.click - [0.1, 0.0, 0.0])
+        s["pubs"]["click"].publish(msg)         # no stamp: the latest transform
+        st = s["client"].wait_for(lambda: _status(s).get("objects") and _status(s), 60,
+                                  "the fit")
+        assert st["objects"][0]["candidates"][0]["template"] == target.template
+        assert np.allclose(st["objects"][0]["click"], target.click, atol=0.01)
+        # a click stamped 95 s is taken in the frames of 95 s (a lookup at its stamp)
+        msg.header.stamp.sec = 95
+        msg.point.x, msg.point.y, msg.point.z = map(float, other.click - [0.1 + shift, 0, 0])
+        s["pubs"]["click"].publish(msg)
+        st = s["client"].wait_for(lambda: len(_status(s).get("objects", [])) == 2 and
+                                  _status(s), 60, "the second fit")
+        assert np.allclose(st["objects"][1]["click"], other.click, atol=0.01)
+
+
+def test_the_buffer_keeps_time_order_interpolates_and_forgets_after_its_cache():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+    from affordance_registration.ros.frames import FrameError, TransformBuffer
+
+    def T(x):
+        out = np.eye(4)
+        out[0, 3] = x
+        return out
+
+    @settings(max_examples=100, deadline=None)
+    @given(st.permutations(list(range(1, 8))))
+    def arrival_order_does_not_matter(order):
+        buf = TransformBuffer(cache_s=100.0)
+        for k in order:
+            buf.set("a", "b", T(float(k)), stamp=float(k))
+        assert buf.graph().lookup("a", "b")[0, 3] == 7.0          # the newest, whatever came last
+        assert buf.graph(3.25).lookup("a", "b")[0, 3] == pytest.approx(3.25)
+        assert buf.graph(99.0).lookup("a", "b")[0, 3] == 7.0
+    arrival_order_does_not_matter()
+    buf = TransformBuffer(cache_s=10.0)
+    buf.set("a", "b", T(1.0), stamp=1.0)
+    buf.set("a", "b", T(20.0), stamp=20.0)          # 1 s is now more than 10 s old: forgotten
+    with pytest.raises(FrameError):
+        buf.graph(1.0).lookup("a", "b")
+    buf.set("a", "s", T(5.0), static=True)
+    assert buf.graph(1.0).lookup("a", "s")[0, 3] == 5.0     # static: at every time

@@ -142,8 +142,8 @@ class OperatorStream:
 
     ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Hooks, all optional:
     ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
-    ``to_scene_frame(point, frame)`` expresses a click given in ``frame`` in the scene's frame
-    (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
+    ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
+    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
     every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
     after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
     ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
@@ -164,7 +164,7 @@ class OperatorStream:
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
         self._refresh_scene = refresh_scene or (lambda: None)
-        self._to_scene_frame = to_scene_frame or (lambda point, frame: point)
+        self._to_scene_frame = to_scene_frame or (lambda point, frame, stamp=None: point)
         self._report = report or (lambda kind, ok, msg: None)
         self._on_change = on_change or (lambda: None)
         self._on_busy = on_busy or (lambda text: None)
@@ -229,9 +229,12 @@ class OperatorStream:
             if old.reply is not None:
                 old.reply(False, f"{_kind(old).replace('_', ' ')} {why}")
 
-    def click(self, point, frame: str = "", source: str = "click", reply=None) -> None:
+    def click(self, point, frame: str = "", source: str = "click", reply=None,
+              stamp: float | None = None) -> None:
+        """A click at ``point`` in ``frame``, made at ``stamp`` (s; the frame is looked up then;
+        None: the latest)."""
         self.submit(OperatorInput("click", np.asarray(point, dtype=float), frame=frame,
-                                  source=source, reply=reply))
+                                  source=source, reply=reply, stamp=stamp))
 
     def action(self, name: str, argument=None, source: str = "", reply=None) -> None:
         self.submit(OperatorInput("action", name, argument, source=source or name, reply=reply))
@@ -394,7 +397,7 @@ class OperatorStream:
     def _on_click(self, item: OperatorInput) -> tuple[bool, str]:
         self._on_busy(self._busy)
         self._refresh_scene()
-        point = self._to_scene_frame(item.value, item.frame)
+        point = self._to_scene_frame(item.value, item.frame, item.stamp)
         if self.settings.slow_fit_s > 0:     # test only: the fit takes this much longer
             self.sleep(self.settings.slow_fit_s)
         return True, self.engine.click(point)

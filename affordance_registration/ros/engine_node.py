@@ -75,6 +75,12 @@ def _stamp_s(info) -> float | None:
     return ns * 1e-9 if ns > 0 else None
 
 
+def _header_s(header) -> float | None:
+    """A header's stamp in seconds, None when it has none (zero)."""
+    s = header.stamp.sec + header.stamp.nanosec * 1e-9
+    return s if s > 0 else None
+
+
 class EngineNode(Node):
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
@@ -244,10 +250,11 @@ class EngineNode(Node):
     def _make_tf(self) -> TfListener:
         return TfListener(self)
 
-    def _lookup(self, target: str, source: str) -> np.ndarray:
-        """T_target_source from TF (tf2_ros, or /tf and /tf_static) and the static transforms
-        parameter."""
-        return self._tf.lookup(target, source, fallback=self.frames)
+    def _lookup(self, target: str, source: str, stamp: float | None = None) -> np.ndarray:
+        """T_target_source from TF (tf2_ros, or /tf and /tf_static) at ``stamp`` (s, the
+        header stamp of the message that needs it; None: the latest) and the static
+        transforms parameter."""
+        return self._tf.lookup(target, source, fallback=self.frames, stamp=stamp)
 
     def _frame(self) -> str:
         """The frame of everything the node reports: the scene's, else the latest cloud's."""
@@ -256,13 +263,15 @@ class EngineNode(Node):
         with self._lock:
             return self._cloud_msg.header.frame_id if self._cloud_msg is not None else ""
 
-    def _to_scene_frame(self, point: np.ndarray, frame: str) -> np.ndarray:
-        """A click given in ``frame`` expressed in the scene's frame (stream worker)."""
+    def _to_scene_frame(self, point: np.ndarray, frame: str,
+                        stamp: float | None = None) -> np.ndarray:
+        """A click given in ``frame`` at ``stamp`` expressed in the scene's frame (stream
+        worker)."""
         cloud_frame = self.engine.frame_id
         if not frame or frame.lstrip("/") == cloud_frame.lstrip("/"):
             return point
         try:
-            T = self._lookup(cloud_frame, frame)
+            T = self._lookup(cloud_frame, frame, stamp)
         except FrameError:
             raise AffordanceError(f"click refused: it is in frame '{frame}' and no transform to "
                                   f"the cloud frame '{cloud_frame}' is known") from None
@@ -308,7 +317,7 @@ class EngineNode(Node):
         self._converted = count
         try:
             pts, _ = pointcloud2_to_xyz(msg)
-            origin, T_optical = self._sensor(msg.header.frame_id)
+            origin, T_optical = self._sensor(msg.header.frame_id, _header_s(msg.header))
             self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
                                   T_scene_optical=T_optical)
         except AffordanceError as exc:
@@ -318,7 +327,7 @@ class EngineNode(Node):
             self._error("cloud", f"the latest cloud is unusable ({exc}); still using the "
                                  f"previous one")
 
-    def _sensor(self, cloud_frame: str):
+    def _sensor(self, cloud_frame: str, stamp: float | None = None):
         """(sensor origin or "none", the sensor's optical pose 4x4) in ``cloud_frame``: from the
         ``sensor_frame`` parameter through TF, or the ``sensor_origin`` parameter; the pose is
         the default view for twists."""
@@ -330,7 +339,7 @@ class EngineNode(Node):
             T[:3, 3] = self._p["sensor_origin"]
             return list(self._p["sensor_origin"]), T
         try:
-            T_cloud_sensor = self._lookup(cloud_frame, name)
+            T_cloud_sensor = self._lookup(cloud_frame, name, stamp)
         except FrameError:
             raise AffordanceError(f"the sensor frame '{name}' has no known transform to the "
                                   f"cloud frame '{cloud_frame}' (publish it on TF, or give it "
@@ -343,7 +352,8 @@ class EngineNode(Node):
                                  f"{len(msg.header.frame_id):,} characters (at most {MAX_NAME})")
             return
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
-        self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name)
+        self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name,
+                          stamp=_header_s(msg.header))
         self._dirty = True      # the status shows what is queued
 
     def _on_twist(self, msg, info=None) -> None:
@@ -365,7 +375,8 @@ class EngineNode(Node):
     def _on_view(self, msg: PoseStamped) -> None:
         try:
             T = pose_to_matrix(msg.pose)
-            T = self._lookup(self._frame() or msg.header.frame_id, msg.header.frame_id) @ T
+            T = self._lookup(self._frame() or msg.header.frame_id, msg.header.frame_id,
+                             _header_s(msg.header)) @ T
         except AffordanceError as exc:
             self._error("view", f"view_pose ignored: {exc}")
             return
