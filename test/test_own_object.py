@@ -50,7 +50,7 @@ def _click(s, obj):
     msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
     s["pubs"]["click"].publish(msg)
     st = s["client"].wait_for(lambda: len(_status(s).get("objects", [])) == n + 1 and
-                              _status(s)["node"]["idle"] and _status(s), 60, "the fitted object")
+                              _status(s)["node"]["idle"] and _status(s), 180, "the fitted object")
     return st["active_id"]
 
 
@@ -189,3 +189,76 @@ def test_the_buffer_keeps_time_order_interpolates_and_forgets_after_its_cache():
         buf.graph(1.0).lookup("a", "b")
     buf.set("a", "s", T(5.0), static=True)
     assert buf.graph(1.0).lookup("a", "s")[0, 3] == 5.0     # static: at every time
+
+
+# ---------------------------------------------------------------------------- frame changes
+def test_a_frame_change_re_expresses_the_open_object_and_the_registrations(ros_context,
+                                                                            tmp_path, library):
+    from std_srvs.srv import Trigger
+    from affordance_registration.core.transforms import pose_error
+    from affordance_registration.core.transforms import quat_xyzw_to_matrix
+    sim = simulate_taskboard(library, 7)
+    # camB sees the same scene from 8 cm to the side, turned 10 degrees about y
+    c, s_ = np.cos(np.radians(10)), np.sin(np.radians(10))
+    qy = (0.0, np.sin(np.radians(5)), 0.0, np.cos(np.radians(5)))
+    T_B_A = np.eye(4)
+    T_B_A[:3, :3] = quat_xyzw_to_matrix(qy)
+    T_B_A[:3, 3] = [0.08, 0.0, 0.0]
+    assert np.allclose(T_B_A[0, 0], c) and np.allclose(T_B_A[0, 2], s_)
+    entry = f"camB {FRAME} 0.08 0 0 {qy[0]} {qy[1]} {qy[2]} {qy[3]}"
+    with engine_session(tmp_path, {"refit_on_new_cloud": "false", "sensor_frame": FRAME,
+                                   "static_transforms": f"['{entry}']"},
+                        "frame_change_tester",
+                        {"points": (PointCloud2, "/points", 1),
+                         "click": (PointStamped, "/clicked_point", 10)}, sim=sim) as s:
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(sim.organized, FRAME))
+        s["client"].wait_for(lambda: _status(s).get("node", {}).get("cloud"), 30, "the cloud")
+        accepted = _click(s, sim.objects[0])
+        assert s["client"].call(Trigger, f"{NS}/accept", timeout=30).success
+        reg_A = np.asarray(s["client"].wait_for(lambda: _status(s)["registered"], 30,
+                                                "the registration")[0]["pose"])
+        opened = _click(s, sim.objects[2])
+        assert opened != accepted
+        open_A = _pose(s, opened)
+        pts = sim.organized.reshape(-1, 3)
+        pts_B = pts @ T_B_A[:3, :3].T + T_B_A[:3, 3]
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(pts_B.astype(np.float32), "camB"))
+        s["client"].wait_for(lambda: _status(s)["node"]["cloud"]["frame_id"] == "camB", 30,
+                             "the cloud in camB")
+        res = s["client"].call(Trigger, f"{NS}/refit", timeout=60)   # converts the new cloud
+        assert res.success, res.message
+        st = s["client"].wait_for(lambda: _status(s)["frame_id"] == "camB" and _status(s), 30,
+                                  "the status in camB")
+        dt, _ = pose_error(_pose(s, opened), T_B_A @ open_A,
+                           library[sim.objects[2].template].symmetry)
+        assert dt < 0.005, f"{dt * 1000:.1f} mm"
+        reg = st["registered"][0]
+        assert reg["frame_id"] == "camB"
+        assert np.allclose(np.asarray(reg["pose"]), T_B_A @ reg_A, atol=1e-6)
+        assert "re-expressed" in s["proc"].output()
+
+
+def test_a_frame_change_without_a_transform_closes_the_open_objects(ros_context, tmp_path,
+                                                                    library):
+    from std_srvs.srv import Trigger
+    sim = simulate_taskboard(library, 7)
+    with engine_session(tmp_path, {"refit_on_new_cloud": "false"}, "frame_close_tester",
+                        {"points": (PointCloud2, "/points", 1),
+                         "click": (PointStamped, "/clicked_point", 10)}, sim=sim) as s:
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(sim.organized, FRAME))
+        s["client"].wait_for(lambda: _status(s).get("node", {}).get("cloud"), 30, "the cloud")
+        _click(s, sim.objects[0])
+        assert s["client"].call(Trigger, f"{NS}/accept", timeout=30).success
+        _click(s, sim.objects[2])
+        pts = sim.organized.reshape(-1, 3)
+        s["pubs"]["points"].publish(xyz_to_pointcloud2(pts.astype(np.float32), "camC"))
+        s["client"].wait_for(lambda: _status(s)["node"]["cloud"]["frame_id"] == "camC", 30,
+                             "the cloud in camC")
+        s["client"].call(Trigger, f"{NS}/refit", timeout=60)
+        st = s["client"].wait_for(lambda: _status(s)["frame_id"] == "camC" and _status(s), 30,
+                                  "the status in camC")
+        assert st["objects"] == []
+        assert "no transform between them is known: open object(s) 2 closed" in \
+            s["proc"].output()
+        assert st["registered"][0]["frame_id"] == FRAME
+        assert not s["client"].call(Trigger, f"{NS}/undo").success     # nothing to bring back

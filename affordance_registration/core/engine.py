@@ -297,6 +297,54 @@ class AffordanceEngine:
             self._T_scene_optical = T_scene_optical
         return scene.size
 
+    def reexpress(self, T_new_old: np.ndarray, new_frame: str) -> str:
+        """The scene's frame changes (the cloud now comes in ``new_frame``): every open object,
+        registration, the undo history, the drag in progress and the view are re-expressed in
+        the new frame, ``T_new_old`` (4x4, rigid) being the old frame's pose in the new one.
+        Open objects are re-cropped on their next refit. Returns a line saying what moved."""
+        T = _transform(T_new_old, "the transform between the old and the new frame")
+
+        def obj_in_new(o: TrackedObject) -> TrackedObject:
+            cands = tuple(replace(c, T_scene_model=T @ c.T_scene_model) for c in o.candidates)
+            return replace(o, candidates=cands, click=T[:3, :3] @ o.click + T[:3, 3],
+                           context=None)
+
+        def reg_in_new(r: Registration) -> Registration:
+            if r.frame_id and r.frame_id.lstrip("/") == new_frame.lstrip("/"):
+                return r                    # already in the new frame
+            return replace(r, T_scene_model=T @ r.T_scene_model,
+                           click=T[:3, :3] @ r.click + T[:3, 3], frame_id=new_frame)
+
+        def state_in_new(st: EngineState) -> EngineState:
+            return replace(st, objects=tuple(obj_in_new(o) for o in st.objects),
+                           registered=tuple(reg_in_new(r) for r in st.registered))
+        with self._lock:
+            old = self._frame_id
+            self._state = state_in_new(self._state)
+            self._undo = [(state_in_new(st), action) for st, action in self._undo]
+            if self._drag_start is not None:
+                obj_id, index, T_before, corrections = self._drag_start
+                self._drag_start = (obj_id, index, T @ T_before, corrections)
+            if self._T_scene_view is not None:
+                self._T_scene_view = T @ self._T_scene_view
+            self._frame_id = new_frame
+            n, m = len(self._state.objects), len(self._state.registered)
+        return (f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new_frame)}': "
+                f"{n} open object(s) and {m} registration(s) re-expressed in it through TF")
+
+    def close_open_objects(self, why: str) -> str:
+        """Close every open object (they cannot be carried over: ``why``), and forget the undo
+        history (its states hold them). Registrations keep their own frame. Returns the line."""
+        with self._lock:
+            ids = [o.id for o in self._state.objects]
+            self._state = replace(self._state, objects=(), active_id=None)
+            self._undo.clear()
+            self._drag_start = None
+            self._last_action = "close"
+        closed = f"open object(s) {', '.join(map(str, ids))} closed" if ids else \
+            "no open object to close"
+        return f"{why}: {closed}; registrations keep their own frame_id"
+
     def set_view(self, T_scene_view: np.ndarray | None) -> None:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
         for the default: looking through the sensor (see :meth:`set_scene`)."""

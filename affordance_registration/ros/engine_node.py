@@ -318,6 +318,9 @@ class EngineNode(Node):
         try:
             pts, _ = pointcloud2_to_xyz(msg)
             origin, T_optical = self._sensor(msg.header.frame_id, _header_s(msg.header))
+            old, new = self.engine.frame_id.lstrip("/"), msg.header.frame_id.lstrip("/")
+            if old and new and old != new:      # only for a cloud that is used
+                self._change_frame(old, new, _header_s(msg.header))
             self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
                                   T_scene_optical=T_optical)
         except AffordanceError as exc:
@@ -326,6 +329,19 @@ class EngineNode(Node):
                                       f"{exc}") from None
             self._error("cloud", f"the latest cloud is unusable ({exc}); still using the "
                                  f"previous one")
+
+    def _change_frame(self, old: str, new: str, stamp: float | None) -> None:
+        """The cloud's frame changed (stream worker): what the engine holds is re-expressed in
+        the new frame through TF, or the open objects are closed when no transform is known --
+        never left in the old frame's numbers under the new frame's name."""
+        try:
+            T_new_old = self._lookup(new, old, stamp)
+        except FrameError:
+            self._error("frame", self.engine.close_open_objects(
+                f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new)}' and no "
+                f"transform between them is known"))
+            return
+        self._report("frame", True, self.engine.reexpress(T_new_old, new))
 
     def _sensor(self, cloud_frame: str, stamp: float | None = None):
         """(sensor origin or "none", the sensor's optical pose 4x4) in ``cloud_frame``: from the
