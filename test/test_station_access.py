@@ -236,8 +236,8 @@ def test_a_share_url_request_makes_no_outbound_connection_in_a_network_namespace
               f"{tmp_path}/pid) && for i in $(seq 600); do grep -q 'operator station on' "
               f"{tmp_path}/station.log && break; sleep 0.2; done && "
               f"{sys.executable} {tmp_path}/client.py {port} {STATION_SECRET} {SUBPROTOCOL}; "
-              f"kill -INT $(cat {tmp_path}/pid); sleep 3; kill -9 $(cat {tmp_path}/pid) 2>/dev/null;"
-              f" true")
+              f"kill -INT $(cat {tmp_path}/pid); sleep 3; "
+              f"kill -9 $(cat {tmp_path}/pid) 2>/dev/null; true")
     env = ros_env({"PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
                    "AR_OUTBOUND_LOG": str(log)})
     out = subprocess.run(["unshare", "-rn", "bash", "-c", script], capture_output=True,

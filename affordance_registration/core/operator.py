@@ -143,8 +143,8 @@ class OperatorStream:
     ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Hooks, all optional:
     ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
     ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
-    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
-    every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
+    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
+    cannot); ``report(kind, success, message)`` hears every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
     after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
     ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
     given, replaces that: it is called with ``True`` for ``save`` and with ``False`` right after

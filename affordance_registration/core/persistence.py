@@ -38,7 +38,8 @@ def registrations_document(registrations, frame_id: str = "") -> str:
 
 def backup_path(path: str, now: float | None = None) -> str:
     """A path next to ``path`` for a backup of it that does not exist yet:
-    ``<stem>.<YYYYmmddTHHMMSSZ>.bak<suffix>`` (``-2``, ``-3``... appended to the time when taken)."""
+    ``<stem>.<YYYYmmddTHHMMSSZ>.bak<suffix>`` (``-2``, ``-3``... appended to the time when
+    taken)."""
     folder, name = os.path.split(os.path.abspath(path))
     stem, suffix = os.path.splitext(name)
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(time.time() if now is None else now))

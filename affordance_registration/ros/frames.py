@@ -15,7 +15,8 @@ import numpy as np
 from ..core.errors import AffordanceError
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["FrameGraph", "StaticFrames", "TransformBuffer", "TF_CACHE_S", "parse_static_transform", "FrameError",
+__all__ = ["FrameGraph", "StaticFrames", "TransformBuffer", "TF_CACHE_S", "parse_static_transform",
+           "FrameError",
            "T_frame_optical", "R_BODY_OPTICAL", "is_body_frame"]
 
 #: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
