@@ -262,3 +262,70 @@ def test_a_frame_change_without_a_transform_closes_the_open_objects(ros_context,
             s["proc"].output()
         assert st["registered"][0]["frame_id"] == FRAME
         assert not s["client"].call(Trigger, f"{NS}/undo").success     # nothing to bring back
+
+
+# ---------------------------------------------------------------------------- the station
+def test_a_browser_that_disconnects_mid_drag_moves_nothing(ros_context, tmp_path, library):
+    """A real station and engine; a websocket client of the station (the page's protocol)
+    grabs the gizmo, drags it 8 cm and goes away without releasing: the object returns to where
+    it was, the half-finished pose is not committed."""
+    import msgspec
+    import viser
+    from websockets.sync.client import connect
+
+    from browser_helpers import STATION_SECRET, free_port, station_argv
+    from ros_helpers import NodeProcess
+    sim = simulate_taskboard(library, 7)
+    port = free_port()
+    station = NodeProcess(station_argv(port), tmp_path / "station.log")
+    try:
+        with engine_session(tmp_path, {"refit_on_new_cloud": "false"}, "disconnect_tester",
+                            {"points": (PointCloud2, "/points", 1),
+                             "click": (PointStamped, "/clicked_point", 10)}, sim=sim) as s:
+            s["client"].wait_for_subscribers(s["pubs"]["points"], count=2, timeout=120)
+            assert station.wait_output("operator station on", 120), station.output()
+            s["pubs"]["points"].publish(xyz_to_pointcloud2(sim.organized, FRAME))
+            s["client"].wait_for(lambda: _status(s).get("node", {}).get("cloud"), 30, "cloud")
+            obj_id = _click(s, sim.objects[2])
+            before = _pose(s, obj_id)
+            ws = connect(f"ws://127.0.0.1:{port}/?token={STATION_SECRET}",
+                         subprotocols=[f"viser-v{viser.__version__}"], open_timeout=60)
+            # the station shows the cloud and the gizmo before a drag means anything
+            assert station.wait_output("drawn: object", 120), station.output()[-2000:]
+            time.sleep(1.0)
+            moved = before[:3, 3] + [0.08, 0.0, 0.0]
+            w, x, y, z = _wxyz(before)
+            send = lambda m: ws.send(msgspec.msgpack.encode(m))          # noqa: E731
+            # a page reports its camera first (viser counts a client from then on)
+            send({"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+                  "position": [0.0, 0.0, 0.0], "fov": 1.0, "near": 0.01, "far": 100.0,
+                  "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 1.0],
+                  "up_direction": [0.0, -1.0, 0.0]})
+            time.sleep(1.0)
+            send({"type": "TransformControlsDragStartMessage", "name": "/fit", "owner": ""})
+            for f in np.linspace(0.1, 1.0, 10):
+                send({"type": "TransformControlsUpdateMessage", "name": "/fit",
+                      "wxyz": [w, x, y, z],
+                      "position": [float(v) for v in before[:3, 3] + f * (moved - before[:3, 3])],
+                      "owner": ""})
+                time.sleep(0.05)
+            s["client"].wait_for(lambda: np.linalg.norm(_pose(s, obj_id)[:3, 3] -
+                                                        before[:3, 3]) > 0.05, 60,
+                                 "the drag to reach the engine")
+            ws.close()                                   # gone mid-drag, never released
+            s["client"].wait_for(lambda: np.allclose(_pose(s, obj_id), before, atol=1e-6),
+                                 DRAG_EXPIRY_S + 60, "the object back where the drag started")
+            assert "the unfinished drag was cancelled" in s["proc"].output()
+            assert "a browser went away mid-drag: its drag is cancelled" in station.output()
+            time.sleep(1.0)
+            assert np.allclose(_pose(s, obj_id), before, atol=1e-6)    # and it stays there
+    finally:
+        station.interrupt(timeout=10)
+        station.kill()
+        print(station.output()[-2000:])
+
+
+def _wxyz(T):
+    from affordance_registration.core.transforms import matrix_to_quat_xyzw
+    x, y, z, w = matrix_to_quat_xyzw(T[:3, :3])
+    return float(w), float(x), float(y), float(z)

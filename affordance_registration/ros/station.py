@@ -770,6 +770,8 @@ class StationNode(Node):
             with self._lock:
                 self._drag_last = None
             self._note("the dragging browser went away: its drag is cancelled")
+            self.get_logger().info("a browser went away mid-drag: its drag is cancelled (not "
+                                   "released)")
             return
         kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
         if kind is None or not self._cloud_frame:
