@@ -38,7 +38,7 @@ from .corrections import R_VIEW_SPACENAV
 from .errors import AffordanceError
 
 __all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS",
-           "MAX_QUEUED_PER_SOURCE"]
+           "MAX_QUEUED_PER_SOURCE", "CLICK_DEPTH"]
 
 #: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value`` and
 #: ``select_model`` carry an argument (the joint value, the template name) in ``argument``
@@ -53,6 +53,9 @@ SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value")
 INDEPENDENT_KINDS = ("view", "cloud")
 #: inputs one source may have waiting; more are refused (a flood cannot grow the queue)
 MAX_QUEUED_PER_SOURCE = 500
+#: unstarted clicks one source may have waiting: two quick clicks on two objects are both fitted;
+#: a third supersedes the newer waiting one (the first and the latest intent are kept)
+CLICK_DEPTH = 2
 
 #: the actions Joy buttons can be mapped to
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
@@ -196,15 +199,18 @@ class OperatorStream:
     def submit(self, item: OperatorInput) -> None:
         """Append an input to the stream (any thread).
 
-        Bounded per source: a click supersedes an older click of the same source that has not
-        started, when only views and clouds were queued after it (so nothing queued meant that
-        click's object) -- a flood of clicks from one client leaves one waiting, the newest; the
-        superseded one is reported (and replied to) as such. A source with
+        Bounded per source: when :data:`CLICK_DEPTH` clicks of a source are already waiting, a
+        new one supersedes the newest of them, when only views and clouds were queued after it
+        (so nothing queued meant that click's object) -- a flood of clicks from one client
+        leaves two waiting, the first and the latest; the superseded one is reported (and
+        replied to) as such. A source with
         :data:`MAX_QUEUED_PER_SOURCE` inputs waiting has any further one refused."""
         dropped = []
         with self._cv:
             self._received[item.source] = self._received.get(item.source, 0) + 1
-            if item.kind == "click":
+            waiting_clicks = sum(1 for q in self._queue
+                                 if q.kind == "click" and q.source == item.source)
+            if item.kind == "click" and waiting_clicks >= CLICK_DEPTH:
                 for i in range(len(self._queue) - 1, -1, -1):
                     old = self._queue[i]
                     if old.kind == "click" and old.source == item.source:
