@@ -295,6 +295,11 @@ def cmd_station(args) -> int:
                           launch_name)
     nodes = parse_launch_file(launch, given)
     log_path = os.path.join(args.out, log_name)
+    # the station's access secret, handed to it through its environment (not its command line,
+    # which every local user can read), and shown in the URL printed below
+    from .ros.station_access import SECRET_ENV, new_secret
+    secret = os.environ.get(SECRET_ENV) or new_secret()
+    os.environ[SECRET_ENV] = secret
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
@@ -302,7 +307,7 @@ def cmd_station(args) -> int:
         # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
         launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
         launcher.start()
-        url = f"http://{args.host}:{args.port}"
+        url = f"http://{args.host}:{args.port}/?token={secret}"
         deadline = time.monotonic() + 120
         while not stop.is_set():
             if any(p.poll() is not None for p in launcher.procs):

@@ -111,7 +111,17 @@ def drag(page, start: tuple, end: tuple, steps: int = 12) -> None:
     page.mouse.up()
 
 
+#: the access secret the test stations are started with (see station_url)
+STATION_SECRET = "test-station-secret-0123456789"
+
+
+def station_url(port: int, secret: str = STATION_SECRET) -> str:
+    """The URL an operator of a station started by :func:`station_argv` opens."""
+    return f"http://127.0.0.1:{port}/?token={secret}"
+
+
 def station_argv(port: int, **params) -> list[str]:
+    params.setdefault("access_secret", STATION_SECRET)
     argv = [sys.executable, "-m", "affordance_registration.ros.station", "--ros-args",
             "-p", f"port:={port}"]
     for key, value in params.items():

@@ -41,7 +41,7 @@ from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
 from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2  # noqa: E402
 from browser_helpers import (browser_page, canvas_box, free_port, on_canvas, pixel,  # noqa: E402
                              scan_argv,
-                             settled_view, station_argv, wait_text)
+                             settled_view, station_argv, station_url, wait_text)
 from ros_helpers import LATCHED, Client, NodeProcess, engine_process  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -116,7 +116,7 @@ def main() -> int:
     library = TemplateLibrary.load()
     try:
         assert procs[2].wait_output("operator station on", 90), procs[2].output()
-        with browser_page(f"http://127.0.0.1:{port}") as page:
+        with browser_page(station_url(port)) as page:
             wait_text(page, r"Engine: /affordance_engine — idle")
             wait_text(page, rf"points in '{FRAME}'")
             view = settled_view(client)

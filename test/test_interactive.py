@@ -280,9 +280,11 @@ class Host:
         self.callbacks = MarkerCallbacks(
             active=engine.active_object, frame=lambda: FRAME, view_pose=engine.view_pose,
             template=library.__getitem__,
-            pose=lambda T, release: self.sent.append(("pose", T, release)),
+            pose=lambda T, release, target=None: self.sent.append(("pose", T, release)),
             action=lambda name, arg: self.sent.append(("action", name, arg)),
-            warn=self.warnings.append)
+            warn=self.warnings.append,
+            cancel=lambda target: self.cancelled.append(target))
+        self.cancelled = []
 
 
 class Clock:
@@ -342,14 +344,19 @@ def test_server_through_its_callbacks_without_a_node(library):
     server.feedback(_feedback(F.POSE_UPDATE, T, client="/rviz_b"))
     assert host.sent == [("pose", host.sent[0][1], False)]
     assert np.allclose(host.sent[0][1], T2)
-    # /rviz_a never released and went silent: /rviz_b may drag now
+    # /rviz_a never released and went silent: its drag is cancelled (the host puts the object
+    # back), /rviz_b may drag now, and /rviz_a's late release is refused
     clock.t += DRAG_EXPIRY_S + 0.1
+    server.expire()
+    assert host.cancelled == [engine.active_object().id]
+    server.feedback(_feedback(F.MOUSE_UP, T2, client="/rviz_a"))
+    assert any("after its drag was cancelled" in w for w in host.warnings)
     server.feedback(_feedback(F.POSE_UPDATE, T, client="/rviz_b"))
     server.feedback(_feedback(F.MOUSE_UP, T, client="/rviz_b"))
     assert [(kind, release) for kind, _, release in host.sent[1:]] == [("pose", False),
                                                                      ("pose", True)]
     # malformed and foreign feedback: one warning per kind
-    bad = _feedback(F.POSE_UPDATE, T)
+    bad = _feedback(F.POSE_UPDATE, T, client="/rviz_c")
     bad.pose.position.x = float("nan")
     server.feedback(bad)
     server.feedback(bad)

@@ -17,7 +17,7 @@ from affordance_registration.ros.conversions import pose_to_matrix
 from affordance_registration.ros.station import active_object, apply_markers, gizmo_scale
 from browser_helpers import (browser_page, canvas_box, chromium_missing, drag, free_port,
                              on_canvas, open_station, pixel, scan_argv, settled_view,
-                             station_argv, wait_text, wait_until)
+                             station_argv, station_url, wait_text, wait_until)
 from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 
 FRAME = "camera_depth_optical_frame"
@@ -82,7 +82,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
     truth = max(panel_scene.objects, key=lambda o: o.visible_points)
     try:
         assert station.wait_output("operator station on", 90), station.output()
-        with browser_page(f"http://127.0.0.1:{port}") as page:
+        with browser_page(station_url(port)) as page:
             # no engine yet: the page says so, and recovers when the engine comes up
             wait_text(page, "Engine not running")
             processes(engine_process(tmp_path))
@@ -179,7 +179,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
 
             # a second browser shows the same state
             second = page.context.new_page()
-            open_station(second, f"http://127.0.0.1:{port}")
+            open_station(second, station_url(port))
             wait_text(second, r"Objects: 0 open, 1 registered")
             wait_text(second, r"save: ok — saved 1 registration")
     finally:

@@ -5,8 +5,10 @@ import signal
 import socket
 import subprocess
 import sys
+import urllib.error
 import urllib.request
 
+import pytest
 from std_msgs.msg import String
 
 from browser_helpers import free_port
@@ -23,9 +25,12 @@ def test_station_demo_serves_the_page_and_stops_on_ctrl_c(tmp_path, ros_context)
     client.subscribe(String, "/affordance_engine/status", LATCHED)
     try:
         first = proc.stdout.readline()
-        assert first.strip() == f"operator station: http://127.0.0.1:{port}", first
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30) as page:
+        url = first.strip().removeprefix("operator station: ")
+        assert url.startswith(f"http://127.0.0.1:{port}/?token=") and len(url) > 60, first
+        with urllib.request.urlopen(url, timeout=30) as page:
             assert page.status == 200 and b"<html" in page.read().lower()
+        with pytest.raises(urllib.error.HTTPError, match="403"):     # no secret, no page
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30)
         # the engine has the simulated scan: a newcomer can click at once
         st = client.wait_for(lambda: (((client.status() or {}).get("node") or {})
                                       .get("cloud") or {}).get("received"), 120,

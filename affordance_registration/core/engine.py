@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from .corrections import apply_twist, view_from_optical
-from .errors import AffordanceError, EngineStateError, SceneError
+from .errors import AffordanceError, EngineStateError, SceneError, bounded
 from .files import write_atomically
 from .registration import (NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive,
                            no_match, verdict)
@@ -265,6 +265,8 @@ class AffordanceEngine:
         self._T_scene_optical: np.ndarray | None = None
         self._last_action = ""
         self._last_timing: dict = {}
+        #: the drag in progress: (object id, candidate index, pose and corrections before it)
+        self._drag_start: tuple | None = None
 
     def configure(self, settings: FitSettings | None = None,
                   library: TemplateLibrary | None = None) -> None:
@@ -344,6 +346,54 @@ class AffordanceEngine:
             self._frame_id = frame_id or scene.frame_id
             self._T_scene_optical = T_scene_optical
         return scene.size
+
+    def reexpress(self, T_new_old: np.ndarray, new_frame: str) -> str:
+        """The scene's frame changes (the cloud now comes in ``new_frame``): every open object,
+        registration, the undo history, the drag in progress and the view are re-expressed in
+        the new frame, ``T_new_old`` (4x4, rigid) being the old frame's pose in the new one.
+        Open objects are re-cropped on their next refit. Returns a line saying what moved."""
+        T = _transform(T_new_old, "the transform between the old and the new frame")
+
+        def obj_in_new(o: TrackedObject) -> TrackedObject:
+            cands = tuple(replace(c, T_scene_model=T @ c.T_scene_model) for c in o.candidates)
+            return replace(o, candidates=cands, click=T[:3, :3] @ o.click + T[:3, 3],
+                           context=None)
+
+        def reg_in_new(r: Registration) -> Registration:
+            if r.frame_id and r.frame_id.lstrip("/") == new_frame.lstrip("/"):
+                return r                    # already in the new frame
+            return replace(r, T_scene_model=T @ r.T_scene_model,
+                           click=T[:3, :3] @ r.click + T[:3, 3], frame_id=new_frame)
+
+        def state_in_new(st: EngineState) -> EngineState:
+            return replace(st, objects=tuple(obj_in_new(o) for o in st.objects),
+                           registered=tuple(reg_in_new(r) for r in st.registered))
+        with self._lock:
+            old = self._frame_id
+            self._state = state_in_new(self._state)
+            self._undo = [(state_in_new(st), action) for st, action in self._undo]
+            if self._drag_start is not None:
+                obj_id, index, T_before, corrections = self._drag_start
+                self._drag_start = (obj_id, index, T @ T_before, corrections)
+            if self._T_scene_view is not None:
+                self._T_scene_view = T @ self._T_scene_view
+            self._frame_id = new_frame
+            n, m = len(self._state.objects), len(self._state.registered)
+        return (f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new_frame)}': "
+                f"{n} open object(s) and {m} registration(s) re-expressed in it through TF")
+
+    def close_open_objects(self, why: str) -> str:
+        """Close every open object (they cannot be carried over: ``why``), and forget the undo
+        history (its states hold them). Registrations keep their own frame. Returns the line."""
+        with self._lock:
+            ids = [o.id for o in self._state.objects]
+            self._state = replace(self._state, objects=(), active_id=None)
+            self._undo.clear()
+            self._drag_start = None
+            self._last_action = "close"
+        closed = f"open object(s) {', '.join(map(str, ids))} closed" if ids else \
+            "no open object to close"
+        return f"{why}: {closed}; registrations keep their own frame_id"
 
     def set_view(self, T_scene_view: np.ndarray | None) -> None:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
@@ -428,7 +478,7 @@ class AffordanceEngine:
             obj = self._require_active()
             names = [c.template for c in obj.candidates]
             if template not in names:
-                raise EngineStateError(f"object {obj.id} has no candidate '{template}' "
+                raise EngineStateError(f"object {obj.id} has no candidate '{bounded(template)}' "
                                        f"(candidates: {', '.join(names)})")
             index = names.index(template)
             if index == obj.active:
@@ -464,8 +514,35 @@ class AffordanceEngine:
             obj = self._require_active()
             first = not (drag and self._last_action == "drag")
             new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
+            if drag and (first or self._drag_start is None or self._drag_start[0] != obj.id):
+                self._drag_start = (obj.id, obj.active, obj.shown.T_scene_model,
+                                    obj.corrections)
             self._commit(self._replace_object(new), "drag" if drag else "pose", coalesce=drag)
             return f"object {obj.id}: {obj.shown.template} placed"
+
+    def end_drag(self) -> None:
+        """The drag in progress was released (its pose stays)."""
+        with self._lock:
+            self._drag_start = None
+
+    def cancel_drag(self, object_id: int | None = None) -> str:
+        """Put the object of the drag in progress back where the drag started (its client went
+        away or fell silent): the drag is not committed. ``object_id``: the object the drag
+        started on (None: whichever it was). One undo step."""
+        with self._lock:
+            start, self._drag_start = self._drag_start, None
+            if start is None or (object_id is not None and start[0] != object_id):
+                raise EngineStateError("no drag in progress to cancel")
+            obj_id, index, T_before, corrections = start
+            obj = self._find(obj_id)
+            if obj is None or index >= len(obj.candidates):
+                raise EngineStateError(f"the dragged object {obj_id} is gone: nothing to cancel")
+            cand = replace(obj.candidates[index], T_scene_model=T_before)
+            cands = obj.candidates[:index] + (cand,) + obj.candidates[index + 1:]
+            self._commit(self._replace_object(replace(obj, candidates=cands,
+                                                      corrections=corrections)), "cancel drag")
+            return (f"object {obj_id}: the unfinished drag was cancelled; "
+                    f"{cand.template} is back where the drag started")
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
         """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
@@ -655,6 +732,14 @@ class AffordanceEngine:
             regs, frame = self._state.registered, self._frame_id
         written = save_registrations(path, regs, frame)
         return f"saved {len(regs)} registration(s) to {written}"
+
+    def resume(self, registrations) -> None:
+        """Start from ``registrations`` (a session resumed from its file): they become the
+        registered objects, not an undo step -- undo cannot drop what was saved before."""
+        regs = tuple(registrations)
+        with self._lock:
+            next_id = max([self._state.next_id] + [r.id + 1 for r in regs])
+            self._state = replace(self._state, registered=regs, next_id=next_id)
 
     def load(self, path: str) -> str:
         regs = load_registrations(path, self.library)

@@ -19,3 +19,17 @@ class RegistrationError(AffordanceError):
 
 class EngineStateError(AffordanceError):
     """An engine action was asked for at a moment it does not apply (nothing selected...)."""
+
+
+#: the longest text taken from outside (a name, a frame id, a message) echoed into a log line, a
+#: reply or the status
+MAX_ECHO = 200
+
+
+def bounded(text, limit: int = MAX_ECHO) -> str:
+    """``text`` as it may be echoed: at most ``limit`` characters, longer text cut and marked
+    with its length (so a 10 MB name costs a line, not 10 MB in every later status)."""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text):,} characters)"

@@ -37,7 +37,8 @@ import numpy as np
 from .corrections import R_VIEW_SPACENAV
 from .errors import AffordanceError
 
-__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS"]
+__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS",
+           "MAX_QUEUED_PER_SOURCE", "CLICK_DEPTH"]
 
 #: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value``,
 #: ``select_model`` and ``dimension`` carry an argument (the joint value, the template name, a
@@ -48,6 +49,15 @@ ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "u
 LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
 #: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
 SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value", "dimension")
+#: inputs queued between an unstarted click and a newer click from the same source that do not
+#: belong to the older click's object: the newer click may supersede it (see ``submit``)
+INDEPENDENT_KINDS = ("view", "cloud")
+#: inputs one source may have waiting; more are refused (a flood cannot grow the queue)
+MAX_QUEUED_PER_SOURCE = 500
+#: unstarted clicks one source may have waiting: two quick clicks on two objects are both fitted;
+#: a third supersedes the newer waiting one (the first and the latest intent are kept)
+CLICK_DEPTH = 2
+
 #: the actions Joy buttons can be mapped to
 BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
                   "joint_plus", "joint_minus")
@@ -125,6 +135,9 @@ class OperatorInput:
     source: str = ""
     reply: object = field(default=None, compare=False)
     arrived: float = 0.0
+    #: the object the input was meant for (a drag carries the object it started on): refused
+    #: when another object is selected by the time it is handled; None: the selected one
+    target: int | None = None
 
 
 class OperatorStream:
@@ -133,11 +146,16 @@ class OperatorStream:
 
     ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Hooks, all optional:
     ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
-    ``to_scene_frame(point, frame)`` expresses a click given in ``frame`` in the scene's frame
-    (raising :class:`AffordanceError` when it cannot); ``report(kind, success, message)`` hears
-    every outcome (``kind`` names the input, for throttled logging); ``on_change()`` is called
-    after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
-    ``registrations_file()`` gives the path ``save`` writes to.
+    ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
+    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
+    cannot); ``report(kind, success, message)`` hears every outcome (``kind`` names the
+    input, for throttled logging); ``on_change()`` is called after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
+    ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
+    given, replaces that: it is called with ``True`` for ``save`` and with ``False`` right after
+    any input that changed the registrations (accept, undo, a Joy accept...), *before* that
+    input is replied to, so what is acknowledged is durable; it returns a message to add to the
+    reply ("" for none) or raises :class:`AffordanceError` (the input then fails with the reason;
+    the registrations stay in memory).
 
     Submit from any thread; handle with :meth:`run` (a worker thread) or, in tests,
     :meth:`process_pending`.
@@ -145,16 +163,17 @@ class OperatorStream:
 
     def __init__(self, engine, settings: OperatorSettings | None = None, clock=time.monotonic,
                  sleep=time.sleep, *, refresh_scene=None, to_scene_frame=None, report=None,
-                 on_change=None, on_busy=None, registrations_file=None):
+                 on_change=None, on_busy=None, registrations_file=None, persist=None):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
         self._refresh_scene = refresh_scene or (lambda: None)
-        self._to_scene_frame = to_scene_frame or (lambda point, frame: point)
+        self._to_scene_frame = to_scene_frame or (lambda point, frame, stamp=None: point)
         self._report = report or (lambda kind, ok, msg: None)
         self._on_change = on_change or (lambda: None)
         self._on_busy = on_busy or (lambda text: None)
         self._registrations_file = registrations_file or (lambda: "affordance_registrations.yaml")
+        self._persist = persist
         self._cv = threading.Condition()
         self._queue: collections.deque[OperatorInput] = collections.deque()
         self._busy: str | None = None
@@ -179,15 +198,50 @@ class OperatorStream:
 
     # ------------------------------------------------------------------ input
     def submit(self, item: OperatorInput) -> None:
-        """Append an input to the stream (any thread)."""
-        with self._cv:
-            self._queue.append(_arrived(item, self.clock()))
-            self._received[item.source] = self._received.get(item.source, 0) + 1
-            self._cv.notify_all()
+        """Append an input to the stream (any thread).
 
-    def click(self, point, frame: str = "", source: str = "click", reply=None) -> None:
+        Bounded per source: when :data:`CLICK_DEPTH` clicks of a source are already waiting, a
+        new one supersedes the newest of them, when only views and clouds were queued after it
+        (so nothing queued meant that click's object) -- a flood of clicks from one client
+        leaves two waiting, the first and the latest; the superseded one is reported (and
+        replied to) as such. A source with
+        :data:`MAX_QUEUED_PER_SOURCE` inputs waiting has any further one refused."""
+        dropped = []
+        with self._cv:
+            self._received[item.source] = self._received.get(item.source, 0) + 1
+            waiting_clicks = sum(1 for q in self._queue
+                                 if q.kind == "click" and q.source == item.source)
+            if item.kind == "click" and waiting_clicks >= CLICK_DEPTH:
+                for i in range(len(self._queue) - 1, -1, -1):
+                    old = self._queue[i]
+                    if old.kind == "click" and old.source == item.source:
+                        del self._queue[i]       # by position: inputs hold arrays (no ==)
+                        dropped.append((old, "superseded by a newer click from the same "
+                                             "source before its fit started"))
+                        break
+                    if old.kind not in INDEPENDENT_KINDS:
+                        break
+            waiting = sum(1 for q in self._queue if q.source == item.source)
+            if waiting >= MAX_QUEUED_PER_SOURCE:
+                dropped.append((item, f"refused: {waiting} inputs from this source are "
+                                      f"already waiting"))
+            else:
+                self._queue.append(_arrived(item, self.clock()))
+            for old, _ in dropped:
+                self._handled[old.source] = self._handled.get(old.source, 0) + 1
+            self._cv.notify_all()
+        for old, why in dropped:
+            self._report("queue", False, f"{_kind(old).replace('_', ' ')} from "
+                                         f"{old.source or 'an input'} {why}")
+            if old.reply is not None:
+                old.reply(False, f"{_kind(old).replace('_', ' ')} {why}")
+
+    def click(self, point, frame: str = "", source: str = "click", reply=None,
+              stamp: float | None = None) -> None:
+        """A click at ``point`` in ``frame``, made at ``stamp`` (s; the frame is looked up then;
+        None: the latest)."""
         self.submit(OperatorInput("click", np.asarray(point, dtype=float), frame=frame,
-                                  source=source, reply=reply))
+                                  source=source, reply=reply, stamp=stamp))
 
     def action(self, name: str, argument=None, source: str = "", reply=None) -> None:
         self.submit(OperatorInput("action", name, argument, source=source or name, reply=reply))
@@ -204,9 +258,15 @@ class OperatorStream:
     def view(self, T_scene_view, source: str = "view") -> None:
         self.submit(OperatorInput("view", np.asarray(T_scene_view, dtype=float), source=source))
 
-    def pose(self, T_scene_model, release: bool = False, source: str = "pose") -> None:
+    def pose(self, T_scene_model, release: bool = False, source: str = "pose",
+             target: int | None = None) -> None:
         self.submit(OperatorInput("pose", np.asarray(T_scene_model, dtype=float), bool(release),
-                                  source=source))
+                                  source=source, target=target))
+
+    def cancel_drag(self, target: int | None = None, source: str = "pose") -> None:
+        """The drag of ``target`` ended without a release (its client went away or silent):
+        the object goes back where the drag started."""
+        self.submit(OperatorInput("cancel", source=source, target=target))
 
     def new_cloud(self) -> None:
         """A new cloud arrived: the selected object follows it (in order with the operator's
@@ -262,12 +322,21 @@ class OperatorStream:
                 return False
             item = self._queue.popleft()
             self._busy = _describe(item, len(self._queue))
+        registered = self.engine.state.registered
         try:
             ok, message = self._handle(item)
         except AffordanceError as exc:
             ok, message = False, str(exc)
         except Exception as exc:     # a bug must not kill the worker or leave a caller waiting
             ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
+        if self._persist is not None and self.engine.state.registered is not registered:
+            try:                     # durable before it is acknowledged
+                saved = self._persist(False)
+                message = "; ".join(m for m in (message, saved) if m)
+            except AffordanceError as exc:
+                ok, message = False, f"{message}; NOT saved: {exc}"
+            except Exception as exc:
+                ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
             self._report(_kind(item), ok, message)
         if item.reply is not None:
@@ -312,6 +381,8 @@ class OperatorStream:
             return self._act(item.value, item.argument)
         if kind == "cloud":
             return self._follow()
+        if kind == "cancel":
+            return True, self.engine.cancel_drag(item.target)
         raise AffordanceError(f"unknown operator input {kind!r}")
 
     def _settle(self, action: str) -> None:
@@ -333,7 +404,7 @@ class OperatorStream:
     def _on_click(self, item: OperatorInput) -> tuple[bool, str]:
         self._on_busy(self._busy)
         self._refresh_scene()
-        point = self._to_scene_frame(item.value, item.frame)
+        point = self._to_scene_frame(item.value, item.frame, item.stamp)
         if self.settings.slow_fit_s > 0:     # test only: the fit takes this much longer
             self.sleep(self.settings.slow_fit_s)
         return True, self.engine.click(point)
@@ -343,6 +414,8 @@ class OperatorStream:
             raise AffordanceError(f"unknown action {action!r}")
         self._settle(action)
         if action == "save":
+            if self._persist is not None:
+                return True, self._persist(True)
             return True, self.engine.save(self._registrations_file())
         if action in ("refit", "joint_plus", "joint_minus", "joint_value", "dimension"):
             self._refresh_scene()
@@ -429,10 +502,18 @@ class OperatorStream:
         return True, message
 
     def _on_pose(self, item: OperatorInput) -> tuple[bool, str]:
+        if item.target is not None:
+            active = self.engine.active_object()
+            if active is None or active.id != item.target:
+                now = f"object {active.id} is" if active is not None else "no object is"
+                raise AffordanceError(f"{'release' if item.argument else 'drag'} refused: it "
+                                      f"started on object {item.target}, and {now} selected "
+                                      f"now")
         self._settle("pose")
         message = self.engine.correct_pose(item.value, drag=True)
         if not item.argument:
             return True, ""
+        self.engine.end_drag()
         self._refresh_scene()
         return True, f"{message}; {self.engine.refit()}"
 
@@ -449,6 +530,6 @@ def _kind(item: OperatorInput) -> str:
 def _describe(item: OperatorInput, queued: int) -> str:
     what = {"click": "fitting a click", "action": f"{item.value}", "twist": "moving the object",
             "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object",
-            "cloud": "following the new cloud"}
+            "cloud": "following the new cloud", "cancel": "cancelling a drag"}
     text = what.get(item.kind, item.kind)
     return f"{text} ({queued} more queued)" if queued else text

@@ -32,8 +32,9 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.corrections import view_from_optical
 from ..core.engine import AffordanceEngine
-from ..core.errors import AffordanceError, EngineStateError
+from ..core.errors import AffordanceError, EngineStateError, bounded
 from ..core.operator import ACTIONS, OperatorStream
+from ..core.persistence import RegistrationStore
 from ..core.scene import NO_VIEWPOINT
 from ..core.templates import TemplateLibrary
 from . import params
@@ -48,8 +49,12 @@ from .tf import TfBroadcaster, TfListener
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
             "joint_plus", "joint_minus")
 #: inputs whose errors repeat with a stream of bad messages: logged as throttled warnings
-STREAMED = ("twist", "joy", "view", "pose", "cloud")
+STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click")
 THROTTLE_S = 2.0
+#: the longest frame id, template name or other name taken from a message (longer: refused)
+MAX_NAME = 256
+#: the longest log line / status message the node writes about one input
+MAX_MESSAGE = 2000
 
 #: reliable, deep enough for a SpaceMouse burst or a storm of calls while a fit runs
 INPUT_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
@@ -95,6 +100,12 @@ def parse_dimension(text: str) -> tuple:
     return name.strip(), metres, None
 
 
+def _header_s(header) -> float | None:
+    """A header's stamp in seconds, None when it has none (zero)."""
+    s = header.stamp.sec + header.stamp.nanosec * 1e-9
+    return s if s > 0 else None
+
+
 class EngineNode(Node):
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
@@ -102,6 +113,9 @@ class EngineNode(Node):
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
+        self._store = RegistrationStore(self._p["registrations_file"])
+        self._unsaved = False           # registrations changed and not written (autosave off)
+        self._resume()
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
@@ -122,7 +136,8 @@ class EngineNode(Node):
             self.engine, params.operator_settings(self._p), refresh_scene=self._ensure_scene,
             to_scene_frame=self._to_scene_frame, report=self._report, on_change=self._changed,
             on_busy=lambda text: self.pub_status.publish(String(data=json.dumps(self.status()))),
-            registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]))
+            registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]),
+            persist=self._persist)
 
         cloud_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                                reliability=ReliabilityPolicy.RELIABLE if self._p["points_reliable"]
@@ -157,8 +172,10 @@ class EngineNode(Node):
             MarkerCallbacks(active=self.engine.active_object, frame=self._frame,
                             view_pose=self.engine.view_pose,
                             template=lambda name: self.library[name],
-                            pose=lambda T, release: self.stream.pose(T, release,
-                                                                     source="marker_feedback"),
+                            pose=lambda T, release, target: self.stream.pose(
+                                T, release, source="marker_feedback", target=target),
+                            cancel=lambda target: self.stream.cancel_drag(
+                                target, source="marker_feedback"),
                             action=lambda name, arg: self.stream.action(
                                 name, arg, source="marker_feedback"),
                             warn=self.get_logger().warning),
@@ -174,6 +191,40 @@ class EngineNode(Node):
         self._worker.start()
         self.get_logger().info(f"ready: {len(self.library)} templates "
                                f"({', '.join(self.library)}); waiting for 'points' and clicks")
+
+    # ------------------------------------------------------------------ registrations file
+    def _resume(self) -> None:
+        """Resume the session from ``registrations_file`` (unless ``resume`` is off). A file
+        that is not a registrations file stops the start with one line: it is never replaced
+        unread."""
+        path = self._store.path
+        if not self._p["resume"]:
+            if os.path.lexists(path):
+                self.get_logger().info(f"fresh session (resume is off): {path} is kept as a "
+                                       f"backup when it is first replaced")
+            return
+        try:
+            regs = self._store.resume(self.library)
+        except AffordanceError as exc:
+            raise AffordanceError(f"cannot resume the session: {exc} (fix or move the file, or "
+                                  f"start a fresh session with resume:=false: the file is then "
+                                  f"kept as a backup)") from None
+        self.engine.resume(regs)
+        if regs:
+            self.get_logger().info(f"resumed {len(regs)} registration(s) from {path}")
+
+    def _persist(self, explicit: bool) -> str:
+        """Write the registrations (stream worker): for ``~/save`` (``explicit``), and after
+        every change when ``autosave`` is on. Returns the reply's words."""
+        if not explicit and not self._p["autosave"]:
+            self._unsaved = True
+            return ""
+        regs = self.engine.state.registered
+        path, backup = self._store.write(regs, self.engine.frame_id)
+        self._unsaved = False
+        self._dirty = True
+        text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
+        return text + (f" (the file it replaced is kept as {backup})" if backup else "")
 
     # ------------------------------------------------------------------ parameters
     def _set_joint_steps(self, p: dict) -> None:
@@ -209,6 +260,10 @@ class EngineNode(Node):
             self.library = self.engine.library
         if "static_transforms" in changed:
             self.frames = StaticFrames(new["static_transforms"])
+        if "registrations_file" in changed and new["registrations_file"] != \
+                self._p["registrations_file"]:
+            self._store = RegistrationStore(new["registrations_file"])
+            self._unsaved = bool(self.engine.state.registered)
         if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
             self._converted = -1        # the next fit converts the cloud again
         self.stream.configure(params.operator_settings(new))
@@ -223,10 +278,11 @@ class EngineNode(Node):
     def _make_tf(self) -> TfListener:
         return TfListener(self)
 
-    def _lookup(self, target: str, source: str) -> np.ndarray:
-        """T_target_source from TF (tf2_ros, or /tf and /tf_static) and the static transforms
-        parameter."""
-        return self._tf.lookup(target, source, fallback=self.frames)
+    def _lookup(self, target: str, source: str, stamp: float | None = None) -> np.ndarray:
+        """T_target_source from TF (tf2_ros, or /tf and /tf_static) at ``stamp`` (s, the
+        header stamp of the message that needs it; None: the latest) and the static
+        transforms parameter."""
+        return self._tf.lookup(target, source, fallback=self.frames, stamp=stamp)
 
     def _frame(self) -> str:
         """The frame of everything the node reports: the scene's, else the latest cloud's."""
@@ -235,13 +291,15 @@ class EngineNode(Node):
         with self._lock:
             return self._cloud_msg.header.frame_id if self._cloud_msg is not None else ""
 
-    def _to_scene_frame(self, point: np.ndarray, frame: str) -> np.ndarray:
-        """A click given in ``frame`` expressed in the scene's frame (stream worker)."""
+    def _to_scene_frame(self, point: np.ndarray, frame: str,
+                        stamp: float | None = None) -> np.ndarray:
+        """A click given in ``frame`` at ``stamp`` expressed in the scene's frame (stream
+        worker)."""
         cloud_frame = self.engine.frame_id
         if not frame or frame.lstrip("/") == cloud_frame.lstrip("/"):
             return point
         try:
-            T = self._lookup(cloud_frame, frame)
+            T = self._lookup(cloud_frame, frame, stamp)
         except FrameError:
             raise AffordanceError(f"click refused: it is in frame '{frame}' and no transform to "
                                   f"the cloud frame '{cloud_frame}' is known") from None
@@ -250,10 +308,14 @@ class EngineNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_cloud(self, msg: PointCloud2) -> None:
         try:                            # the header checked now; the points read when needed
+            if len(msg.header.frame_id) > MAX_NAME:
+                raise ConversionError(f"its frame id has {len(msg.header.frame_id):,} "
+                                      f"characters (at most {MAX_NAME})")
             pointcloud2_layout(msg)
         except ConversionError as exc:
-            self._dropped = f"the last PointCloud2 (frame '{msg.header.frame_id}') was dropped: {exc}"
-            self._error("cloud", f"dropped a PointCloud2 in '{msg.header.frame_id}': {exc}")
+            frame = bounded(msg.header.frame_id, 80)
+            self._dropped = f"the last PointCloud2 (frame '{frame}') was dropped: {exc}"
+            self._error("cloud", f"dropped a PointCloud2 in '{frame}': {exc}")
             return
         self._dropped = ""
         with self._lock:
@@ -283,7 +345,10 @@ class EngineNode(Node):
         self._converted = count
         try:
             pts, _ = pointcloud2_to_xyz(msg)
-            origin, T_optical = self._sensor(msg.header.frame_id)
+            origin, T_optical = self._sensor(msg.header.frame_id, _header_s(msg.header))
+            old, new = self.engine.frame_id.lstrip("/"), msg.header.frame_id.lstrip("/")
+            if old and new and old != new:      # only for a cloud that is used
+                self._change_frame(old, new, _header_s(msg.header))
             self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
                                   T_scene_optical=T_optical)
         except AffordanceError as exc:
@@ -293,7 +358,20 @@ class EngineNode(Node):
             self._error("cloud", f"the latest cloud is unusable ({exc}); still using the "
                                  f"previous one")
 
-    def _sensor(self, cloud_frame: str):
+    def _change_frame(self, old: str, new: str, stamp: float | None) -> None:
+        """The cloud's frame changed (stream worker): what the engine holds is re-expressed in
+        the new frame through TF, or the open objects are closed when no transform is known --
+        never left in the old frame's numbers under the new frame's name."""
+        try:
+            T_new_old = self._lookup(new, old, stamp)
+        except FrameError:
+            self._error("frame", self.engine.close_open_objects(
+                f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new)}' and no "
+                f"transform between them is known"))
+            return
+        self._report("frame", True, self.engine.reexpress(T_new_old, new))
+
+    def _sensor(self, cloud_frame: str, stamp: float | None = None):
         """(sensor origin or "none", the sensor's optical pose 4x4) in ``cloud_frame``: from the
         ``sensor_frame`` parameter through TF, or the ``sensor_origin`` parameter; the pose is
         the default view for twists."""
@@ -305,7 +383,7 @@ class EngineNode(Node):
             T[:3, 3] = self._p["sensor_origin"]
             return list(self._p["sensor_origin"]), T
         try:
-            T_cloud_sensor = self._lookup(cloud_frame, name)
+            T_cloud_sensor = self._lookup(cloud_frame, name, stamp)
         except FrameError:
             raise AffordanceError(f"the sensor frame '{name}' has no known transform to the "
                                   f"cloud frame '{cloud_frame}' (publish it on TF, or give it "
@@ -313,8 +391,13 @@ class EngineNode(Node):
         return T_cloud_sensor[:3, 3].copy(), T_cloud_sensor @ T_frame_optical(name)
 
     def _on_click(self, msg: PointStamped) -> None:
+        if len(msg.header.frame_id) > MAX_NAME:
+            self._error("click", f"click refused: its frame id has "
+                                 f"{len(msg.header.frame_id):,} characters (at most {MAX_NAME})")
+            return
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
-        self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name)
+        self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name,
+                          stamp=_header_s(msg.header))
         self._dirty = True      # the status shows what is queued
 
     def _on_twist(self, msg, info=None) -> None:
@@ -336,7 +419,8 @@ class EngineNode(Node):
     def _on_view(self, msg: PoseStamped) -> None:
         try:
             T = pose_to_matrix(msg.pose)
-            T = self._lookup(self._frame() or msg.header.frame_id, msg.header.frame_id) @ T
+            T = self._lookup(self._frame() or msg.header.frame_id, msg.header.frame_id,
+                             _header_s(msg.header)) @ T
         except AffordanceError as exc:
             self._error("view", f"view_pose ignored: {exc}")
             return
@@ -344,6 +428,10 @@ class EngineNode(Node):
         self._dirty = True
 
     def _on_select(self, msg: String) -> None:
+        if len(msg.data) > MAX_NAME:
+            self._error("select_model", f"select model refused: the name has "
+                                        f"{len(msg.data):,} characters (at most {MAX_NAME})")
+            return
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
         self._dirty = True
 
@@ -392,6 +480,7 @@ class EngineNode(Node):
     def _report(self, kind: str, ok: bool, message: str) -> None:
         """An outcome of the stream: successes are logged as info; failures as errors, or as
         warnings throttled per kind for inputs that come in streams."""
+        message = bounded(message, MAX_MESSAGE)
         if ok:
             self._last_message = message
             self.get_logger().info(message)
@@ -402,6 +491,7 @@ class EngineNode(Node):
     def _error(self, kind: str, msg: str) -> None:
         """Log an error; for inputs that come in streams (``STREAMED`` kinds), at most one line
         per kind every THROTTLE_S, as a warning."""
+        msg = bounded(msg, MAX_MESSAGE)
         self._last_error = msg
         self._dirty = True
         if kind in STREAMED:
@@ -417,6 +507,7 @@ class EngineNode(Node):
         self._dirty = True
 
     def _on_timer(self) -> None:
+        self.interactive.expire()           # a silent drag is cancelled, not left hanging
         now = time.monotonic()
         if self._dirty and now - self._last_publish >= 1.0 / self._p["publish_rate"]:
             self._dirty = False
@@ -440,7 +531,10 @@ class EngineNode(Node):
                 "cloud": None if msg is None else {
                     "frame_id": msg.header.frame_id, "width": msg.width, "height": msg.height,
                     "received": self._cloud_count},
-                "last_message": self._last_message, "last_error": self._last_error}
+                "last_message": self._last_message, "last_error": self._last_error,
+                "registrations_file": {"path": self._store.path, "saved": self._store.count,
+                                       "unsaved": self._unsaved,
+                                       "backup": self._store.last_backup}}
         return st
 
     def publish_all(self) -> None:
@@ -467,6 +561,11 @@ class EngineNode(Node):
     def shutdown(self) -> None:
         self._stop.set()
         self._worker.join(timeout=1.0)
+        if self._unsaved:               # autosave off: what was accepted is not lost either
+            try:
+                self.get_logger().info(self._persist(True) + " (at shutdown)")
+            except AffordanceError as exc:
+                self.get_logger().error(f"registrations NOT saved at shutdown: {exc}")
 
 
 def main(args=None) -> int:

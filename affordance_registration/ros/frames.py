@@ -7,6 +7,7 @@ static_transform_publisher`` takes it. Chains are followed in either direction.
 """
 from __future__ import annotations
 
+import bisect
 from collections import deque
 
 import numpy as np
@@ -14,7 +15,8 @@ import numpy as np
 from ..core.errors import AffordanceError
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["FrameGraph", "StaticFrames", "parse_static_transform", "FrameError",
+__all__ = ["FrameGraph", "StaticFrames", "TransformBuffer", "TF_CACHE_S", "parse_static_transform",
+           "FrameError",
            "T_frame_optical", "R_BODY_OPTICAL", "is_body_frame"]
 
 #: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
@@ -125,3 +127,89 @@ class StaticFrames(FrameGraph):
             if not str(entry).strip():      # [""] is how an empty string list is often written
                 continue
             self.set(*parse_static_transform(entry))
+
+
+#: how long a TF buffer keeps each dynamic transform (s), as tf2's default cache time
+TF_CACHE_S = 10.0
+
+
+class TransformBuffer:
+    """Transforms per child frame in time order, as tf2's buffer keeps them: each dynamic
+    transform is stored at its header stamp (s) for ``cache_s`` after the newest one of its
+    frame; static ones hold at every time. :meth:`graph` gives the frames at one stamp:
+
+    * ``None`` (or 0: a message without a stamp): the newest transform of every frame -- an
+      out-of-order old transform, arriving after a newer one, never replaces it;
+    * a stamp between two transforms of a frame: interpolated (translation linearly, rotation
+      along the shortest arc), as tf2 does;
+    * a stamp after the newest: the newest (tf2 would refuse to extrapolate; a click made
+      between two TF messages of a slowly published frame is normal);
+    * a stamp before the oldest kept: refused (:class:`FrameError`), the frame's history there
+      is gone.
+
+    A child that changes parent starts a new history. Not thread-safe: guard it."""
+
+    def __init__(self, cache_s: float = TF_CACHE_S):
+        self.cache_s = float(cache_s)
+        self._static: dict[str, tuple[str, np.ndarray]] = {}
+        self._dynamic: dict[str, tuple[str, list]] = {}    # child -> (parent, [(stamp, T)])
+
+    def set(self, parent: str, child: str, T_parent_child: np.ndarray, stamp: float = 0.0,
+            static: bool = False) -> None:
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        if not parent or not child or parent == child:
+            return
+        T = np.asarray(T_parent_child, dtype=float)
+        if static:
+            self._static[child] = (parent, T)
+            return
+        stamp = float(stamp)
+        old_parent, history = self._dynamic.get(child, (parent, []))
+        if old_parent != parent:
+            history = []
+        stamps = [s for s, _ in history]
+        i = bisect.bisect_left(stamps, stamp)
+        if i < len(history) and history[i][0] == stamp:
+            history[i] = (stamp, T)               # the same stamp again: the newer message
+        else:
+            history.insert(i, (stamp, T))
+        newest = history[-1][0]
+        while len(history) > 1 and history[0][0] < newest - self.cache_s:
+            history.pop(0)
+        self._dynamic[child] = (parent, history)
+
+    def graph(self, stamp: float | None = None) -> FrameGraph:
+        """The frames at ``stamp`` (s; None or 0: the newest) as a :class:`FrameGraph`."""
+        out = FrameGraph()
+        for child, (parent, T) in self._static.items():
+            out.set(parent, child, T)
+        for child, (parent, history) in self._dynamic.items():
+            try:
+                out.set(parent, child, self._at(child, history, stamp))
+            except FrameError:          # its history does not reach back to ``stamp``
+                continue
+        return out
+
+    def _at(self, child: str, history: list, stamp: float | None) -> np.ndarray:
+        if not stamp or stamp >= history[-1][0]:
+            return history[-1][1]
+        stamps = [s for s, _ in history]
+        i = bisect.bisect_left(stamps, stamp)
+        if i == 0:
+            if stamp == stamps[0]:
+                return history[0][1]
+            raise FrameError(f"frame '{child}' at {stamp:.3f} s is older than what TF keeps "
+                             f"(transforms from {stamps[0]:.3f} s on; the cache is "
+                             f"{self.cache_s:g} s)")
+        (s0, T0), (s1, T1) = history[i - 1], history[i]
+        return _interpolate(T0, T1, (stamp - s0) / (s1 - s0))
+
+
+def _interpolate(T0: np.ndarray, T1: np.ndarray, f: float) -> np.ndarray:
+    """The pose a fraction ``f`` of the way from ``T0`` to ``T1``."""
+    from scipy.spatial.transform import Rotation, Slerp
+    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))
+    T = np.eye(4)
+    T[:3, :3] = rot([f]).as_matrix()[0]
+    T[:3, 3] = (1 - f) * T0[:3, 3] + f * T1[:3, 3]
+    return T

@@ -42,7 +42,7 @@ from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
                                     InteractiveMarkerUpdate, MenuEntry)
 from visualization_msgs.srv import GetInteractiveMarkers
 
-from ..core.errors import AffordanceError
+from ..core.errors import AffordanceError, bounded
 from ..core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
 
@@ -65,9 +65,14 @@ def menu_of(candidate) -> list:
             entries += [("dimension", (name, None, 1.0), f"{name} +"),
                         ("dimension", (name, None, -1.0), f"{name} -")]
     return entries
-#: a drag belongs to the client that started it while that client keeps sending feedback (poses
-#: or keep-alives); after this long without any, another client may take over
+
+
+#: a drag belongs to the client that started it, and to the object it started on, while that
+#: client keeps sending feedback (poses or keep-alives); after this long without any the drag is
+#: cancelled -- the object goes back where it started -- and another client may drag
 DRAG_EXPIRY_S = 3.0
+#: clients whose drag was cancelled, remembered so that their late release is refused
+CANCELLED_MEMORY = 32
 WARN_EVERY_S = 2.0
 _S = math.sqrt(0.5)
 # control frames whose x axis is the object's (or view's) x, y and z axis
@@ -80,9 +85,11 @@ class MarkerCallbacks:
 
     ``active()``: the selected object (a TrackedObject) or None; ``frame()``: the frame of the
     shown poses; ``view_pose()``: T_scene_view (4x4) of the operator; ``template(name)``: an
-    AffordanceTemplate; ``pose(T_scene_model, release)``: the dragged pose of the shown fit
-    (``release``: the drag ended, refit from it); ``action(name, argument)``: a menu entry or
-    (``"joint_value"``, q) from the joint marker; ``warn(text)``: a warning for the log.
+    AffordanceTemplate; ``pose(T_scene_model, release, object_id)``: the dragged pose of the
+    shown fit of object ``object_id`` (the one the drag started on; ``release``: the drag ended,
+    refit from it); ``action(name, argument)``: a menu entry or (``"joint_value"``, q) from the
+    joint marker; ``warn(text)``: a warning for the log; ``cancel(object_id)``: a drag whose
+    client fell silent ended without a release (the object goes back where it started).
     """
 
     active: Callable
@@ -92,6 +99,7 @@ class MarkerCallbacks:
     pose: Callable
     action: Callable
     warn: Callable
+    cancel: Callable = lambda object_id: None
 
 
 class CorrectionMarkerServer:
@@ -114,7 +122,9 @@ class CorrectionMarkerServer:
         self.seq_num = 0
         self._sent: tuple | None = None          # identity of what the clients have
         self._markers: dict[str, InteractiveMarker] = {}
-        self._drag: tuple[str, float] | None = None     # (client id, last feedback time)
+        #: (client id, last feedback time, object id the drag started on)
+        self._drag: tuple[str, float, int | None] | None = None
+        self._cancelled: dict[str, int | None] = {}    # client id -> object of its lost drag
         self._warned: dict[str, float] = {}
         self._publish_fn = None
 
@@ -263,13 +273,31 @@ class CorrectionMarkerServer:
         now = self.clock()
         if now - self._warned.get(kind, -math.inf) >= WARN_EVERY_S:
             self._warned[kind] = now
-            self.cb.warn(f"interactive marker feedback ignored: {text}")
+            self.cb.warn(f"interactive marker feedback ignored: {bounded(text, 400)}")
 
     def _owner(self) -> str | None:
-        """The client whose drag is in progress (None when nobody's, or it went silent)."""
-        if self._drag is not None and self.clock() - self._drag[1] > DRAG_EXPIRY_S:
-            self._drag = None
+        """The client whose drag is in progress (None when nobody's). A drag whose client fell
+        silent for DRAG_EXPIRY_S is cancelled here."""
+        self.expire()
         return None if self._drag is None else self._drag[0]
+
+    def expire(self) -> None:
+        """Cancel the drag in progress if its client fell silent (the node calls this on its
+        timer, so a drag is cancelled even when no more feedback comes)."""
+        drag = self._drag
+        if drag is None or self.clock() - drag[1] <= DRAG_EXPIRY_S:
+            return
+        self._drag = None
+        self._cancelled[drag[0]] = drag[2]
+        while len(self._cancelled) > CANCELLED_MEMORY:
+            self._cancelled.pop(next(iter(self._cancelled)))
+        self._ignore("silent", f"client '{drag[0]}' fell silent for {DRAG_EXPIRY_S:g} s "
+                               f"mid-drag: the drag is cancelled")
+        self.cb.cancel(drag[2])
+
+    def _active_id(self) -> int | None:
+        obj = self.cb.active()
+        return None if obj is None else obj.id
 
     def feedback(self, fb: InteractiveMarkerFeedback) -> None:
         """Handle one feedback message from a client."""
@@ -277,7 +305,7 @@ class CorrectionMarkerServer:
         owner = self._owner()
         if fb.event_type == F.KEEP_ALIVE:
             if owner == fb.client_id:
-                self._drag = (owner, self.clock())
+                self._drag = (owner, self.clock(), self._drag[2])
             return
         if fb.marker_name not in self._markers:
             self._ignore("marker", f"no marker named '{fb.marker_name}'")
@@ -295,7 +323,16 @@ class CorrectionMarkerServer:
             self.cb.action(action, argument)
             return
         if fb.event_type == F.MOUSE_DOWN:
-            self._drag = (fb.client_id, self.clock())
+            self._cancelled.pop(fb.client_id, None)
+            self._drag = (fb.client_id, self.clock(), self._active_id())
+            return
+        if fb.client_id in self._cancelled and owner != fb.client_id:
+            # the rest of a drag that was cancelled: never applied to what is selected now
+            if fb.event_type == F.MOUSE_UP:
+                self._cancelled.pop(fb.client_id, None)
+            self._ignore("cancelled", f"{'release' if fb.event_type == F.MOUSE_UP else 'pose'} "
+                                      f"from client '{fb.client_id}' after its drag was "
+                                      f"cancelled (silent for {DRAG_EXPIRY_S:g} s)")
             return
         if fb.event_type not in (F.POSE_UPDATE, F.MOUSE_UP):
             return
@@ -310,13 +347,15 @@ class CorrectionMarkerServer:
             self._ignore("pose", f"malformed pose ({exc})")
             return
         release = fb.event_type == F.MOUSE_UP
+        # the object the drag started on (a drag without MOUSE_DOWN starts on the shown one)
+        target = self._drag[2] if owner == fb.client_id else self._active_id()
         if release or owner is None or owner == fb.client_id:
-            self._drag = None if release else (fb.client_id, self.clock())
+            self._drag = None if release else (fb.client_id, self.clock(), target)
         if fb.marker_name == JOINT_MARKER_NAME:
             if release:
                 self._joint_released(T)
             return
-        self.cb.pose(T, release)
+        self.cb.pose(T, release, target)
 
     def _joint_released(self, T_scene_frame: np.ndarray) -> None:
         """The joint marker: RViz shows the drag itself; on release the joint takes the value

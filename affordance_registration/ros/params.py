@@ -60,7 +60,15 @@ PARAMETERS = {
                                "NAME+ / NAME-", (0.1, 100.0)),
     "static_transforms": ([], "'parent child x y z qx qy qz qw' entries for frames TF does not "
                           "know", None),
-    "registrations_file": ("affordance_registrations.yaml", "where ~/save writes (YAML)", None),
+    "registrations_file": ("affordance_registrations.yaml", "the session's registrations (YAML): "
+                           "~/save writes it, autosave rewrites it after every change, resume "
+                           "reads it at start", None),
+    "resume": (True, "at start, load the registrations in registrations_file (a restarted "
+                     "engine continues its session); false: a fresh session -- the file found "
+                     "there is kept as a backup when first replaced; read at start", None),
+    "autosave": (True, "write registrations_file (atomically) after every accept, undo or load "
+                       "that changes the registrations, before the action is answered; false: "
+                       "only ~/save and shutdown write it", None),
     "sensor_origin": ([0.0, 0.0, 0.0], "sensor position in the cloud frame (m), used when "
                       "sensor_frame is ''", None),
     "sensor_frame": ("", "where the scans are taken from: '' = sensor_origin in the cloud frame "
@@ -80,7 +88,7 @@ PARAMETERS = {
     "test_slow_fit_s": (0.0, "test only: every click's fit takes at least this long (s), to "
                              "show that input stays in order behind a slow fit", (0.0, 60.0)),
 }
-READ_ONLY = {"points_reliable", "interactive_namespace", "twist_stamped"}
+READ_ONLY = {"points_reliable", "interactive_namespace", "twist_stamped", "resume"}
 #: parameters that make the fitting settings (a change rebuilds the registrar)
 FIT_PARAMETERS = {"fit_mode", "voxel_size", "weight_scale", "snap_distance", "seed",
                   "estimate_joints"}

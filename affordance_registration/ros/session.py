@@ -199,7 +199,10 @@ def start_engine(out_dir: str, log=None, extra_args: dict | None = None) -> Laun
     """The engine node from the package's YAML launch file (as an operator station starts it)."""
     launch = os.path.join(package_share("affordance_registration"), "launch_configs",
                           "affordance_engine.launch.yaml")
-    args = {"registrations_file": os.path.join(os.path.abspath(out_dir), "registrations.yaml")}
+    # a recorded or replayed session starts fresh: registrations an earlier run left in out_dir
+    # must not count (the engine keeps that file as a backup when it first replaces it)
+    args = {"registrations_file": os.path.join(os.path.abspath(out_dir), "registrations.yaml"),
+            "resume": "false"}
     args.update(extra_args or {})
     log_file = open(os.path.join(out_dir, "engine.log"), "w")
     launcher = Launcher(parse_launch_file(launch, args), log=log or (lambda m: None),

@@ -48,6 +48,7 @@ from ..core import display
 from ..core.errors import AffordanceError
 from ..core.labels import REFUSED_PREFIX, standing
 from ..core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from . import station_access
 from .conversions import (ConversionError, matrix_to_pose, pointcloud2_field, pointcloud2_to_xyz,
                           pose_stamped, pose_to_matrix)
 from .spin import run_node
@@ -81,6 +82,9 @@ PARAMETERS = {
     "view_rate": (10.0, "Hz, highest rate of view_pose messages"),
     "cloud_rate": (2.0, "Hz, highest rate the page's cloud is replaced at"),
     "click_cone_deg": (0.5, "a click picks cloud points within this angle of its ray"),
+    "access_secret": ("", "the secret the page and its websocket need ('' = the "
+                          "AFFORDANCE_STATION_SECRET environment variable, else a random one "
+                          "per start, shown in the URL the station logs); at least 16 characters"),
 }
 MARKER_NAME = "affordance_fit"          # the engine's interactive marker for the shown fit
 MESH_MARGIN = 0.005                     # m: meshes are drawn this far out of their surface
@@ -474,9 +478,22 @@ class StationPage:
     async def _on_gizmo(self, event) -> None:
         # async: viser runs it on its event loop, so the phases arrive in order
         phase = event.phase
+        # one browser drags at a time; a drag "ended" because its browser went away (viser
+        # synthesizes the end after removing the client) is cancelled, not released
+        owner, cid = getattr(self, "_drag_client", None), event.client_id
+        if phase == "start":
+            if owner is not None and owner != cid and owner in self.server.get_clients():
+                return
+            self._drag_client = cid
+        elif owner is not None and cid != owner:
+            return
+        if phase == "end":
+            self._drag_client = None
+            if cid is not None and cid not in self.server.get_clients():
+                phase = "cancel"
         if phase == "start":
             self._dragging = True
-        elif phase == "end":
+        elif phase in ("end", "cancel"):
             self._dragging = False
         self.h.drag(phase, _pose_of(event.target))
 
@@ -709,11 +726,21 @@ class StationNode(Node):
                                                   INPUT)
         self.triggers = {action: self.create_client(Trigger, f"{self.engine}/{action}")
                         for action, _ in ACTIONS}
-        self.page = StationPage(p["host"], p["port"], p["fov_deg"], p["point_size"],
-                                PageHandlers(click=self._click, action=self._action,
-                                             select=self._select, drag=self._drag,
-                                             camera=self._camera, dimension=self._dimension))
-        self.url = f"http://{p['host']}:{self.page.port}"
+        # the operator only: an access secret, same-origin websockets, bounded frames and
+        # message rates, no share tunnel, no outbound connections (ros/station_access.py)
+        self.access = station_access.StationAccess(
+            station_access.configured_secret(p["access_secret"]), p["host"], p["port"],
+            log=self.get_logger().warning)
+        station_access.forbid_outbound([p["host"]], log=self.get_logger().error)
+        with station_access.guarded(self.access):
+            self.page = StationPage(p["host"], p["port"], p["fov_deg"], p["point_size"],
+                                    PageHandlers(click=self._click, action=self._action,
+                                                 select=self._select, drag=self._drag,
+                                                 camera=self._camera,
+                                                 dimension=self._dimension))
+        station_access.disable_share(self.page.server, self.get_logger().warning)
+        self.access.port = self.page.port
+        self.url = self.access.url()
         self._worker = threading.Thread(target=self._run, name="station-page", daemon=True)
         self._worker.start()
         self.get_logger().info(f"operator station on {self.url} (engine {self.engine})")
@@ -827,6 +854,13 @@ class StationNode(Node):
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
         F = InteractiveMarkerFeedback
+        if phase == "cancel":       # no keep-alives: the engine cancels the silent drag
+            with self._lock:
+                self._drag_last = None
+            self._note("the dragging browser went away: its drag is cancelled")
+            self.get_logger().info("a browser went away mid-drag: its drag is cancelled (not "
+                                   "released)")
+            return
         kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
         if kind is None or not self._cloud_frame:
             return

@@ -10,11 +10,14 @@ is not used even where it is installed: it only ever adds or replaces frames, so
 drop an undone one. Note that a tf2 buffer already holding a static frame keeps it until it
 restarts: tf2 has no way to retract a static transform.)
 
-In (``TfListener``): frame lookups for clicks and view poses. In a ROS install with tf2_ros,
-its Buffer and TransformListener; in the pip-only install, a minimal listener that keeps the
-latest transform of every child frame heard on ``/tf`` and ``/tf_static`` (no interpolation in
-time: a click is taken in the latest known frames) and follows chains both ways. Either way the
-``static_transforms`` parameter is the fallback for what TF does not know.
+In (``TfListener``): frame lookups for clicks, view poses and the sensor frame, at the stamp of
+the message that needs them. In a ROS install with tf2_ros, its Buffer and TransformListener; in
+the pip-only install, a :class:`~affordance_registration.ros.frames.TransformBuffer`: every
+transform heard on ``/tf`` kept in time order per child frame for ``TF_CACHE_S`` (10 s), those on
+``/tf_static`` for ever, looked up at a stamp (interpolated between two transforms), chains
+followed both ways. An out-of-order old transform never replaces a newer one for current
+lookups. Either way the ``static_transforms`` parameter is the fallback for what TF does not
+know.
 
 Without tf2_msgs (the pip-only install whose ``make setup`` could not build it) there is no TF
 output and lookups use the parameter alone; the node says so once at start and runs.
@@ -28,7 +31,7 @@ from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
-from .frames import FrameError, FrameGraph
+from .frames import FrameError, FrameGraph, TransformBuffer
 
 __all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame",
            "load_tf_message"]
@@ -141,7 +144,7 @@ class TfListener:
 
     def __init__(self, node):
         self._lock = threading.Lock()
-        self._graph = FrameGraph()
+        self._frames = TransformBuffer()
         self._buffer = None
         self._bad_logged: set[str] = set()
         self._node = node
@@ -157,9 +160,10 @@ class TfListener:
         if TFMessage is None:
             return
         node.create_subscription(TFMessage, "/tf", self._on_tf, DYNAMIC_QOS)
-        node.create_subscription(TFMessage, "/tf_static", self._on_tf, STATIC_LISTENER_QOS)
+        node.create_subscription(TFMessage, "/tf_static",
+                                 lambda msg: self._on_tf(msg, static=True), STATIC_LISTENER_QOS)
 
-    def _on_tf(self, msg) -> None:
+    def _on_tf(self, msg, static: bool = False) -> None:
         for t in msg.transforms:
             try:
                 T = transform_to_matrix(t.transform)
@@ -169,17 +173,24 @@ class TfListener:
                     self._node.get_logger().warning(
                         f"ignored the transform of frame '{t.child_frame_id}' on TF: {exc}")
                 continue
+            stamp = t.header.stamp.sec + t.header.stamp.nanosec * 1e-9
             with self._lock:
-                self._graph.set(t.header.frame_id, t.child_frame_id, T)
+                self._frames.set(t.header.frame_id, t.child_frame_id, T, stamp, static=static)
 
-    def lookup(self, target: str, source: str, fallback: FrameGraph | None = None) -> np.ndarray:
+    def lookup(self, target: str, source: str, fallback: FrameGraph | None = None,
+               stamp: float | None = None) -> np.ndarray:
+        """T_target_source at ``stamp`` (s, a message's header stamp; None or 0: the latest)."""
         target, source = target.lstrip("/"), source.lstrip("/")
         if not source or source == target:
             return np.eye(4)
         if self._buffer is not None:
             from rclpy.time import Time
             try:
-                tf = self._buffer.lookup_transform(target, source, Time())
+                at = Time(nanoseconds=int(stamp * 1e9)) if stamp else Time()
+                try:
+                    tf = self._buffer.lookup_transform(target, source, at)
+                except Exception:          # past the newest transform: the latest one
+                    tf = self._buffer.lookup_transform(target, source, Time())
                 return transform_to_matrix(tf.transform)
             except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
                 if fallback is None:
@@ -187,5 +198,5 @@ class TfListener:
                                      f"'{target}' on TF") from None
                 return fallback.lookup(target, source)
         with self._lock:
-            graph = (fallback or FrameGraph()).merged(self._graph)
+            graph = (fallback or FrameGraph()).merged(self._frames.graph(stamp))
         return graph.lookup(target, source)

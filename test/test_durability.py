@@ -1,0 +1,196 @@
+"""No registration is lost: real engine processes killed with SIGKILL, SIGINT and SIGTERM and
+started again on the same registrations file, a real client here (topics and services)."""
+import os
+import signal
+
+import numpy as np
+import pytest
+import yaml
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from affordance_registration.core.engine import Registration, load_registrations
+from affordance_registration.core.persistence import RegistrationStore
+from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.ros.conversions import xyz_to_pointcloud2
+from ros_helpers import LATCHED, Client, engine_process
+
+FRAME = "camera_depth_optical_frame"
+NS = "/affordance_engine"
+
+
+@pytest.fixture(scope="module")
+def sim(library):
+    return simulate_taskboard(library, 7)
+
+
+class Engine:
+    """An engine process on ``tmp/registrations.yaml`` and a client of it."""
+
+    def __init__(self, tmp, name, params=None):
+        self.tmp, self.file = tmp, tmp / "registrations.yaml"
+        self.proc = engine_process(tmp, params, name=name)
+        self.client = Client(f"durability_{name}")
+        self.client.subscribe(String, f"{NS}/status", LATCHED)
+        self.points = self.client.node.create_publisher(PointCloud2, "/points", 1)
+        self.clicks = self.client.node.create_publisher(PointStamped, "/clicked_point", 10)
+
+    def status(self):
+        return self.client.status(f"{NS}/status")
+
+    def started(self):
+        return self.client.wait_for(lambda: self.status(), 60, "the engine's status")
+
+    def cloud(self, sim):
+        self.client.wait_for_subscribers(self.points, timeout=30)
+        self.client.wait_for_subscribers(self.clicks, timeout=30)
+        self.points.publish(xyz_to_pointcloud2(sim.organized, FRAME))
+        self.client.wait_for(lambda: (self.status() or {}).get("node", {}).get("cloud"), 30,
+                             "the cloud")
+
+    def register(self, obj):
+        """Click ``obj`` and accept it; returns the accept's reply."""
+        n = len(self.status()["registered"])
+        msg = PointStamped()
+        msg.header.frame_id = FRAME
+        msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
+        self.clicks.publish(msg)
+        self.client.wait_for(lambda: self.status()["objects"], 60, "the fitted object")
+        res = self.client.call(Trigger, f"{NS}/accept", timeout=30)
+        assert res.success, res.message
+        assert len(self.status()["registered"]) <= n + 1
+        return res
+
+    def close(self):
+        self.client.close()
+        self.proc.interrupt()
+        self.proc.kill()
+        print(self.proc.output()[-2000:])
+
+
+@pytest.fixture
+def engines(ros_context, tmp_path):
+    started = []
+
+    def start(name, params=None):
+        e = Engine(tmp_path, name, params)
+        started.append(e)
+        return e
+    yield start
+    for e in started:
+        e.close()
+
+
+def _templates(regs):
+    return sorted(r["template"] if isinstance(r, dict) else r.template for r in regs)
+
+
+def test_kill_9_right_after_three_accepts_loses_none(engines, sim):
+    first = engines("first")
+    first.started()
+    first.cloud(sim)
+    accepted = []
+    for obj in sim.objects[:3]:
+        res = first.register(obj)
+        accepted.append(obj.template)
+    # the third accept was answered: kill at once, no chance to clean up
+    os.killpg(first.proc.proc.pid, signal.SIGKILL)
+    first.proc.proc.wait(timeout=10)
+    assert "saved to" in res.message
+    assert _templates(load_registrations(str(first.file))) == sorted(accepted)
+    second = engines("second")
+    st = second.client.wait_for(lambda: (second.status() or {}).get("registered") and
+                                second.status(), 60, "the resumed registrations")
+    assert _templates(st["registered"]) == sorted(accepted)
+    assert "resumed 3 registration(s)" in second.proc.output()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_with_an_unsaved_accept_keeps_it(engines, sim, sig):
+    first = engines("first", {"autosave": "false"})
+    first.started()
+    first.cloud(sim)
+    obj = sim.objects[2]
+    first.register(obj)
+    assert not first.file.exists()          # autosave off: nothing written yet
+    first.proc.proc.send_signal(sig)
+    assert first.proc.proc.wait(timeout=30) == 0
+    assert _templates(load_registrations(str(first.file))) == [obj.template]
+    second = engines("second")
+    st = second.client.wait_for(lambda: (second.status() or {}).get("registered") and
+                                second.status(), 60, "the resumed registration")
+    assert _templates(st["registered"]) == [obj.template]
+
+
+def _five(library, path):
+    names = list(library)
+    regs = [Registration(id=i + 1, template=names[i % len(names)],
+                         T_scene_model=np.eye(4) + np.pad([[0, 0, 0, 0.1 * i]], ((0, 3), (0, 0))),
+                         likelihood=1.0, probability=0.5, residual=0.001,
+                         click=np.array([0.1 * i, 0, 1.0]), frame_id=FRAME) for i in range(5)]
+    RegistrationStore(str(path)).write(regs, FRAME)
+    return path.read_bytes()
+
+
+def test_a_restart_then_accept_and_save_keeps_the_earlier_five(engines, sim, library, tmp_path):
+    before = _five(library, tmp_path / "registrations.yaml")
+    engine = engines("resumed")
+    st = engine.client.wait_for(lambda: len((engine.status() or {}).get("registered", [])) == 5
+                                and engine.status(), 60, "the five resumed registrations")
+    assert [r["id"] for r in st["registered"]] == [1, 2, 3, 4, 5]
+    engine.cloud(sim)
+    res = engine.register(sim.objects[0])
+    # the first write of this session replaced a file it did not write: kept, and named
+    assert "kept as" in res.message
+    backup = res.message.rsplit("kept as ", 1)[1].rstrip(")")
+    assert open(backup, "rb").read() == before
+    save = engine.client.call(Trigger, f"{NS}/save", timeout=30)
+    assert save.success and "saved 6 registration(s)" in save.message
+    assert "kept as" not in save.message     # it replaced only what it wrote itself
+    regs = load_registrations(str(engine.file))
+    assert len(regs) == 6 and [r.id for r in regs] == [1, 2, 3, 4, 5, 6]
+    # undo cannot take the resumed ones away: it reverts the accept, then has nothing left
+    assert engine.client.call(Trigger, f"{NS}/undo").success       # the accept
+    assert engine.client.call(Trigger, f"{NS}/undo").success       # the click
+    assert not engine.client.call(Trigger, f"{NS}/undo").success
+    assert len(load_registrations(str(engine.file))) == 5
+
+
+def test_a_fresh_session_keeps_the_old_file_as_a_backup(engines, sim, library, tmp_path):
+    before = _five(library, tmp_path / "registrations.yaml")
+    engine = engines("fresh", {"resume": "false"})
+    st = engine.started()
+    assert st["registered"] == []
+    assert (tmp_path / "registrations.yaml").read_bytes() == before   # untouched until written
+    engine.cloud(sim)
+    res = engine.register(sim.objects[2])
+    backup = res.message.rsplit("kept as ", 1)[1].rstrip(")")
+    assert open(backup, "rb").read() == before
+    assert len(load_registrations(str(engine.file))) == 1
+
+
+def test_a_file_that_is_not_registrations_stops_the_start_in_one_line(tmp_path):
+    path = tmp_path / "registrations.yaml"
+    path.write_text("format: something else\n")
+    proc = engine_process(tmp_path, name="bad")
+    try:
+        assert proc.proc.wait(timeout=60) == 2
+        out = proc.output()
+        assert "cannot resume the session" in out and "resume:=false" in out
+        assert "Traceback" not in out
+        assert path.read_text() == "format: something else\n"
+    finally:
+        proc.kill()
+
+
+def test_the_store_backs_up_only_what_it_did_not_write(tmp_path, library):
+    path = tmp_path / "r.yaml"
+    store = RegistrationStore(str(path))
+    assert store.write((), "f") == (str(path), None)
+    assert store.write((), "f")[1] is None             # its own file: no backup
+    path.write_text(yaml.safe_dump({"format": "x"}))   # someone else wrote it meanwhile
+    _, backup = store.write((), "f")
+    assert backup and yaml.safe_load(open(backup)) == {"format": "x"}
+    assert len(load_registrations(str(path))) == 0
