@@ -149,7 +149,8 @@ class OperatorStream:
     ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
     s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
     cannot); ``report(kind, success, message)`` hears every outcome (``kind`` names the
-    input, for throttled logging); ``on_change()`` is called after every handled input; ``on_busy(text)`` when a long step starts (None when it ends).
+    input, for throttled logging); ``on_change()`` is called after every handled input;
+    ``on_busy(text)`` when a long step starts (None when it ends).
     ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
     given, replaces that: it is called with ``True`` for ``save`` and with ``False`` right after
     any input that changed the registrations (accept, undo, a Joy accept...), *before* that
