@@ -27,7 +27,8 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
     res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
               "--json", check=True)
     doc = json.loads(res.stdout)
-    assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "candidates", "timing_s"}
+    assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "reason", "noise",
+                        "candidates", "timing_s"}
     assert len(doc["point"]) == 3 and doc["sensor_origin"] == [0.0, 0.0, 0.0]
     assert doc["verdict"] == "fits" and doc["no_match"] is False
     ranks = [c["rank"] for c in doc["candidates"]]
@@ -94,7 +95,7 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
     models = default_models_dir()
     lib = tmp_path / "templates"
     shutil.copytree(f"{models}/meshes", lib / "meshes")
-    for name in library:
+    for name in library.specific():
         with open(f"{models}/{name}.yaml", encoding="utf-8") as f:
             doc = yaml.safe_load(f)
         for label, scale in (("", 1.0), ("_small", 0.75), ("_large", 1.4)):

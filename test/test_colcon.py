@@ -166,7 +166,8 @@ def test_installed_nodes_start_and_talk(workspaces, kind, tmp_path):
                                          f"port:={port}"], logs["station"])
             _wait_log(logs["station"], procs["station"],
                       f"operator station on http://127.0.0.1:{port}", 120)
-        _wait_log(logs["engine"], procs["engine"], "ready: 5 templates (ball_valve, ", 120)
+        _wait_log(logs["engine"], procs["engine"], "ready: 7 templates (ball_valve, box, cylinder, ",
+                  120)
         _wait_log(logs["scan"], procs["scan"], "simulated panel scan (seed 3)", 120)
         # the engine logs the scan's cloud when it arrives: the nodes talk over DDS
         _wait_log(logs["engine"], procs["engine"], "cloud: ", 120)

@@ -25,7 +25,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "ament_index_python", "sensor_msgs",
                 "builtin_interfaces"}
 #: imported, no rosdep key: named in package.xml's pip-only comments
 PIP_ONLY = {"viser", "pykdtree", "threadpoolctl", "playwright", "small_gicp", "colcon_core",
-            "ament_package"}
+            "ament_package", "websockets", "msgspec"}
 #: imported only by ros/interfaces/build.py, which builds tf2_msgs into a venv (a ROS install
 #: has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry
 VENV_BUILD_ONLY = {"rosidl_adapter", "rosidl_cli", "rosidl_generator_c", "rosidl_generator_py",

@@ -58,7 +58,7 @@ def test_click_cycle_correct_refit_accept_undo(engine, engine_and_scene, library
     before = engine.state
 
     msg = engine.next_model()
-    assert "rank 2/5" in msg and engine.active_object().active == 1
+    assert "rank 2/" in msg and engine.active_object().active == 1
     engine.previous_model()
     assert engine.active_object().active == 0
     # a burst of twists is one correction: 2 cm right on the screen

@@ -130,9 +130,9 @@ def test_clicks_rank_the_right_template_first(session, library):
 def test_cycling_models(session):
     s = session
     res = trigger(s, "next_model")
-    assert res.success and "rank 2/5" in res.message
+    assert res.success and "rank 2/" in res.message
     res = trigger(s, "previous_model")
-    assert res.success and "rank 1/5" in res.message
+    assert res.success and "rank 1/" in res.message
     # Joy button 0 (default mapping) is next model, on the press edge only
     joy = Joy()
     joy.buttons = [1, 0]
@@ -378,7 +378,7 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         client.wait_for(future.done, 60, "the next_model answer")
         st = client.wait_for(lambda: len(status(s)["registered"]) == 1 and status(s), 60,
                              "the accept")
-        assert future.result().success and "rank 2/5" in future.result().message
+        assert future.result().success and "rank 2/" in future.result().message
         reg = st["registered"][0]
         assert reg["ranked_first"] == obj.template and reg["model_changes"] == 1
         assert reg["corrections"] == 1
@@ -387,7 +387,7 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         assert reg["template"] != obj.template
         assert st["objects"] == [] and st["node"]["idle"]
         log = proc.output()
-        order = [log.index(text) for text in ("object 1:", ": refit", "rank 2/5", "accepted")]
+        order = [log.index(text) for text in ("object 1:", ": refit", "rank 2/", "accepted")]
         assert order == sorted(order), log[-2000:]
     finally:
         client.close()

@@ -174,10 +174,10 @@ def test_menu_next_model_changes_the_template(session):
     s = session
     before = marker(s).description
     s["proto"].send(InteractiveMarkerFeedback.MENU_SELECT, menu_entry_id=1)
-    s["client"].wait_for(lambda: marker(s).description != before and "rank 2/5" in
+    s["client"].wait_for(lambda: marker(s).description != before and "rank 2/" in
                          marker(s).description, what="the next model")
     s["proto"].send(InteractiveMarkerFeedback.MENU_SELECT, menu_entry_id=2)
-    s["client"].wait_for(lambda: "rank 1/5" in marker(s).description, what="back to rank 1")
+    s["client"].wait_for(lambda: "rank 1/" in marker(s).description, what="back to rank 1")
 
 
 def test_malformed_and_foreign_feedback_is_ignored(session):

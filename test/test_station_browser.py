@@ -110,7 +110,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             xy = pixel(T_view, FOV_DEG, canvas_box(page), truth.click)
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
-            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
             # the page shows the status the station heard: this client hears it on its own
             c = client.wait_for(lambda: (_shown(client.status()) or {}).get("rank") == 1 and
                                 client.status()["node"]["idle"] and _shown(client.status()),
@@ -120,16 +120,16 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
 
             # Next, Previous
             page.get_by_role("button", name="Next", exact=True).click()
-            wait_text(page, r"Shown: #1 \w+.*rank 2/5")
+            wait_text(page, r"Shown: #1 \w+.*rank 2/\d+")
             page.get_by_role("button", name="Previous", exact=True).click()
-            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
             # a candidate picked by name in the dropdown (~/select_model), and back
             for rank in (3, 1):
                 page.locator("input[value^='1. '], input[value^='2. '], "
                              "input[value^='3. ']").first.click()
                 page.get_by_role("option", name=re.compile(rf"^{rank}\. ")).click()
-                wait_text(page, rf"Shown: #1 \w+.*rank {rank}/5")
-            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/5")
+                wait_text(page, rf"Shown: #1 \w+.*rank {rank}/\d+")
+            wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
             client.wait_for(lambda: _shown(client.status())["rank"] == 1 and
                             client.status()["node"]["idle"], 60, "the first candidate again")
             # the status comes before the markers: wait until this client has the markers of
@@ -138,7 +138,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             pose = np.asarray(_shown(client.status())["pose"])
             fit = client.wait_for(lambda: _drawn_fit(client, pose), 60, "the markers of the fit")
             wait_until(lambda: _last_drawn(station).startswith(truth.template) and
-                       "rank 1/5" in _last_drawn(station), 90, "the page drawing the fit")
+                       "rank 1/" in _last_drawn(station), 90, "the page drawing the fit")
             T = fit.T
             scale = gizmo_scale(fit.vertices)
             grab, goal = T @ [0.9 * scale, 0, 0, 1], T @ [0.9 * scale + 0.02, 0, 0, 1]

@@ -119,7 +119,7 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             xy = pixel(T_view, 60.0, canvas_box(page), obj.click)     # metres on the page
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
-            wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/5 — fits, \d+\.\dx the next")
+            wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/\d+ — fits, \d+\.\dx the next")
             assert page.evaluate("window.__sawFitting === true")
             node_log = out_dir / "station_scene.log"       # every node's output
             wait_until(lambda: "fitting marker cleared" in node_log.read_text(), 60,
@@ -136,7 +136,7 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             xy = pixel(T_view, 60.0, canvas_box(page), wall)
             assert on_canvas(page, xy), f"the wall's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
-            wait_text(page, r"Shown: #2 no template fits here — best guess \w+.* — rank 1/5")
+            wait_text(page, r"Shown: #2 no template fits here — best guess \w+.* — rank 1/\d+")
             wait_text(page, r"Verdict: the shown candidate is refused")
             wait_until(lambda: "drawn as refused outlines: objects [2]" in node_log.read_text(),
                        60, "the refused candidate drawn as an outline")

@@ -16,8 +16,16 @@ from affordance_registration.core.templates import TemplateLibrary, load_templat
 TASKBOARD = {"gate_valve", "ball_valve", "quarter_turn_valve", "emergency_stop", "grab_handle"}
 
 
+@pytest.fixture(scope="module")
+def library():
+    """The taskboard templates of the package library (its primitives have tests of their own,
+    test_primitives.py)."""
+    return TemplateLibrary.load().specific()
+
+
 def test_package_library_has_the_five_taskboard_objects(library):
     assert set(library) == TASKBOARD
+    assert set(TemplateLibrary.load()) == TASKBOARD | {"box", "cylinder"}
     for tpl in library.values():
         assert tpl.mesh.is_watertight, tpl.name
         assert 0.05 <= tpl.diameter <= 0.35, (tpl.name, tpl.diameter)

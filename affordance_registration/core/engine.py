@@ -702,8 +702,9 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            why = "" if not reg.override else " as an operator override (it does not fit)" \
-                if obj.shown.fits is False else f" as an operator override ({NO_MATCH})"
+            answer = obj.shown.primitive is not None and obj.shown.fits   # the verdict's own
+            why = "" if not reg.override else f" as an operator override ({NO_MATCH})" \
+                if obj.no_match and not answer else " as an operator override (it does not fit)"
             return (f"accepted {reg.template} as object {obj.id}{why} "
                     f"({len(self._state.registered)} registered)")
 

@@ -70,10 +70,10 @@ def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelC
     points, normals, support, up = measured if measured is not None else object_points(ctx)
     if dimensions is not None:
         T = _as_pose(T_init) if T_init is not None else \
-            next(_hypotheses(template.primitive, points, normals, up, support))[0]
+            next(_hypotheses(template.primitive, points, normals, up, support, ctx.frame))[0]
         return _refined(ctx, template, cache, settings, T, template.clip_dimensions(dimensions))
     best = None
-    for T, dims in _hypotheses(template.primitive, points, normals, up, support):
+    for T, dims in _hypotheses(template.primitive, points, normals, up, support, ctx.frame):
         for _ in range(REFINE_ROUNDS):
             res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
             T, dims = _measure_in(template.primitive, res.T_scene_model, points, normals, up,
@@ -140,21 +140,23 @@ def object_points(ctx: ClickContext):
     return points, normals, support, (_up(support, points) if up is None else up)
 
 
-def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support):
+def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support,
+                frame: np.ndarray):
     """(T_scene_model, dimensions) measured for each way the primitive may stand: a box
-    upright on the support, its yaw from its side faces; a cylinder upright, and lying along
-    the direction its normals leave out."""
+    upright on the support, its yaw from its side faces; a cylinder upright (its x along the
+    x of ``frame``, the frame attached to the scan around the click: the same fit in every
+    scene frame), and lying along the direction its normals leave out."""
     if up is None:                   # no support: the points' least spread, seen side up
         c = points - points.mean(axis=0)
         up = np.linalg.eigh(c.T @ c)[1][:, 0]
         if up @ normals.mean(axis=0) < 0:
             up = -up
     if kind == "box":
-        x = _yaw_axis(points, normals, up)
+        x = _yaw_axis(points, normals, up, frame[:, 0])
         yield _measure_in(kind, _frame(x, up, points.mean(axis=0)), points, normals, up,
                           support)
         return
-    yield _measure_in(kind, _frame(_basis(up)[0], up, points.mean(axis=0)), points, normals,
+    yield _measure_in(kind, _frame(frame[:, 0], up, points.mean(axis=0)), points, normals,
                       up, support)
     axis = _least_normal_direction(normals)
     axis = axis - (axis @ up) * up
@@ -189,10 +191,10 @@ def _frame(x_hint, z, origin) -> np.ndarray:
     return make_T(np.stack([x, y, z], axis=1), origin)
 
 
-def _yaw_axis(points, normals, up) -> np.ndarray:
+def _yaw_axis(points, normals, up, x_hint) -> np.ndarray:
     """A box's x direction about ``up``: the side faces' normals (their angle folded four
     times onto one direction), else the footprint's smallest enclosing rectangle."""
-    x0, y0 = _basis(up)
+    x0, y0 = _basis(up, x_hint)
     side = np.abs(normals @ up) < SIDE_COS
     if side.sum() >= FACE_POINTS:
         a = np.arctan2(normals[side] @ y0, normals[side] @ x0)

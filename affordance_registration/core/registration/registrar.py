@@ -69,6 +69,10 @@ from .settings import BACKWARD_SUBSAMPLE, NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, F
 
 __all__ = ["Registrar"]
 
+#: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
+#: the crop (a wall, a table, an object larger than the library's templates): not measured
+TRUNCATED = 0.95
+
 
 class Registrar:
     """Fits a template library to clicks in scenes. Thread-safe for concurrent ``fit`` and
@@ -224,7 +228,14 @@ class Registrar:
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
                                 measured=measured) for n in names]
         total = time.perf_counter() - t0
-        return [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
+        judged = [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
+        reach = float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1)))
+        if reach >= TRUNCATED * ctx.radius:    # a wall, or an object larger than the crop
+            why = (f"the clicked surface runs past the {ctx.radius:.2f} m around the click: "
+                   f"it cannot be measured")
+            judged = [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
+                      for r in judged]
+        return judged
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with

@@ -105,12 +105,17 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
         rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
+        # (without a viewpoint nothing is known of what the sensor saw, the cluster's
+        # segments nor the two-way residual's visibility: coverage alone judges there)
+        seen_from = ctx.sensor_origin is not None
         why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
                if cov < bar else "",
                f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
-               f"{settings.min_explained:.0%})" if explained[k] < settings.min_explained else "",
+               f"{settings.min_explained:.0%})"
+               if seen_from and explained[k] < settings.min_explained else "",
                f"its surface runs {res.residual * 1e3:.1f} mm from the scan on average (a fit "
-               f"is within {max_residual * 1e3:.1f} mm)" if res.residual > max_residual else ""]
+               f"is within {max_residual * 1e3:.1f} mm)"
+               if seen_from and res.residual > max_residual else ""]
         why = "; ".join(w for w in why if w)
         out.append(replace(res, coverage=cov, inlier_rmse=rmse, explained=float(explained[k]),
                            noise=ctx.noise, fits=not why, reason=why or None))
