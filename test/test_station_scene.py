@@ -3,6 +3,7 @@ browser station on a PLY scan in millimetres with an engine of its own (no other
 by the test), and an operator in a real browser (headless chromium) clicks an object, accepts
 and saves it -- in metres, on the truth. Also ``fit --units`` and the units hint of a click
 error on the command line."""
+import re
 import math
 import subprocess
 import sys
@@ -108,7 +109,10 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
         client.subscribe(PoseStamped, "/view_pose", keep=True)
         assert station.wait_output("operator station: http", 180), station.output()
         assert "scan_mm.ply (in mm) are running" in station.output()
-        with browser_page(f"http://127.0.0.1:{port}") as page:
+        # the URL the command prints holds the station's access secret
+        url = re.search(r"operator station: (http://\S+)", station.output()).group(1)
+        assert url.startswith(f"http://127.0.0.1:{port}/?token=")
+        with browser_page(url) as page:
             wait_text(page, r"Engine: /affordance_engine — idle")
             wait_text(page, r"points in 'scan'")
             view = settled_view(client)
