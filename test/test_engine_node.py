@@ -376,8 +376,9 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         assert status(s)["objects"] == [] and status(s)["node"]["busy"], \
             "the inputs were sent while the fit was still running"
         client.wait_for(future.done, 60, "the next_model answer")
-        st = client.wait_for(lambda: len(status(s)["registered"]) == 1 and status(s), 60,
-                             "the accept")
+        # (the status of the accept may come out before the node is idle again)
+        st = client.wait_for(lambda: len(status(s)["registered"]) == 1 and
+                             status(s)["node"]["idle"] and status(s), 60, "the accept")
         assert future.result().success and "rank 2/" in future.result().message
         reg = st["registered"][0]
         assert reg["ranked_first"] == obj.template and reg["model_changes"] == 1

@@ -142,11 +142,14 @@ def test_push_release_buttons_unplug_replug(device_and_node):
     assert proc.wait_output("opened SpaceMouse Compact"), proc.output()
     # push the cap to the right (raw +x): twist on -y, scaled by full_scale 512
     client.history.clear()
+
+    def pushed():           # the cap held over: reports until the twist has come through
+        dev.send(report=rep(1, 350, 0, 0, 0, 0, 0, fmt="<6h"))
+        return [m for m in client.history.get("/spacenav/twist", []) if m.linear.y < -0.5]
     for _ in range(15):
         dev.send(report=rep(1, 350, 0, 0, 0, 0, 0, fmt="<6h"))
         time.sleep(0.02)
-    tw = client.wait_for(lambda: [m for m in client.history.get("/spacenav/twist", [])
-                                  if m.linear.y < -0.5], what="a push on -y")[-1]
+    tw = client.wait_for(pushed, what="a push on -y")[-1]
     assert tw.linear.y == pytest.approx(-350 / 512, abs=1e-6)
     assert tw.linear.x == 0 and tw.linear.z == 0 and tw.angular.z == 0
     # release: the device stops reporting; zeros follow
