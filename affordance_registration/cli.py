@@ -108,7 +108,7 @@ def cmd_fit(args) -> int:
 
 # ---------------------------------------------------------------------------- simulate
 def cmd_simulate(args) -> int:
-    from .core.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
+    from .evaluation.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
     seed = _seed(args.seed)
     lib = _library(args.templates)
     camera = DepthCamera(faults=FaultModel()) if args.faults else None
@@ -129,7 +129,7 @@ def cmd_simulate(args) -> int:
 
 # ---------------------------------------------------------------------------- bench
 def cmd_bench(args) -> int:
-    from .bench import format_table, run_bench
+    from .evaluation.bench import format_table, run_bench
     log = (lambda *a: print(*a, file=sys.stderr, flush=True))
     result = run_bench(quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks,
                        out=args.out, log=log)
@@ -170,7 +170,7 @@ class _EngineActions:
 
 def print_session_table(rows, out=print) -> None:
     """The paper-style table, a verdict per row (PASS, or FAIL and why), and a summary line."""
-    from .core.simulation import failures
+    from .evaluation.simulation import failures
     out(f"{'true template':<20} {'ranked first':<20} {'changes':>7} {'corrections':>11} "
         f"{'fit s':>6} {'error':>14}  verdict")
     for r in rows:
@@ -191,7 +191,7 @@ def print_session_table(rows, out=print) -> None:
 
 def verdict_line(rows) -> str:
     """'DEMO OK' or 'DEMO FAILED: ' and the failing rows."""
-    from .core.simulation import failures
+    from .evaluation.simulation import failures
     failed = [f"{r['template']} ({r['why'] if 'why' in r else '; '.join(failures(r))})"
               for r in rows if not r["ok"]]
     if not rows:
@@ -202,7 +202,7 @@ def verdict_line(rows) -> str:
 def _core_demo(args) -> int:
     from .core.corrections import view_from_optical
     from .core.engine import AffordanceEngine
-    from .core.simulation import SimulatedOperator, simulate_taskboard
+    from .evaluation.simulation import SimulatedOperator, simulate_taskboard
     lib = _library(args.templates)
     seed = _seed(args.seed)
     sim = simulate_taskboard(lib, seed)
@@ -232,7 +232,7 @@ def cmd_demo(args) -> int:
     """The main job: the full ROS 2 pipeline on the bundled recorded session."""
     if args.core:
         return _core_demo(args)
-    from .ros.session import replay_session
+    from .evaluation.session import replay_session
     session = args.session or default_session_dir()
     if not os.path.isdir(session):
         raise AffordanceError(f"no recorded session at {session}")
@@ -248,7 +248,7 @@ def cmd_demo(args) -> int:
 
 def cmd_session(args) -> int:
     """Record a new operator session (simulated scene, live engine, simulated operator)."""
-    from .ros.session import record_session
+    from .evaluation.session import record_session
     print(f"recording a simulated operator session (seed {_seed(args.seed)}) into {args.out} ...")
     result = record_session(args.out, seed=_seed(args.seed))
     print_session_table(result["rows"])
@@ -260,25 +260,26 @@ def cmd_session(args) -> int:
 def cmd_station(args) -> int:
     """The browser operator station (``--demo``: with an engine node and a simulated scan;
     ``--scene FILE``: with an engine node and that scan)."""
-    from .ros.station import check_port
+    from .ros.station.node import check_port
     if args.demo and args.scene:
         raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
     scene = None
     if args.scene:      # the file is checked here, so a bad one is one line before any node starts
-        from .ros.station_scene import read_scan
+        from .ros.station.scene import read_scan
         scene = os.path.abspath(args.scene)
         _, warning = read_scan(scene, args.units)
         if warning:
             print(f"affordance-registration: warning: {warning}", file=sys.stderr)
     check_port(args.host, args.port)
     if not args.demo and not scene:
-        from .ros.station import main as station_main
+        from .ros.station.node import main as station_main
         return station_main(["--ros-args", "-p", f"host:={args.host}", "-p",
                              f"port:={args.port}", "-p", f"up:={args.up}"])
     import signal
     import threading
     import urllib.request
-    from .ros.launcher import Launcher, package_share, parse_launch_file
+
+    from .ros.standins.launcher import Launcher, package_share, parse_launch_file
     os.makedirs(args.out, exist_ok=True)
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
     given = {"host": args.host, "port": str(args.port), "registrations_file": registrations,
@@ -297,7 +298,7 @@ def cmd_station(args) -> int:
     log_path = os.path.join(args.out, log_name)
     # the station's access secret, handed to it through its environment (not its command line,
     # which every local user can read), and shown in the URL printed below
-    from .ros.station_access import SECRET_ENV, new_secret
+    from .ros.station.access import SECRET_ENV, new_secret
     secret = os.environ.get(SECRET_ENV) or new_secret()
     os.environ[SECRET_ENV] = secret
     stop = threading.Event()
@@ -329,7 +330,7 @@ def cmd_station(args) -> int:
 
 # ---------------------------------------------------------------------------- bag
 def cmd_bag(args) -> int:
-    from .ros.bag import bag_info
+    from .ros.standins.bag import bag_info
     if args.bag_command == "info":
         info = bag_info(args.bag)
         print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
@@ -338,13 +339,14 @@ def cmd_bag(args) -> int:
         return 0
     import signal
     import threading
-    from .ros.spin import background_node
+
+    from .ros.standins.spin import background_node
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with background_node("affordance_bag") as node:
         if args.bag_command == "record":
-            from .ros.bag import Recorder
+            from .ros.standins.bag import Recorder
             recorder = Recorder(node, args.out, args.topics)
             t0 = time.monotonic()
             while not stop.is_set() and (args.duration is None or
@@ -353,7 +355,7 @@ def cmd_bag(args) -> int:
             counts = recorder.close()
             print(f"recorded {sum(counts.values())} messages into {args.out}: {counts}")
         else:
-            from .ros.bag import Player, StatusPacer
+            from .ros.standins.bag import Player, StatusPacer
             pace = StatusPacer(node, args.status_topic, args.pace_timeout) if args.paced \
                 else None
             player = Player(node, args.bag, rate=args.rate, start_offset=args.start_offset,
@@ -368,7 +370,7 @@ def cmd_bag(args) -> int:
 
 # ---------------------------------------------------------------------------- launch
 def cmd_launch(args) -> int:
-    from .ros.launcher import LaunchError, package_share, run_launch_file
+    from .ros.standins.launcher import LaunchError, package_share, run_launch_file
     arguments = {}
     for item in args.arguments:
         if ":=" not in item:
@@ -384,7 +386,7 @@ def cmd_launch(args) -> int:
 
 # ---------------------------------------------------------------------------- spacemouse
 def cmd_spacemouse(args) -> int:
-    from .ros.spacemouse import list_devices
+    from .ros.devices.spacemouse import list_devices
     try:
         lines = list_devices()
     except ImportError:
@@ -398,7 +400,7 @@ def cmd_spacemouse(args) -> int:
 
 # ---------------------------------------------------------------------------- models
 def cmd_generate_models(args) -> int:
-    from .core.taskboard import write_library
+    from .evaluation.taskboard import write_library
     for path in write_library(args.out):
         print(f"wrote {path}")
     return 0

@@ -122,7 +122,7 @@ def station_url(port: int, secret: str = STATION_SECRET) -> str:
 
 def station_argv(port: int, **params) -> list[str]:
     params.setdefault("access_secret", STATION_SECRET)
-    argv = [sys.executable, "-m", "affordance_registration.ros.station", "--ros-args",
+    argv = [sys.executable, "-m", "affordance_registration.ros.station.node", "--ros-args",
             "-p", f"port:={port}"]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
@@ -130,7 +130,7 @@ def station_argv(port: int, **params) -> list[str]:
 
 
 def scan_argv(seed: int = 7, **params) -> list[str]:
-    argv = [sys.executable, "-m", "affordance_registration.ros.simulated_scan", "--ros-args",
+    argv = [sys.executable, "-m", "affordance_registration.evaluation.simulated_scan", "--ros-args",
             "-p", f"seed:={seed}"]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
@@ -160,7 +160,7 @@ def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
     station's first view of a cloud in a sensor frame) and has not moved for a second: the last
     ``view_pose`` a :class:`ros_helpers.Client` subscribed to ``topic`` (with ``keep=True``)
     heard."""
-    from affordance_registration.ros.conversions import pose_to_matrix
+    from affordance_registration.ros.glue.conversions import pose_to_matrix
 
     def settled():
         hist = client.history.get(topic) or []

@@ -32,7 +32,7 @@ def library():
 
 @pytest.fixture(scope="session")
 def panel_scene(library):
-    from affordance_registration.core.simulation import simulate_taskboard
+    from affordance_registration.evaluation.simulation import simulate_taskboard
     return simulate_taskboard(library, 7)
 
 

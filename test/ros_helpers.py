@@ -75,7 +75,7 @@ class NodeProcess:
 
 
 def engine_process(tmp_path, params: dict | None = None, name="engine") -> NodeProcess:
-    args = [sys.executable, "-m", "affordance_registration.ros.engine_node", "--ros-args",
+    args = [sys.executable, "-m", "affordance_registration.ros.nodes.engine_node", "--ros-args",
             "-p", f"registrations_file:={tmp_path / 'registrations.yaml'}"]
     for key, value in (params or {}).items():
         args += ["-p", f"{key}:={value}"]

@@ -29,21 +29,31 @@ sys.path.insert(0, HERE)
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
+from pathlib import Path  # noqa: E402
+
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
+from browser_helpers import (  # noqa: E402
+    browser_page,
+    canvas_box,
+    free_port,
+    on_canvas,
+    pixel,
+    scan_argv,
+    settled_view,
+    station_argv,
+    station_url,
+    wait_text,
+)
 from geometry_msgs.msg import PointStamped, PoseStamped  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from ros_helpers import LATCHED, Client, NodeProcess, engine_process  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from affordance_registration.core.simulation import simulate_taskboard  # noqa: E402
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
-from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2  # noqa: E402
-from browser_helpers import (browser_page, canvas_box, free_port, on_canvas, pixel,  # noqa: E402
-                             scan_argv,
-                             settled_view, station_argv, station_url, wait_text)
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process  # noqa: E402
-from pathlib import Path  # noqa: E402
+from affordance_registration.evaluation.simulation import simulate_taskboard  # noqa: E402
+from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2  # noqa: E402
 
 FRAME = "camera_depth_optical_frame"
 #: records on the page when a text first appears (window.__arShown, ms) and when the next mouse

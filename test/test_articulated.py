@@ -7,9 +7,9 @@ import pytest
 
 from affordance_registration.core.registration import FitSettings, Registrar
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.simulation import DepthCamera, NoiseModel, simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import pose_error
+from affordance_registration.evaluation.simulation import DepthCamera, NoiseModel, simulate_taskboard
 
 DEG5 = math.radians(5.0)
 
@@ -65,7 +65,7 @@ def test_half_open_valve_is_reported_between_its_states(library, registrar):
 @pytest.mark.parametrize("scale", [0.85, 1.18])
 def test_scale_recovered_within_3_percent(library, scale):
     """A grab handle allowed to come in sizes (scale: [0.8, 1.25], as the bench's variant)."""
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     assert sized["grab_handle"].scale_range == (0.8, 1.25)
     sim = simulate_taskboard(sized, 3103, articulated=True, scales={"grab_handle": scale})
@@ -166,7 +166,7 @@ def test_objects_in_their_named_states_and_nominal_size_are_reported_there(libra
     reported at them, and the poses stay within 5 mm and 5 deg -- the extra unknowns cost no
     rigid accuracy. (The plug valve's body also fits a quarter turn off with its handle turned
     back; the winner's sweep about its axis tries the named states too. Its scale: below.)"""
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},
               "gate_valve": {"stem": 0.0}, "emergency_stop": {"button": 0.0}}
@@ -190,7 +190,7 @@ def test_a_nominal_size_handle_is_reported_at_scale_one(library):
     at 0.966, 3.5 mm off, with a lower residual than scale 1 at the truth: samples the sensor
     sees at grazing angles (it returns nothing from ~70-85 deg) count against the larger
     size. Occam's razor judges scale 1 with those samples unseen (``scale_grazing_angle``)."""
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},
               "gate_valve": {"stem": 0.0}, "emergency_stop": {"button": 0.0}}
@@ -205,7 +205,7 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     """A grab handle 17% over nominal size: scale and distance trade off along the line of
     sight unless the handle stays on the panel it is mounted on (the fit's contact with the
     plane under the click). Without that contact this fit came out 3.7% too big."""
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     sim = simulate_taskboard(sized, 502, articulated=True)
     obj, best = _fit(Registrar(sized), sim, "grab_handle")
@@ -229,7 +229,7 @@ def test_a_much_bigger_handle_is_found_from_hypotheses_at_the_range_ends(library
     """A grab handle at 1.24x: the nominal-size template alone lands on one end of it (48 mm
     off, turned 25 deg), from which no scale step recovers; hypotheses at the ends of the
     scale range from the start find it."""
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     sim = simulate_taskboard(sized, 522, articulated=True)
     obj, best = _fit(Registrar(sized), sim, "grab_handle")

@@ -13,7 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-from affordance_registration.ros.bag import BagError, Player, Recorder, bag_info
+from affordance_registration.ros.standins.bag import BagError, Player, Recorder, bag_info
 
 SESSION = os.path.join(os.path.dirname(__file__), "data", "session")
 
@@ -112,7 +112,7 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
     with pytest.raises(BagError, match="truncated|corrupt|not a readable"):
         bag_info(str(broken))
         # some truncations only show when the messages are read
-        from affordance_registration.ros.bag import read_messages
+        from affordance_registration.ros.standins.bag import read_messages
         for topic in ("/points", "/clicked_point", "/affordance_engine/status"):
             list(read_messages(str(broken), topic))
     garbage = tmp_path / "garbage"
@@ -133,7 +133,7 @@ def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library
     launch file while two other processes keep both cores busy: paced by the node, the
     registered objects match the truth and what the node reported when the session was
     recorded."""
-    from affordance_registration.ros.session import replay_session
+    from affordance_registration.evaluation.session import replay_session
     info = bag_info(os.path.join(SESSION, "bag"))
     assert {t["topic"] for t in info["topics"]} >= {"/points", "/clicked_point",
                                                     "/spacenav/joy", "/spacenav/twist",
@@ -166,12 +166,14 @@ def test_demo_verdict_names_what_failed(library):
     """A replayed registration off the truth (or off the recording) fails with why, in the
     table, the last line and the picture; a missing one is a failing row too."""
     import json
+
     import numpy as np
+
     from affordance_registration.cli import print_session_table, verdict_line
-    from affordance_registration.core.render import FAIL_COLOUR, PASS_COLOUR, render_verdict
-    from affordance_registration.core.simulation import CameraIntrinsics, load_truth
-    from affordance_registration.ros.bag import read_messages
-    from affordance_registration.ros.session import compare_with_recording, session_rows
+    from affordance_registration.evaluation.render import FAIL_COLOUR, PASS_COLOUR, render_verdict
+    from affordance_registration.evaluation.session import compare_with_recording, session_rows
+    from affordance_registration.evaluation.simulation import CameraIntrinsics, load_truth
+    from affordance_registration.ros.standins.bag import read_messages
     truth = load_truth(os.path.join(SESSION, "truth.yaml"))
     recorded = [json.loads(m.data) for m in
                 read_messages(os.path.join(SESSION, "bag"), "/affordance_engine/status")][-1]

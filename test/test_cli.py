@@ -90,8 +90,9 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
     """With 15 templates (the five and copies of them scaled 0.75 and 1.4) the prefilter sets
     clearly worse ones aside: --json gives them ``fits`` null and coverage 0, the table a '-'
     where their coverage and RMSE would be; the fitted ones carry their verdict."""
-    from affordance_registration.core.templates import default_models_dir
     import shutil
+
+    from affordance_registration.core.templates import default_models_dir
     models = default_models_dir()
     lib = tmp_path / "templates"
     shutil.copytree(f"{models}/meshes", lib / "meshes")

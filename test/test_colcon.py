@@ -18,7 +18,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-
 from browser_helpers import free_port
 
 ROOT = Path(__file__).resolve().parents[1]

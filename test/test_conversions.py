@@ -8,10 +8,14 @@ from geometry_msgs.msg import Pose
 from sensor_msgs.msg import PointCloud2, PointField
 
 from affordance_registration.core.transforms import make_T, random_rotations
-from affordance_registration.ros.conversions import (ConversionError, matrix_to_pose,
-                                                     pointcloud2_to_xyz, pose_to_matrix,
-                                                     xyz_to_pointcloud2)
-from affordance_registration.ros.frames import FrameError, FrameGraph, StaticFrames
+from affordance_registration.ros.glue.conversions import (
+    ConversionError,
+    matrix_to_pose,
+    pointcloud2_to_xyz,
+    pose_to_matrix,
+    xyz_to_pointcloud2,
+)
+from affordance_registration.ros.glue.frames import FrameError, FrameGraph, StaticFrames
 
 
 def _pack(points, layout, point_step, big_endian=False, row_pad=0, width=None):

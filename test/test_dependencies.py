@@ -26,7 +26,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "ament_index_python", "sensor_msgs",
 #: imported, no rosdep key: named in package.xml's pip-only comments
 PIP_ONLY = {"viser", "pykdtree", "threadpoolctl", "playwright", "small_gicp", "colcon_core",
             "ament_package", "websockets", "msgspec"}
-#: imported only by ros/interfaces/build.py, which builds tf2_msgs into a venv (a ROS install
+#: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS install
 #: has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry
 VENV_BUILD_ONLY = {"rosidl_adapter", "rosidl_cli", "rosidl_generator_c", "rosidl_generator_py",
                    "rosidl_generator_type_description", "rosidl_typesupport_c",
@@ -38,7 +38,7 @@ NOT_IMPORTED = {"rmw_fastrtps_cpp": "the RMW implementation the launch files and
                 "builtin_interfaces": "the stamps of every message; a dependency of the tf2_msgs "
                                       "the venv build makes"}
 #: imported when present, else done without: module -> its rosdep key
-OPTIONAL = {"tf2_ros": "tf2_ros_py"}     # ros/tf.py: tf2_ros' buffer, else /tf read directly
+OPTIONAL = {"tf2_ros": "tf2_ros_py"}     # ros/glue/tf.py: tf2_ros' buffer, else /tf read directly
 
 
 def _imports(folder: Path) -> dict[str, set[str]]:
@@ -135,7 +135,7 @@ def test_every_import_is_declared_in_package_xml():
                                    (ROOT / "test", test_deps, "test_depend")):
         for module, files in sorted(_imports(folder).items()):
             if module in VENV_BUILD_ONLY:
-                if any(f != "affordance_registration/ros/interfaces/build.py" for f in files):
+                if any(f != "affordance_registration/ros/standins/interfaces/build.py" for f in files):
                     problems.append(f"{module}: imported outside interfaces/build.py: {files}")
                 continue
             if module in PIP_ONLY:
@@ -163,7 +163,7 @@ def test_every_package_xml_dependency_is_used_or_explained():
 
 def test_every_import_is_installed_by_setup_py():
     """Each imported distribution is a setup.py requirement or comes with one (as installed
-    here); tf2_msgs is built into the venv by ros/interfaces/build.py."""
+    here); tf2_msgs is built into the venv by ros/standins/interfaces/build.py."""
     reqs = _setup_requirements()
     named = {canonicalize_name(r.name) for r in reqs}
     closure = _closure(reqs)
@@ -173,7 +173,7 @@ def test_every_import_is_installed_by_setup_py():
         if module in OPTIONAL:
             continue
         if module == "tf2_msgs":
-            assert (ROOT / PACKAGE_DIR / "ros" / "interfaces" / "build.py").is_file()
+            assert (ROOT / PACKAGE_DIR / "ros" / "standins" / "interfaces" / "build.py").is_file()
             continue
         names = {canonicalize_name(d) for d in dists.get(module, [])}
         if not names:

@@ -10,14 +10,14 @@ import yaml
 from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
+from ros_helpers import LATCHED, Client, engine_process, engine_session
 from sensor_msgs.msg import Joy, PointCloud2, PointField
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2
-from ros_helpers import LATCHED, Client, engine_process, engine_session
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
@@ -447,7 +447,7 @@ def test_a_cloud_in_base_link_with_a_sensor_frame(ros_context, tmp_path, library
     sensor_frame parameter: the fit is the optical one moved into base_link, and the status
     carries the verdict (coverage, inlier_rmse, fits)."""
     from affordance_registration.core.transforms import make_T, matrix_to_quat_xyzw
-    from affordance_registration.ros.frames import R_BODY_OPTICAL
+    from affordance_registration.ros.glue.frames import R_BODY_OPTICAL
     # the camera 1.1 m up, looking along base_link's x (REP-103)
     T_base_camera = make_T(R_BODY_OPTICAL, [0.3, -0.2, 1.1])
     q = matrix_to_quat_xyzw(T_base_camera[:3, :3])

@@ -43,9 +43,9 @@ from affordance_registration.core.registration import FitSettings, Registrar  # 
 from affordance_registration.core.registration.correspondences import stack_samples  # noqa: E402
 from affordance_registration.core.registration.visibility import facing, visible  # noqa: E402
 from affordance_registration.core.scene import Scene  # noqa: E402
-from affordance_registration.core.simulation import simulate_taskboard  # noqa: E402
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
 from affordance_registration.core.transforms import random_rotations  # noqa: E402
+from affordance_registration.evaluation.simulation import simulate_taskboard  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -6,14 +6,14 @@ import time
 
 import pytest
 from geometry_msgs.msg import PointStamped
+from ros_helpers import engine_session
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from affordance_registration.core.operator import OperatorStream
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.ros.conversions import xyz_to_pointcloud2
-from ros_helpers import engine_session
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"

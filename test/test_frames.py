@@ -15,9 +15,9 @@ from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import SceneError
 from affordance_registration.core.registration import NO_MATCH, Registrar
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.simulation import ply_bytes, simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import axis_angle_matrix, make_T, pose_error
+from affordance_registration.evaluation.simulation import ply_bytes, simulate_taskboard
 
 #: the frames of issue 18's table: (rotation vector (rad), translation (m))
 Z_UP = (np.array([-math.pi / 2, 0.0, 0.0]) * 1.0, [0.0, 0.0, 1.1])     # optical -> z-up base
@@ -215,7 +215,7 @@ def test_scene_origin_values():
 def test_default_view_convention_by_frame_name():
     """The node's default view for twists: REP-103 body / world frames look along x (z up);
     optical frames and other camera frame names keep the optical convention."""
-    from affordance_registration.ros.frames import R_BODY_OPTICAL, T_frame_optical
+    from affordance_registration.ros.glue.frames import R_BODY_OPTICAL, T_frame_optical
     for body in ("base_link", "/map", "odom", "camera_link", "base_footprint", "velodyne"):
         assert np.allclose(T_frame_optical(body)[:3, :3], R_BODY_OPTICAL), body
     for optical in ("camera_depth_optical_frame", "cam", "camera_depth", "kinect_rgb_optical"):

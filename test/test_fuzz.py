@@ -7,15 +7,19 @@ import tempfile
 
 import numpy as np
 import yaml
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from sensor_msgs.msg import PointCloud2, PointField
 
 from affordance_registration.core.errors import TemplateError
 from affordance_registration.core.templates import load_template
-from affordance_registration.ros.bag import BagError, bag_info
-from affordance_registration.ros.conversions import (ConversionError, pointcloud2_to_xyz,
-                                                     xyz_to_pointcloud2)
-from affordance_registration.ros.launcher import LaunchError, parse_launch_file
+from affordance_registration.ros.glue.conversions import (
+    ConversionError,
+    pointcloud2_to_xyz,
+    xyz_to_pointcloud2,
+)
+from affordance_registration.ros.standins.bag import BagError, bag_info
+from affordance_registration.ros.standins.launcher import LaunchError, parse_launch_file
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
 MODELS = os.path.join(os.path.dirname(__file__), "..", "models")

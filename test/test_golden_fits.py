@@ -55,9 +55,9 @@ def run_cases() -> tuple[dict, dict]:
     """Fit every case; returns ({case: [candidate dicts, best first]}, {scene: hash})."""
     from affordance_registration.core.registration import FitSettings, Registrar
     from affordance_registration.core.scene import Scene
-    from affordance_registration.core.simulation import simulate_taskboard, sized_library
     from affordance_registration.core.templates import TemplateLibrary
     from affordance_registration.core.transforms import axis_angle_matrix, make_T
+    from affordance_registration.evaluation.simulation import simulate_taskboard, sized_library
 
     library = TemplateLibrary.load().specific()   # the taskboard library (no primitives)
     sized = sized_library(library)

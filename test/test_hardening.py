@@ -18,14 +18,14 @@ import yaml
 from geometry_msgs.msg import PointStamped, Twist
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
+from ros_helpers import engine_process, engine_session
 from sensor_msgs.msg import PointCloud2, PointField
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import InteractiveMarkerFeedback
 
-from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import matrix_to_pose, xyz_to_pointcloud2
-from ros_helpers import engine_process, engine_session
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import matrix_to_pose, xyz_to_pointcloud2
 
 NS = "/affordance_engine"
 FRAME = "camera_depth_optical_frame"
@@ -266,7 +266,7 @@ def test_bad_launch_files_are_one_line(tmp_path):
         f = tmp_path / f"{name}.launch.yaml"
         f.write_bytes(text if isinstance(text, bytes) else text.encode())
         if name == "env":          # resolved once: the node gets the text literally
-            from affordance_registration.ros.launcher import parse_launch_file
+            from affordance_registration.ros.standins.launcher import parse_launch_file
             os.environ["AR_LOOP"] = "$(env AR_LOOP)"
             try:
                 (action,) = parse_launch_file(str(f))
@@ -282,7 +282,7 @@ def test_bad_launch_files_are_one_line(tmp_path):
 
 def test_the_spacemouse_fifo_skips_lines_that_are_not_commands(tmp_path):
     """Row 'the SpaceMouse fifo: backend fed the JSON line 5': the reader keeps going."""
-    from affordance_registration.ros.spacemouse import FifoBackend
+    from affordance_registration.ros.devices.spacemouse import FifoBackend
     fifo = tmp_path / "hid"
     os.mkfifo(fifo)
     backend = FifoBackend(str(fifo))
@@ -354,6 +354,7 @@ def test_a_save_killed_midway_leaves_nothing_the_next_save_does_not_clean(tmp_pa
     """Row 'SIGKILL during ~/save': the process is killed while it writes a large file; the
     old file is intact, and the next save removes the dead process's temporary file."""
     import signal
+
     from affordance_registration.core.engine import save_registrations
     target = tmp_path / "registrations.yaml"
     save_registrations(str(target), _registrations())

@@ -7,18 +7,21 @@ import time
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped
-from std_msgs.msg import String
-from std_srvs.srv import Trigger
-from visualization_msgs.msg import (InteractiveMarkerControl, InteractiveMarkerFeedback,
-                                    InteractiveMarkerUpdate, Marker)
-from visualization_msgs.srv import GetInteractiveMarkers
-
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import (matrix_to_pose, pose_to_matrix,
-                                                     xyz_to_pointcloud2)
 from ros_helpers import LATCHED, Client, engine_process
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import (
+    InteractiveMarkerControl,
+    InteractiveMarkerFeedback,
+    InteractiveMarkerUpdate,
+    Marker,
+)
+from visualization_msgs.srv import GetInteractiveMarkers
+
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import matrix_to_pose, pose_to_matrix, xyz_to_pointcloud2
 
 NS = "/affordance_correction"
 FRAME = "camera_depth_optical_frame"
@@ -275,7 +278,7 @@ class Host:
     """The server's host for tests without ROS: a real engine, and what the server sends."""
 
     def __init__(self, library, engine):
-        from affordance_registration.ros.interactive import MarkerCallbacks
+        from affordance_registration.ros.standins.interactive import MarkerCallbacks
         self.engine, self.sent, self.warnings = engine, [], []
         self.callbacks = MarkerCallbacks(
             active=engine.active_object, frame=lambda: FRAME, view_pose=engine.view_pose,
@@ -309,8 +312,12 @@ def test_server_through_its_callbacks_without_a_node(library):
     locked out while the first one keeps sending and let in once it went silent, one warning per
     kind however many clients misbehave, menu entries and the joint marker as actions."""
     from affordance_registration.core.engine import AffordanceEngine
-    from affordance_registration.ros.interactive import (DRAG_EXPIRY_S, JOINT_MARKER_NAME,
-                                                         MARKER_NAME, CorrectionMarkerServer)
+    from affordance_registration.ros.standins.interactive import (
+        DRAG_EXPIRY_S,
+        JOINT_MARKER_NAME,
+        MARKER_NAME,
+        CorrectionMarkerServer,
+    )
     F = InteractiveMarkerFeedback
     sim = simulate_taskboard(library, 3102, articulated=True,
                              joints={"ball_valve": {"lever": math.pi / 4}})

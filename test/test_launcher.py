@@ -4,13 +4,13 @@ import sys
 
 import numpy as np
 import pytest
+from ros_helpers import LATCHED, Client, NodeProcess
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from affordance_registration.ros.conversions import xyz_to_pointcloud2
-from affordance_registration.ros.launcher import LaunchError, package_share, parse_launch_file
-from ros_helpers import LATCHED, Client, NodeProcess
+from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
+from affordance_registration.ros.standins.launcher import LaunchError, package_share, parse_launch_file
 
 LAUNCH = os.path.join(package_share("affordance_registration"), "launch_configs",
                       "affordance_engine.launch.yaml")

@@ -10,8 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from affordance_registration.core.neighbours import (build_tree, k_nearest, nearest,
-                                                     pairs_within, tree_points)
+from affordance_registration.core.neighbours import build_tree, k_nearest, nearest, pairs_within, tree_points
 
 
 @settings(max_examples=30, deadline=None)

@@ -8,13 +8,13 @@ import numpy as np
 from geometry_msgs.msg import PointStamped
 from rcl_interfaces.srv import GetParameters
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from ros_helpers import Client, engine_process
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.ros.conversions import xyz_to_pointcloud2
-from ros_helpers import Client, engine_process
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
 
 def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):

@@ -7,14 +7,15 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.core.operator import OperatorSettings, OperatorStream
-from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.transforms import pose_error
+from affordance_registration.evaluation.simulation import simulate_taskboard
 
 TOL_M, TOL_RAD = 0.005, math.radians(5)
 FRAME = "camera_depth_optical_frame"

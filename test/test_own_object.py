@@ -5,13 +5,13 @@ import time
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped
+from ros_helpers import engine_session
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import InteractiveMarkerFeedback
 
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.ros.conversions import matrix_to_pose, xyz_to_pointcloud2
-from affordance_registration.ros.interactive import DRAG_EXPIRY_S
-from ros_helpers import engine_session
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import matrix_to_pose, xyz_to_pointcloud2
+from affordance_registration.ros.standins.interactive import DRAG_EXPIRY_S
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
@@ -165,7 +165,8 @@ def test_an_old_tf_arriving_after_a_new_one_changes_nothing(ros_context, tmp_pat
 def test_the_buffer_keeps_time_order_interpolates_and_forgets_after_its_cache():
     from hypothesis import given, settings
     from hypothesis import strategies as st
-    from affordance_registration.ros.frames import FrameError, TransformBuffer
+
+    from affordance_registration.ros.glue.frames import FrameError, TransformBuffer
 
     def T(x):
         out = np.eye(4)
@@ -195,8 +196,8 @@ def test_the_buffer_keeps_time_order_interpolates_and_forgets_after_its_cache():
 def test_a_frame_change_re_expresses_the_open_object_and_the_registrations(ros_context,
                                                                             tmp_path, library):
     from std_srvs.srv import Trigger
-    from affordance_registration.core.transforms import pose_error
-    from affordance_registration.core.transforms import quat_xyzw_to_matrix
+
+    from affordance_registration.core.transforms import pose_error, quat_xyzw_to_matrix
     sim = simulate_taskboard(library, 7)
     # camB sees the same scene from 8 cm to the side, turned 10 degrees about y
     c, s_ = np.cos(np.radians(10)), np.sin(np.radians(10))
@@ -271,10 +272,9 @@ def test_a_browser_that_disconnects_mid_drag_moves_nothing(ros_context, tmp_path
     it was, the half-finished pose is not committed."""
     import msgspec
     import viser
-    from websockets.sync.client import connect
-
     from browser_helpers import STATION_SECRET, free_port, station_argv
     from ros_helpers import NodeProcess
+    from websockets.sync.client import connect
     sim = simulate_taskboard(library, 7)
     port = free_port()
     station = NodeProcess(station_argv(port), tmp_path / "station.log")

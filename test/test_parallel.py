@@ -11,7 +11,7 @@ import pytest
 from affordance_registration.core.errors import RegistrationError
 from affordance_registration.core.registration import FitSettings, Registrar, parallel
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.simulation import simulate_taskboard, sized_library
+from affordance_registration.evaluation.simulation import simulate_taskboard, sized_library
 
 
 def _same(a, b) -> bool:
@@ -81,7 +81,7 @@ from threadpoolctl import threadpool_info
 from affordance_registration.core.errors import RegistrationError
 from affordance_registration.core.registration import Registrar, parallel
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.simulation import simulate_taskboard
+from affordance_registration.evaluation.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
 
 def blas():

@@ -15,10 +15,9 @@ from affordance_registration.core.engine import AffordanceEngine, load_registrat
 from affordance_registration.core.errors import AffordanceError, EngineStateError, TemplateError
 from affordance_registration.core.registration import Registrar, no_match, verdict
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary, load_template
-from affordance_registration.evaluation.rows import (DIM_TOL, primitive_pose_error,
-                                                     simulate_primitives)
+from affordance_registration.evaluation.rows import DIM_TOL, primitive_pose_error, simulate_primitives
+from affordance_registration.evaluation.simulation import simulate_taskboard
 
 
 @pytest.fixture(scope="module")
@@ -159,9 +158,10 @@ def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library):
     a = library["box"].sized({"x": 0.12, "y": 0.08, "z": 0.10})
     b = library["cylinder"].sized({"radius": 0.04, "length": 0.16})
     import trimesh
-    from affordance_registration.core.simulation import DepthCamera
+
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import _look_at
+    from affordance_registration.evaluation.simulation import DepthCamera
     table = trimesh.creation.box(extents=(1.0, 1.0, 0.02))
     # a camera 0.9 m from the pair, 50 deg above the table, looking at them
     T_cam_table = invert(_look_at(np.array([0.05, -0.58, 0.69]), np.array([0.05, 0.0, 0.05])))
@@ -241,7 +241,7 @@ def test_a_specific_template_has_no_dimensions_to_correct(library, panel_scene):
 def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path,
                                                                         primitive_clicks):
     scene, obj = next((s, o) for s, o in primitive_clicks if o["kind"] == "box")
-    from affordance_registration.core.simulation import ply_bytes
+    from affordance_registration.evaluation.simulation import ply_bytes
     path = tmp_path / "boxes.ply"
     path.write_bytes(ply_bytes(scene.points))
     out = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "fit",

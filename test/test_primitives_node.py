@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped
+from ros_helpers import LATCHED, engine_session
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -15,8 +16,7 @@ from visualization_msgs.msg import MarkerArray
 
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.evaluation.rows import simulate_primitives
-from affordance_registration.ros.conversions import xyz_to_pointcloud2
-from ros_helpers import LATCHED, engine_session
+from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
 FRAME = "camera_optical_frame"
 NS = "/affordance_engine"
@@ -109,7 +109,7 @@ def test_malformed_or_untimely_set_dimension_is_one_line(session, text, why):
 
 
 def test_parse_dimension():
-    from affordance_registration.ros.engine_node import parse_dimension
+    from affordance_registration.ros.nodes.engine_node import parse_dimension
     assert parse_dimension(" radius=0.045 ") == ("radius", 0.045, None)
     assert parse_dimension("x+") == ("x", None, 1.0) and parse_dimension("y -") == \
         ("y", None, -1.0)
@@ -121,7 +121,7 @@ def test_parse_dimension():
 def test_the_marker_menu_steps_a_primitives_dimensions(library):
     from affordance_registration.core.registration import Registrar
     from affordance_registration.core.scene import Scene
-    from affordance_registration.ros.interactive import MENU, menu_of
+    from affordance_registration.ros.standins.interactive import MENU, menu_of
     organized, objects = simulate_primitives(5000)
     cyl = next(o for o in objects if o["kind"] == "cylinder")
     best = Registrar(library).fit(Scene(organized), cyl["click"]).candidates[0]

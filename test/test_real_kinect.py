@@ -313,7 +313,7 @@ def test_armadillo_in_real_clutter(armadillo_yaml, base, seed):
     d_obj, _ = cKDTree(objects).query(posed[body])
     assert d_obj.min() < 0.01 and case.touches
     assert abs((posed[body] @ n + off).min()) < 0.002
-    from affordance_registration.realscans import STATUE_UP
+    from affordance_registration.evaluation.realscans import STATUE_UP
     assert T[:3, STATUE_UP] @ n > 0.999
     # the click is on the Armadillo; pixels not taken by it keep the mOSD point or a hole
     assert np.min(np.linalg.norm(arm - case.click, axis=1)) == 0

@@ -94,9 +94,13 @@ def test_the_milk_carton_is_found_in_its_real_scene(data_dir, library, tmp_path)
 
 @pytest.fixture(scope="module")
 def armadillo():
-    from affordance_registration.realscans import (armadillo_views, default_cache,
-                                                   fetch_or_pcd, view_click,
-                                                   write_point_template)
+    from affordance_registration.evaluation.realscans import (
+        armadillo_views,
+        default_cache,
+        fetch_or_pcd,
+        view_click,
+        write_point_template,
+    )
     try:
         views = armadillo_views(fetch_or_pcd(default_cache()))
     except Exception as exc:          # a failed download fails the tests, with the reason

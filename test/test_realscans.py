@@ -15,9 +15,16 @@ from affordance_registration.core.registration import Registrar
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary, load_template
 from affordance_registration.core.transforms import invert, make_T, pose_error, random_rotations
-from affordance_registration.realscans import (GROUND_TRUTH_VIEWS, armadillo_views,
-                                               default_cache, fetch_or_pcd, read_conf,
-                                               view_click, view_truth, write_point_template)
+from affordance_registration.evaluation.realscans import (
+    GROUND_TRUTH_VIEWS,
+    armadillo_views,
+    default_cache,
+    fetch_or_pcd,
+    read_conf,
+    view_click,
+    view_truth,
+    write_point_template,
+)
 
 
 @pytest.fixture(scope="session")

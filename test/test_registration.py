@@ -6,15 +6,18 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from affordance_registration.core.errors import RegistrationError, SceneError
-from affordance_registration.core.registration import (NO_MATCH_RESIDUAL, FitSettings,
-                                                       Registrar,
-                                                       correspondence_weights,
-                                                       weighted_rigid_fit)
+from affordance_registration.core.registration import (
+    NO_MATCH_RESIDUAL,
+    FitSettings,
+    Registrar,
+    correspondence_weights,
+    weighted_rigid_fit,
+)
 from affordance_registration.core.registration.solve import point_to_plane_weighted
 from affordance_registration.core.scene import NO_VIEWPOINT, Scene
-from affordance_registration.core.simulation import simulate_taskboard
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import make_T, pose_error, random_rotations
+from affordance_registration.evaluation.simulation import simulate_taskboard
 
 TOL_M, TOL_RAD = 0.005, math.radians(5)
 
@@ -258,9 +261,9 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
     first coarse iterations: each template still has one candidate, those set aside rank
     behind the fitted ones, the true template is fitted and ranked first at its pose; with the
     prefilter off nothing is set aside and the winner is the same."""
-    from affordance_registration.bench import variant_library
-    from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD
     from affordance_registration.core.transforms import pose_error
+    from affordance_registration.evaluation.bench import variant_library
+    from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD
     big = variant_library(library.specific(), 15)
     assert len(big) == 15 and "ball_valve@s0.75" in big
     scene = Scene(panel_scene.organized)
@@ -290,8 +293,8 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
 def test_a_template_set_aside_is_fitted_and_judged_when_shown(library, panel_scene):
     """The operator shows a candidate the prefilter set aside: the engine fits it then (its
     pose was the coarse stage's) and it gets its verdict; it stays ranked where it was."""
-    from affordance_registration.bench import variant_library
     from affordance_registration.core.engine import AffordanceEngine
+    from affordance_registration.evaluation.bench import variant_library
     engine = AffordanceEngine(variant_library(library.specific(), 15))
     engine.set_scene(panel_scene.organized, frame_id="cam")
     obj = panel_scene.objects[0]
@@ -316,7 +319,7 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
     (seed 1015). The leaders -- the winner and the runners-up within ``finish_margin`` -- are
     finished alike (yaw sweep, fine stage) and ranked on that: the true template first, at its
     pose (with the winner alone finished, as before, all three ranked the wrong template first)."""
-    from affordance_registration.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
+    from affordance_registration.evaluation.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
     squeezed = tuple(v for v in VARIANT_SCALES if v[0] in ("y0.7", "z0.7"))
     big = variant_library(library.specific(), 15, squeezed)
     assert "grab_handle@y0.7" in big and "ball_valve@z0.7" in big
@@ -366,9 +369,11 @@ def test_a_support_plane_is_flat_not_a_slab_through_a_curved_object(seed):
 def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library, panel_scene):
     """After the first coarse iterations a template's restarts beyond its best ``coarse_keep``
     leave (its best mounted one always goes on); any scores, any template."""
-    from affordance_registration.core.registration.hypotheses import (MOUNTED,
-                                                                      best_per_template,
-                                                                      initial_hypotheses)
+    from affordance_registration.core.registration.hypotheses import (
+        MOUNTED,
+        best_per_template,
+        initial_hypotheses,
+    )
     reg = Registrar(library)
     ctx = reg.prepare(Scene(panel_scene.organized), panel_scene.objects[0].click)
     variants, _ = reg._variants(list(library))
@@ -429,8 +434,8 @@ def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypat
     squeezed to 0.7 in y finish within 0.1% of each other when the fine stage stops at
     ``FINE_CONVERGED`` x the step thresholds, and the copy ranks first; finished again to the
     plain thresholds (the leaders within ``NEAR_TIE``), the handle does, 1% ahead."""
-    from affordance_registration.bench import MIN_VISIBLE, variant_library
     from affordance_registration.core.registration import registrar as registrar_module
+    from affordance_registration.evaluation.bench import MIN_VISIBLE, variant_library
     big = variant_library(library.specific(), 40)
     assert "grab_handle@y0.7" in big
     sim = simulate_taskboard(library, 1006)

@@ -14,8 +14,14 @@ from scipy.sparse.csgraph import connected_components
 
 from affordance_registration.core import scene as S
 from affordance_registration.core.errors import SceneError
-from affordance_registration.core.neighbours import (build_tree, k_nearest, least_spread,
-                                                     nearest, pairs_within, pca_normals)
+from affordance_registration.core.neighbours import (
+    build_tree,
+    k_nearest,
+    least_spread,
+    nearest,
+    pairs_within,
+    pca_normals,
+)
 
 
 def _voxel_reference(points, voxel, origin=None, frame=None):

@@ -5,10 +5,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from affordance_registration.core.simulation import (DepthCamera, NoiseModel, load_truth,
-                                                     mesh_distance, simulate_taskboard,
-                                                     write_scene)
 from affordance_registration.core.transforms import invert, make_T, transform_points
+from affordance_registration.evaluation.simulation import (
+    DepthCamera,
+    NoiseModel,
+    load_truth,
+    mesh_distance,
+    simulate_taskboard,
+    write_scene,
+)
 
 
 def test_same_seed_same_scene(library, panel_scene):
@@ -134,7 +139,7 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
     assert by["emergency_stop"].state in ("pressed", "released")
     assert all(o.scale == 1.0 for o in s.objects)        # no bundled template has sizes
-    from affordance_registration.core.simulation import sized_library
+    from affordance_registration.evaluation.simulation import sized_library
     sized = simulate_taskboard(sized_library(library), 4, articulated=True)
     handle = next(o for o in sized.objects if o.template == "grab_handle")
     assert 0.8 <= handle.scale <= 1.25 and handle.scale != 1.0
@@ -158,7 +163,8 @@ def test_depth_camera_fault_model_does_what_its_options_say(library):
     change nothing; the distortion is smooth with the RMS asked for; flying pixels are returns
     between a depth edge's two sides (label -2); dark patches and grazing angles drop returns."""
     import math
-    from affordance_registration.core.simulation import DepthCamera, FaultModel, simulate_taskboard
+
+    from affordance_registration.evaluation.simulation import DepthCamera, FaultModel, simulate_taskboard
     off = dict(flying_pixels=0.0, distortion=0.0, dark_patches=0, grazing_start_deg=90.0,
                noise_scale=1.0)
 

@@ -10,14 +10,14 @@ import time
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped, Twist
+from ros_helpers import LATCHED, Client, engine_process
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from affordance_registration.core.engine import load_registrations
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.ros.conversions import xyz_to_pointcloud2
-from ros_helpers import LATCHED, Client, engine_process
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"

@@ -11,14 +11,21 @@ import time
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped, PoseStamped, Twist
+from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 
 from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import pose_to_matrix, xyz_to_pointcloud2
-from affordance_registration.ros.spacemouse import (DEVICES, SKIP, AxisState, FifoBackend,
-                                                    find_device, parse_report, to_ros)
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+from affordance_registration.ros.devices.spacemouse import (
+    DEVICES,
+    SKIP,
+    AxisState,
+    FifoBackend,
+    find_device,
+    parse_report,
+    to_ros,
+)
+from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2
 
 
 def rep(rid, *values, fmt="<3h"):
@@ -113,7 +120,7 @@ COMPACT = {"path": "fake0", "vendor_id": 0x256F, "product_id": 0xC635, "product"
 
 
 def spacemouse_process(tmp_path, fifo, extra=()):
-    argv = [sys.executable, "-m", "affordance_registration.ros.spacemouse", "--ros-args",
+    argv = [sys.executable, "-m", "affordance_registration.ros.devices.spacemouse", "--ros-args",
             "-p", f"hid_backend:=fifo:{fifo}", "-p", "retry_interval:=0.1",
             "-p", "static_timeout_s:=0.15", *extra]
     return NodeProcess(argv, tmp_path / "spacemouse.log")
@@ -186,7 +193,7 @@ def test_permission_denied_says_how_to_fix_it(device_and_node):
 
 
 def test_push_moves_the_fit_in_the_view_and_the_engine_refits(ros_context, tmp_path, library):
-    from affordance_registration.core.simulation import simulate_taskboard
+    from affordance_registration.evaluation.simulation import simulate_taskboard
     dev = ScriptedDevice(tmp_path / "hid.fifo")
     mouse = spacemouse_process(tmp_path, dev.path)
     # the pushed pose stays 2 s before the refit, so ~/fit shows it on a loaded machine too

@@ -16,12 +16,26 @@ from visualization_msgs.msg import InteractiveMarkerFeedback, Marker, MarkerArra
 from affordance_registration.core import display
 from affordance_registration.core.corrections import view_from_optical
 from affordance_registration.core.errors import AffordanceError
-from affordance_registration.ros.conversions import (pointcloud2_field, pointcloud2_to_xyz,
-                                                     pose_stamped, pose_to_matrix)
-from affordance_registration.ros.station import (PARAMETERS, MeshDrawing, SphereDrawing,
-                                                 TextDrawing, apply_markers, candidate_label,
-                                                 candidate_options, check_parameters, check_port,
-                                                 feedback_message, gizmo_scale, status_markdown)
+from affordance_registration.ros.glue.conversions import (
+    pointcloud2_field,
+    pointcloud2_to_xyz,
+    pose_stamped,
+    pose_to_matrix,
+)
+from affordance_registration.ros.station.node import (
+    PARAMETERS,
+    MeshDrawing,
+    SphereDrawing,
+    TextDrawing,
+    apply_markers,
+    candidate_label,
+    candidate_options,
+    check_parameters,
+    check_port,
+    feedback_message,
+    gizmo_scale,
+    status_markdown,
+)
 
 
 def _grid(n=200, spacing=0.005, z=1.0):

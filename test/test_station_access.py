@@ -12,18 +12,25 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 import viser
+from browser_helpers import (
+    ARGS,
+    CHROMIUM,
+    STATION_SECRET,
+    chromium_missing,
+    free_port,
+    open_station,
+    station_argv,
+    station_url,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from ros_helpers import NodeProcess, ros_env
 from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.http11 import Request
 from websockets.sync.client import connect
 
-from affordance_registration.ros.station_access import (MAX_FRAME_BYTES, StationAccess, _Bucket,
-                                                        new_secret)
-from browser_helpers import (ARGS, CHROMIUM, STATION_SECRET, chromium_missing, free_port,
-                             open_station, station_argv, station_url)
-from ros_helpers import NodeProcess, ros_env
+from affordance_registration.ros.station.access import MAX_FRAME_BYTES, StationAccess, _Bucket, new_secret
 
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 
@@ -251,7 +258,7 @@ def test_a_share_url_request_makes_no_outbound_connection_in_a_network_namespace
 def test_outbound_connections_are_impossible_once_forbidden(tmp_path):
     code = textwrap.dedent("""
         import socket
-        from affordance_registration.ros.station_access import forbid_outbound
+        from affordance_registration.ros.station.access import forbid_outbound
         seen = []
         forbid_outbound(["127.0.0.1"], log=seen.append)
         for what, call in (("resolve", lambda: socket.getaddrinfo("viser.example", 443)),

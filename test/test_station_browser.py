@@ -3,22 +3,36 @@ and the station run as separate processes; headless chromium (software WebGL) dr
 Playwright clicks, drags and presses buttons on the page like an operator."""
 import math
 import re
+
 import numpy as np
 import pytest
 import yaml
+from browser_helpers import (
+    browser_page,
+    canvas_box,
+    chromium_missing,
+    drag,
+    free_port,
+    on_canvas,
+    open_station,
+    pixel,
+    scan_argv,
+    settled_view,
+    station_argv,
+    station_url,
+    wait_text,
+    wait_until,
+)
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
-from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD
 from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import pose_to_matrix
-from affordance_registration.ros.station import active_object, apply_markers, gizmo_scale
-from browser_helpers import (browser_page, canvas_box, chromium_missing, drag, free_port,
-                             on_canvas, open_station, pixel, scan_argv, settled_view,
-                             station_argv, station_url, wait_text, wait_until)
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD
+from affordance_registration.ros.glue.conversions import pose_to_matrix
+from affordance_registration.ros.station.node import active_object, apply_markers, gizmo_scale
 
 FRAME = "camera_depth_optical_frame"
 FOV_DEG = 60.0           # the station's default fov_deg

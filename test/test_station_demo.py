@@ -9,10 +9,9 @@ import urllib.error
 import urllib.request
 
 import pytest
-from std_msgs.msg import String
-
 from browser_helpers import free_port
 from ros_helpers import LATCHED, Client, ros_env
+from std_msgs.msg import String
 
 
 def test_station_demo_serves_the_page_and_stops_on_ctrl_c(tmp_path, ros_context):

@@ -3,23 +3,32 @@ browser station on a PLY scan in millimetres with an engine of its own (no other
 by the test), and an operator in a real browser (headless chromium) clicks an object, accepts
 and saves it -- in metres, on the truth. Also ``fit --units`` and the units hint of a click
 error on the command line."""
-import re
 import math
+import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 import yaml
+from browser_helpers import (
+    browser_page,
+    canvas_box,
+    chromium_missing,
+    free_port,
+    on_canvas,
+    pixel,
+    settled_view,
+    wait_text,
+    wait_until,
+)
 from geometry_msgs.msg import PoseStamped
-
-from affordance_registration.core.simulation import POSE_TOL_M, POSE_TOL_RAD, ply_bytes
-from affordance_registration.core.transforms import pose_error
-from affordance_registration.ros.conversions import pose_to_matrix
-from browser_helpers import (browser_page, canvas_box, chromium_missing, free_port, on_canvas,
-                             pixel, settled_view, wait_text, wait_until)
 from ros_helpers import Client, NodeProcess
 from test_override import bare_wall_point
+
+from affordance_registration.core.transforms import pose_error
+from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, ply_bytes
+from affordance_registration.ros.glue.conversions import pose_to_matrix
 
 CLI = [sys.executable, "-m", "affordance_registration.cli"]
 #: records whether the page ever showed the "Fitting" line of the panel

@@ -10,8 +10,8 @@ import yaml
 from scipy.spatial import cKDTree
 
 from affordance_registration.core.errors import TemplateError
-from affordance_registration.core.simulation import mesh_distance
 from affordance_registration.core.templates import TemplateLibrary, load_template
+from affordance_registration.evaluation.simulation import mesh_distance
 
 TASKBOARD = {"gate_valve", "ball_valve", "quarter_turn_valve", "emergency_stop", "grab_handle"}
 
@@ -221,10 +221,10 @@ def test_point_cloud_template(tmp_path, library, kind):
     """A scan of an object (PLY without faces, or PCD) is a template, read like a scene: its
     points are the samples; the file's normals are used where it has them, else estimated
     (pointing away from the centroid); and it fits the object in a simulated scan."""
-    from affordance_registration.core.simulation import ply_bytes, simulate_taskboard
     from affordance_registration.core.registration import Registrar
     from affordance_registration.core.scene import Scene
     from affordance_registration.core.transforms import pose_error
+    from affordance_registration.evaluation.simulation import ply_bytes, simulate_taskboard
     pts, true_normals = library["emergency_stop"].samples(3000, seed=9)
     if kind == "ply":
         (tmp_path / "scan.ply").write_bytes(ply_bytes(pts))
@@ -261,7 +261,7 @@ def test_scale_converts_mesh_units(tmp_path):
 
 
 def test_generator_reproduces_the_committed_library(tmp_path, library):
-    from affordance_registration.core.taskboard import write_library
+    from affordance_registration.evaluation.taskboard import write_library
     write_library(str(tmp_path))
     fresh = TemplateLibrary.load(str(tmp_path))
     assert set(fresh) == set(library)

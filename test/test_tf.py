@@ -15,17 +15,19 @@ from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped, Twist
 from rcl_interfaces.srv import ListParameters
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
+from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from affordance_registration.core.simulation import simulate_taskboard
-from affordance_registration.core.transforms import invert, make_T, pose_error, \
-    quat_xyzw_to_matrix
-from affordance_registration.ros.conversions import (matrix_to_transform,
-                                                     transform_to_matrix, xyz_to_pointcloud2)
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+from affordance_registration.core.transforms import invert, make_T, pose_error, quat_xyzw_to_matrix
+from affordance_registration.evaluation.simulation import simulate_taskboard
+from affordance_registration.ros.glue.conversions import (
+    matrix_to_transform,
+    transform_to_matrix,
+    xyz_to_pointcloud2,
+)
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
@@ -90,7 +92,7 @@ def test_generated_messages_have_jazzys_wire_format():
 def test_build_failure_is_one_line_and_installs_nothing(tmp_path):
     """A machine where the build cannot run: one line, status 1, nothing half-installed."""
     env = dict(os.environ, CXX="/nonexistent/g++")
-    done = subprocess.run([sys.executable, "-m", "affordance_registration.ros.interfaces.build",
+    done = subprocess.run([sys.executable, "-m", "affordance_registration.ros.standins.interfaces.build",
                            "--prefix", str(tmp_path), "--force"],
                           capture_output=True, text=True, env=env, timeout=120)
     lines = done.stdout.strip().splitlines()
@@ -339,7 +341,7 @@ def test_node_runs_without_tf2_msgs(ros_context, tmp_path):
     env = {"PYTHONPATH": os.pathsep.join([str(tmp_path / "hide")] +
                                          [p for p in os.environ.get("PYTHONPATH", "").split(
                                              os.pathsep) if p])}
-    proc = NodeProcess([sys.executable, "-m", "affordance_registration.ros.engine_node",
+    proc = NodeProcess([sys.executable, "-m", "affordance_registration.ros.nodes.engine_node",
                         "--ros-args", "-r", "__node:=engine_without_tf"],
                        tmp_path / "engine.log", env=env)
     client = Client("no_tf_tester")

@@ -1,7 +1,7 @@
 """Geometry of an operator's view of a cloud: thinning a cloud for display, colouring it, picking
 the cloud point under a click ray, and the pinhole camera of a browser view.
 
-Pure numpy (no ROS, no viewer): the browser station (``ros/station.py``) calls these, and the
+Pure numpy (no ROS, no viewer): the browser station (``ros/station/node.py``) calls these, and the
 tests check them without a browser.
 
 Camera convention: a view's camera is an **optical** frame -- x right on the screen, y down, z

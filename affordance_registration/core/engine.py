@@ -19,8 +19,7 @@ import yaml
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError, bounded
 from .files import write_atomically
-from .registration import (NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive,
-                           no_match, verdict)
+from .registration import NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive, no_match, verdict
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
 from .transforms import matrix_to_quat_xyzw

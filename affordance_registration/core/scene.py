@@ -665,7 +665,7 @@ def _fine_normals(fine: np.ndarray, tree: KDTree, threads: int) -> np.ndarray:
     """:func:`pca_normals` (12 neighbours) of the fine points (N, 3) (``tree``: over them) in
     contiguous parts on up to ``threads`` threads (KD queries and numpy's batched eigh release
     the GIL): each point's normal is its own neighbourhood's, the same numbers either way."""
-    from .registration.parallel import parts, run    # (the fitter imports this module)
+    from .registration.parallel import parts, run  # (the fitter imports this module)
     pieces = parts(len(fine), threads, MIN_NORMALS_PART)
     if len(pieces) == 1:
         return pca_normals(fine, 12, tree)

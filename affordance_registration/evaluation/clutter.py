@@ -29,8 +29,16 @@ from ..core.errors import AffordanceError
 from ..core.files import write_atomically
 from ..core.pointfiles import read_points
 from ..core.transforms import axis_angle_matrix, make_T
-from .realdata import (SENSOR_ORIGIN, click_in_middle, fit_intrinsics, fit_plane,
-                       labelled_objects, read_labelled_pcd, shared_data_dir, table_points)
+from .realdata import (
+    SENSOR_ORIGIN,
+    click_in_middle,
+    fit_intrinsics,
+    fit_plane,
+    labelled_objects,
+    read_labelled_pcd,
+    shared_data_dir,
+    table_points,
+)
 
 __all__ = ["CONTACT", "BODY_GAP", "SPLAT", "SELF_OCCLUSION", "MIN_VISIBLE", "ClutterScene",
            "armadillo_template", "armadillo_clutter", "MilkCase", "milk_carton_case",
@@ -80,7 +88,7 @@ def armadillo_template(out_dir: str, name: str = "armadillo", views=None,
     or-pcd's views (fetched with pip by default; :class:`AffordanceError` when pip cannot get
     them). The clutter scene is made of the template's own points: a finer ``voxel`` gives a
     denser Armadillo in it (at 2 mm it has fewer points than the camera's pixels there)."""
-    from ..realscans import armadillo_views, fetch_or_pcd, write_point_template
+    from .realscans import armadillo_views, fetch_or_pcd, write_point_template
     views = armadillo_views(fetch_or_pcd()) if views is None else views
     return write_point_template(views, out_dir, name, voxel=voxel)
 
@@ -94,7 +102,7 @@ def _template_points(yaml_path: str) -> np.ndarray:
 def _upright(normal: np.ndarray, yaw: float) -> np.ndarray:
     """R_scene_model: the model's up axis (realscans.STATUE_UP) along ``normal``, turned by
     ``yaw`` about it."""
-    from ..realscans import STATUE_UP
+    from .realscans import STATUE_UP
     up = np.zeros(3)
     up[STATUE_UP] = 1.0
     n = normal / np.linalg.norm(normal)

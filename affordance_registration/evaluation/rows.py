@@ -16,8 +16,7 @@ import numpy as np
 
 from ..core.errors import AffordanceError
 from ..core.transforms import axis_angle_matrix, invert, make_T, pose_error
-from .realdata import (HELD_OUT, click_in_middle, evaluate_scene,
-                       osd_scene_paths, scene_name)
+from .realdata import HELD_OUT, click_in_middle, evaluate_scene, osd_scene_paths, scene_name
 
 __all__ = ["real_kinect_rows", "simulated_primitive_rows", "clutter_rows", "simulate_primitives",
            "primitive_pose_error", "DIM_TOL", "POSE_TOL_M", "POSE_TOL_DEG"]
@@ -100,7 +99,7 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
 def _mosd_camera():
     """The camera of the mOSD scans: a Kinect's 640 x 480 at fx = fy = 525 (their pixels
     obey it: :func:`.realdata.fit_intrinsics`)."""
-    from ..core.simulation import CameraIntrinsics
+    from .simulation import CameraIntrinsics
     return CameraIntrinsics(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
 
 TABLE = (1.2, 0.8, 0.03)        #: the simulated table top (m), its top face at z = 0
@@ -123,7 +122,8 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
     a dict: ``kind``, ``dimensions``, ``T_scene_model`` (the frame convention of
     :mod:`.realdata`), ``click`` (3,) or None, ``visible`` (points)."""
     import trimesh
-    from ..core.simulation import DepthCamera
+
+    from .simulation import DepthCamera
     rng = np.random.default_rng(seed)
     cam = camera or DepthCamera(_mosd_camera())
     objects, meshes, placed = [], [], []

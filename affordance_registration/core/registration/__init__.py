@@ -10,8 +10,16 @@ two-way residual), hypotheses, articulation (joint values and scale), refit, pri
 from .correspondences import correspondence_weights
 from .model import Model
 from .registrar import Registrar
-from .results import (NO_MATCH, NO_MATCH_RESIDUAL, FitReport, FitResult, describe_primitive,
-                      no_match, rank, verdict)
+from .results import (
+                      NO_MATCH,
+                      NO_MATCH_RESIDUAL,
+                      FitReport,
+                      FitResult,
+                      describe_primitive,
+                      no_match,
+                      rank,
+                      verdict,
+)
 from .settings import FitSettings
 from .solve import weighted_rigid_fit
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from scipy.spatial import cKDTree
 
 from ..neighbours import pca_normals

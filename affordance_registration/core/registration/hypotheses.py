@@ -12,13 +12,19 @@ from scipy.spatial.transform import Rotation
 
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
-from ..transforms import (align_z_to, axis_angle_matrix, make_T, rotation_angle,
-                          unit_quaternions)
+from ..transforms import align_z_to, axis_angle_matrix, make_T, rotation_angle, unit_quaternions
 from .features import feature_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
-from .settings import (DISTINCT_ANGLE, DISTINCT_DISTANCE, ELONGATED, RANDOM_OFFSET,
-                       REST_SAMPLES, SAMPLE_SEED, FitSettings)
+from .settings import (
+    DISTINCT_ANGLE,
+    DISTINCT_DISTANCE,
+    ELONGATED,
+    RANDOM_OFFSET,
+    REST_SAMPLES,
+    SAMPLE_SEED,
+    FitSettings,
+)
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
            "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",

@@ -12,19 +12,26 @@ extra unknown -- a joint value, a scale -- besides the six of the pose.
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..scene import ClickContext
 from ..transforms import pose_points, rotate
-from .correspondences import (Pairs, contact_rows, forward_pairs, in_contact, reverse_rows,
-                              stack_samples)
+from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, reverse_rows, stack_samples
 from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
-from .settings import (CONVERGED_EXTRA, CONVERGED_ROTATION, CONVERGED_TRANSLATION, FINE,
-                       FINE_CONVERGED, JOINT_STEP_LIMIT, SAMPLE_SEED, SCALE_STEP_LIMIT,
-                       FitSettings, Stage)
+from .settings import (
+    CONVERGED_EXTRA,
+    CONVERGED_ROTATION,
+    CONVERGED_TRANSLATION,
+    FINE,
+    FINE_CONVERGED,
+    JOINT_STEP_LIMIT,
+    SAMPLE_SEED,
+    SCALE_STEP_LIMIT,
+    FitSettings,
+    Stage,
+)
 from .solve import plane_step, rigid_step
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]

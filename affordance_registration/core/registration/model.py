@@ -12,8 +12,14 @@ import numpy as np
 
 from ..neighbours import build_tree, nearest
 from ..templates import AffordanceTemplate
-from .settings import (CENTROID_SAMPLES, CENTROID_SEED, DENSE_SAMPLES, DENSE_SEED,
-                       MOVING_OVERSAMPLING, SAMPLE_SEED)
+from .settings import (
+    CENTROID_SAMPLES,
+    CENTROID_SEED,
+    DENSE_SAMPLES,
+    DENSE_SEED,
+    MOVING_OVERSAMPLING,
+    SAMPLE_SEED,
+)
 
 __all__ = ["Model", "ModelCache", "Surface", "Batch", "surface_distances"]
 

@@ -28,8 +28,8 @@ from ..neighbours import build_tree, nearest
 from ..scene import ClickContext, _ransac_plane, segment
 from ..templates import AffordanceTemplate
 from ..transforms import make_T
-from .model import ModelCache
 from .icp import fine_stage
+from .model import ModelCache
 from .results import FitResult
 from .scoring import result
 from .settings import FitSettings

@@ -55,13 +55,19 @@ from ..errors import RegistrationError
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
 from .articulation import articulate, prefer_nominal
-from .hypotheses import (Hypotheses, best_per_template, initial_hypotheses, keep_distinct,
-                         prefilter, yaw_sweep_starts)
+from .hypotheses import (
+    Hypotheses,
+    best_per_template,
+    initial_hypotheses,
+    keep_distinct,
+    prefilter,
+    yaw_sweep_starts,
+)
 from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
-from .primitives import fit_primitive, object_points
 from .parallel import run, single_threaded_blas
+from .primitives import fit_primitive, object_points
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores

@@ -22,8 +22,7 @@ from .correspondences import stack_samples
 from .model import Batch, Model, surface_distances
 from .parallel import over_batch, parts, run
 from .results import FitResult
-from .settings import (MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED,
-                       FitSettings)
+from .settings import MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED, FitSettings
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "self_hidden",

@@ -1,5 +1,5 @@
 """Frame graphs for clicks and view poses: the latest transforms heard on /tf and /tf_static
-(``ros/tf.py`` fills one) and the static transforms given as a parameter (the fallback).
+(``ros/glue/tf.py`` fills one) and the static transforms given as a parameter (the fallback).
 
 A static transform parameter entry is a string ``"parent child x y z qx qy qz qw"`` (metres,
 unit quaternion): the pose of ``child`` in ``parent``, as ``ros2 run tf2_ros
@@ -12,8 +12,8 @@ from collections import deque
 
 import numpy as np
 
-from ..core.errors import AffordanceError
-from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
+from ...core.errors import AffordanceError
+from ...core.transforms import invert, make_T, quat_xyzw_to_matrix
 
 __all__ = ["FrameGraph", "StaticFrames", "TransformBuffer", "TF_CACHE_S", "parse_static_transform",
            "FrameError",

@@ -35,16 +35,21 @@ from typing import Callable
 
 import numpy as np
 from geometry_msgs.msg import Quaternion
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import ColorRGBA
-from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
-                                    InteractiveMarkerFeedback, InteractiveMarkerPose,
-                                    InteractiveMarkerUpdate, MenuEntry)
+from visualization_msgs.msg import (
+    InteractiveMarker,
+    InteractiveMarkerControl,
+    InteractiveMarkerFeedback,
+    InteractiveMarkerPose,
+    InteractiveMarkerUpdate,
+    MenuEntry,
+)
 from visualization_msgs.srv import GetInteractiveMarkers
 
-from ..core.errors import AffordanceError, bounded
-from ..core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
-from .conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
+from ...core.errors import AffordanceError, bounded
+from ...core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from ..glue.conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
+from ..glue.qos import INPUT
 
 __all__ = ["CorrectionMarkerServer", "MarkerCallbacks", "MARKER_NAME", "JOINT_MARKER_NAME",
            "MENU", "DRAG_EXPIRY_S", "menu_of"]
@@ -132,12 +137,10 @@ class CorrectionMarkerServer:
     def attach(self, node) -> None:
         """Serve on ``node``: the update topic, the feedback subscription, the full-set service
         and the keep-alive timer."""
-        qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE)
-        pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", qos)
+        pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", INPUT)
         self._publish_fn = pub.publish
         node.create_subscription(InteractiveMarkerFeedback, f"{self.ns}/feedback",
-                                 self.feedback, qos)
+                                 self.feedback, INPUT)
         node.create_service(GetInteractiveMarkers, f"{self.ns}/get_interactive_markers",
                             self._on_get)
         node.create_timer(KEEP_ALIVE_S, lambda: pub.publish(self.keep_alive()))

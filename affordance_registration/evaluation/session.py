@@ -21,17 +21,23 @@ from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from ..core.corrections import view_from_optical
+from ..core.corrections import R_VIEW_SPACENAV, view_from_optical
 from ..core.errors import AffordanceError
-from ..core.simulation import (SimulatedOperator, failures, load_truth, operator_correction,
-                               simulate_taskboard, truth_joints)
 from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
-from .bag import bag_info, read_messages
-from .conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
-from ..core.corrections import R_VIEW_SPACENAV
-from .launcher import Launcher, package_share, parse_launch_file
-from .spin import background_node
+from ..ros.glue.conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
+from ..ros.glue.qos import LATCHED
+from ..ros.standins.bag import bag_info, read_messages
+from ..ros.standins.launcher import Launcher, package_share, parse_launch_file
+from ..ros.standins.spin import background_node
+from .simulation import (
+    SimulatedOperator,
+    failures,
+    load_truth,
+    operator_correction,
+    simulate_taskboard,
+    truth_joints,
+)
 
 NS = "/affordance_engine"
 INPUT_TOPICS = ["/points", "/clicked_point", "/spacenav/joy", "/spacenav/twist"]
@@ -48,20 +54,13 @@ __all__ = ["RosOperator", "record_session", "replay_session", "start_engine",
            "measure_push_refit"]
 
 
-def _latched():
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
 class StatusWatch:
     """Keeps every ~/status the node publishes (for waiting on it and for the session table)."""
 
     def __init__(self, node):
         self.history: list[dict] = []
         self._cv = threading.Condition()
-        node.create_subscription(String, STATUS_TOPIC, self._on_status, _latched())
+        node.create_subscription(String, STATUS_TOPIC, self._on_status, LATCHED)
 
     def _on_status(self, msg):
         with self._cv:
@@ -219,7 +218,7 @@ def _cloud_message(points: np.ndarray) -> PointCloud2:
 def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
     """Simulate a taskboard, start the engine, let the simulated operator register every object
     through ROS topics while a bag records the session. Writes ``bag/`` and ``truth.yaml``."""
-    from .bag import Recorder
+    from ..ros.standins.bag import Recorder
     library = TemplateLibrary.load()
     sim = simulate_taskboard(library, seed)
     os.makedirs(out_dir, exist_ok=True)
@@ -236,7 +235,7 @@ def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
         with background_node("affordance_session_operator") as node:
             watch = StatusWatch(node)
             operator = RosOperator(node, watch, stamped=True)
-            pub_points = node.create_publisher(PointCloud2, "/points", _latched())
+            pub_points = node.create_publisher(PointCloud2, "/points", LATCHED)
             recorder = Recorder(node, bag_path, INPUT_TOPICS + [STATUS_TOPIC])
             deadline = time.monotonic() + 60
             while pub_points.get_subscription_count() < 1 and time.monotonic() < deadline:
@@ -324,7 +323,7 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
     """Play a recorded session into a live engine node started from the YAML launch file; save
     its registrations, compare them with the truth and with what the node reported when the
     session was recorded, and draw the result. Returns a summary (``ok`` is the verdict)."""
-    from .bag import Player, StatusPacer
+    from ..ros.standins.bag import Player, StatusPacer
     library = TemplateLibrary.load()
     truth = load_truth(os.path.join(session_dir, "truth.yaml"))
     bag_path = os.path.join(session_dir, "bag")
@@ -366,8 +365,8 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
                                   recorded[-1]["registered"], live["registered"], library)
     with open(os.path.join(out_dir, "status.json"), "w", encoding="utf-8") as handle:
         json.dump(live, handle, indent=1)
-    from ..core.render import render_verdict, write_png
-    from ..core.simulation import CameraIntrinsics
+    from .render import render_verdict, write_png
+    from .simulation import CameraIntrinsics
     picture = os.path.join(out_dir, "registrations.png")
     verdicts = {r["id"]: r for r in rows}
     regs = [{**r, "ok": verdicts[r["id"]]["ok"], "why": verdicts[r["id"]]["why"]}
@@ -398,6 +397,7 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
     refit lands within 5 mm / 5 degrees of the truth, and -- on the same clicks, from the same
     displaced poses -- how often the core's refit does."""
     from scipy.spatial.transform import Rotation
+
     from ..core.registration import Registrar
     from ..core.scene import Scene
     library = TemplateLibrary.load()
@@ -412,7 +412,7 @@ def measure_push_refit(seeds, max_clicks: int, out_dir: str, rng_seed: int = 5,
         with background_node("affordance_push_refit") as node:
             watch = StatusWatch(node)
             operator = RosOperator(node, watch, stamped=True)
-            pub_points = node.create_publisher(PointCloud2, "/points", _latched())
+            pub_points = node.create_publisher(PointCloud2, "/points", LATCHED)
             watch.wait(lambda st: True, 60, "the engine node")
             for seed in seeds:
                 sim = simulate_taskboard(library, seed)

@@ -13,7 +13,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from ..core.errors import AffordanceError
+from ...core.errors import AffordanceError
 
 __all__ = ["run_node", "background_node"]
 

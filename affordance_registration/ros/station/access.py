@@ -43,7 +43,7 @@ import time
 from http.cookies import CookieError, SimpleCookie
 from urllib.parse import parse_qs, urlsplit
 
-from ..core.errors import AffordanceError
+from ...core.errors import AffordanceError
 
 __all__ = ["StationAccess", "guarded", "disable_share", "forbid_outbound", "new_secret",
            "configured_secret", "MAX_FRAME_BYTES", "MAX_MESSAGES_PER_S", "MAX_BYTES_PER_S",

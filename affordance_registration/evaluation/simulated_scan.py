@@ -2,7 +2,7 @@
 ``points`` -- a sensor for trying the engine and the browser station without one
 (``affordance-registration station --demo``).
 
-The scan is the organized cloud of :func:`~affordance_registration.core.simulation.
+The scan is the organized cloud of :func:`~affordance_registration.evaluation.simulation.
 simulate_taskboard` (NaN where the sensor saw nothing) in the camera's optical frame, published
 reliable and transient-local, again whenever a subscriber joins (a volatile subscription, as the
 engine's and the station's, only hears what is published after it matched), and every
@@ -12,20 +12,17 @@ engine's and the station's, only hears what is published after it matched), and 
 from __future__ import annotations
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from ..core.errors import AffordanceError
-from ..core.simulation import simulate_taskboard
 from ..core.templates import TemplateLibrary
-from .conversions import xyz_to_pointcloud2
-from .spin import run_node
+from ..ros.glue.conversions import xyz_to_pointcloud2
+from ..ros.glue.qos import LATCHED
+from ..ros.standins.spin import run_node
+from .simulation import simulate_taskboard
 
 __all__ = ["SimulatedScanNode", "main"]
 
-LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class SimulatedScanNode(Node):

@@ -12,7 +12,7 @@ restarts: tf2 has no way to retract a static transform.)
 
 In (``TfListener``): frame lookups for clicks, view poses and the sensor frame, at the stamp of
 the message that needs them. In a ROS install with tf2_ros, its Buffer and TransformListener; in
-the pip-only install, a :class:`~affordance_registration.ros.frames.TransformBuffer`: every
+the pip-only install, a :class:`~affordance_registration.ros.glue.frames.TransformBuffer`: every
 transform heard on ``/tf`` kept in time order per child frame for ``TF_CACHE_S`` (10 s), those on
 ``/tf_static`` for ever, looked up at a stamp (interpolated between two transforms), chains
 followed both ways. An out-of-order old transform never replaces a newer one for current
@@ -28,10 +28,10 @@ import threading
 
 import numpy as np
 from geometry_msgs.msg import TransformStamped
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
 from .frames import FrameError, FrameGraph, TransformBuffer
+from .qos import INPUT, LATCHED, latched
 
 __all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame",
            "load_tf_message"]
@@ -39,15 +39,9 @@ __all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame
 CANDIDATE_FRAME = "affordance_candidate"
 CANDIDATE_REPUBLISH_S = 1.0          # the candidate frame stays fresh for /tf listeners
 # the QoS of tf2_ros' broadcasters and listeners (tf2_ros/qos.py)
-STATIC_BROADCASTER_QOS = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                                    reliability=ReliabilityPolicy.RELIABLE,
-                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATIC_LISTENER_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                                 reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
-DYNAMIC_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+STATIC_BROADCASTER_QOS = LATCHED
+STATIC_LISTENER_QOS = latched(100)
+DYNAMIC_QOS = INPUT
 
 
 def registration_frame(template: str, registration_id: int) -> str:

@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
-from .core.errors import AffordanceError
-from .core.files import write_atomically
-from .core.neighbours import pca_normals
-from .core.pointfiles import read_points
-from .core.transforms import invert, make_T, quat_xyzw_to_matrix
+from ..core.errors import AffordanceError
+from ..core.files import write_atomically
+from ..core.neighbours import pca_normals
+from ..core.pointfiles import read_points
+from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
 __all__ = ["OR_PCD", "GROUND_TRUTH_VIEWS", "ScanView", "fetch_or_pcd", "read_conf",
            "armadillo_views", "scan_sensor_origin", "write_point_template", "view_truth",

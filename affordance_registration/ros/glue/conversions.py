@@ -14,10 +14,10 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from ..core.errors import AffordanceError
-from ..core.pointfiles import MAX_POINTS
-from ..core.scene import Scene
-from ..core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from ...core.errors import AffordanceError
+from ...core.pointfiles import MAX_POINTS
+from ...core.scene import Scene
+from ...core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 __all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
            "xyz_to_pointcloud2", "pose_to_matrix",

@@ -31,15 +31,23 @@ import time
 
 import numpy as np
 
-from .core.errors import AffordanceError
-from .core.registration import FitResult, FitSettings, Registrar, rank
-from .core.registration.hypotheses import initial_hypotheses
-from .core.scene import Scene
-from .core.simulation import (POSE_TOL_M, POSE_TOL_RAD, DepthCamera, FaultModel,
-                              operator_correction, simulate_taskboard, sized_library,
-                              truth_joints)
-from .core.templates import TemplateLibrary
-from .core.transforms import axis_angle_matrix, make_T, pose_error
+from ..core.errors import AffordanceError
+from ..core.registration import FitResult, FitSettings, Registrar, rank
+from ..core.registration.hypotheses import initial_hypotheses
+from ..core.scene import Scene
+from ..core.templates import TemplateLibrary
+from ..core.transforms import axis_angle_matrix, make_T, pose_error
+from .simulation import (
+    POSE_TOL_M,
+    POSE_TOL_RAD,
+    DepthCamera,
+    FaultModel,
+    operator_correction,
+    simulate_taskboard,
+    sized_library,
+    truth_joints,
+)
+
 MIN_VISIBLE = 200
 JOINT_TOL_RAD = math.radians(5.0)
 JOINT_TOL_M = 0.002
@@ -144,9 +152,9 @@ def _real_scan_rows(library, log) -> dict | None:
     the statue and low on it (``view_click``): pose within tolerance, ranked first, time per
     click."""
     import tempfile
-    from .core.templates import load_template
-    from .realscans import (armadillo_views, fetch_or_pcd, view_click, view_truth,
-                            write_point_template)
+
+    from ..core.templates import load_template
+    from .realscans import armadillo_views, fetch_or_pcd, view_click, view_truth, write_point_template
     try:
         views = armadillo_views(fetch_or_pcd())
     except (AffordanceError, OSError) as exc:
@@ -255,7 +263,7 @@ def variant_library(library: TemplateLibrary, size: int,
     through ``scales``, (label, x, y, z) factors): each a template's mesh at its joints'
     zero, scaled by the factors, named ``<template>@<label>``; a uniform scale keeps the
     symmetry."""
-    from .core.templates import AffordanceTemplate
+    from ..core.templates import AffordanceTemplate
     tpls = [library[n] for n in library]
     for k in range(max(0, size - len(tpls))):
         base = tpls[k % len(library)]
@@ -323,7 +331,7 @@ def _large_cloud_row(library, seeds, log) -> dict:
     """Click -> result on 1024 x 1024 organized clouds (a simulated camera of that resolution
     with the Kinect's field of view): ``Scene()`` of the cloud plus the default fit, per click;
     ``Scene()`` alone too."""
-    from .core.simulation import KINECT_NFOV, CameraIntrinsics, DepthCamera
+    from .simulation import KINECT_NFOV, CameraIntrinsics, DepthCamera
     k = KINECT_NFOV
     camera = DepthCamera(CameraIntrinsics(width=1024, height=1024, fx=k.fx * 1024 / k.width,
                                           fy=k.fy * 1024 / k.height, cx=511.5, cy=511.5))
@@ -513,7 +521,7 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
     taskboard templates, the primitives scored against the labels, tuning and held-out
     scenes apart); simulated boxes and cylinders with true dimensions (the seeds of the
     development and others); the Armadillo among real objects, PCL's milk carton."""
-    from .evaluation.rows import clutter_rows, real_kinect_rows, simulated_primitive_rows
+    from .rows import clutter_rows, real_kinect_rows, simulated_primitive_rows
     full = TemplateLibrary.load()
     with_primitives = Registrar(full)
     log("default library with its primitives on the panel clicks ...")
@@ -539,7 +547,7 @@ def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
     """The refit row over ROS: the same corrections made with SpaceMouse pushes to a live
     engine node, which refits once the twists stop (needs the ROS packages)."""
     try:
-        from .ros.session import measure_push_refit
+        from .session import measure_push_refit
     except ImportError:
         return None
     import tempfile
@@ -551,7 +559,7 @@ def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
 def _ros_conversion_bench() -> dict | None:
     """PointCloud2 -> numpy for a 1-million-point organized cloud (needs the ROS messages)."""
     try:
-        from .ros.conversions import bench_pointcloud2_conversion
+        from ..ros.glue.conversions import bench_pointcloud2_conversion
     except ImportError:
         return None
     return bench_pointcloud2_conversion()

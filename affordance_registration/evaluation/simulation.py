@@ -20,10 +20,10 @@ import numpy as np
 import trimesh
 import yaml
 
-from .errors import AffordanceError
-from .files import write_atomically
-from .templates import TemplateLibrary, mesh_distance
-from .transforms import axis_angle_matrix, invert, make_T
+from ..core.errors import AffordanceError
+from ..core.files import write_atomically
+from ..core.templates import TemplateLibrary, mesh_distance
+from ..core.transforms import axis_angle_matrix, invert, make_T
 
 __all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
@@ -542,12 +542,12 @@ class SimulatedOperator:
         self.rng = np.random.default_rng(seed)
 
     def error(self, template: str, T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
-        from .transforms import pose_error
+        from ..core.transforms import pose_error
         return pose_error(T, T_true, self.library[template].symmetry)
 
     def _closest_truth(self, template: str, T: np.ndarray, T_true: np.ndarray) -> np.ndarray:
         """The symmetric equivalent of the true pose closest to ``T``."""
-        from .transforms import rotation_angle
+        from ..core.transforms import rotation_angle
         sym = self.library[template].symmetry
         if sym is None:
             return T_true

@@ -290,8 +290,8 @@ def list_devices(backend: HidBackend | None = None) -> list[str]:
 def main(args=None) -> int:
     """Console script ``affordance_spacemouse`` (takes ``--ros-args``); the node itself is in
     :mod:`.spacemouse_node` (this module's parsing needs no ROS)."""
-    from .spacemouse_node import SpaceMouseNode
-    from .spin import run_node
+    from ..nodes.spacemouse_node import SpaceMouseNode
+    from ..standins.spin import run_node
     return run_node(SpaceMouseNode, "affordance_spacemouse", args)
 
 

@@ -31,10 +31,11 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import yaml
 
-from ..core.errors import AffordanceError
+from ...core.errors import AffordanceError
 
 __all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
 
@@ -89,7 +90,8 @@ def package_share(pkg: str) -> str:
     except Exception:
         pass
     if pkg == PACKAGE:
-        here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        # the source tree: affordance_registration/ros/standins/ is three folders below it
+        here = str(Path(__file__).resolve().parents[3])
         if os.path.isfile(os.path.join(here, "package.xml")):
             return here
         share = os.path.join(sys.prefix, "share", PACKAGE)

@@ -12,9 +12,9 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
-from ..core.errors import AffordanceError
-from ..core.operator import BUTTON_ACTIONS, OperatorSettings
-from ..core.registration import FitSettings
+from ...core.errors import AffordanceError
+from ...core.operator import BUTTON_ACTIONS, OperatorSettings
+from ...core.registration import FitSettings
 from .frames import StaticFrames
 
 __all__ = ["PARAMETERS", "READ_ONLY", "FIT_PARAMETERS", "declare", "check", "fit_settings",

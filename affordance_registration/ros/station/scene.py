@@ -19,20 +19,17 @@ from __future__ import annotations
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
-from ..core.errors import AffordanceError
-from ..core.pointfiles import read_points
-from ..core.scene import MM_LOOKING_EXTENT, UNITS
-from .conversions import xyz_to_pointcloud2
-from .spin import run_node
+from ...core.errors import AffordanceError
+from ...core.pointfiles import read_points
+from ...core.scene import MM_LOOKING_EXTENT, UNITS
+from ..glue.conversions import xyz_to_pointcloud2
+from ..glue.qos import LATCHED
+from ..standins.spin import run_node
 
 __all__ = ["FileScanNode", "read_scan", "main"]
 
-LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:

@@ -38,20 +38,27 @@ from typing import Callable
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import InteractiveMarkerFeedback, Marker, MarkerArray
 
-from ..core import display
-from ..core.errors import AffordanceError
-from ..core.labels import REFUSED_PREFIX, standing
-from ..core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
-from . import station_access
-from .conversions import (ConversionError, matrix_to_pose, pointcloud2_field, pointcloud2_to_xyz,
-                          pose_stamped, pose_to_matrix)
-from .spin import run_node
+from ...core import display
+from ...core.errors import AffordanceError
+from ...core.labels import REFUSED_PREFIX, standing
+from ...core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from ..glue import qos
+from ..glue.conversions import (
+    ConversionError,
+    matrix_to_pose,
+    pointcloud2_field,
+    pointcloud2_to_xyz,
+    pose_stamped,
+    pose_to_matrix,
+)
+from ..glue.qos import INPUT, LATCHED
+from ..standins.spin import run_node
+from . import access as station_access
 
 __all__ = ["StationNode", "StationPage", "PageHandlers", "MeshDrawing", "TextDrawing",
            "SphereDrawing", "apply_markers", "active_object", "candidate_label",
@@ -96,11 +103,6 @@ DRAG_KEEP_ALIVE_S = 1.0                 # the engine drops a silent drag after 3
 CALL_TIMEOUT_S = 120.0                  # a button's call unanswered this long is given up
 UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
            "+z": (0, 0, 1), "-z": (0, 0, -1)}
-LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-INPUT = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                   reliability=ReliabilityPolicy.RELIABLE)
 
 
 # ============================================================================ messages -> drawings
@@ -378,7 +380,7 @@ class StationPage:
 
     def __init__(self, host: str, port: int, fov_deg: float, point_size: float,
                  handlers: PageHandlers):
-        import viser       # here: only the station needs it
+        import viser  # here: only the station needs it
         self.h = handlers
         self.fov = math.radians(fov_deg)
         self.point_size = point_size
@@ -707,14 +709,10 @@ class StationNode(Node):
 
         self.create_subscription(
             PointCloud2, "points", self._on_cloud,
-            QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                       reliability=ReliabilityPolicy.RELIABLE if p["points_reliable"]
-                       else ReliabilityPolicy.BEST_EFFORT))
+            qos.cloud(p["points_reliable"]))
         self.status_topic = f"{self.engine}/status"
         self.create_subscription(String, self.status_topic, self._on_status, LATCHED)
-        markers_qos = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                                 reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        markers_qos = qos.latched(10)
         self.create_subscription(MarkerArray, f"{self.engine}/markers", self._on_markers,
                                  markers_qos)
         self.pub_click = self.create_publisher(PointStamped, "clicked_point", INPUT)
@@ -727,7 +725,7 @@ class StationNode(Node):
         self.triggers = {action: self.create_client(Trigger, f"{self.engine}/{action}")
                         for action, _ in ACTIONS}
         # the operator only: an access secret, same-origin websockets, bounded frames and
-        # message rates, no share tunnel, no outbound connections (ros/station_access.py)
+        # message rates, no share tunnel, no outbound connections (ros/station/access.py)
         self.access = station_access.StationAccess(
             station_access.configured_secret(p["access_secret"]), p["host"], p["port"],
             log=self.get_logger().warning)

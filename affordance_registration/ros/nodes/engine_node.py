@@ -23,28 +23,36 @@ from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, Twist, Twist
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Joy, PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.corrections import view_from_optical
-from ..core.engine import AffordanceEngine
-from ..core.errors import AffordanceError, EngineStateError, bounded
-from ..core.operator import ACTIONS, OperatorStream
-from ..core.persistence import RegistrationStore
-from ..core.scene import NO_VIEWPOINT
-from ..core.templates import TemplateLibrary
-from . import params
-from .conversions import (ConversionError, matrix_to_pose, pointcloud2_layout,
-                          pointcloud2_to_xyz, pose_stamped, pose_to_matrix)
-from .frames import FrameError, StaticFrames, T_frame_optical
-from .interactive import CorrectionMarkerServer, MarkerCallbacks
-from .markers import state_markers
-from .spin import run_node
-from .tf import TfBroadcaster, TfListener
+from ...core.corrections import view_from_optical
+from ...core.engine import AffordanceEngine
+from ...core.errors import AffordanceError, EngineStateError, bounded
+from ...core.operator import ACTIONS, OperatorStream
+from ...core.persistence import RegistrationStore
+from ...core.scene import NO_VIEWPOINT
+from ...core.templates import TemplateLibrary
+from ..glue import params, qos
+from ..glue.conversions import (
+    ConversionError,
+    matrix_to_pose,
+    pointcloud2_layout,
+    pointcloud2_to_xyz,
+    pose_stamped,
+    pose_to_matrix,
+)
+from ..glue.frames import FrameError, StaticFrames, T_frame_optical
+from ..glue.markers import state_markers
+from ..glue.qos import INPUT as INPUT_QOS
+from ..glue.qos import LATCHED
+from ..glue.qos import SERVICES as SERVICE_QOS
+from ..glue.tf import TfBroadcaster, TfListener
+from ..standins.interactive import CorrectionMarkerServer, MarkerCallbacks
+from ..standins.spin import run_node
 
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
             "joint_plus", "joint_minus")
@@ -57,13 +65,6 @@ MAX_NAME = 256
 MAX_MESSAGE = 2000
 
 #: reliable, deep enough for a SpaceMouse burst or a storm of calls while a fit runs
-INPUT_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                       reliability=ReliabilityPolicy.RELIABLE)
-SERVICE_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE)
-LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def _stamp_s(info) -> float | None:
@@ -139,9 +140,7 @@ class EngineNode(Node):
             registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]),
             persist=self._persist)
 
-        cloud_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                               reliability=ReliabilityPolicy.RELIABLE if self._p["points_reliable"]
-                               else ReliabilityPolicy.BEST_EFFORT)
+        cloud_qos = qos.cloud(self._p["points_reliable"])
         self._sub_points = self.create_subscription(PointCloud2, "points", self._on_cloud,
                                                     cloud_qos)
         self._sub_click = self.create_subscription(PointStamped, "clicked_point", self._on_click,

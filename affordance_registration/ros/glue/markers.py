@@ -10,8 +10,8 @@ import numpy as np
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.labels import REFUSED_PREFIX, standing
-from ..core.registration import describe_primitive, verdict
+from ...core.labels import REFUSED_PREFIX, standing
+from ...core.registration import describe_primitive, verdict
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
 __all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]

@@ -1,6 +1,6 @@
 """Generate and build the ``tf2_msgs`` interfaces (TFMessage, TF2Error) into a Python prefix.
 
-    python -m affordance_registration.ros.interfaces.build [--prefix PREFIX]
+    python -m affordance_registration.ros.standins.interfaces.build [--prefix PREFIX]
 
 ROS 2 Jazzy's PyPI wheels bring rclpy and the common message packages but not tf2_msgs, so the
 pip-only install builds it here, the way ``rosidl_generate_interfaces`` would in a colcon

@@ -15,7 +15,8 @@ import time
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..core.errors import AffordanceError
+from ...core.errors import AffordanceError
+from ..glue.qos import LATCHED
 
 __all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "message_class",
            "read_messages"]
@@ -40,8 +41,7 @@ def _typestore():
 
 
 def _to_rosbags_qos(profile: QoSProfile):
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
     zero = QosTime(sec=0, nsec=0)
     return Qos(history=QosHistory(int(profile.history.value)), depth=int(profile.depth),
                reliability=QosReliability(int(profile.reliability.value)),
@@ -193,9 +193,7 @@ class StatusPacer:
         self._cv = threading.Condition()
         self._status: dict | None = None
         self._baseline: dict | None = None
-        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        qos = LATCHED
         from std_msgs.msg import String
         node.create_subscription(String, status_topic, self._on_status, qos)
 

@@ -107,7 +107,7 @@ def render_verdict(points: np.ndarray, registrations, truths, library,
     ``registrations``: dicts with ``template``, ``pose`` (4x4), ``joints``, ``scale``, ``ok``
     (bool) and ``why`` (text); ``truths``: (template, T_scene_model, joints, scale) of the true
     objects, camera optical frame."""
-    from PIL import Image, ImageDraw, ImageFont   # local: only pictures need it
+    from PIL import Image, ImageDraw, ImageFont  # local: only pictures need it
     regs = list(registrations)
     img = render_registrations(points, [(r["template"], np.asarray(r["pose"], float),
                                          r.get("joints") or {}, r.get("scale", 1.0))

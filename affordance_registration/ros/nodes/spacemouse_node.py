@@ -1,5 +1,5 @@
 """The ``affordance_spacemouse`` node: a 3Dconnexion device read through a
-:class:`~affordance_registration.ros.spacemouse.HidBackend`, published as ``spacenav/twist`` and
+:class:`~affordance_registration.ros.devices.spacemouse.HidBackend`, published as ``spacenav/twist`` and
 ``spacenav/joy`` exactly as the spacenav driver does (see :mod:`.spacemouse` for the axes)."""
 from __future__ import annotations
 
@@ -13,8 +13,16 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import Joy
 
-from .spacemouse import (DEVICES, AxisState, DeviceInfo, HidBackend, find_device, make_backend,
-                         parse_report, to_ros)
+from ..devices.spacemouse import (
+    DEVICES,
+    AxisState,
+    DeviceInfo,
+    HidBackend,
+    find_device,
+    make_backend,
+    parse_report,
+    to_ros,
+)
 
 __all__ = ["SpaceMouseNode", "PARAMETERS"]
 

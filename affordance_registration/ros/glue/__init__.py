@@ -1,0 +1,2 @@
+"""Message glue between ROS messages and core: point cloud and pose conversions, markers, TF
+and static frames, the engine node's parameters, the QoS profiles."""

@@ -1,0 +1,2 @@
+"""The ROS 2 nodes: the engine, the SpaceMouse driver's node (the station has its own package,
+``ros.station``; the simulated sensor is an evaluation tool, ``evaluation.simulated_scan``)."""

@@ -1,0 +1,2 @@
+"""Stand-ins for ROS 2 packages that are not on PyPI: a launcher (launch), rosbag2 recording and
+playback, an interactive-marker server, the tf2_msgs interface build, node spinning."""

@@ -1,0 +1,2 @@
+"""The browser operator station: the node (ROS side), the page it serves, its access rules, and
+the file-scan publisher behind ``station --scene``."""
