@@ -6,10 +6,12 @@ workspace's ``local_setup.sh`` sourced, the executables run from
 
 The workspace is a copy of this checkout in a temporary folder; the builds take about 20 s on an
 idle machine. ``colcon test`` is checked to discover and run the package's tests through pytest
-on one quick test file (the whole suite inside it would repeat ``make test``)."""
+on one quick test file, and to collect the whole suite when given no file (running all of it
+inside it would repeat ``make test``)."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -201,3 +203,20 @@ def test_colcon_test_runs_the_package_tests(workspaces):
         int(suite.get("errors")) == 0
     result = _colcon(ws.root, "test-result", "--test-result-base", ws.build.name)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_colcon_test_collects_the_whole_suite(workspaces):
+    """Without arguments ``colcon test`` runs the whole suite: in the workspace pytest collects
+    every test the source tree's ``make test`` collects (collected only: running it here would
+    repeat ``make test``)."""
+    ws = workspaces["plain"]
+    out = _colcon(ws.root, "test", "--build-base", ws.build.name, "--install-base",
+                  ws.install.name, "--event-handlers", "console_direct+", "--pytest-args",
+                  "--collect-only", "-q")
+    here = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q",
+                           "-p", "no:cacheprovider", "test"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300, env=_env())
+    counted = [re.search(r"(\d+) tests? collected", o) for o in (out.stdout, here.stdout)]
+    assert all(counted), out.stdout[-2000:] + here.stdout[-2000:]
+    in_workspace, in_tree = (int(m.group(1)) for m in counted)
+    assert in_workspace == in_tree > 300, (in_workspace, in_tree)
