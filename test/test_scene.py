@@ -2,7 +2,7 @@
 the voxel grid grouped through a table of cells, the cluster's components from CSR rows, the
 fine points looked up inside the cluster's box only, the normals' neighbourhood sums, the
 frame's lean and the spread check decided without pow() and SVD, a snap reusing the crop's
-distances. Each reference below is the straightforward code the fast path replaced."""
+distances. Each reference below is the plain formulation the fast path must match."""
 import math
 
 import numpy as np
