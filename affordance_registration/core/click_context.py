@@ -87,9 +87,10 @@ class ClickContext:
     ``cluster`` are the voxelized points connected to the click with the dominant plane removed
     (the ICP target); ``crop`` all voxelized points of the crop (the scoring target); ``fine`` the
     full-resolution cluster points (the final refinement target). ``frame`` (3, 3) is the
-    rotation attached to the scan around the click (:func:`local_frame`): random draws and
-    grids are laid out in it. Without a viewpoint ``sensor_origin`` and ``range_image`` are
-    None (no visibility terms).
+    rotation attached to the scan around the click
+    (:func:`~affordance_registration.core.voxels.local_frame`): random draws and grids are laid
+    out in it. Without a viewpoint ``sensor_origin`` and ``range_image`` are None (no visibility
+    terms).
     """
 
     click: np.ndarray
