@@ -2,7 +2,7 @@
 the voxel grid grouped through a table of cells, the cluster's components from CSR rows, the
 fine points looked up inside the cluster's box only, the normals' neighbourhood sums, the
 frame's lean and the spread check decided without pow() and SVD, a snap reusing the crop's
-distances. Each reference below is the straightforward code the fast path replaced."""
+distances. Each reference below is the plain formulation the fast path must match."""
 import math
 
 import numpy as np
@@ -13,6 +13,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from affordance_registration.core import scene as S
+from affordance_registration.core import segmentation, voxels
 from affordance_registration.core.errors import SceneError
 from affordance_registration.core.neighbours import (
     build_tree,
@@ -60,7 +61,7 @@ def test_components_are_scipys(seed, n, m):
     rng = np.random.default_rng(seed)
     pairs = np.sort(rng.integers(0, n, size=(m, 2)), axis=1)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
-    labels = S._components(n, pairs)
+    labels = segmentation._components(n, pairs)
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, ref = connected_components(graph, directed=False)
     # the same partition: a one-to-one map between the two labellings
@@ -76,7 +77,7 @@ def test_gap_components_are_those_of_every_pair_within_the_gap(seed, blobs, n, g
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-0.1, 0.1, size=(blobs, 3))
     pts = centres[rng.integers(0, blobs, n)] + rng.normal(size=(n, 3)) * 0.01
-    labels = S._gap_components(pts, gap)
+    labels = segmentation._gap_components(pts, gap)
     _, ref = connected_components(
         coo_matrix((np.ones(len(p := pairs_within(pts, gap)), bool), (p[:, 0], p[:, 1])),
                    shape=(n, n)), directed=False)
@@ -87,7 +88,7 @@ def test_gap_components_are_those_of_every_pair_within_the_gap(seed, blobs, n, g
 def test_components_of_a_graph_too_big_for_the_radix_sort():
     n = 70000
     pairs = np.array([[0, 69999], [5, 69999], [7, 8], [69998, 8]])
-    labels = S._components(n, pairs)
+    labels = segmentation._components(n, pairs)
     assert labels[0] == labels[5] == labels[69999] != labels[7]
     assert labels[7] == labels[8] == labels[69998]
     assert len(np.unique(labels)) == n - 4
@@ -171,8 +172,8 @@ def test_the_lean_is_the_sign_of_the_exact_cubes(seed, n):
     rng = np.random.default_rng(seed)
     along = rng.normal(size=n)
     along[-1] = -np.cbrt(np.sum(along[:-1] ** 3))
-    assert S._leans_forward(along) == (np.sum(along ** 3) >= 0)
-    assert S._leans_forward(-along * 3.0) == (np.sum((-along * 3.0) ** 3) >= 0)
+    assert voxels._leans_forward(along) == (np.sum(along ** 3) >= 0)
+    assert voxels._leans_forward(-along * 3.0) == (np.sum((-along * 3.0) ** 3) >= 0)
 
 
 @settings(max_examples=60, deadline=None)

@@ -1,0 +1,100 @@
+"""Mesh geometry a template needs: the closed mesh of a parametric primitive, distances from
+points to a mesh's surface, and the facets an object can rest on.
+
+Pure functions of trimesh meshes (the distances by open3d's raycasting scene); the template
+object and the template file loader call them.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+import trimesh
+
+from .transforms import axis_angle_matrix
+
+__all__ = ["PRIMITIVES", "CYLINDER_SECTIONS", "primitive_mesh", "mesh_distance", "resting_facets"]
+
+#: the primitive kinds and the dimensions each is fitted with (metres)
+PRIMITIVES = {"box": ("x", "y", "z"), "cylinder": ("radius", "length")}
+CYLINDER_SECTIONS = 48           #: facets around a primitive cylinder's mesh
+
+
+def primitive_mesh(kind: str, dimensions: Mapping) -> trimesh.Trimesh:
+    """The closed mesh of a primitive of ``dimensions`` (m) in its frame: a box's origin at
+    the centre of its base face, a cylinder's at the centre of one end face, +z up / along
+    the axis."""
+    if kind == "box":
+        ext = [float(dimensions["x"]), float(dimensions["y"]), float(dimensions["z"])]
+        mesh = trimesh.creation.box(extents=ext)
+        mesh.apply_translation([0.0, 0.0, ext[2] / 2])
+    else:
+        r, h = float(dimensions["radius"]), float(dimensions["length"])
+        mesh = trimesh.creation.cylinder(radius=r, height=h, sections=CYLINDER_SECTIONS)
+        mesh.apply_translation([0.0, 0.0, h / 2])
+    return mesh
+
+
+def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
+    """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
+    negative inside a watertight mesh."""
+    import open3d as o3d
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
+    if signed:
+        return scene.compute_signed_distance(query).numpy().astype(float)
+    return scene.compute_distance(query).numpy().astype(float)
+
+
+def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
+    """(R_rest, area) of every convex-hull facet the object can rest on, largest first."""
+    from scipy.spatial import ConvexHull
+    hull = mesh.convex_hull
+    com = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
+    in_facet = np.zeros(len(hull.faces), bool)
+    groups = []
+    for facet, normal in zip(hull.facets, hull.facets_normal):
+        in_facet[facet] = True
+        groups.append((facet, np.asarray(normal)))
+    for f in np.flatnonzero(~in_facet):
+        groups.append((np.array([f]), np.asarray(hull.face_normals[f])))
+    out = []
+    for faces, normal in groups:
+        verts = hull.vertices[np.unique(hull.faces[faces])]
+        area = float(hull.area_faces[faces].sum())
+        if area < 1e-6:
+            continue
+        # centre of mass projected onto the facet plane, inside the facet polygon?
+        u = np.cross(normal, [1.0, 0, 0] if abs(normal[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(normal, u)
+        poly = np.stack([verts @ u, verts @ v], axis=1)
+        p = np.array([com @ u, com @ v])
+        try:
+            eq = ConvexHull(poly).equations
+        except Exception:   # degenerate (collinear) facet
+            continue
+        if np.any(eq[:, :2] @ p + eq[:, 2] > -1e-4):   # not strictly inside (1e-4 m margin)
+            continue
+        # rotation taking the facet normal to -z
+        target = np.array([0.0, 0.0, -1.0])
+        axis = np.cross(normal, target)
+        s_, c_ = np.linalg.norm(axis), float(normal @ target)
+        if s_ < 1e-9:
+            R = np.eye(3) if c_ > 0 else axis_angle_matrix([1.0, 0, 0], math.pi)
+        else:
+            R = axis_angle_matrix(axis, math.atan2(s_, c_))
+        out.append((R, area, normal))
+    out.sort(key=lambda x: -x[1])
+    total = sum(a for _, a, _ in out) or 1.0
+    kept = []
+    for R, area, normal in out:   # one pose per resting direction (they differ by a yaw only)
+        if area / total < 0.02:
+            continue
+        if any(normal @ n > math.cos(math.radians(15)) for _, _, n in kept):
+            continue
+        kept.append((R, area, normal))
+    return [(R, a) for R, a, _ in kept]
