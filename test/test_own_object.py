@@ -43,14 +43,20 @@ def _pose(s, obj_id):
     return None
 
 
+def _ids(st) -> set:
+    return {o["id"] for o in st.get("objects", [])}
+
+
 def _click(s, obj):
-    n = len(_status(s).get("objects", []))
+    """Click ``obj`` and wait for the object it opens: an id the status did not show before
+    (the status is rate-limited, so the one read before the click may lag an accept behind)."""
+    before = _ids(_status(s))
     msg = PointStamped()
     msg.header.frame_id = FRAME
     msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
     s["pubs"]["click"].publish(msg)
-    st = s["client"].wait_for(lambda: len(_status(s).get("objects", [])) == n + 1 and
-                              _status(s)["node"]["idle"] and _status(s), 180, "the fitted object")
+    st = s["client"].wait_for(lambda: _ids(_status(s)) - before and _status(s)["node"]["idle"]
+                              and _status(s), 180, "the fitted object")
     return st["active_id"]
 
 
