@@ -275,19 +275,36 @@ def test_joint_marker_turns_the_lever_and_follows_the_fit(session, library):
 
 # ---------------------------------------------------------------------------- without a node
 class Host:
-    """The server's host for tests without ROS: a real engine, and what the server sends."""
+    """The server's host (a MarkerHost) for tests without ROS: a real engine, and what the server
+    sends."""
 
     def __init__(self, library, engine):
-        from affordance_registration.ros.standins.interactive import MarkerCallbacks
-        self.engine, self.sent, self.warnings = engine, [], []
-        self.callbacks = MarkerCallbacks(
-            active=engine.active_object, frame=lambda: FRAME, view_pose=engine.view_pose,
-            template=library.__getitem__,
-            pose=lambda T, release, target=None: self.sent.append(("pose", T, release)),
-            action=lambda name, arg: self.sent.append(("action", name, arg)),
-            warn=self.warnings.append,
-            cancel=lambda target: self.cancelled.append(target))
-        self.cancelled = []
+        self.library, self.engine = library, engine
+        self.sent, self.warnings, self.cancelled = [], [], []
+
+    def active_object(self):
+        return self.engine.active_object()
+
+    def frame(self):
+        return FRAME
+
+    def view_pose(self):
+        return self.engine.view_pose()
+
+    def template(self, name):
+        return self.library[name]
+
+    def marker_pose(self, T, release, object_id):
+        self.sent.append(("pose", T, release))
+
+    def marker_action(self, name, argument):
+        self.sent.append(("action", name, argument))
+
+    def marker_cancel(self, object_id):
+        self.cancelled.append(object_id)
+
+    def warn(self, text):
+        self.warnings.append(text)
 
 
 class Clock:
@@ -324,7 +341,7 @@ def test_server_through_its_callbacks_without_a_node(library):
     engine = AffordanceEngine(library)
     engine.set_scene(sim.organized, frame_id=FRAME)
     host, clock = Host(library, engine), Clock()
-    server = CorrectionMarkerServer(host.callbacks, "/affordance_correction", clock=clock)
+    server = CorrectionMarkerServer(host, "/affordance_correction", clock=clock)
     assert server.sync() is None and server.full_set() == (0, [])
     engine.click(next(o for o in sim.objects if o.template == "ball_valve").click)
     upd = server.sync()
