@@ -22,7 +22,7 @@ from .files import write_atomically
 from .registration import NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive, no_match, verdict
 from .scene import ClickContext, Scene
 from .templates import TemplateLibrary
-from .transforms import matrix_to_quat_xyzw
+from .transforms import is_rigid, matrix_to_quat_xyzw
 
 __all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
            "load_registrations", "save_registrations", "REGISTRATIONS_FORMAT"]
@@ -48,6 +48,30 @@ class TrackedObject:
     @property
     def shown(self) -> FitResult:
         return self.candidates[self.active]
+
+    def with_candidate(self, index: int, candidate: FitResult, **changes) -> "TrackedObject":
+        """The object with candidate ``index`` replaced by ``candidate`` (and ``changes`` made to
+        its other fields)."""
+        cands = self.candidates[:index] + (candidate,) + self.candidates[index + 1:]
+        return replace(self, candidates=cands, **changes)
+
+    def with_shown(self, candidate: FitResult, **changes) -> "TrackedObject":
+        """The object with its shown candidate replaced by ``candidate`` (see
+        :meth:`with_candidate`)."""
+        return self.with_candidate(self.active, candidate, **changes)
+
+    @property
+    def shown_is_the_answer(self) -> bool:
+        """The shown candidate is the verdict's own answer where no specific template fits: the
+        primitive that fits there."""
+        return self.shown.primitive is not None and bool(self.shown.fits)
+
+    @property
+    def override(self) -> bool:
+        """Accepting the shown candidate goes against the verdict: it does not fit (``fits``
+        false), or the verdict is "no template fits here" and it is not the primitive that fits
+        there."""
+        return self.shown.fits is False or (self.no_match and not self.shown_is_the_answer)
 
     def to_dict(self, active_id) -> dict:
         """The object in the engine's status (``active``: it is the selected one)."""
@@ -119,8 +143,7 @@ class Registration:
                    scale=c.scale, primitive=c.primitive, dimensions=dict(c.dimensions),
                    ranked_first=obj.candidates[0].template,
                    model_changes=obj.model_changes, corrections=obj.corrections,
-                   fit_s=obj.fit_s, override=c.fits is False or
-                   (obj.no_match and not (c.primitive is not None and c.fits)))
+                   fit_s=obj.fit_s, override=obj.override)
 
     def to_dict(self) -> dict:
         T = self.T_scene_model
@@ -181,8 +204,7 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
             template = str(entry["template"])
         except (KeyError, TypeError, ValueError):
             raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-5):
+        if not is_rigid(T):
             raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
         if library is not None and template not in library:
             raise AffordanceError(f"{where}: unknown template '{template}'")
@@ -460,7 +482,7 @@ class AffordanceEngine:
                                           cand.scale, dimensions=cand.dimensions or None)
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
-            candidates = candidates[:active] + (cand,) + candidates[active + 1:]
+            candidates = obj.with_candidate(active, cand).candidates
             refined = refined | {active}
         with self._lock:
             current = self._find(obj.id)
@@ -537,9 +559,9 @@ class AffordanceEngine:
             if obj is None or index >= len(obj.candidates):
                 raise EngineStateError(f"the dragged object {obj_id} is gone: nothing to cancel")
             cand = replace(obj.candidates[index], T_scene_model=T_before)
-            cands = obj.candidates[:index] + (cand,) + obj.candidates[index + 1:]
-            self._commit(self._replace_object(replace(obj, candidates=cands,
-                                                      corrections=corrections)), "cancel drag")
+            self._commit(self._replace_object(obj.with_candidate(index, cand,
+                                                                 corrections=corrections)),
+                         "cancel drag")
             return (f"object {obj_id}: the unfinished drag was cancelled; "
                     f"{cand.template} is back where the drag started")
 
@@ -547,17 +569,14 @@ class AffordanceEngine:
         """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
         pose or takes the object farther than ``reach_m`` from where it was clicked."""
         T = np.array(T, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
+        if not is_rigid(T):
             raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
         tpl = self._geometry(obj.shown)
         away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
         if away > self.reach_m:
             raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
                                   f"from where it was clicked (at most {self.reach_m:g} m)")
-        cand = replace(obj.shown, T_scene_model=T)
-        cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-        return replace(obj, candidates=cands, corrections=corrections)
+        return obj.with_shown(replace(obj.shown, T_scene_model=T), corrections=corrections)
 
     def correct_joint(self, steps: float | None = None, value: float | None = None,
                       refit: bool = True) -> str:
@@ -584,8 +603,7 @@ class AffordanceEngine:
             q_new = float(np.clip(q_new, joint.lower, joint.upper))
             joints = {joint.name: q_new}
             cand = replace(obj.shown, joints=joints, state=tpl.nearest_state(joints))
-            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            new = obj.with_shown(cand, corrections=obj.corrections + 1)
             self._commit(self._replace_object(new), "joint")
         unit = "deg" if joint.type == "revolute" else "mm"
         shown = np.degrees(q_new) if joint.type == "revolute" else q_new * 1000
@@ -621,9 +639,8 @@ class AffordanceEngine:
                 raise AffordanceError(f"a dimension must be a finite number, got {value!r}")
             dims[name] = new_value
             dims = tpl.clip_dimensions(dims)
-            cand = replace(obj.shown, dimensions=dims)
-            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            new = obj.with_shown(replace(obj.shown, dimensions=dims),
+                                 corrections=obj.corrections + 1)
             self._commit(self._replace_object(new), "dimension")
         msg = f"object {obj.id}: {tpl.name} {name} {dims[name] * 1000:.1f} mm"
         if refit:
@@ -669,10 +686,8 @@ class AffordanceEngine:
                     current.shown.dimensions != shown.dimensions:
                 raise EngineStateError("the object changed during the refit; refit again")
             cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
-            cands = current.candidates[:current.active] + (cand,) + \
-                current.candidates[current.active + 1:]
-            new = replace(current, candidates=cands, context=ctx, scene_version=version,
-                          refined=current.refined | {current.active})
+            new = current.with_shown(cand, context=ctx, scene_version=version,
+                                     refined=current.refined | {current.active})
             if coalesce:        # the refit belongs to the correction just made: one undo step
                 self._state = self._replace_object(new)
             else:
@@ -701,9 +716,9 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            answer = obj.shown.primitive is not None and obj.shown.fits   # the verdict's own
             why = "" if not reg.override else f" as an operator override ({NO_MATCH})" \
-                if obj.no_match and not answer else " as an operator override (it does not fit)"
+                if obj.no_match and not obj.shown_is_the_answer else \
+                " as an operator override (it does not fit)"
             return (f"accepted {reg.template} as object {obj.id}{why} "
                     f"({len(self._state.registered)} registered)")
 
