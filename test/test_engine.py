@@ -145,11 +145,11 @@ def test_save_is_atomic_when_writing_fails(engine, tmp_path, monkeypatch):
     path = tmp_path / "r.yaml"
     engine.save(str(path))
     original = path.read_text()
-    import affordance_registration.core.engine as eng
+    import affordance_registration.core.persistence as store
 
     def broken_dump(*a, **k):
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(eng.yaml, "safe_dump", broken_dump)
+    monkeypatch.setattr(store.yaml, "safe_dump", broken_dump)
     with pytest.raises(AffordanceError, match="cannot save"):
         engine.save(str(path))
     assert path.read_text() == original

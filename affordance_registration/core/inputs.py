@@ -20,6 +20,8 @@ class _Input:
     once the input has been handled; ``arrived``: when the stream got it (its clock)."""
 
     kind: ClassVar[str]
+    #: what the stream's worker is doing while it handles one (its status' ``busy``)
+    doing: ClassVar[str]
     source: str = ""
     reply: Callable | None = field(default=None, compare=False)
     arrived: float = 0.0
@@ -31,6 +33,7 @@ class Click(_Input):
     None: the latest)."""
 
     kind: ClassVar[str] = "click"
+    doing: ClassVar[str] = "fitting a click"
     point: np.ndarray
     frame: str = ""
     stamp: float | None = None
@@ -52,6 +55,7 @@ class Twist(_Input):
     arrived)."""
 
     kind: ClassVar[str] = "twist"
+    doing: ClassVar[str] = "moving the object"
     linear: np.ndarray
     angular: np.ndarray
     stamp: float | None = None
@@ -62,6 +66,7 @@ class Joy(_Input):
     """A Joy message: its ``buttons`` and ``axes``."""
 
     kind: ClassVar[str] = "joy"
+    doing: ClassVar[str] = "SpaceMouse buttons"
     buttons: tuple
     axes: tuple = ()
 
@@ -71,6 +76,7 @@ class View(_Input):
     """The operator's view pose T_scene_view (4x4)."""
 
     kind: ClassVar[str] = "view"
+    doing: ClassVar[str] = "view pose"
     T_scene_view: np.ndarray
 
 
@@ -81,6 +87,7 @@ class Pose(_Input):
     object is selected by the time it is handled; None: the selected one."""
 
     kind: ClassVar[str] = "pose"
+    doing: ClassVar[str] = "placing the object"
     T_scene_model: np.ndarray
     release: bool = False
     target: int | None = None
@@ -91,6 +98,7 @@ class CancelDrag(_Input):
     """The drag of ``target`` ended without a release (see :meth:`OperatorStream.cancel_drag`)."""
 
     kind: ClassVar[str] = "cancel"
+    doing: ClassVar[str] = "cancelling a drag"
     target: int | None = None
 
 
@@ -99,6 +107,7 @@ class NewCloud(_Input):
     """A new cloud arrived: the selected object follows it."""
 
     kind: ClassVar[str] = "cloud"
+    doing: ClassVar[str] = "following the new cloud"
 
 
 #: one input of the stream

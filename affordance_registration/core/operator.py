@@ -503,23 +503,5 @@ def _kind(item: OperatorInput) -> str:
 
 
 def _describe(item: OperatorInput, queued: int) -> str:
-    match item:
-        case Click():
-            text = "fitting a click"
-        case Action():
-            text = item.name
-        case Twist():
-            text = "moving the object"
-        case Joy():
-            text = "SpaceMouse buttons"
-        case View():
-            text = "view pose"
-        case Pose():
-            text = "placing the object"
-        case NewCloud():
-            text = "following the new cloud"
-        case CancelDrag():
-            text = "cancelling a drag"
-        case _:
-            text = item.kind
+    text = item.name if isinstance(item, Action) else item.doing
     return f"{text} ({queued} more queued)" if queued else text
