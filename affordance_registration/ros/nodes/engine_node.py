@@ -109,6 +109,10 @@ def _header_s(header) -> float | None:
 
 
 class EngineNode(Node):
+    """The engine node. It is the host of its operator stream (``OperatorHost``: the scene, the
+    click's frame, the outcomes, the registrations file) and of its interactive-marker server
+    (``MarkerHost``: what is shown, and the marker input into the stream)."""
+
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
         self._p = params.declare(self)

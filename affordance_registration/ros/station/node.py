@@ -101,6 +101,38 @@ class _Inbox:
     status_new: bool = False
 
 
+@dataclass
+class _CloudShown:
+    """The cloud as the page shows it (the page worker's; ``points`` and ``frame`` are read by
+    clicks too, under the node's lock)."""
+
+    text: str                                   #: the status panel's line on it
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    frame: str = ""
+    shown_at: float = -math.inf                 #: monotonic time it was last replaced
+    thin_voxel: float | None = None             #: its display voxel edge
+    first_view_frame: str | None = None         #: the frame the browsers were last pointed in
+
+
+@dataclass
+class _ViewOut:
+    """The browser camera on ``view_pose`` (``pending`` guarded by the node's lock)."""
+
+    pending: np.ndarray | None = None           #: T_world_optical (4x4) not yet sent
+    sent_at: float = -math.inf
+    sent: np.ndarray | None = None              #: T_world_optical last sent
+    readers: int = 0                            #: view_pose subscriptions when last looked
+
+
+@dataclass
+class _Drawn:
+    """What the page last drew, so that a change is drawn (and logged) once."""
+
+    label: str = ""                             #: the open object's label
+    refused: frozenset = frozenset()            #: objects drawn as refused outlines
+    pending: np.ndarray | None = None           #: the click drawn as being fitted
+
+
 class _PendingClick(NamedTuple):
     """A click sent to the engine and not yet handled by it."""
 
@@ -128,26 +160,16 @@ class StationNode(Node):
         self._drawings: dict = {}
         self._status: dict | None = None
         self._connected = False
-        self._cloud_points = np.zeros((0, 3))
-        self._cloud_frame = ""
-        self._cloud_text = "none received yet on " + self.resolve_topic_name("points")
-        self._cloud_shown_at = -math.inf
-        self._thin_voxel = None                      # the last cloud's display voxel edge
-        self._drawn_label = ""                       # the open object's label as last drawn
-        self._drawn_refused = frozenset()            # objects last drawn as refused outlines
-        self._first_view_frame = None
+        self._cloud = _CloudShown("none received yet on " + self.resolve_topic_name("points"))
+        self._drawn = _Drawn()
         self._last_action = ""
-        self._view_pending = None
-        self._view_sent_at = -math.inf
-        self._view_sent = None                       # T_world_optical (4x4) last on view_pose
-        self._view_readers = 0                       # view_pose subscriptions when last looked
+        self._view = _ViewOut()
         self._drag_id = f"affordance_station_{int(time.time() * 1e6):x}"
         self._drag_last = None                       # (T, time) of the drag in progress
         self._calls: deque = deque()                 # buttons waiting for the call in flight
         self._calling = None                         # (action, time sent) of the call in flight
         self._refresh = True
         self._pending: _PendingClick | None = None     # the click being fitted
-        self._pending_drawn = None
         self._seen_error = ("", "")        # (last_error, last_message when it first showed)
 
         self.create_subscription(
@@ -212,7 +234,7 @@ class StationNode(Node):
     # ------------------------------------------------------------------ page -> ROS
     def _click(self, origin: np.ndarray, direction: np.ndarray) -> None:
         with self._lock:
-            points, frame = self._cloud_points, self._cloud_frame
+            points, frame = self._cloud.points, self._cloud.frame
         try:
             i = display.snap_ray(points, origin, direction,
                                  cone_rad=math.radians(self.p["click_cone_deg"]))
@@ -303,7 +325,7 @@ class StationNode(Node):
                                    "released)")
             return
         kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
-        if kind is None or not self._cloud_frame:
+        if kind is None or not self._cloud.frame:
             return
         frame = self._frame()
         self.pub_feedback.publish(feedback_message(kind, T, frame, self._drag_id,
@@ -315,7 +337,7 @@ class StationNode(Node):
 
     def _camera(self, T_world_optical: np.ndarray) -> None:
         with self._lock:
-            self._view_pending = T_world_optical
+            self._view.pending = T_world_optical
         self._wake.set()
 
     def _note(self, text: str) -> None:
@@ -325,7 +347,7 @@ class StationNode(Node):
         self._wake.set()
 
     def _frame(self) -> str:
-        return (self._status or {}).get("frame_id") or self._cloud_frame
+        return (self._status or {}).get("frame_id") or self._cloud.frame
 
     # ------------------------------------------------------------------ the page worker
     def _run(self) -> None:
@@ -343,7 +365,7 @@ class StationNode(Node):
         now = time.monotonic()
         with self._lock:
             inbox, self._inbox = self._inbox, _Inbox()
-            view, drag = self._view_pending, self._drag_last
+            view, drag = self._view.pending, self._drag_last
             refresh, self._refresh = self._refresh, False
         refresh = self._take_cloud(inbox.cloud, now) or refresh
         if inbox.status_new:
@@ -366,9 +388,9 @@ class StationNode(Node):
         kept for a later turn); True when the page changed."""
         if cloud is None:
             return False
-        if now - self._cloud_shown_at >= 1.0 / self.p["cloud_rate"]:
+        if now - self._cloud.shown_at >= 1.0 / self.p["cloud_rate"]:
             self._show_cloud(cloud)
-            self._cloud_shown_at = now
+            self._cloud.shown_at = now
             return True
         with self._lock:
             if self._inbox.cloud is None:
@@ -392,9 +414,9 @@ class StationNode(Node):
         with self._lock:
             pending = self._pending
         point = None if pending is None else pending.point
-        if point is not self._pending_drawn:
+        if point is not self._drawn.pending:
             self.page.show_pending_click(point)
-            self._pending_drawn = point
+            self._drawn.pending = point
             self.get_logger().info("fitting marker shown" if pending else
                                    "fitting marker cleared")
 
@@ -417,20 +439,20 @@ class StationNode(Node):
         # joins after the browser's camera came to rest (an engine started later) gets the view
         # it would otherwise wait for until the operator moves the camera
         readers = self.pub_view.get_subscription_count()
-        if readers > self._view_readers and view is None and self._view_sent is not None:
+        if readers > self._view.readers and view is None and self._view.sent is not None:
             with self._lock:
-                if self._view_pending is None:
-                    self._view_pending = self._view_sent
-                view = self._view_pending
-        self._view_readers = readers
+                if self._view.pending is None:
+                    self._view.pending = self._view.sent
+                view = self._view.pending
+        self._view.readers = readers
         if view is None or not self._frame() or \
-                now - self._view_sent_at < 1.0 / self.p["view_rate"]:
+                now - self._view.sent_at < 1.0 / self.p["view_rate"]:
             return
         with self._lock:        # (a newer view the camera sent meanwhile stays pending)
-            if self._view_pending is view:
-                self._view_pending = None
+            if self._view.pending is view:
+                self._view.pending = None
         self.pub_view.publish(pose_stamped(view, self._frame(), self.get_clock().now().to_msg()))
-        self._view_sent_at, self._view_sent = now, view
+        self._view.sent_at, self._view.sent = now, view
 
     def _keep_drag_alive(self, drag: tuple | None, now: float) -> None:
         """A gizmo held still still owns its drag: a keep-alive every DRAG_KEEP_ALIVE_S."""
@@ -458,7 +480,7 @@ class StationNode(Node):
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
         self.page.show_text(f"**Shown**: {label}" if label else "**Shown**: nothing selected",
                             status_markdown(status, self._connected, self.engine,
-                                            self._cloud_text, last_action, fitting, stale))
+                                            self._cloud.text, last_action, fitting, stale))
         self.page.show_candidates(candidate_options(obj),
                                   obj["candidates"][obj["shown"]]["template"] if obj else None)
         shown = obj["candidates"][obj["shown"]] if obj else {}
@@ -474,30 +496,30 @@ class StationNode(Node):
         refused = frozenset(o.get("id") for o in (self._status or {}).get("objects") or []
                             if candidate_standing(o)[1])
         self.page.show_scene(drawings, obj["id"] if obj else None, label, refused)
-        if refused != self._drawn_refused:
-            self._drawn_refused = refused
+        if refused != self._drawn.refused:
+            self._drawn.refused = refused
             self.get_logger().info(f"drawn as refused outlines: objects {sorted(refused)}")
         drawn = drawings.get(("candidate_label", obj["id"])) if obj else None
-        if drawn is not None and drawn.text != self._drawn_label:
+        if drawn is not None and drawn.text != self._drawn.label:
             # what the 3D view now draws for the open object (from the engine's markers; the
             # panel's label follows the status, which comes first)
-            self._drawn_label = drawn.text
+            self._drawn.label = drawn.text
             self.get_logger().info(f"drawn: object {obj['id']} as {drawn.text}")
 
     def _show_cloud(self, msg: PointCloud2) -> None:
         try:
             pts, _ = pointcloud2_to_xyz(msg)
         except ConversionError as exc:
-            self._cloud_text = f"the latest cloud is unusable ({exc})"
+            self._cloud.text = f"the latest cloud is unusable ({exc})"
             self.get_logger().warning(f"points: {exc}")
             return
         finite = np.all(np.isfinite(pts), axis=1)
         if not finite.all():
             pts = pts[finite]
         thinned = display.thin(pts, int(self.p["display_points"]),
-                               start_voxel=self._thin_voxel) if len(pts) else \
+                               start_voxel=self._cloud.thin_voxel) if len(pts) else \
             display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
-        self._thin_voxel = thinned.voxel or None
+        self._cloud.thin_voxel = thinned.voxel or None
         keep = thinned.indices
         values = None                   # the colour values of the shown points only
         if self.p["color_by"] in ("auto", "intensity"):
@@ -506,21 +528,21 @@ class StationNode(Node):
                 values = (values[finite] if not finite.all() else values)[keep]
         if values is None:
             if self.p["color_by"] == "intensity":
-                self._cloud_text = "the cloud has no intensity field: coloured by depth"
+                self._cloud.text = "the cloud has no intensity field: coloured by depth"
             shown = pts[keep]
             values = np.sqrt(np.einsum("ij,ij->i", shown, shown))
         frame = msg.header.frame_id
         with self._lock:
-            self._cloud_points, self._cloud_frame = pts, frame
-        if frame != self._first_view_frame and len(pts):
-            self._first_view_frame = frame
+            self._cloud.points, self._cloud.frame = pts, frame
+        if frame != self._cloud.first_view_frame and len(pts):
+            self._cloud.first_view_frame = frame
             up = np.array(UP_AXES[self.p["up"]] if self.p["up"] != "auto" else
                           ((0, -1, 0) if "optical" in frame else (0, 0, 1)), dtype=float)
             position, look_at = display.initial_view(pts, up, math.radians(self.p["fov_deg"]))
             self.page.set_view(up, position, look_at)
         self.page.show_cloud(pts[keep], display.scalar_colors(values))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self._cloud_text = (f"{len(pts):,} points in '{frame}', {len(keep):,} shown "
+        self._cloud.text = (f"{len(pts):,} points in '{frame}', {len(keep):,} shown "
                             f"(stamp {stamp:.3f})")
 
     def shutdown(self) -> None:
