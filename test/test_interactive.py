@@ -324,7 +324,7 @@ def _feedback(event, T=None, client="/rviz_a", name="affordance_fit", menu=0):
     return fb
 
 
-def test_server_through_its_callbacks_without_a_node(library):
+def test_server_through_its_host_without_a_node(library):
     """Change sets with consecutive sequence numbers, drags handed to the host, a second client
     locked out while the first one keeps sending and let in once it went silent, one warning per
     kind however many clients misbehave, menu entries and the joint marker as actions."""
