@@ -22,6 +22,7 @@ from visualization_msgs.srv import GetInteractiveMarkers
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 from affordance_registration.ros.glue.conversions import matrix_to_pose, pose_to_matrix, xyz_to_pointcloud2
+from affordance_registration.ros.glue.throttle import Throttle
 
 NS = "/affordance_correction"
 FRAME = "camera_depth_optical_frame"
@@ -313,6 +314,19 @@ class Clock:
 
     def __call__(self):
         return self.t
+
+
+def test_a_throttle_lets_one_line_per_key_through_each_period():
+    """The rate limit of the node's, the marker server's and the SpaceMouse node's warnings."""
+    clock = Clock()
+    throttle = Throttle(2.0, clock)
+    assert throttle.due("drag") and not throttle.due("drag") and throttle.due("menu")
+    clock.t = 1.99
+    assert not throttle.due("drag") and not throttle.due("menu")
+    clock.t = 2.0
+    assert throttle.due("drag") and not throttle.due("drag")
+    clock.t = 3.99
+    assert not throttle.due("drag") and throttle.due("menu")
 
 
 def _feedback(event, T=None, client="/rviz_a", name="affordance_fit", menu=0):
