@@ -5,11 +5,13 @@ import threading
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from affordance_registration.core.corrections import apply_twist, twist_step, view_from_optical
 from affordance_registration.core.engine import AffordanceEngine, load_registrations
 from affordance_registration.core.errors import AffordanceError, EngineStateError, SceneError
-from affordance_registration.core.transforms import make_T, pose_error
+from affordance_registration.core.transforms import is_rigid, make_T, pose_error, random_rotations
 
 
 @pytest.fixture(scope="module")
@@ -145,11 +147,11 @@ def test_save_is_atomic_when_writing_fails(engine, tmp_path, monkeypatch):
     path = tmp_path / "r.yaml"
     engine.save(str(path))
     original = path.read_text()
-    import affordance_registration.core.engine as eng
+    import affordance_registration.core.persistence as store
 
     def broken_dump(*a, **k):
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(eng.yaml, "safe_dump", broken_dump)
+    monkeypatch.setattr(store.yaml, "safe_dump", broken_dump)
     with pytest.raises(AffordanceError, match="cannot save"):
         engine.save(str(path))
     assert path.read_text() == original
@@ -183,3 +185,41 @@ def test_threads_do_not_corrupt_the_state(engine, engine_and_scene):
     assert obj.model_changes == len(done) > 0
     status = engine.status()
     assert status["counts"]["objects"] == 1 and status["objects"][0]["id"] == obj.id
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.floats(1e-4, 0.1))
+def test_one_rigid_check_for_corrections_and_saved_poses(seed, shear):
+    """Every rotation is rigid, with its translation, and so is one written with 6 decimals (a
+    hand-written registrations file); a matrix scaled or sheared by 1e-4 or more is not --
+    whether it comes as an operator's correction or from a saved file."""
+    rng = np.random.default_rng(seed)
+    T = make_T(random_rotations(1, rng)[0], rng.uniform(-5, 5, 3))
+    assert is_rigid(T) and is_rigid(np.round(T, 6))
+    bent = T.copy()
+    bent[:3, :3] = bent[:3, :3] @ (np.eye(3) + shear * np.triu(np.ones((3, 3)), 1))
+    scaled = T.copy()
+    scaled[:3, :3] *= 1.0 + shear
+    assert not is_rigid(bent) and not is_rigid(scaled)
+    assert not is_rigid(np.where(np.eye(4, dtype=bool), np.nan, T)) and not is_rigid(T[:3])
+
+
+def test_a_correction_or_a_saved_pose_that_is_not_rigid_is_refused(engine, engine_and_scene,
+                                                                    library, tmp_path):
+    _, sim = engine_and_scene
+    engine.click(sim.objects[2].click)
+    T0 = engine.active_object().shown.T_scene_model
+    T = T0.copy()
+    T[:3, :3] *= 1.001
+    with pytest.raises(AffordanceError, match="rigid"):
+        engine.correct_pose(T)
+    path = tmp_path / "scaled.yaml"
+    path.write_text(yaml.safe_dump({"format": "affordance_registration/registrations/1",
+                                    "registrations": [{"template": sim.objects[2].template,
+                                                       "pose": T.tolist()}]}))
+    with pytest.raises(AffordanceError, match="not a rigid 4x4"):
+        load_registrations(str(path), library)
+    path.write_text(yaml.safe_dump({"format": "affordance_registration/registrations/1",
+                                    "registrations": [{"template": sim.objects[2].template,
+                                                       "pose": np.round(T0, 6).tolist()}]}))
+    assert len(load_registrations(str(path), library)) == 1

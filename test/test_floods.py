@@ -132,8 +132,8 @@ def test_clicks_supersede_only_clicks_nothing_depends_on():
     stream.click([0, 0, 5], source="b")
     stream.action("accept", source="s")
     stream.click([0, 0, 6], source="b")          # the accept belongs to b's click 5: kept
-    kinds = [(i.kind, i.source, None if i.value is None or i.kind != "click" else
-              float(i.value[2])) for i in stream._queue]
+    kinds = [(i.kind, i.source, float(i.point[2]) if i.kind == "click" else None)
+             for i in stream._queue]
     assert kinds == [("click", "a", 1.0), ("view", "v", None), ("click", "a", 3.0),
                      ("click", "b", 4.0), ("click", "b", 5.0), ("action", "s", None),
                      ("click", "b", 6.0)]

@@ -22,6 +22,7 @@ from visualization_msgs.srv import GetInteractiveMarkers
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 from affordance_registration.ros.glue.conversions import matrix_to_pose, pose_to_matrix, xyz_to_pointcloud2
+from affordance_registration.ros.glue.throttle import Throttle
 
 NS = "/affordance_correction"
 FRAME = "camera_depth_optical_frame"
@@ -275,19 +276,36 @@ def test_joint_marker_turns_the_lever_and_follows_the_fit(session, library):
 
 # ---------------------------------------------------------------------------- without a node
 class Host:
-    """The server's host for tests without ROS: a real engine, and what the server sends."""
+    """The server's host (a MarkerHost) for tests without ROS: a real engine, and what the server
+    sends."""
 
     def __init__(self, library, engine):
-        from affordance_registration.ros.standins.interactive import MarkerCallbacks
-        self.engine, self.sent, self.warnings = engine, [], []
-        self.callbacks = MarkerCallbacks(
-            active=engine.active_object, frame=lambda: FRAME, view_pose=engine.view_pose,
-            template=library.__getitem__,
-            pose=lambda T, release, target=None: self.sent.append(("pose", T, release)),
-            action=lambda name, arg: self.sent.append(("action", name, arg)),
-            warn=self.warnings.append,
-            cancel=lambda target: self.cancelled.append(target))
-        self.cancelled = []
+        self.library, self.engine = library, engine
+        self.sent, self.warnings, self.cancelled = [], [], []
+
+    def active_object(self):
+        return self.engine.active_object()
+
+    def frame(self):
+        return FRAME
+
+    def view_pose(self):
+        return self.engine.view_pose()
+
+    def template(self, name):
+        return self.library[name]
+
+    def marker_pose(self, T, release, object_id):
+        self.sent.append(("pose", T, release))
+
+    def marker_action(self, name, argument):
+        self.sent.append(("action", name, argument))
+
+    def marker_cancel(self, object_id):
+        self.cancelled.append(object_id)
+
+    def warn(self, text):
+        self.warnings.append(text)
 
 
 class Clock:
@@ -296,6 +314,19 @@ class Clock:
 
     def __call__(self):
         return self.t
+
+
+def test_a_throttle_lets_one_line_per_key_through_each_period():
+    """The rate limit of the node's, the marker server's and the SpaceMouse node's warnings."""
+    clock = Clock()
+    throttle = Throttle(2.0, clock)
+    assert throttle.due("drag") and not throttle.due("drag") and throttle.due("menu")
+    clock.t = 1.99
+    assert not throttle.due("drag") and not throttle.due("menu")
+    clock.t = 2.0
+    assert throttle.due("drag") and not throttle.due("drag")
+    clock.t = 3.99
+    assert not throttle.due("drag") and throttle.due("menu")
 
 
 def _feedback(event, T=None, client="/rviz_a", name="affordance_fit", menu=0):
@@ -307,7 +338,7 @@ def _feedback(event, T=None, client="/rviz_a", name="affordance_fit", menu=0):
     return fb
 
 
-def test_server_through_its_callbacks_without_a_node(library):
+def test_server_through_its_host_without_a_node(library):
     """Change sets with consecutive sequence numbers, drags handed to the host, a second client
     locked out while the first one keeps sending and let in once it went silent, one warning per
     kind however many clients misbehave, menu entries and the joint marker as actions."""
@@ -324,7 +355,7 @@ def test_server_through_its_callbacks_without_a_node(library):
     engine = AffordanceEngine(library)
     engine.set_scene(sim.organized, frame_id=FRAME)
     host, clock = Host(library, engine), Clock()
-    server = CorrectionMarkerServer(host.callbacks, "/affordance_correction", clock=clock)
+    server = CorrectionMarkerServer(host, "/affordance_correction", clock=clock)
     assert server.sync() is None and server.full_set() == (0, [])
     engine.click(next(o for o in sim.objects if o.template == "ball_valve").click)
     upd = server.sync()

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
-from affordance_registration.core.operator import OperatorSettings, OperatorStream
+from affordance_registration.core.operator import OperatorSettings, OperatorStream, StandaloneHost
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
@@ -34,6 +34,17 @@ class SimClock:
         self.t += seconds
 
 
+class Recorder(StandaloneHost):
+    """A host without a node that records every outcome the stream reports."""
+
+    def __init__(self, engine):
+        super().__init__(engine)
+        self.reports = []
+
+    def report(self, kind, ok, message):
+        self.reports.append((kind, ok, message))
+
+
 class Stream:
     """An engine on a scene and its operator stream in simulated time, recording outcomes."""
 
@@ -41,11 +52,10 @@ class Stream:
         self.engine = AffordanceEngine(library)
         self.engine.set_scene(sim.organized, frame_id=FRAME)
         self.clock = SimClock()
-        self.reports = []
+        self.host = Recorder(self.engine)
+        self.reports = self.host.reports
         self.stream = OperatorStream(self.engine, OperatorSettings(**settings), self.clock,
-                                     self.clock.sleep,
-                                     report=lambda kind, ok, msg: self.reports.append(
-                                         (kind, ok, msg)))
+                                     self.clock.sleep, host=self.host)
 
     def shown(self):
         obj = self.engine.active_object()

@@ -22,18 +22,16 @@ from affordance_registration.ros.glue.conversions import (
     pose_stamped,
     pose_to_matrix,
 )
-from affordance_registration.ros.station.node import (
-    PARAMETERS,
+from affordance_registration.ros.station.node import feedback_message
+from affordance_registration.ros.station.page import gizmo_scale
+from affordance_registration.ros.station.parameters import PARAMETERS, check_parameters, check_port
+from affordance_registration.ros.station.state import (
     MeshDrawing,
     SphereDrawing,
     TextDrawing,
     apply_markers,
     candidate_label,
     candidate_options,
-    check_parameters,
-    check_port,
-    feedback_message,
-    gizmo_scale,
     status_markdown,
 )
 

@@ -32,7 +32,8 @@ from visualization_msgs.msg import MarkerArray
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD
 from affordance_registration.ros.glue.conversions import pose_to_matrix
-from affordance_registration.ros.station.node import active_object, apply_markers, gizmo_scale
+from affordance_registration.ros.station.page import gizmo_scale
+from affordance_registration.ros.station.state import active_object, apply_markers
 
 FRAME = "camera_depth_optical_frame"
 FOV_DEG = 60.0           # the station's default fov_deg

@@ -1,235 +1,31 @@
 """AffordanceEngine: objects of interest, ranked candidates, cycling, corrections, refit, accept,
 undo, save and load. Pure Python (no ROS); the ROS node is a thin wrapper around it.
 
-State is kept in immutable records (:class:`EngineState`), so undo restores the previous state
-exactly, and every action swaps the whole state under a lock: the engine is safe to call from
-several threads. Fitting runs outside the lock; only its result is committed under it.
+State is kept in immutable records (:class:`EngineState` and its parts, in ``tracked.py``), so
+undo restores the previous state exactly, and every action swaps the whole state under a lock: the
+engine is safe to call from several threads. Fitting runs outside the lock; only its result is
+committed under it. The registrations file's format is read and written in ``persistence.py``.
 """
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
-import yaml
 
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError, bounded
-from .files import write_atomically
-from .registration import NO_MATCH, FitResult, FitSettings, Registrar, describe_primitive, no_match, verdict
-from .scene import ClickContext, Scene
+from .persistence import REGISTRATIONS_FORMAT, load_registrations, save_registrations
+from .registration import NO_MATCH, FitResult, FitSettings, Registrar
+from .scene import Scene
 from .templates import TemplateLibrary
-from .transforms import matrix_to_quat_xyzw
+from .tracked import EngineState, Registration, TrackedObject
+from .transforms import is_rigid
 
 __all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
            "load_registrations", "save_registrations", "REGISTRATIONS_FORMAT"]
-
-REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
-
-
-@dataclass(frozen=True)
-class TrackedObject:
-    """An object of interest: a click and its ranked candidates (one per template)."""
-
-    id: int
-    click: np.ndarray = field(repr=False)
-    candidates: tuple                       #: FitResult, best first
-    active: int = 0                         #: index of the shown candidate
-    refined: frozenset = frozenset()        #: candidate indices refined at full resolution
-    corrections: int = 0                    #: correction bursts applied by the operator
-    model_changes: int = 0                  #: next/previous presses
-    context: ClickContext | None = field(default=None, repr=False, compare=False)
-    scene_version: int = 0
-    fit_s: float = 0.0                      #: time the click's fit took
-
-    @property
-    def shown(self) -> FitResult:
-        return self.candidates[self.active]
-
-    def to_dict(self, active_id) -> dict:
-        """The object in the engine's status (``active``: it is the selected one)."""
-        return {"id": self.id, "active": self.id == active_id, "shown": self.active,
-                "click": [round(float(v), 6) for v in self.click],
-                "corrections": self.corrections, "model_changes": self.model_changes,
-                "no_match": self.no_match, "verdict": verdict(self.candidates),
-                "reason": self.candidates[0].reason if self.candidates else None,
-                "candidates": [c.to_dict() for c in self.candidates]}
-
-    @property
-    def no_match(self) -> bool:
-        """The absolute verdict: no specific template fits here -- the best candidate is
-        refused (``FitResult.fits`` false, its ``reason`` says why) or is a primitive (the
-        candidates are still listed)."""
-        return no_match(self.candidates)
-
-    def describe(self) -> str:
-        """One line on the shown candidate: the verdict, template, state, scale, rank,
-        probability, likelihood and coverage."""
-        c = self.shown
-        extra = f" — {c.state}" if c.state else ""
-        if c.scale != 1.0:
-            extra += f" — scale {c.scale:.2f}"
-        if c.primitive is not None:
-            extra += f" — {describe_primitive(c)}"
-        best = self.candidates[0]
-        said = verdict(self.candidates)
-        why = f" ({best.reason})" if best.reason else ""
-        said = f"{said}{why}; showing " if self.no_match else ""
-        return (f"{said}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)} — "
-                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
-                f"{c.coverage:.2f}")
-
-
-@dataclass(frozen=True)
-class Registration:
-    """An accepted object."""
-
-    id: int
-    template: str
-    T_scene_model: np.ndarray = field(repr=False)
-    likelihood: float
-    probability: float
-    residual: float
-    click: np.ndarray = field(repr=False)
-    frame_id: str = ""
-    joints: dict = field(default_factory=dict)      #: joint name -> value (rad or m)
-    state: str | None = None                        #: the nearest named state
-    scale: float = 1.0                              #: uniform scale of the template
-    primitive: str | None = None                    #: "box" / "cylinder" for a primitive
-    dimensions: dict = field(default_factory=dict)  #: a primitive's dimensions (m)
-    ranked_first: str = ""                  #: the template the fit ranked first
-    model_changes: int = 0                  #: next/previous presses before accepting
-    corrections: int = 0                    #: correction bursts before accepting
-    fit_s: float = 0.0                      #: time the click's fit took
-    #: accepted against the verdict (an operator override): the accepted candidate does not
-    #: fit (``fits`` false), or the object's verdict was "no template fits here" and it is not
-    #: the primitive that fits there
-    override: bool = False
-
-    @classmethod
-    def of(cls, obj: TrackedObject, frame_id: str) -> "Registration":
-        """The registration of ``obj``'s shown candidate."""
-        c = obj.shown
-        return cls(id=obj.id, template=c.template, T_scene_model=c.T_scene_model,
-                   likelihood=c.likelihood, probability=c.probability, residual=c.residual,
-                   click=obj.click, frame_id=frame_id, joints=dict(c.joints), state=c.state,
-                   scale=c.scale, primitive=c.primitive, dimensions=dict(c.dimensions),
-                   ranked_first=obj.candidates[0].template,
-                   model_changes=obj.model_changes, corrections=obj.corrections,
-                   fit_s=obj.fit_s, override=c.fits is False or
-                   (obj.no_match and not (c.primitive is not None and c.fits)))
-
-    def to_dict(self) -> dict:
-        T = self.T_scene_model
-        return {"id": self.id, "template": self.template, "frame_id": self.frame_id,
-                "pose": [[round(float(v), 9) for v in row] for row in T],
-                "position": [round(float(v), 9) for v in T[:3, 3]],
-                "orientation_xyzw": [round(float(v), 9) for v in matrix_to_quat_xyzw(T[:3, :3])],
-                "likelihood": round(float(self.likelihood), 6),
-                "probability": round(float(self.probability), 6),
-                "residual": round(float(self.residual), 9),
-                "click": [round(float(v), 6) for v in self.click],
-                "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
-                "state": self.state, "scale": round(float(self.scale), 6),
-                "primitive": self.primitive,
-                "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
-                if self.primitive else None,
-                "ranked_first": self.ranked_first, "model_changes": self.model_changes,
-                "corrections": self.corrections, "fit_s": round(float(self.fit_s), 6),
-                "override": self.override}
-
-
-@dataclass(frozen=True)
-class EngineState:
-    objects: tuple = ()             #: TrackedObject, objects of interest not yet accepted
-    active_id: int | None = None    #: the selected object of interest
-    registered: tuple = ()          #: Registration
-    next_id: int = 1
-
-
-def save_registrations(path: str, registrations, frame_id: str = "") -> str:
-    """Write registrations to a YAML file atomically; returns the absolute path."""
-    doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
-           "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "registrations": [r.to_dict() for r in registrations]}
-    try:
-        write_atomically({path: yaml.safe_dump(doc, sort_keys=False)})
-    except OSError as exc:
-        raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
-    return os.path.abspath(path)
-
-
-def load_registrations(path: str, library: TemplateLibrary | None = None) -> tuple:
-    """Read a registrations file; each entry is checked (template known, pose a rigid 4x4)."""
-    try:
-        with open(path, encoding="utf-8") as handle:
-            doc = yaml.safe_load(handle)
-    except OSError as exc:
-        raise AffordanceError(f"cannot read registrations {path}: {exc.strerror}") from None
-    except yaml.YAMLError:
-        raise AffordanceError(f"{path}: not valid YAML") from None
-    if not isinstance(doc, dict) or doc.get("format") != REGISTRATIONS_FORMAT:
-        raise AffordanceError(f"{path}: not a registrations file (format {REGISTRATIONS_FORMAT})")
-    out = []
-    for i, entry in enumerate(doc.get("registrations") or []):
-        where = f"{path}: registrations[{i}]"
-        try:
-            T = np.asarray(entry["pose"], dtype=float)
-            template = str(entry["template"])
-        except (KeyError, TypeError, ValueError):
-            raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-5):
-            raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
-        if library is not None and template not in library:
-            raise AffordanceError(f"{where}: unknown template '{template}'")
-        primitive, dims = _primitive_of(entry, where, library[template] if library is not None
-                                        else None)
-        out.append(Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
-                                likelihood=float(entry.get("likelihood", 0.0)),
-                                probability=float(entry.get("probability", 0.0)),
-                                residual=float(entry.get("residual", 0.0)),
-                                click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
-                                frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
-                                joints={str(k): float(v) for k, v in
-                                        (entry.get("joints") or {}).items()},
-                                state=entry.get("state"), scale=float(entry.get("scale", 1.0)),
-                                primitive=primitive, dimensions=dims,
-                                ranked_first=str(entry.get("ranked_first", "")),
-                                model_changes=int(entry.get("model_changes", 0)),
-                                corrections=int(entry.get("corrections", 0)),
-                                fit_s=float(entry.get("fit_s", 0.0)),
-                                override=entry.get("override") is True))
-    return tuple(out)
-
-
-def _primitive_of(entry: dict, where: str, template) -> tuple:
-    """A saved registration's primitive kind and dimensions, checked (positive, finite; within
-    the template's ranges when the library is known)."""
-    dims = entry.get("dimensions")
-    if template is not None and template.primitive is None:
-        return None, {}
-    if not dims:
-        if template is not None:
-            raise AffordanceError(f"{where}: the primitive '{template.name}' needs its "
-                                  f"'dimensions'")
-        return None, {}
-    try:
-        dims = {str(k): float(v) for k, v in dict(dims).items()}
-    except (TypeError, ValueError):
-        raise AffordanceError(f"{where}: 'dimensions' must map names to metres") from None
-    if not all(math.isfinite(v) and v > 0 for v in dims.values()):
-        raise AffordanceError(f"{where}: 'dimensions' must be positive finite metres")
-    kind = entry.get("primitive") if template is None else template.primitive
-    if template is not None:
-        if set(dims) != set(template.dimension_ranges):
-            raise AffordanceError(f"{where}: a {kind} has dimensions "
-                                  f"{', '.join(template.dimension_ranges)}")
-        dims = template.clip_dimensions(dims)
-    return (str(kind) if kind else None), dims
 
 
 class AffordanceEngine:
@@ -460,7 +256,7 @@ class AffordanceEngine:
                                           cand.scale, dimensions=cand.dimensions or None)
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
-            candidates = candidates[:active] + (cand,) + candidates[active + 1:]
+            candidates = obj.with_candidate(active, cand).candidates
             refined = refined | {active}
         with self._lock:
             current = self._find(obj.id)
@@ -537,9 +333,9 @@ class AffordanceEngine:
             if obj is None or index >= len(obj.candidates):
                 raise EngineStateError(f"the dragged object {obj_id} is gone: nothing to cancel")
             cand = replace(obj.candidates[index], T_scene_model=T_before)
-            cands = obj.candidates[:index] + (cand,) + obj.candidates[index + 1:]
-            self._commit(self._replace_object(replace(obj, candidates=cands,
-                                                      corrections=corrections)), "cancel drag")
+            self._commit(self._replace_object(obj.with_candidate(index, cand,
+                                                                 corrections=corrections)),
+                         "cancel drag")
             return (f"object {obj_id}: the unfinished drag was cancelled; "
                     f"{cand.template} is back where the drag started")
 
@@ -547,17 +343,14 @@ class AffordanceEngine:
         """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
         pose or takes the object farther than ``reach_m`` from where it was clicked."""
         T = np.array(T, dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or \
-                not np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-4):
+        if not is_rigid(T):
             raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
         tpl = self._geometry(obj.shown)
         away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
         if away > self.reach_m:
             raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
                                   f"from where it was clicked (at most {self.reach_m:g} m)")
-        cand = replace(obj.shown, T_scene_model=T)
-        cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-        return replace(obj, candidates=cands, corrections=corrections)
+        return obj.with_shown(replace(obj.shown, T_scene_model=T), corrections=corrections)
 
     def correct_joint(self, steps: float | None = None, value: float | None = None,
                       refit: bool = True) -> str:
@@ -584,8 +377,7 @@ class AffordanceEngine:
             q_new = float(np.clip(q_new, joint.lower, joint.upper))
             joints = {joint.name: q_new}
             cand = replace(obj.shown, joints=joints, state=tpl.nearest_state(joints))
-            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            new = obj.with_shown(cand, corrections=obj.corrections + 1)
             self._commit(self._replace_object(new), "joint")
         unit = "deg" if joint.type == "revolute" else "mm"
         shown = np.degrees(q_new) if joint.type == "revolute" else q_new * 1000
@@ -621,9 +413,8 @@ class AffordanceEngine:
                 raise AffordanceError(f"a dimension must be a finite number, got {value!r}")
             dims[name] = new_value
             dims = tpl.clip_dimensions(dims)
-            cand = replace(obj.shown, dimensions=dims)
-            cands = obj.candidates[:obj.active] + (cand,) + obj.candidates[obj.active + 1:]
-            new = replace(obj, candidates=cands, corrections=obj.corrections + 1)
+            new = obj.with_shown(replace(obj.shown, dimensions=dims),
+                                 corrections=obj.corrections + 1)
             self._commit(self._replace_object(new), "dimension")
         msg = f"object {obj.id}: {tpl.name} {name} {dims[name] * 1000:.1f} mm"
         if refit:
@@ -669,10 +460,8 @@ class AffordanceEngine:
                     current.shown.dimensions != shown.dimensions:
                 raise EngineStateError("the object changed during the refit; refit again")
             cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
-            cands = current.candidates[:current.active] + (cand,) + \
-                current.candidates[current.active + 1:]
-            new = replace(current, candidates=cands, context=ctx, scene_version=version,
-                          refined=current.refined | {current.active})
+            new = current.with_shown(cand, context=ctx, scene_version=version,
+                                     refined=current.refined | {current.active})
             if coalesce:        # the refit belongs to the correction just made: one undo step
                 self._state = self._replace_object(new)
             else:
@@ -701,9 +490,9 @@ class AffordanceEngine:
             self._commit(replace(self._state, objects=objects, registered=self._state.registered
                                  + (reg,), active_id=objects[-1].id if objects else None),
                          "accept")
-            answer = obj.shown.primitive is not None and obj.shown.fits   # the verdict's own
             why = "" if not reg.override else f" as an operator override ({NO_MATCH})" \
-                if obj.no_match and not answer else " as an operator override (it does not fit)"
+                if obj.no_match and not obj.shown_is_the_answer else \
+                " as an operator override (it does not fit)"
             return (f"accepted {reg.template} as object {obj.id}{why} "
                     f"({len(self._state.registered)} registered)")
 

@@ -21,6 +21,10 @@ The stream also owns what used to depend on when messages happened to be handled
 * **joint-axis hysteresis**: a Joy axis steps the joint once per push past the threshold and
   re-arms only after it comes back below half of it.
 
+Each kind of input is a small frozen record (:class:`Click`, :class:`Action`, :class:`Twist`,
+:class:`Joy`, :class:`View`, :class:`Pose`, :class:`CancelDrag`, :class:`NewCloud`); the stream
+talks to the node it runs in through one :class:`OperatorHost`.
+
 Pure Python with an injectable clock (and sleep): tests drive it in simulated time without ROS.
 The ROS node converts messages into :meth:`OperatorStream.submit` calls and publishes what changed.
 """
@@ -30,28 +34,40 @@ import collections
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .corrections import R_VIEW_SPACENAV
 from .errors import AffordanceError
+from .inputs import (
+    INDEPENDENT,
+    Action,
+    CancelDrag,
+    Click,
+    Joy,
+    NewCloud,
+    OperatorHost,
+    OperatorInput,
+    Pose,
+    StandaloneHost,
+    Twist,
+    View,
+)
 
-__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "ACTIONS", "LEAVING_ACTIONS",
-           "MAX_QUEUED_PER_SOURCE", "CLICK_DEPTH"]
+__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "OperatorHost", "StandaloneHost",
+           "Click", "Action", "Twist", "Joy", "View", "Pose", "CancelDrag", "NewCloud", "ACTIONS",
+           "LEAVING_ACTIONS", "MAX_QUEUED_PER_SOURCE", "CLICK_DEPTH"]
 
-#: actions the stream accepts (``OperatorInput(kind="action", value=name)``); ``joint_value``,
-#: ``select_model`` and ``dimension`` carry an argument (the joint value, the template name, a
-#: primitive's (dimension name, value in m or None, steps or None)) in ``argument``
+#: actions the stream accepts (``Action(name)``); ``joint_value``, ``select_model`` and
+#: ``dimension`` carry an argument (the joint value, the template name, a primitive's (dimension
+#: name, value in m or None, steps or None)) in ``argument``
 ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "undo", "discard",
            "save", "joint_plus", "joint_minus", "joint_value", "dimension")
 #: inputs that leave the shown object: a refit still waiting for the twists to stop runs first
 LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
 #: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
 SETTLING_ACTIONS = ("refit", "undo", "joint_plus", "joint_minus", "joint_value", "dimension")
-#: inputs queued between an unstarted click and a newer click from the same source that do not
-#: belong to the older click's object: the newer click may supersede it (see ``submit``)
-INDEPENDENT_KINDS = ("view", "cloud")
 #: inputs one source may have waiting; more are refused (a flood cannot grow the queue)
 MAX_QUEUED_PER_SOURCE = 500
 #: unstarted clicks one source may have waiting: two quick clicks on two objects are both fitted;
@@ -110,71 +126,22 @@ class OperatorSettings:
     def button_map(self) -> dict:
         return {a: int(b) for a, b in self.buttons if int(b) >= 0}
 
-
-@dataclass(frozen=True)
-class OperatorInput:
-    """One input of the stream.
-
-    ``kind``: "click" (``value`` a point (3,) in ``frame``), "action" (``value`` an action name of
-    :data:`ACTIONS`, ``argument`` its argument), "twist" (``value`` (linear (3,), angular (3,)) in
-    the ``twist_frame`` axes, unscaled), "joy" (``value`` (buttons, axes)), "view" (``value`` the
-    operator's view pose T_scene_view 4x4), "pose" (``value`` an absolute pose T_scene_model of
-    the shown candidate, a marker drag; ``argument`` True on release: refit from it).
-
-    ``stamp``: when the sender made the input (s; twists are integrated over the differences of
-    their stamps), None for "when it arrived". ``source``: what it came from (a topic or service
-    name), counted in :meth:`OperatorStream.status` once handled. ``reply(success, message)`` is
-    called once the input has been handled.
-    """
-
-    kind: str
-    value: object = None
-    argument: object = None
-    frame: str = ""
-    stamp: float | None = None
-    source: str = ""
-    reply: object = field(default=None, compare=False)
-    arrived: float = 0.0
-    #: the object the input was meant for (a drag carries the object it started on): refused
-    #: when another object is selected by the time it is handled; None: the selected one
-    target: int | None = None
-
-
+# ============================================================================ the stream
 class OperatorStream:
     """The ordered stream of operator input in front of an
-    :class:`~affordance_registration.core.engine.AffordanceEngine`.
+    :class:`~affordance_registration.core.engine.AffordanceEngine`, in a node (``host``, an
+    :class:`OperatorHost`; None: a :class:`StandaloneHost`).
 
-    ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Hooks, all optional:
-    ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
-    ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
-    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
-    cannot); ``report(kind, success, message)`` hears every outcome (``kind`` names the
-    input, for throttled logging); ``on_change()`` is called after every handled input;
-    ``on_busy(text)`` when a long step starts (None when it ends).
-    ``registrations_file()`` gives the path ``save`` writes to. ``persist(explicit)``, when
-    given, replaces that: it is called with ``True`` for ``save`` and with ``False`` right after
-    any input that changed the registrations (accept, undo, a Joy accept...), *before* that
-    input is replied to, so what is acknowledged is durable; it returns a message to add to the
-    reply ("" for none) or raises :class:`AffordanceError` (the input then fails with the reason;
-    the registrations stay in memory).
-
-    Submit from any thread; handle with :meth:`run` (a worker thread) or, in tests,
-    :meth:`process_pending`.
+    ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Submit from any thread; handle
+    with :meth:`run` (a worker thread) or, in tests, :meth:`process_pending`.
     """
 
     def __init__(self, engine, settings: OperatorSettings | None = None, clock=time.monotonic,
-                 sleep=time.sleep, *, refresh_scene=None, to_scene_frame=None, report=None,
-                 on_change=None, on_busy=None, registrations_file=None, persist=None):
+                 sleep=time.sleep, host: OperatorHost | None = None):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
-        self._refresh_scene = refresh_scene or (lambda: None)
-        self._to_scene_frame = to_scene_frame or (lambda point, frame, stamp=None: point)
-        self._report = report or (lambda kind, ok, msg: None)
-        self._on_change = on_change or (lambda: None)
-        self._on_busy = on_busy or (lambda text: None)
-        self._registrations_file = registrations_file or (lambda: "affordance_registrations.yaml")
-        self._persist = persist
+        self.host: OperatorHost = host if host is not None else StandaloneHost(engine)
         self._cv = threading.Condition()
         self._queue: collections.deque[OperatorInput] = collections.deque()
         self._busy: str | None = None
@@ -211,29 +178,29 @@ class OperatorStream:
         with self._cv:
             self._received[item.source] = self._received.get(item.source, 0) + 1
             waiting_clicks = sum(1 for q in self._queue
-                                 if q.kind == "click" and q.source == item.source)
-            if item.kind == "click" and waiting_clicks >= CLICK_DEPTH:
+                                 if isinstance(q, Click) and q.source == item.source)
+            if isinstance(item, Click) and waiting_clicks >= CLICK_DEPTH:
                 for i in range(len(self._queue) - 1, -1, -1):
                     old = self._queue[i]
-                    if old.kind == "click" and old.source == item.source:
+                    if isinstance(old, Click) and old.source == item.source:
                         del self._queue[i]       # by position: inputs hold arrays (no ==)
                         dropped.append((old, "superseded by a newer click from the same "
                                              "source before its fit started"))
                         break
-                    if old.kind not in INDEPENDENT_KINDS:
+                    if not isinstance(old, INDEPENDENT):
                         break
             waiting = sum(1 for q in self._queue if q.source == item.source)
             if waiting >= MAX_QUEUED_PER_SOURCE:
                 dropped.append((item, f"refused: {waiting} inputs from this source are "
                                       f"already waiting"))
             else:
-                self._queue.append(_arrived(item, self.clock()))
+                self._queue.append(replace(item, arrived=self.clock()))
             for old, _ in dropped:
                 self._handled[old.source] = self._handled.get(old.source, 0) + 1
             self._cv.notify_all()
         for old, why in dropped:
-            self._report("queue", False, f"{_kind(old).replace('_', ' ')} from "
-                                         f"{old.source or 'an input'} {why}")
+            self.host.report("queue", False, f"{_kind(old).replace('_', ' ')} from "
+                                             f"{old.source or 'an input'} {why}")
             if old.reply is not None:
                 old.reply(False, f"{_kind(old).replace('_', ' ')} {why}")
 
@@ -241,41 +208,40 @@ class OperatorStream:
               stamp: float | None = None) -> None:
         """A click at ``point`` in ``frame``, made at ``stamp`` (s; the frame is looked up then;
         None: the latest)."""
-        self.submit(OperatorInput("click", np.asarray(point, dtype=float), frame=frame,
-                                  source=source, reply=reply, stamp=stamp))
+        self.submit(Click(np.asarray(point, dtype=float), frame, stamp, source=source,
+                          reply=reply))
 
     def action(self, name: str, argument=None, source: str = "", reply=None) -> None:
-        self.submit(OperatorInput("action", name, argument, source=source or name, reply=reply))
+        self.submit(Action(name, argument, source=source or name, reply=reply))
 
     def twist(self, linear, angular, stamp: float | None = None, source: str = "twist") -> None:
-        self.submit(OperatorInput("twist", (np.asarray(linear, dtype=float),
-                                            np.asarray(angular, dtype=float)),
-                                  stamp=stamp, source=source))
+        self.submit(Twist(np.asarray(linear, dtype=float), np.asarray(angular, dtype=float),
+                          stamp, source=source))
 
     def joy(self, buttons, axes=(), source: str = "joy") -> None:
-        self.submit(OperatorInput("joy", (tuple(int(b) for b in buttons),
-                                          tuple(float(a) for a in axes)), source=source))
+        self.submit(Joy(tuple(int(b) for b in buttons), tuple(float(a) for a in axes),
+                        source=source))
 
     def view(self, T_scene_view, source: str = "view") -> None:
-        self.submit(OperatorInput("view", np.asarray(T_scene_view, dtype=float), source=source))
+        self.submit(View(np.asarray(T_scene_view, dtype=float), source=source))
 
     def pose(self, T_scene_model, release: bool = False, source: str = "pose",
              target: int | None = None) -> None:
-        self.submit(OperatorInput("pose", np.asarray(T_scene_model, dtype=float), bool(release),
-                                  source=source, target=target))
+        self.submit(Pose(np.asarray(T_scene_model, dtype=float), bool(release), target,
+                         source=source))
 
     def cancel_drag(self, target: int | None = None, source: str = "pose") -> None:
         """The drag of ``target`` ended without a release (its client went away or silent):
         the object goes back where the drag started."""
-        self.submit(OperatorInput("cancel", source=source, target=target))
+        self.submit(CancelDrag(target, source=source))
 
     def new_cloud(self) -> None:
         """A new cloud arrived: the selected object follows it (in order with the operator's
         input; one such input waits in the queue at most)."""
         with self._cv:
-            if any(item.kind == "cloud" for item in self._queue):
+            if any(isinstance(item, NewCloud) for item in self._queue):
                 return
-        self.submit(OperatorInput("cloud", source="cloud"))
+        self.submit(NewCloud(source="cloud"))
 
     # ------------------------------------------------------------------ state
     def status(self) -> dict:
@@ -330,22 +296,22 @@ class OperatorStream:
             ok, message = False, str(exc)
         except Exception as exc:     # a bug must not kill the worker or leave a caller waiting
             ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
-        if self._persist is not None and self.engine.state.registered is not registered:
+        if self.engine.state.registered is not registered:
             try:                     # durable before it is acknowledged
-                saved = self._persist(False)
+                saved = self.host.persist(False)
                 message = "; ".join(m for m in (message, saved) if m)
             except AffordanceError as exc:
                 ok, message = False, f"{message}; NOT saved: {exc}"
             except Exception as exc:
                 ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
-            self._report(_kind(item), ok, message)
+            self.host.report(_kind(item), ok, message)
         if item.reply is not None:
             item.reply(ok, message)
         with self._cv:
             self._busy = None
             self._handled[item.source] = self._handled.get(item.source, 0) + 1
-        self._on_change()
+        self.host.changed()
         return True
 
     def _idle_refit_if_due(self) -> None:
@@ -356,35 +322,35 @@ class OperatorStream:
             self._pending_refit = False
             self._busy = "refitting after the SpaceMouse stopped"
         try:
-            self._report("refit", *self._refit())
+            self.host.report("refit", *self._refit())
         except AffordanceError as exc:
-            self._report("refit", False, str(exc))
+            self.host.report("refit", False, str(exc))
         finally:
             with self._cv:
                 self._busy = None
-            self._on_change()
+            self.host.changed()
 
     def _handle(self, item: OperatorInput) -> tuple[bool, str]:
-        kind = item.kind
-        if kind == "twist":
-            return self._on_twist(item)
-        if kind == "joy":
-            return self._on_joy(item)
-        if kind == "view":
-            self.engine.set_view(item.value)
-            return True, ""
-        if kind == "pose":
-            return self._on_pose(item)
-        if kind == "click":
-            self._settle("click")
-            return self._on_click(item)
-        if kind == "action":
-            return self._act(item.value, item.argument)
-        if kind == "cloud":
-            return self._follow()
-        if kind == "cancel":
-            return True, self.engine.cancel_drag(item.target)
-        raise AffordanceError(f"unknown operator input {kind!r}")
+        match item:
+            case Twist():
+                return self._on_twist(item)
+            case Joy():
+                return self._on_joy(item)
+            case View():
+                self.engine.set_view(item.T_scene_view)
+                return True, ""
+            case Pose():
+                return self._on_pose(item)
+            case Click():
+                self._settle("click")
+                return self._on_click(item)
+            case Action():
+                return self._act(item.name, item.argument)
+            case NewCloud():
+                return self._follow()
+            case CancelDrag():
+                return True, self.engine.cancel_drag(item.target)
+        raise AffordanceError(f"unknown operator input {item!r}")
 
     def _settle(self, action: str) -> None:
         """Before an input that leaves the object, the refit its twists are waiting for; before
@@ -394,18 +360,18 @@ class OperatorStream:
         if action in LEAVING_ACTIONS:
             self._pending_refit = False
             ok, message = self._refit()
-            self._report("refit", ok, message)
+            self.host.report("refit", ok, message)
         elif action in SETTLING_ACTIONS or action == "pose":
             self._pending_refit = False
 
     def _refit(self) -> tuple[bool, str]:
-        self._refresh_scene()
+        self.host.refresh_scene()
         return True, self.engine.refit()
 
-    def _on_click(self, item: OperatorInput) -> tuple[bool, str]:
-        self._on_busy(self._busy)
-        self._refresh_scene()
-        point = self._to_scene_frame(item.value, item.frame, item.stamp)
+    def _on_click(self, item: Click) -> tuple[bool, str]:
+        self.host.busy(self._busy)
+        self.host.refresh_scene()
+        point = self.host.to_scene_frame(item.point, item.frame, item.stamp)
         if self.settings.slow_fit_s > 0:     # test only: the fit takes this much longer
             self.sleep(self.settings.slow_fit_s)
         return True, self.engine.click(point)
@@ -414,28 +380,40 @@ class OperatorStream:
         if action not in ACTIONS:
             raise AffordanceError(f"unknown action {action!r}")
         self._settle(action)
-        if action == "save":
-            if self._persist is not None:
-                return True, self._persist(True)
-            return True, self.engine.save(self._registrations_file())
         if action in ("refit", "joint_plus", "joint_minus", "joint_value", "dimension"):
-            self._refresh_scene()
-        if action == "refit":
-            return True, self.engine.refit()
-        if action in ("joint_plus", "joint_minus"):
-            return True, self.engine.correct_joint(steps=1.0 if action == "joint_plus" else -1.0)
-        if action == "joint_value":
-            return True, self.engine.correct_joint(value=argument)
-        if action == "dimension":
-            name, value, steps = argument
-            return True, self.engine.correct_dimension(name, value=value, steps=steps)
-        if action == "select_model":
-            return True, self.engine.select_model(argument)
-        return True, getattr(self.engine, action)()
+            self.host.refresh_scene()
+        engine = self.engine
+        match action:
+            case "save":
+                return True, self.host.persist(True)
+            case "refit":
+                return True, engine.refit()
+            case "joint_plus":
+                return True, engine.correct_joint(steps=1.0)
+            case "joint_minus":
+                return True, engine.correct_joint(steps=-1.0)
+            case "joint_value":
+                return True, engine.correct_joint(value=argument)
+            case "dimension":
+                name, value, steps = argument
+                return True, engine.correct_dimension(name, value=value, steps=steps)
+            case "select_model":
+                return True, engine.select_model(argument)
+            case "next_model":
+                return True, engine.next_model()
+            case "previous_model":
+                return True, engine.previous_model()
+            case "accept":
+                return True, engine.accept()
+            case "undo":
+                return True, engine.undo()
+            case "discard":
+                return True, engine.discard()
+        raise AffordanceError(f"unknown action {action!r}")
 
-    def _on_twist(self, item: OperatorInput) -> tuple[bool, str]:
+    def _on_twist(self, item: Twist) -> tuple[bool, str]:
         s = self.settings
-        lin, ang = item.value
+        lin, ang = item.linear, item.angular
         if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
             raise AffordanceError("ignored a twist with NaN/inf values")
         if not (np.any(lin) or np.any(ang)):
@@ -461,9 +439,9 @@ class OperatorStream:
         self._pending_refit = True
         return True, ""   # a burst is reported by its refit, not per message
 
-    def _on_joy(self, item: OperatorInput) -> tuple[bool, str]:
+    def _on_joy(self, item: Joy) -> tuple[bool, str]:
         s = self.settings
-        buttons, axes = item.value
+        buttons, axes = item.buttons, item.axes
         previous = self._buttons + (0,) * max(0, len(buttons) - len(self._buttons))
         self._buttons = buttons
         pressed = [action for action, b in s.button_map().items()
@@ -495,42 +473,35 @@ class OperatorStream:
         if not s.follow_clouds or self._pending_refit or now - self._last_follow < \
                 s.follow_period_s:
             return True, ""
-        self._refresh_scene()
+        self.host.refresh_scene()
         message = self.engine.follow_scene()
         if message is None:
             return True, ""
         self._last_follow = now
         return True, message
 
-    def _on_pose(self, item: OperatorInput) -> tuple[bool, str]:
+    def _on_pose(self, item: Pose) -> tuple[bool, str]:
         if item.target is not None:
             active = self.engine.active_object()
             if active is None or active.id != item.target:
                 now = f"object {active.id} is" if active is not None else "no object is"
-                raise AffordanceError(f"{'release' if item.argument else 'drag'} refused: it "
+                raise AffordanceError(f"{'release' if item.release else 'drag'} refused: it "
                                       f"started on object {item.target}, and {now} selected "
                                       f"now")
         self._settle("pose")
-        message = self.engine.correct_pose(item.value, drag=True)
-        if not item.argument:
+        message = self.engine.correct_pose(item.T_scene_model, drag=True)
+        if not item.release:
             return True, ""
         self.engine.end_drag()
-        self._refresh_scene()
+        self.host.refresh_scene()
         return True, f"{message}; {self.engine.refit()}"
 
 
-def _arrived(item: OperatorInput, now: float) -> OperatorInput:
-    from dataclasses import replace
-    return replace(item, arrived=now)
-
-
 def _kind(item: OperatorInput) -> str:
-    return str(item.value) if item.kind == "action" else item.kind
+    """The name an input's outcome is reported under: an action's name, else its kind."""
+    return item.name if isinstance(item, Action) else item.kind
 
 
 def _describe(item: OperatorInput, queued: int) -> str:
-    what = {"click": "fitting a click", "action": f"{item.value}", "twist": "moving the object",
-            "joy": "SpaceMouse buttons", "view": "view pose", "pose": "placing the object",
-            "cloud": "following the new cloud", "cancel": "cancelling a drag"}
-    text = what.get(item.kind, item.kind)
+    text = item.name if isinstance(item, Action) else item.doing
     return f"{text} ({queued} more queued)" if queued else text

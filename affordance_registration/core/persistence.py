@@ -1,7 +1,8 @@
 """The registrations file of a session: resumed at start, rewritten atomically after every change,
 and never replaced without a backup when it holds something this session did not write.
 
-Pure Python (no ROS). The engine node keeps one :class:`RegistrationStore` for its
+:func:`save_registrations` and :func:`load_registrations` write and read (checked) the file's
+format. Pure Python (no ROS). The engine node keeps one :class:`RegistrationStore` for its
 ``registrations_file``; every accept, undo and discard that changes the registrations is written
 through it *before* the action is acknowledged, so a crash (``kill -9``) loses nothing the
 operator was told about. The file is the one ``~/save`` writes (format
@@ -15,17 +16,24 @@ the backup's path is named in the reply.
 """
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
 
+import numpy as np
 import yaml
 
-from .engine import REGISTRATIONS_FORMAT, load_registrations
 from .errors import AffordanceError
 from .files import write_atomically
+from .templates import TemplateLibrary
+from .tracked import Registration
+from .transforms import is_rigid
 
-__all__ = ["RegistrationStore", "registrations_document", "backup_path"]
+__all__ = ["RegistrationStore", "registrations_document", "backup_path", "save_registrations",
+           "load_registrations", "REGISTRATIONS_FORMAT"]
+
+REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
 
 
 def registrations_document(registrations, frame_id: str = "") -> str:
@@ -34,6 +42,84 @@ def registrations_document(registrations, frame_id: str = "") -> str:
            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
            "registrations": [r.to_dict() for r in registrations]}
     return yaml.safe_dump(doc, sort_keys=False)
+
+
+def save_registrations(path: str, registrations, frame_id: str = "") -> str:
+    """Write registrations to a YAML file atomically; returns the absolute path."""
+    try:
+        write_atomically({path: registrations_document(registrations, frame_id)})
+    except OSError as exc:
+        raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
+    return os.path.abspath(path)
+
+
+def load_registrations(path: str, library: TemplateLibrary | None = None) -> tuple:
+    """Read a registrations file; each entry is checked (template known, pose a rigid 4x4)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            doc = yaml.safe_load(handle)
+    except OSError as exc:
+        raise AffordanceError(f"cannot read registrations {path}: {exc.strerror}") from None
+    except yaml.YAMLError:
+        raise AffordanceError(f"{path}: not valid YAML") from None
+    if not isinstance(doc, dict) or doc.get("format") != REGISTRATIONS_FORMAT:
+        raise AffordanceError(f"{path}: not a registrations file (format {REGISTRATIONS_FORMAT})")
+    out = []
+    for i, entry in enumerate(doc.get("registrations") or []):
+        where = f"{path}: registrations[{i}]"
+        try:
+            T = np.asarray(entry["pose"], dtype=float)
+            template = str(entry["template"])
+        except (KeyError, TypeError, ValueError):
+            raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
+        if not is_rigid(T):
+            raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
+        if library is not None and template not in library:
+            raise AffordanceError(f"{where}: unknown template '{template}'")
+        primitive, dims = _primitive_of(entry, where, library[template] if library is not None
+                                        else None)
+        out.append(Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
+                                likelihood=float(entry.get("likelihood", 0.0)),
+                                probability=float(entry.get("probability", 0.0)),
+                                residual=float(entry.get("residual", 0.0)),
+                                click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
+                                frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
+                                joints={str(k): float(v) for k, v in
+                                        (entry.get("joints") or {}).items()},
+                                state=entry.get("state"), scale=float(entry.get("scale", 1.0)),
+                                primitive=primitive, dimensions=dims,
+                                ranked_first=str(entry.get("ranked_first", "")),
+                                model_changes=int(entry.get("model_changes", 0)),
+                                corrections=int(entry.get("corrections", 0)),
+                                fit_s=float(entry.get("fit_s", 0.0)),
+                                override=entry.get("override") is True))
+    return tuple(out)
+
+
+def _primitive_of(entry: dict, where: str, template) -> tuple:
+    """A saved registration's primitive kind and dimensions, checked (positive, finite; within
+    the template's ranges when the library is known)."""
+    dims = entry.get("dimensions")
+    if template is not None and template.primitive is None:
+        return None, {}
+    if not dims:
+        if template is not None:
+            raise AffordanceError(f"{where}: the primitive '{template.name}' needs its "
+                                  f"'dimensions'")
+        return None, {}
+    try:
+        dims = {str(k): float(v) for k, v in dict(dims).items()}
+    except (TypeError, ValueError):
+        raise AffordanceError(f"{where}: 'dimensions' must map names to metres") from None
+    if not all(math.isfinite(v) and v > 0 for v in dims.values()):
+        raise AffordanceError(f"{where}: 'dimensions' must be positive finite metres")
+    kind = entry.get("primitive") if template is None else template.primitive
+    if template is not None:
+        if set(dims) != set(template.dimension_ranges):
+            raise AffordanceError(f"{where}: a {kind} has dimensions "
+                                  f"{', '.join(template.dimension_ranges)}")
+        dims = template.clip_dimensions(dims)
+    return (str(kind) if kind else None), dims
 
 
 def backup_path(path: str, now: float | None = None) -> str:

@@ -8,7 +8,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "finite_vector", "make_T", "invert", "transform_points", "rotate", "pose_points",
+    "finite_vector", "make_T", "is_rigid", "RIGID_ATOL", "invert", "transform_points", "rotate",
+    "pose_points",
     "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "unit_quaternions", "align_z_to", "align_x_to",
     "quat_xyzw_to_matrix",
@@ -25,6 +26,20 @@ def finite_vector(value, what: str, error=ValueError, length: int = 3) -> np.nda
     if v.shape != (length,) or not np.all(np.isfinite(v)):
         raise error(f"{what} must be {length} finite numbers, got {value!r}")
     return v
+
+
+#: how far the rotation block's R^T R may be from the identity, per element, in a pose taken
+#: from outside (a saved registration, an operator's correction): the poses the package makes
+#: are within 1e-13 and its files hold 9 decimals (1e-9); this still accepts a rotation written
+#: with 6 decimals and refuses a scaled or sheared matrix
+RIGID_ATOL = 1e-5
+
+
+def is_rigid(T, atol: float = RIGID_ATOL) -> bool:
+    """Whether ``T`` is a finite 4x4 rigid transform (orthonormal rotation block)."""
+    T = np.asarray(T, dtype=float)
+    return T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and \
+        bool(np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=atol))
 
 
 def make_T(R=None, t=None) -> np.ndarray:

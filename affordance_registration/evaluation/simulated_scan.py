@@ -12,17 +12,15 @@ engine's and the station's, only hears what is published after it matched), and 
 from __future__ import annotations
 
 from rclpy.node import Node
-from sensor_msgs.msg import PointCloud2
 
 from ..core.errors import AffordanceError
 from ..core.templates import TemplateLibrary
+from ..ros.glue.cloud_publisher import LatchedCloudPublisher
 from ..ros.glue.conversions import xyz_to_pointcloud2
-from ..ros.glue.qos import LATCHED
 from ..ros.standins.spin import run_node
 from .simulation import simulate_taskboard
 
 __all__ = ["SimulatedScanNode", "main"]
-
 
 
 class SimulatedScanNode(Node):
@@ -39,25 +37,11 @@ class SimulatedScanNode(Node):
         if not 0.0 <= rate <= 30.0:
             raise AffordanceError(f"rate must be within 0-30 Hz, got {rate}")
         sim = simulate_taskboard(TemplateLibrary.load(), seed, layout=layout)
-        self.msg = xyz_to_pointcloud2(sim.organized, frame)
-        self.pub = self.create_publisher(PointCloud2, "points", LATCHED)
-        self._subscribers = 0
-        self._publish()
-        self.create_timer(0.2, self._on_subscribers)
+        self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(sim.organized, frame))
         if rate > 0:
-            self.create_timer(1.0 / rate, self._publish)
+            self.create_timer(1.0 / rate, self.cloud.publish)
         self.get_logger().info(f"simulated {layout} scan (seed {seed}): {len(sim.points)} points "
-                               f"in '{frame}' on {self.pub.topic_name}")
-
-    def _on_subscribers(self) -> None:
-        n = self.pub.get_subscription_count()
-        if n > self._subscribers:
-            self._publish()
-        self._subscribers = n
-
-    def _publish(self) -> None:
-        self.msg.header.stamp = self.get_clock().now().to_msg()
-        self.pub.publish(self.msg)
+                               f"in '{frame}' on {self.cloud.topic_name}")
 
 
 def main(args=None) -> int:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Transform
+from geometry_msgs.msg import Point, PointStamped, Pose, PoseStamped, Quaternion, Transform
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
@@ -20,8 +20,8 @@ from ...core.scene import Scene
 from ...core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 __all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
-           "xyz_to_pointcloud2", "pose_to_matrix",
-           "matrix_to_pose", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
+           "xyz_to_pointcloud2", "pose_to_matrix", "matrix_to_pose", "pose_stamped", "point_stamped",
+           "stamped", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
            "text_marker", "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
 
 _FLOAT_TYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
@@ -181,13 +181,21 @@ def matrix_to_transform(T: np.ndarray) -> Transform:
     return tf
 
 
-def pose_stamped(T: np.ndarray, frame_id: str, stamp=None) -> PoseStamped:
-    msg = PoseStamped()
+def stamped(msg, frame_id: str, stamp=None):
+    """``msg`` with its header in ``frame_id`` at ``stamp`` (None: left unstamped)."""
     msg.header.frame_id = frame_id
     if stamp is not None:
         msg.header.stamp = stamp
-    msg.pose = matrix_to_pose(T)
     return msg
+
+
+def pose_stamped(T: np.ndarray, frame_id: str, stamp=None) -> PoseStamped:
+    return stamped(PoseStamped(pose=matrix_to_pose(T)), frame_id, stamp)
+
+
+def point_stamped(point, frame_id: str, stamp=None) -> PointStamped:
+    x, y, z = (float(v) for v in point)
+    return stamped(PointStamped(point=Point(x=x, y=y, z=z)), frame_id, stamp)
 
 
 def likelihood_color(probability: float, alpha: float = 0.85) -> ColorRGBA:

@@ -51,7 +51,8 @@ from ..glue.qos import INPUT as INPUT_QOS
 from ..glue.qos import LATCHED
 from ..glue.qos import SERVICES as SERVICE_QOS
 from ..glue.tf import TfBroadcaster, TfListener
-from ..standins.interactive import CorrectionMarkerServer, MarkerCallbacks
+from ..glue.throttle import Throttle
+from ..standins.interactive import CorrectionMarkerServer
 from ..standins.spin import run_node
 
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
@@ -108,6 +109,10 @@ def _header_s(header) -> float | None:
 
 
 class EngineNode(Node):
+    """The engine node. It is the host of its operator stream (``OperatorHost``: the scene, the
+    click's frame, the outcomes, the registrations file) and of its interactive-marker server
+    (``MarkerHost``: what is shown, and the marker input into the stream)."""
+
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
         self._p = params.declare(self)
@@ -131,14 +136,9 @@ class EngineNode(Node):
         self._last_publish = 0.0
         self._last_error = ""
         self._last_message = ""
-        self._throttled: dict[str, float] = {}
+        self._warnings = Throttle(THROTTLE_S)
         self._stop = threading.Event()
-        self.stream = OperatorStream(
-            self.engine, params.operator_settings(self._p), refresh_scene=self._ensure_scene,
-            to_scene_frame=self._to_scene_frame, report=self._report, on_change=self._changed,
-            on_busy=lambda text: self.pub_status.publish(String(data=json.dumps(self.status()))),
-            registrations_file=lambda: os.path.expanduser(self._p["registrations_file"]),
-            persist=self._persist)
+        self.stream = OperatorStream(self.engine, params.operator_settings(self._p), host=self)
 
         cloud_qos = qos.cloud(self._p["points_reliable"])
         self._sub_points = self.create_subscription(PointCloud2, "points", self._on_cloud,
@@ -168,17 +168,7 @@ class EngineNode(Node):
             self.create_service(Trigger, f"~/{action}", self._service(action),
                                 qos_profile=SERVICE_QOS, callback_group=services)
         self.interactive = CorrectionMarkerServer(
-            MarkerCallbacks(active=self.engine.active_object, frame=self._frame,
-                            view_pose=self.engine.view_pose,
-                            template=lambda name: self.library[name],
-                            pose=lambda T, release, target: self.stream.pose(
-                                T, release, source="marker_feedback", target=target),
-                            cancel=lambda target: self.stream.cancel_drag(
-                                target, source="marker_feedback"),
-                            action=lambda name, arg: self.stream.action(
-                                name, arg, source="marker_feedback"),
-                            warn=self.get_logger().warning),
-            self._p["interactive_namespace"], self._p["interactive_orientation"],
+            self, self._p["interactive_namespace"], self._p["interactive_orientation"],
             server_id=self.get_fully_qualified_name())
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -212,7 +202,7 @@ class EngineNode(Node):
         if regs:
             self.get_logger().info(f"resumed {len(regs)} registration(s) from {path}")
 
-    def _persist(self, explicit: bool) -> str:
+    def persist(self, explicit: bool) -> str:
         """Write the registrations (stream worker): for ``~/save`` (``explicit``), and after
         every change when ``autosave`` is on. Returns the reply's words."""
         if not explicit and not self._p["autosave"]:
@@ -283,15 +273,15 @@ class EngineNode(Node):
         transforms parameter."""
         return self._tf.lookup(target, source, fallback=self.frames, stamp=stamp)
 
-    def _frame(self) -> str:
+    def frame(self) -> str:
         """The frame of everything the node reports: the scene's, else the latest cloud's."""
         if self.engine.frame_id:
             return self.engine.frame_id
         with self._lock:
             return self._cloud_msg.header.frame_id if self._cloud_msg is not None else ""
 
-    def _to_scene_frame(self, point: np.ndarray, frame: str,
-                        stamp: float | None = None) -> np.ndarray:
+    def to_scene_frame(self, point: np.ndarray, frame: str,
+                       stamp: float | None = None) -> np.ndarray:
         """A click given in ``frame`` at ``stamp`` expressed in the scene's frame (stream
         worker)."""
         cloud_frame = self.engine.frame_id
@@ -331,7 +321,8 @@ class EngineNode(Node):
         if self._dirty:
             self._cloud_status_at = now
         self.stream.new_cloud()
-    def _ensure_scene(self) -> None:
+
+    def refresh_scene(self) -> None:
         """Make the engine's scene the latest cloud (stream worker). An unusable newer cloud is
         reported and the previous scene kept; with no previous scene it is an error."""
         with self._lock:
@@ -368,7 +359,7 @@ class EngineNode(Node):
                 f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new)}' and no "
                 f"transform between them is known"))
             return
-        self._report("frame", True, self.engine.reexpress(T_new_old, new))
+        self.report("frame", True, self.engine.reexpress(T_new_old, new))
 
     def _sensor(self, cloud_frame: str, stamp: float | None = None):
         """(sensor origin or "none", the sensor's optical pose 4x4) in ``cloud_frame``: from the
@@ -418,7 +409,7 @@ class EngineNode(Node):
     def _on_view(self, msg: PoseStamped) -> None:
         try:
             T = pose_to_matrix(msg.pose)
-            T = self._lookup(self._frame() or msg.header.frame_id, msg.header.frame_id,
+            T = self._lookup(self.frame() or msg.header.frame_id, msg.header.frame_id,
                              _header_s(msg.header)) @ T
         except AffordanceError as exc:
             self._error("view", f"view_pose ignored: {exc}")
@@ -475,8 +466,35 @@ class EngineNode(Node):
         if twins > 1 or self._name_checks >= 10:
             self._name_timer.cancel()
 
-    # ------------------------------------------------------------------ output
-    def _report(self, kind: str, ok: bool, message: str) -> None:
+    # ------------------------------------------------------------------ the marker server's host
+    def active_object(self):
+        return self.engine.active_object()
+
+    def view_pose(self) -> np.ndarray:
+        return self.engine.view_pose()
+
+    def template(self, name: str):
+        return self.library[name]
+
+    def marker_pose(self, T_scene_model: np.ndarray, release: bool,
+                    object_id: int | None) -> None:
+        self.stream.pose(T_scene_model, release, source="marker_feedback", target=object_id)
+
+    def marker_action(self, name: str, argument) -> None:
+        self.stream.action(name, argument, source="marker_feedback")
+
+    def marker_cancel(self, object_id: int | None) -> None:
+        self.stream.cancel_drag(object_id, source="marker_feedback")
+
+    def warn(self, text: str) -> None:
+        self.get_logger().warning(text)
+
+    # ------------------------------------------------------------------ the stream's host, output
+    def busy(self, text: str | None) -> None:
+        """A long step started: the status says so at once."""
+        self.pub_status.publish(String(data=json.dumps(self.status())))
+
+    def report(self, kind: str, ok: bool, message: str) -> None:
         """An outcome of the stream: successes are logged as info; failures as errors, or as
         warnings throttled per kind for inputs that come in streams."""
         message = bounded(message, MAX_MESSAGE)
@@ -494,15 +512,12 @@ class EngineNode(Node):
         self._last_error = msg
         self._dirty = True
         if kind in STREAMED:
-            now = time.monotonic()
-            if now - self._throttled.get(kind, -math.inf) < THROTTLE_S:
-                return
-            self._throttled[kind] = now
-            self.get_logger().warning(msg)
+            if self._warnings.due(kind):
+                self.get_logger().warning(msg)
         else:
             self.get_logger().error(msg)
 
-    def _changed(self) -> None:
+    def changed(self) -> None:
         self._dirty = True
 
     def _on_timer(self) -> None:
@@ -537,7 +552,7 @@ class EngineNode(Node):
         return st
 
     def publish_all(self) -> None:
-        frame = self._frame()
+        frame = self.frame()
         stamp = self.get_clock().now().to_msg()
         state = self.engine.state
         up = self.engine.view_pose()[:3, 1]        # labels go below the objects on the screen
@@ -562,7 +577,7 @@ class EngineNode(Node):
         self._worker.join(timeout=1.0)
         if self._unsaved:               # autosave off: what was accepted is not lost either
             try:
-                self.get_logger().info(self._persist(True) + " (at shutdown)")
+                self.get_logger().info(self.persist(True) + " (at shutdown)")
             except AffordanceError as exc:
                 self.get_logger().error(f"registrations NOT saved at shutdown: {exc}")
 

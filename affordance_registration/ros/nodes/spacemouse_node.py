@@ -23,8 +23,12 @@ from ..devices.spacemouse import (
     parse_report,
     to_ros,
 )
+from ..glue.throttle import Throttle
 
 __all__ = ["SpaceMouseNode", "PARAMETERS"]
+
+#: a warning that repeats (no device, cannot open it) is logged once every this many seconds
+WARN_EVERY_S = 5.0
 
 #: name: (default, description)
 PARAMETERS = {
@@ -66,7 +70,7 @@ class SpaceMouseNode(Node):
         self.state = AxisState()
         self._moving = False
         self._next_try = 0.0
-        self._warned: dict[str, float] = {}
+        self._warnings = Throttle(WARN_EVERY_S)
         self._permission_reported: set[str] = set()
         self.create_timer(1.0 / self.p["publish_rate"], self._on_timer)
         self.get_logger().info("looking for a SpaceMouse")
@@ -98,10 +102,9 @@ class SpaceMouseNode(Node):
         self.p = new
         return SetParametersResult(successful=True)
 
-    def _warn(self, msg: str, every: float = 5.0):
-        now = time.monotonic()
-        if now - self._warned.get(msg, -math.inf) >= every:
-            self._warned[msg] = now
+    def _warn(self, msg: str):
+        """A warning that repeats while the device is missing: once every WARN_EVERY_S."""
+        if self._warnings.due(msg):
             self.get_logger().warning(msg)
 
     def _connect(self):

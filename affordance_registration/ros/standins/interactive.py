@@ -22,16 +22,15 @@ a whole interactive marker whichever of its controls is dragged, so the joint ne
 its own. Releasing it sets the joint value it shows (clamped to the limits) and refits the pose
 with that value held.
 
-The server knows its host only through :class:`MarkerCallbacks` (what is shown, and where to send
-the operator's input), so it is tested without a node; :meth:`CorrectionMarkerServer.attach`
-wires it to a node's topics and service.
+The server knows its host only as a :class:`MarkerHost` (what is shown, and where to send the
+operator's input; the engine node is one), so it is tested without a node;
+:meth:`CorrectionMarkerServer.attach` wires it to a node's topics and service.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
-from typing import Callable
+from typing import Protocol
 
 import numpy as np
 from geometry_msgs.msg import Quaternion
@@ -50,8 +49,9 @@ from ...core.errors import AffordanceError, bounded
 from ...core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..glue.conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
 from ..glue.qos import INPUT
+from ..glue.throttle import Throttle
 
-__all__ = ["CorrectionMarkerServer", "MarkerCallbacks", "MARKER_NAME", "JOINT_MARKER_NAME",
+__all__ = ["CorrectionMarkerServer", "MarkerHost", "MARKER_NAME", "JOINT_MARKER_NAME",
            "MENU", "DRAG_EXPIRY_S", "menu_of"]
 
 MARKER_NAME = "affordance_fit"
@@ -84,34 +84,42 @@ _S = math.sqrt(0.5)
 AXES = {"x": (_S, 0.0, 0.0, _S), "y": (0.0, 0.0, _S, _S), "z": (0.0, -_S, 0.0, _S)}  # x,y,z,w
 
 
-@dataclass(frozen=True)
-class MarkerCallbacks:
-    """What the server reads from and sends to its host.
+class MarkerHost(Protocol):
+    """What the server reads from and sends to its host (the engine node implements it).
 
-    ``active()``: the selected object (a TrackedObject) or None; ``frame()``: the frame of the
-    shown poses; ``view_pose()``: T_scene_view (4x4) of the operator; ``template(name)``: an
-    AffordanceTemplate; ``pose(T_scene_model, release, object_id)``: the dragged pose of the
-    shown fit of object ``object_id`` (the one the drag started on; ``release``: the drag ended,
-    refit from it); ``action(name, argument)``: a menu entry or (``"joint_value"``, q) from the
-    joint marker; ``warn(text)``: a warning for the log; ``cancel(object_id)``: a drag whose
-    client fell silent ended without a release (the object goes back where it started).
+    ``active_object()``: the selected object (a TrackedObject) or None; ``frame()``: the frame of
+    the shown poses; ``view_pose()``: T_scene_view (4x4) of the operator; ``template(name)``: an
+    AffordanceTemplate; ``marker_pose(T_scene_model, release, object_id)``: the dragged pose of
+    the shown fit of object ``object_id`` (the one the drag started on; ``release``: the drag
+    ended, refit from it); ``marker_action(name, argument)``: a menu entry or (``"joint_value"``,
+    q) from the joint marker; ``marker_cancel(object_id)``: a drag whose client fell silent ended
+    without a release (the object goes back where it started); ``warn(text)``: a warning for the
+    log.
     """
 
-    active: Callable
-    frame: Callable
-    view_pose: Callable
-    template: Callable
-    pose: Callable
-    action: Callable
-    warn: Callable
-    cancel: Callable = lambda object_id: None
+    def active_object(self): ...
+
+    def frame(self) -> str: ...
+
+    def view_pose(self) -> np.ndarray: ...
+
+    def template(self, name: str): ...
+
+    def marker_pose(self, T_scene_model: np.ndarray, release: bool,
+                    object_id: int | None) -> None: ...
+
+    def marker_action(self, name: str, argument) -> None: ...
+
+    def marker_cancel(self, object_id: int | None) -> None: ...
+
+    def warn(self, text: str) -> None: ...
 
 
 class CorrectionMarkerServer:
     """The interactive-marker server of the engine node: marker building, sequence numbers, drag
     ownership and feedback handling. ``clock()`` (s) is injectable."""
 
-    def __init__(self, callbacks: MarkerCallbacks, namespace: str = "/affordance_correction",
+    def __init__(self, host: MarkerHost, namespace: str = "/affordance_correction",
                  orientation: str = "object", server_id: str = "affordance_engine",
                  clock=time.monotonic):
         if not namespace.strip("/") or "/" in namespace.strip("/"):
@@ -119,7 +127,7 @@ class CorrectionMarkerServer:
                                   f"/affordance_correction, got {namespace!r}")
         if orientation not in ("object", "view"):
             raise AffordanceError("interactive_orientation must be 'object' or 'view'")
-        self.cb = callbacks
+        self.host = host
         self.ns = "/" + namespace.strip("/")
         self.orientation = orientation
         self.server_id = f"{server_id}/{int(time.time() * 1e6):x}"
@@ -130,7 +138,7 @@ class CorrectionMarkerServer:
         #: (client id, last feedback time, object id the drag started on)
         self._drag: tuple[str, float, int | None] | None = None
         self._cancelled: dict[str, int | None] = {}    # client id -> object of its lost drag
-        self._warned: dict[str, float] = {}
+        self._warnings = Throttle(WARN_EVERY_S, clock)
         self._publish_fn = None
 
     # ------------------------------------------------------------------ ROS wiring
@@ -170,8 +178,8 @@ class CorrectionMarkerServer:
     def sync(self) -> InteractiveMarkerUpdate | None:
         """Send what changed since the last change set (call after every change of the host's
         state); returns the update sent, or None when nothing changed."""
-        obj = self.cb.active()
-        frame = self.cb.frame()
+        obj = self.host.active_object()
+        frame = self.host.frame()
         if obj is None:
             if not self._markers:
                 return None
@@ -179,7 +187,7 @@ class CorrectionMarkerServer:
             self._markers, self._sent = {}, None
             return self._update(erases=names)
         cand = obj.shown
-        view_R = self.cb.view_pose()[:3, :3].round(6).tobytes() \
+        view_R = self.host.view_pose()[:3, :3].round(6).tobytes() \
             if self.orientation == "view" else b""
         identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R,
                     tuple(sorted(cand.joints.items())), round(cand.scale, 9))
@@ -197,7 +205,7 @@ class CorrectionMarkerServer:
             return self._update(poses=poses)
         old = set(self._markers)
         self._markers = {MARKER_NAME: self._build(obj, frame)}
-        if self.cb.template(cand.template).joint is not None:
+        if self.host.template(cand.template).joint is not None:
             self._markers[JOINT_MARKER_NAME] = self._build_joint(obj, frame)
         self._sent = (identity, pose_bytes)
         return self._update(markers=list(self._markers.values()),
@@ -208,14 +216,14 @@ class CorrectionMarkerServer:
         joint."""
         out = {MARKER_NAME: matrix_to_pose(cand.T_scene_model)}
         if JOINT_MARKER_NAME in self._markers:
-            tpl = self.cb.template(cand.template)
+            tpl = self.host.template(cand.template)
             out[JOINT_MARKER_NAME] = matrix_to_pose(
                 cand.T_scene_model @ tpl.joint_frame(tpl.joint_value(cand.joints), cand.scale))
         return out
 
     def _build_joint(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
-        tpl = self.cb.template(cand.template)
+        tpl = self.host.template(cand.template)
         joint = tpl.joint
         q = tpl.joint_value(cand.joints)
         im = InteractiveMarker()
@@ -234,7 +242,7 @@ class CorrectionMarkerServer:
 
     def _build(self, obj, frame: str) -> InteractiveMarker:
         cand = obj.shown
-        tpl = self.cb.template(cand.template)
+        tpl = self.host.template(cand.template)
         im = InteractiveMarker()
         im.header.frame_id = frame
         im.name = MARKER_NAME
@@ -254,7 +262,7 @@ class CorrectionMarkerServer:
         mesh.header.frame_id = ""          # relative to the interactive marker
         visual.markers.append(mesh)
         im.controls.append(visual)
-        R_view = self.cb.view_pose()[:3, :3] if self.orientation == "view" else None
+        R_view = self.host.view_pose()[:3, :3] if self.orientation == "view" else None
         for axis, q in AXES.items():
             for mode, prefix in ((InteractiveMarkerControl.MOVE_AXIS, "move"),
                                  (InteractiveMarkerControl.ROTATE_AXIS, "rotate")):
@@ -273,10 +281,8 @@ class CorrectionMarkerServer:
     def _ignore(self, kind: str, text: str) -> None:
         """A throttled warning: at most one per ``kind`` every WARN_EVERY_S, whatever the text
         (so a storm of distinct client ids gives one line, not one each)."""
-        now = self.clock()
-        if now - self._warned.get(kind, -math.inf) >= WARN_EVERY_S:
-            self._warned[kind] = now
-            self.cb.warn(f"interactive marker feedback ignored: {bounded(text, 400)}")
+        if self._warnings.due(kind):
+            self.host.warn(f"interactive marker feedback ignored: {bounded(text, 400)}")
 
     def _owner(self) -> str | None:
         """The client whose drag is in progress (None when nobody's). A drag whose client fell
@@ -296,10 +302,10 @@ class CorrectionMarkerServer:
             self._cancelled.pop(next(iter(self._cancelled)))
         self._ignore("silent", f"client '{drag[0]}' fell silent for {DRAG_EXPIRY_S:g} s "
                                f"mid-drag: the drag is cancelled")
-        self.cb.cancel(drag[2])
+        self.host.marker_cancel(drag[2])
 
     def _active_id(self) -> int | None:
-        obj = self.cb.active()
+        obj = self.host.active_object()
         return None if obj is None else obj.id
 
     def feedback(self, fb: InteractiveMarkerFeedback) -> None:
@@ -323,7 +329,7 @@ class CorrectionMarkerServer:
                 self._ignore("menu", f"unknown menu entry {fb.menu_entry_id}")
                 return
             action, argument, _ = menu[fb.menu_entry_id - 1]
-            self.cb.action(action, argument)
+            self.host.marker_action(action, argument)
             return
         if fb.event_type == F.MOUSE_DOWN:
             self._cancelled.pop(fb.client_id, None)
@@ -358,20 +364,20 @@ class CorrectionMarkerServer:
             if release:
                 self._joint_released(T)
             return
-        self.cb.pose(T, release, target)
+        self.host.marker_pose(T, release, target)
 
     def _joint_released(self, T_scene_frame: np.ndarray) -> None:
         """The joint marker: RViz shows the drag itself; on release the joint takes the value
         the marker shows and the pose is refitted with it held."""
-        obj = self.cb.active()
+        obj = self.host.active_object()
         if obj is None:
             self._ignore("joint", "joint released with no object selected")
             return
         cand = obj.shown
-        tpl = self.cb.template(cand.template)
+        tpl = self.host.template(cand.template)
         if tpl.joint is None:
             self._ignore("joint", f"{cand.template} has no joint")
             return
         q = tpl.joint_value_from_frame(np.linalg.inv(cand.T_scene_model) @ T_scene_frame,
                                        cand.scale)
-        self.cb.action("joint_value", q)
+        self.host.marker_action("joint_value", q)

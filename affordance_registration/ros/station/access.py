@@ -44,6 +44,7 @@ from http.cookies import CookieError, SimpleCookie
 from urllib.parse import parse_qs, urlsplit
 
 from ...core.errors import AffordanceError
+from ..glue.throttle import Throttle
 
 __all__ = ["StationAccess", "guarded", "disable_share", "forbid_outbound", "new_secret",
            "configured_secret", "MAX_FRAME_BYTES", "MAX_MESSAGES_PER_S", "MAX_BYTES_PER_S",
@@ -95,7 +96,7 @@ class StationAccess:
         self.max_bytes_per_s = float(max_bytes_per_s)
         self.installed = False              # the websocket server was wrapped
         self.refused = 0                    # requests refused so far
-        self._last_log = 0.0
+        self._refusals = Throttle(1.0)      # a refusal is logged at most once a second
 
     # ------------------------------------------------------------------ names
     @property
@@ -165,9 +166,7 @@ class StationAccess:
         from websockets.datastructures import Headers
         from websockets.http11 import Response
         self.refused += 1
-        now = time.monotonic()
-        if now - self._last_log >= 1.0:
-            self._last_log = now
+        if self._refusals.due():
             peer = getattr(connection, "remote_address", None)
             self.log(f"station: refused {_bounded(request.path, 40)!r} from {peer}: {why} "
                      f"({self.refused} refused so far)")

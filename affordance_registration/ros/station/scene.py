@@ -19,17 +19,15 @@ from __future__ import annotations
 
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import PointCloud2
 
 from ...core.errors import AffordanceError
 from ...core.pointfiles import read_points
 from ...core.scene import MM_LOOKING_EXTENT, UNITS
+from ..glue.cloud_publisher import LatchedCloudPublisher
 from ..glue.conversions import xyz_to_pointcloud2
-from ..glue.qos import LATCHED
 from ..standins.spin import run_node
 
 __all__ = ["FileScanNode", "read_scan", "main"]
-
 
 
 def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:
@@ -66,24 +64,10 @@ class FileScanNode(Node):
         pts, warning = read_scan(path, units)
         if warning:
             self.get_logger().warning(warning)
-        self.msg = xyz_to_pointcloud2(pts, frame)
-        self.pub = self.create_publisher(PointCloud2, "points", LATCHED)
-        self._subscribers = 0
-        self._publish()
-        self.create_timer(0.2, self._on_subscribers)
+        self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(pts, frame))
         n = int(np.all(np.isfinite(pts.reshape(-1, 3)), axis=1).sum())
         self.get_logger().info(f"scan {path} ({units}): {n} points in '{frame}' on "
-                               f"{self.pub.topic_name}")
-
-    def _on_subscribers(self) -> None:
-        n = self.pub.get_subscription_count()
-        if n > self._subscribers:
-            self._publish()
-        self._subscribers = n
-
-    def _publish(self) -> None:
-        self.msg.header.stamp = self.get_clock().now().to_msg()
-        self.pub.publish(self.msg)
+                               f"{self.cloud.topic_name}")
 
 
 def main(args=None) -> int:

@@ -1,0 +1,193 @@
+"""What the station shows, from the engine's documented outputs alone: the drawings of its
+``~/markers`` (:func:`apply_markers`) and the text of its ``~/status`` (the selected object, its
+shown candidate's label and verdict, the status panel). Plain functions and records, tested
+without ``rclpy.init`` or a browser."""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ...core.labels import REFUSED_PREFIX, standing
+from ..glue.conversions import ConversionError, pose_to_matrix
+
+__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "apply_markers", "active_object",
+           "candidate_standing", "candidate_label", "candidate_options", "status_markdown"]
+
+
+# ============================================================================ messages -> drawings
+@dataclass(frozen=True)
+class MeshDrawing:
+    """A TRIANGLE_LIST marker: ``vertices`` (3F, 3) float32 in the marker's frame, ``faces``
+    (F, 3) uint32, ``T`` (4, 4) its pose in the header frame, RGB ``color`` 0-255, ``opacity``."""
+
+    vertices: np.ndarray = field(repr=False)
+    faces: np.ndarray = field(repr=False)
+    T: np.ndarray = field(repr=False)
+    color: tuple
+    opacity: float
+    frame: str
+
+    @property
+    def digest(self) -> str:
+        """Identity of the geometry and colour (not the pose)."""
+        h = hashlib.blake2b(self.vertices.tobytes(), digest_size=12)
+        h.update(repr((self.color, round(self.opacity, 3))).encode())
+        return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class TextDrawing:
+    text: str
+    position: np.ndarray = field(repr=False)       # (3,) in the header frame
+    frame: str
+
+
+@dataclass(frozen=True)
+class SphereDrawing:
+    position: np.ndarray = field(repr=False)
+    radius: float
+    color: tuple
+    frame: str
+
+
+def _rgb(c) -> tuple:
+    return tuple(int(round(255 * min(1.0, max(0.0, v)))) for v in (c.r, c.g, c.b))
+
+
+def _drawing(m: Marker):
+    frame = m.header.frame_id
+    if m.type == Marker.TRIANGLE_LIST:
+        n = len(m.points) // 3 * 3
+        if n == 0:
+            return None
+        verts = np.array([(p.x, p.y, p.z) for p in m.points[:n]], dtype=np.float32)
+        verts *= np.array([m.scale.x or 1.0, m.scale.y or 1.0, m.scale.z or 1.0],
+                          dtype=np.float32)
+        faces = np.arange(n, dtype=np.uint32).reshape(-1, 3)
+        return MeshDrawing(verts, faces, pose_to_matrix(m.pose), _rgb(m.color),
+                           float(m.color.a), frame)
+    if m.type == Marker.TEXT_VIEW_FACING:
+        p = m.pose.position
+        return TextDrawing(m.text, np.array([p.x, p.y, p.z]), frame)
+    if m.type == Marker.SPHERE:
+        p = m.pose.position
+        return SphereDrawing(np.array([p.x, p.y, p.z]), 0.5 * float(m.scale.x), _rgb(m.color),
+                             frame)
+    return None
+
+
+def apply_markers(current: dict, msg: MarkerArray) -> dict:
+    """The drawings after a MarkerArray: ``current`` maps (namespace, id) to a drawing;
+    DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, TEXT_VIEW_FACING and SPHERE;
+    other types, and markers that cannot be converted, are left out). Returns a new dict."""
+    out = dict(current)
+    for m in msg.markers:
+        key = (m.ns, int(m.id))
+        if m.action == Marker.DELETEALL:
+            out.clear()
+        elif m.action == Marker.DELETE:
+            out.pop(key, None)
+        elif m.action == Marker.ADD:        # ADD == MODIFY
+            try:
+                drawing = _drawing(m)
+            except ConversionError:
+                drawing = None
+            if drawing is None:
+                out.pop(key, None)
+            else:
+                out[key] = drawing
+    return out
+
+
+# ============================================================================ status -> text
+def active_object(status: dict | None) -> dict | None:
+    """The selected object of an engine status (its ``objects`` entry), or None."""
+    for obj in (status or {}).get("objects") or []:
+        if obj.get("active"):
+            return obj
+    return None
+
+
+def candidate_standing(obj: dict | None) -> tuple[str, bool]:
+    """(verdict text, refused) of an object's shown candidate, from what the engine's status
+    has per object (``no_match``) and per candidate (``fits``, ``probability``):
+    ``core.labels.standing``. ('', False) without an object."""
+    if not obj or not obj.get("candidates"):
+        return "", False
+    cands = obj["candidates"]
+    shown = int(obj.get("shown", 0))
+    primitive = 0 <= shown < len(cands) and cands[shown].get("primitive") is not None
+    return standing(bool(obj.get("no_match")), shown,
+                    [float(c.get("probability") or 0.0) for c in cands],
+                    [c.get("fits") for c in cands], primitive, str(obj.get("verdict") or ""))
+
+
+def candidate_label(obj: dict | None) -> str:
+    """'#3 ball_valve (closed) — rank 1/5 — fits, 3.5x the next' for the shown candidate of an
+    object; '#3 no template fits here — best guess gate_valve — rank 1/5' when the verdict
+    refuses it; '' without an object."""
+    if not obj or not obj.get("candidates"):
+        return ""
+    shown = int(obj.get("shown", 0))
+    c = obj["candidates"][shown]
+    state = f" ({c['state']})" if c.get("state") else ""
+    text, _ = candidate_standing(obj)
+    rank = f"rank {shown + 1}/{len(obj['candidates'])}"
+    if text == REFUSED_PREFIX:
+        return f"#{obj.get('id', '?')} {text} {c.get('template', '?')}{state} — {rank}"
+    return f"#{obj.get('id', '?')} {c.get('template', '?')}{state} — {rank} — {text}"
+
+
+def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
+    """(option text, template) of every ranked candidate of an object, best first."""
+    out = []
+    for i, c in enumerate((obj or {}).get("candidates") or []):
+        verdict = {True: "fits", False: "does not fit"}.get(c.get("fits"), "not judged")
+        out.append((f"{i + 1}. {c['template']} ({verdict})", c["template"]))
+    return out
+
+
+def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
+                    last_action: str, fitting: str = "", stale_error: bool = False) -> str:
+    """The status panel: engine connection, a click being fitted (``fitting``), open object and
+    its verdict, counts, fit time, what the engine is doing, its last message and error (left
+    out when ``stale_error``: a later message came after it), the cloud, the reply to the last
+    button."""
+    lines = []
+    if not connected:
+        lines.append(f"**Engine not running**: nothing publishes {engine}/status (start "
+                     f"`affordance_engine`; the page recovers when it comes up)")
+    elif status is None:
+        lines.append(f"**Engine**: {engine} is up, waiting for its status")
+    else:
+        node = status.get("node") or {}
+        doing = node.get("busy") or ("refit pending" if node.get("pending_refit") else "idle")
+        lines.append(f"**Engine**: {engine} — {doing}"
+                     + (f", {node['queued']} queued" if node.get("queued") else ""))
+    if fitting:
+        lines.append(f"**Fitting**: {fitting}")
+    st = status or {}
+    obj = active_object(st)
+    lines.append(f"**Open object**: {candidate_label(obj) if obj else 'none (click an object)'}")
+    if obj and candidate_standing(obj)[1]:
+        lines.append("**Verdict**: the shown candidate is refused (drawn as a grey outline); "
+                     "Accept registers it anyway, marked as an operator override")
+    counts = st.get("counts") or {}
+    lines.append(f"**Objects**: {counts.get('objects', 0)} open, "
+                 f"{counts.get('registered', len(st.get('registered') or []))} registered, "
+                 f"{counts.get('undo', 0)} undo steps")
+    fit_s = (st.get("timing_s") or {}).get("total")
+    if fit_s is not None:
+        lines.append(f"**Fit time**: {float(fit_s):.2f} s")
+    node = st.get("node") or {}
+    if node.get("last_message"):
+        lines.append(f"**Last message**: {node['last_message']}")
+    if node.get("last_error") and not stale_error:
+        lines.append(f"**Last error**: {node['last_error']}")
+    lines.append(f"**Cloud**: {cloud}")
+    if last_action:
+        lines.append(f"**Last action**: {last_action}")
+    return "\n\n".join(lines)
