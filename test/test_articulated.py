@@ -219,8 +219,8 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     # off since issue 18's frame changes)
     alone = Scene(sim.organized)
     with_contact = Registrar(sized).fit(alone, obj.click, templates=["grab_handle"])
-    free = Registrar(sized, FitSettings(contact_distance=1e-9)).fit(alone, obj.click,
-                                                                    templates=["grab_handle"])
+    no_contact = FitSettings().with_(**{"articulation.contact_distance": 1e-9})
+    free = Registrar(sized, no_contact).fit(alone, obj.click, templates=["grab_handle"])
     assert abs(with_contact.candidates[0].scale / obj.scale - 1.0) <= 0.03
     assert abs(free.candidates[0].scale / obj.scale - 1.0) > 0.03
 

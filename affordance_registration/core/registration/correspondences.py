@@ -83,7 +83,7 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
     if normals:
         Nq[rows] = ctx.fine_normals[i_v]
     dist = dist.reshape(shape)
-    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
+    w = correspondence_weights(dist, radius[:, None], settings.icp.weight_scale)
     return Q.reshape(X.shape), Nq.reshape(X.shape), w
 
 
@@ -156,11 +156,11 @@ def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings)
     """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
     subset of at most ``reverse_points`` full-resolution scene points, padded with zero
     weights."""
-    pts, normals = reverse_subset(ctx, settings.reverse_points)
+    pts, normals = reverse_subset(ctx, settings.fine.reverse_points)
     rows = []
     for b, m in enumerate(batch.models):
         x, q, n, w, local, moving = reverse_pairs(m, batch.R[b], batch.t[b], pts, normals,
-                                                  radius[b], settings.weight_scale)
+                                                  radius[b], settings.icp.weight_scale)
         rows.append((x, q, n, w, local / m.scale, moving))
     return _pairs_of(rows)
 
@@ -176,7 +176,7 @@ def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSetting
         low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
         x = forward.X[b][low]
         rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
-                     correspondence_weights(np.abs(pd[low]), radius[b], settings.weight_scale),
+                     correspondence_weights(np.abs(pd[low]), radius[b], settings.icp.weight_scale),
                      forward.U[b][low], forward.moving[b][low]))
     return _pairs_of(rows)
 
@@ -195,4 +195,4 @@ def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> 
     if ctx.plane is None:
         return False
     gap = plane_gap(ctx, Batch.single(model, R, t), REST_SAMPLES)[0]
-    return abs(gap) <= settings.contact_distance
+    return abs(gap) <= settings.articulation.contact_distance

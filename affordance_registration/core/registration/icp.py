@@ -81,7 +81,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
     if reject is None:
         reject = stage.reject * np.array([m.diameter for m in batch.models])
     reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
-    floor = np.minimum(reject, settings.reject_floor)
+    floor = np.minimum(reject, settings.icp.reject_floor)
     small = converge if converge is not None else FINE_CONVERGED if fine else 1.0
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))        # the hypotheses still moving

@@ -33,7 +33,7 @@ def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSet
     """The capped distances (B, n) from ``n`` posed samples of each hypothesis to the scene
     (free-space violations at the cap), which of the samples the sensor could have seen and
     which face it where it returned something (hidden or not)."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     P, N = stack_samples(batch.models, n)
     X = pose_points(batch.R, batch.t, P)
     Nw = rotate(batch.R, N)
@@ -47,7 +47,7 @@ def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSet
 
 def _forward(dist: np.ndarray, vis: np.ndarray, settings: FitSettings):
     """(forward residual, inlier fraction) of :func:`forward_residual` from the distances."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     n_vis = vis.sum(axis=1)
     fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * dist.shape[1]),
                    (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
@@ -79,17 +79,17 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         return []
     T = np.stack([r.T_scene_model for r in fits])
     dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
-                                            settings.score_samples, settings)
-    bar = settings.min_coverage if ctx.sensor_origin is not None else \
-        settings.min_coverage_no_viewpoint
-    widen = max(1.0, ctx.noise / settings.noise_reference)      # a noisier scan: wider
-    covered_within = widen * settings.coverage_distance
-    explained = _explained(ctx, models, T, widen * settings.explained_distance)
-    max_residual = widen * settings.max_residual
+                                            settings.scoring.samples, settings)
+    bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
+        settings.verdict.min_coverage_no_viewpoint
+    widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider
+    covered_within = widen * settings.verdict.coverage_distance
+    explained = _explained(ctx, models, T, widen * settings.verdict.explained_distance)
+    max_residual = widen * settings.verdict.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
         R, t = T[k, :3, :3], T[k, :3, 3]
-        P = model.samples(settings.score_samples)[0]
+        P = model.samples(settings.scoring.samples)[0]
         X = P @ R.T + t
         near = vis[k] & (dist[k] <= covered_within)
         if ctx.support is not None:
@@ -100,7 +100,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         rows = np.flatnonzero(seen)
         if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
             seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
-                                  settings.free_space_margin)]] = False
+                                  settings.scoring.free_space_margin)]] = False
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
         rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
@@ -110,8 +110,8 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
                if cov < bar else "",
                f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
-               f"{settings.min_explained:.0%})"
-               if seen_from and explained[k] < settings.min_explained else "",
+               f"{settings.verdict.min_explained:.0%})"
+               if seen_from and explained[k] < settings.verdict.min_explained else "",
                f"its surface runs {res.residual * 1e3:.1f} mm from the scan on average (a fit "
                f"is within {max_residual * 1e3:.1f} mm)"
                if seen_from and res.residual > max_residual else ""]
@@ -169,7 +169,7 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     each posed model's surface (points no sample explains count as the cap, so a template that
     leaves part of the object unexplained pays for it), on an even, fixed subsample of at most
     ``cluster_points`` of them (None: all)."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
@@ -182,7 +182,7 @@ def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.
     ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
     local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
     d = surface_distances(batch.models, local[:, None, :])[:, 0]
-    return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
+    return np.clip(d - settings.scoring.click_tolerance, 0.0, settings.scoring.cap)
 
 
 def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
@@ -225,7 +225,7 @@ def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: 
 
 def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int,
              converged) -> list:
-    fwd, inl = forward_residual(ctx, batch, settings.score_samples, settings)
+    fwd, inl = forward_residual(ctx, batch, settings.scoring.samples, settings)
     bwd = backward_residual(ctx, batch, settings)
     click = click_penalty(ctx, batch, settings)
     out = []
