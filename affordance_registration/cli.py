@@ -1,6 +1,6 @@
 """The ``affordance-registration`` command.
 
-Subcommands: fit, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
+Subcommands: fit, settings, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
 spacemouse, station, when their modules are present). Errors print one line naming the problem and exit
 with status 2; nothing half-written is left behind.
 """
@@ -68,7 +68,10 @@ def cmd_fit(args) -> int:
         origin = [v * unit for v in origin]
     lib = _library(args.templates)
     scene = Scene.from_file(args.scene, sensor_origin=origin, scale=unit)
-    settings = FitSettings(seed=_seed(args.seed), method=args.method, mode=args.mode)
+    settings = FitSettings.load(args.settings) if args.settings else FitSettings()
+    given = {"seed": None if args.seed is None else _seed(args.seed), "method": args.method,
+             "mode": args.mode}                    # the flags given override the file
+    settings = settings.with_(**{k: v for k, v in given.items() if v is not None})
     registrar = Registrar(lib, settings)
     registrar.warm_up()   # one-off start-up cost, not part of a click
     report = registrar.fit(scene, [v * unit for v in args.point])
@@ -103,6 +106,18 @@ def cmd_fit(args) -> int:
         size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
               f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}")
+    return 0
+
+
+# ---------------------------------------------------------------------------- settings
+def cmd_settings(args) -> int:
+    from .core.registration import FitSettings
+    if args.node_params or args.markdown:
+        from .ros.glue import params
+        print(params.params_file() if args.node_params else params.fit_table(), end="")
+        return 0
+    settings = FitSettings.load(args.file) if args.file else FitSettings()
+    print(settings.dump(), end="")
     return 0
 
 
@@ -464,12 +479,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="units of the scene file, --point and --sensor-origin (default m); "
                         "the output is in metres")
     p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--seed", default="0", help="seed of the random restarts (default 0; the "
-                                                "same seed gives the same fit)")
-    p.add_argument("--method", choices=("default", "paper"), default="default",
-                   help="default: this package's fitter; paper: the paper's method implemented "
-                        "literally (slow; the bench's baseline)")
-    p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto",
+    p.add_argument("--settings", default=None, metavar="FILE",
+                   help="fitting settings (YAML, as 'affordance-registration settings' prints; "
+                        "knobs left out keep their defaults); --seed, --method and --mode "
+                        "override it")
+    p.add_argument("--seed", default=None, help="seed of the random restarts (default 0; the "
+                                                 "same seed gives the same fit)")
+    p.add_argument("--method", choices=("default", "paper"), default=None,
+                   help="default (default): this package's fitter; paper: the paper's method "
+                        "implemented literally (slow; the bench's baseline)")
+    p.add_argument("--mode", choices=("auto", "mounted", "free"), default=None,
                    help="auto (default): mounting-plane prior, resting poses and random "
                         "restarts; mounted: the plane prior only; free: no mounting prior")
     p.add_argument("--sensor-origin", nargs="+", default=None, metavar="X_Y_Z|none",
@@ -478,6 +497,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("settings", help="print the fitting settings as YAML (the defaults, or "
+                                        "those a settings file gives)")
+    p.add_argument("file", nargs="?", default=None, help="a settings file to check and print "
+                                                         "in full (default: the defaults)")
+    p.add_argument("--node-params", action="store_true",
+                   help="print the engine node's parameter file with every default instead "
+                        "(launch_configs/affordance_engine.params.yaml)")
+    p.add_argument("--markdown", action="store_true",
+                   help="print the node's fit.* parameter table (msg_docs/README.md) instead")
+    p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
     p.add_argument("--out", required=True, help="output folder (scene.ply, truth.yaml, ...)")
