@@ -150,7 +150,8 @@ def cmd_bench(args) -> int:
                        out=args.out, log=log)
     print(format_table(result))
     if result.get("written"):
-        print(f"table written to {result['written']}")
+        print(f"table written to {result['written']}, the settings it ran with to "
+              f"{result['settings_written']}")
     return 0
 
 

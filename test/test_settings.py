@@ -147,3 +147,11 @@ def test_load_reads_a_partial_file_and_refuses_a_bad_one_with_one_line(tmp_path)
 def test_the_dump_of_the_defaults_is_every_knob_at_its_declared_default():
     data = yaml.safe_load(FitSettings().dump())
     assert dict(_flat(data)) == {name: default for name, default, _, _ in KNOBS}
+
+
+def test_the_bench_writes_the_settings_it_ran_with_next_to_its_json(tmp_path):
+    from affordance_registration.evaluation.bench import write_settings
+    ran = FitSettings(seed=2).with_(**{"coarse.samples": 48})
+    path = write_settings(str(tmp_path / "out" / "bench.json"), ran)
+    assert path == str(tmp_path / "out" / "bench.settings.yaml")
+    assert FitSettings.load(path) == ran

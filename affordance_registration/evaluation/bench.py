@@ -32,6 +32,7 @@ import time
 import numpy as np
 
 from ..core.errors import AffordanceError
+from ..core.files import write_atomically
 from ..core.registration import FitResult, FitSettings, Registrar, rank
 from ..core.registration.hypotheses import initial_hypotheses
 from ..core.scene import Scene
@@ -511,7 +512,23 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
         with open(out, "w", encoding="utf-8") as handle:
             json.dump(result, handle, indent=2)
         result["written"] = os.path.abspath(out)
+        result["settings_written"] = write_settings(out, default.settings)
     return result
+
+
+#: the rows that change knobs of the default settings, and how
+ROW_SETTINGS = {"paper (literal)": "method: paper", "default, rigid only": "articulated: false",
+                "threads": "threads: 1 and 2", "library sizes": "the library, not the settings"}
+
+
+def write_settings(out: str, settings: FitSettings) -> str:
+    """Write the settings the bench ran with next to its JSON (``bench.json`` ->
+    ``bench.settings.yaml``, readable by ``fit --settings``); returns the path."""
+    path = os.path.splitext(os.path.abspath(out))[0] + ".settings.yaml"
+    rows = "".join(f"#   {row}: {change}\n" for row, change in ROW_SETTINGS.items())
+    write_atomically({path: "# the fitting settings of the bench's default rows; the rows that "
+                            "differ:\n" + rows + settings.dump()})
+    return path
 
 
 def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
