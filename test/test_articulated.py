@@ -189,7 +189,7 @@ def test_a_nominal_size_handle_is_reported_at_scale_one(library):
     """A grab handle of nominal size (scene 3105) is reported at scale 1. The free fit lands
     at 0.966, 3.5 mm off, with a lower residual than scale 1 at the truth: samples the sensor
     sees at grazing angles (it returns nothing from ~70-85 deg) count against the larger
-    size. Occam's razor judges scale 1 with those samples unseen (``scale_grazing_angle``)."""
+    size. Occam's razor judges scale 1 with those samples unseen (``articulation.scale_grazing_angle``)."""
     from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},

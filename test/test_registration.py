@@ -313,7 +313,7 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
     (y or z x 0.7) in the library, the copy of the grab handle (seed 1001) and of the ball
     valve (seed 1006) out-scored the true template there and were ranked first; and in the
     five-template library a ball valve's medium fit lay flipped behind a quarter-turn valve
-    (seed 1015). The leaders -- the winner and the runners-up within ``finish_margin`` -- are
+    (seed 1015). The leaders -- the winner and the runners-up within ``finish.margin`` -- are
     finished alike (yaw sweep, fine stage) and ranked on that: the true template first, at its
     pose (with the winner alone finished, as before, all three ranked the wrong template first)."""
     from affordance_registration.evaluation.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
@@ -364,7 +364,7 @@ def test_a_support_plane_is_flat_not_a_slab_through_a_curved_object(seed):
 
 
 def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library, panel_scene):
-    """After the first coarse iterations a template's restarts beyond its best ``coarse_keep``
+    """After the first coarse iterations a template's restarts beyond its best ``coarse.keep``
     leave (its best mounted one always goes on); any scores, any template."""
     from affordance_registration.core.registration.hypotheses import (
         MOUNTED,

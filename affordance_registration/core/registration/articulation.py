@@ -133,10 +133,10 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
     """Occam's razor for the extra unknowns: refit at the nearest named state's joint value
     and/or at the nominal scale 1 (within the range) -- the fixed part held or moved so the
     moving part stays, the template scaled about its origin or its centroid -- and keep
-    that when its residual is within ``nominal_preference`` (joint) plus
-    ``nominal_scale_preference`` (scale) of the free fit's. Valves mostly
+    that when its residual is within ``articulation.nominal_preference`` (joint) plus
+    ``articulation.nominal_scale_preference`` (scale) of the free fit's. Valves mostly
     sit open or closed, and most objects come in their nominal size. Where scale 1 is tried,
-    both sides are compared with samples beyond ``scale_grazing_angle`` unseen (a sensor
+    both sides are compared with samples beyond ``articulation.scale_grazing_angle`` unseen (a sensor
     returns little there, and such samples count against the larger size); the result keeps
     the residual every candidate is ranked by. ``converge``: the refits' step thresholds'
     factor (:func:`.icp.icp`)."""

@@ -24,7 +24,7 @@ __all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset",
 def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
     """The paper's correspondence rule: distances beyond ``reject`` are rejected (weight 0), the
     rest weigh w = 1 / (1 + d / d0). The paper has d0 = 1 (d in metres); the default method uses
-    d0 = ``weight_scale`` (5 mm), without which every useful d weighs about 1."""
+    d0 = ``icp.weight_scale`` (5 mm), without which every useful d weighs about 1."""
     dist = np.asarray(dist, dtype=float)
     return np.where(dist <= reject, 1.0 / (1.0 + dist / d0), 0.0)
 
@@ -154,7 +154,7 @@ def _pairs_of(rows: list) -> Pairs:
 
 def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings) -> Pairs:
     """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
-    subset of at most ``reverse_points`` full-resolution scene points, padded with zero
+    subset of at most ``fine.reverse_points`` full-resolution scene points, padded with zero
     weights."""
     pts, normals = reverse_subset(ctx, settings.fine.reverse_points)
     rows = []
@@ -191,7 +191,7 @@ def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
 
 def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> bool:
     """Whether a pose rests on the plane under the click (its lowest sample within
-    ``contact_distance`` of it)."""
+    ``articulation.contact_distance`` of it)."""
     if ctx.plane is None:
         return False
     gap = plane_gap(ctx, Batch.single(model, R, t), REST_SAMPLES)[0]

@@ -335,8 +335,8 @@ def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSe
     """The library prefilter: the hypotheses of the templates worth fitting on, their scores,
     and a candidate for each template set aside (its best coarse hypothesis, residual = its
     coarse score, ``prefiltered``). A template is set aside when its best score is more than
-    ``prefilter_margin`` x the best template's and ``prefilter_keep`` templates score better
-    (``prefilter_keep`` 0: none is). ``scores`` (B,), lower is better."""
+    ``prefilter.margin`` x the best template's and ``prefilter.keep`` templates score better
+    (``prefilter.keep`` 0: none is). ``scores`` (B,), lower is better."""
     keep_n = settings.prefilter.keep
     if keep_n <= 0 or len(names) <= keep_n:
         return hyps, scores, ()

@@ -1,5 +1,5 @@
 """Weighted ICP: one loop for every stage. A batch of hypotheses advances together (one KD query
-per iteration); the rejection radius shrinks from the stage's reach to ``reject_floor``; the
+per iteration); the rejection radius shrinks from the stage's reach to ``icp.reject_floor``; the
 loop stops once every hypothesis has converged (its step turns it less than
 ``CONVERGED_ROTATION``, moves its weighted centroid less than ``CONVERGED_TRANSLATION`` and
 changes its joint value and scale less than ``CONVERGED_EXTRA``; ``FINE_CONVERGED`` times those

@@ -20,8 +20,8 @@ __all__ = ["refit", "refit_starts"]
 def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings,
           hold_joint: bool) -> FitResult:
     """Refine ``model`` locally from ``T_init`` (4x4): medium then fine ICP from
-    :func:`refit_starts`. The result never strays farther than ``refit_max_move`` /
-    ``refit_max_turn`` from ``T_init``: a refit that would jump back to a pose the operator
+    :func:`refit_starts`. The result never strays farther than ``refit.max_move`` /
+    ``refit.max_turn`` from ``T_init``: a refit that would jump back to a pose the operator
     moved away from keeps the closest acceptable pose instead. ``hold_joint`` keeps an
     articulated model's joint value as given."""
     s = settings
@@ -75,8 +75,8 @@ def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,
 
 
 def _within_reach(T0: np.ndarray, R: np.ndarray, t: np.ndarray, settings: FitSettings):
-    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit_max_move`` and
-    ``refit_max_turn`` of ``T0``, (B,) bool."""
+    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit.max_move`` and
+    ``refit.max_turn`` of ``T0``, (B,) bool."""
     move = np.linalg.norm(t - T0[:3, 3], axis=1)
     turn = rotation_angle(np.swapaxes(T0[None, :3, :3], 1, 2) @ R)
     return (move <= settings.refit.max_move) & (turn <= settings.refit.max_turn)

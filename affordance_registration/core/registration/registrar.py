@@ -11,7 +11,7 @@ The default method keeps the spirit and fixes what a literal implementation gets
 one-sided scans (the README's benchmark measures both):
 
 * the weight keeps the paper's form but scales the distance, w = 1/(1 + d/d0), d0 = 5 mm
-  (``weight_scale``) -- with d in metres the paper's weight is ~1 for every useful d;
+  (``icp.weight_scale``) -- with d in metres the paper's weight is ~1 for every useful d;
 * only template samples that face the sensor and are not hidden behind observed surfaces take part
   (a range image of the crop answers "hidden?" and "did the sensor see through here?");
 * the residual is two-way and capped: template -> scene (free-space violations count as the cap)
@@ -26,7 +26,7 @@ one-sided scans (the README's benchmark measures both):
   on a table) and from uniform random ones; the best mounted hypothesis always reaches the
   medium stage;
 * the operator clicked *on* the object: candidates are centred on the cluster points near the
-  click and pay for a surface that misses the click by more than ``click_tolerance``;
+  click and pay for a surface that misses the click by more than ``scoring.click_tolerance``;
 * directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
   either way: samples there neither pull nor count;
 * every scene frame is alike: visibility is reasoned from the sensor origin (a range image
@@ -42,7 +42,7 @@ one-sided scans (the README's benchmark measures both):
   one for the scale besides the six of the pose. A fit resting on the plane under the click keeps
   resting on it, and a joint value or scale the data cannot tell from a named state or scale 1 is
   reported there, so the extra unknowns cost no rigid accuracy (scale 1 judged with samples at
-  grazing angles beyond ``scale_grazing_angle`` unseen: they count against the larger size).
+  grazing angles beyond ``articulation.scale_grazing_angle`` unseen: they count against the larger size).
 """
 from __future__ import annotations
 
@@ -148,7 +148,7 @@ class Registrar:
               hold_joint: bool | None = None, dimensions: dict | None = None) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
-        ``refit_max_move`` / ``refit_max_turn`` from ``T_init``: a refit that would jump back to a
+        ``refit.max_move`` / ``refit.max_turn`` from ``T_init``: a refit that would jump back to a
         pose the operator moved away from keeps the closest acceptable pose instead.
 
         An articulated template starts from ``joints`` (name -> value) and ``scale`` (with
@@ -184,7 +184,7 @@ class Registrar:
         # 2. coarse ICP, all restarts of all templates together; a library larger than the
         #    prefilter keeps: the templates clearly worse than the leaders after the first
         #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
-        #    (and each template's restarts beyond its best ``coarse_keep`` leave there too)
+        #    (and each template's restarts beyond its best ``coarse.keep`` leave there too)
         split = s.prefilter.iterations if 0 < s.prefilter.keep < len(names) or \
             s.coarse.keep else 0
         set_aside = ()
@@ -266,7 +266,7 @@ class Registrar:
 
     def _articulate_leaders(self, ctx: ClickContext, ranked: tuple, iterations: int):
         """Joint values and scale of the articulated templates among the leading candidates
-        (at most ``articulated_candidates``, residual within ``articulated_margin`` of the
+        (at most ``articulation.candidates``, residual within ``articulation.margin`` of the
         best): a rigid fit of a valve with its handle turned can rank behind a wrong template.
         Returns (ranked again, {template: its articulated model})."""
         s = self.settings
@@ -297,7 +297,7 @@ class Registrar:
                         iterations: int) -> tuple:
         """The leading candidates finished (:meth:`_finish`) side by side and ranked
         again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
-        aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
+        aside by the prefilter) whose residual is within ``finish.margin`` of the best's. Two
         near shapes (a template and a squeezed copy of it) can swap places at medium
         resolution; the fine stage tells them apart (and where they finish within
         ``NEAR_TIE`` of each other, fine stages run to the plain step thresholds do). A
@@ -359,7 +359,7 @@ class Registrar:
         return final
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):
-        """The pose turned about its template's mounting / symmetry axis in ``yaw_sweep``
+        """The pose turned about its template's mounting / symmetry axis in ``finish.yaw_sweep``
         steps over one symmetry period, each refined; the best by the residual. An articulated
         model is also swept at its template's named states (a valve body turned a quarter with
         its handle turned back matches the handle alone, and the joint is held in the sweep).

@@ -5,8 +5,8 @@ likelihood.
 
 And the absolute verdict on a candidate, whatever the others score: its ``coverage`` (the
 fraction of the template surface the sensor could have seen that has scan points within
-``coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
-``min_coverage`` no template fits here.
+``verdict.coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
+``verdict.min_coverage`` no template fits here.
 """
 from __future__ import annotations
 
@@ -65,14 +65,14 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
 
 def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     """Each of ``fits`` (a fit of the model at the same place in ``models``) with its absolute
-    verdict: ``coverage`` -- of the template's ``score_samples`` samples that face the sensor
+    verdict: ``coverage`` -- of the template's ``scoring.samples`` samples that face the sensor
     where it returned something (hidden behind observed surfaces or not: a template sunk into a
     wall is not covered), not counting those its own parts hide, the fraction the sensor saw
-    with scan points within ``coverage_distance`` -- not counting those on the dominant plane
+    with scan points within ``verdict.coverage_distance`` -- not counting those on the dominant plane
     around the click when they are most of them (at least ``PLANE_COVERED``: a candidate
     covering a wall explains no object) -- ``inlier_rmse``, the RMS distance (m) of those
-    covered samples, and ``fits``: coverage at least ``min_coverage``. Without a viewpoint
-    every sample is exposed, and the bar is ``min_coverage_no_viewpoint``. The distances of
+    covered samples, and ``fits``: coverage at least ``verdict.min_coverage``. Without a viewpoint
+    every sample is exposed, and the bar is ``verdict.min_coverage_no_viewpoint``. The distances of
     all of them come from one pass (each candidate's numbers are its own)."""
     fits = list(fits)
     if not fits:
@@ -179,7 +179,7 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
 
 def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
     """The operator clicked on the object: a candidate whose surface passes farther than
-    ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
+    ``scoring.click_tolerance`` from the (snapped) click pays the excess, up to ``scoring.cap``. (B,)"""
     local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
     d = surface_distances(batch.models, local[:, None, :])[:, 0]
     return np.clip(d - settings.scoring.click_tolerance, 0.0, settings.scoring.cap)
