@@ -454,7 +454,7 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     rows = []
     log("default method ...")
     rows.append(_evaluate("default", lambda s, c: default.fit(s, c).candidates, jobs, library))
-    log("default method without joint/scale estimation (estimate_joints false) ...")
+    log("default method without joint/scale estimation (articulated false) ...")
     rigid = Registrar(library, FitSettings(articulated=False))
     rows.append(_evaluate("default, rigid only", lambda s, c: rigid.fit(s, c).candidates, jobs,
                           library))
