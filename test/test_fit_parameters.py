@@ -10,6 +10,8 @@ import sys
 import pytest
 import yaml
 from geometry_msgs.msg import PointStamped
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from ros_helpers import LATCHED, NodeProcess, engine_session
@@ -82,6 +84,27 @@ def test_every_knob_is_a_parameter_with_its_code_default_and_description():
     assert params.check({"fit.crop.voxel": 1.0}) == \
         "fit.crop.voxel must be a positive number in [0.001, 0.05], got 1.0"
     assert params.check({"fit.seed": 7, "fit.mode": "free"}) is None
+
+
+ANY_VALUE = st.one_of(st.booleans(), st.integers(-2**40, 2**40), st.floats(allow_nan=True),
+                      st.text(max_size=8), st.sampled_from(["auto", "free", "paper", ""]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(sorted(params.FIT_TABLE)), ANY_VALUE)
+def test_any_value_of_a_fit_parameter_is_taken_or_refused_with_one_line_naming_it(name, value):
+    """What the set-parameters callback checks: a value is refused with one line naming the
+    parameter, or it makes settings that hold it."""
+    problem = params.check({name: value})
+    if problem is not None:
+        assert problem.startswith(name + " ") and "\n" not in problem, problem
+        return
+    values = {n: d for n, (d, _, _) in params.FIT_TABLE.items()}
+    values[name] = value
+    knob = params.fit_settings(values).to_dict()
+    for part in name[len(params.FIT_PREFIX):].split("."):
+        knob = knob[part]
+    assert knob == value
 
 
 def _get(client, names):
