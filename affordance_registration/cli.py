@@ -14,8 +14,6 @@ import re
 import sys
 import time
 
-import numpy as np
-
 from .core.errors import AffordanceError
 
 EXIT_ERROR = 2
@@ -68,10 +66,10 @@ def cmd_fit(args) -> int:
         origin = [v * unit for v in origin]
     lib = _library(args.templates)
     scene = Scene.from_file(args.scene, sensor_origin=origin, scale=unit)
-    settings = FitSettings.load(args.settings) if args.settings else FitSettings()
     given = {"seed": None if args.seed is None else _seed(args.seed), "method": args.method,
              "mode": args.mode}                    # the flags given override the file
-    settings = settings.with_(**{k: v for k, v in given.items() if v is not None})
+    settings = (FitSettings.load(args.settings) if args.settings else FitSettings()).with_(
+        **{k: v for k, v in given.items() if v is not None})
     registrar = Registrar(lib, settings)
     registrar.warm_up()   # one-off start-up cost, not part of a click
     report = registrar.fit(scene, [v * unit for v in args.point])
@@ -109,15 +107,13 @@ def cmd_fit(args) -> int:
     return 0
 
 
-# ---------------------------------------------------------------------------- settings
 def cmd_settings(args) -> int:
     from .core.registration import FitSettings
     if args.node_params or args.markdown:
         from .ros.glue import params
         print(params.params_file() if args.node_params else params.fit_table(), end="")
-        return 0
-    settings = FitSettings.load(args.file) if args.file else FitSettings()
-    print(settings.dump(), end="")
+    else:
+        print((FitSettings.load(args.file) if args.file else FitSettings()).dump(), end="")
     return 0
 
 
@@ -150,40 +146,11 @@ def cmd_bench(args) -> int:
                        out=args.out, log=log)
     print(format_table(result))
     if result.get("written"):
-        print(f"table written to {result['written']}, the settings it ran with to "
-              f"{result['settings_written']}")
+        print(f"table written to {result['written']} (settings: {result['settings_written']})")
     return 0
 
 
 # ---------------------------------------------------------------------------- demo
-class _EngineActions:
-    """The simulated operator's controls, wired straight to the core engine."""
-
-    def __init__(self, engine):
-        self.engine = engine
-
-    def click(self, point):
-        self.engine.click(point)
-
-    def shown(self):
-        obj = self.engine.active_object()
-        return (obj.shown.template, obj.shown.T_scene_model) if obj else (None, None)
-
-    def next_model(self):
-        self.engine.next_model()
-
-    def push(self, linear, angular, duration, T_scene_view):
-        steps = max(1, int(round(duration / 0.05)))
-        for _ in range(steps):
-            self.engine.correct_twist(linear, angular, duration / steps, T_scene_view)
-
-    def refit(self):
-        self.engine.refit()
-
-    def accept(self):
-        self.engine.accept()
-
-
 def print_session_table(rows, out=print) -> None:
     """The paper-style table, a verdict per row (PASS, or FAIL and why), and a summary line."""
     from .evaluation.simulation import failures
@@ -216,25 +183,12 @@ def verdict_line(rows) -> str:
 
 
 def _core_demo(args) -> int:
-    from .core.corrections import view_from_optical
-    from .core.engine import AffordanceEngine
-    from .evaluation.simulation import SimulatedOperator, simulate_taskboard
-    lib = _library(args.templates)
+    from .evaluation.core_demo import run_core_demo
     seed = _seed(args.seed)
-    sim = simulate_taskboard(lib, seed)
-    engine = AffordanceEngine(lib)
-    engine.set_scene(sim.organized, frame_id="camera_depth_optical_frame")
-    operator = SimulatedOperator(lib, seed=seed)
-    view = view_from_optical(np.eye(4))
-    rows = []
-    for obj in sim.objects:
-        if obj.click is None or obj.visible_points < 200:
-            continue
-        rows.append(operator.register(obj, _EngineActions(engine), view))
+    rows, saved = run_core_demo(_library(args.templates), seed, args.out)
     print(f"simulated taskboard (seed {seed}), core engine without ROS:")
     print_session_table(rows)
-    os.makedirs(args.out, exist_ok=True)
-    print(engine.save(os.path.join(args.out, "registrations.yaml")))
+    print(saved)
     print(verdict_line(rows))
     return 0 if rows and all(r["ok"] for r in rows) else 1
 
@@ -480,12 +434,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="units of the scene file, --point and --sensor-origin (default m); "
                         "the output is in metres")
     p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--settings", default=None, metavar="FILE",
-                   help="fitting settings (YAML, as 'affordance-registration settings' prints; "
-                        "knobs left out keep their defaults); --seed, --method and --mode "
-                        "override it")
-    p.add_argument("--seed", default=None, help="seed of the random restarts (default 0; the "
-                                                 "same seed gives the same fit)")
+    p.add_argument("--settings", metavar="FILE", help="fitting settings (YAML, as the settings "
+                   "command prints; knobs left out: defaults); --seed, --method, --mode override")
+    p.add_argument("--seed", help="seed of the random restarts (default 0; the same seed gives "
+                                  "the same fit)")
     p.add_argument("--method", choices=("default", "paper"), default=None,
                    help="default (default): this package's fitter; paper: the paper's method "
                         "implemented literally (slow; the bench's baseline)")
@@ -499,15 +451,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
     p.set_defaults(func=cmd_fit)
 
-    p = sub.add_parser("settings", help="print the fitting settings as YAML (the defaults, or "
-                                        "those a settings file gives)")
-    p.add_argument("file", nargs="?", default=None, help="a settings file to check and print "
-                                                         "in full (default: the defaults)")
-    p.add_argument("--node-params", action="store_true",
-                   help="print the engine node's parameter file with every default instead "
-                        "(launch_configs/affordance_engine.params.yaml)")
-    p.add_argument("--markdown", action="store_true",
-                   help="print the node's fit.* parameter table (msg_docs/README.md) instead")
+    p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")
+    p.add_argument("file", nargs="?", help="a settings file to check and print in full")
+    p.add_argument("--node-params", action="store_true", help="the node's parameter file instead")
+    p.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
