@@ -15,9 +15,11 @@ from .icp import fine_stage, icp
 from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result, scores
-from .settings import CONTACT_SLACK, FitSettings, Stage
+from .settings import FitSettings, Stage
 
 __all__ = ["articulate", "prefer_nominal"]
+
+CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing
 
 
 def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,

@@ -13,12 +13,15 @@ from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
 from ..transforms import pose_points
 from .model import Batch, Model
-from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
+from .settings import CLUSTER, REST_SAMPLES, FitSettings
 from .visibility import visible
 
 __all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
            "reverse_rows", "contact_rows", "plane_gap", "in_contact", "stack_samples",
            "in_sphere"]
+
+PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
+CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
 
 
 def correspondence_weights(dist, reject, d0: float) -> np.ndarray:

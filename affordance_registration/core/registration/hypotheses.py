@@ -16,19 +16,16 @@ from ..transforms import align_z_to, axis_angle_matrix, make_T, rotation_angle, 
 from .features import feature_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
-from .settings import (
-    DISTINCT_ANGLE,
-    DISTINCT_DISTANCE,
-    ELONGATED,
-    RANDOM_OFFSET,
-    REST_SAMPLES,
-    SAMPLE_SEED,
-    FitSettings,
-)
+from .settings import REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
            "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",
            "symmetric_angle", "shape_axes"]
+
+RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
+DISTINCT_DISTANCE = 0.01   #: hypotheses of one template closer than this ...
+DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as one
+ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``

@@ -20,21 +20,16 @@ from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, rev
 from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
-from .settings import (
-    CONVERGED_EXTRA,
-    CONVERGED_ROTATION,
-    CONVERGED_TRANSLATION,
-    FINE,
-    FINE_CONVERGED,
-    JOINT_STEP_LIMIT,
-    SAMPLE_SEED,
-    SCALE_STEP_LIMIT,
-    FitSettings,
-    Stage,
-)
+from .settings import FINE, FINE_CONVERGED, SAMPLE_SEED, FitSettings, Stage
 from .solve import plane_step, rigid_step
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
+
+CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
+CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
+CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
+JOINT_STEP_LIMIT = 1 / 8   #: a Gauss-Newton joint step moves at most this part of the range
+SCALE_STEP_LIMIT = 0.05    #: ... and a scale step at most this much
 
 JOINT, SCALE = "joint", "scale"     #: the extra unknowns a stage may fit besides the pose
 

@@ -4,6 +4,8 @@ a result farther from the correction than the operator would accept.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..scene import ClickContext
@@ -12,9 +14,12 @@ from .icp import fine_stage, icp
 from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result
-from .settings import REFIT_SEED_OFFSET, REFIT_TURN, FitSettings
+from .settings import FitSettings
 
 __all__ = ["refit", "refit_starts"]
+
+REFIT_SEED_OFFSET = 7919   #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
+REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at least half of it)
 
 
 def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings,

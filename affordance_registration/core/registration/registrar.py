@@ -71,9 +71,11 @@ from .primitives import fit_primitive, object_points
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
-from .settings import BACKWARD_SUBSAMPLE, NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
+from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
+
+BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
 
 #: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured

@@ -22,11 +22,17 @@ from .correspondences import stack_samples
 from .model import Batch, Model, surface_distances
 from .parallel import over_batch, parts, run
 from .results import FitResult
-from .settings import MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED, FitSettings
+from .settings import FitSettings
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "self_hidden",
            "scores", "result", "results"]
+
+MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
+MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
+#: a candidate whose covered samples lie on the dominant plane around the click for at least this
+#: fraction covers the wall, not an object: those do not count towards its coverage
+PLANE_COVERED = 0.8
 
 
 def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):

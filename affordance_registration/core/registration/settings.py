@@ -1,6 +1,7 @@
-"""Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage) and
-the named constants of the stages: the ICP stages (:class:`Stage`), the seeds, the
-de-duplication and convergence thresholds.
+"""Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage),
+the ICP stages they make (:class:`Stage`) and the constants several stages share (sample seeds,
+the fixed stage lengths, the fine stage's convergence). A constant one stage alone uses lives
+beside that stage's code.
 
 Every knob is declared once, with its default, its one-line description and its rule
 (:func:`knob`); the node's ``fit.*`` parameters, the YAML settings files and the error messages
@@ -24,51 +25,22 @@ __all__ = ["FitSettings", "Stage", "Stages", "CLUSTER", "FINE", "knob"]
 
 # --------------------------------------------------------------------------- samples and seeds
 SAMPLE_SEED = 1            #: template samples every stage fits and scores with
-DENSE_SAMPLES = 4096       #: dense surface samples answering "nearest template surface"
-DENSE_SEED = 2
 REST_SAMPLES = 256         #: samples that find a pose's lowest point (resting on the plane)
-CENTROID_SAMPLES = 2048    #: samples whose mean is a posed template's centroid
-CENTROID_SEED = 0          #: (those of ``AffordanceTemplate.centroid``)
-MOVING_OVERSAMPLING = 4    #: a moving part alone is picked from this many times the samples
-REFIT_SEED_OFFSET = 7919   #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
 
 # --------------------------------------------------------------------------- ICP stages
 CLUSTER, FINE = "cluster", "fine"   #: ICP targets: the voxelized cluster, its full resolution
 SWEEP_REJECT = 0.15        #: rejection radius of the joint / scale sweep's hypotheses (diameters)
 SHORT_ICP = 6              #: ICP iterations of the leaders' yaw sweep and a refit's restarts
 LOCAL_ICP = 4              #: ICP iterations after each local joint / scale step
-CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
-CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
-CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
-#: the fine stage (and a refit's) has converged at this many times those steps: 0.03 deg and
-#: 0.15 mm a step are far below the pose tolerance, and its iterations are the dearest (it
-#: stops within 0.2 deg of the fully converged pose, a handwheel turned about its axis)
+#: the fine stage (and a refit's) has converged at this many times the step thresholds of
+#: :mod:`.icp` (``CONVERGED_*``): 0.03 deg and 0.15 mm a step are far below the pose tolerance,
+#: and its iterations are the dearest (it stops within 0.2 deg of the fully converged pose, a
+#: handwheel turned about its axis)
 FINE_CONVERGED = 3.0
 #: finished leaders within this factor of the best one's residual are finished again with the
 #: plain step thresholds before the final ranking (a near tie is decided on fully converged
 #: fits)
 NEAR_TIE = 1.02
-
-# --------------------------------------------------------------------------- hypotheses
-RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
-DISTINCT_DISTANCE = 0.01   #: hypotheses of one template closer than this ...
-DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as one
-ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
-REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at least half of it)
-
-# --------------------------------------------------------------------------- scoring, contact
-MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
-MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
-PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
-#: a candidate whose covered samples lie on the dominant plane around the click for at least this
-#: fraction covers the wall, not an object: those do not count towards its coverage
-PLANE_COVERED = 0.8
-BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
-CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
-CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing
-JOINT_STEP_LIMIT = 1 / 8   #: a Gauss-Newton joint step moves at most this part of the range
-SCALE_STEP_LIMIT = 0.05    #: ... and a scale step at most this much
-
 
 # --------------------------------------------------------------------------- knobs
 #: the rules a knob's value follows (``knob(rule=...)``); a tuple of strings is a choice
