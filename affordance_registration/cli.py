@@ -1,6 +1,6 @@
 """The ``affordance-registration`` command.
 
-Subcommands: fit, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
+Subcommands: fit, settings, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
 spacemouse, station, when their modules are present). Errors print one line naming the problem and exit
 with status 2; nothing half-written is left behind.
 """
@@ -13,8 +13,6 @@ import os
 import re
 import sys
 import time
-
-import numpy as np
 
 from .core.errors import AffordanceError
 
@@ -68,7 +66,10 @@ def cmd_fit(args) -> int:
         origin = [v * unit for v in origin]
     lib = _library(args.templates)
     scene = Scene.from_file(args.scene, sensor_origin=origin, scale=unit)
-    settings = FitSettings(seed=_seed(args.seed), method=args.method, mode=args.mode)
+    given = {"seed": None if args.seed is None else _seed(args.seed), "method": args.method,
+             "mode": args.mode}                    # the flags given override the file
+    settings = (FitSettings.load(args.settings) if args.settings else FitSettings()).with_(
+        **{k: v for k, v in given.items() if v is not None})
     registrar = Registrar(lib, settings)
     registrar.warm_up()   # one-off start-up cost, not part of a click
     report = registrar.fit(scene, [v * unit for v in args.point])
@@ -106,6 +107,16 @@ def cmd_fit(args) -> int:
     return 0
 
 
+def cmd_settings(args) -> int:
+    from .core.registration import FitSettings
+    if args.node_params or args.markdown:
+        from .ros.glue import params
+        print(params.params_file() if args.node_params else params.fit_table(), end="")
+    else:
+        print((FitSettings.load(args.file) if args.file else FitSettings()).dump(), end="")
+    return 0
+
+
 # ---------------------------------------------------------------------------- simulate
 def cmd_simulate(args) -> int:
     from .evaluation.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
@@ -135,39 +146,11 @@ def cmd_bench(args) -> int:
                        out=args.out, log=log)
     print(format_table(result))
     if result.get("written"):
-        print(f"table written to {result['written']}")
+        print(f"table written to {result['written']} (settings: {result['settings_written']})")
     return 0
 
 
 # ---------------------------------------------------------------------------- demo
-class _EngineActions:
-    """The simulated operator's controls, wired straight to the core engine."""
-
-    def __init__(self, engine):
-        self.engine = engine
-
-    def click(self, point):
-        self.engine.click(point)
-
-    def shown(self):
-        obj = self.engine.active_object()
-        return (obj.shown.template, obj.shown.T_scene_model) if obj else (None, None)
-
-    def next_model(self):
-        self.engine.next_model()
-
-    def push(self, linear, angular, duration, T_scene_view):
-        steps = max(1, int(round(duration / 0.05)))
-        for _ in range(steps):
-            self.engine.correct_twist(linear, angular, duration / steps, T_scene_view)
-
-    def refit(self):
-        self.engine.refit()
-
-    def accept(self):
-        self.engine.accept()
-
-
 def print_session_table(rows, out=print) -> None:
     """The paper-style table, a verdict per row (PASS, or FAIL and why), and a summary line."""
     from .evaluation.simulation import failures
@@ -200,25 +183,12 @@ def verdict_line(rows) -> str:
 
 
 def _core_demo(args) -> int:
-    from .core.corrections import view_from_optical
-    from .core.engine import AffordanceEngine
-    from .evaluation.simulation import SimulatedOperator, simulate_taskboard
-    lib = _library(args.templates)
+    from .evaluation.core_demo import run_core_demo
     seed = _seed(args.seed)
-    sim = simulate_taskboard(lib, seed)
-    engine = AffordanceEngine(lib)
-    engine.set_scene(sim.organized, frame_id="camera_depth_optical_frame")
-    operator = SimulatedOperator(lib, seed=seed)
-    view = view_from_optical(np.eye(4))
-    rows = []
-    for obj in sim.objects:
-        if obj.click is None or obj.visible_points < 200:
-            continue
-        rows.append(operator.register(obj, _EngineActions(engine), view))
+    rows, saved = run_core_demo(_library(args.templates), seed, args.out)
     print(f"simulated taskboard (seed {seed}), core engine without ROS:")
     print_session_table(rows)
-    os.makedirs(args.out, exist_ok=True)
-    print(engine.save(os.path.join(args.out, "registrations.yaml")))
+    print(saved)
     print(verdict_line(rows))
     return 0 if rows and all(r["ok"] for r in rows) else 1
 
@@ -464,12 +434,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="units of the scene file, --point and --sensor-origin (default m); "
                         "the output is in metres")
     p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--seed", default="0", help="seed of the random restarts (default 0; the "
-                                                "same seed gives the same fit)")
-    p.add_argument("--method", choices=("default", "paper"), default="default",
-                   help="default: this package's fitter; paper: the paper's method implemented "
-                        "literally (slow; the bench's baseline)")
-    p.add_argument("--mode", choices=("auto", "mounted", "free"), default="auto",
+    p.add_argument("--settings", metavar="FILE", help="fitting settings (YAML, as the settings "
+                   "command prints; knobs left out: defaults); --seed, --method, --mode override")
+    p.add_argument("--seed", help="seed of the random restarts (default 0; the same seed gives "
+                                  "the same fit)")
+    p.add_argument("--method", choices=("default", "paper"), default=None,
+                   help="default (default): this package's fitter; paper: the paper's method "
+                        "implemented literally (slow; the bench's baseline)")
+    p.add_argument("--mode", choices=("auto", "mounted", "free"), default=None,
                    help="auto (default): mounting-plane prior, resting poses and random "
                         "restarts; mounted: the plane prior only; free: no mounting prior")
     p.add_argument("--sensor-origin", nargs="+", default=None, metavar="X_Y_Z|none",
@@ -478,6 +450,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
     p.set_defaults(func=cmd_fit)
+
+    p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")
+    p.add_argument("file", nargs="?", help="a settings file to check and print in full")
+    p.add_argument("--node-params", action="store_true", help="the node's parameter file instead")
+    p.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
+    p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
     p.add_argument("--out", required=True, help="output folder (scene.ply, truth.yaml, ...)")

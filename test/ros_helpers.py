@@ -74,8 +74,18 @@ class NodeProcess:
         self._log.close()
 
 
-def engine_process(tmp_path, params: dict | None = None, name="engine") -> NodeProcess:
-    args = [sys.executable, "-m", "affordance_registration.ros.nodes.engine_node", "--ros-args",
+SLOW_ENGINE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "slow_engine_node.py")
+
+
+def engine_process(tmp_path, params: dict | None = None, name="engine",
+                   slow_fit_s: float | None = None, params_file: str | None = None) -> NodeProcess:
+    """The engine node as its own process (``params`` override ``params_file``); with
+    ``slow_fit_s``, the real node with a fitter that takes that much longer for every click
+    (``slow_engine_node.py``)."""
+    node = ["-m", "affordance_registration.ros.nodes.engine_node"] if slow_fit_s is None else \
+        [SLOW_ENGINE, str(slow_fit_s)]
+    args = [sys.executable, *node, "--ros-args",
+            *(["--params-file", params_file] if params_file else []),
             "-p", f"registrations_file:={tmp_path / 'registrations.yaml'}"]
     for key, value in (params or {}).items():
         args += ["-p", f"{key}:={value}"]
@@ -84,14 +94,15 @@ def engine_process(tmp_path, params: dict | None = None, name="engine") -> NodeP
 
 @contextlib.contextmanager
 def engine_session(tmp_path, params: dict | None, client_name: str, publishers: dict,
-                   subscriptions=(), **extra):
+                   subscriptions=(), slow_fit_s: float | None = None,
+                   params_file: str | None = None, **extra):
     """An engine node of its own (``params``) and a client that subscribes to its status (and to
     ``subscriptions``: (type, topic, qos, keep) tuples) and publishes on ``publishers`` (key ->
     (type, topic, depth)), each matched to the node before this yields ``{"proc", "client",
     "pubs", "tmp", **extra}``. The node is stopped with SIGINT, then killed, and the tail of its
     output printed (pytest shows it for a failed test)."""
     from std_msgs.msg import String
-    proc = engine_process(tmp_path, params)
+    proc = engine_process(tmp_path, params, slow_fit_s=slow_fit_s, params_file=params_file)
     client = Client(client_name)
     try:
         client.subscribe(String, "/affordance_engine/status", LATCHED)

@@ -189,7 +189,7 @@ def test_a_nominal_size_handle_is_reported_at_scale_one(library):
     """A grab handle of nominal size (scene 3105) is reported at scale 1. The free fit lands
     at 0.966, 3.5 mm off, with a lower residual than scale 1 at the truth: samples the sensor
     sees at grazing angles (it returns nothing from ~70-85 deg) count against the larger
-    size. Occam's razor judges scale 1 with those samples unseen (``scale_grazing_angle``)."""
+    size. Occam's razor judges scale 1 with those samples unseen (``articulation.scale_grazing_angle``)."""
     from affordance_registration.evaluation.simulation import sized_library
     sized = sized_library(library)
     chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},
@@ -219,8 +219,8 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     # off since issue 18's frame changes)
     alone = Scene(sim.organized)
     with_contact = Registrar(sized).fit(alone, obj.click, templates=["grab_handle"])
-    free = Registrar(sized, FitSettings(contact_distance=1e-9)).fit(alone, obj.click,
-                                                                    templates=["grab_handle"])
+    no_contact = FitSettings().with_(**{"articulation.contact_distance": 1e-9})
+    free = Registrar(sized, no_contact).fit(alone, obj.click, templates=["grab_handle"])
     assert abs(with_contact.candidates[0].scale / obj.scale - 1.0) <= 0.03
     assert abs(free.candidates[0].scale / obj.scale - 1.0) > 0.03
 

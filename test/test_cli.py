@@ -117,3 +117,34 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
     assert len(rows) == 15
     for c in cands:
         assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
+
+
+def test_settings_print_load_and_reach_the_fit(tmp_path):
+    """``settings`` prints the defaults as YAML (what ``fit --settings`` reads), ``settings FILE``
+    the whole of what a partial file gives; ``fit --settings`` fits with them (a 2 mm snap
+    distance refuses a click 1 cm off the surface) and a bad file is one line, exit 2."""
+    from affordance_registration.core.registration import FitSettings
+    res = run("settings", check=True)
+    assert yaml.safe_load(res.stdout) == FitSettings().to_dict()
+    partial = tmp_path / "fit.yaml"
+    partial.write_text("crop:\n  snap_distance: 0.002\nseed: 4\n")
+    res = run("settings", str(partial), check=True)
+    assert FitSettings.from_dict(yaml.safe_load(res.stdout)) == \
+        FitSettings(seed=4).with_(**{"crop.snap_distance": 0.002})
+    out = tmp_path / "scene"
+    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
+    off = list(obj["click"])
+    off[2] -= 0.01
+    args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, off))
+    line = _one_line_error(run(*args, "--settings", str(partial)))
+    assert "limit 0.2 cm" in line and res.returncode == 0
+    assert run(*args, "--json", check=True).returncode == 0      # the default 3 cm snaps it
+    for text, words in (("crop:\n  snap: 1\n", "unknown setting crop.snap"),
+                        ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
+                        ("[1, 2\n", "is not YAML")):
+        partial.write_text(text)
+        res = run(*args, "--settings", str(partial))
+        assert res.returncode == 2 and words in _one_line_error(res), res.stderr
+    res = run("settings", str(tmp_path / "nowhere.yaml"))
+    assert res.returncode == 2 and "cannot read settings file" in _one_line_error(res)

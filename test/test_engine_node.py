@@ -253,9 +253,12 @@ def test_parameters_are_validated(session):
     bad = set_param("refit_idle_s", ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
                                                    double_value=-1.0))
     assert not bad.successful and "refit_idle_s" in bad.reason
-    bad = set_param("fit_mode", ParameterValue(type=ParameterType.PARAMETER_STRING,
+    bad = set_param("fit.mode", ParameterValue(type=ParameterType.PARAMETER_STRING,
                                                string_value="sideways"))
-    assert not bad.successful and "fit_mode" in bad.reason
+    assert not bad.successful and "fit.mode" in bad.reason
+    bad = set_param("fit.coarse.samples", ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                                         integer_value=0))
+    assert not bad.successful and "fit.coarse.samples must be an integer >= 1" in bad.reason
     bad = set_param("templates_dir", ParameterValue(type=ParameterType.PARAMETER_STRING,
                                                     string_value="/nonexistent"))
     assert not bad.successful
@@ -337,11 +340,11 @@ def test_sigint_stops_the_node_quickly(session):
 
 
 def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path, library):
-    """An engine whose fits take at least 8 s (test-only setting): a SpaceMouse push, a
+    """An engine node whose fits take at least 8 s (a slow fitter): a SpaceMouse push, a
     next/previous service pair and an accept button sent while a click's fit runs all act, in
     that order, on the object that fit produces -- the push moves it, the refit waiting for the
     push runs before the model changes, and the accept registers it on the object."""
-    proc = engine_process(tmp_path, {"test_slow_fit_s": 8.0, "refit_idle_s": 0.4})
+    proc = engine_process(tmp_path, {"refit_idle_s": 0.4}, slow_fit_s=8.0)
     client = Client("slow_fit_tester")
     try:
         client.subscribe(String, f"{NS}/status", LATCHED)

@@ -61,7 +61,7 @@ def _reference_visible(ctx, X, Nw, settings):
     """The visibility terms as first written: cosine by division, range image by masks."""
     ray = ctx.sensor_origin - X
     cos_in = np.einsum("bsi,bsi->bs", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=-1), 1e-9)
-    front = cos_in > math.cos(settings.grazing_angle)
+    front = cos_in > math.cos(settings.scoring.grazing_angle)
     img = ctx.range_image
     rel = (X - img.origin) @ img.frame
     z = rel[..., 2]
@@ -71,7 +71,7 @@ def _reference_visible(ctx, X, Nw, settings):
     inside = (iu >= 0) & (iu < img.nu) & (iv >= 0) & (iv < img.nv) & (z > 1e-3)
     obs = np.where(inside, img.depth[np.where(inside, iu * img.nv + iv, 0)], np.nan)
     known = np.isfinite(obs)
-    m = settings.free_space_margin
+    m = settings.scoring.free_space_margin
     hidden = known & (obs < z - m)
     violated = known & (obs > z + m)
     return cos_in, front, obs, z, (front & known & ~hidden, front & violated, front & known)
@@ -81,7 +81,7 @@ def _reference_visible(ctx, X, Nw, settings):
 @given(seed=st.integers(0, 2**32 - 1), grazing=st.sampled_from([60.0, 80.0, 89.0, 95.0]))
 def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
     registrar, ctx = clicked
-    s = FitSettings(grazing_angle=math.radians(grazing))
+    s = FitSettings().with_(**{"scoring.grazing_angle": math.radians(grazing)})
     rng = np.random.default_rng(seed)
     models = [registrar.models.model(t) for t in registrar.library.values()]
     models = [models[i] for i in rng.integers(0, len(models), 6)]
@@ -94,7 +94,7 @@ def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
     cos_in, front, obs, z, want = _reference_visible(ctx, X, Nw, s)
     got = visible(ctx, X, Nw, s, exposed=True)
     # the facing test compares squares instead of dividing: it may differ only on the edge
-    edge = np.abs(cos_in - math.cos(s.grazing_angle)) < 1e-12
+    edge = np.abs(cos_in - math.cos(s.scoring.grazing_angle)) < 1e-12
     assert np.array_equal(facing(ctx, X, Nw, s) | edge, front | edge)
     for g, w in zip(got, want):
         assert np.array_equal(g | edge, w | edge)

@@ -30,13 +30,14 @@ def _rss_mb(pid: int) -> float:
 @pytest.fixture(scope="module")
 def flooded(ros_context, tmp_path_factory, library):
     tmp = tmp_path_factory.mktemp("floods")
-    # every fit takes at least 1 s (test-only knob): clicks at 10 Hz pile up behind it
-    with engine_session(tmp, {"test_slow_fit_s": 1.0}, "flood_tester",
+    # every fit takes at least 1 s (the engine node with a slow fitter): clicks at 10 Hz pile
+    # up behind it
+    with engine_session(tmp, {}, "flood_tester",
                         {"points": (PointCloud2, "/points", 1),
                          "click": (PointStamped, "/clicked_point", 200),
                          "select": (String, f"{NS}/select_model", 10),
                          "cloud_bad": (PointCloud2, "/points", 1)},
-                        sim=simulate_taskboard(library, 7)) as s:
+                        slow_fit_s=1.0, sim=simulate_taskboard(library, 7)) as s:
         s["pubs"]["points"].publish(xyz_to_pointcloud2(s["sim"].organized, FRAME))
         s["client"].wait_for(lambda: (s["client"].status() or {}).get("node", {}).get("cloud"),
                              30, "the cloud")

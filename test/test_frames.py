@@ -101,7 +101,7 @@ def _bare_panel_point(sim):
 
 def test_a_click_on_bare_wall_says_no_template_fits(library, setup):
     sim, registrar, obj, original = setup
-    assert original[0].fits and original[0].coverage >= registrar.settings.min_coverage
+    assert original[0].fits and original[0].coverage >= registrar.settings.verdict.min_coverage
     engine = AffordanceEngine(library)
     engine.set_scene(sim.organized)
     message = engine.click(_bare_panel_point(sim))
@@ -109,7 +109,7 @@ def test_a_click_on_bare_wall_says_no_template_fits(library, setup):
     status = engine.status()["objects"][0]
     assert status["no_match"] and status["verdict"] == NO_MATCH
     assert len(status["candidates"]) == len(library)          # still listed
-    assert all(0 <= c["coverage"] < registrar.settings.min_coverage and c["fits"] is False
+    assert all(0 <= c["coverage"] < registrar.settings.verdict.min_coverage and c["fits"] is False
                and "inlier_rmse" in c for c in status["candidates"][:1])
 
 
@@ -118,7 +118,7 @@ def test_a_one_template_library_that_does_not_match(library, setup):
     other = next(n for n in library if n != obj.template and n != "grab_handle")
     lonely = Registrar(TemplateLibrary([library[other]]))
     best = lonely.fit(Scene(sim.points), obj.click).candidates[0]
-    assert best.fits is False and best.coverage < lonely.settings.min_coverage
+    assert best.fits is False and best.coverage < lonely.settings.verdict.min_coverage
     assert best.probability < 0.9                  # never 1.00 for a poor fit
     right = Registrar(TemplateLibrary([library[obj.template]]))
     good = right.fit(Scene(sim.points), obj.click).candidates[0]

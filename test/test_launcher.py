@@ -39,11 +39,11 @@ def test_substitutions_and_errors(tmp_path, monkeypatch):
         "    namespace: $(env AR_TEST_NS)\n"
         "    param:\n"
         "    - {name: linear_gain, value: $(var gain)}\n"
-        "    - {name: fit_mode, value: $(env AR_UNSET_VAR free)}\n"
+        "    - {name: fit.mode, value: $(env AR_UNSET_VAR free)}\n"
         "    args: --foo\n")
     (node,) = parse_launch_file(str(f), {"gain": "0.7"})
     cmd = node.command()
-    assert "__ns:=/station_1" in cmd and "linear_gain:=0.7" in cmd and "fit_mode:=free" in cmd
+    assert "__ns:=/station_1" in cmd and "linear_gain:=0.7" in cmd and "fit.mode:=free" in cmd
     assert cmd[1] == "--foo"
     with pytest.raises(LaunchError, match="unknown launch argument"):
         parse_launch_file(str(f), {"nope": "1"})

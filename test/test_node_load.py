@@ -22,9 +22,9 @@ def test_big_clouds_and_back_to_back_clicks(ros_context, tmp_path, library):
     big = np.full((1024, 1024, 3), np.nan, dtype=np.float32)     # 1,048,576 points
     big[:576, :640] = sim.organized
     msg = xyz_to_pointcloud2(big, "cam")
-    # every fit takes 8 s longer (test-only setting), so "answered during the fits" is a
+    # every fit takes 8 s longer (the engine node with a slow fitter), so "answered during the fits" is a
     # question of order, not of how fast this machine is today
-    proc = engine_process(tmp_path, {"test_slow_fit_s": 8.0})
+    proc = engine_process(tmp_path, slow_fit_s=8.0)
     client = Client("load_tester")
     try:
         deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,

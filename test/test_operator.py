@@ -45,13 +45,27 @@ class Recorder(StandaloneHost):
         self.reports.append((kind, ok, message))
 
 
-class Stream:
-    """An engine on a scene and its operator stream in simulated time, recording outcomes."""
+class SlowEngine(AffordanceEngine):
+    """The engine with a fitter that takes ``delay`` more (simulated) seconds for every click."""
 
-    def __init__(self, library, sim, **settings):
-        self.engine = AffordanceEngine(library)
-        self.engine.set_scene(sim.organized, frame_id=FRAME)
+    def __init__(self, library, clock, delay):
+        super().__init__(library)
+        self._clock, self._delay = clock, delay
+
+    def click(self, *args, **kwargs):
+        self._clock.sleep(self._delay)
+        return super().click(*args, **kwargs)
+
+
+class Stream:
+    """An engine on a scene and its operator stream in simulated time, recording outcomes (with
+    ``slow_fit_s``, every click's fit takes that much longer)."""
+
+    def __init__(self, library, sim, slow_fit_s=0.0, **settings):
         self.clock = SimClock()
+        self.engine = SlowEngine(library, self.clock, slow_fit_s) if slow_fit_s else \
+            AffordanceEngine(library)
+        self.engine.set_scene(sim.organized, frame_id=FRAME)
         self.host = Recorder(self.engine)
         self.reports = self.host.reports
         self.stream = OperatorStream(self.engine, OperatorSettings(**settings), self.clock,

@@ -124,7 +124,7 @@ def test_right_template_first_and_pose_within_tolerance(seed, library, registrar
             total = sum(c.likelihood for c in cands)
             assert sum(c.probability for c in cands) == \
                 pytest.approx(total / (total + 1.0 / NO_MATCH_RESIDUAL))
-        assert best.fits and best.coverage >= registrar.settings.min_coverage
+        assert best.fits and best.coverage >= registrar.settings.verdict.min_coverage
         specific = [c for c in rep.candidates if c.primitive is None]
         assert rep.candidates[:len(specific)] == tuple(specific)   # primitives after them
         assert all(a.likelihood >= b.likelihood for a, b in zip(specific, specific[1:]))
@@ -174,7 +174,7 @@ def test_refit_returns_to_the_object_but_not_far_away(library, registrar, panel_
     far = obj.T_scene_model.copy()
     far[:3, 3] += [0.10, 0.0, 0.0]
     res = registrar.refit(ctx, obj.template, far)
-    assert np.linalg.norm(res.T_scene_model[:3, 3] - far[:3, 3]) <= registrar.settings.refit_max_move
+    assert np.linalg.norm(res.T_scene_model[:3, 3] - far[:3, 3]) <= registrar.settings.refit.max_move
 
 
 def test_paper_method_runs_as_published(library, panel_scene):
@@ -202,12 +202,9 @@ def test_clear_errors(library, registrar, tmp_path):
         Registrar(TemplateLibrary([]))
     with pytest.raises(RegistrationError, match="mode"):
         FitSettings(mode="sideways").validate()
-    with pytest.raises(RegistrationError, match="fine_metric can only be 'plane'"):
-        FitSettings(fine_metric="point").validate()
-    FitSettings(fine_metric="plane", two_way=True, coarse_two_way=True).validate()
     for name in ("joint_sweep", "scale_sweep"):     # a sweep of no steps has no step size
-        with pytest.raises(RegistrationError, match=f"{name} must be an integer >= 1"):
-            FitSettings(**{name: 0}).validate()
+        with pytest.raises(RegistrationError, match=f"articulation.{name} must be an integer >= 1"):
+            FitSettings().with_(**{f"articulation.{name}": 0})
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
     assert Scene(pts).dropped == 100
@@ -267,7 +264,7 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
     big = variant_library(library.specific(), 15)
     assert len(big) == 15 and "ball_valve@s0.75" in big
     scene = Scene(panel_scene.organized)
-    on, off = Registrar(big), Registrar(big, FitSettings(prefilter_keep=0))
+    on, off = Registrar(big), Registrar(big, FitSettings().with_(**{"prefilter.keep": 0}))
     decided = 0
     for obj in panel_scene.objects[:3]:
         cands = on.fit(scene, obj.click).candidates
@@ -278,7 +275,7 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
         # the fitted ones carry the verdict; the coarse poses set aside are not judged
         assert [c.fits is None for c in cands] == aside
         assert all(c.coverage == 0.0 and c.inlier_rmse == 0.0 for c in cands if c.prefiltered)
-        assert sum(not a for a in aside) >= FitSettings().prefilter_keep
+        assert sum(not a for a in aside) >= FitSettings().prefilter.keep
         decided += any(aside)
         assert cands[0].template == obj.template and not cands[0].prefiltered
         dt, dr = pose_error(cands[0].T_scene_model, obj.T_scene_model,
@@ -316,7 +313,7 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
     (y or z x 0.7) in the library, the copy of the grab handle (seed 1001) and of the ball
     valve (seed 1006) out-scored the true template there and were ranked first; and in the
     five-template library a ball valve's medium fit lay flipped behind a quarter-turn valve
-    (seed 1015). The leaders -- the winner and the runners-up within ``finish_margin`` -- are
+    (seed 1015). The leaders -- the winner and the runners-up within ``finish.margin`` -- are
     finished alike (yaw sweep, fine stage) and ranked on that: the true template first, at its
     pose (with the winner alone finished, as before, all three ranked the wrong template first)."""
     from affordance_registration.evaluation.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
@@ -367,7 +364,7 @@ def test_a_support_plane_is_flat_not_a_slab_through_a_curved_object(seed):
 
 
 def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library, panel_scene):
-    """After the first coarse iterations a template's restarts beyond its best ``coarse_keep``
+    """After the first coarse iterations a template's restarts beyond its best ``coarse.keep``
     leave (its best mounted one always goes on); any scores, any template."""
     from affordance_registration.core.registration.hypotheses import (
         MOUNTED,
@@ -421,7 +418,7 @@ def test_the_fine_stage_stops_close_to_where_it_would_converge_fully(library, pa
         ends = {}
         for loose in (True, False):
             monkeypatch.setattr(icp_module, "FINE_CONVERGED", factor if loose else 1.0)
-            fit = icp_module.fine_stage(ctx, model, R0, t0, s.fine, s)
+            fit = icp_module.fine_stage(ctx, model, R0, t0, s.stages.fine, s)
             ends[loose] = make_T(fit.R[0], fit.t[0])
             its[loose] += fit.iterations
         dt, dr = pose_error(ends[True], ends[False])

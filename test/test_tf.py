@@ -326,7 +326,7 @@ def test_msg_docs_list_every_declared_parameter(live):
     documented = set()
     for line in table.splitlines():
         if line.startswith("| `"):
-            documented |= set(re.findall(r"`([a-z_0-9]+)`", line.split("|")[1]))
+            documented |= set(re.findall(r"`([a-z_0-9.]+)`", line.split("|")[1]))
     assert declared - documented == set(), "declared but not in msg_docs"
     assert documented - declared == set(), "in msg_docs but not declared"
 

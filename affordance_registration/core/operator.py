@@ -101,14 +101,12 @@ class OperatorSettings:
     #: once every ``follow_period_s``
     follow_clouds: bool = True
     follow_period_s: float = 0.5
-    #: test-only: every click's fit takes at least this long (an artificially slow fitter)
-    slow_fit_s: float = 0.0
 
     def validate(self) -> "OperatorSettings":
         if self.twist_frame not in ("spacenav", "view"):
             raise AffordanceError(f"twist_frame must be 'spacenav' or 'view', got "
                                   f"{self.twist_frame!r}")
-        for name in ("linear_gain", "angular_gain", "slow_fit_s", "follow_period_s"):
+        for name in ("linear_gain", "angular_gain", "follow_period_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
@@ -372,8 +370,6 @@ class OperatorStream:
         self.host.busy(self._busy)
         self.host.refresh_scene()
         point = self.host.to_scene_frame(item.point, item.frame, item.stamp)
-        if self.settings.slow_fit_s > 0:     # test only: the fit takes this much longer
-            self.sleep(self.settings.slow_fit_s)
         return True, self.engine.click(point)
 
     def _act(self, action: str, argument=None) -> tuple[bool, str]:

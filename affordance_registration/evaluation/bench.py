@@ -33,6 +33,7 @@ import os
 
 import numpy as np
 
+from ..core.files import write_atomically
 from ..core.registration import FitSettings, Registrar
 from ..core.templates import TemplateLibrary
 from .bench_rows import (
@@ -75,7 +76,7 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     rows = []
     log("default method ...")
     rows.append(_evaluate("default", lambda s, c: default.fit(s, c).candidates, jobs, library))
-    log("default method without joint/scale estimation (estimate_joints false) ...")
+    log("default method without joint/scale estimation (articulated false) ...")
     rigid = Registrar(library, FitSettings(articulated=False))
     rows.append(_evaluate("default, rigid only", lambda s, c: rigid.fit(s, c).candidates, jobs,
                           library))
@@ -133,7 +134,23 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
         with open(out, "w", encoding="utf-8") as handle:
             json.dump(result, handle, indent=2)
         result["written"] = os.path.abspath(out)
+        result["settings_written"] = write_settings(out, default.settings)
     return result
+
+
+#: the rows that change knobs of the default settings, and how
+ROW_SETTINGS = {"paper (literal)": "method: paper", "default, rigid only": "articulated: false",
+                "threads": "threads: 1 and 2", "library sizes": "the library, not the settings"}
+
+
+def write_settings(out: str, settings: FitSettings) -> str:
+    """Write the settings the bench ran with next to its JSON (``bench.json`` ->
+    ``bench.settings.yaml``, readable by ``fit --settings``); returns the path."""
+    path = os.path.splitext(os.path.abspath(out))[0] + ".settings.yaml"
+    rows = "".join(f"#   {row}: {change}\n" for row, change in ROW_SETTINGS.items())
+    write_atomically({path: "# the fitting settings of the bench's default rows; the rows that "
+                            "differ:\n" + rows + settings.dump()})
+    return path
 
 
 def _pct(v) -> str:

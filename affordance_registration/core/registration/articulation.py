@@ -15,9 +15,11 @@ from .icp import fine_stage, icp
 from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result, scores
-from .settings import CONTACT_SLACK, FitSettings, Stage
+from .settings import FitSettings, Stage
 
 __all__ = ["articulate", "prefer_nominal"]
+
+CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing
 
 
 def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
@@ -31,7 +33,7 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     across the range. Every hypothesis gets a short batched ICP and is judged by the two-way
     residual plus the moving part's own fit (and, resting on the plane under the click, by its
     gap to the plane). Rounds of local joint/scale steps (each with a short ICP) follow,
-    halving the step (``rounds``, default ``settings.articulation_rounds``). Returns (Model, R,
+    halving the step (``rounds``, default ``settings.articulation.rounds``). Returns (Model, R,
     t, whether its last ICP converged)."""
     s = settings
     tpl = model.template
@@ -39,14 +41,14 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
     judge = _Judge(ctx, s, joint is not None, in_contact(ctx, model, R, t, s))
     converged = None
     if sweep and joint is not None:
-        model, R, t, converged = judge.best_of(*_joint_sweep(model, R, t, s), s.sweep)
+        model, R, t, converged = judge.best_of(*_joint_sweep(model, R, t, s), s.stages.sweep)
     if sweep and lo_hi is not None:
-        model, R, t, converged = judge.best_of(*_scale_sweep(ctx, model, R, t, s), s.sweep)
-    q_step = (joint.upper - joint.lower) / (2 * s.joint_sweep) if joint is not None else 0.0
-    s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.scale_sweep) if lo_hi is not None else 0.0
+        model, R, t, converged = judge.best_of(*_scale_sweep(ctx, model, R, t, s), s.stages.sweep)
+    q_step = (joint.upper - joint.lower) / (2 * s.articulation.joint_sweep) if joint is not None else 0.0
+    s_step = (lo_hi[1] - lo_hi[0]) / (2 * s.articulation.scale_sweep) if lo_hi is not None else 0.0
     if not sweep:
         q_step, s_step = q_step / 2, s_step / 2
-    for _ in range(s.articulation_rounds if rounds is None else rounds):
+    for _ in range(s.articulation.rounds if rounds is None else rounds):
         models = [model]
         if joint is not None:
             models += [model.with_values(q=float(np.clip(model.q + d * q_step, joint.lower,
@@ -57,7 +59,7 @@ def articulate(ctx: ClickContext, model: Model, R, t, settings: FitSettings,
         if len(models) == 1:
             break
         model, R, t, converged = judge.best_of(models, [R] * len(models), [t] * len(models),
-                                               s.local)
+                                               s.stages.local)
         q_step, s_step = q_step / 2, s_step / 2
     return model, R, t, converged
 
@@ -71,7 +73,7 @@ class _Judge:
     def best_of(self, models, Rs, ts, stage: Stage):
         """(model, R, t, whether its ICP converged) of the best hypothesis."""
         ctx, s = self.ctx, self.settings
-        n = s.medium_samples
+        n = s.medium.samples
         batch = Batch.of(models, np.stack(Rs), np.stack(ts))
         converged = np.zeros(len(models), bool)
         if stage.iterations:
@@ -80,7 +82,7 @@ class _Judge:
         score = scores(ctx, batch, s, n, n)
         if self.contact:    # a gap to (or a dip into) the plane beyond its noise costs
             gap = np.abs(plane_gap(ctx, batch, n))
-            score = score + np.clip(gap - CONTACT_SLACK, 0.0, s.score_cap)
+            score = score + np.clip(gap - CONTACT_SLACK, 0.0, s.scoring.cap)
         if self.jointed:
             parts = Batch(tuple(m.with_values(moving_only=True) for m in models), batch.R,
                           batch.t)
@@ -93,8 +95,8 @@ def _joint_sweep(model: Model, R, t, settings: FitSettings):
     """Joint values across the limits, the fixed part held or turned back by half or all of
     the change: (models, Rs, ts)."""
     tpl, joint, q0 = model.template, model.template.joint, model.q
-    steps = settings.joint_sweep if joint.type == "revolute" else \
-        max(3, settings.joint_sweep // 2)
+    steps = settings.articulation.joint_sweep if joint.type == "revolute" else \
+        max(3, settings.articulation.joint_sweep // 2)
     T = make_T(R, t)
     models, Rs, ts = [], [], []
     for g in np.linspace(joint.lower, joint.upper, steps):
@@ -120,7 +122,7 @@ def _scale_sweep(ctx: ClickContext, model: Model, R, t, settings: FitSettings):
     if ctx.plane is not None:
         data = data - ctx.plane.normal * (ctx.plane.normal @ (data - centre))
     models, Rs, ts = [], [], []
-    for g in np.linspace(lo, hi, settings.scale_sweep):
+    for g in np.linspace(lo, hi, settings.articulation.scale_sweep):
         m = model.with_values(scale=g)
         models += [m, m, m]
         Rs += [R, R, R]
@@ -133,10 +135,10 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
     """Occam's razor for the extra unknowns: refit at the nearest named state's joint value
     and/or at the nominal scale 1 (within the range) -- the fixed part held or moved so the
     moving part stays, the template scaled about its origin or its centroid -- and keep
-    that when its residual is within ``nominal_preference`` (joint) plus
-    ``nominal_scale_preference`` (scale) of the free fit's. Valves mostly
+    that when its residual is within ``articulation.nominal_preference`` (joint) plus
+    ``articulation.nominal_scale_preference`` (scale) of the free fit's. Valves mostly
     sit open or closed, and most objects come in their nominal size. Where scale 1 is tried,
-    both sides are compared with samples beyond ``scale_grazing_angle`` unseen (a sensor
+    both sides are compared with samples beyond ``articulation.scale_grazing_angle`` unseen (a sensor
     returns little there, and such samples count against the larger size); the result keeps
     the residual every candidate is ranked by. ``converge``: the refits' step thresholds'
     factor (:func:`.icp.icp`)."""
@@ -153,8 +155,9 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
     T = res.T_scene_model
     centre = T[:3, :3] @ model.centroid + T[:3, 3]
     # the scale is judged with samples at grazing angles unseen (both sides alike)
-    judge_s = replace(s, grazing_angle=s.scale_grazing_angle) \
-        if len(scales) > 1 and s.scale_grazing_angle < s.grazing_angle else s
+    judge_s = replace(s, scoring=replace(s.scoring,
+                                         grazing_angle=s.articulation.scale_grazing_angle)) \
+        if len(scales) > 1 and s.articulation.scale_grazing_angle < s.scoring.grazing_angle else s
     free = res if judge_s is s else result(ctx, model, T[:3, :3], T[:3, 3], judge_s,
                                            res.iterations, res.converged)
     best = None
@@ -162,8 +165,8 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
         for sc in scales:
             if q == model.q and sc == model.scale:
                 continue
-            allowed = (1.0 + (s.nominal_preference if q != model.q else 0.0)
-                       + (s.nominal_scale_preference if sc != model.scale else 0.0)) \
+            allowed = (1.0 + (s.articulation.nominal_preference if q != model.q else 0.0)
+                       + (s.articulation.nominal_scale_preference if sc != model.scale else 0.0)) \
                 * free.residual
             m = model.with_values(q=q, scale=sc)
             starts = [T]
@@ -174,7 +177,7 @@ def prefer_nominal(ctx: ClickContext, model: Model, res: FitResult, settings: Fi
                            for T0 in list(starts)]
             for T0 in starts:
                 # as it is, and refined (the fine stage's objective is not the residual)
-                fit = fine_stage(ctx, m, T0[:3, :3], T0[:3, 3], s.refit_fine, s,
+                fit = fine_stage(ctx, m, T0[:3, :3], T0[:3, 3], s.stages.refit, s,
                                  hold_joint=True, hold_scale=True, converge=converge)
                 refined = result(ctx, m, fit.R[0], fit.t[0], judge_s,
                                  iterations_before + fit.iterations, fit.converged[0])

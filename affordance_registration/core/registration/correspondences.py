@@ -13,18 +13,21 @@ from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
 from ..transforms import pose_points
 from .model import Batch, Model
-from .settings import CLUSTER, CONTACT_BAND, PLANE_BAND, REST_SAMPLES, FitSettings
+from .settings import CLUSTER, REST_SAMPLES, FitSettings
 from .visibility import visible
 
 __all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
            "reverse_rows", "contact_rows", "plane_gap", "in_contact", "stack_samples",
            "in_sphere"]
 
+PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
+CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
+
 
 def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
     """The paper's correspondence rule: distances beyond ``reject`` are rejected (weight 0), the
     rest weigh w = 1 / (1 + d / d0). The paper has d0 = 1 (d in metres); the default method uses
-    d0 = ``weight_scale`` (5 mm), without which every useful d weighs about 1."""
+    d0 = ``icp.weight_scale`` (5 mm), without which every useful d weighs about 1."""
     dist = np.asarray(dist, dtype=float)
     return np.where(dist <= reject, 1.0 / (1.0 + dist / d0), 0.0)
 
@@ -83,7 +86,7 @@ def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
     if normals:
         Nq[rows] = ctx.fine_normals[i_v]
     dist = dist.reshape(shape)
-    w = correspondence_weights(dist, radius[:, None], settings.weight_scale)
+    w = correspondence_weights(dist, radius[:, None], settings.icp.weight_scale)
     return Q.reshape(X.shape), Nq.reshape(X.shape), w
 
 
@@ -154,13 +157,13 @@ def _pairs_of(rows: list) -> Pairs:
 
 def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings) -> Pairs:
     """Scene -> template pairs (:func:`reverse_pairs`) of a batch of hypotheses against an even
-    subset of at most ``reverse_points`` full-resolution scene points, padded with zero
+    subset of at most ``fine.reverse_points`` full-resolution scene points, padded with zero
     weights."""
-    pts, normals = reverse_subset(ctx, settings.reverse_points)
+    pts, normals = reverse_subset(ctx, settings.fine.reverse_points)
     rows = []
     for b, m in enumerate(batch.models):
         x, q, n, w, local, moving = reverse_pairs(m, batch.R[b], batch.t[b], pts, normals,
-                                                  radius[b], settings.weight_scale)
+                                                  radius[b], settings.icp.weight_scale)
         rows.append((x, q, n, w, local / m.scale, moving))
     return _pairs_of(rows)
 
@@ -176,7 +179,7 @@ def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSetting
         low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
         x = forward.X[b][low]
         rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
-                     correspondence_weights(np.abs(pd[low]), radius[b], settings.weight_scale),
+                     correspondence_weights(np.abs(pd[low]), radius[b], settings.icp.weight_scale),
                      forward.U[b][low], forward.moving[b][low]))
     return _pairs_of(rows)
 
@@ -191,8 +194,8 @@ def plane_gap(ctx: ClickContext, batch: Batch, n: int) -> np.ndarray:
 
 def in_contact(ctx: ClickContext, model: Model, R, t, settings: FitSettings) -> bool:
     """Whether a pose rests on the plane under the click (its lowest sample within
-    ``contact_distance`` of it)."""
+    ``articulation.contact_distance`` of it)."""
     if ctx.plane is None:
         return False
     gap = plane_gap(ctx, Batch.single(model, R, t), REST_SAMPLES)[0]
-    return abs(gap) <= settings.contact_distance
+    return abs(gap) <= settings.articulation.contact_distance

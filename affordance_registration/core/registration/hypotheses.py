@@ -16,19 +16,16 @@ from ..transforms import align_z_to, axis_angle_matrix, make_T, rotation_angle, 
 from .features import feature_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
-from .settings import (
-    DISTINCT_ANGLE,
-    DISTINCT_DISTANCE,
-    ELONGATED,
-    RANDOM_OFFSET,
-    REST_SAMPLES,
-    SAMPLE_SEED,
-    FitSettings,
-)
+from .settings import REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
            "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",
            "symmetric_angle", "shape_axes"]
+
+RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
+DISTINCT_DISTANCE = 0.01   #: hypotheses of one template closer than this ...
+DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as one
+ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
@@ -159,14 +156,14 @@ def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Gener
         # yaws about the plane's normal, each with the template's orientation it turns:
         # identity (mounted) or a resting facet
         if s.mode in ("auto", "mounted"):
-            yaws.append(_yaws(s.yaw_restarts, rng))
-            bases.append(np.broadcast_to(np.eye(3), (s.yaw_restarts, 3, 3)))
-            families.append(np.full(s.yaw_restarts, MOUNTED))
+            yaws.append(_yaws(s.hypotheses.yaw_restarts, rng))
+            bases.append(np.broadcast_to(np.eye(3), (s.hypotheses.yaw_restarts, 3, 3)))
+            families.append(np.full(s.hypotheses.yaw_restarts, MOUNTED))
         if s.mode in ("auto", "free"):
-            for R_rest, tpl_axis in _resting_axes(model, s.resting_poses):
+            for R_rest, tpl_axis in _resting_axes(model, s.hypotheses.resting_poses):
                 if s.mode == "auto" and R_rest[2, 2] > 0.95:
                     continue   # the mounted orientation, already swept
-                facet = list(_yaws(s.resting_yaws, rng))
+                facet = list(_yaws(s.hypotheses.resting_yaws, rng))
                 # and the two yaws that line the resting template's long axis up with the
                 # cluster's (elongated parts lying on a table)
                 if cluster_axis is not None and tpl_axis is not None:
@@ -176,7 +173,7 @@ def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Gener
                     bases.append(np.broadcast_to(R_rest, (len(facet), 3, 3)))
                     families.append(np.full(len(facet), RESTING))
     n_rand = 0 if s.mode == "mounted" and plane is not None else (
-        s.random_restarts if plane is not None else s.free_restarts)
+        s.hypotheses.random_restarts if plane is not None else s.hypotheses.free_restarts)
     quats, off = np.empty((0, 4)), np.empty((0, 3))
     if n_rand:
         off = rng.normal(size=(n_rand, 3))
@@ -335,9 +332,9 @@ def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSe
     """The library prefilter: the hypotheses of the templates worth fitting on, their scores,
     and a candidate for each template set aside (its best coarse hypothesis, residual = its
     coarse score, ``prefiltered``). A template is set aside when its best score is more than
-    ``prefilter_margin`` x the best template's and ``prefilter_keep`` templates score better
-    (``prefilter_keep`` 0: none is). ``scores`` (B,), lower is better."""
-    keep_n = settings.prefilter_keep
+    ``prefilter.margin`` x the best template's and ``prefilter.keep`` templates score better
+    (``prefilter.keep`` 0: none is). ``scores`` (B,), lower is better."""
+    keep_n = settings.prefilter.keep
     if keep_n <= 0 or len(names) <= keep_n:
         return hyps, scores, ()
     best = np.full(len(names), np.inf)
@@ -345,7 +342,7 @@ def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSe
     order = np.argsort(best, kind="stable")
     out = np.zeros(len(names), bool)
     out[order[keep_n:]] = True
-    out &= best > settings.prefilter_margin * best[order[0]]
+    out &= best > settings.prefilter.margin * best[order[0]]
     if not out.any():
         return hyps, scores, ()
     aside = []

@@ -1,5 +1,5 @@
 """Weighted ICP: one loop for every stage. A batch of hypotheses advances together (one KD query
-per iteration); the rejection radius shrinks from the stage's reach to ``reject_floor``; the
+per iteration); the rejection radius shrinks from the stage's reach to ``icp.reject_floor``; the
 loop stops once every hypothesis has converged (its step turns it less than
 ``CONVERGED_ROTATION``, moves its weighted centroid less than ``CONVERGED_TRANSLATION`` and
 changes its joint value and scale less than ``CONVERGED_EXTRA``; ``FINE_CONVERGED`` times those
@@ -20,21 +20,16 @@ from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, rev
 from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
-from .settings import (
-    CONVERGED_EXTRA,
-    CONVERGED_ROTATION,
-    CONVERGED_TRANSLATION,
-    FINE,
-    FINE_CONVERGED,
-    JOINT_STEP_LIMIT,
-    SAMPLE_SEED,
-    SCALE_STEP_LIMIT,
-    FitSettings,
-    Stage,
-)
+from .settings import FINE, FINE_CONVERGED, SAMPLE_SEED, FitSettings, Stage
 from .solve import plane_step, rigid_step
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
+
+CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
+CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
+CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
+JOINT_STEP_LIMIT = 1 / 8   #: a Gauss-Newton joint step moves at most this part of the range
+SCALE_STEP_LIMIT = 0.05    #: ... and a scale step at most this much
 
 JOINT, SCALE = "joint", "scale"     #: the extra unknowns a stage may fit besides the pose
 
@@ -81,7 +76,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
     if reject is None:
         reject = stage.reject * np.array([m.diameter for m in batch.models])
     reject = np.broadcast_to(np.asarray(reject, dtype=float), (len(batch),))
-    floor = np.minimum(reject, settings.reject_floor)
+    floor = np.minimum(reject, settings.icp.reject_floor)
     small = converge if converge is not None else FINE_CONVERGED if fine else 1.0
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))        # the hypotheses still moving

@@ -12,16 +12,15 @@ import numpy as np
 
 from ..neighbours import build_tree, nearest
 from ..templates import AffordanceTemplate
-from .settings import (
-    CENTROID_SAMPLES,
-    CENTROID_SEED,
-    DENSE_SAMPLES,
-    DENSE_SEED,
-    MOVING_OVERSAMPLING,
-    SAMPLE_SEED,
-)
+from .settings import SAMPLE_SEED
 
 __all__ = ["Model", "ModelCache", "Surface", "Batch", "surface_distances"]
+
+DENSE_SAMPLES = 4096       #: dense surface samples answering "nearest template surface"
+DENSE_SEED = 2
+CENTROID_SAMPLES = 2048    #: samples whose mean is a posed template's centroid
+CENTROID_SEED = 0          #: (those of ``AffordanceTemplate.centroid``)
+MOVING_OVERSAMPLING = 4    #: a moving part alone is picked from this many times the samples
 
 #: surfaces of sized primitives a cache keeps (each fit and correction of one makes a size)
 MAX_SIZED = 64

@@ -90,7 +90,7 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
     model = cache.model(template.sized(dims))
     R, t, iterations, converged = T[:3, :3], T[:3, 3], 0, None
     if refine:
-        fit = fine_stage(ctx, model, R, t, settings.refit_fine, settings, hold_joint=True)
+        fit = fine_stage(ctx, model, R, t, settings.stages.refit, settings, hold_joint=True)
         R, t, iterations, converged = fit.R[0], fit.t[0], fit.iterations, fit.converged[0]
     res = result(ctx, model, R, t, settings, iterations, converged)
     return replace(res, primitive=template.primitive, dimensions=model.template.dimensions)

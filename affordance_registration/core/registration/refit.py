@@ -4,6 +4,8 @@ a result farther from the correction than the operator would accept.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..scene import ClickContext
@@ -12,16 +14,19 @@ from .icp import fine_stage, icp
 from .model import Batch, Model
 from .results import FitResult
 from .scoring import forward_residual, result
-from .settings import REFIT_SEED_OFFSET, REFIT_TURN, FitSettings
+from .settings import FitSettings
 
 __all__ = ["refit", "refit_starts"]
+
+REFIT_SEED_OFFSET = 7919   #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
+REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at least half of it)
 
 
 def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings,
           hold_joint: bool) -> FitResult:
     """Refine ``model`` locally from ``T_init`` (4x4): medium then fine ICP from
-    :func:`refit_starts`. The result never strays farther than ``refit_max_move`` /
-    ``refit_max_turn`` from ``T_init``: a refit that would jump back to a pose the operator
+    :func:`refit_starts`. The result never strays farther than ``refit.max_move`` /
+    ``refit.max_turn`` from ``T_init``: a refit that would jump back to a pose the operator
     moved away from keeps the closest acceptable pose instead. ``hold_joint`` keeps an
     articulated model's joint value as given."""
     s = settings
@@ -29,17 +34,17 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
     T0 = Ts[0]
     n = len(Ts)
     # reach out as far as a refit may move, so a rough correction is pulled in
-    reject = np.full(n, max(s.short.reject * model.diameter, s.refit_max_move))
-    starts = icp(ctx, Batch.of([model] * n, Ts[:, :3, :3], Ts[:, :3, 3]), s.short, s,
+    reject = np.full(n, max(s.stages.short.reject * model.diameter, s.refit.max_move))
+    starts = icp(ctx, Batch.of([model] * n, Ts[:, :3, :3], Ts[:, :3, 3]), s.stages.short, s,
                  reject=reject)
     R, t = starts.R, starts.t
-    fwd, _ = forward_residual(ctx, starts, s.medium_samples, s)
+    fwd, _ = forward_residual(ctx, starts, s.medium.samples, s)
     allowed = _within_reach(T0, R, t, s)
     if not allowed.any():   # every restart wandered off: start from the correction itself
         R[0], t[0] = T0[:3, :3], T0[:3, 3]
         allowed[0] = True
     best = int(np.argmin(np.where(allowed, fwd, np.inf)))
-    fit = fine_stage(ctx, model, R[best], t[best], s.refit_fine, s, hold_joint=hold_joint)
+    fit = fine_stage(ctx, model, R[best], t[best], s.stages.refit, s, hold_joint=hold_joint)
     iterations = starts.iterations + fit.iterations
     if _within_reach(T0, fit.R, fit.t, s)[0]:
         return result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations, fit.converged[0])
@@ -64,19 +69,19 @@ def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,
         if ctx.plane is not None:      # keep the height above the plane the operator chose
             snapped[:3, 3] -= ctx.plane.normal * (ctx.plane.normal @ (snapped[:3, 3] - T0[:3, 3]))
         Ts.append(snapped)
-    while len(Ts) < s.refit_restarts:
+    while len(Ts) < s.refit.restarts:
         axis = ctx.frame @ rng.normal(size=3)       # drawn in the frame attached to the scan
         dR = axis_angle_matrix(axis, REFIT_TURN * rng.uniform(0.5, 1.0))
         R = dR @ T0[:3, :3]
         t = dR @ (T0[:3, 3] - centre) + centre + \
-            ctx.frame @ rng.normal(scale=s.refit_spread, size=3)
+            ctx.frame @ rng.normal(scale=s.refit.spread, size=3)
         Ts.append(make_T(R, t))
     return np.stack(Ts)
 
 
 def _within_reach(T0: np.ndarray, R: np.ndarray, t: np.ndarray, settings: FitSettings):
-    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit_max_move`` and
-    ``refit_max_turn`` of ``T0``, (B,) bool."""
+    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit.max_move`` and
+    ``refit.max_turn`` of ``T0``, (B,) bool."""
     move = np.linalg.norm(t - T0[:3, 3], axis=1)
     turn = rotation_angle(np.swapaxes(T0[None, :3, :3], 1, 2) @ R)
-    return (move <= settings.refit_max_move) & (turn <= settings.refit_max_turn)
+    return (move <= settings.refit.max_move) & (turn <= settings.refit.max_turn)

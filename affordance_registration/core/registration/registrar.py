@@ -11,7 +11,7 @@ The default method keeps the spirit and fixes what a literal implementation gets
 one-sided scans (the README's benchmark measures both):
 
 * the weight keeps the paper's form but scales the distance, w = 1/(1 + d/d0), d0 = 5 mm
-  (``weight_scale``) -- with d in metres the paper's weight is ~1 for every useful d;
+  (``icp.weight_scale``) -- with d in metres the paper's weight is ~1 for every useful d;
 * only template samples that face the sensor and are not hidden behind observed surfaces take part
   (a range image of the crop answers "hidden?" and "did the sensor see through here?");
 * the residual is two-way and capped: template -> scene (free-space violations count as the cap)
@@ -26,7 +26,7 @@ one-sided scans (the README's benchmark measures both):
   on a table) and from uniform random ones; the best mounted hypothesis always reaches the
   medium stage;
 * the operator clicked *on* the object: candidates are centred on the cluster points near the
-  click and pay for a surface that misses the click by more than ``click_tolerance``;
+  click and pay for a surface that misses the click by more than ``scoring.click_tolerance``;
 * directions in which the sensor returned nothing (outside the image, dropouts) are no evidence
   either way: samples there neither pull nor count;
 * every scene frame is alike: visibility is reasoned from the sensor origin (a range image
@@ -42,7 +42,7 @@ one-sided scans (the README's benchmark measures both):
   one for the scale besides the six of the pose. A fit resting on the plane under the click keeps
   resting on it, and a joint value or scale the data cannot tell from a named state or scale 1 is
   reported there, so the extra unknowns cost no rigid accuracy (scale 1 judged with samples at
-  grazing angles beyond ``scale_grazing_angle`` unseen: they count against the larger size).
+  grazing angles beyond ``articulation.scale_grazing_angle`` unseen: they count against the larger size).
 """
 from __future__ import annotations
 
@@ -71,9 +71,11 @@ from .primitives import fit_primitive, object_points
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
-from .settings import BACKWARD_SUBSAMPLE, NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
+from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 
 __all__ = ["Registrar"]
+
+BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
 
 #: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
@@ -98,11 +100,11 @@ class Registrar:
         (they are cached), so the first click costs what every later one does."""
         s = self.settings
         for tpl in self.library.values():
-            for n in {s.coarse_samples, s.medium_samples, s.fine_samples, s.score_samples,
-                      s.refit_samples, REST_SAMPLES}:
+            for n in {s.coarse.samples, s.medium.samples, s.fine.samples, s.scoring.samples,
+                      s.refit.samples, REST_SAMPLES}:
                 tpl.samples(n, seed=SAMPLE_SEED)
             tpl.centroid, tpl.diameter
-            tpl.resting_rotations(s.resting_poses)
+            tpl.resting_rotations(s.hypotheses.resting_poses)
             self.models.surface(tpl)
 
     def prepare(self, scene: Scene, click) -> ClickContext:
@@ -110,12 +112,12 @@ class Registrar:
         scene that can be in the crop is read (one pass over the cloud): the points within the
         crop radius plus the snap distance of the click hold the snapped point and its crop."""
         s = self.settings
-        radius = s.crop_factor * self.library.max_diameter
+        radius = s.crop.factor * self.library.max_diameter
         with single_threaded_blas():
-            part = scene.around(click, radius + s.snap_distance)
-            snapped = (scene if part is None else part).snap(click, s.snap_distance)  # None: why
-            return part.prepare_click(snapped, radius=radius, voxel=s.voxel, seed=s.seed,
-                                     threads=s.threads, fine_points=s.fine_points)
+            part = scene.around(click, radius + s.crop.snap_distance)
+            snapped = (scene if part is None else part).snap(click, s.crop.snap_distance)  # None: why
+            return part.prepare_click(snapped, radius=radius, voxel=s.crop.voxel, seed=s.seed,
+                                     threads=s.threads, fine_points=s.fine.points)
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.
@@ -148,7 +150,7 @@ class Registrar:
               hold_joint: bool | None = None, dimensions: dict | None = None) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
-        ``refit_max_move`` / ``refit_max_turn`` from ``T_init``: a refit that would jump back to a
+        ``refit.max_move`` / ``refit.max_turn`` from ``T_init``: a refit that would jump back to a
         pose the operator moved away from keeps the closest acceptable pose instead.
 
         An articulated template starts from ``joints`` (name -> value) and ``scale`` (with
@@ -184,25 +186,25 @@ class Registrar:
         # 2. coarse ICP, all restarts of all templates together; a library larger than the
         #    prefilter keeps: the templates clearly worse than the leaders after the first
         #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
-        #    (and each template's restarts beyond its best ``coarse_keep`` leave there too)
-        split = s.prefilter_iterations if 0 < s.prefilter_keep < len(names) or \
-            s.coarse_keep else 0
+        #    (and each template's restarts beyond its best ``coarse.keep`` leave there too)
+        split = s.prefilter.iterations if 0 < s.prefilter.keep < len(names) or \
+            s.coarse.keep else 0
         set_aside = ()
-        if 0 < split < s.coarse_iterations:
-            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(0, split)))
-            score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
+        if 0 < split < s.coarse.iterations:
+            hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s, span=(0, split)))
+            score = scores(ctx, hyps, s, s.coarse.samples, BACKWARD_SUBSAMPLE)
             hyps, score, set_aside = prefilter(hyps, score, names, s)
-            hyps = hyps.take(best_per_template(hyps, score, s.coarse_keep))
-            hyps = hyps.after(icp(ctx, hyps, s.coarse, s, span=(split, s.coarse_iterations)))
+            hyps = hyps.take(best_per_template(hyps, score, s.coarse.keep))
+            hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s, span=(split, s.coarse.iterations)))
         else:
-            hyps = hyps.after(icp(ctx, hyps, s.coarse, s))
-        score = scores(ctx, hyps, s, s.coarse_samples, BACKWARD_SUBSAMPLE)
+            hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s))
+        score = scores(ctx, hyps, s, s.coarse.samples, BACKWARD_SUBSAMPLE)
         # (and again on the whole coarse stage's evidence: the medium stage is the dearer one)
         hyps, score, late = prefilter(hyps, score, names, s)
         set_aside += late
         # 4. the best distinct few per template, refined at medium resolution
-        hyps = hyps.take(keep_distinct(hyps, score, len(names), s.keep_per_template))
-        hyps = hyps.after(icp(ctx, hyps, s.medium, s))
+        hyps = hyps.take(keep_distinct(hyps, score, len(names), s.coarse.keep_per_template))
+        hyps = hyps.after(icp(ctx, hyps, s.stages.medium, s))
         # 5. rank: the best hypothesis per template by the two-way residual (the prefilter's
         #    behind)
         ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
@@ -266,7 +268,7 @@ class Registrar:
 
     def _articulate_leaders(self, ctx: ClickContext, ranked: tuple, iterations: int):
         """Joint values and scale of the articulated templates among the leading candidates
-        (at most ``articulated_candidates``, residual within ``articulated_margin`` of the
+        (at most ``articulation.candidates``, residual within ``articulation.margin`` of the
         best): a rigid fit of a valve with its handle turned can rank behind a wrong template.
         Returns (ranked again, {template: its articulated model})."""
         s = self.settings
@@ -282,11 +284,11 @@ class Registrar:
             return model, result(ctx, model, R, t, s, iterations, converged)
 
         # the best first (the others' margin is to its estimate), then the others side by side
-        leaders = [r for r in ranked[:s.articulated_candidates]
+        leaders = [r for r in ranked[:s.articulation.candidates]
                    if self.library[r.template].articulated]
         for first in (True, False):
             todo = [r for r in leaders if (r.template == ranked[0].template) == first
-                    and r.residual <= s.articulated_margin * ranked[0].residual]
+                    and r.residual <= s.articulation.margin * ranked[0].residual]
             for r, (model, res) in zip(todo, run([lambda r=r: estimate(r) for r in todo],
                                                  s.threads)):
                 models[r.template] = model
@@ -297,7 +299,7 @@ class Registrar:
                         iterations: int) -> tuple:
         """The leading candidates finished (:meth:`_finish`) side by side and ranked
         again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
-        aside by the prefilter) whose residual is within ``finish_margin`` of the best's. Two
+        aside by the prefilter) whose residual is within ``finish.margin`` of the best's. Two
         near shapes (a template and a squeezed copy of it) can swap places at medium
         resolution; the fine stage tells them apart (and where they finish within
         ``NEAR_TIE`` of each other, fine stages run to the plain step thresholds do). A
@@ -305,8 +307,8 @@ class Registrar:
         out ranked behind those finished, so the ranking stays consistent."""
         s = self.settings
         n = 1
-        while n < min(s.finish_candidates, len(ranked)) and not ranked[n].prefiltered and \
-                ranked[n].residual <= s.finish_margin * ranked[0].residual:
+        while n < min(s.finish.candidates, len(ranked)) and not ranked[n].prefiltered and \
+                ranked[n].residual <= s.finish.margin * ranked[0].residual:
             n += 1
 
         def lead(win):
@@ -338,7 +340,7 @@ class Registrar:
                                       win.T_scene_model[:3, 3])
         if model.articulated:       # the joint after the sweep, once more
             model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False,
-                                        rounds=s.finish_articulation_rounds)
+                                        rounds=s.articulation.finish_rounds)
         return model, R, t
 
     def _finish(self, ctx: ClickContext, win: FitResult, swept: tuple, iterations: int,
@@ -348,7 +350,7 @@ class Registrar:
         :func:`.icp.icp`'s); never worse than ``win``."""
         s = self.settings
         model, R, t = swept
-        fit = fine_stage(ctx, model, R, t, s.fine, s, converge=converge)
+        fit = fine_stage(ctx, model, R, t, s.stages.fine, s, converge=converge)
         final = result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations + fit.iterations,
                        fit.converged[0])
         if final.likelihood < win.likelihood:
@@ -359,29 +361,29 @@ class Registrar:
         return final
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):
-        """The pose turned about its template's mounting / symmetry axis in ``yaw_sweep``
+        """The pose turned about its template's mounting / symmetry axis in ``finish.yaw_sweep``
         steps over one symmetry period, each refined; the best by the residual. An articulated
         model is also swept at its template's named states (a valve body turned a quarter with
         its handle turned back matches the handle alone, and the joint is held in the sweep).
         (model, R, t)"""
         s = self.settings
-        if s.yaw_sweep <= 1:
+        if s.finish.yaw_sweep <= 1:
             return model, R, t
         variants = [model]
         if model.articulated:
             tpl = model.template
             variants += [model.with_values(q=q) for q in sorted(
                 {float(tpl.joint_value(v)) for v in tpl.states.values()}) if q != model.q]
-        starts = [yaw_sweep_starts(m, R, t, s.yaw_sweep) for m in variants]
-        models = [m for m in variants for _ in range(s.yaw_sweep)]
+        starts = [yaw_sweep_starts(m, R, t, s.finish.yaw_sweep) for m in variants]
+        models = [m for m in variants for _ in range(s.finish.yaw_sweep)]
         swept = icp(ctx, Batch.of(models, np.concatenate([a for a, _ in starts]),
-                                  np.concatenate([b for _, b in starts])), s.short, s)
+                                  np.concatenate([b for _, b in starts])), s.stages.short, s)
         swept = Batch(swept.models, swept.R, swept.t)
         # ranked on the medium residual; the best few again on the full one
         keep = np.arange(len(swept))
-        if 0 < s.yaw_sweep_keep < len(swept):
-            cheap = scores(ctx, swept, s, s.medium_samples, s.medium_samples)
-            keep = np.sort(np.argsort(cheap, kind="stable")[:s.yaw_sweep_keep])
+        if 0 < s.finish.yaw_sweep_keep < len(swept):
+            cheap = scores(ctx, swept, s, s.medium.samples, s.medium.samples)
+            keep = np.sort(np.argsort(cheap, kind="stable")[:s.finish.yaw_sweep_keep])
         residuals = [r.residual for r in results(ctx, swept.take(keep), s)]
         best = int(keep[int(np.argmin(residuals))])
         return models[best], swept.R[best], swept.t[best]

@@ -28,8 +28,8 @@ class FitResult:
 
     The absolute verdict, whatever the other candidates score: ``coverage`` is the fraction of
     the template surface the sensor could have seen that has scan points within
-    ``FitSettings.coverage_distance``; ``inlier_rmse`` the RMS distance of those points (m);
-    ``fits`` whether coverage reaches ``FitSettings.min_coverage`` (None: not judged, as for
+    ``FitSettings.verdict.coverage_distance``; ``inlier_rmse`` the RMS distance of those points (m);
+    ``fits`` whether coverage reaches ``FitSettings.verdict.min_coverage`` (None: not judged, as for
     the literal baseline and the candidates the library prefilter set aside; their coverage and
     inlier_rmse are then 0)."""
 

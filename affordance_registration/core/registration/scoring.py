@@ -5,8 +5,8 @@ likelihood.
 
 And the absolute verdict on a candidate, whatever the others score: its ``coverage`` (the
 fraction of the template surface the sensor could have seen that has scan points within
-``coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
-``min_coverage`` no template fits here.
+``verdict.coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
+``verdict.min_coverage`` no template fits here.
 """
 from __future__ import annotations
 
@@ -22,18 +22,24 @@ from .correspondences import stack_samples
 from .model import Batch, Model, surface_distances
 from .parallel import over_batch, parts, run
 from .results import FitResult
-from .settings import MIN_VISIBLE_FRACTION, MIN_VISIBLE_SAMPLES, PLANE_COVERED, FitSettings
+from .settings import FitSettings
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "self_hidden",
            "scores", "result", "results"]
+
+MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
+MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
+#: a candidate whose covered samples lie on the dominant plane around the click for at least this
+#: fraction covers the wall, not an object: those do not count towards its coverage
+PLANE_COVERED = 0.8
 
 
 def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
     """The capped distances (B, n) from ``n`` posed samples of each hypothesis to the scene
     (free-space violations at the cap), which of the samples the sensor could have seen and
     which face it where it returned something (hidden or not)."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     P, N = stack_samples(batch.models, n)
     X = pose_points(batch.R, batch.t, P)
     Nw = rotate(batch.R, N)
@@ -47,7 +53,7 @@ def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSet
 
 def _forward(dist: np.ndarray, vis: np.ndarray, settings: FitSettings):
     """(forward residual, inlier fraction) of :func:`forward_residual` from the distances."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     n_vis = vis.sum(axis=1)
     fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * dist.shape[1]),
                    (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
@@ -65,31 +71,31 @@ def forward_residual(ctx: ClickContext, batch: Batch, n: int, settings: FitSetti
 
 def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     """Each of ``fits`` (a fit of the model at the same place in ``models``) with its absolute
-    verdict: ``coverage`` -- of the template's ``score_samples`` samples that face the sensor
+    verdict: ``coverage`` -- of the template's ``scoring.samples`` samples that face the sensor
     where it returned something (hidden behind observed surfaces or not: a template sunk into a
     wall is not covered), not counting those its own parts hide, the fraction the sensor saw
-    with scan points within ``coverage_distance`` -- not counting those on the dominant plane
+    with scan points within ``verdict.coverage_distance`` -- not counting those on the dominant plane
     around the click when they are most of them (at least ``PLANE_COVERED``: a candidate
     covering a wall explains no object) -- ``inlier_rmse``, the RMS distance (m) of those
-    covered samples, and ``fits``: coverage at least ``min_coverage``. Without a viewpoint
-    every sample is exposed, and the bar is ``min_coverage_no_viewpoint``. The distances of
+    covered samples, and ``fits``: coverage at least ``verdict.min_coverage``. Without a viewpoint
+    every sample is exposed, and the bar is ``verdict.min_coverage_no_viewpoint``. The distances of
     all of them come from one pass (each candidate's numbers are its own)."""
     fits = list(fits)
     if not fits:
         return []
     T = np.stack([r.T_scene_model for r in fits])
     dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
-                                            settings.score_samples, settings)
-    bar = settings.min_coverage if ctx.sensor_origin is not None else \
-        settings.min_coverage_no_viewpoint
-    widen = max(1.0, ctx.noise / settings.noise_reference)      # a noisier scan: wider
-    covered_within = widen * settings.coverage_distance
-    explained = _explained(ctx, models, T, widen * settings.explained_distance)
-    max_residual = widen * settings.max_residual
+                                            settings.scoring.samples, settings)
+    bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
+        settings.verdict.min_coverage_no_viewpoint
+    widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider
+    covered_within = widen * settings.verdict.coverage_distance
+    explained = _explained(ctx, models, T, widen * settings.verdict.explained_distance)
+    max_residual = widen * settings.verdict.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
         R, t = T[k, :3, :3], T[k, :3, 3]
-        P = model.samples(settings.score_samples)[0]
+        P = model.samples(settings.scoring.samples)[0]
         X = P @ R.T + t
         near = vis[k] & (dist[k] <= covered_within)
         if ctx.support is not None:
@@ -100,7 +106,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         rows = np.flatnonzero(seen)
         if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
             seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
-                                  settings.free_space_margin)]] = False
+                                  settings.scoring.free_space_margin)]] = False
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
         rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
@@ -110,8 +116,8 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
                if cov < bar else "",
                f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
-               f"{settings.min_explained:.0%})"
-               if seen_from and explained[k] < settings.min_explained else "",
+               f"{settings.verdict.min_explained:.0%})"
+               if seen_from and explained[k] < settings.verdict.min_explained else "",
                f"its surface runs {res.residual * 1e3:.1f} mm from the scan on average (a fit "
                f"is within {max_residual * 1e3:.1f} mm)"
                if seen_from and res.residual > max_residual else ""]
@@ -169,7 +175,7 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     each posed model's surface (points no sample explains count as the cap, so a template that
     leaves part of the object unexplained pays for it), on an even, fixed subsample of at most
     ``cluster_points`` of them (None: all)."""
-    cap = settings.score_cap
+    cap = settings.scoring.cap
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
@@ -179,10 +185,10 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
 
 def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
     """The operator clicked on the object: a candidate whose surface passes farther than
-    ``click_tolerance`` from the (snapped) click pays the excess, up to ``score_cap``. (B,)"""
+    ``scoring.click_tolerance`` from the (snapped) click pays the excess, up to ``scoring.cap``. (B,)"""
     local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
     d = surface_distances(batch.models, local[:, None, :])[:, 0]
-    return np.clip(d - settings.click_tolerance, 0.0, settings.score_cap)
+    return np.clip(d - settings.scoring.click_tolerance, 0.0, settings.scoring.cap)
 
 
 def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
@@ -225,7 +231,7 @@ def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: 
 
 def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int,
              converged) -> list:
-    fwd, inl = forward_residual(ctx, batch, settings.score_samples, settings)
+    fwd, inl = forward_residual(ctx, batch, settings.scoring.samples, settings)
     bwd = backward_residual(ctx, batch, settings)
     click = click_penalty(ctx, batch, settings)
     out = []

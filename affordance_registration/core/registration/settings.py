@@ -1,74 +1,111 @@
-"""Fitting parameters (:class:`FitSettings`, the public knobs) and the named constants of the
-stages: how many samples and iterations each ICP stage runs and how far its correspondences may
-reach (:class:`Stage`), the seeds, the de-duplication and convergence thresholds.
+"""Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage),
+the ICP stages they make (:class:`Stage`) and the constants several stages share (sample seeds,
+the fixed stage lengths, the fine stage's convergence). A constant one stage alone uses lives
+beside that stage's code.
+
+Every knob is declared once, with its default, its one-line description and its rule
+(:func:`knob`); the node's ``fit.*`` parameters, the YAML settings files and the error messages
+are made from those declarations. A nested knob is named ``group.knob`` (``coarse.samples``);
+override it with :meth:`FitSettings.with_` or load a file with :meth:`FitSettings.load`.
 
 Lengths are metres, angles radians.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field, fields, replace
+from typing import NamedTuple
+
+import yaml
 
 from ..errors import RegistrationError
 
-__all__ = ["FitSettings", "Stage", "CLUSTER", "FINE"]
+__all__ = ["FitSettings", "Stage", "Stages", "CLUSTER", "FINE", "knob"]
 
 # --------------------------------------------------------------------------- samples and seeds
 SAMPLE_SEED = 1            #: template samples every stage fits and scores with
-DENSE_SAMPLES = 4096       #: dense surface samples answering "nearest template surface"
-DENSE_SEED = 2
 REST_SAMPLES = 256         #: samples that find a pose's lowest point (resting on the plane)
-CENTROID_SAMPLES = 2048    #: samples whose mean is a posed template's centroid
-CENTROID_SEED = 0          #: (those of ``AffordanceTemplate.centroid``)
-MOVING_OVERSAMPLING = 4    #: a moving part alone is picked from this many times the samples
-REFIT_SEED_OFFSET = 7919   #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
 
 # --------------------------------------------------------------------------- ICP stages
 CLUSTER, FINE = "cluster", "fine"   #: ICP targets: the voxelized cluster, its full resolution
-COARSE_REJECT = 0.5        #: rejection radius at a stage's start, fraction of the diameter
-MEDIUM_REJECT = 0.25
-SWEEP_REJECT = 0.15        #: the joint / scale sweep's hypotheses
-FINE_REJECT = 0.1
+SWEEP_REJECT = 0.15        #: rejection radius of the joint / scale sweep's hypotheses (diameters)
 SHORT_ICP = 6              #: ICP iterations of the leaders' yaw sweep and a refit's restarts
 LOCAL_ICP = 4              #: ICP iterations after each local joint / scale step
-CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
-CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
-CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
-#: the fine stage (and a refit's) has converged at this many times those steps: 0.03 deg and
-#: 0.15 mm a step are far below the pose tolerance, and its iterations are the dearest (it
-#: stops within 0.2 deg of the fully converged pose, a handwheel turned about its axis)
+#: the fine stage (and a refit's) has converged at this many times the step thresholds of
+#: :mod:`.icp` (``CONVERGED_*``): 0.03 deg and 0.15 mm a step are far below the pose tolerance,
+#: and its iterations are the dearest (it stops within 0.2 deg of the fully converged pose, a
+#: handwheel turned about its axis)
 FINE_CONVERGED = 3.0
 #: finished leaders within this factor of the best one's residual are finished again with the
 #: plain step thresholds before the final ranking (a near tie is decided on fully converged
 #: fits)
 NEAR_TIE = 1.02
 
-# --------------------------------------------------------------------------- hypotheses
-RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
-DISTINCT_DISTANCE = 0.01   #: hypotheses of one template closer than this ...
-DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as one
-ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
-REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at least half of it)
+# --------------------------------------------------------------------------- knobs
+#: the rules a knob's value follows (``knob(rule=...)``); a tuple of strings is a choice
+POSITIVE, COUNT, COUNT0, FRACTION, SWITCH = "positive", "count", "count0", "fraction", "switch"
+_RULE_TEXT = {POSITIVE: "a positive number", COUNT: "an integer >= 1", COUNT0: "an integer >= 0",
+              FRACTION: "a number in (0, 1]", SWITCH: "true or false"}
 
-# --------------------------------------------------------------------------- scoring, contact
-MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
-MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
-PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
-#: a candidate whose covered samples lie on the dominant plane around the click for at least this
-#: fraction covers the wall, not an object: those do not count towards its coverage
-PLANE_COVERED = 0.8
-BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
-CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
-CONTACT_SLACK = 0.005      #: a gap to the plane within this costs nothing
-JOINT_STEP_LIMIT = 1 / 8   #: a Gauss-Newton joint step moves at most this part of the range
-SCALE_STEP_LIMIT = 0.05    #: ... and a scale step at most this much
+
+def knob(default, doc: str, rule=None, limits: tuple | None = None):
+    """A settings field: its ``default``, a one-line ``doc`` (the node parameter's description)
+    and its ``rule``: :data:`POSITIVE` (the default for a float), :data:`COUNT` (for an int),
+    :data:`COUNT0`, :data:`FRACTION`, :data:`SWITCH` (for a bool) or a tuple of choices;
+    ``limits`` (lo, hi) bound it further."""
+    if rule is None:
+        rule = SWITCH if isinstance(default, bool) else COUNT if isinstance(default, int) \
+            else POSITIVE
+    return field(default=default, metadata={"doc": doc, "rule": rule, "limits": limits})
+
+
+def describe_rule(f) -> str:
+    """A knob's rule as a person reads it ("a positive number", "one of: auto, free")."""
+    rule, limits = f.metadata["rule"], f.metadata["limits"]
+    if isinstance(rule, tuple):
+        return "one of: " + ", ".join(rule)
+    text = _RULE_TEXT[rule]
+    return text if limits is None else f"{text} in [{limits[0]}, {limits[1]}]"
+
+
+def _check(name: str, f, v) -> None:
+    rule, limits = f.metadata["rule"], f.metadata["limits"]
+    if isinstance(rule, tuple):
+        ok = isinstance(v, str) and v in rule
+    elif rule == SWITCH:
+        ok = isinstance(v, bool)
+    elif rule in (COUNT, COUNT0):
+        ok = isinstance(v, int) and not isinstance(v, bool) and v >= (1 if rule == COUNT else 0)
+    else:
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+            and v > 0 and (rule != FRACTION or v <= 1)
+    ok = ok and (limits is None or limits[0] <= v <= limits[1])
+    if not ok:
+        raise RegistrationError(f"{name} must be {describe_rule(f)}, got {v!r}")
+
+
+@dataclass(frozen=True)
+class _Group:
+    """A group of knobs: validates itself on construction (one line naming the knob)."""
+
+    #: the group's name in settings files and node parameters (``FitSettings``' field name)
+    name = ""
+
+    def __post_init__(self):
+        for f in fields(self):
+            _check(f"{self.name}.{f.name}" if self.name else f.name, f, getattr(self, f.name))
+        self._rules()
+
+    def _rules(self) -> None:
+        """Rules across the group's knobs (none by default)."""
 
 
 @dataclass(frozen=True)
 class Stage:
     """One ICP stage: ``samples`` template samples per hypothesis, at most ``iterations``
     iterations, correspondences rejected beyond ``reject`` x the model's diameter at the start
-    (the radius shrinks to ``FitSettings.reject_floor``), against the ``target`` points."""
+    (the radius shrinks to ``FitSettings.icp.reject_floor``), against the ``target`` points."""
 
     samples: int
     iterations: int
@@ -76,186 +113,372 @@ class Stage:
     target: str = CLUSTER
 
 
-def _stage(samples: str, iterations, reject: float, target: str = CLUSTER,
-           doc: str = "") -> property:
-    """A :class:`FitSettings` property: the :class:`Stage` with the samples of field
-    ``samples`` and the iterations of field ``iterations`` (or that number)."""
-    def get(settings) -> Stage:
-        n_it = getattr(settings, iterations) if isinstance(iterations, str) else iterations
-        return Stage(getattr(settings, samples), n_it, reject, target)
-    return property(get, doc=doc)
+class Stages(NamedTuple):
+    """The ICP stages of a fit (:attr:`FitSettings.stages`)."""
+
+    coarse: Stage   #: every restart of every template, on few samples
+    medium: Stage   #: the best few restarts per template
+    short: Stage    #: the leaders' yaw sweep and a refit's restarts
+    sweep: Stage    #: each joint value / scale hypothesis of the articulated sweep
+    local: Stage    #: each local joint / scale step after the sweep
+    fine: Stage     #: each leader alone, on the full-resolution cluster
+    refit: Stage    #: a refit's best restart on the full-resolution cluster
+
+
+# --------------------------------------------------------------------------- the groups
+@dataclass(frozen=True)
+class CropSettings(_Group):
+    """The scan around a click: what is cut out and how it is thinned."""
+
+    name = "crop"
+    voxel: float = knob(0.005, "voxel edge of the crop around a click (m)", limits=(0.001, 0.05))
+    factor: float = knob(1.0, "crop radius as a multiple of the largest template diameter")
+    snap_distance: float = knob(0.03, "a click farther than this from the scan is refused (m)",
+                                limits=(0.001, 1.0))
+
+
+@dataclass(frozen=True)
+class IcpSettings(_Group):
+    """The weighted ICP every stage runs."""
+
+    name = "icp"
+    weight_scale: float = knob(0.005, "d0 of the correspondence weight w = 1/(1 + d/d0) (m)",
+                               limits=(0.0005, 0.1))
+    reject_floor: float = knob(0.015, "an ICP rejection radius shrinks to this within a stage (m)")
+
+
+@dataclass(frozen=True)
+class ScoringSettings(_Group):
+    """The residual candidates are ranked on."""
+
+    name = "scoring"
+    cap: float = knob(0.01, "per-point distance cap of the residual (m)")
+    samples: int = knob(600, "template samples per candidate in the residual")
+    free_space_margin: float = knob(0.01, "depth tolerance of the visibility tests (m)")
+    grazing_angle: float = knob(math.radians(89.0),
+                                "samples seen more obliquely than this count as unseen (rad)")
+    click_tolerance: float = knob(0.015, "a candidate's surface should pass this close to the "
+                                         "click (m)")
+
+
+@dataclass(frozen=True)
+class HypothesesSettings(_Group):
+    """The restarts each template starts from."""
+
+    name = "hypotheses"
+    yaw_restarts: int = knob(12, "plane-prior restarts per template (a yaw sweep)", COUNT0)
+    random_restarts: int = knob(12, "uniformly random restarts per template", COUNT0)
+    free_restarts: int = knob(40, "random restarts per template when there is no plane")
+    resting_poses: int = knob(5, "stable resting facets tried per template (a plane found)",
+                              COUNT0)
+    resting_yaws: int = knob(6, "yaw steps per resting facet", COUNT0)
+
+    def _rules(self) -> None:
+        if self.yaw_restarts + self.random_restarts == 0:
+            raise RegistrationError("hypotheses: at least one restart per template is needed "
+                                    "(yaw_restarts + random_restarts >= 1)")
+
+
+@dataclass(frozen=True)
+class CoarseSettings(_Group):
+    """The coarse stage: every restart of every template, on few samples."""
+
+    name = "coarse"
+    samples: int = knob(64, "template samples per restart")
+    iterations: int = knob(8, "ICP iterations")
+    reject: float = knob(0.5, "rejection radius at the stage's start (template diameters)")
+    #: after ``prefilter.iterations`` coarse iterations, each template's best this many restarts
+    #: (and its best mounted one) go on through the coarse stage
+    keep: int = knob(12, "restarts per template kept after the prefilter's first look (0: all)",
+                     COUNT0)
+    keep_per_template: int = knob(3, "distinct hypotheses per template that go on to the medium "
+                                     "stage")
+
+
+@dataclass(frozen=True)
+class PrefilterSettings(_Group):
+    """The library prefilter: in the coarse stage, the templates whose best coarse score is more
+    than ``margin`` x the best template's leave the fit (ranked behind the others with their
+    coarse pose), except the ``keep`` best."""
+
+    name = "prefilter"
+    keep: int = knob(5, "templates never prefiltered: the best this many (0: no prefilter)",
+                     COUNT0)
+    margin: float = knob(1.4, "a template whose coarse score exceeds this x the best leaves")
+    iterations: int = knob(3, "coarse iterations before the prefilter first decides (0: only "
+                              "after the coarse stage)", COUNT0)
+
+
+@dataclass(frozen=True)
+class MediumSettings(_Group):
+    """The medium stage: the best few restarts per template."""
+
+    name = "medium"
+    samples: int = knob(256, "template samples per hypothesis (also the yaw sweep's, the "
+                             "articulated sweep's and a refit's restarts')")
+    iterations: int = knob(10, "ICP iterations")
+    reject: float = knob(0.25, "rejection radius at the stage's start (template diameters)")
+
+
+@dataclass(frozen=True)
+class FineSettings(_Group):
+    """The fine stage: each leader alone, point-to-plane and two-way, on the full-resolution
+    cluster."""
+
+    name = "fine"
+    samples: int = knob(1500, "template samples per leader")
+    iterations: int = knob(20, "ICP iterations")
+    reject: float = knob(0.1, "rejection radius at the stage's start (template diameters; also "
+                              "a refit's final ICP)")
+    #: an even subset of a dense sensor's, or of a large flat object's: a 1M-point camera's
+    #: cluster holds about 5700, the simulated Kinect's 1900
+    points: int = knob(5000, "at most this many full-resolution cluster points are the target "
+                             "(0: all)", COUNT0)
+    reverse_points: int = knob(600, "at most this many scene points paired with the template")
+
+
+@dataclass(frozen=True)
+class FinishSettings(_Group):
+    """The leaders' finish: yaw sweep, fine stage, ranked again on the fine residual."""
+
+    name = "finish"
+    yaw_sweep: int = knob(8, "leaders re-tried at this many angles about their axis", COUNT0)
+    yaw_sweep_keep: int = knob(3, "of those, ranked on the medium residual, the best this many "
+                                  "go on (0: all)", COUNT0)
+    candidates: int = knob(4, "the winner and, of the next candidates - 1, those within margin "
+                              "are finished (1: the winner alone)")
+    margin: float = knob(1.3, "finished: a residual within this factor of the winner's")
+
+
+@dataclass(frozen=True)
+class ArticulationSettings(_Group):
+    """Joint values and scale, where templates have them (``FitSettings.articulated``)."""
+
+    name = "articulation"
+    candidates: int = knob(4, "at most this many leading candidates get them estimated", COUNT0)
+    margin: float = knob(1.3, "those with a residual within this factor of the best")
+    joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits")
+    scale_sweep: int = knob(7, "scales tried across a template's scale range")
+    #: an articulated candidate whose rigid fit touches the plane under the click keeps
+    #: touching it: the joint must not be traded for the whole object floating off it
+    contact_distance: float = knob(0.01, "a rigid fit this close to the plane under the click "
+                                         "keeps touching it (m)")
+    nominal_preference: float = knob(0.02, "a joint value within this residual fraction of the "
+                                           "nearest named state is reported at that state")
+    nominal_scale_preference: float = knob(0.005, "likewise a scale and the nominal scale 1")
+    #: a sensor returns little from ~70 deg on, and samples it could not have returned count
+    #: against the larger of two sizes (pose ranking keeps ``scoring.grazing_angle``)
+    scale_grazing_angle: float = knob(math.radians(80.0), "where a scale is decided, samples "
+                                      "seen more obliquely than this count as unseen (rad)")
+    rounds: int = knob(3, "rounds of local joint / scale steps after the sweep", COUNT0)
+    finish_rounds: int = knob(1, "rounds of local joint / scale steps in a leader's finish",
+                              COUNT0)
+    sweep_iterations: int = knob(5, "ICP iterations per sweep hypothesis", COUNT0)
+
+
+@dataclass(frozen=True)
+class VerdictSettings(_Group):
+    """Whether the best candidate fits: it covers what the sensor could see of it, explains the
+    clicked object and runs close to it."""
+
+    name = "verdict"
+    coverage_distance: float = knob(0.005, "a sample the sensor could have seen is covered by "
+                                           "scan points this close (m)")
+    min_coverage: float = knob(0.5, "a candidate fits when at least this fraction of those "
+                                    "samples is covered", FRACTION)
+    #: a one-sided scan covers about half of an object
+    min_coverage_no_viewpoint: float = knob(0.3, "the same without a viewpoint, where every "
+                                                 "sample counts", FRACTION)
+    #: a valve inside a box's points covers itself but explains a fraction of the box
+    min_explained: float = knob(0.8, "share of the clicked object's points within "
+                                     "explained_distance of the template's surface", FRACTION)
+    explained_distance: float = knob(0.008, "see min_explained (m)")
+    #: a template whose surface runs several millimetres off the object is some other object's
+    max_residual: float = knob(0.005, "a fitting candidate's residual is at most this (m)")
+    #: a noisier scan (``ClickContext.noise``) widens the verdict's distances in proportion
+    noise_reference: float = knob(0.0015, "the verdict's distances hold for a scan noise up to "
+                                          "this (m)")
+
+
+@dataclass(frozen=True)
+class RefitSettings(_Group):
+    """A refit from the operator's correction."""
+
+    name = "refit"
+    restarts: int = knob(10, "restarts around the correction")
+    spread: float = knob(0.015, "translation spread of the restarts (m)")
+    samples: int = knob(800, "template samples of the final ICP")
+    iterations: int = knob(12, "ICP iterations of the final ICP")
+    max_move: float = knob(0.05, "a refit moves at most this far from the correction (m)")
+    max_turn: float = knob(math.radians(30.0), "... and turns at most this much (rad)")
+
+
+#: the groups, by their field name in :class:`FitSettings`
+GROUPS = {g.name: g for g in (CropSettings, IcpSettings, ScoringSettings, HypothesesSettings,
+                              CoarseSettings, PrefilterSettings, MediumSettings, FineSettings,
+                              FinishSettings, ArticulationSettings, VerdictSettings,
+                              RefitSettings)}
+
+
+def _group(cls):
+    return field(default_factory=cls, metadata={"group": cls})
 
 
 @dataclass(frozen=True)
 class FitSettings:
-    """Fitting parameters (lengths in metres, angles in radians). ``fine_metric``, ``two_way``
-    and ``coarse_two_way`` are accepted at their values only: the alternatives were never
-    used and are gone."""
+    """Fitting parameters (lengths in metres, angles in radians): a few top knobs and one group
+    per stage. Build with keywords (``FitSettings(seed=3, coarse=CoarseSettings(samples=32))``),
+    :meth:`with_` (``settings.with_(**{"coarse.samples": 32})``), :meth:`from_dict` or
+    :meth:`load` (YAML); every group validates itself on construction."""
 
-    method: str = "default"            #: "default" or "paper" (the literal baseline)
-    mode: str = "auto"                 #: "auto" (plane prior + random), "mounted", "free"
-    voxel: float = 0.005               #: voxel edge of the crop
-    crop_factor: float = 1.0           #: crop radius = crop_factor * largest template diameter
-    snap_distance: float = 0.03        #: a click farther than this from the scan is refused
-    click_tolerance: float = 0.015     #: a candidate's surface should pass this close to the click
-    weight_scale: float = 0.005        #: d0 in w = 1 / (1 + d / d0)
-    score_cap: float = 0.01            #: per-point distance cap of the residual
-    reject_floor: float = 0.015        #: ICP rejection radius shrinks to this within a stage
-    free_space_margin: float = 0.01    #: depth tolerance of the visibility tests
-    #: the verdict: a sample the sensor could have seen is covered with scan points this close
-    coverage_distance: float = 0.005
-    #: ... and a candidate fits when at least this fraction of those samples is covered
-    min_coverage: float = 0.5
-    #: the same without a viewpoint, where every sample counts (a one-sided scan covers about
-    #: half of an object)
-    min_coverage_no_viewpoint: float = 0.3
-    #: ... and the template explains the clicked object: at least this share of the object's
-    #: points (the cluster's segments it overlaps, ``ClickContext.segments``) lie within
-    #: ``explained_distance`` of its surface -- a valve inside a box's points covers itself
-    #: but explains a fraction of the box
-    min_explained: float = 0.8
-    explained_distance: float = 0.008
-    #: ... and its residual is at most this: a template whose surface runs several
-    #: millimetres off the object is some other object's
-    max_residual: float = 0.005
-    #: the verdict's distances (``coverage_distance``, ``explained_distance``,
-    #: ``max_residual``) hold for a scan whose measured noise around the click
-    #: (``ClickContext.noise``) is at most this; a noisier scan widens them in proportion
-    noise_reference: float = 0.0015
-    grazing_angle: float = math.radians(89.0)  #: samples seen more obliquely count as unseen
-    score_samples: int = 600           #: template samples per candidate in the residual
-    yaw_restarts: int = 12             #: plane-prior restarts per template (yaw sweep)
-    random_restarts: int = 12          #: uniformly random restarts per template
-    free_restarts: int = 40            #: random restarts per template when there is no plane
-    resting_poses: int = 5             #: stable resting facets tried per template (plane found)
-    resting_yaws: int = 6              #: yaw steps per resting facet
-    coarse_samples: int = 64
-    coarse_iterations: int = 8
-    keep_per_template: int = 3
-    #: after ``prefilter_iterations`` coarse iterations, each template's best this many restarts
-    #: (and its best mounted one) go on through the coarse stage (0: all)
-    coarse_keep: int = 12
-    #: the library prefilter: in the coarse stage, the templates whose best coarse score is
-    #: more than ``prefilter_margin`` x the best template's leave the fit (ranked behind the
-    #: others with their coarse pose), except the ``prefilter_keep`` best (0: no prefilter)
-    prefilter_keep: int = 5
-    #: (the true template outside the best five scored at most 1.22 x the best on the bench's
-    #: and held-out clicks with 10, 20 and 40 templates)
-    prefilter_margin: float = 1.4
-    #: coarse iterations before the prefilter first decides (0: only after the coarse stage;
-    #: it decides again there, on the whole stage's evidence)
-    prefilter_iterations: int = 3
-    coarse_two_way: bool = True        #: fixed: coarse selection also scores cluster -> template
-    medium_samples: int = 256
-    medium_iterations: int = 10
-    fine_samples: int = 1500
-    fine_iterations: int = 20
-    #: at most this many full-resolution cluster points are the fine stage's target (an even
-    #: subset of a dense sensor's, or of a large flat object's; 0: all of them): a 1M-point
-    #: camera's cluster holds about 5700, the simulated Kinect's 1900 (7 of the bench's 100
-    #: clicks more than 5000)
-    fine_points: int = 5000
-    fine_metric: str = "plane"         #: fixed: the final stage is point-to-plane
-    two_way: bool = True               #: fixed: the final stage also pairs scene points with it
-    reverse_points: int = 600          #: at most this many scene points in those pairs
-    yaw_sweep: int = 8                 #: leaders re-tried at this many angles about their axis
-    #: ... ranked on the medium residual, the best this many again on the full one (0: all)
-    yaw_sweep_keep: int = 3
-    #: the leaders finished (yaw sweep, fine stage) and ranked again on the fine residual: the
-    #: winner and, of the next ``finish_candidates - 1``, those with a residual within
-    #: ``finish_margin`` x the winner's (1: the winner alone)
-    finish_candidates: int = 4
-    finish_margin: float = 1.3
-    #: estimate joint values and scale where templates have them (see ``bench``'s articulated rows)
-    articulated: bool = True
-    articulated_candidates: int = 4    #: at most that many leading candidates get them estimated,
-    articulated_margin: float = 1.3    #: those with a residual within this factor of the best
-    joint_sweep: int = 11              #: joint values tried across a revolute joint's limits
-    scale_sweep: int = 7               #: scales tried across a template's scale range
-    #: an articulated candidate whose rigid fit touches the plane under the click (within this)
-    #: keeps touching it: the joint must not be traded for the whole object floating off it
-    contact_distance: float = 0.01
-    #: a joint value the data cannot tell from the nearest named state (residual within this
-    #: fraction) is reported at that state; likewise a scale and the nominal scale 1
-    nominal_preference: float = 0.02
-    nominal_scale_preference: float = 0.005
-    #: where a scale is decided (against the nominal scale 1), samples seen more obliquely
-    #: than this count as unseen: a sensor returns little from ~70 deg on, and samples it
-    #: could not have returned count against the larger of two sizes (pose ranking keeps
-    #: ``grazing_angle``)
-    scale_grazing_angle: float = math.radians(80.0)
-    articulation_rounds: int = 3
-    #: rounds of local joint / scale steps in a leader's finish (after its yaw sweep)
-    finish_articulation_rounds: int = 1
-    articulation_icp: int = 5          #: ICP iterations per sweep hypothesis
-    refit_restarts: int = 10
-    refit_spread: float = 0.015        #: translation spread of the refit's restarts (m)
-    refit_samples: int = 800
-    refit_iterations: int = 12
-    refit_max_move: float = 0.05       #: a refit may move at most this far from the correction
-    refit_max_turn: float = math.radians(30.0)
-    #: threads one click may use (the pieces of a batch side by side; 1: the calling thread
-    #: alone). The numbers do not depend on it.
-    threads: int = 2
-    paper_restarts: int = 25
-    paper_iterations: int = 100
-    paper_samples: int = 500
-    seed: int = 0
+    method: str = knob("default", "default or paper (the literal baseline)", ("default", "paper"))
+    mode: str = knob("auto", "auto: mounting plane prior + resting + random restarts; mounted: "
+                             "the plane prior only; free: no mounting prior",
+                     ("auto", "mounted", "free"))
+    articulated: bool = knob(True, "estimate joint values (valve open/closed) and scale where "
+                                   "templates have them; false: rigid templates only")
+    seed: int = knob(0, "random seed of the restarts (fits are deterministic)", COUNT0,
+                     limits=(0, 2**31 - 1))
+    #: the pieces of a batch side by side; the numbers do not depend on it
+    threads: int = knob(2, "threads one click may use (1: the calling thread alone)")
+    #: the paper baseline (``method: paper``) has three knobs of its own, beside ``method``
+    paper_restarts: int = knob(25, "paper baseline: random restarts per template")
+    paper_iterations: int = knob(100, "paper baseline: ICP iterations per restart")
+    paper_samples: int = knob(500, "paper baseline: template samples")
+    crop: CropSettings = _group(CropSettings)
+    icp: IcpSettings = _group(IcpSettings)
+    scoring: ScoringSettings = _group(ScoringSettings)
+    hypotheses: HypothesesSettings = _group(HypothesesSettings)
+    coarse: CoarseSettings = _group(CoarseSettings)
+    prefilter: PrefilterSettings = _group(PrefilterSettings)
+    medium: MediumSettings = _group(MediumSettings)
+    fine: FineSettings = _group(FineSettings)
+    finish: FinishSettings = _group(FinishSettings)
+    articulation: ArticulationSettings = _group(ArticulationSettings)
+    verdict: VerdictSettings = _group(VerdictSettings)
+    refit: RefitSettings = _group(RefitSettings)
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if "group" in f.metadata:
+                if not isinstance(value, f.metadata["group"]):
+                    raise RegistrationError(f"{f.name} must be a {f.metadata['group'].__name__}, "
+                                            f"got {value!r}")
+            else:
+                _check(f.name, f, value)
 
     def validate(self) -> "FitSettings":
-        if self.method not in ("default", "paper"):
-            raise RegistrationError(f"method must be 'default' or 'paper', got {self.method!r}")
-        for name, only in (("fine_metric", "plane"), ("two_way", True), ("coarse_two_way", True)):
-            if getattr(self, name) != only:   # switches that never left their defaults
-                raise RegistrationError(f"{name} can only be {only!r} (the alternative was "
-                                        f"removed), got {getattr(self, name)!r}")
-        if self.mode not in ("auto", "mounted", "free"):
-            raise RegistrationError(f"mode must be 'auto', 'mounted' or 'free', got {self.mode!r}")
-        for name in ("voxel", "crop_factor", "snap_distance", "click_tolerance", "refit_spread",
-                     "weight_scale", "score_cap", "free_space_margin", "coverage_distance",
-                     "min_coverage", "min_coverage_no_viewpoint", "min_explained",
-                     "explained_distance", "max_residual", "noise_reference", "grazing_angle",
-                     "scale_grazing_angle", "reject_floor", "refit_max_move", "refit_max_turn",
-                     "articulated_margin", "finish_margin", "contact_distance",
-                     "nominal_preference", "prefilter_margin", "nominal_scale_preference"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise RegistrationError(f"{name} must be a positive number, got {v!r}")
-        for name in ("coarse_samples", "coarse_iterations", "keep_per_template", "medium_samples",
-                     "medium_iterations", "fine_samples", "score_samples", "reverse_points",
-                     "refit_samples", "refit_iterations", "fine_iterations", "refit_restarts",
-                     "threads", "finish_candidates", "paper_restarts", "paper_iterations",
-                     "paper_samples", "joint_sweep", "scale_sweep"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise RegistrationError(f"{name} must be an integer >= 1, got {v!r}")
-        for name in ("yaw_restarts", "random_restarts", "free_restarts", "yaw_sweep",
-                     "articulated_candidates", "prefilter_keep", "prefilter_iterations",
-                     "articulation_rounds", "finish_articulation_rounds", "yaw_sweep_keep",
-                     "coarse_keep", "fine_points",
-                     "articulation_icp",
-                     "resting_poses", "resting_yaws"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 0):
-                raise RegistrationError(f"{name} must be an integer >= 0, got {v!r}")
-        if self.min_coverage > 1 or self.min_coverage_no_viewpoint > 1 or self.min_explained > 1:
-            raise RegistrationError("min_coverage and min_explained must be at most 1")
-        if self.yaw_restarts + self.random_restarts == 0 or self.free_restarts == 0:
-            raise RegistrationError("at least one restart per template is needed")
+        """The settings (they validated themselves on construction)."""
         return self
 
+    # ---------------------------------------------------------------- knobs by name
+    @classmethod
+    def knobs(cls) -> list:
+        """Every knob: (dotted name, default, one-line description, rule text), top knobs first,
+        then group by group."""
+        out = []
+        for f in fields(cls):
+            group = f.metadata.get("group")
+            for g in fields(group) if group else (f,):
+                name = f"{f.name}.{g.name}" if group else f.name
+                out.append((name, g.default, g.metadata["doc"], describe_rule(g)))
+        return out
+
+    def to_dict(self) -> dict:
+        """The settings as plain data, nested by group (YAML / JSON)."""
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = {g.name: getattr(value, g.name) for g in fields(value)} \
+                if "group" in f.metadata else value
+        return out
+
+    @classmethod
+    def from_dict(cls, data, base: "FitSettings | None" = None) -> "FitSettings":
+        """Settings from plain data nested by group (as :meth:`to_dict` makes; missing knobs keep
+        ``base``'s values, by default the defaults). An unknown name or a bad value raises
+        :class:`RegistrationError` with one line naming it."""
+        base = base or cls()
+        if not isinstance(data, dict):
+            raise RegistrationError(f"settings must be a mapping of knobs and groups, got "
+                                    f"{type(data).__name__}")
+        known = {f.name: f for f in fields(cls)}
+        top, groups = {}, {}
+        for key, value in data.items():
+            f = known.get(key)
+            if f is None:
+                raise RegistrationError(f"unknown setting {key!r} (one of: {', '.join(known)})")
+            group = f.metadata.get("group")
+            if group is None:
+                top[key] = _as_type(f, value)
+                continue
+            if not isinstance(value, dict):
+                raise RegistrationError(f"{key} must be a mapping of its knobs, got {value!r}")
+            inner = {g.name: g for g in fields(group)}
+            for name in value:
+                if name not in inner:
+                    raise RegistrationError(f"unknown setting {key}.{name} (one of: "
+                                            f"{', '.join(inner)})")
+            groups[key] = replace(getattr(base, key),
+                                  **{n: _as_type(inner[n], v) for n, v in value.items()})
+        return replace(base, **top, **groups)
+
+    def with_(self, **changes) -> "FitSettings":
+        """These settings with knobs changed by dotted name:
+        ``settings.with_(seed=3, **{"coarse.samples": 32})``."""
+        nested: dict = {}
+        for key, value in changes.items():
+            group, dot, name = key.partition(".")
+            if dot:
+                nested.setdefault(group, {})[name] = value
+            else:
+                nested[key] = value
+        return FitSettings.from_dict(nested, base=self)
+
+    # ---------------------------------------------------------------- YAML
+    def dump(self) -> str:
+        """The settings as a YAML document (what :meth:`load` reads)."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    @classmethod
+    def load(cls, path: str) -> "FitSettings":
+        """Settings from a YAML file (all knobs optional, nested by group). A missing, unreadable
+        or malformed file, an unknown name or a bad value raises :class:`RegistrationError`
+        with one line."""
+        path = os.path.expanduser(str(path))
+        try:
+            with open(path, encoding="utf-8") as handle:
+                data = yaml.safe_load(handle)
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RegistrationError(f"cannot read settings file {path}: "
+                                    f"{getattr(exc, 'strerror', None) or exc}") from None
+        except yaml.YAMLError as exc:
+            where = getattr(exc, "problem_mark", None)
+            at = f" (line {where.line + 1})" if where is not None else ""
+            raise RegistrationError(f"settings file {path} is not YAML{at}") from None
+        try:
+            return cls.from_dict({} if data is None else data)
+        except RegistrationError as exc:
+            raise RegistrationError(f"settings file {path}: {exc}") from None
+
     # ---------------------------------------------------------------- the stages
-    coarse = _stage("coarse_samples", "coarse_iterations", COARSE_REJECT,
-                    doc="Every restart of every template, on few samples.")
-    medium = _stage("medium_samples", "medium_iterations", MEDIUM_REJECT,
-                    doc="The best few restarts per template.")
-    short = _stage("medium_samples", SHORT_ICP, MEDIUM_REJECT,
-                   doc="The leaders' yaw sweep and a refit's restarts.")
-    sweep = _stage("medium_samples", "articulation_icp", SWEEP_REJECT,
-                   doc="Each joint value / scale hypothesis of the articulated sweep.")
-    local = _stage("medium_samples", LOCAL_ICP, SWEEP_REJECT,
-                   doc="Each local joint / scale step after the sweep.")
-    fine = _stage("fine_samples", "fine_iterations", FINE_REJECT, FINE,
-                  doc="Each leader alone, on the full-resolution cluster.")
-    refit_fine = _stage("refit_samples", "refit_iterations", FINE_REJECT, FINE,
-                        doc="A refit's best restart on the full-resolution cluster.")
+    @property
+    def stages(self) -> Stages:
+        """The ICP stages these settings run."""
+        c, m, f, a, r = self.coarse, self.medium, self.fine, self.articulation, self.refit
+        return Stages(coarse=Stage(c.samples, c.iterations, c.reject),
+                      medium=Stage(m.samples, m.iterations, m.reject),
+                      short=Stage(m.samples, SHORT_ICP, m.reject),
+                      sweep=Stage(m.samples, a.sweep_iterations, SWEEP_REJECT),
+                      local=Stage(m.samples, LOCAL_ICP, SWEEP_REJECT),
+                      fine=Stage(f.samples, f.iterations, f.reject, FINE),
+                      refit=Stage(r.samples, r.iterations, f.reject, FINE))
+
+
+def _as_type(f, value):
+    """A value read from a file for knob ``f``: an integer where a float is expected becomes
+    that float (YAML's ``1`` for ``1.0``); anything else is left to the knob's rule."""
+    if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value

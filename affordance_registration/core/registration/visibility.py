@@ -29,7 +29,7 @@ def facing(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettin
     viewpoint."""
     if ctx.sensor_origin is None:
         return np.ones(X.shape[:-1], bool)
-    return _facing(X - ctx.sensor_origin, Nw, settings.grazing_angle)
+    return _facing(X - ctx.sensor_origin, Nw, settings.scoring.grazing_angle)
 
 
 def _facing(D: np.ndarray, Nw: np.ndarray, grazing_angle: float) -> np.ndarray:
@@ -60,14 +60,14 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
         front = np.ones(X.shape[:-1], bool)
     else:
         D = X - origin          # the offsets the facing test and the range image share
-        front = _facing(D, Nw, settings.grazing_angle)
+        front = _facing(D, Nw, settings.scoring.grazing_angle)
     if image is None:
         none = np.zeros_like(front)
         return (front, none, front) if exposed else (front, none)
     shared = origin is not None and (image.origin is origin or
                                      np.array_equal(image.origin, origin))
     obs, depth = image.lookup_offsets(D) if shared else image.lookup(X)
-    m = settings.free_space_margin
+    m = settings.scoring.free_space_margin
     # NaN (no return) compares False: an unknown direction is neither hidden nor violated
     known = front & (obs == obs) if exposed else None
     seen = front & (obs >= depth - m)

@@ -1,36 +1,39 @@
 """The engine node's parameters: the table (default, description, constraint), their
 declaration, validation, and the core settings they make.
 
+The fitting parameters are made from :class:`FitSettings`: every knob is the parameter
+``fit.<knob>`` or ``fit.<group>.<knob>`` with the knob's default and description, so a knob has
+one name and one default; ``settings_file`` (a settings YAML) replaces those defaults at start.
+:func:`params_file` and :func:`fit_table` write the parameter file and the documentation's table
+from this module (a test keeps them equal).
+
 Validation is a pure function of the values (:func:`check`), shared by the node's start-up and its
 set-parameters callback, so a bad value is refused with the same reason either way.
 """
 from __future__ import annotations
 
+import json
 import math
+import textwrap
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
-from ...core.errors import AffordanceError
+from ...core.errors import AffordanceError, RegistrationError
 from ...core.operator import BUTTON_ACTIONS, OperatorSettings
 from ...core.registration import FitSettings
 from .frames import StaticFrames
 
-__all__ = ["PARAMETERS", "READ_ONLY", "FIT_PARAMETERS", "declare", "check", "fit_settings",
-           "operator_settings"]
+__all__ = ["PARAMETERS", "NODE_PARAMETERS", "READ_ONLY", "FIT_PARAMETERS", "FIT_PREFIX",
+           "declare", "check", "fit_settings", "operator_settings", "params_file", "fit_table"]
 
 # name: (default, description, (min, max) or choices or None)
-PARAMETERS = {
+NODE_PARAMETERS = {
     "templates_dir": ("", "template library directory ('' = the package's models/)", None),
-    "fit_mode": ("auto", "auto: mounting plane prior + resting + random; mounted; free",
-                 ("auto", "mounted", "free")),
-    "estimate_joints": (True, "fit joint values (valve open/closed) and scale where templates "
-                              "have them; false: rigid templates only", None),
-    "voxel_size": (0.005, "voxel edge of the crop around a click (m)", (0.001, 0.05)),
-    "weight_scale": (0.005, "d0 of the correspondence weight 1/(1+d/d0) (m)", (0.0005, 0.1)),
-    "snap_distance": (0.03, "a click farther than this from the cloud is refused (m)", (0.001, 1.0)),
-    "seed": (0, "random seed of the restarts", (0, 2**31 - 1)),
+    "settings_file": ("", "fitting settings (YAML, as 'affordance-registration settings' prints) "
+                          "that replace the fit.* parameters' defaults ('' = none); read at "
+                          "start", None),
     "linear_gain": (0.1, "m/s per unit of spacenav/twist linear", (0.0, 10.0)),
     "angular_gain": (0.6, "rad/s per unit of spacenav/twist angular", (0.0, 20.0)),
     "twist_frame": ("spacenav", "axes of spacenav/twist: spacenav (REP-103 device axes: x away "
@@ -85,18 +88,25 @@ PARAMETERS = {
                                 "or the operator's view", ("object", "view")),
     "refit_on_new_cloud": (True, "a new cloud refits the selected (not yet accepted) object "
                                  "from its current pose, at most twice a second", None),
-    "test_slow_fit_s": (0.0, "test only: every click's fit takes at least this long (s), to "
-                             "show that input stays in order behind a slow fit", (0.0, 60.0)),
 }
-READ_ONLY = {"points_reliable", "interactive_namespace", "twist_stamped", "resume"}
+FIT_PREFIX = "fit."
+#: the fitting settings' knobs as parameters (``fit.`` + the knob's dotted name): (code default,
+#: description, rule)
+FIT_TABLE = {FIT_PREFIX + name: (default, doc, rule)
+             for name, default, doc, rule in FitSettings.knobs()}
 #: parameters that make the fitting settings (a change rebuilds the registrar)
-FIT_PARAMETERS = {"fit_mode", "voxel_size", "weight_scale", "snap_distance", "seed",
-                  "estimate_joints"}
+FIT_PARAMETERS = frozenset(FIT_TABLE)
+PARAMETERS = {**NODE_PARAMETERS, **{name: (default, doc, None)
+                                    for name, (default, doc, _) in FIT_TABLE.items()}}
+READ_ONLY = {"points_reliable", "interactive_namespace", "twist_stamped", "resume",
+             "settings_file"}
 
 
 def _descriptor(name, description, constraint) -> ParameterDescriptor:
     desc = ParameterDescriptor(description=description, read_only=name in READ_ONLY)
-    if isinstance(constraint, tuple) and isinstance(constraint[0], str):
+    if name in FIT_TABLE:
+        desc.additional_constraints = FIT_TABLE[name][2]
+    elif isinstance(constraint, tuple) and isinstance(constraint[0], str):
         desc.additional_constraints = "one of: " + ", ".join(constraint)
     elif isinstance(constraint, tuple):
         desc.additional_constraints = f"range [{constraint[0]}, {constraint[1]}]"
@@ -105,10 +115,17 @@ def _descriptor(name, description, constraint) -> ParameterDescriptor:
 
 def declare(node) -> dict:
     """Declare every parameter on ``node``; returns name -> value (overrides applied). A bad
-    value raises :class:`AffordanceError` with the reason."""
+    value raises :class:`AffordanceError` with the reason. The ``fit.*`` parameters start from
+    ``settings_file`` (when given), then the overrides apply."""
+    name = "settings_file"
+    node.declare_parameter(name, "", _descriptor(name, *PARAMETERS[name][1:]))
+    path = node.get_parameter(name).value
+    defaults = _flat(FitSettings.load(path) if path else FitSettings())
     for name, (default, description, constraint) in PARAMETERS.items():
+        if name == "settings_file":
+            continue
         # an empty list would be declared as a byte array: declare string lists by type
-        value = Parameter.Type.STRING_ARRAY if default == [] else default
+        value = Parameter.Type.STRING_ARRAY if default == [] else defaults.get(name, default)
         node.declare_parameter(name, value, _descriptor(name, description, constraint))
     values = {}
     for name, (default, _, _) in PARAMETERS.items():
@@ -124,6 +141,12 @@ def declare(node) -> dict:
 
 
 def _check_one(name: str, value) -> str | None:
+    if name in FIT_PARAMETERS:
+        try:
+            FitSettings().with_(**{name[len(FIT_PREFIX):]: value})
+        except RegistrationError as exc:
+            return f"{FIT_PREFIX}{exc}"
+        return None
     default, _, constraint = PARAMETERS[name]
     if isinstance(default, bool):
         return None if isinstance(value, bool) else f"{name} must be true or false"
@@ -159,11 +182,23 @@ def check(values: dict) -> str | None:
     return None
 
 
+def _flat(settings: FitSettings) -> dict:
+    """The settings as ``fit.*`` parameter values."""
+    out = {}
+    for key, value in settings.to_dict().items():
+        if isinstance(value, dict):
+            out.update({f"{FIT_PREFIX}{key}.{k}": v for k, v in value.items()})
+        else:
+            out[FIT_PREFIX + key] = value
+    return out
+
+
 def fit_settings(p: dict) -> FitSettings:
-    return FitSettings(mode=p["fit_mode"], voxel=float(p["voxel_size"]),
-                       weight_scale=float(p["weight_scale"]),
-                       snap_distance=float(p["snap_distance"]), seed=int(p["seed"]),
-                       articulated=bool(p["estimate_joints"]))
+    """The fitting settings the ``fit.*`` values of ``p`` make (RegistrationError: one line)."""
+    try:
+        return FitSettings().with_(**{name[len(FIT_PREFIX):]: p[name] for name in FIT_TABLE})
+    except RegistrationError as exc:
+        raise RegistrationError(f"{FIT_PREFIX}{exc}") from None
 
 
 def operator_settings(p: dict) -> OperatorSettings:
@@ -173,4 +208,45 @@ def operator_settings(p: dict) -> OperatorSettings:
         refit_idle_s=float(p["refit_idle_s"]),
         buttons=tuple((a, int(p[f"button_{a}"])) for a in BUTTON_ACTIONS),
         joint_axis=int(p["joint_axis"]), joint_axis_threshold=float(p["joint_axis_threshold"]),
-        follow_clouds=bool(p["refit_on_new_cloud"]), slow_fit_s=float(p["test_slow_fit_s"]))
+        follow_clouds=bool(p["refit_on_new_cloud"]))
+
+
+# ---------------------------------------------------------------------------- the documents
+def _value(value) -> str:
+    """A default as YAML and the docs write it (JSON is YAML: exact floats, quoted strings)."""
+    return json.dumps(value)
+
+
+def _comment(text: str, indent: str) -> list:
+    return textwrap.wrap(text, 100, initial_indent=indent + "# ",
+                         subsequent_indent=indent + "# ")
+
+
+def params_file() -> str:
+    """``launch_configs/affordance_engine.params.yaml``: every parameter at its default, with
+    its description."""
+    lines = ["# Parameters of the affordance_engine node, each at its default (msg_docs/README.md",
+             "# describes them). Made by `affordance-registration settings --node-params`; a test",
+             "# keeps this file equal to the code. fit.* are the fitting settings (FitSettings).",
+             "affordance_engine:", "  ros__parameters:"]
+    for name, (default, description, _) in NODE_PARAMETERS.items():
+        lines += _comment(description, "    ")
+        if default == []:        # a parameter file cannot give an empty list
+            lines.append(f"    # {name}: [\"parent child x y z qx qy qz qw\"]")
+        else:
+            lines.append(f"    {name}: {_value(default)}")
+    lines += ["    # The fitting settings (FitSettings), each at its default. Uncomment one to change it,",
+              "    # or give several in settings_file: a fit.* parameter given here or with -p",
+              "    # overrides the file."]
+    for name, (default, description, _) in FIT_TABLE.items():
+        lines += _comment(description, "    ")
+        lines.append(f"    # {name}: {_value(default)}")
+    return "\n".join(lines) + "\n"
+
+
+def fit_table() -> str:
+    """The documentation's table of the ``fit.*`` parameters (markdown)."""
+    rows = ["| name | default | rule | meaning |", "|---|---|---|---|"]
+    for name, (default, description, rule) in FIT_TABLE.items():
+        rows.append(f"| `{name}` | `{_value(default)}` | {rule} | {description} |")
+    return "\n".join(rows) + "\n"
