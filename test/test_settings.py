@@ -155,3 +155,16 @@ def test_the_bench_writes_the_settings_it_ran_with_next_to_its_json(tmp_path):
     path = write_settings(str(tmp_path / "out" / "bench.json"), ran)
     assert path == str(tmp_path / "out" / "bench.settings.yaml")
     assert FitSettings.load(path) == ran
+
+
+def test_the_tuning_guide_names_every_knob_with_its_default():
+    """docs/TUNING.md lists each knob of FitSettings as "`name` = `default`" (a knob added,
+    renamed or given another default without its trade-off written down fails here)."""
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / "docs" / "TUNING.md").read_text()
+    missing = []
+    for name, default, _, _ in FitSettings.knobs():
+        shown = str(default).lower() if isinstance(default, bool) else str(default)
+        if f"- `{name}` = `{shown}`" not in text:
+            missing.append(f"{name} = {shown}")
+    assert missing == [], missing
