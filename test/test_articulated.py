@@ -1,5 +1,5 @@
 """Articulated and scaled templates: joint values, named states and scale estimated with the pose
-on simulated depth scans with ground truth (issue 8)."""
+on simulated depth scans with ground truth."""
 import math
 
 import numpy as np
@@ -216,7 +216,7 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     assert dt <= 0.005
     # the contact decides it where the handle's own fit is traded along the line of sight:
     # fitted alone, with contact 1% off, without 5.7% off (in the whole library both land 2.3%
-    # off since issue 18's frame changes)
+    # off)
     alone = Scene(sim.organized)
     with_contact = Registrar(sized).fit(alone, obj.click, templates=["grab_handle"])
     no_contact = FitSettings().with_(**{"articulation.contact_distance": 1e-9})

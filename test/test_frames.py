@@ -1,5 +1,5 @@
 """Scenes in any frame: fitting a rigidly moved scene gives the rigidly moved fit (a property,
-over random frames and the four of issue 18), clouds without a viewpoint, the sensor origin from
+over random frames and the bench's four), clouds without a viewpoint, the sensor origin from
 ``--sensor-origin`` and a PCD's VIEWPOINT, the absolute verdict ("no template fits here") and
 degenerate input as one clear line."""
 import json
@@ -19,7 +19,7 @@ from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import axis_angle_matrix, make_T, pose_error
 from affordance_registration.evaluation.simulation import ply_bytes, simulate_taskboard
 
-#: the frames of issue 18's table: (rotation vector (rad), translation (m))
+#: the frames of the bench's frames row: (rotation vector (rad), translation (m))
 Z_UP = (np.array([-math.pi / 2, 0.0, 0.0]) * 1.0, [0.0, 0.0, 1.1])     # optical -> z-up base
 MAP = ([0.3, -0.2, 1.9], [12.5, -7.25, 1.3])                             # metres from the origin
 ARBITRARY = ([1.1, 2.0, -0.7], [1.2, -1.1, 1.2])                         # sensor 2 m away

@@ -1,4 +1,4 @@
-"""One regression test per row of the hardening table (issue 14): each bad input gets one clear
+"""One regression test per kind of bad input: each bad input gets one clear
 answer, the node keeps fitting a fresh click right afterwards, and nothing is written where it
 must not be. Live nodes in their own processes; the CLI as a user runs it."""
 import json

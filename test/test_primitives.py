@@ -1,4 +1,4 @@
-"""Primitive templates (a box, a cylinder: issue 26) and the verdict that says whether a template
+"""Primitive templates (a box, a cylinder) and the verdict that says whether a template
 explains the clicked object: loading, fitting on simulated scans with true dimensions, ranking
 against specific templates, the engine's dimension corrections, save and reload, ``fit --json``.
 The real-data cases (mOSD, PCL's milk carton) are in test_real_verdict.py."""

@@ -1,4 +1,4 @@
-"""Primitives over ROS (issue 26): a real engine node in its own process, a simulated table of
+"""Primitives over ROS: a real engine node in its own process, a simulated table of
 boxes and cylinders on ``points``, a click: the status says "no template fits here; fitted as a
 box ...", carries the dimensions, the markers draw the primitive at its size; ``~/set_dimension``
 sets and steps a dimension, the status and the accepted registration keep it; malformed

@@ -1,4 +1,4 @@
-"""The verdict and the primitives on real captures (issue 26): mOSD's Kinect tabletop scans and
+"""The verdict and the primitives on real captures: mOSD's Kinect tabletop scans and
 PCL's milk carton scene from ../shared/data (or $AFFORDANCE_SHARED_DATA; skipped with one line
 when absent), and the frame a scanned template's file is in (the Armadillo scans of or-pcd).
 

@@ -6,7 +6,7 @@ order it arrived, one input at a time, by one worker. So an action pressed right
 acts on that click's object however long the fit takes, and twists that arrive while a fit is
 pending move the object that fit produces.
 
-The stream also owns what used to depend on when messages happened to be handled:
+The stream also owns what would otherwise depend on when messages happen to be handled:
 
 * **twist integration**: each twist is held for the time between it and the previous one of the
   same burst, measured with the inputs' own time stamps (when the sender stamped them; for ROS,

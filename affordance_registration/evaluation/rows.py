@@ -1,9 +1,9 @@
-"""Bench rows of issue 26, each run with a ``registrar_factory(library) -> Registrar``
+"""The bench rows of real captures and primitives, each run with a ``registrar_factory(library) -> Registrar``
 (``core.registration.Registrar`` itself will do): real Kinect scenes (mOSD learn, tuning and
 held-out reported apart), primitives on simulated boxes and cylinders with true dimensions, and
 known objects in real clutter (the Armadillo among mOSD's objects, PCL's milk carton). Fields a
-registrar does not give yet (``primitive``, ``dimensions``) read as None, and so do the figures
-made of them.
+registrar does not give (``primitive``, ``dimensions``) read as None, and so do the figures made
+of them (a baseline registrar without primitives still gets its rows).
 """
 from __future__ import annotations
 
