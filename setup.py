@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """affordance_registration: click-to-fit affordance template registration for ROS 2."""
 import os
 from glob import glob

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The ``affordance-registration`` command.
 
 Subcommands: fit, settings, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,

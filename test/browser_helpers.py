@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """A real browser for the station's tests: Debian's chromium (headless, software WebGL) driven by
 Playwright, with a fresh profile each time. Playwright's own browser download is not used."""
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Shared fixtures. Every test process gets its own ROS domain and log folder, and ROS discovery
 stays on this machine (set before anything can import rclpy)."""
 import os

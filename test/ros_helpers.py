@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Helpers for the ROS tests: start nodes as separate processes, and a client node that spins in
 a background thread of the test process."""
 from __future__ import annotations

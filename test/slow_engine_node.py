@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The real engine node with a slow fitter: every click's fit takes SECONDS longer, to show that
 operator input stays in order behind a slow fit. Started as its own process by the tests
 (``ros_helpers.engine_process(..., slow_fit_s=SECONDS)``)::

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Measure the browser station's latencies (not a test; run it by hand):
 
     .venv/bin/python test/station_latency.py [--clicks N] [--clouds N] [--screenshot docs/station.png]

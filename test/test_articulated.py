@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Articulated and scaled templates: joint values, named states and scale estimated with the pose
 on simulated depth scans with ground truth."""
 import math

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """rosbag2 bags (record / play / info) and the replay of the bundled operator session into a live
 engine node -- the regression test of a real recorded bag."""
 import os

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The command line, run as a user would: separate processes, exit codes, one-line errors."""
 import json
 import math

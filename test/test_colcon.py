@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The package as a ROS 2 developer builds it: a colcon workspace with the package in ``src/``,
 built with ``colcon build`` and with ``colcon build --symlink-install`` (colcon-common-extensions
 and ament_package from the test extra), each install used the way ``ros2 run`` uses it -- the

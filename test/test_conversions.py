@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Message conversions, without rclpy.init: PointCloud2 layouts, poses, frame graphs."""
 import math
 import struct

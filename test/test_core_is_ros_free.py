@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The layers stay apart, checked in fresh interpreters: core/ and the ROS-free evaluation
 modules never import ROS, and no product module (core/, ros/, the CLI's product commands) imports
 the evaluation package."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Every module the package imports -- at run time (``affordance_registration/``) and in its tests
 (``test/``) -- is declared: in package.xml under a rosdep key (exec_depend for run time,
 test_depend or exec_depend for the tests) or named in its pip-only comment, and in setup.py (a

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """No registration is lost: real engine processes killed with SIGKILL, SIGINT and SIGTERM and
 started again on the same registrations file, a real client here (topics and services)."""
 import os

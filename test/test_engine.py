@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The engine: clicks, cycling, view-frame corrections, refit, accept, undo, save/load, threads."""
 import math
 import threading

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The affordance_engine node end to end: a real node in its own process, a client node here,
 real topics and services (own ROS_DOMAIN_ID, discovery on localhost only)."""
 import contextlib

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The fitter's hand-rolled fast paths give the digits of the slower, general code they replace
 (the golden fits depend on it): checked against that code on random input."""
 from __future__ import annotations

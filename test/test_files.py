@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Saved files are written atomically: all or nothing, no temporary files left behind."""
 import os
 

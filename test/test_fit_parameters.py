@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The engine node's parameters are the code's: the shipped parameter file and the tables in
 msg_docs/README.md name every parameter with the code's default, and the fitting knobs are the
 ``fit.*`` parameters made from FitSettings -- a real node started with a settings file and a

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Floods are bounded: a real engine process flooded with clicks and huge strings over real topics
 keeps answering the operator's service calls, with bounded memory and a bounded status."""
 import os

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Scenes in any frame: fitting a rigidly moved scene gives the rigidly moved fit (a property,
 over random frames and the bench's four), clouds without a viewpoint, the sensor origin from
 ``--sensor-origin`` and a PCD's VIEWPOINT, the absolute verdict ("no template fits here") and

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Property-based fuzzing of every input format the product reads: PointCloud2 layouts, template
 YAML, launch YAML, bag metadata and the command line. Whatever arrives, the answer is a result or
 one clear package error -- never another exception, a hang or a traceback."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Golden fits: the ranked candidates, poses, joint values, scales and residuals of fixed clicks
 on seeded simulated scenes (panel, table, articulated, rigid only, refits, the paper baseline),
 recorded in ``test/data/golden_fits.json``.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """One regression test per kind of bad input: each bad input gets one clear
 answer, the node keeps fitting a fresh click right afterwards, and nothing is written where it
 must not be. Live nodes in their own processes; the CLI as a user runs it."""

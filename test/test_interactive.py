@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The interactive-marker server against a protocol client written here that behaves as RViz's:
 request the full set, then apply updates in seq_num order and detect gaps."""
 import math

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """What a shown candidate's standing reads as (core.labels): the verdict first, then the margin
 over the runner-up (the ratio of their probabilities) -- never a bare probability."""
 import math

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The YAML launch-file runner: parsing, substitutions, and starting/stopping real nodes."""
 import os
 import sys

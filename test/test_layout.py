@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """No module of the package is longer than MAX_LINES: a module holds one concept, and a newcomer
 reads it whole. One that outgrows the limit is split by concept, as core/templates.py (the
 template object, its file format, mesh geometry, the library) and core/scene.py (the cloud, the

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The KD-tree every nearest-neighbour query goes through (pykdtree): the same neighbours and
 distances as scipy's cKDTree (an independent reference), and queries that stay on one OpenMP
 thread without changing the user's OpenMP settings."""

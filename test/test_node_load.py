@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Responsiveness: a stream of 1-million-point clouds does not starve the engine node; a second
 click during a fit is fitted after it, not lost; parameter and status traffic keep flowing."""
 import json

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The ordered stream of operator input (core/operator.py) on the real engine, in simulated time:
 inputs queued while a (slow) fit runs are handled in arrival order, twists are integrated over
 their own time stamps, the idle refit waits for the twists to stop, a refit still waiting runs

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Accepting a candidate the verdict refuses is an operator override, and the registration says
 so (core engine, saved file, reloaded); a right fit is accepted plainly."""
 import numpy as np

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Every input acts on its own object: a real engine process, interactive-marker feedback, clicks
 and TF over real topics."""
 import time

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """What an integrator relies on: the package-root imports, requirements.txt equal to setup.py's
 pins, package.xml, and the RViz config the README points at."""
 import ast

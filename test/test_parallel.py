@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Both cores for one click: the pieces of a batch side by side give the same fits as one
 thread, and the pool passes errors on and never waits on itself."""
 import os

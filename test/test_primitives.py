@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Primitive templates (a box, a cylinder) and the verdict that says whether a template
 explains the clicked object: loading, fitting on simulated scans with true dimensions, ranking
 against specific templates, the engine's dimension corrections, save and reload, ``fit --json``.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Primitives over ROS: a real engine node in its own process, a simulated table of
 boxes and cylinders on ``points``, a click: the status says "no template fits here; fitted as a
 box ...", carries the dimensions, the markers draw the primitive at its size; ``~/set_dimension``

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The README runs as written: its Python snippets execute unchanged, every command and option of
 ``affordance-registration`` has help text and is in the README's command list, and every node
 executable has its section in msg_docs."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The real-data evaluation harness (affordance_registration.evaluation): mOSD's labelled Kinect
 scans read with their labels, the labelled objects and their clicks, the analytic primitive
 distances, the label-based score of a primitive fit, and the Armadillo placed in real clutter.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The verdict and the primitives on real captures: mOSD's Kinect tabletop scans and
 PCL's milk carton scene from ../shared/data (or $AFFORDANCE_SHARED_DATA; skipped with one line
 when absent), and the frame a scanned template's file is in (the Armadillo scans of or-pcd).

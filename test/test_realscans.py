@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Real range scans: the Stanford Armadillo scans of the PyPI package or-pcd (0.0.1b7), fetched
 with pip into a cache at test time (``make test`` fetches it first; never committed). If the
 download fails, these tests fail and say why -- nothing is skipped.

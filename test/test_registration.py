@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Registration: the closed-form solves, the weighting rule, and fits on simulated scans."""
 import math
 

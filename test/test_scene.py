@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The crop preparation's fast paths give the numbers of their plain formulations, bit for bit:
 the voxel grid grouped through a table of cells, the cluster's components from CSR rows, the
 fine points looked up inside the cluster's box only, the normals' neighbourhood sums, the

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The fitting settings (core/registration/settings.py): one declaration per knob, grouped by
 stage; every group validates itself with one line naming the knob; plain data and YAML give the
 same settings back exactly; a nested knob is overridden by its dotted name. No ROS."""

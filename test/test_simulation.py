@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The depth-camera simulator: determinism, geometry, visibility and the noise model."""
 import math
 

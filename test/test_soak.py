@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """A soak (marked long: run with AFFORDANCE_LONG_TESTS=1; AFFORDANCE_SOAK_S sets its length, 600 s
 by default): a real engine process while clouds stream at 5 Hz, rounds of click, SpaceMouse push,
 cycle, and accept / undo / discard. Every call is answered, memory is flat after the warm-up,

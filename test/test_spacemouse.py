@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """SpaceMouse: report parsing (both families), the axis convention, and the node in its own
 process driven by a scripted HID device (FifoBackend), alone and with the engine."""
 import contextlib

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The station without a browser and without rclpy.init: ray -> cloud point snapping, the browser
 camera -> view_pose conversion, display thinning and colours, and the message/status helpers."""
 import math

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The station admits its operator only: a real station process, real websocket clients and a
 real headless Chromium; the share tunnel and outbound connections in a network namespace."""
 import os

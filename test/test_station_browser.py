@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The browser operator station end to end, in a real browser: the engine node, a simulated scan
 and the station run as separate processes; headless chromium (software WebGL) driven by
 Playwright clicks, drags and presses buttons on the page like an operator."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """`affordance-registration station --demo` as a newcomer runs it (no browser needed): it prints
 the URL once the page is served by a station talking to a live engine and a simulated scan, and
 Ctrl-C stops every node. A taken port is one line and exit status 2."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """A user with a file: ``affordance-registration station --scene FILE --units mm`` serves the
 browser station on a PLY scan in millimetres with an engine of its own (no other node started
 by the test), and an operator in a real browser (headless chromium) clicks an object, accepts

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The template folder rule with symlinks: a geometry file must resolve inside the YAML's folder,
 or inside the folder of the YAML's real file (a ``colcon build --symlink-install`` share folder
 links every file on its own); anything resolving elsewhere stays refused unless the template

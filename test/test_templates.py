@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Template files: loading, validation errors that name file and key, samples, diameter, symmetry."""
 import math
 import os

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """TF: the tf2_msgs that `make setup` builds (Jazzy's type hash and wire format), and a live
 engine node's frames over real topics -- registrations on /tf_static, the shown candidate on
 /tf, clicks in a frame known only from /tf_static -- plus the node without tf2_msgs."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """One affordance template: its geometry (a mesh, or a scan's points), symmetry, joints and named
 states, with the seeded, cached surface samples the fitting draws on.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """What the fitting gets for one click (:class:`ClickContext`, built by
 :meth:`~affordance_registration.core.scene.Scene.prepare_click` and reused for refits): the
 cropped and voxelized points, the cluster around the click, its full-resolution points and

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Operator corrections: a 6-DoF twist in the operator's view frame -> an SE(3) step.
 
 The *view frame* is the screen as the operator sees it: x to the right, y up, z towards the

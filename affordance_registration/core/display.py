@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Geometry of an operator's view of a cloud: thinning a cloud for display, colouring it, picking
 the cloud point under a click ray, and the pinhole camera of a browser view.
 

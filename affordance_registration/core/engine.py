@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """AffordanceEngine: objects of interest, ranked candidates, cycling, corrections, refit, accept,
 undo, save and load. Pure Python (no ROS); the ROS node is a thin wrapper around it.
 

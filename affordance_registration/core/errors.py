@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Package exceptions. Core code raises these with a message a person can act on."""
 
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Saved files are written atomically: to temporary files in the destination folder first, then
 renamed into place, so a failure (a full disk, a crash) never leaves a half-written file behind.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The operator's inputs, one small frozen record per kind, and the host the operator stream
 (:mod:`~affordance_registration.core.operator`) talks to: what it needs from the node it runs
 in, as one :class:`OperatorHost` protocol. Pure Python (no ROS)."""

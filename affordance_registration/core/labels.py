@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """How a shown candidate's standing reads to an operator -- the same words in the browser
 station, the engine's markers and the demo picture.
 

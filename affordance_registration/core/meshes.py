@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Mesh geometry a template needs: the closed mesh of a parametric primitive, distances from
 points to a mesh's surface, and the facets an object can rest on.
 

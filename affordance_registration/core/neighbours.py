@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Nearest-neighbour search: the one place that builds and queries KD-trees, and the surface
 normals estimated from neighbourhoods.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Operator input in one ordered stream.
 
 Everything the operator does -- clicks, SpaceMouse twists and buttons, service calls, marker drags

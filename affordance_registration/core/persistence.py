@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The registrations file of a session: resumed at start, rewritten atomically after every change,
 and never replaced without a backup when it holds something this session did not write.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The dominant plane around a click: found by RANSAC, kept as the support under the clicked object
 only where the surface it cuts is flat (not a slab through a curved object), with the band of
 the support's own noisy points that the cluster leaves out.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Point-cloud and mesh files, read safely: a header is checked against the file's size before
 anything is allocated (a PLY that claims a billion vertices and holds one is refused at once),
 what a reader could not read is an error rather than a shorter cloud, and a PCD's ``VIEWPOINT``

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Scenes: the scanned points, and the per-click preparation the fitting runs on.
 
 A :class:`Scene` holds the finite points of one cloud (metres) in any frame -- a camera optical

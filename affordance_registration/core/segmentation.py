@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Segmentation of the points around a click: the cluster connected to the click (steps of at
 most a gap, reaching out from the click across occlusions), and the cluster's segments cut at
 concave edges, where two touching surfaces meet (``ClickContext.segments``).

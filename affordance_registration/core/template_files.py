@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Template files: reading a template's YAML and checking every key before any work is
 done, so that a broken file is refused with one line naming the file and the key.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The template library: an ordered, read-only name -> template mapping loaded from a directory
 of template files (the package's own ``models/`` by default).
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The engine's state as immutable records: an object of interest and its ranked candidates
 (:class:`TrackedObject`), an accepted object (:class:`Registration`) and the whole state
 (:class:`EngineState`) that every action swaps and undo restores. Pure Python (no ROS)."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """SE(3) helpers. Transforms are 4x4 float64 arrays named by their frames: ``T_a_b`` maps points
 expressed in frame b into frame a, so ``T_a_c = T_a_b @ T_b_c`` reads right."""
 from __future__ import annotations

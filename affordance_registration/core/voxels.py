@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The voxel grid a scan is thinned on and the frame it is laid out in, with the column-wise
 array helpers the per-click preparation is built from.
 

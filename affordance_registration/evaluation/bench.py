@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The performance table: speed and accuracy of the default method against baselines, measured in
 one run on simulated taskboards with ground truth (``affordance-registration bench``); the rows
 are :mod:`~affordance_registration.evaluation.bench_rows`' and

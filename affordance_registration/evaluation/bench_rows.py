@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The rows of the performance table (:mod:`~affordance_registration.evaluation.bench`): each a
 function measuring one thing, mostly on simulated taskboards with ground truth -- a method's
 speed and accuracy over the same clicks, the same clicks in other frames or without a

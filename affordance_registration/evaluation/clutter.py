@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Cluttered real scenes with ground truth, built from the shared real scans: the Stanford
 Armadillo (or-pcd's range scans, as a point-cloud template) standing on an mOSD table among
 mOSD's real objects and touching one of them, seen by a depth camera at the origin; and PCL's

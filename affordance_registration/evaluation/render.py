@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Offscreen pictures of a scan with registered templates drawn in place (PNG, no display).
 
 The scan's points are splatted into the camera image (nearest depth wins, shaded by depth); the

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The bench rows of real captures and primitives, each run with a ``registrar_factory(library) -> Registrar``
 (``core.registration.Registrar`` itself will do): real Kinect scenes (mOSD learn, tuning and
 held-out reported apart), primitives on simulated boxes and cylinders with true dimensions, and

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Operator sessions over ROS: the simulated operator driving a live engine node through its
 topics (recorded as a rosbag2 bag), and the replay of a recorded session into a live node -- the
 product's demonstration (``make demo``) and a regression test.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Node ``affordance_simulated_scan``: publishes a simulated depth-camera scan of a taskboard on
 ``points`` -- a sensor for trying the engine and the browser station without one
 (``affordance-registration station --demo``).

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Depth-camera simulation of taskboard scenes with ground truth.
 
 A scene is rendered by ray casting (Open3D ``RaycastingScene``) from a pinhole camera with the

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Generator of the taskboard template library (the five objects of the paper's ISS taskboard).
 
 The meshes in ``models/meshes`` and the YAML files in ``models/`` are produced by

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Random-restart weighted ICP over every template, batched: the :class:`Registrar` composes
 the stages of this package (see :mod:`.registrar` for the algorithm).
 

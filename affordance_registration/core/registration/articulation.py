@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Joint values and scale, estimated with the pose for articulated templates (a joint with its
 moving part, or a scale range): a sweep across the joint's limits and the scale range, local
 steps, and -- after the fine stage -- Occam's razor towards a named state and the nominal scale.

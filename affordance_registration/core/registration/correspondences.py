@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Correspondences of one ICP iteration: posed template samples paired with the nearest scene
 points (forward), scene points paired with the nearest template surface (reverse), and a resting
 template's lowest samples paired with the plane under the click (contact) -- each pair weighted

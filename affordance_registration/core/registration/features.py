@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Initial poses from local shape features, for scanned (point-cloud) templates.
 
 A scanned template is usually a large, free-standing object with no mounting base, and a click

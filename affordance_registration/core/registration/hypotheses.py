@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Where ICP starts: initial hypotheses around the click for every template, the library
 prefilter after the coarse stage, the distinct best few kept per template, and the winner's
 sweep about its mounting axis.

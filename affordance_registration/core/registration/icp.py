@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Weighted ICP: one loop for every stage. A batch of hypotheses advances together (one KD query
 per iteration); the rejection radius shrinks from the stage's reach to ``icp.reject_floor``; the
 loop stops once every hypothesis has converged (its step turns it less than

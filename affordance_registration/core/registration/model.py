@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The model a fit poses: one type for every template (:class:`Model`) -- a rigid one is a model
 with its joint at zero and scale one -- and the one cache (:class:`ModelCache`, locked) that owns
 the posed samples and the dense surfaces' KD-trees.

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The method of record, literally (Hagenow et al.): the baseline every benchmark compares
 against (``FitSettings(method="paper")``).
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Both cores for one click: independent pieces of a stage -- the hypotheses of a batch, split
 into contiguous parts, or the leading candidates' joint estimates -- run on a small shared pool
 of threads while the calling thread runs the first piece itself.

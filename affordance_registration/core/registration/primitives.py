@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Primitive templates (a box, a cylinder): the pose *and* the dimensions from the clicked object.
 
 An object outside the library is often a box or a can. Its primitive is measured, not searched

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """A local refit after the operator's correction: a few restarts around the corrected pose, a
 short ICP, the best one that stays near the correction refined at full resolution -- and never
 a result farther from the correction than the operator would accept.

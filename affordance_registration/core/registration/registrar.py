@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The registrar: every template fitted around a click, ranked -- the algorithm, composed of
 the stages in this package.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """What a fit returns: one :class:`FitResult` per template, ranked into a :class:`FitReport`."""
 from __future__ import annotations
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The residual a candidate is ranked by: two-way and capped -- template -> scene over the
 samples the sensor could have seen (a free-space violation counts as the cap), scene cluster ->
 template, and the click penalty (the operator clicked *on* the object). Its inverse is the

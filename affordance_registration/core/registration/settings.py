@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage),
 the ICP stages they make (:class:`Stage`) and the constants several stages share (sample seeds,
 the fixed stage lengths, the fine stage's convergence). A constant one stage alone uses lives

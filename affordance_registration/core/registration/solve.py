@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The closed-form solves of one ICP iteration: the weighted rigid transform (SVD, point to
 point) and the weighted point-to-plane Gauss-Newton step -- 6 unknowns for a rigid motion, plus
 bounded extra unknowns (a joint value, a scale).

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Which posed template samples the sensor could have seen: the one place that reasons about
 the sensor's view of a hypothesis (a range image of the crop looking along the ray from the
 sensor origin to the click: no axis of the scene's frame is special).

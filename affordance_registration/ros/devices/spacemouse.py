@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """``affordance_spacemouse``: 3Dconnexion SpaceMouse -> ``spacenav/twist`` and ``spacenav/joy``,
 read with hidapi -- a drop-in for the spacenav driver, without spacenavd.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Message <-> numpy conversions, vectorised, at the boundary of the ROS glue.
 
 ``pointcloud2_to_xyz`` reads x, y, z from any PointCloud2 layout that carries them as float32 or

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Frame graphs for clicks and view poses: the latest transforms heard on /tf and /tf_static
 (``ros/glue/tf.py`` fills one) and the static transforms given as a parameter (the fallback).
 

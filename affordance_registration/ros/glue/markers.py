@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The engine's state drawn as RViz markers (``~/markers``): the shown candidate of each open
 object, its moving part, its label and the click; registered objects in their own colour. An
 object where no template fits (the verdict) is grey and its label starts "no template fits

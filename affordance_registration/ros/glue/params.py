@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The engine node's parameters: the table (default, description, constraint), their
 declaration, validation, and the core settings they make.
 

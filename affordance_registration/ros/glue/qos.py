@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The QoS profiles of the package's topics, in one place.
 
 ``LATCHED``: the last message is kept for late subscribers (transient local, reliable) -- the

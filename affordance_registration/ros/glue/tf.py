@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """TF for the engine node: registrations and the shown candidate out, frame lookups in.
 
 Out (``TfBroadcaster``): every registration is a frame ``<template>_<id>`` (``ball_valve_1``)

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Rate-limited log lines: a stream of bad messages gives one line per kind of problem every few
 seconds, not one per message (and not one per distinct text: a storm of client ids or frame
 names counts once)."""

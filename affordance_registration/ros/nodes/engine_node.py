@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The ``affordance_engine`` node: clouds, clicks, SpaceMouse twists/buttons, view poses, marker
 feedback and service calls in; ranked fit markers, poses and status out. Thin: convert, hand to
 the core, publish.

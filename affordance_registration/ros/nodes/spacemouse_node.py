@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The ``affordance_spacemouse`` node: a 3Dconnexion device read through a
 :class:`~affordance_registration.ros.devices.spacemouse.HidBackend`, published as ``spacenav/twist`` and
 ``spacenav/joy`` exactly as the spacenav driver does (see :mod:`.spacemouse` for the axes)."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """rosbag2 record / play / info through the ``rosbags`` library (rosbag2 is not on PyPI).
 
 Bags are rosbag2 version 9, MCAP storage, CDR serialization, with the type hashes and the

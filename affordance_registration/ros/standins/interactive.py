@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Interactive-marker server for RViz's Interactive Markers display, implemented from the
 visualization_msgs definitions (the interactive_markers package is not on PyPI).
 

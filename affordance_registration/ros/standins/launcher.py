@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Runs a ROS 2 YAML launch file (the format ``ros2 launch`` reads) without the ros2 CLI.
 
 Supported (what the package's own launch files and typical operator stations use)::

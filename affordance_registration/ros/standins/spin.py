@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Running rclpy nodes the way these wheels need it: no rclpy signal handlers (a node blocked in
 ``rclpy.spin()`` has been seen to ignore SIGINT), our own SIGINT/SIGTERM handler, and a
 ``spin_once`` loop that logs a failing callback instead of dying."""

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Who may use the operator station, and how much: the access secret, the Origin and Host checks,
 the bounds on websocket frames and message rates, no share tunnel and no outbound connection.
 

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Node ``affordance_station``: the browser operator station, a plain ROS client of an engine node.
 
 It serves a page with viser (``http://127.0.0.1:8080`` by default; the web client ships inside the

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The operator page the station serves: every viser call of the station is here
 (:class:`StationPage`); what the browser does reaches the station through :class:`PageHandlers`."""
 from __future__ import annotations

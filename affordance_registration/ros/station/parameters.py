@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """The station's ROS parameters (name -> default and description) and their checks, apart from
 the node so that the command line checks them before it starts one."""
 from __future__ import annotations

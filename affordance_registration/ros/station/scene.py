@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Node ``affordance_file_scan``: publishes a scan file (PLY, PCD or organized .npy) on
 ``points``, scaled to metres -- the sensor of ``affordance-registration station --scene FILE``,
 which starts it with an engine node and the browser station

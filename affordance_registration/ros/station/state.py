@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """What the station shows, from the engine's documented outputs alone: the drawings of its
 ``~/markers`` (:func:`apply_markers`) and the text of its ``~/status`` (the selected object, its
 shown candidate's label and verdict, the status panel). Plain functions and records, tested

@@ -1,3 +1,5 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
 """Generate and build the ``tf2_msgs`` interfaces (TFMessage, TF2Error) into a Python prefix.
 
     python -m affordance_registration.ros.standins.interfaces.build [--prefix PREFIX]
