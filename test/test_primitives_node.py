@@ -111,7 +111,7 @@ def test_malformed_or_untimely_set_dimension_is_one_line(session, text, why):
 
 
 def test_parse_dimension():
-    from affordance_registration.ros.nodes.engine_node import parse_dimension
+    from affordance_registration.ros.glue.conversions import parse_dimension
     assert parse_dimension(" radius=0.045 ") == ("radius", 0.045, None)
     assert parse_dimension("x+") == ("x", None, 1.0) and parse_dimension("y -") == \
         ("y", None, -1.0)

@@ -469,10 +469,27 @@ def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
         return measure_push_refit(seeds, clicks, out, log=log)
 
 
-def _ros_conversion_bench() -> dict | None:
-    """PointCloud2 -> numpy for a 1-million-point organized cloud (needs the ROS messages)."""
+def _ros_conversion_bench(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict | None:
+    """PointCloud2 <-> numpy for a 1-million-point organized cloud with NaN holes, then Scene()
+    (needs the ROS messages)."""
     try:
-        from ..ros.glue.conversions import bench_pointcloud2_conversion
+        from ..ros.glue.conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
     except ImportError:
         return None
-    return bench_pointcloud2_conversion()
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, size=(height, width, 3)).astype(np.float32)
+    pts[rng.random((height, width)) < 0.2] = np.nan
+    t0 = time.perf_counter()
+    msg = xyz_to_pointcloud2(pts, "camera")
+    from_numpy = time.perf_counter() - t0
+    times, scene_times = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out, shape = pointcloud2_to_xyz(msg)
+        t1 = time.perf_counter()
+        Scene(out)
+        times.append(t1 - t0)
+        scene_times.append(time.perf_counter() - t1)
+    assert shape == (height, width) and out.shape == (height * width, 3)
+    return {"points": height * width, "to_numpy_ms": float(np.median(times)) * 1000,
+            "scene_ms": float(np.median(scene_times)) * 1000, "from_numpy_ms": from_numpy * 1000}

@@ -8,7 +8,7 @@ one structured-dtype view of the buffer -- no per-point Python. None of this nee
 """
 from __future__ import annotations
 
-import time
+import math
 
 import numpy as np
 from geometry_msgs.msg import Point, PointStamped, Pose, PoseStamped, Quaternion, Transform
@@ -18,13 +18,13 @@ from visualization_msgs.msg import Marker
 
 from ...core.errors import AffordanceError
 from ...core.pointfiles import MAX_POINTS
-from ...core.scene import Scene
 from ...core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
-__all__ = ["ConversionError", "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
+__all__ = ["ConversionError", "source_stamp_s", "header_stamp_s", "parse_dimension",
+           "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
            "xyz_to_pointcloud2", "pose_to_matrix", "matrix_to_pose", "pose_stamped", "point_stamped",
            "stamped", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
-           "text_marker", "sphere_marker", "likelihood_color", "bench_pointcloud2_conversion"]
+           "text_marker", "sphere_marker", "likelihood_color"]
 
 _FLOAT_TYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
 _NUMERIC = {PointField.INT8: "i1", PointField.UINT8: "u1", PointField.INT16: "i2",
@@ -268,22 +268,42 @@ def sphere_marker(position, frame_id: str, ns: str, marker_id: int, stamp=None,
     return m
 
 
-def bench_pointcloud2_conversion(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict:
-    """Time PointCloud2 <-> numpy for a 1-million-point organized cloud with NaN holes."""
-    rng = np.random.default_rng(0)
-    pts = rng.uniform(-1, 1, size=(height, width, 3)).astype(np.float32)
-    pts[rng.random((height, width)) < 0.2] = np.nan
-    t0 = time.perf_counter()
-    msg = xyz_to_pointcloud2(pts, "camera")
-    from_numpy = time.perf_counter() - t0
-    times, scene_times = [], []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out, shape = pointcloud2_to_xyz(msg)
-        t1 = time.perf_counter()
-        Scene(out)
-        times.append(t1 - t0)
-        scene_times.append(time.perf_counter() - t1)
-    assert shape == (height, width) and out.shape == (height * width, 3)
-    return {"points": height * width, "to_numpy_ms": float(np.median(times)) * 1000,
-            "scene_ms": float(np.median(scene_times)) * 1000, "from_numpy_ms": from_numpy * 1000}
+# ---------------------------------------------------------------------- stamps, message text
+def source_stamp_s(info) -> float | None:
+    """The publisher's source time stamp (s) of a received message, if the middleware gave one."""
+    try:
+        ns = int(info["source_timestamp"])
+    except (TypeError, KeyError, ValueError):
+        return None
+    return ns * 1e-9 if ns > 0 else None
+
+
+#: the longest ``~/set_dimension`` message read (longer ones are refused unread)
+MAX_DIMENSION_TEXT = 64
+
+
+def parse_dimension(text: str) -> tuple:
+    """(name, value in m or None, steps or None) of a ``~/set_dimension`` message:
+    "radius=0.045", "x+", "x-". AffordanceError (one line) for anything else."""
+    text = str(text)
+    if len(text) > MAX_DIMENSION_TEXT:
+        raise AffordanceError(f"a message of {len(text)} characters; expected NAME=METRES, "
+                              f"NAME+ or NAME-")
+    text = text.strip()
+    if text.endswith(("+", "-")) and text[:-1].strip().isidentifier():
+        return text[:-1].strip(), None, 1.0 if text.endswith("+") else -1.0
+    name, eq, value = text.partition("=")
+    try:
+        metres = float(value)
+    except ValueError:
+        metres = math.nan
+    if not eq or not name.strip().isidentifier() or not math.isfinite(metres):
+        raise AffordanceError(f"expected NAME=METRES, NAME+ or NAME- (e.g. radius=0.045), got "
+                              f"{text!r}")
+    return name.strip(), metres, None
+
+
+def header_stamp_s(header) -> float | None:
+    """A header's stamp in seconds, None when it has none (zero)."""
+    s = header.stamp.sec + header.stamp.nanosec * 1e-9
+    return s if s > 0 else None

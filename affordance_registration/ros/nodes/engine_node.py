@@ -8,7 +8,8 @@ Every operator input goes into one :class:`~affordance_registration.core.operato
 and is handled in arrival order by one worker thread (so an action right after a click acts on
 that click's object however long the fit takes). The executor thread only converts messages,
 answers service calls when the stream has handled them (async callbacks: the executor is never
-blocked), and publishes what changed at most ``publish_rate`` times a second. Clouds are only
+blocked), and publishes what changed as soon as it changed (a guard condition wakes it; at most
+``publish_rate`` times a second). Clouds are only
 stored on arrival (the latest one) and converted when a fit needs it, so a 1M-point 30 Hz camera
 cannot starve the node.
 """
@@ -41,11 +42,14 @@ from ...core.templates import TemplateLibrary
 from ..glue import params, qos
 from ..glue.conversions import (
     ConversionError,
+    header_stamp_s,
     matrix_to_pose,
+    parse_dimension,
     pointcloud2_layout,
     pointcloud2_to_xyz,
     pose_stamped,
     pose_to_matrix,
+    source_stamp_s,
 )
 from ..glue.frames import FrameError, StaticFrames, T_frame_optical
 from ..glue.markers import state_markers
@@ -62,53 +66,12 @@ SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard"
 #: inputs whose errors repeat with a stream of bad messages: logged as throttled warnings
 STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click")
 THROTTLE_S = 2.0
+#: how often a drag whose client fell silent is looked for (s)
+DRAG_WATCH_S = 0.5
 #: the longest frame id, template name or other name taken from a message (longer: refused)
 MAX_NAME = 256
 #: the longest log line / status message the node writes about one input
 MAX_MESSAGE = 2000
-
-#: reliable, deep enough for a SpaceMouse burst or a storm of calls while a fit runs
-
-
-def _stamp_s(info) -> float | None:
-    """The publisher's source time stamp (s) of a received message, if the middleware gave one."""
-    try:
-        ns = int(info["source_timestamp"])
-    except (TypeError, KeyError, ValueError):
-        return None
-    return ns * 1e-9 if ns > 0 else None
-
-
-#: the longest ``~/set_dimension`` message read (longer ones are refused unread)
-MAX_DIMENSION_TEXT = 64
-
-
-def parse_dimension(text: str) -> tuple:
-    """(name, value in m or None, steps or None) of a ``~/set_dimension`` message:
-    "radius=0.045", "x+", "x-". AffordanceError (one line) for anything else."""
-    text = str(text)
-    if len(text) > MAX_DIMENSION_TEXT:
-        raise AffordanceError(f"a message of {len(text)} characters; expected NAME=METRES, "
-                              f"NAME+ or NAME-")
-    text = text.strip()
-    if text.endswith(("+", "-")) and text[:-1].strip().isidentifier():
-        return text[:-1].strip(), None, 1.0 if text.endswith("+") else -1.0
-    name, eq, value = text.partition("=")
-    try:
-        metres = float(value)
-    except ValueError:
-        metres = math.nan
-    if not eq or not name.strip().isidentifier() or not math.isfinite(metres):
-        raise AffordanceError(f"expected NAME=METRES, NAME+ or NAME- (e.g. radius=0.045), got "
-                              f"{text!r}")
-    return name.strip(), metres, None
-
-
-def _header_s(header) -> float | None:
-    """A header's stamp in seconds, None when it has none (zero)."""
-    s = header.stamp.sec + header.stamp.nanosec * 1e-9
-    return s if s > 0 else None
-
 
 class EngineNode(Node):
     """The engine node. It is the host of its operator stream (``OperatorHost``: the scene, the
@@ -136,6 +99,8 @@ class EngineNode(Node):
         self._dropped = ""              # why the latest cloud was refused ("" if it was not)
         self._dirty = True
         self._last_publish = 0.0
+        self._publish_later = None      # the one-shot timer of a change that came too soon
+        self._publish_guard = self.create_guard_condition(self._on_publish)
         self._last_error = ""
         self._last_message = ""
         self._warnings = Throttle(THROTTLE_S)
@@ -174,7 +139,8 @@ class EngineNode(Node):
             server_id=self.get_fully_qualified_name())
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(0.02, self._on_timer)      # a change is published within 20 ms
+        # a silent drag is cancelled, not left hanging (a watchdog: publishing does not poll)
+        self.create_timer(DRAG_WATCH_S, self.interactive.expire)
         self._name_checks = 0
         self._name_timer = self.create_timer(1.0, self._check_name)
         self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
@@ -213,7 +179,7 @@ class EngineNode(Node):
         regs = self.engine.state.registered
         path, backup = self._store.write(regs, self.engine.frame_id)
         self._unsaved = False
-        self._dirty = True
+        self.changed()
         text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
         return text + (f" (the file it replaced is kept as {backup})" if backup else "")
 
@@ -262,7 +228,7 @@ class EngineNode(Node):
         if "interactive_orientation" in changed:
             self.interactive.orientation = new["interactive_orientation"]
         self._p = new
-        self._dirty = True
+        self.changed()
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ frames
@@ -317,9 +283,9 @@ class EngineNode(Node):
         if prev is None or (prev.width, prev.height, prev.header.frame_id) != \
                 (msg.width, msg.height, msg.header.frame_id):
             self.get_logger().info(f"cloud: {msg.width}x{msg.height} in '{msg.header.frame_id}'")
-            self._dirty = True
+            self.changed()
         elif now - self._cloud_status_at >= 1.0:     # the status counts clouds at most at 1 Hz
-            self._dirty = True
+            self.changed()
         if self._dirty:
             self._cloud_status_at = now
         self.stream.new_cloud()
@@ -337,10 +303,10 @@ class EngineNode(Node):
         self._converted = count
         try:
             pts, _ = pointcloud2_to_xyz(msg)
-            origin, T_optical = self._sensor(msg.header.frame_id, _header_s(msg.header))
+            origin, T_optical = self._sensor(msg.header.frame_id, header_stamp_s(msg.header))
             old, new = self.engine.frame_id.lstrip("/"), msg.header.frame_id.lstrip("/")
             if old and new and old != new:      # only for a cloud that is used
-                self._change_frame(old, new, _header_s(msg.header))
+                self._change_frame(old, new, header_stamp_s(msg.header))
             self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
                                   T_scene_optical=T_optical)
         except AffordanceError as exc:
@@ -389,35 +355,35 @@ class EngineNode(Node):
             return
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
         self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name,
-                          stamp=_header_s(msg.header))
-        self._dirty = True      # the status shows what is queued
+                          stamp=header_stamp_s(msg.header))
+        self.changed()      # the status shows what is queued
 
     def _on_twist(self, msg, info=None) -> None:
         """A Twist (held for the time since the previous one by the publisher's source time
         stamps) or a TwistStamped (by its header stamps)."""
-        stamp = _stamp_s(info)
+        stamp = source_stamp_s(info)
         if isinstance(msg, TwistStamped):
             header_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             stamp, msg = (header_stamp if header_stamp > 0 else stamp), msg.twist
         self.stream.twist([msg.linear.x, msg.linear.y, msg.linear.z],
                           [msg.angular.x, msg.angular.y, msg.angular.z], stamp=stamp,
                           source=self._sub_twist.topic_name)
-        self._dirty = True
+        self.changed()
 
     def _on_joy(self, msg: Joy) -> None:
         self.stream.joy(msg.buttons, msg.axes, source=self._sub_joy.topic_name)
-        self._dirty = True
+        self.changed()
 
     def _on_view(self, msg: PoseStamped) -> None:
         try:
             T = pose_to_matrix(msg.pose)
             T = self._lookup(self.frame() or msg.header.frame_id, msg.header.frame_id,
-                             _header_s(msg.header)) @ T
+                             header_stamp_s(msg.header)) @ T
         except AffordanceError as exc:
             self._error("view", f"view_pose ignored: {exc}")
             return
         self.stream.view(view_from_optical(T), source=self._sub_view.topic_name)
-        self._dirty = True
+        self.changed()
 
     def _on_select(self, msg: String) -> None:
         if len(msg.data) > MAX_NAME:
@@ -425,7 +391,7 @@ class EngineNode(Node):
                                         f"{len(msg.data):,} characters (at most {MAX_NAME})")
             return
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
-        self._dirty = True
+        self.changed()
 
     def _on_dimension(self, msg: String) -> None:
         """``~/set_dimension``: "NAME=VALUE" sets the shown primitive's dimension (m), "NAME+"
@@ -436,7 +402,7 @@ class EngineNode(Node):
             self._error("dimension", f"~/set_dimension: {exc}")
             return
         self.stream.action("dimension", argument, source=self._sub_dimension.topic_name)
-        self._dirty = True
+        self.changed()
 
     def _service(self, action: str):
         """A service answered once the stream has handled its action. rclpy resumes a waiting
@@ -449,7 +415,7 @@ class EngineNode(Node):
                 done.set_result((ok, message))
                 executor.wake()
             self.stream.action(action, source=f"~/{action}", reply=reply)
-            self._dirty = True
+            self.changed()
             response.success, response.message = await done
             return response
         return callback
@@ -512,7 +478,7 @@ class EngineNode(Node):
         per kind every THROTTLE_S, as a warning."""
         msg = bounded(msg, MAX_MESSAGE)
         self._last_error = msg
-        self._dirty = True
+        self.changed()
         if kind in STREAMED:
             if self._warnings.due(kind):
                 self.get_logger().warning(msg)
@@ -520,16 +486,29 @@ class EngineNode(Node):
             self.get_logger().error(msg)
 
     def changed(self) -> None:
+        """Something the status, markers or TF show changed (from any thread): publish it at
+        once, at most ``publish_rate`` times a second -- the guard condition wakes the
+        executor, nothing polls."""
         self._dirty = True
+        self._publish_guard.trigger()
 
-    def _on_timer(self) -> None:
-        self.interactive.expire()           # a silent drag is cancelled, not left hanging
-        now = time.monotonic()
-        if self._dirty and now - self._last_publish >= 1.0 / self._p["publish_rate"]:
-            self._dirty = False
-            self._last_publish = now
-            self.publish_all()
+    def _on_publish(self) -> None:
+        if not self._dirty:
+            return
+        wait = 1.0 / self._p["publish_rate"] - (time.monotonic() - self._last_publish)
+        if wait > 0:                     # too soon after the last one: once the period is over
+            if self._publish_later is None:
+                self._publish_later = self.create_timer(wait, self._on_publish_later)
+            return
+        self._dirty = False
+        self._last_publish = time.monotonic()
+        self.publish_all()
 
+    def _on_publish_later(self) -> None:
+        timer, self._publish_later = self._publish_later, None
+        if timer is not None:
+            self.destroy_timer(timer)
+        self._on_publish()
     def status(self) -> dict:
         st = self.engine.status()
         stream = self.stream.status()
