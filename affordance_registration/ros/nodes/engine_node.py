@@ -146,6 +146,7 @@ class EngineNode(Node):
         self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
                                         name="operator-stream", daemon=True)
         self._worker.start()
+        self.changed()                  # the first status goes out once the executor spins
         self.get_logger().info(f"ready: {len(self.library)} templates "
                                f"({', '.join(self.library)}); waiting for 'points' and clicks")
 
