@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from ..core.errors import AffordanceError, SceneError
 from ..core.pointfiles import _header_lines, check_header
+from .simulation import CameraIntrinsics
 
 __all__ = ["DATA_ENV", "SKIP_REASON", "SCENE_KINDS", "HELD_OUT", "MIN_OBJECT_POINTS",
            "MIN_TOLERANCE", "NOISE_SIGMAS", "PASS_RECALL", "PASS_PRECISION",
@@ -219,20 +220,15 @@ def read_labelled_pcd(path: str) -> LabelledCloud:
 
 # ---------------------------------------------------------------------------- camera model
 @dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics (pixels) of an organized cloud: column u = fx x / z + cx, row
-    v = fy y / z + cy; ``rms_px`` the fit's RMS residual over the valid pixels."""
+class Intrinsics(CameraIntrinsics):
+    """The pinhole intrinsics (pixels) an organized cloud's pixels obey, as fitted to it;
+    ``rms_px`` the fit's RMS residual over the valid pixels."""
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    rms_px: float
+    rms_px: float = 0.0
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(u, v) float pixel coordinates of ``points`` (N, 3) in the optical frame."""
+        """(u, v) float pixel coordinates of ``points`` (N, 3) in the optical frame: column
+        u = fx x / z + cx, row v = fy y / z + cy."""
         z = points[:, 2]
         return self.fx * points[:, 0] / z + self.cx, self.fy * points[:, 1] / z + self.cy
 

@@ -30,8 +30,7 @@ from ..core.transforms import axis_angle_matrix, invert, make_T
 __all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
            "SimulatedOperator", "failures", "operator_correction", "truth_joints",
-           "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV",
-           "SIZED", "sized_library"]
+           "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV", "SIZED", "sized_library"]
 
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
