@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .labels import margin_text
 from .registration import FitResult, describe_primitive, no_match, verdict
 from .scene import ClickContext
 from .transforms import matrix_to_quat_xyzw
@@ -76,8 +77,8 @@ class TrackedObject:
         return no_match(self.candidates)
 
     def describe(self) -> str:
-        """One line on the shown candidate: the verdict, template, state, scale, rank,
-        probability, likelihood and coverage."""
+        """One line on the shown candidate: the verdict, template, state, scale, rank, its
+        margin over the runner-up (or against the best) and coverage."""
         c = self.shown
         extra = f" — {c.state}" if c.state else ""
         if c.scale != 1.0:
@@ -88,9 +89,12 @@ class TrackedObject:
         said = verdict(self.candidates)
         why = f" ({best.reason})" if best.reason else ""
         said = f"{said}{why}; showing " if self.no_match else ""
-        return (f"{said}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)} — "
-                f"p {c.probability:.2f}, likelihood {c.likelihood:.0f}, coverage "
-                f"{c.coverage:.2f}")
+        # how far it leads, as the station and the markers say it (core.labels): the
+        # probability is shared with every template and "no template fits here", so a right
+        # fit reads 0.3-0.4 -- a number that reads as doubt
+        margin = margin_text([k.probability for k in self.candidates], self.active)
+        return (f"{said}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)}"
+                f"{' — ' + margin if margin else ''} — coverage {c.coverage:.2f}")
 
 
 @dataclass(frozen=True)
