@@ -77,8 +77,8 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
     diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
-    object) also starts from the poses its shape features match, in the crop and in the cluster
-(:mod:`.features`)."""
+    object) also starts from the poses its shape features match, in the crop and in the
+    cluster (:mod:`.features`)."""
     up = cluster_axis = None
     if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
         up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
