@@ -194,6 +194,11 @@ def _real_capture_lines(result: dict) -> list:
         lines.append(f"clutter (the Armadillo touching real mOSD objects, {a['clicks']} clicks):"
                      f" ranked first {_pct(a['ranked_first'])}, found within 5 mm / 5 deg "
                      f"{_pct(a['found'])}, accepted {_pct(a['fits'])}")
+    if c.get("armadillo_held_out"):
+        a = c["armadillo_held_out"]
+        lines.append(f"clutter, held-out scenes ({a['clicks']} clicks): ranked first "
+                     f"{_pct(a['ranked_first'])}, found within 5 mm / 5 deg {_pct(a['found'])}, "
+                     f"accepted {_pct(a['fits'])}")
     if c.get("milk"):
         m = c["milk"]
         lines.append(f"PCL's milk carton in its real scene: ranked first {m['ranked_first']}, "

@@ -249,20 +249,62 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
 
 
 # ---------------------------------------------------------------------------- clutter
+def _armadillo_row(registrar, tpl, yml: str, bases, seeds) -> dict:
+    """The Armadillo clicked in :func:`.clutter.armadillo_clutter` scenes of ``bases`` x
+    ``seeds``: the summary with a record per case (a placement the scene has no room for is
+    left out, counted in ``unplaced``)."""
+    from ..core.scene import Scene
+    from .clutter import armadillo_clutter
+    records, unplaced = [], 0
+    for base in bases:
+        for seed in seeds:
+            try:
+                case = armadillo_clutter(yml, base, seed)
+            except AffordanceError:
+                unplaced += 1
+                continue
+            rec = {"base": case.base, "seed": seed, "template": None, "error_mm": None,
+                   "error_deg": None, "ranked_first": False, "found": False, "fits": False}
+            t0 = time.perf_counter()
+            try:
+                best = registrar.fit(Scene(case.points.reshape(-1, 3),
+                                           sensor_origin=case.sensor_origin),
+                                     case.click).candidates[0]
+            except AffordanceError:
+                best = None
+            rec["time_s"] = time.perf_counter() - t0
+            if best is not None:
+                rec["template"] = best.template
+            if best is not None and best.template == tpl.name:
+                e_t, e_r = pose_error(best.T_scene_model, case.T_scene_model)
+                rec.update(ranked_first=True, fits=best.fits is True,
+                           error_mm=round(1000 * e_t, 2), error_deg=round(math.degrees(e_r), 2),
+                           found=bool(e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG))
+            records.append(rec)
+    n = max(len(records), 1)
+    return {"clicks": len(records), "unplaced": unplaced,
+            "ranked_first": sum(r["ranked_first"] for r in records) / n,
+            "found": sum(r["found"] for r in records) / n,
+            "fits": sum(r["fits"] for r in records) / n,
+            "median_s": _median([r["time_s"] for r in records]), "records": records}
+
+
 def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
-                 with_library: bool = True, milk: bool = True) -> dict:
+                 with_library: bool = True, milk: bool = True, held_out_scenes=None) -> dict:
     """The clutter rows. "armadillo": the Armadillo template (all four views merged) in a
     library with the bundled templates (``with_library``), clicked in
     :func:`.clutter.armadillo_clutter` scenes (each of ``base_scenes`` -- default the shared
-    learn0 and learn20 -- with each of ``seeds``): ``ranked_first``, ``found`` (ranked first
-    within 5 mm / 5 deg), ``fits`` (the verdict accepts it when ranked first), ``median_s``.
-    "milk": PCL's milk carton as a point-cloud template in the bundled library, clicked on the
-    carton: ranked first, within 2 mm / 2 deg of the identity, accepted. A row whose data is
-    absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
+    learn0 and learn20, tuning scenes -- with each of ``seeds``): ``ranked_first``, ``found``
+    (ranked first within 5 mm / 5 deg), ``fits`` (the verdict accepts it when ranked first),
+    ``median_s``, ``records`` (one per click). "armadillo_held_out": the same on
+    ``held_out_scenes`` (default the held-out learn scenes, ``realdata.HELD_OUT``; [] for
+    none). "milk": PCL's milk carton as a point-cloud template in the bundled library, clicked
+    on the carton: ranked first, within 2 mm / 2 deg of the identity, accepted. A row whose
+    data is absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
     from ..core.templates import TemplateLibrary, load_template
-    from .clutter import armadillo_clutter, armadillo_template, milk_carton_case
+    from .clutter import armadillo_template, milk_carton_case
     from .realdata import osd_dir
     factory = registrar_factory or Registrar
     out = {}
@@ -278,28 +320,10 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
             registrar = factory(TemplateLibrary([tpl] + bundled))
             bases = base_scenes or [os.path.join(folder, f) for f in ("learn0.pcd",
                                                                        "learn20.pcd")]
-            first, found, fits, times, cases = 0, 0, 0, [], 0
-            for base in bases:
-                for seed in seeds:
-                    case = armadillo_clutter(yml, base, seed)
-                    cases += 1
-                    t0 = time.perf_counter()
-                    try:
-                        best = registrar.fit(Scene(case.points.reshape(-1, 3),
-                                                   sensor_origin=case.sensor_origin),
-                                             case.click).candidates[0]
-                    except AffordanceError:
-                        times.append(time.perf_counter() - t0)
-                        continue
-                    times.append(time.perf_counter() - t0)
-                    if best.template == tpl.name:
-                        first += 1
-                        fits += best.fits is True
-                        e_t, e_r = pose_error(best.T_scene_model, case.T_scene_model)
-                        found += e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG
-            out["armadillo"] = {"clicks": cases, "ranked_first": first / max(cases, 1),
-                                "found": found / max(cases, 1), "fits": fits / max(cases, 1),
-                                "median_s": _median(times)}
+            out["armadillo"] = _armadillo_row(registrar, tpl, yml, bases, seeds)
+            held = osd_scene_paths(held_out=True) if held_out_scenes is None else held_out_scenes
+            out["armadillo_held_out"] = _armadillo_row(registrar, tpl, yml, held, seeds) \
+                if held else None
         elif yml is not None:
             out["armadillo"], out["armadillo_why"] = None, "no shared mOSD data"
         else:

@@ -8,12 +8,23 @@ its basin. Here FPFH descriptors (Open3D) of the template's samples are matched 
 crop, and a RANSAC over three-point correspondences (drawn from a generator of their own, and
 the descriptors -- normals towards the sensor -- do not depend on the scene's frame) proposes a
 few distinct poses; they join the other initial hypotheses and compete in the same coarse
-stage. (Mesh templates do not use them: the taskboard parts are found by the mounting prior,
-and their results stay as they were.)
+stage.
+
+A second source matches the template's descriptors to the *cluster's* -- the points connected to
+the click off the support, where an object touching others in clutter still has most of its own
+points and a crop full of neighbours would outvote it: Open3D's feature-matching RANSAC
+(mutual nearest descriptors, edge-length and distance checks), run ``GLOBAL_RUNS`` times with
+fixed seeds, each run's pose joining the hypotheses. Open3D's RANSAC draws from its global
+generator, seeded before each run under a lock, so the poses depend on the input only.
+Cost: about 0.7 s per run on the 4500-6000-point clusters of the Armadillo in clutter
+(``GLOBAL_ITERATIONS`` draws, 2 shared cores; 0.45 s at 10000 draws, which found the pose in
+too few runs). (Mesh templates use neither source: the taskboard parts are found by the
+mounting prior, and their results stay as they were.)
 """
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -23,7 +34,7 @@ from ..scene import ClickContext
 from ..transforms import rotation_angle
 from .solve import rigid_step
 
-__all__ = ["feature_alignments"]
+__all__ = ["feature_alignments", "global_alignments"]
 
 FEATURE_RADIUS = 10.0      #: FPFH radius, in voxels
 FEATURE_SAMPLES = 20000    #: template samples the template's descriptors are computed on
@@ -38,6 +49,13 @@ CHUNK = 250                #: hypotheses whose inliers are counted at once
 KEEP = 16
 DISTINCT_TURN = math.radians(20.0)
 
+GLOBAL_RADIUS = 5.0        #: FPFH radius of the cluster matching, in voxels
+GLOBAL_RUNS = (1, 2, 3)    #: the seeds of the cluster matching's RANSAC runs (one pose each)
+GLOBAL_ITERATIONS = 100000   #: RANSAC draws per run
+GLOBAL_DISTANCE = 1.5      #: a correspondence within this many voxels is an inlier
+GLOBAL_EDGE = 0.9          #: a draw's edges must agree to this ratio (Open3D's edge check)
+_o3d_lock = threading.Lock()
+
 
 def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
     """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3)."""
@@ -49,28 +67,76 @@ def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
     return np.asarray(feat.data).T.copy()
 
 
-def _template_features(model, voxel: float):
-    """One sample per voxel of the model's surface (model frame), its normals and descriptors;
-    cached with the model."""
+def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
+    """One sample per voxel of the model's surface (model frame), its normals and descriptors
+    (``radius`` in voxels); cached with the model."""
     def build():
         P, N = model.samples(FEATURE_SAMPLES)
         _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
         first = np.sort(first)
         P, N = P[first], N[first]
-        return P, N, _fpfh(P, N, FEATURE_RADIUS * voxel)
-    return model.cache.posed(("fpfh", model.template, model.q, model.scale, float(voxel)), build)
+        return P, N, _fpfh(P, N, radius * voxel)
+    key = ("fpfh", model.template, model.q, model.scale, float(voxel))
+    return model.cache.posed(key if radius == FEATURE_RADIUS else key + (float(radius),), build)
+
+
+def _normals(ctx: ClickContext, points: np.ndarray, tree) -> np.ndarray:
+    """Unit normals of ``points`` towards the sensor (away from their centre without one)."""
+    normals = pca_normals(points, 12, tree)
+    if ctx.sensor_origin is not None:
+        flip = np.einsum("ij,ij->i", normals, ctx.sensor_origin - points) < 0
+    else:
+        flip = np.einsum("ij,ij->i", normals, points - points.mean(axis=0)) < 0
+    normals[flip] *= -1
+    return normals
 
 
 def _scene_features(ctx: ClickContext):
     """The crop's descriptors (normals towards the sensor, or away from the crop's centre
     without one)."""
-    normals = pca_normals(ctx.crop, 12, ctx.crop_tree)
-    if ctx.sensor_origin is not None:
-        flip = np.einsum("ij,ij->i", normals, ctx.sensor_origin - ctx.crop) < 0
-    else:
-        flip = np.einsum("ij,ij->i", normals, ctx.crop - ctx.crop.mean(axis=0)) < 0
-    normals[flip] *= -1
-    return _fpfh(ctx.crop, normals, FEATURE_RADIUS * ctx.voxel)
+    return _fpfh(ctx.crop, _normals(ctx, ctx.crop, ctx.crop_tree), FEATURE_RADIUS * ctx.voxel)
+
+
+def global_alignments(ctx: ClickContext, model) -> list:
+    """Poses (R (3, 3), t (3,)), model -> scene, from Open3D's feature-matching RANSAC of the
+    model's descriptors to the cluster's, one per seed of ``GLOBAL_RUNS``; [] for a cluster
+    too small to match."""
+    if len(ctx.cluster) < 30:
+        return []
+    import open3d as o3d
+    reg = o3d.pipelines.registration
+    P, N, F = _template_features(model, ctx.voxel, GLOBAL_RADIUS)
+    Q = ctx.cluster
+    G = _fpfh(Q, _normals(ctx, Q, ctx.cluster_tree), GLOBAL_RADIUS * ctx.voxel)
+
+    def cloud(points, normals):
+        out = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, float)))
+        out.normals = o3d.utility.Vector3dVector(np.array(normals, float))
+        return out
+
+    def feature(desc):
+        out = reg.Feature()
+        out.data = np.ascontiguousarray(desc.T)
+        return out
+
+    src, dst = cloud(P, N), cloud(Q, np.zeros_like(Q))
+    fs, fd = feature(F), feature(G)
+    dist = GLOBAL_DISTANCE * ctx.voxel
+    checks = [reg.CorrespondenceCheckerBasedOnEdgeLength(GLOBAL_EDGE),
+              reg.CorrespondenceCheckerBasedOnDistance(dist)]
+    out = []
+    for seed in GLOBAL_RUNS:
+        # the generator is Open3D's global one; its "too few mutual matches, all matches
+        # used" warning is no news to the user
+        with _o3d_lock, o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            o3d.utility.random.seed(int(seed))
+            found = reg.registration_ransac_based_on_feature_matching(
+                src, dst, fs, fd, True, dist, reg.TransformationEstimationPointToPoint(False),
+                3, checks, reg.RANSACConvergenceCriteria(GLOBAL_ITERATIONS, 0.999))
+        T = np.asarray(found.transformation, dtype=float)
+        if found.fitness > 0 and np.all(np.isfinite(T)):
+            out.append((T[:3, :3].copy(), T[:3, 3].copy()))
+    return out
 
 
 def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> list:

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import align_z_to, axis_angle_matrix, make_T, rotation_angle, unit_quaternions
-from .features import feature_alignments
+from .features import feature_alignments, global_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
 from .settings import REST_SAMPLES, SAMPLE_SEED, FitSettings
@@ -77,7 +77,8 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     centroid starts over the cluster points within reach of the click (the cluster may have
     merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
     diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
-    object) also starts from the poses its shape features match (:mod:`.features`)."""
+    object) also starts from the poses its shape features match, in the crop and in the
+    cluster (:mod:`.features`)."""
     up = cluster_axis = None
     if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
         up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
@@ -120,7 +121,7 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
             # a scanned object: poses from matched shape features too (their own generator,
             # so the other templates' draws stay as they are)
             features = np.random.default_rng([settings.seed, FEATURE_SEED])
-            matched = feature_alignments(ctx, model, features)
+            matched = feature_alignments(ctx, model, features) + global_alignments(ctx, model)
             if matched:
                 index.append(np.full(len(matched), i))
                 Rs.append(np.stack([R for R, _ in matched]))

@@ -1,0 +1,75 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""A known object found in real clutter: the Armadillo's point-cloud template, in a library with
+the bundled templates, clicked where it stands touching real objects on the held-out mOSD tables
+(:func:`affordance_registration.evaluation.clutter.armadillo_clutter`), is ranked first and
+posed within 5 mm / 5 deg; the global (feature-matching) hypotheses behind it are deterministic.
+Real data from ``../shared/data`` or ``$AFFORDANCE_SHARED_DATA``; skipped in one line where
+absent."""
+import os
+
+import numpy as np
+import pytest
+
+from affordance_registration.core.errors import AffordanceError
+from affordance_registration.evaluation import realdata as rd
+
+DATA = rd.shared_data_dir()
+needs_data = pytest.mark.skipif(DATA is None or rd.osd_dir(DATA) is None, reason=rd.SKIP_REASON)
+
+#: measured: 11 of the 12 held-out clicks (4 scenes x seeds 0-2) ranked first and within
+#: 5 mm / 5 deg (learn44 seed 0 lands 146 deg off); one more may go on another machine's BLAS
+HELD_OUT_FOUND = 10
+SEEDS = (0, 1, 2)
+
+
+@pytest.fixture(scope="module")
+def armadillo(tmp_path_factory):
+    from affordance_registration.core.registration import Registrar
+    from affordance_registration.core.templates import TemplateLibrary, load_template
+    from affordance_registration.evaluation.clutter import armadillo_template
+    try:
+        yml = armadillo_template(str(tmp_path_factory.mktemp("armadillo")))
+    except AffordanceError as exc:
+        pytest.skip(f"or-pcd not available: {exc}")
+    tpl = load_template(yml)
+    registrar = Registrar(TemplateLibrary([tpl] + list(TemplateLibrary.load().values())))
+    return yml, tpl, registrar
+
+
+@needs_data
+def test_armadillo_found_in_held_out_clutter(armadillo):
+    from affordance_registration.evaluation.rows import _armadillo_row
+    yml, tpl, registrar = armadillo
+    scenes = rd.osd_scene_paths(held_out=True)
+    assert len(scenes) == len(rd.HELD_OUT)
+    row = _armadillo_row(registrar, tpl, yml, scenes, SEEDS)
+    assert row["clicks"] == len(scenes) * len(SEEDS) and row["unplaced"] == 0
+    found = [(r["base"], r["seed"]) for r in row["records"] if r["found"]]
+    assert sum(r["ranked_first"] for r in row["records"]) == row["clicks"], row["records"]
+    assert len(found) >= HELD_OUT_FOUND, row["records"]
+
+
+@needs_data
+def test_global_hypotheses_are_deterministic_and_reach_the_pose(armadillo):
+    import open3d as o3d
+
+    from affordance_registration.core.registration.features import GLOBAL_RUNS, global_alignments
+    from affordance_registration.core.scene import Scene
+    from affordance_registration.core.transforms import make_T, pose_error
+    from affordance_registration.evaluation.clutter import armadillo_clutter
+    yml, tpl, registrar = armadillo
+    case = armadillo_clutter(yml, os.path.join(rd.osd_dir(), "learn0.pcd"), 1)
+    scene = Scene(case.points.reshape(-1, 3), sensor_origin=case.sensor_origin)
+    ctx = registrar.prepare(scene, case.click)
+    model = registrar._model(tpl.name)
+    first = global_alignments(ctx, model)
+    o3d.utility.random.seed(12345)           # whatever the caller seeded Open3D with
+    again = global_alignments(ctx, model)
+    assert len(first) == len(GLOBAL_RUNS) == len(again)
+    for (R1, t1), (R2, t2) in zip(first, again):
+        np.testing.assert_array_equal(R1, R2)
+        np.testing.assert_array_equal(t1, t2)
+    # at least one start lies in the true pose's basin (a few cm, a few tens of degrees)
+    errs = [pose_error(make_T(R, t), case.T_scene_model) for R, t in first]
+    assert any(e < 0.03 and np.degrees(r) < 30 for e, r in errs), errs
