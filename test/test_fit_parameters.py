@@ -140,7 +140,9 @@ def configured(ros_context, tmp_path_factory, library):
                   flags=re.M).replace("    fit.seed: 0\n", "    fit.seed: 5\n")
     text = text.replace("    fit.crop.snap_distance: 0.03\n", "")   # the file's 2 mm stays
     (tmp / "engine.params.yaml").write_text(text)
-    with engine_session(tmp, {"settings_file": str(tmp / "fit.yaml")}, "fit_params_tester",
+    # an old name and a typo: ROS would ignore both silently, the node says so
+    with engine_session(tmp, {"settings_file": str(tmp / "fit.yaml"), "voxel_size": "0.01",
+                              "fit.crop.snap_distanse": "0.01"}, "fit_params_tester",
                         {"points": (PointCloud2, "/points", 1),
                          "click": (PointStamped, "/clicked_point", 10)},
                         params_file=str(tmp / "engine.params.yaml"),
@@ -153,6 +155,15 @@ def test_a_settings_file_then_the_parameter_file_make_the_fit_parameters(configu
                                       "fit.crop.voxel", "fit.mode", "fit.articulated"])
     assert got == {"fit.seed": 5, "fit.coarse.samples": 32, "fit.crop.snap_distance": 0.002,
                    "fit.crop.voxel": 0.005, "fit.mode": "auto", "fit.articulated": True}
+
+
+def test_a_parameter_the_node_does_not_have_is_named_with_the_one_meant(configured):
+    out = configured["proc"].output()
+    assert "parameter 'voxel_size' is not one of this node's and is ignored (did you mean " \
+           "'fit.crop.voxel'?)" in out
+    assert "parameter 'fit.crop.snap_distanse' is not one of this node's and is ignored (did " \
+           "you mean 'fit.crop.snap_distance'?)" in out
+    assert _get(configured["client"], ["fit.crop.voxel"]) == {"fit.crop.voxel": 0.005}
 
 
 def test_a_fit_parameter_change_is_validated_and_rebuilds_the_fitter(configured):

@@ -14,6 +14,7 @@ set-parameters callback, so a bad value is refused with the same reason either w
 """
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import textwrap
@@ -140,6 +141,25 @@ def declare(node) -> dict:
     if problem:
         raise AffordanceError(f"bad parameter: {problem}")
     return values
+
+
+#: parameters of the node's earlier releases, and what sets the same knob now
+RENAMED = {"voxel_size": "fit.crop.voxel", "fit_mode": "fit.mode",
+           "estimate_joints": "fit.articulated", "weight_scale": "fit.icp.weight_scale",
+           "snap_distance": "fit.crop.snap_distance", "seed": "fit.seed"}
+
+
+def unknown_overrides(overrides) -> list[str]:
+    """One line for each parameter given to the node (``-p``, a parameter file) that it does
+    not have -- ROS would ignore it silently, so a typo or an old name would change nothing --
+    with the name meant where one is close."""
+    lines = []
+    for name in sorted(set(overrides) - set(PARAMETERS) - {"use_sim_time"}):
+        meant = RENAMED.get(name) or next(iter(difflib.get_close_matches(name, PARAMETERS, 1)),
+                                          None)
+        lines.append(f"parameter '{name}' is not one of this node's and is ignored"
+                     + (f" (did you mean '{meant}'?)" if meant else ""))
+    return lines
 
 
 def _check_one(name: str, value) -> str | None:

@@ -81,6 +81,8 @@ class EngineNode(Node):
     def __init__(self, **kwargs):
         super().__init__("affordance_engine", **kwargs)
         self._p = params.declare(self)
+        for line in params.unknown_overrides(self._parameter_overrides):
+            self.get_logger().warning(line)
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
