@@ -185,3 +185,12 @@ class Client:
         self._thread.join(timeout=2)
         self.executor.remove_node(self.node)
         self.node.destroy_node()
+
+
+def rss_mb(pid: int) -> float:
+    """The resident memory (MB) of process ``pid``, from /proc."""
+    with open(f"/proc/{pid}/status") as handle:
+        for line in handle:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")

@@ -8,7 +8,7 @@ import time
 
 import pytest
 from geometry_msgs.msg import PointStamped
-from ros_helpers import engine_session
+from ros_helpers import engine_session, rss_mb
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -19,14 +19,6 @@ from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
 FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
-
-
-def _rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as handle:
-        for line in handle:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +61,7 @@ def test_a_click_flood_leaves_a_service_call_answered_and_memory_bounded(flooded
             sent[0] += 1
             st = client.status() or {}
             peak["queued"] = max(peak["queued"], st.get("node", {}).get("queued", 0))
-            peak["rss"] = max(peak["rss"], _rss_mb(pid))
+            peak["rss"] = max(peak["rss"], rss_mb(pid))
             time.sleep(0.1)
     thread = threading.Thread(target=flood)
     thread.start()
@@ -89,7 +81,7 @@ def test_a_click_flood_leaves_a_service_call_answered_and_memory_bounded(flooded
         return node.get("idle") and node["handled"].get("/clicked_point") == 150 and st
     st = client.wait_for(finished, 120, f"the engine to finish the flood "
                                         f"({(client.status() or {}).get('node')})")
-    assert peak["rss"] < 1024 and _rss_mb(pid) < 1024
+    assert peak["rss"] < 1024 and rss_mb(pid) < 1024
     assert peak["queued"] <= 4, peak
     handled = st["node"]["handled"]["/clicked_point"]
     assert handled == 150                 # every click accounted for: fitted or superseded

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 from geometry_msgs.msg import PointStamped, Twist
-from ros_helpers import LATCHED, Client, engine_process
+from ros_helpers import LATCHED, Client, engine_process, rss_mb
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -27,14 +27,6 @@ SOAK_S = float(os.environ.get("AFFORDANCE_SOAK_S", "600"))
 
 pytestmark = pytest.mark.skipif(os.environ.get("AFFORDANCE_LONG_TESTS") != "1",
                                 reason="a long soak: run with AFFORDANCE_LONG_TESTS=1")
-
-
-def _rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as handle:
-        for line in handle:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
 
 
 def test_soak(ros_context, tmp_path, library):
@@ -89,7 +81,7 @@ def test_soak(ros_context, tmp_path, library):
                 if res.success and name == "undo" and res.message.startswith("undid accept"):
                     expected -= 1
             rounds += 1
-            rss.append((time.monotonic() - t0, _rss_mb(proc.proc.pid)))
+            rss.append((time.monotonic() - t0, rss_mb(proc.proc.pid)))
         st = client.wait_for(lambda: status().get("node", {}).get("idle") and status(), 120,
                              "the engine to settle")
         registered = len(st["registered"])

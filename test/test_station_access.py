@@ -26,7 +26,7 @@ from browser_helpers import (
 )
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from ros_helpers import NodeProcess, ros_env
+from ros_helpers import NodeProcess, ros_env, rss_mb
 from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.http11 import Request
@@ -35,14 +35,6 @@ from websockets.sync.client import connect
 from affordance_registration.ros.station.access import MAX_FRAME_BYTES, StationAccess, _Bucket, new_secret
 
 SUBPROTOCOL = f"viser-v{viser.__version__}"
-
-
-def _rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as handle:
-        for line in handle:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +112,7 @@ def test_a_45_mb_frame_closes_only_its_connection_and_memory_stays_bounded(stati
                 while True:
                     big.recv(timeout=60)
             assert info.value.rcvd is not None and info.value.rcvd.code == 1009
-        assert _rss_mb(pid) < 600
+        assert rss_mb(pid) < 600
         # the other client is still served: a ping is answered, the page still loads
         other.ping().wait(30)
         assert _get(station_url(port))[0] == 200

@@ -261,10 +261,10 @@ def main(argv=None) -> int:
                         help="build even where tf2_msgs is importable from elsewhere")
     args = parser.parse_args(argv)
     try:
-        print(build(Path(args.prefix), force=args.force))
+        sys.stdout.write(f"{build(Path(args.prefix), force=args.force)}\n")
         return 0
     except (BuildError, OSError) as exc:
-        print(f"tf2_msgs not built: {exc}; the engine node runs without TF output")
+        sys.stdout.write(f"tf2_msgs not built: {exc}; the engine node runs without TF output\n")
         return 1
 
 
