@@ -187,6 +187,19 @@ class Client:
         self.node.destroy_node()
 
 
+def get_parameters(client: "Client", names, node="/affordance_engine") -> dict:
+    """The values of ``names`` (int, float, str or bool parameters) as ``node`` serves them."""
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import GetParameters
+    res = client.call(GetParameters, f"{node}/get_parameters",
+                      GetParameters.Request(names=list(names)))
+    field = {ParameterType.PARAMETER_INTEGER: "integer_value",
+             ParameterType.PARAMETER_DOUBLE: "double_value",
+             ParameterType.PARAMETER_STRING: "string_value",
+             ParameterType.PARAMETER_BOOL: "bool_value"}
+    return {name: getattr(value, field[value.type]) for name, value in zip(names, res.values)}
+
+
 def rss_mb(pid: int) -> float:
     """The resident memory (MB) of process ``pid``, from /proc."""
     with open(f"/proc/{pid}/status") as handle:

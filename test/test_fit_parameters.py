@@ -15,8 +15,8 @@ from geometry_msgs.msg import PointStamped
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, SetParameters
-from ros_helpers import LATCHED, NodeProcess, engine_session
+from rcl_interfaces.srv import SetParameters
+from ros_helpers import LATCHED, NodeProcess, engine_session, get_parameters
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
@@ -109,18 +109,6 @@ def test_any_value_of_a_fit_parameter_is_taken_or_refused_with_one_line_naming_i
     assert knob == value
 
 
-def _get(client, names):
-    res = client.call(GetParameters, f"{NS}/get_parameters",
-                      GetParameters.Request(names=list(names)))
-    out = {}
-    for name, value in zip(names, res.values):
-        out[name] = {ParameterType.PARAMETER_INTEGER: value.integer_value,
-                     ParameterType.PARAMETER_DOUBLE: value.double_value,
-                     ParameterType.PARAMETER_STRING: value.string_value,
-                     ParameterType.PARAMETER_BOOL: value.bool_value}[value.type]
-    return out
-
-
 def _set(client, name, value):
     kind = {int: ("PARAMETER_INTEGER", "integer_value"), float: ("PARAMETER_DOUBLE", "double_value")}
     type_name, field = kind[type(value)]
@@ -151,7 +139,7 @@ def configured(ros_context, tmp_path_factory, library):
 
 
 def test_a_settings_file_then_the_parameter_file_make_the_fit_parameters(configured):
-    got = _get(configured["client"], ["fit.seed", "fit.coarse.samples", "fit.crop.snap_distance",
+    got = get_parameters(configured["client"], ["fit.seed", "fit.coarse.samples", "fit.crop.snap_distance",
                                       "fit.crop.voxel", "fit.mode", "fit.articulated"])
     assert got == {"fit.seed": 5, "fit.coarse.samples": 32, "fit.crop.snap_distance": 0.002,
                    "fit.crop.voxel": 0.005, "fit.mode": "auto", "fit.articulated": True}
@@ -163,7 +151,7 @@ def test_a_parameter_the_node_does_not_have_is_named_with_the_one_meant(configur
            "'fit.crop.voxel'?)" in out
     assert "parameter 'fit.crop.snap_distanse' is not one of this node's and is ignored (did " \
            "you mean 'fit.crop.snap_distance'?)" in out
-    assert _get(configured["client"], ["fit.crop.voxel"]) == {"fit.crop.voxel": 0.005}
+    assert get_parameters(configured["client"], ["fit.crop.voxel"]) == {"fit.crop.voxel": 0.005}
 
 
 def test_a_fit_parameter_change_is_validated_and_rebuilds_the_fitter(configured):
@@ -177,7 +165,7 @@ def test_a_fit_parameter_change_is_validated_and_rebuilds_the_fitter(configured)
     assert bad.successful
     bad = _set(client, "fit.hypotheses.random_restarts", 0)    # ... not with this one too
     assert not bad.successful and "at least one restart per template" in bad.reason
-    assert _get(client, ["fit.hypotheses.random_restarts"]) == {"fit.hypotheses.random_restarts": 12}
+    assert get_parameters(client, ["fit.hypotheses.random_restarts"]) == {"fit.hypotheses.random_restarts": 12}
     assert _set(client, "fit.hypotheses.yaw_restarts", 12).successful
     sim = s["sim"]
     obj = max(sim.objects, key=lambda o: o.visible_points)

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from ros_helpers import LATCHED, Client, NodeProcess
+from ros_helpers import LATCHED, Client, NodeProcess, get_parameters
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -60,11 +60,24 @@ def test_substitutions_and_errors(tmp_path, monkeypatch):
         parse_launch_file(str(tmp_path / "missing.yaml"))
 
 
+def test_an_empty_argument_is_passed_as_the_empty_string():
+    """rcl refuses ``-p name:=`` at start: the launch file's empty ``settings_file`` default
+    goes to the node as the empty string, a given file as its path."""
+    (node,) = parse_launch_file(LAUNCH, {})
+    assert 'settings_file:=""' in node.command()
+    (node,) = parse_launch_file(LAUNCH, {"settings_file": "/tmp/fit.yaml"})
+    assert "settings_file:=/tmp/fit.yaml" in node.command()
+
+
 def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
     """The launcher, as a user runs it (with the shared-memory Fast DDS profile): the node comes
-    up with the remap applied, serves, and stops on Ctrl-C."""
+    up with the remap and the settings file applied, serves, and stops on Ctrl-C. (The tests
+    that start the engine from the launch file without arguments -- the demo, the session
+    replay -- start it with the empty settings file.)"""
+    (tmp_path / "fit.yaml").write_text("coarse:\n  samples: 32\n")
     proc = NodeProcess([sys.executable, "-m", "affordance_registration.cli", "launch", LAUNCH,
-                        "points:=/test_launch/cloud", "--shm"], tmp_path / "launch.log")
+                        "points:=/test_launch/cloud", f"settings_file:={tmp_path / 'fit.yaml'}",
+                        "--shm"], tmp_path / "launch.log")
     client = Client("launch_tester")
     try:
         client.subscribe(String, "/affordance_engine/status", LATCHED)
@@ -72,6 +85,7 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
         client.wait_for_subscribers(pub, timeout=30)
         res = client.call(Trigger, "/affordance_engine/accept", timeout=20)
         assert not res.success and "no object selected" in res.message
+        assert get_parameters(client, ["fit.coarse.samples"]) == {"fit.coarse.samples": 32}
         pub.publish(xyz_to_pointcloud2(np.random.default_rng(0).uniform(0, 1, (100, 3)), "cam"))
         client.wait_for(lambda: (client.status() or {}).get("node", {}).get("cloud"),
                         what="the cloud on the remapped topic")

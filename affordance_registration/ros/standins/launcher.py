@@ -80,7 +80,10 @@ def _param_text(value) -> str:
         return "true" if value else "false"
     if isinstance(value, (list, dict)):
         return yaml.safe_dump(value, default_flow_style=True).strip()
-    return str(value)
+    # rcl reads an override's value as YAML and refuses an empty one: '""' is the empty string
+    # (what ros2 launch passes for a value that substitutes to nothing)
+    return str(value) if str(value) != "" else '""'
+
 
 
 def package_share(pkg: str) -> str:
