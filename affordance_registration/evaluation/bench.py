@@ -25,7 +25,9 @@ Speed lines, measured click by click in turn (each click fitted by every variant
 next, so load changes hit them alike): the default method on 1 and 2 threads, and libraries of
 5/10/20/40 templates (the five and scaled / stretched variants of them) with how often the
 library prefilter decided. Click -> result from a 1024 x 1024 organized cloud (``Scene()`` plus
-the fit), and ``Scene()`` after the PointCloud2 conversion.
+the fit), and ``Scene()`` after the PointCloud2 conversion. Over ROS, the live engine node in
+its own process against the same fits in this one (:mod:`.ros_latency`): click -> status over
+the in-process fit, status -> markers, markers message size, idle engine CPU.
 """
 from __future__ import annotations
 
@@ -53,6 +55,7 @@ from .bench_rows import (
     _real_scan_rows,
     _refit_times,
     _ros_conversion_bench,
+    _ros_latency_bench,
     _ros_push_refit_bench,
     _threads_rows,
     variant_library,
@@ -131,6 +134,9 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     pushed = _ros_push_refit_bench(range(1000, 1000 + n_scenes), 5 if quick else 40, log)
     if pushed:
         result["push_refit_ros"] = pushed
+    latency = _ros_latency_bench(range(1000, 1000 + n_scenes), 5 if quick else 20, log)
+    if latency:
+        result["ros_latency"] = latency
     if out:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         with open(out, "w", encoding="utf-8") as handle:
@@ -240,6 +246,15 @@ def format_table(result: dict) -> str:
         lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
                      f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
                      f" corrections {pushed['core_success']:.1%}")
+    lat = result.get("ros_latency")
+    if lat and lat["clicks"]:
+        lines.append(f"the engine node over ROS ({lat['clicks']} clicks, each fitted in this process "
+                     f"too): click -> ~/status {lat['click_to_status_over_fit']:.2f}x the in-process "
+                     f"fit (median of ratios); ~/markers {lat['status_to_markers_ms']:.0f} ms after "
+                     f"the status (median); a ~/markers message with "
+                     f"{lat['objects_shown_last']} objects {lat['markers_bytes_last'] / 1000:.0f} kB "
+                     f"(largest {lat['markers_bytes_max'] / 1000:.0f} kB); idle engine "
+                     f"{lat['idle_engine_cores']:.3f} cores")
     for r in result.get("threads", ()):
         lines.append(f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
                      f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first")

@@ -469,6 +469,19 @@ def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
         return measure_push_refit(seeds, clicks, out, log=log)
 
 
+def _ros_latency_bench(seeds, clicks: int, log) -> dict | None:
+    """The engine node over ROS against the same fits in this process: click -> status, status
+    -> markers, markers message size, idle CPU (needs the ROS packages)."""
+    try:
+        from .ros_latency import measure_node_latency
+    except ImportError:
+        return None
+    import tempfile
+    log(f"the engine node's latencies over ROS, on {clicks} clicks ...")
+    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
+        return measure_node_latency(seeds, clicks, out, log=log)
+
+
 def _ros_conversion_bench(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict | None:
     """PointCloud2 <-> numpy for a 1-million-point organized cloud with NaN holes, then Scene()
     (needs the ROS messages)."""

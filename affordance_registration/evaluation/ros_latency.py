@@ -1,0 +1,141 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""The engine node's latencies over ROS, measured on the live graph (the bench's "over ROS"
+row): the engine node runs from the package's launch file in its own process; this process
+publishes simulated taskboard clouds and clicks, and hears ``~/status`` and ``~/markers`` as a
+client does. For every click, on the same cloud and click, the same fit runs in this process on
+the core engine (interleaved: node click, then the in-process one), so the row is a ratio on
+one machine whatever its load:
+
+* click -> status / in-process fit: from publishing the click to the ``~/status`` that shows
+  its fit (the node idle again), over the in-process ``AffordanceEngine.click`` on the same
+  cloud and point (median of the per-click ratios);
+* status -> markers: from that status to the next ``~/markers`` message (median, ms);
+* markers message size: the serialized size of each ``~/markers`` message (largest, and the
+  one after the last accept, with that many objects shown);
+* idle engine CPU: the node's CPU time over a quiet spell after the clicks (cores).
+"""
+from __future__ import annotations
+
+import os
+import statistics
+import threading
+import time
+
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
+
+from ..core.engine import AffordanceEngine
+from ..core.templates import TemplateLibrary
+from ..ros.glue.conversions import pointcloud2_to_xyz
+from ..ros.glue.qos import LATCHED
+from ..ros.standins.spin import background_node
+from .session import FRAME, NS, RosOperator, StatusWatch, _cloud_message, start_engine
+from .simulation import simulate_taskboard
+
+__all__ = ["measure_node_latency", "MARKERS_TOPIC"]
+
+MARKERS_TOPIC = f"{NS}/markers"
+
+
+class _Arrivals:
+    """Arrival times (monotonic s) of ``~/markers`` messages and their serialized sizes (bytes)."""
+
+    def __init__(self, node):
+        self.markers: list[tuple[float, int]] = []
+        self._lock = threading.Lock()
+        node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED)
+
+    def _on_markers(self, msg):
+        size = len(serialize_message(msg))
+        with self._lock:
+            self.markers.append((time.monotonic(), size))
+
+    def heard(self) -> list[tuple[float, int]]:
+        with self._lock:
+            return list(self.markers)
+
+    def markers_after(self, t: float, timeout: float = 10.0) -> tuple[float, int] | None:
+        """The first markers message heard after ``t`` (waits up to ``timeout``)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self._lock:
+                later = [m for m in self.markers if m[0] >= t]
+            if later:
+                return later[0]
+            time.sleep(0.005)
+        return None
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time (s) of process ``pid`` so far, from /proc."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as handle:
+        fields = handle.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 10.0,
+                         log=print) -> dict:
+    """Click the objects of the simulated taskboards ``seeds`` (up to ``max_clicks``) through a
+    live engine node, accepting each fit, and measure the row's figures (module docstring)."""
+    library = TemplateLibrary.load()
+    local = AffordanceEngine(library)
+    launcher = start_engine(out_dir)
+    ratios, node_s, local_s, to_markers_ms = [], [], [], []
+    n, last_size, idle_cores = 0, None, None
+    try:
+        with background_node("affordance_latency_bench") as node:
+            watch = StatusWatch(node)
+            arrivals = _Arrivals(node)
+            operator = RosOperator(node, watch)
+            pub_points = node.create_publisher(PointCloud2, "/points", LATCHED)
+            watch.wait(lambda st: True, 60, "the engine node")
+            for seed in seeds:
+                if n >= max_clicks:
+                    break
+                sim = simulate_taskboard(library, seed)
+                received = ((watch.latest.get("node") or {}).get("cloud") or {}).get("received", 0)
+                msg = _cloud_message(sim.organized.reshape(-1, 3))
+                pub_points.publish(msg)
+                watch.wait(lambda st: ((st.get("node") or {}).get("cloud") or {})
+                           .get("received", 0) > received, 30, "the cloud")
+                local.set_scene(pointcloud2_to_xyz(msg)[0], frame_id=FRAME)
+                for obj in sim.objects:
+                    if obj.click is None or obj.visible_points < 200 or n >= max_clicks:
+                        continue
+                    n += 1
+                    t0 = time.monotonic()
+                    operator.click(obj.click)
+                    t_status = time.monotonic()
+                    # the status that showed the fit arrived just before the wait returned
+                    t0_local = time.perf_counter()
+                    local.click(obj.click)
+                    local_s.append(time.perf_counter() - t0_local)
+                    node_s.append(t_status - t0)
+                    ratios.append(node_s[-1] / local_s[-1])
+                    got = arrivals.markers_after(t_status - 0.001)
+                    if got is not None:
+                        to_markers_ms.append(max(0.0, got[0] - t_status) * 1000)
+                    operator.accept()
+                    local.accept()
+                log(f"  over ROS: {n} clicks, click -> status {statistics.median(ratios):.2f}x "
+                    f"the in-process fit (median)")
+            shown = len((watch.latest or {}).get("registered", []))
+            time.sleep(2.0)                      # whatever the last accept set going, settles
+            pid = launcher.procs[0].pid
+            c0, t0 = _cpu_seconds(pid), time.monotonic()
+            time.sleep(idle_s)
+            idle_cores = (_cpu_seconds(pid) - c0) / (time.monotonic() - t0)
+            sizes = [s for _, s in arrivals.heard()]
+            last_size = sizes[-1] if sizes else None
+    finally:
+        launcher.stop()
+    return {"clicks": n,
+            "click_to_status_over_fit": statistics.median(ratios) if ratios else None,
+            "node_click_to_status_s": statistics.median(node_s) if node_s else None,
+            "in_process_fit_s": statistics.median(local_s) if local_s else None,
+            "status_to_markers_ms": statistics.median(to_markers_ms) if to_markers_ms else None,
+            "markers_bytes_max": max(sizes) if sizes else None,
+            "markers_bytes_last": last_size, "objects_shown_last": shown,
+            "idle_engine_cores": idle_cores}
