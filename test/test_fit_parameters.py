@@ -165,7 +165,8 @@ def test_a_fit_parameter_change_is_validated_and_rebuilds_the_fitter(configured)
     assert bad.successful
     bad = _set(client, "fit.hypotheses.random_restarts", 0)    # ... not with this one too
     assert not bad.successful and "at least one restart per template" in bad.reason
-    assert get_parameters(client, ["fit.hypotheses.random_restarts"]) == {"fit.hypotheses.random_restarts": 12}
+    assert get_parameters(client, ["fit.hypotheses.random_restarts"]) == \
+        {"fit.hypotheses.random_restarts": 12}
     assert _set(client, "fit.hypotheses.yaw_restarts", 12).successful
     sim = s["sim"]
     obj = max(sim.objects, key=lambda o: o.visible_points)
