@@ -9,9 +9,10 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "affordance_registration"
 #: the evaluation modules that are ROS nodes or drive them (the simulated sensor, the recorded
-#: operator session); every other evaluation module is ROS-free like core
+#: operator session, the bench's latencies over ROS); every other evaluation module is ROS-free like core
 EVALUATION_ROS = ("affordance_registration.evaluation.session",
-                  "affordance_registration.evaluation.simulated_scan")
+                  "affordance_registration.evaluation.simulated_scan",
+                  "affordance_registration.evaluation.ros_latency")
 ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "visualization_msgs", "std_msgs",
                "std_srvs", "viser")
 

@@ -3,6 +3,7 @@
 """The interactive-marker server against a protocol client written here that behaves as RViz's:
 request the full set, then apply updates in seq_num order and detect gaps."""
 import math
+import os
 import threading
 import time
 
@@ -140,7 +141,11 @@ def test_no_marker_until_a_click_then_mesh_and_six_controls(session):
         ("move_x", C.MOVE_AXIS), ("move_y", C.MOVE_AXIS), ("move_z", C.MOVE_AXIS),
         ("rotate_x", C.ROTATE_AXIS), ("rotate_y", C.ROTATE_AXIS), ("rotate_z", C.ROTATE_AXIS)]
     mesh = [c for c in m.controls if c.name == "mesh"][0]
-    assert mesh.markers[0].type == Marker.TRIANGLE_LIST and len(mesh.markers[0].points) > 300
+    # the template by reference: its mesh file (and its moving part's), not triangles
+    assert mesh.markers and all(v.type == Marker.MESH_RESOURCE and not v.points and
+                                v.mesh_resource.startswith("file://") and
+                                os.path.isfile(v.mesh_resource[len("file://"):])
+                                for v in mesh.markers)
     assert [e.title for e in m.menu_entries] == ["Next model", "Previous model", "Refit",
                                                   "Accept", "Undo", "Discard"]
     # the six axes: x, y, z of the object

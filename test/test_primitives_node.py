@@ -5,7 +5,6 @@ boxes and cylinders on ``points``, a click: the status says "no template fits he
 box ...", carries the dimensions, the markers draw the primitive at its size; ``~/set_dimension``
 sets and steps a dimension, the status and the accepted registration keep it; malformed
 messages are one line each. The marker menu's dimension entries, unit-tested."""
-import math
 
 import numpy as np
 import pytest
@@ -14,11 +13,11 @@ from ros_helpers import LATCHED, engine_session
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.evaluation.rows import simulate_primitives
-from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
+from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2
 
 FRAME = "camera_optical_frame"
 NS = "/affordance_engine"
@@ -62,16 +61,19 @@ def test_a_box_is_fitted_as_a_box_with_its_dimensions(session):
                                                                  "fitted as a box")
     for k, v in s["box"]["dimensions"].items():
         assert abs(shown["dimensions"][k] - v) <= 0.005, (k, shown["dimensions"], v)
-    # the markers draw the box at its size: the candidate mesh spans its diagonal
-    def candidate_mesh():
+    # the markers draw the box at its size: a CUBE of its dimensions, standing on its base face
+    # (the marker is centred: half the height above the box's frame)
+    def candidate_box():
         arr = s["client"].latest.get(f"{NS}/markers")
-        ms = [m for m in (arr.markers if arr else []) if m.ns == "candidate" and m.points]
+        ms = [m for m in (arr.markers if arr else []) if m.ns == "candidate"]
         return ms[0] if ms else None
-    mesh = s["client"].wait_for(candidate_mesh, 30, "the candidate's mesh marker")
-    pts = np.array([[p.x, p.y, p.z] for p in mesh.points])
+    box = s["client"].wait_for(candidate_box, 30, "the candidate's box marker")
     d = shown["dimensions"]
-    span = np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))   # (in the box's own frame)
-    assert span <= math.sqrt(d["x"] ** 2 + d["y"] ** 2 + d["z"] ** 2) + 1e-3
+    assert box.type == Marker.CUBE and not box.points
+    np.testing.assert_allclose([box.scale.x, box.scale.y, box.scale.z], [d["x"], d["y"], d["z"]],
+                               atol=1e-6)
+    T_box, T_fit = pose_to_matrix(box.pose), np.asarray(shown["pose"])
+    np.testing.assert_allclose(T_box[:3, 3], T_fit[:3, 3] + T_fit[:3, 2] * d["z"] / 2, atol=1e-5)
     label = [m for m in s["client"].latest[f"{NS}/markers"].markers if m.ns == "candidate_label"]
     assert label and "fitted as a box" in label[0].text
 

@@ -11,9 +11,10 @@ from affordance_registration.evaluation.ros_latency import measure_node_latency
 def test_the_over_ros_row_measures_the_live_node(ros_context, tmp_path):
     row = measure_node_latency([1000], 2, str(tmp_path), idle_s=1.0, log=lambda m: None)
     assert row["clicks"] == 2
-    # both fits accepted: the last markers message draws the two registered objects' meshes
+    # both fits accepted: the last markers message draws the two registered objects -- by
+    # reference (mesh files named, not triangles: those were 100-200 kB per object)
     assert row["objects_shown_last"] == 2
-    assert row["markers_bytes_last"] > 20_000 and row["markers_bytes_max"] >= row["markers_bytes_last"]
+    assert 0 < row["markers_bytes_last"] <= row["markers_bytes_max"] < 20_000
     # each click was heard back in a status and in markers, and fitted here too
     assert row["node_click_to_status_s"] > 0 and row["in_process_fit_s"] > 0
     assert math.isfinite(row["click_to_status_over_fit"]) and row["click_to_status_over_fit"] > 0

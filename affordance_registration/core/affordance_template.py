@@ -106,6 +106,11 @@ class AffordanceTemplate:
         self.primitive = primitive
         self.dimension_ranges = dict(dimension_ranges or {})
         self.dimensions = dict(dimensions or {})
+        #: the mesh files the geometry was read from, as they are on disk ("mesh", and with a
+        #: joint "base_mesh" and "moving_mesh"; absolute paths, file units times
+        #: ``mesh_scale``): a viewer can load them itself. Empty where the geometry is not a
+        #: file's (a point cloud, a primitive, a derived copy)
+        self.mesh_files: dict[str, str] = {}
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -211,10 +216,12 @@ class AffordanceTemplate:
                 scale_range = _scale_range(scale_range)
             except ValueError as exc:
                 raise TemplateError(f"{self.path}: scale range {exc}") from None
-        return AffordanceTemplate(self.name, self.path, self.mesh, self.points,
+        copy = AffordanceTemplate(self.name, self.path, self.mesh, self.points,
                                   self.point_normals, self.mesh_scale, self.symmetry,
                                   self.joints, self.states, self.description, self.base_mesh,
                                   scale_range)
+        copy.mesh_files = dict(self.mesh_files)      # the same geometry, the same files
+        return copy
 
     @property
     def joint(self) -> Joint | None:

@@ -124,10 +124,17 @@ def load_template(path: str) -> AffordanceTemplate:
             raise _fail(path, "scale", str(exc)) from None
     if joints and base is None:
         raise _fail(path, "base_mesh", "a template with joints needs the fixed part's mesh")
-    return AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
-                              point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
-                              joints=joints, states=states, description=description,
-                              base_mesh=base, scale_range=scale_range)
+    tpl = AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
+                             point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
+                             joints=joints, states=states, description=description,
+                             base_mesh=base, scale_range=scale_range)
+    if mesh is not None and len(joints) <= 1:
+        files = {"mesh": doc["mesh"]}
+        if joints:
+            files.update(base_mesh=doc["base_mesh"], moving_mesh=doc["joints"][0]["moving_mesh"])
+        tpl.mesh_files = {key: os.path.abspath(_geometry_path(path, key, rel, external))
+                          for key, rel in files.items()}
+    return tpl
 
 
 def _primitive_template(path: str, doc: dict, name: str, description: str) -> AffordanceTemplate:

@@ -1,7 +1,8 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The engine's state drawn as RViz markers (``~/markers``): the shown candidate of each open
-object, its moving part, its label and the click; registered objects in their own colour. An
+object, its moving part, its label and the click; registered objects in their own colour.
+Templates are drawn by reference (:mod:`.mesh_refs`): a mesh file's URI or a primitive shape. An
 object where no template fits (the verdict) is grey and its label starts "no template fits
 here"."""
 from __future__ import annotations
@@ -14,7 +15,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ...core.labels import REFUSED_PREFIX, standing
 from ...core.registration import describe_primitive, verdict
-from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
+from .conversions import likelihood_color, sphere_marker, text_marker
+from .mesh_refs import template_markers
 
 __all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
 
@@ -46,14 +48,10 @@ def joint_text(tpl, joints: dict, state, scale: float, size=None) -> str:
 
 
 def _object_markers(tpl, T, joints, scale, frame, ns, marker_id, colour, stamp) -> list:
-    """The template's mesh at its joint values and scale, and its moving part highlighted."""
-    q = tpl.joint_value(joints)
-    out = [mesh_marker(tpl.mesh_at(q, scale), T, frame, ns, marker_id, colour, stamp)]
-    moving = tpl.moving_mesh_at(q, scale)
-    if moving is not None:    # the moving part where the fit put it
-        out.append(mesh_marker(moving, T, frame, f"{ns}_moving_part", marker_id, MOVING_COLOR,
-                               stamp))
-    return out
+    """The template at its joint values and scale (by reference where it has mesh files), and
+    its moving part highlighted."""
+    return template_markers(tpl, T, tpl.joint_value(joints), scale, frame, ns, marker_id, colour,
+                            MOVING_COLOR, stamp)
 
 
 def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerArray:

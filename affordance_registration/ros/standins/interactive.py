@@ -49,7 +49,8 @@ from visualization_msgs.srv import GetInteractiveMarkers
 
 from ...core.errors import AffordanceError, bounded
 from ...core.transforms import matrix_to_quat_xyzw, quat_xyzw_to_matrix
-from ..glue.conversions import ConversionError, matrix_to_pose, mesh_marker, pose_to_matrix
+from ..glue.conversions import ConversionError, matrix_to_pose, pose_to_matrix
+from ..glue.mesh_refs import template_markers
 from ..glue.qos import INPUT
 from ..glue.throttle import Throttle
 
@@ -259,10 +260,10 @@ class CorrectionMarkerServer:
             tpl = tpl.sized(cand.dimensions)
         visual = InteractiveMarkerControl(name="mesh", always_visible=True,
                                           interaction_mode=InteractiveMarkerControl.MENU)
-        mesh = mesh_marker(tpl.mesh_at(tpl.joint_value(cand.joints), cand.scale), np.eye(4), "",
-                           "mesh", 0, ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6))
-        mesh.header.frame_id = ""          # relative to the interactive marker
-        visual.markers.append(mesh)
+        colour = ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6)
+        # by reference where the template has mesh files (relative to the interactive marker)
+        visual.markers += template_markers(tpl, np.eye(4), tpl.joint_value(cand.joints),
+                                           cand.scale, "", "mesh", 0, colour, colour, None)
         im.controls.append(visual)
         R_view = self.host.view_pose()[:3, :3] if self.orientation == "view" else None
         for axis, q in AXES.items():

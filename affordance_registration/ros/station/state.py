@@ -14,6 +14,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ...core.labels import REFUSED_PREFIX, standing
 from ..glue.conversions import ConversionError, pose_to_matrix
+from ..glue.mesh_refs import referenced_mesh
 
 __all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "apply_markers", "active_object",
            "candidate_standing", "candidate_label", "candidate_options", "status_markdown"]
@@ -22,8 +23,9 @@ __all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "apply_markers", "acti
 # ============================================================================ messages -> drawings
 @dataclass(frozen=True)
 class MeshDrawing:
-    """A TRIANGLE_LIST marker: ``vertices`` (3F, 3) float32 in the marker's frame, ``faces``
-    (F, 3) uint32, ``T`` (4, 4) its pose in the header frame, RGB ``color`` 0-255, ``opacity``."""
+    """A mesh marker (TRIANGLE_LIST, MESH_RESOURCE, CUBE, CYLINDER): ``vertices`` (3F, 3)
+    float32 in the marker's frame, ``faces`` (F, 3) uint32, ``T`` (4, 4) its pose in the
+    header frame, RGB ``color`` 0-255, ``opacity``."""
 
     vertices: np.ndarray = field(repr=False)
     faces: np.ndarray = field(repr=False)
@@ -71,6 +73,11 @@ def _drawing(m: Marker):
         faces = np.arange(n, dtype=np.uint32).reshape(-1, 3)
         return MeshDrawing(verts, faces, pose_to_matrix(m.pose), _rgb(m.color),
                            float(m.color.a), frame)
+    if m.type in (Marker.MESH_RESOURCE, Marker.CUBE, Marker.CYLINDER):
+        verts = referenced_mesh(m)           # the file read once, a shape made once
+        faces = np.arange(len(verts), dtype=np.uint32).reshape(-1, 3)
+        return MeshDrawing(verts, faces, pose_to_matrix(m.pose), _rgb(m.color),
+                           float(m.color.a), frame)
     if m.type == Marker.TEXT_VIEW_FACING:
         p = m.pose.position
         return TextDrawing(m.text, np.array([p.x, p.y, p.z]), frame)
@@ -83,7 +90,8 @@ def _drawing(m: Marker):
 
 def apply_markers(current: dict, msg: MarkerArray) -> dict:
     """The drawings after a MarkerArray: ``current`` maps (namespace, id) to a drawing;
-    DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, TEXT_VIEW_FACING and SPHERE;
+    DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, MESH_RESOURCE -- the
+    file:// or package:// mesh loaded once --, CUBE, CYLINDER, TEXT_VIEW_FACING and SPHERE;
     other types, and markers that cannot be converted, are left out). Returns a new dict."""
     out = dict(current)
     for m in msg.markers:
