@@ -85,7 +85,7 @@ class AffordanceTemplate:
                  joints: tuple = (), states: Mapping | None = None, description: str = "",
                  base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None,
                  primitive: str | None = None, dimension_ranges: Mapping | None = None,
-                 dimensions: Mapping | None = None):
+                 dimensions: Mapping | None = None, waypoints: tuple = ()):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
         self.name = name
@@ -106,6 +106,8 @@ class AffordanceTemplate:
         self.primitive = primitive
         self.dimension_ranges = dict(dimension_ranges or {})
         self.dimensions = dict(dimensions or {})
+        #: end-effector waypoints (:class:`~affordance_registration.core.waypoints.Waypoint`)
+        self.waypoints = tuple(waypoints)
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -133,7 +135,8 @@ class AffordanceTemplate:
             return AffordanceTemplate(self.name, self.path, primitive_mesh(self.primitive, dims),
                                       symmetry=self.symmetry, description=self.description,
                                       primitive=self.primitive,
-                                      dimension_ranges=self.dimension_ranges, dimensions=dims)
+                                      dimension_ranges=self.dimension_ranges, dimensions=dims,
+                                      waypoints=self.waypoints)
         return self._cached_mesh(key, build)
 
     @property
@@ -214,7 +217,7 @@ class AffordanceTemplate:
         return AffordanceTemplate(self.name, self.path, self.mesh, self.points,
                                   self.point_normals, self.mesh_scale, self.symmetry,
                                   self.joints, self.states, self.description, self.base_mesh,
-                                  scale_range)
+                                  scale_range, waypoints=self.waypoints)
 
     @property
     def joint(self) -> Joint | None:
