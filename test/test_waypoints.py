@@ -279,3 +279,42 @@ def test_file_units_and_rpy_are_read_as_documented(tmp_path):
     assert np.allclose(wp.T_parent_ee[:3, 3], [0.01, 0.02, 0.03])
     assert np.allclose(wp.T_parent_ee[:3, 0], [0, 1, 0], atol=1e-12)
     assert wp.approach == (0.0, 0.0, -1.0) and wp.distance == pytest.approx(0.05)
+
+
+# ---------------------------------------------------------------------------- engine and file
+def test_engine_status_path_and_saved_file_carry_the_waypoints(library, tmp_path):
+    """A registered valve's waypoints are in the engine's status and the saved file (cloud
+    frame), come back the same from the reloaded file, and its path to a state is asked for by
+    object id; an unknown object or state is one line."""
+    from affordance_registration.core.engine import AffordanceEngine, load_registrations
+    from affordance_registration.core.errors import EngineStateError
+    sim = simulate_taskboard(library, 2904, articulated=True, templates=["ball_valve"])
+    engine = AffordanceEngine(library)
+    engine.set_scene(sim.organized, frame_id="cam")
+    engine.click(sim.objects[0].click)
+    shown = engine.status()["objects"][0]
+    assert [w["name"] for w in shown["waypoints"]] == ["lever_grasp"]
+    engine.accept()
+    (reg,) = engine.state.registered
+    (status,) = engine.status()["registered"]
+    (expected,) = waypoint_poses(library["ball_valve"], reg)
+    assert np.allclose(status["waypoints"][0]["pose"], expected.T, atol=1e-8)
+    assert np.allclose(status["waypoints"][0]["pre_pose"], expected.T_pre, atol=1e-8)
+    path = trajectory(library["ball_valve"], reg, "closed")
+    assert np.array_equal(engine.trajectory(reg.id, "closed").poses, path.poses)
+    for object_id, state, words in [(99, "closed", "no object 99"),
+                                    (reg.id, "ajar", "no state 'ajar'")]:
+        with pytest.raises(AffordanceError) as info:
+            engine.trajectory(object_id, state)
+        assert words in str(info.value) and "\n" not in str(info.value)
+    assert isinstance(pytest.raises(EngineStateError, engine.trajectory, 99, "open").value,
+                      EngineStateError)
+    saved = tmp_path / "registrations.yaml"
+    engine.save(str(saved))
+    (entry,) = yaml.safe_load(saved.read_text())["registrations"]
+    assert entry["frame_id"] == "cam"
+    assert np.allclose(entry["waypoints"][0]["pose"], expected.T, atol=1e-8)
+    (loaded,) = load_registrations(str(saved), library)
+    (again,) = waypoint_poses(library["ball_valve"], loaded)
+    assert np.allclose(again.T, expected.T, atol=1e-6)
+    assert np.allclose(again.T_pre, expected.T_pre, atol=1e-6)

@@ -180,7 +180,7 @@ class EngineNode(Node):
             self._unsaved = True
             return ""
         regs = self.engine.state.registered
-        path, backup = self._store.write(regs, self.engine.frame_id)
+        path, backup = self._store.write(regs, self.engine.frame_id, self.library)
         self._unsaved = False
         self.changed()
         text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
