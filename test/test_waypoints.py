@@ -318,3 +318,25 @@ def test_engine_status_path_and_saved_file_carry_the_waypoints(library, tmp_path
     (again,) = waypoint_poses(library["ball_valve"], loaded)
     assert np.allclose(again.T, expected.T, atol=1e-6)
     assert np.allclose(again.T_pre, expected.T_pre, atol=1e-6)
+
+
+def test_markers_draw_each_waypoint_as_a_gripper(library):
+    """The RViz markers of a state: a LINE_LIST per object whose finger tips are at the
+    waypoint, 20 mm either side along its y, its approach a line from the pre_ pose."""
+    from affordance_registration.core.tracked import EngineState, Registration
+    from affordance_registration.ros.glue.markers import state_markers
+    tpl = library["grab_handle"]
+    T = make_T(axis_angle_matrix([1, 0, 0], 0.4), [0.2, 0.1, 0.9])
+    reg = Registration(id=3, template="grab_handle", T_scene_model=T, likelihood=1.0,
+                       probability=1.0, residual=0.001, click=T[:3, 3])
+    arr = state_markers(EngineState(registered=(reg,)), library, "cam", None, np.array([0, 1, 0]))
+    (m,) = [m for m in arr.markers if m.ns == "registered_waypoints"]
+    assert m.id == 3 and m.header.frame_id == "cam" and len(m.points) == len(m.colors)
+    pts = np.array([(p.x, p.y, p.z) for p in m.points])
+    grasp, pull = waypoint_poses(tpl, reg)
+    for wp in (grasp, pull):
+        for side in (-1, 1):          # a finger tip at the waypoint, either side along its y
+            tip = wp.T[:3, 3] + side * 0.02 * wp.T[:3, 1]
+            assert np.min(np.linalg.norm(pts - tip, axis=1)) < 1e-6
+    assert np.min(np.linalg.norm(pts - grasp.T_pre[:3, 3], axis=1)) < 1e-6   # the approach
+    assert len(pts) == 2 * 10 + 2          # 5 segments a gripper, one approach (bar_pull none)
