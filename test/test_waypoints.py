@@ -340,3 +340,11 @@ def test_markers_draw_each_waypoint_as_a_gripper(library):
             assert np.min(np.linalg.norm(pts - tip, axis=1)) < 1e-6
     assert np.min(np.linalg.norm(pts - grasp.T_pre[:3, 3], axis=1)) < 1e-6   # the approach
     assert len(pts) == 2 * 10 + 2          # 5 segments a gripper, one approach (bar_pull none)
+    # the station draws the same lines, in the marker's frame, with their colours
+    from affordance_registration.ros.station.state import LineDrawing, apply_markers
+    drawn = apply_markers({}, arr)[("registered_waypoints", 3)]
+    assert isinstance(drawn, LineDrawing) and drawn.segments.shape == (len(pts) // 2, 2, 3)
+    assert np.allclose(drawn.segments.reshape(-1, 3), pts, atol=1e-6)
+    # bar_grasp's four gripper segments, its x axis in red, its approach line in grey
+    assert tuple(drawn.colors[4, 0]) == (255, 26, 26)
+    assert tuple(drawn.colors[5, 0]) == (178, 178, 178)
