@@ -2,7 +2,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """The station's waypoints toggle and path display in a real browser: the engine node, a
 simulated scan and the station as separate processes, headless chromium driven by Playwright."""
-import pytest
 from browser_helpers import (
     browser_page,
     canvas_box,
@@ -18,28 +17,13 @@ from browser_helpers import (
     wait_until,
 )
 from geometry_msgs.msg import PoseArray, PoseStamped
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+from ros_helpers import LATCHED, Client, engine_process
 from std_msgs.msg import String
 
 from affordance_registration.ros.glue.conversions import pose_to_matrix
 
 FRAME = "camera_depth_optical_frame"
 FOV_DEG = 60.0           # the station's default fov_deg
-
-
-@pytest.fixture
-def processes(tmp_path):
-    started = []
-
-    def start(argv_or_process, name=None):
-        proc = argv_or_process if isinstance(argv_or_process, NodeProcess) else \
-            NodeProcess(argv_or_process, tmp_path / f"{name}.log")
-        started.append(proc)
-        return proc
-    yield start
-    for proc in started:          # SIGINT first: a node killed outright stays in the DDS graph
-        proc.interrupt(timeout=10)
-        proc.kill()
 
 
 def test_station_toggles_waypoints_and_draws_the_path_to_a_state(tmp_path, library, panel_scene,

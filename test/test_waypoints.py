@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from affordance_registration.core.errors import AffordanceError, TemplateError
@@ -348,3 +348,21 @@ def test_markers_draw_each_waypoint_as_a_gripper(library):
     # bar_grasp's four gripper segments, its x axis in red, its approach line in grey
     assert tuple(drawn.colors[4, 0]) == (255, 26, 26)
     assert tuple(drawn.colors[5, 0]) == (178, 178, 178)
+
+
+@settings(max_examples=200, deadline=None)
+@given(text=st.text(max_size=300))
+@example(text="\u00b2 closed")          # a digit to str.isdigit, not to int()
+@example(text="12 closed lever_grasp")
+def test_a_path_request_line_is_read_or_refused_in_one_line(text):
+    """Any text on ~/path_request: read as 'ID STATE [WAYPOINT]' or refused with one line
+    saying what the line should be -- never another exception."""
+    from affordance_registration.ros.glue.paths import parse_path_request
+    try:
+        object_id, state, waypoint = parse_path_request(text)
+    except AffordanceError as exc:
+        assert "\n" not in str(exc) and len(str(exc)) < 300
+        return
+    words = text.split()
+    assert object_id == int(words[0]) and state == words[1] and len(text) <= 256
+    assert waypoint == (words[2] if len(words) == 3 else None)

@@ -1,12 +1,13 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Path requests of the engine node: ``~/path_request`` (std_msgs/String ``"ID STATE"`` or
-``"ID STATE WAYPOINT"``) is answered on ``~/path`` (geometry_msgs/PoseArray, latched, in the
-cloud frame): the path of the waypoint of object ID (a registration, or an open object's shown
-candidate) from its joint value to the named state -- the approach pose, the waypoint along the
-joint, the retreat (``core.waypoints``). A request that cannot be answered (an unknown object,
-state or waypoint, a malformed line) is refused in one line: logged, and the status's
-``node.last_error``; an answer is the status's ``node.last_message``.
+``"ID STATE WAYPOINT"``) is answered on ``~/path`` (geometry_msgs/PoseArray, latched, in the cloud
+frame; a registration's own frame, where it was registered in another): the path of the waypoint
+of object ID (a registration, or an open object's shown candidate) from its joint value to the
+named state -- the approach pose, the waypoint along the joint, the retreat
+(``core.waypoints``). A request that cannot be answered (an unknown object, state or waypoint, a
+malformed line) is refused in one line: logged, and the status's ``node.last_error``; an answer
+is the status's ``node.last_message``.
 
 A topic pair rather than a service: the pip-only install has no service type taking a request
 line and answering poses (no nav_msgs, and std_srvs' types carry no arguments); the request is
@@ -33,7 +34,7 @@ def parse_path_request(text: str) -> tuple:
         raise AffordanceError(f"the request has {len(text):,} characters (at most "
                               f"{MAX_REQUEST})")
     words = text.split()
-    if len(words) not in (2, 3) or not words[0].isdigit():
+    if len(words) not in (2, 3) or not (words[0].isascii() and words[0].isdigit()):
         raise AffordanceError(f"expected 'OBJECT_ID STATE [WAYPOINT]' (e.g. '1 closed'), got "
                               f"{bounded(text, 80)!r}")
     return int(words[0]), words[1], (words[2] if len(words) == 3 else None)
@@ -65,7 +66,9 @@ class PathRequests:
         except AffordanceError as exc:
             node.report("path", False, f"path request refused: {exc}")
             return
-        self._pub.publish(path_message(path, node.frame(), node.get_clock().now().to_msg()))
+        # a registration keeps the frame it was registered in (the cloud's may have changed)
+        frame = getattr(node.engine.state.fit_of(object_id), "frame_id", "") or node.frame()
+        self._pub.publish(path_message(path, frame, node.get_clock().now().to_msg()))
         node.report("path", True, f"path of object {object_id}'s {path.waypoint} to "
                                   f"{path.state}: {len(path.poses)} poses on ~/path")
         node.changed()
