@@ -143,7 +143,8 @@ def test_lever_grasp_lands_on_the_lever_at_the_estimated_joint_value(library, se
 def test_every_path_pose_is_on_the_circle_or_line_of_the_joint(library, seed, name, frac,
                                                                 scale):
     """From any pose, joint value and scale, to every state: the path's poses lie on the circle
-    about the joint axis (revolute) or the line along it (prismatic), in the joint's sense,
+    about the joint axis (revolute), the line along it (prismatic) or the helix about it (a
+    prismatic part with a pitch: the gate valve's wheel, 4 mm a turn), in the joint's sense,
     evenly spaced at most 5 deg / 5 mm apart, each with the part's orientation at its value."""
     tpl = library[name]
     j = tpl.joints[0]
@@ -161,23 +162,24 @@ def test_every_path_pose_is_on_the_circle_or_line_of_the_joint(library, seed, na
         q1 = values[j.name]
         assert qs[0] == pytest.approx(q0) and qs[-1] == pytest.approx(q1)
         steps = np.abs(np.diff(qs))
+        pitch = tpl.waypoints[0].pitch
         limit = PATH_STEP_RAD if j.type == "revolute" else PATH_STEP_M
+        turn = (lambda q: q - q0) if j.type == "revolute" else \
+            (lambda q: 0.0) if pitch is None else (lambda q: 2 * math.pi * (q - q0) / pitch)
         assert np.all(steps <= limit + 1e-12) and (len(steps) == 0 or np.ptp(steps) < 1e-9)
+        assert np.all(np.abs(np.diff([turn(q) for q in qs])) <= PATH_STEP_RAD + 1e-9)
+        offset0 = start.T[:3, 3] - origin
         for P, q in zip(along, qs):
-            expected_R = axis_angle_matrix(axis, q - q0) @ start.T[:3, :3] \
-                if j.type == "revolute" else start.T[:3, :3]
-            assert np.allclose(P[:3, :3], expected_R, atol=1e-9)
+            R = axis_angle_matrix(axis, turn(q))
+            assert np.allclose(P[:3, :3], R @ start.T[:3, :3], atol=1e-9)
             offset = P[:3, 3] - origin
-            offset0 = start.T[:3, 3] - origin
-            if j.type == "revolute":    # same height on the axis, same distance from it
-                assert offset @ axis == pytest.approx(offset0 @ axis, abs=1e-9)
-                r = np.linalg.norm(offset - (offset @ axis) * axis)
-                r0 = np.linalg.norm(offset0 - (offset0 @ axis) * axis)
-                assert r == pytest.approx(r0, abs=1e-9)
-            else:                       # on the line through the start along the axis
-                d = P[:3, 3] - start.T[:3, 3]
-                assert np.allclose(d, (d @ axis) * axis, atol=1e-9)
-                assert d @ axis == pytest.approx((q - q0) * scale, abs=1e-9)
+            # along the axis: where it started (revolute) or moved by the joint's travel
+            rise = 0.0 if j.type == "revolute" else (q - q0) * scale
+            assert offset @ axis == pytest.approx(offset0 @ axis + rise, abs=1e-9)
+            # about the axis: the start turned by the joint's (or the screw's) angle -- the
+            # same distance from the axis (a circle, a helix), or no turn (a line)
+            across, across0 = offset - (offset @ axis) * axis, offset0 - (offset0 @ axis) * axis
+            assert np.allclose(across, R @ across0, atol=1e-9)
 
 
 def test_path_requests_that_cannot_be_answered_say_why_in_one_line(library):
@@ -197,11 +199,11 @@ def test_path_requests_that_cannot_be_answered_say_why_in_one_line(library):
 
 
 # ---------------------------------------------------------------------------- bad template files
-def _template(tmp_path, waypoints, joints=True, states=None, extra=None):
+def _template(tmp_path, waypoints, joints=True, states=None, extra=None, joint_type="revolute"):
     trimesh.creation.box(extents=[0.1, 0.1, 0.05]).export(tmp_path / "box.stl")
     doc = {"name": "t", "mesh": "box.stl", "waypoints": waypoints}
     if joints:
-        doc.update(base_mesh="box.stl", joints=[{"name": "lever", "type": "revolute",
+        doc.update(base_mesh="box.stl", joints=[{"name": "lever", "type": joint_type,
                                                  "axis": [0, 0, 1], "lower": 0, "upper": 1.5,
                                                  "moving_mesh": "box.stl"}])
     if states is not None:
@@ -233,6 +235,8 @@ GOOD = {"name": "g", "end_effector": "gripper", "position": [0, 0, 0.05]}
      "waypoints.g.approach.distance", "positive"),
     ([dict(GOOD, approach={"direction": [0, 0, 1]})], "waypoints.g.approach", "distance"),
     ([dict(GOOD, position=[1e6, 0, 0])], "waypoints.g.position", "100 m"),
+    ([dict(GOOD, part="lever", pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
+    ([dict(GOOD, pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
     ([dict(GOOD, name=f"w{i}") for i in range(33)], "waypoints", "at most 32"),
     ({"g": GOOD}, "waypoints", "a list"),
 ])
@@ -267,6 +271,17 @@ def test_quaternions_are_taken_only_when_unit(tmp_path_factory, q):
     else:
         with pytest.raises(TemplateError, match="not a unit quaternion"):
             load_template(path)
+
+
+def test_a_screw_pitch_is_a_length_per_turn_in_file_units(tmp_path):
+    for pitch in (0, -0.000001, "fine", True):
+        path = _template(tmp_path, [dict(GOOD, part="lever", pitch=pitch)],
+                         joint_type="prismatic")
+        with pytest.raises(TemplateError, match=r"key 'waypoints.g.pitch': expected a non-zero"):
+            load_template(path)
+    path = _template(tmp_path, [dict(GOOD, part="lever", pitch=-4)], joint_type="prismatic",
+                     extra={"mesh_scale": 0.001})
+    assert load_template(path).waypoints[0].pitch == pytest.approx(-0.004)   # a left-hand screw
 
 
 def test_file_units_and_rpy_are_read_as_documented(tmp_path):

@@ -12,6 +12,7 @@ A template declares waypoints in its YAML file::
         position: [0.12, 0, 0.096]  # the file's units, like joint origins
         rpy: [3.141593, 0, 0]       # or quaternion: [x, y, z, w] (unit); default: identity
         approach: {direction: [0, 0, -1], distance: 0.08}   # optional: gives the pre_ pose
+        pitch: 4.0                  # optional, on a prismatic part: it also turns (a screw)
 
 ``position``, the orientation and the approach direction are in the template frame -- or, with
 ``part``, in the template frame with that joint at zero: the waypoint then follows the joint's
@@ -21,6 +22,10 @@ reach the waypoint; the ``pre_`` pose is the waypoint moved back against it by `
 origin), not approach distances. In a ``primitive:`` template positions are fractions of its
 fitted dimensions -- a box's (x, y, z) edge lengths, a cylinder's (radius, radius, length) -- so
 ``[0, 0, 1]`` is the centre of a box's top face whatever its size; approach distances are metres.
+``pitch`` (file units, on a prismatic part only) makes the part turn one full turn about the joint
+axis (right-handed) per ``pitch`` of travel -- a handwheel on a rising stem, whose mesh the fit
+cannot tell turned: the waypoint at the object's joint value is where the template puts it, and
+the path from there is a helix.
 
 The end effector's frame is the author's: the bundled templates use z along the approach
 (pointing from the gripper into the object) and y across the closing fingers.
@@ -53,7 +58,7 @@ PATH_STEP_M = 0.005                 #: m, the same for a prismatic joint
 MAX_PATH_POSES = 5000               #: a path longer than this is refused
 QUATERNION_TOLERANCE = 1e-3         #: how far from 1 a quaternion's norm may be
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
-_KEYS = {"name", "end_effector", "part", "position", "rpy", "quaternion", "approach"}
+_KEYS = {"name", "end_effector", "part", "position", "rpy", "quaternion", "approach", "pitch"}
 
 
 @dataclass(frozen=True)
@@ -69,6 +74,7 @@ class Waypoint:
     part: str | None = None
     approach: tuple | None = None
     distance: float = 0.0
+    pitch: float | None = None      #: m of a prismatic part's travel per turn (a screw)
 
 
 @dataclass(frozen=True)
@@ -159,8 +165,17 @@ def parse_waypoints(path: str, value, joints: tuple, scale: float,
             raise fail(f"{key}.position", "more than 100 m from the template's origin")
         R = _orientation(spec, key, fail)
         approach, distance = _approach(spec.get("approach"), f"{key}.approach", fail, unit)
+        pitch = spec.get("pitch")
+        if pitch is not None:
+            if part is None or by_joint[part].type != "prismatic":
+                raise fail(f"{key}.pitch", "only a waypoint on a prismatic part has a pitch")
+            if isinstance(pitch, bool) or not isinstance(pitch, (int, float)) or \
+                    not math.isfinite(pitch) or pitch == 0 or abs(pitch) * unit < 1e-5:
+                raise fail(f"{key}.pitch", f"expected a non-zero length per turn (at least "
+                                           f"0.01 mm), got {pitch!r}")
+            pitch = float(pitch) * unit
         out.append(Waypoint(name=name, end_effector=effector, T_parent_ee=make_T(R, position),
-                            part=part, approach=approach, distance=distance))
+                            part=part, approach=approach, distance=distance, pitch=pitch))
     return tuple(out)
 
 
@@ -215,19 +230,25 @@ def _approach(value, key: str, fail, unit: float):
 
 
 # ---------------------------------------------------------------------------- poses
-def _joint_motion(joint, q: float) -> np.ndarray:
-    """4x4 motion of ``joint``'s moving part at value ``q`` from its zero pose (template frame,
-    metres)."""
+def _turn(joint, angle: float) -> np.ndarray:
+    """4x4 turn by ``angle`` about ``joint``'s axis line (template frame)."""
     axis, origin = np.asarray(joint.axis, float), np.asarray(joint.origin, float)
-    if joint.type == "prismatic":
-        return make_T(t=axis * q)
-    R = axis_angle_matrix(axis, q)
+    R = axis_angle_matrix(axis, angle)
     return make_T(R, origin - R @ origin)
 
 
+def _joint_motion(joint, q: float) -> np.ndarray:
+    """4x4 motion of ``joint``'s moving part at value ``q`` from its zero pose (template frame,
+    metres)."""
+    if joint.type == "prismatic":
+        return make_T(t=np.asarray(joint.axis, float) * q)
+    return _turn(joint, q)
+
+
 def _posed(template, wp: Waypoint, T_scene_model: np.ndarray, q: float, scale: float,
-           dimensions: dict) -> tuple:
-    """(T, T_pre, approach) of ``wp`` with its joint at ``q`` (scene frame)."""
+           dimensions: dict, q_ref: float | None = None) -> tuple:
+    """(T, T_pre, approach) of ``wp`` with its joint at ``q`` (scene frame). A screw (``pitch``)
+    turns from where it is at ``q_ref`` (None: ``q``): the fit does not see it turned."""
     T_local = np.array(wp.T_parent_ee, dtype=float)
     if template.primitive is not None:
         dims = dimensions or template.dimensions
@@ -240,6 +261,8 @@ def _posed(template, wp: Waypoint, T_scene_model: np.ndarray, q: float, scale: f
     if wp.part is not None:
         joint = next(j for j in template.joints if j.name == wp.part)
         M = _joint_motion(joint, q)
+        if wp.pitch is not None:        # turned about the axis line (travel keeps the line)
+            M = _turn(joint, 2 * math.pi * (q - (q if q_ref is None else q_ref)) / wp.pitch) @ M
     T_model = M @ T_local
     T_model[:3, 3] *= scale
     T = np.asarray(T_scene_model, float) @ T_model
@@ -309,12 +332,14 @@ def trajectory(template, fit, state: str, waypoint: str | None = None) -> Trajec
     q0 = float(np.clip(joints.get(wp.part, 0.0), joint.lower, joint.upper))
     q1 = float(states[state][wp.part])
     step = PATH_STEP_RAD if joint.type == "revolute" else PATH_STEP_M
+    if wp.pitch is not None:            # a screw: 5 deg of its turn at most, too
+        step = min(step, abs(wp.pitch) * PATH_STEP_RAD / (2 * math.pi))
     n = max(1, math.ceil(abs(q1 - q0) / step - 1e-9))
     if n + 3 > MAX_PATH_POSES:
         raise AffordanceError(f"the path to {state!r} would have {n + 1} poses (at most "
                               f"{MAX_PATH_POSES})")
     qs = np.linspace(q0, q1, n + 1) if q1 != q0 else np.array([q0])
-    posed = [_posed(template, wp, T, q, scale, dims) for q in qs]
+    posed = [_posed(template, wp, T, q, scale, dims, q0) for q in qs]
     poses, values, kinds = [p[0] for p in posed], list(qs), ["path"] * len(qs)
     if wp.approach is not None:
         poses = [posed[0][1]] + poses + [posed[-1][1]]

@@ -81,9 +81,10 @@ DOWN = [round(math.pi, 6), 0, 0]
 
 
 def _grasp(name: str, position, part: str | None = None, distance: float | None = 0.08,
-           effector: str = "gripper", rpy=None, direction=(0, 0, -1)) -> dict:
+           effector: str = "gripper", rpy=None, direction=(0, 0, -1),
+           pitch: float | None = None) -> dict:
     """A waypoint entry: approached along ``direction`` (default: into the panel) by
-    ``distance`` (None: no approach)."""
+    ``distance`` (None: no approach); ``pitch``: its part turns as it travels (a screw)."""
     wp: dict = {"name": name, "end_effector": effector}
     if part:
         wp["part"] = part
@@ -91,6 +92,8 @@ def _grasp(name: str, position, part: str | None = None, distance: float | None 
     wp["rpy"] = list(rpy or DOWN)
     if distance is not None:
         wp["approach"] = {"direction": list(direction), "distance": distance}
+    if pitch is not None:
+        wp["pitch"] = pitch
     return wp
 
 
@@ -119,15 +122,15 @@ def gate_valve() -> TemplateSpec:
         name="gate_valve",
         description="Rising-stem gate valve with a four-spoke handwheel (150 mm). The stem and "
                     "wheel rise by up to 30 mm as the valve opens. Waypoint rim_grasp: the "
-                    "gripper on top of the wheel rim, approached from the front; it rises with "
-                    "the stem, so the path to open or closed is the stem's 30 mm line (the "
-                    "wheel's turns are not modelled).",
+                    "gripper on top of the wheel rim, approached from the front; the wheel "
+                    "turns once per 4 mm of rise (counter-clockwise seen from the front to "
+                    "open), so the path to open or closed is a helix of up to 7.5 turns.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 4},
         joint={"name": "stem", "type": "prismatic", "axis": [0, 0, 1], "origin": [0, 0, 0.085],
                "lower": 0.0, "upper": 0.030, "torque_limit": 60.0},
         states={"closed": {"stem": 0.0}, "open": {"stem": 0.030}},
-        waypoints=[_grasp("rim_grasp", [0.075, 0, wheel_z + 0.007], part="stem")],
+        waypoints=[_grasp("rim_grasp", [0.075, 0, wheel_z + 0.007], part="stem", pitch=0.004)],
     )
 
 
