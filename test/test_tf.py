@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, TransformStamped, Twist
 from rcl_interfaces.srv import ListParameters
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -342,6 +343,11 @@ def test_waypoints_are_frames_under_the_object_and_a_path_is_answered(live, libr
         assert t.header.frame_id == child
         T_cam_wp = T_cam_obj @ transform_to_matrix(t.transform)
         assert np.allclose(T_cam_wp, np.asarray(wp[key]), atol=1e-6)
+    # the autosaved registrations file carries them too, in the cloud frame
+    saved = yaml.safe_load(open(status(client)["node"]["registrations_file"]["path"]))
+    entry = next(r for r in saved["registrations"] if r["id"] == reg["id"])
+    assert entry["frame_id"] == FRAME
+    assert np.allclose(entry["waypoints"][0]["pose"], np.asarray(wp["pose"]), atol=1e-8)
     # on the lever of the simulated scene (joint and pose as estimated)
     lever = library["ball_valve"].moving_mesh_at(obj.joints.get("lever", 0.0)).copy()
     lever.apply_transform(obj.T_scene_model)
