@@ -19,6 +19,8 @@ import time
 from .core.errors import AffordanceError
 
 EXIT_ERROR = 2
+#: how many of the ranked candidates `fit --json` gives waypoints (the ones an operator looks at)
+LEADING = 3
 
 
 def _fail(msg: str) -> int:
@@ -85,6 +87,9 @@ def cmd_fit(args) -> int:
            "candidates": [c.to_dict() for c in report.candidates],
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
     if args.json:
+        from .core.waypoints import waypoints_dict
+        for entry, c in zip(doc["candidates"][:LEADING], report.candidates):
+            entry["waypoints"] = waypoints_dict(lib, c)     # the leaders': in the scene frame
         print(json.dumps(doc, indent=2))
         return 0
     print(f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "

@@ -46,3 +46,22 @@ def ros_context():
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     yield
     rclpy.shutdown()
+
+
+@pytest.fixture
+def processes(tmp_path):
+    """``start(argv or NodeProcess, name)``: the processes of a test (the browser tests), each
+    stopped at its end (SIGINT first: a node killed outright stays in the DDS graph until its
+    lease expires, and later tests would see it)."""
+    from ros_helpers import NodeProcess
+    started = []
+
+    def start(argv_or_process, name=None):
+        proc = argv_or_process if isinstance(argv_or_process, NodeProcess) else \
+            NodeProcess(argv_or_process, tmp_path / f"{name}.log")
+        started.append(proc)
+        return proc
+    yield start
+    for proc in started:
+        proc.interrupt(timeout=10)
+        proc.kill()

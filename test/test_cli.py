@@ -42,6 +42,17 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
         assert np.asarray(c["pose"]).shape == (4, 4)
     best = doc["candidates"][0]
     assert best["template"] == obj["template"]
+    # the leading candidates carry their template's waypoints, placed with their fit
+    assert all("waypoints" in c for c in doc["candidates"][:3])
+    assert all("waypoints" not in c for c in doc["candidates"][3:])
+    tpl = library[best["template"]]
+    assert [w["name"] for w in best["waypoints"]] == [w.name for w in tpl.waypoints]
+    for w, declared in zip(best["waypoints"], tpl.waypoints):
+        if declared.part is None:      # a fixed waypoint: the pose times the declared one
+            assert np.allclose(w["pose"], np.asarray(best["pose"]) @ declared.T_parent_ee,
+                               atol=1e-6)
+        assert np.linalg.norm(np.asarray(w["position"]) - np.asarray(best["pose"])[:3, 3]) \
+            < tpl.diameter
     dt, dr = pose_error(np.asarray(best["pose"]), np.asarray(obj["T_scene_model"]),
                         library[obj["template"]].symmetry)
     assert dt < 0.005 and dr < math.radians(5)

@@ -7,7 +7,6 @@ import math
 import re
 
 import numpy as np
-import pytest
 import yaml
 from browser_helpers import (
     browser_page,
@@ -27,7 +26,7 @@ from browser_helpers import (
 )
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from ros_helpers import LATCHED, Client, NodeProcess, engine_process
+from ros_helpers import LATCHED, Client, engine_process
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
@@ -68,21 +67,6 @@ def _drawn_fit(client, pose):
 def _last_drawn(station) -> str:
     """The label the station last logged as drawn for object 1 ('' before any)."""
     return (re.findall(r"drawn: object 1 as (.*)", station.output()) or [""])[-1]
-
-
-@pytest.fixture
-def processes(tmp_path):
-    started = []
-
-    def start(argv_or_process, name=None):
-        proc = argv_or_process if isinstance(argv_or_process, NodeProcess) else \
-            NodeProcess(argv_or_process, tmp_path / f"{name}.log")
-        started.append(proc)
-        return proc
-    yield start
-    for proc in started:          # SIGINT first: a node killed outright stays in the DDS graph
-        proc.interrupt(timeout=10)    # until its lease expires, and later tests would see it
-        proc.kill()
 
 
 def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_context,

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import PointStamped, PoseStamped, TransformStamped, Twist
+import yaml
+from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, TransformStamped, Twist
 from rcl_interfaces.srv import ListParameters
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
@@ -27,6 +28,7 @@ from affordance_registration.core.transforms import invert, make_T, pose_error, 
 from affordance_registration.evaluation.simulation import simulate_taskboard
 from affordance_registration.ros.glue.conversions import (
     matrix_to_transform,
+    pose_to_matrix,
     transform_to_matrix,
     xyz_to_pointcloud2,
 )
@@ -312,6 +314,67 @@ def test_click_in_a_frame_known_only_from_tf_static(live):
     assert new["candidates"][0]["template"] == obj.template
     assert np.linalg.norm(np.asarray(new["click"]) - p_cam) < 0.005
     assert client.call(Trigger, f"{NS}/discard").success
+
+
+def test_waypoints_are_frames_under_the_object_and_a_path_is_answered(live, library):
+    """The shown candidate's waypoints are frames under ``affordance_candidate`` on /tf; once
+    accepted, under the registration's frame on /tf_static, where the status says (cloud
+    frame) and on the lever of the scene; ``~/path_request`` is answered on ``~/path`` in the
+    cloud frame, and refused in one line for an unknown object or state."""
+    s, client = live, live["client"]
+    obj = next(o for o in s["sim"].objects if o.template == "ball_valve")
+    assert fit_object(s, obj)["candidates"][0]["template"] == "ball_valve"
+    names = {"affordance_candidate/lever_grasp", "affordance_candidate/pre_lever_grasp"}
+    seen = client.wait_for(lambda: [t for m in list(client.history.get("/tf", []))
+                                    for t in m.transforms if t.child_frame_id in names],
+                           30, "the candidate's waypoint frames on /tf")
+    assert {t.header.frame_id for t in seen} == {"affordance_candidate"}
+    assert client.call(Trigger, f"{NS}/accept").success
+    reg = client.wait_for(lambda: status(client)["registered"] and
+                          status(client)["registered"][-1], what="the registration")
+    child = f"{reg['template']}_{reg['id']}"
+    frames = client.wait_for(lambda: next((f for f in reversed(engine_static_sets(client))
+                                           if f"{child}/lever_grasp" in f), None),
+                             30, f"{child}/lever_grasp on /tf_static")
+    T_cam_obj = transform_to_matrix(frames[child].transform)
+    (wp,) = reg["waypoints"]
+    for name, key in (("lever_grasp", "pose"), ("pre_lever_grasp", "pre_pose")):
+        t = frames[f"{child}/{name}"]
+        assert t.header.frame_id == child
+        T_cam_wp = T_cam_obj @ transform_to_matrix(t.transform)
+        assert np.allclose(T_cam_wp, np.asarray(wp[key]), atol=1e-6)
+    # the autosaved registrations file carries them too, in the cloud frame
+    saved = yaml.safe_load(open(status(client)["node"]["registrations_file"]["path"]))
+    entry = next(r for r in saved["registrations"] if r["id"] == reg["id"])
+    assert entry["frame_id"] == FRAME
+    assert np.allclose(entry["waypoints"][0]["pose"], np.asarray(wp["pose"]), atol=1e-8)
+    # on the lever of the simulated scene (joint and pose as estimated)
+    lever = library["ball_valve"].moving_mesh_at(obj.joints.get("lever", 0.0)).copy()
+    lever.apply_transform(obj.T_scene_model)
+    from affordance_registration.core.meshes import mesh_distance
+    assert mesh_distance(lever, np.asarray(wp["position"])[None])[0] < 0.005
+    # the path to closed, in the cloud frame: approach, the grasp, ..., the retreat
+    client.subscribe(PoseArray, f"{NS}/path", LATCHED)
+    request = client.node.create_publisher(String, f"{NS}/path_request", 10)
+    client.wait_for_subscribers(request, timeout=30)
+    request.publish(String(data=f"{reg['id']} closed"))
+    path = client.wait_for(lambda: client.latest.get(f"{NS}/path"), 30, "the path")
+    assert path.header.frame_id == FRAME
+    poses = [pose_to_matrix(p) for p in path.poses]
+    q0 = reg["joints"]["lever"]
+    assert len(poses) == 3 + max(1, math.ceil((math.pi / 2 - q0) / math.radians(5) - 1e-9))
+    assert np.allclose(poses[0], np.asarray(wp["pre_pose"]), atol=1e-6)
+    assert np.allclose(poses[1], np.asarray(wp["pose"]), atol=1e-6)
+    axis, centre = T_cam_obj[:3, 2], T_cam_obj[:3, :3] @ [0, 0, 0.085] + T_cam_obj[:3, 3]
+    radius = [np.linalg.norm(np.cross(P[:3, 3] - centre, axis)) for P in poses[1:-1]]
+    assert np.ptp(radius) < 1e-6 and radius[0] > 0.1         # on the lever's circle
+    for line, words in (("99 closed", "no object 99"), (f"{reg['id']} ajar", "no state 'ajar'"),
+                        ("closed", "expected 'OBJECT_ID STATE")):
+        request.publish(String(data=line))
+        error = client.wait_for(lambda: words in status(client)["node"]["last_error"] and
+                                status(client)["node"]["last_error"], 30, f"refusal of {line!r}")
+        assert error.startswith("path request refused: ") and "\n" not in error
+    assert client.call(Trigger, f"{NS}/undo").success
 
 
 def test_msg_docs_list_every_declared_parameter(live):

@@ -85,7 +85,7 @@ class AffordanceTemplate:
                  joints: tuple = (), states: Mapping | None = None, description: str = "",
                  base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None,
                  primitive: str | None = None, dimension_ranges: Mapping | None = None,
-                 dimensions: Mapping | None = None):
+                 dimensions: Mapping | None = None, waypoints: tuple = ()):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
         self.name = name
@@ -111,6 +111,8 @@ class AffordanceTemplate:
         #: ``mesh_scale``): a viewer can load them itself. Empty where the geometry is not a
         #: file's (a point cloud, a primitive, a derived copy)
         self.mesh_files: dict[str, str] = {}
+        #: end-effector waypoints (:class:`~affordance_registration.core.waypoints.Waypoint`)
+        self.waypoints = tuple(waypoints)
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -138,7 +140,8 @@ class AffordanceTemplate:
             return AffordanceTemplate(self.name, self.path, primitive_mesh(self.primitive, dims),
                                       symmetry=self.symmetry, description=self.description,
                                       primitive=self.primitive,
-                                      dimension_ranges=self.dimension_ranges, dimensions=dims)
+                                      dimension_ranges=self.dimension_ranges, dimensions=dims,
+                                      waypoints=self.waypoints)
         return self._cached_mesh(key, build)
 
     @property
@@ -219,7 +222,7 @@ class AffordanceTemplate:
         copy = AffordanceTemplate(self.name, self.path, self.mesh, self.points,
                                   self.point_normals, self.mesh_scale, self.symmetry,
                                   self.joints, self.states, self.description, self.base_mesh,
-                                  scale_range)
+                                  scale_range, waypoints=self.waypoints)
         copy.mesh_files = dict(self.mesh_files)      # the same geometry, the same files
         return copy
 

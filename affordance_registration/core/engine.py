@@ -25,6 +25,7 @@ from .scene import Scene
 from .templates import TemplateLibrary
 from .tracked import EngineState, Registration, TrackedObject
 from .transforms import is_rigid
+from .waypoints import Trajectory, trajectory, waypoints_dict
 
 __all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
            "load_registrations", "save_registrations", "REGISTRATIONS_FORMAT"]
@@ -521,7 +522,7 @@ class AffordanceEngine:
     def save(self, path: str) -> str:
         with self._lock:
             regs, frame = self._state.registered, self._frame_id
-        written = save_registrations(path, regs, frame)
+        written = save_registrations(path, regs, frame, self.library)
         return f"saved {len(regs)} registration(s) to {written}"
 
     def resume(self, registrations) -> None:
@@ -539,14 +540,28 @@ class AffordanceEngine:
             self._commit(replace(self._state, registered=regs, next_id=next_id), "load")
             return f"loaded {len(regs)} registration(s) from {path}"
 
+    def trajectory(self, object_id: int, state: str, waypoint: str | None = None) -> Trajectory:
+        """The path of ``waypoint`` (None: the first on a moving part) of object ``object_id``
+        -- a registration, or an open object's shown candidate -- from its joint value to the
+        named ``state``, in the cloud frame (:func:`~.waypoints.trajectory`). One-line
+        :class:`AffordanceError` for an unknown object, state or waypoint."""
+        with self._lock:
+            fit = self._state.fit_of(object_id)
+        if fit is None or fit.template not in self.library:
+            raise EngineStateError(f"no object {bounded(object_id)} (registered or open)")
+        return trajectory(self._geometry(fit), fit, state, waypoint)
+
     # ------------------------------------------------------------------ status
     def status(self) -> dict:
-        """A JSON-ready summary: objects of interest with ranked candidates, registrations."""
+        """A JSON-ready summary: objects of interest with ranked candidates, registrations;
+        each with the ``waypoints`` of its shown candidate or registration (cloud frame)."""
         with self._lock:
-            st = self._state
+            st, lib = self._state, self.library
             return {"frame_id": self._frame_id, "active_id": st.active_id,
-                    "objects": [o.to_dict(st.active_id) for o in st.objects],
-                    "registered": [r.to_dict() for r in st.registered],
+                    "objects": [dict(o.to_dict(st.active_id),
+                                     waypoints=waypoints_dict(lib, o.shown)) for o in st.objects],
+                    "registered": [dict(r.to_dict(), waypoints=waypoints_dict(lib, r))
+                                   for r in st.registered],
                     "counts": {"objects": len(st.objects), "registered": len(st.registered),
                                "undo": len(self._undo)},
                     "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()}}

@@ -31,6 +31,7 @@ from .files import write_atomically
 from .templates import TemplateLibrary
 from .tracked import Registration
 from .transforms import is_rigid
+from .waypoints import waypoints_dict
 
 __all__ = ["RegistrationStore", "registrations_document", "backup_path", "save_registrations",
            "load_registrations", "REGISTRATIONS_FORMAT"]
@@ -38,18 +39,25 @@ __all__ = ["RegistrationStore", "registrations_document", "backup_path", "save_r
 REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
 
 
-def registrations_document(registrations, frame_id: str = "") -> str:
-    """The YAML text of a registrations file holding ``registrations``."""
+def registrations_document(registrations, frame_id: str = "", library=None) -> str:
+    """The YAML text of a registrations file holding ``registrations``; with the template
+    ``library``, each carries its ``waypoints`` (in its frame). They are for the file's readers
+    (a planner): loading recomputes them from the template and the registration."""
+    entries = [r.to_dict() for r in registrations]
+    if library is not None:
+        for entry, reg in zip(entries, registrations):
+            entry["waypoints"] = waypoints_dict(library, reg)
     doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "registrations": [r.to_dict() for r in registrations]}
+           "registrations": entries}
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-def save_registrations(path: str, registrations, frame_id: str = "") -> str:
-    """Write registrations to a YAML file atomically; returns the absolute path."""
+def save_registrations(path: str, registrations, frame_id: str = "", library=None) -> str:
+    """Write registrations to a YAML file atomically (with their waypoints when the template
+    ``library`` is given); returns the absolute path."""
     try:
-        write_atomically({path: registrations_document(registrations, frame_id)})
+        write_atomically({path: registrations_document(registrations, frame_id, library)})
     except OSError as exc:
         raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
     return os.path.abspath(path)
@@ -172,11 +180,12 @@ class RegistrationStore:
         self.count = len(regs)
         return regs
 
-    def write(self, registrations, frame_id: str = "") -> tuple[str, str | None]:
-        """Write ``registrations`` atomically; returns (path written, backup made or None).
+    def write(self, registrations, frame_id: str = "", library=None) -> tuple[str, str | None]:
+        """Write ``registrations`` atomically (with their waypoints when the template
+        ``library`` is given); returns (path written, backup made or None).
         A file there with bytes this store did not write is first kept as a backup. Raises
         :class:`AffordanceError` (nothing changed) when it cannot."""
-        text = registrations_document(registrations, frame_id).encode("utf-8")
+        text = registrations_document(registrations, frame_id, library).encode("utf-8")
         with self._lock:
             old = _read_bytes(self.path)
             files: dict = {}

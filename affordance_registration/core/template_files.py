@@ -17,6 +17,9 @@ A template is a YAML file (``models/<name>.yaml``)::
       - {name: lever, type: revolute, axis: [0, 0, 1], origin: [0, 0, 0.085],
          lower: 0.0, upper: 1.5708, torque_limit: 15.0, moving_mesh: meshes/ball_valve_lever.stl}
     states: {open: {lever: 0.0}, closed: {lever: 1.5708}}
+    waypoints:                       # end-effector poses (core.waypoints has the format)
+      - {name: lever_grasp, end_effector: gripper, part: lever, position: [0.12, 0, 0.096],
+         rpy: [3.141593, 0, 0], approach: {direction: [0, 0, -1], distance: 0.08}}
     description: free text
 
 Lengths in the file -- a joint's origin, a prismatic joint's limits and its named states -- are
@@ -51,12 +54,13 @@ from .errors import TemplateError
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
+from .waypoints import parse_waypoints
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
 
 _KNOWN_KEYS = {"name", "mesh", "mesh_scale", "symmetry", "joints", "states", "description",
                "base_mesh", "scale", "allow_external_files", "primitive", "size", "radius",
-               "length"}
+               "length", "waypoints"}
 MIN_DIMENSION = 0.002            #: m, the smallest dimension a primitive may be given
 #: bounds on what a template file may ask for, checked before any work is done
 MAX_YAML_BYTES = 1_000_000
@@ -124,10 +128,11 @@ def load_template(path: str) -> AffordanceTemplate:
             raise _fail(path, "scale", str(exc)) from None
     if joints and base is None:
         raise _fail(path, "base_mesh", "a template with joints needs the fixed part's mesh")
+    waypoints = parse_waypoints(path, doc.get("waypoints"), joints, float(scale))
     tpl = AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
                              point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
                              joints=joints, states=states, description=description,
-                             base_mesh=base, scale_range=scale_range)
+                             base_mesh=base, scale_range=scale_range, waypoints=waypoints)
     if mesh is not None and len(joints) <= 1:
         files = {"mesh": doc["mesh"]}
         if joints:
@@ -174,9 +179,10 @@ def _primitive_template(path: str, doc: dict, name: str, description: str) -> Af
         ranges[key.split(".")[-1]] = (lo, hi)
     middle = {k: 0.5 * (lo + hi) for k, (lo, hi) in ranges.items()}
     symmetry = Symmetry(order=2) if kind == "box" else Symmetry(continuous=True)
+    waypoints = parse_waypoints(path, doc.get("waypoints"), (), 1.0, primitive=kind)
     return AffordanceTemplate(name, path, primitive_mesh(kind, middle), symmetry=symmetry,
                               description=description, primitive=kind,
-                              dimension_ranges=ranges, dimensions=middle)
+                              dimension_ranges=ranges, dimensions=middle, waypoints=waypoints)
 
 
 def _fail(path: str, key: str, msg: str) -> TemplateError:
@@ -383,6 +389,9 @@ def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
     for state, values in value.items():
         if not isinstance(values, dict):
             raise _fail(path, f"states.{state}", "expected a mapping of joint name to value")
+        if not values:
+            raise _fail(path, f"states.{state}", "names no joint value: a state is joint values "
+                                                 "such as {lever: 1.5708}")
         states[str(state)] = checked = {}
         for jname, v in values.items():
             if jname not in by_name:

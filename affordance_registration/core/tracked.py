@@ -161,3 +161,11 @@ class EngineState:
     active_id: int | None = None    #: the selected object of interest
     registered: tuple = ()          #: Registration
     next_id: int = 1
+
+    def fit_of(self, object_id: int):
+        """The registration ``object_id``, else the shown candidate (a FitResult) of the open
+        object ``object_id``, else None."""
+        for reg in self.registered:
+            if reg.id == object_id:
+                return reg
+        return next((o.shown for o in self.objects if o.id == object_id), None)

@@ -36,6 +36,7 @@ class TemplateSpec:
     joint: dict | None = None
     states: dict = field(default_factory=dict)
     scale: tuple | None = None
+    waypoints: list = field(default_factory=list)     #: the YAML's ``waypoints`` entries
 
     def full_mesh(self) -> trimesh.Trimesh:
         """The whole object at joint value zero (watertight union of the parts)."""
@@ -75,6 +76,27 @@ def _union(parts) -> trimesh.Trimesh:
     return mesh
 
 
+#: roll of half a turn: the gripper's z (its approach) along the template's -z, into the panel
+DOWN = [round(math.pi, 6), 0, 0]
+
+
+def _grasp(name: str, position, part: str | None = None, distance: float | None = 0.08,
+           effector: str = "gripper", rpy=None, direction=(0, 0, -1),
+           pitch: float | None = None) -> dict:
+    """A waypoint entry: approached along ``direction`` (default: into the panel) by
+    ``distance`` (None: no approach); ``pitch``: its part turns as it travels (a screw)."""
+    wp: dict = {"name": name, "end_effector": effector}
+    if part:
+        wp["part"] = part
+    wp["position"] = [round(float(v), 6) for v in position]
+    wp["rpy"] = list(rpy or DOWN)
+    if distance is not None:
+        wp["approach"] = {"direction": list(direction), "distance": distance}
+    if pitch is not None:
+        wp["pitch"] = pitch
+    return wp
+
+
 def _flange():
     """The mounting flange shared by the three valves (r 45 mm, 12 mm thick)."""
     return _cyl(0.045, 0.0, 0.012)
@@ -99,12 +121,16 @@ def gate_valve() -> TemplateSpec:
     return TemplateSpec(
         name="gate_valve",
         description="Rising-stem gate valve with a four-spoke handwheel (150 mm). The stem and "
-                    "wheel rise by up to 30 mm as the valve opens.",
+                    "wheel rise by up to 30 mm as the valve opens. Waypoint rim_grasp: the "
+                    "gripper on top of the wheel rim, approached from the front; the wheel "
+                    "turns once per 4 mm of rise (counter-clockwise seen from the front to "
+                    "open), so the path to open or closed is a helix of up to 7.5 turns.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 4},
         joint={"name": "stem", "type": "prismatic", "axis": [0, 0, 1], "origin": [0, 0, 0.085],
                "lower": 0.0, "upper": 0.030, "torque_limit": 60.0},
         states={"closed": {"stem": 0.0}, "open": {"stem": 0.030}},
+        waypoints=[_grasp("rim_grasp", [0.075, 0, wheel_z + 0.007], part="stem", pitch=0.004)],
     )
 
 
@@ -123,12 +149,15 @@ def ball_valve() -> TemplateSpec:
     return TemplateSpec(
         name="ball_valve",
         description="Quarter-turn ball valve with a 145 mm lever handle; lever along the pipe "
-                    "means open, across it closed.",
+                    "means open, across it closed. Waypoint lever_grasp: the gripper on the "
+                    "lever's grip sleeve, approached from the front; it turns with the lever, "
+                    "so the path to closed or open is the quarter circle about the stem.",
         base=base, moving=moving,
         symmetry=None,
         joint={"name": "lever", "type": "revolute", "axis": [0, 0, 1], "origin": [0, 0, 0.085],
                "lower": 0.0, "upper": math.pi / 2, "torque_limit": 15.0},
         states={"open": {"lever": 0.0}, "closed": {"lever": round(math.pi / 2, 6)}},
+        waypoints=[_grasp("lever_grasp", [0.120, 0, 0.096], part="lever")],
     )
 
 
@@ -146,12 +175,15 @@ def quarter_turn_valve() -> TemplateSpec:
     return TemplateSpec(
         name="quarter_turn_valve",
         description="Plug valve with a 124 mm T handle; handle along the pipe means open, a quarter "
-                    "turn across it closed.",
+                    "turn across it closed. Waypoint handle_grasp: the gripper on one arm of the "
+                    "T, approached from the front; the path to closed or open is the quarter "
+                    "circle about the plug.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 2},
         joint={"name": "handle", "type": "revolute", "axis": [0, 0, 1], "origin": [0, 0, 0.075],
                "lower": 0.0, "upper": math.pi / 2, "torque_limit": 10.0},
         states={"open": {"handle": 0.0}, "closed": {"handle": round(math.pi / 2, 6)}},
+        waypoints=[_grasp("handle_grasp", [0.045, 0, 0.101], part="handle")],
     )
 
 
@@ -171,12 +203,15 @@ def emergency_stop() -> TemplateSpec:
     return TemplateSpec(
         name="emergency_stop",
         description="Emergency stop: 80 mm square housing with a 56 mm mushroom button that "
-                    "latches 8 mm in when pressed.",
+                    "latches 8 mm in when pressed. Waypoint push: the end effector on the "
+                    "button's dome, approached along the button's axis; the path to pressed "
+                    "is the 8 mm press.",
         base=base, moving=moving,
         symmetry={"axis": [0, 0, 1], "order": 4},
         joint={"name": "button", "type": "prismatic", "axis": [0, 0, -1], "origin": [0, 0, 0.068],
                "lower": 0.0, "upper": 0.008, "torque_limit": 40.0},
         states={"released": {"button": 0.0}, "pressed": {"button": 0.008}},
+        waypoints=[_grasp("push", [0, 0, 0.100], part="button")],
     )
 
 
@@ -188,9 +223,13 @@ def grab_handle() -> TemplateSpec:
     parts.append(_cyl_x(0.012, -0.112, 0.112, z=0.060))   # bar
     return TemplateSpec(
         name="grab_handle",
-        description="U-shaped grab handle: a 24 mm bar on two standoffs 200 mm apart.",
+        description="U-shaped grab handle: a 24 mm bar on two standoffs 200 mm apart. Waypoints "
+                    "bar_grasp (the gripper on the bar's middle, approached from the front) "
+                    "and bar_pull (the same grasp pulled 100 mm out from the panel).",
         base=_union(parts),
         symmetry={"axis": [0, 0, 1], "order": 2},
+        waypoints=[_grasp("bar_grasp", [0, 0, 0.072]),
+                   _grasp("bar_pull", [0, 0, 0.172], distance=None)],
     )
 
 
@@ -221,6 +260,8 @@ def write_library(out_dir: str) -> list[str]:
             joint["moving_mesh"] = moving_name
             doc["joints"] = [joint]
             doc["states"] = spec.states
+        if spec.waypoints:
+            doc["waypoints"] = spec.waypoints
         text = "# Generated by affordance_registration.evaluation.taskboard; edit the generator.\n"
         text += yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
         path = os.path.join(out_dir, f"{spec.name}.yaml")

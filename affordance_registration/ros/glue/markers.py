@@ -4,25 +4,66 @@
 object, its moving part, its label and the click; registered objects in their own colour.
 Templates are drawn by reference (:mod:`.mesh_refs`): a mesh file's URI or a primitive shape. An
 object where no template fits (the verdict) is grey and its label starts "no template fits
-here"."""
+here". Each waypoint is drawn as a small gripper (namespaces ``candidate_waypoints`` and
+``registered_waypoints``, one LINE_LIST per object): two fingers closing along the waypoint's y
+with their tips at the waypoint, the palm and a stem back along its -z, its x axis in red, and a
+grey line from the ``pre_`` pose (the approach)."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ...core.labels import REFUSED_PREFIX, standing
 from ...core.registration import describe_primitive, verdict
+from ...core.waypoints import waypoint_poses
 from .conversions import likelihood_color, sphere_marker, text_marker
 from .mesh_refs import template_markers
 
-__all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
+__all__ = ["state_markers", "joint_text", "waypoint_marker", "MOVING_COLOR", "REGISTERED_COLOR"]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
 NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
 REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
+GRIPPER_COLOR = ColorRGBA(r=1.0, g=0.85, b=0.1, a=1.0)
+X_AXIS_COLOR = ColorRGBA(r=1.0, g=0.1, b=0.1, a=1.0)
+APPROACH_COLOR = ColorRGBA(r=0.7, g=0.7, b=0.7, a=0.8)
+#: the gripper drawn at a waypoint, segments in its frame (m): fingers, palm, stem
+GRIPPER_SEGMENTS = (((0, -0.02, -0.03), (0, -0.02, 0)), ((0, 0.02, -0.03), (0, 0.02, 0)),
+                    ((0, -0.02, -0.03), (0, 0.02, -0.03)), ((0, 0, -0.03), (0, 0, -0.06)))
+X_AXIS = ((0, 0, -0.03), (0.02, 0, -0.03))
+
+
+def waypoint_marker(library, fit, frame: str, ns: str, marker_id: int, stamp) -> Marker | None:
+    """The waypoints of ``fit`` (a FitResult or Registration) as one LINE_LIST in ``frame``
+    (see the module docstring); None when its template has none."""
+    if fit.template not in library:
+        return None
+    poses = waypoint_poses(library[fit.template], fit)
+    if not poses:
+        return None
+    m = Marker()
+    m.header.frame_id, m.header.stamp = frame, stamp
+    m.ns, m.id, m.type, m.action = ns, int(marker_id), Marker.LINE_LIST, Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = 0.003                  # line width (m)
+    m.color = GRIPPER_COLOR
+    for wp in poses:
+        segments = [(GRIPPER_COLOR, GRIPPER_SEGMENTS), (X_AXIS_COLOR, (X_AXIS,))]
+        for colour, pairs in segments:
+            for pair in pairs:
+                for p in pair:
+                    q = wp.T[:3, :3] @ np.asarray(p, float) + wp.T[:3, 3]
+                    m.points.append(Point(x=float(q[0]), y=float(q[1]), z=float(q[2])))
+                    m.colors.append(colour)
+        if wp.T_pre is not None:
+            for q in (wp.T_pre[:3, 3], wp.T[:3, 3]):
+                m.points.append(Point(x=float(q[0]), y=float(q[1]), z=float(q[2])))
+                m.colors.append(APPROACH_COLOR)
+    return m
 
 
 def _geometry(library, template: str, dimensions: dict):
@@ -80,6 +121,9 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))
         markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
+        gripper = waypoint_marker(library, c, frame, "candidate_waypoints", obj.id, stamp)
+        if gripper is not None:
+            markers.markers.append(gripper)
     for reg in state.registered:
         if reg.template not in library:
             continue
@@ -90,4 +134,7 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
             f"{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}"
         markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - 0.5 * tpl.diameter
                                            * up, frame, "registered_label", reg.id, stamp))
+        gripper = waypoint_marker(library, reg, frame, "registered_waypoints", reg.id, stamp)
+        if gripper is not None:
+            markers.markers.append(gripper)
     return markers

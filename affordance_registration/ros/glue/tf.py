@@ -2,15 +2,18 @@
 # SPDX-License-Identifier: Apache-2.0
 """TF for the engine node: registrations and the shown candidate out, frame lookups in.
 
-Out (``TfBroadcaster``): every registration is a frame ``<template>_<id>`` (``ball_valve_1``)
-on ``/tf_static``, parent the frame it was registered in (the cloud's); the shown candidate of
-the selected object is ``affordance_candidate`` on ``/tf``. The static set goes out whole
-whenever it changes, as one TFMessage on a reliable, transient-local publisher of depth 1 (what
-tf2_ros' static broadcaster does), so a late listener gets exactly the current set: a frame
-undone, discarded or replaced by a load is gone from it. (tf2_ros' StaticTransformBroadcaster
-is not used even where it is installed: it only ever adds or replaces frames, so it could not
-drop an undone one. Note that a tf2 buffer already holding a static frame keeps it until it
-restarts: tf2 has no way to retract a static transform.)
+Out (``TfBroadcaster``): every registration is a frame ``<template>_<id>`` (``ball_valve_1``) on
+``/tf_static``, parent the frame it was registered in (the cloud's); the shown candidate of the
+selected object is ``affordance_candidate`` on ``/tf``. Each of their waypoints is a frame
+``<object frame>/<waypoint>`` (``ball_valve_1/lever_grasp``, ``affordance_candidate/push``), and
+its approach pose ``<object frame>/pre_<waypoint>``, parent the object's frame, at the joint
+value the object has -- on ``/tf_static`` with a registration, on ``/tf`` with the candidate.
+The static set goes out whole whenever it changes, as one TFMessage on a reliable,
+transient-local publisher of depth 1 (what tf2_ros' static broadcaster does), so a late listener
+gets exactly the current set: a frame undone, discarded or replaced by a load is gone from it.
+(tf2_ros' StaticTransformBroadcaster is not used even where it is installed: it only ever adds
+or replaces frames, so it could not drop an undone one. Note that a tf2 buffer already holding a
+static frame keeps it until it restarts: tf2 has no way to retract a static transform.)
 
 In (``TfListener``): frame lookups for clicks, view poses and the sensor frame, at the stamp of
 the message that needs them. In a ROS install with tf2_ros, its Buffer and TransformListener; in
@@ -31,12 +34,14 @@ import threading
 import numpy as np
 from geometry_msgs.msg import TransformStamped
 
+from ...core.transforms import invert
+from ...core.waypoints import waypoint_poses
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
 from .frames import FrameError, FrameGraph, TransformBuffer
 from .qos import INPUT, LATCHED, latched
 
 __all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame",
-           "load_tf_message"]
+           "load_tf_message", "waypoint_frames"]
 
 CANDIDATE_FRAME = "affordance_candidate"
 CANDIDATE_REPUBLISH_S = 1.0          # the candidate frame stays fresh for /tf listeners
@@ -49,6 +54,20 @@ DYNAMIC_QOS = INPUT
 def registration_frame(template: str, registration_id: int) -> str:
     """The TF frame of a registration: ``<template>_<id>``."""
     return f"{template}_{registration_id}"
+
+
+def waypoint_frames(library, fit, object_frame: str) -> list:
+    """(child frame, T_object_child) of each waypoint of ``fit`` (a Registration or FitResult)
+    and of its approach pose: ``<object_frame>/<name>``, ``<object_frame>/pre_<name>``."""
+    if library is None or fit.template not in library:
+        return []
+    T_object_scene = invert(np.asarray(fit.T_scene_model, dtype=float))
+    out = []
+    for wp in waypoint_poses(library[fit.template], fit):
+        out.append((f"{object_frame}/{wp.name}", T_object_scene @ wp.T))
+        if wp.T_pre is not None:
+            out.append((f"{object_frame}/pre_{wp.name}", T_object_scene @ wp.T_pre))
+    return out
 
 
 def load_tf_message():
@@ -77,7 +96,8 @@ class TfBroadcaster:
         self.available = TFMessage is not None
         self._static_key: tuple = ()
         self._static: dict[str, TransformStamped] = {}    # child -> transform as last sent
-        self._candidate: TransformStamped | None = None
+        self._candidate: list = []         # the candidate's transform and its waypoints'
+
         if not self.available:
             node.get_logger().warning("tf2_msgs is not installed: registrations are not "
                                       "published on TF (make setup builds it into the venv)")
@@ -87,19 +107,20 @@ class TfBroadcaster:
         self._pub_dynamic = node.create_publisher(TFMessage, "/tf", DYNAMIC_QOS)
         node.create_timer(CANDIDATE_REPUBLISH_S, self._republish_candidate)
 
-    def publish_registrations(self, registered, parent_frame: str, stamp) -> bool:
+    def publish_registrations(self, registered, parent_frame: str, stamp, library=None) -> bool:
         """Publish the full static set if it changed. ``registered``: records with ``template``,
         ``id``, ``T_scene_model`` (4x4, metres) and ``frame_id`` (the parent; ``parent_frame``
-        where empty). A frame whose pose and parent did not change keeps its stamp. Returns
-        whether a message went out."""
+        where empty); with the template ``library``, their waypoints' frames too. A frame whose
+        pose and parent did not change keeps its stamp. Returns whether a message went out."""
         if not self.available:
             return False
         frames = []
         for reg in registered:
             parent = (reg.frame_id or parent_frame).lstrip("/")
             if parent:
-                frames.append((parent, registration_frame(reg.template, reg.id),
-                               np.asarray(reg.T_scene_model, dtype=float)))
+                child = registration_frame(reg.template, reg.id)
+                frames.append((parent, child, np.asarray(reg.T_scene_model, dtype=float)))
+                frames += [(child, name, T) for name, T in waypoint_frames(library, reg, child)]
         key = tuple((parent, child, T.tobytes()) for parent, child, T in frames)
         if key == self._static_key:
             return False
@@ -113,24 +134,29 @@ class TfBroadcaster:
         self._pub_static.publish(self._msg_type(transforms=list(transforms.values())))
         return True
 
-    def publish_candidate(self, T_parent_candidate: np.ndarray | None, parent_frame: str,
-                          stamp) -> None:
-        """The shown candidate's frame on /tf (republished every second while shown); None: no
-        candidate is shown, so the frame stops being published."""
+    def publish_candidate(self, candidate, parent_frame: str, stamp, library=None) -> None:
+        """The shown candidate's frame (and, with the template ``library``, its waypoints') on
+        /tf, republished every second while shown. ``candidate``: a FitResult, or None: no
+        candidate is shown, so the frames stop being published."""
         if not self.available:
             return
         parent_frame = parent_frame.lstrip("/")
-        if T_parent_candidate is None or not parent_frame:
-            self._candidate = None
+        if candidate is None or not parent_frame:
+            self._candidate = []
             return
-        self._candidate = _transform(parent_frame, CANDIDATE_FRAME, T_parent_candidate, stamp)
-        self._pub_dynamic.publish(self._msg_type(transforms=[self._candidate]))
+        self._candidate = [_transform(parent_frame, CANDIDATE_FRAME, candidate.T_scene_model,
+                                      stamp)]
+        self._candidate += [_transform(CANDIDATE_FRAME, name, T, stamp) for name, T in
+                            waypoint_frames(library, candidate, CANDIDATE_FRAME)]
+        self._pub_dynamic.publish(self._msg_type(transforms=list(self._candidate)))
 
     def _republish_candidate(self) -> None:
         candidate = self._candidate
-        if candidate is not None:
-            candidate.header.stamp = self._node.get_clock().now().to_msg()
-            self._pub_dynamic.publish(self._msg_type(transforms=[candidate]))
+        if candidate:
+            now = self._node.get_clock().now().to_msg()
+            for t in candidate:
+                t.header.stamp = now
+            self._pub_dynamic.publish(self._msg_type(transforms=list(candidate)))
 
 
 class TfListener:

@@ -53,6 +53,7 @@ from ..glue.conversions import (
 )
 from ..glue.frames import FrameError, StaticFrames, T_frame_optical
 from ..glue.markers import state_markers
+from ..glue.paths import PathRequests
 from ..glue.qos import INPUT as INPUT_QOS
 from ..glue.qos import LATCHED
 from ..glue.qos import SERVICES as SERVICE_QOS
@@ -64,7 +65,7 @@ from ..standins.spin import run_node
 SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
             "joint_plus", "joint_minus")
 #: inputs whose errors repeat with a stream of bad messages: logged as throttled warnings
-STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click")
+STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click", "path")
 THROTTLE_S = 2.0
 #: how often a drag whose client fell silent is looked for (s)
 DRAG_WATCH_S = 0.5
@@ -130,6 +131,7 @@ class EngineNode(Node):
         self.pub_fit = self.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
         self.pub_status = self.create_publisher(String, "~/status", LATCHED)
+        self.paths = PathRequests(self)     # ~/path_request -> ~/path
         # service calls wait for the stream without holding the default callback group: the
         # subscriptions and the publishing timer keep running meanwhile
         services = ReentrantCallbackGroup()
@@ -180,7 +182,7 @@ class EngineNode(Node):
             self._unsaved = True
             return ""
         regs = self.engine.state.registered
-        path, backup = self._store.write(regs, self.engine.frame_id)
+        path, backup = self._store.write(regs, self.engine.frame_id, self.library)
         self._unsaved = False
         self.changed()
         text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
@@ -547,9 +549,9 @@ class EngineNode(Node):
         arr.header.frame_id, arr.header.stamp = frame, stamp
         arr.poses = [matrix_to_pose(r.T_scene_model) for r in state.registered]
         self.pub_registered.publish(arr)
-        self._tf_out.publish_registrations(state.registered, frame, stamp)
-        self._tf_out.publish_candidate(None if active is None else active.shown.T_scene_model,
-                                       frame, stamp)
+        self._tf_out.publish_registrations(state.registered, frame, stamp, self.library)
+        self._tf_out.publish_candidate(None if active is None else active.shown, frame, stamp,
+                                       self.library)
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))

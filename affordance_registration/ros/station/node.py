@@ -14,6 +14,8 @@ colour and a status panel. On the page the operator
   release is an absolute correction followed by a refit, as a drag in RViz;
 * presses Next / Previous / Accept / Refit / Undo / Discard / Save / Joint - / Joint + (the engine's
   std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
+* sees the engine's waypoint grippers (the "Waypoints" toggle hides them) and, with "Show path",
+  the path of the selected object's waypoint to the state typed in "Path to state" (``paths.py``);
 * looks around: the browser camera is published on ``view_pose`` (an optical frame in the cloud's
   frame), so SpaceMouse pushes move the object in the view the operator is looking at.
 
@@ -61,6 +63,7 @@ from ..standins.spin import run_node
 from . import access as station_access
 from .page import ACTIONS, PageHandlers, StationPage
 from .parameters import PARAMETERS, UP_AXES, check_parameters, check_port
+from .paths import StationPaths
 from .state import (
     active_object,
     apply_markers,
@@ -202,7 +205,11 @@ class StationNode(Node):
                                     PageHandlers(click=self._click, action=self._action,
                                                  select=self._select, drag=self._drag,
                                                  camera=self._camera,
-                                                 dimension=self._dimension))
+                                                 dimension=self._dimension,
+                                                 path=lambda state: self.paths.request(state),
+                                                 waypoints=lambda shown, drawn:
+                                                 self.paths.toggled(shown, drawn)))
+        self.paths = StationPaths(self)     # "Show path" -> <engine>/path_request, <engine>/path
         station_access.disable_share(self.page.server, self.get_logger().warning)
         self.access.port = self.page.port
         self.url = self.access.url()

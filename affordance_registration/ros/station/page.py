@@ -14,7 +14,7 @@ import numpy as np
 from ...core import display
 from ...core.errors import AffordanceError
 from ...core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
-from .state import MeshDrawing, TextDrawing
+from .state import LineDrawing, MeshDrawing, TextDrawing
 
 __all__ = ["StationPage", "PageHandlers", "gizmo_scale", "ACTIONS", "DIMENSIONS"]
 
@@ -29,6 +29,8 @@ REFUSED_RGB = (150, 150, 150)           # a candidate the verdict refuses: a gre
 REFUSED_OPACITY = 0.5                   # ... half transparent
 PENDING_RGB = (255, 140, 0)             # the click being fitted
 PENDING_RADIUS = 0.008                  # m
+PATH_RGB = (255, 60, 200)               # the path the engine answered
+LINE_PX = 3.0                           # width of the waypoints' and the path's lines (pixels)
 
 
 def gizmo_scale(vertices: np.ndarray) -> float:
@@ -67,6 +69,10 @@ class PageHandlers:
     camera: Callable
     #: ``dimension(name, metres)``: a primitive's dimension set in its field
     dimension: Callable = lambda name, value: None
+    #: ``path(state)``: the path of the shown object's waypoint to the named state asked for
+    path: Callable = lambda state: None
+    #: ``waypoints(shown, drawn)``: the waypoints toggle changed (``drawn``: grippers drawn)
+    waypoints: Callable = lambda shown, drawn: None
 
 
 class StationPage:
@@ -107,6 +113,13 @@ class StationPage:
                                  step=0.001, visible=False)
             box.on_update(lambda event, name=name: self._on_dimension(event, name))
             self.dimensions[name] = box
+        # the engine's waypoints (grippers) on or off; the path of the shown object's waypoint
+        # to a named state, as the engine answers it
+        self.waypoints = gui.add_checkbox("Waypoints", initial_value=True)
+        self.waypoints.on_update(self._on_waypoints)
+        self.path_state = gui.add_text("Path to state", initial_value="")
+        self.path_button = gui.add_button("Show path")
+        self.path_button.on_click(lambda event: self.h.path(str(self.path_state.value).strip()))
         self.status = gui.add_markdown("**Engine**: starting")
         self.server.scene.on_click()(self._on_click)
         self.server.on_client_connect(self._on_connect)
@@ -135,6 +148,14 @@ class StationPage:
         if event.client is None:              # set by the station, not by an operator
             return
         self.h.dimension(name, float(self.dimensions[name].value))
+
+    def _on_waypoints(self, event) -> None:
+        shown = bool(self.waypoints.value)
+        with self._lock:
+            handles = [h for name, (h, _) in self._nodes.items() if "_waypoints_" in name]
+            for handle in handles:
+                handle.visible = shown
+        self.h.waypoints(shown, len(handles))
 
     def _on_connect(self, client) -> None:
         with self._lock:
@@ -277,10 +298,27 @@ class StationPage:
             self._nodes["/pending/label"] = (self.server.scene.add_label(
                 "/pending/label", "fitting…", position=p, anchor="bottom-center"), "")
 
+    def show_path(self, points: np.ndarray | None) -> None:
+        """The path the engine answered: its poses' positions (N, 3) in the cloud frame as a
+        polyline (None or fewer than 2: none)."""
+        with self._lock:
+            old = self._nodes.pop("/path", None)
+            if old is not None:
+                old[0].remove()
+            if points is None or len(points) < 2:
+                return
+            p = np.asarray(points, dtype=np.float32)
+            segments = np.stack([p[:-1], p[1:]], axis=1)
+            colors = np.broadcast_to(np.array(PATH_RGB, np.uint8), segments.shape).copy()
+            self._nodes["/path"] = (self.server.scene.add_line_segments(
+                "/path", segments, colors, thickness=LINE_PX, thickness_units="screen"), "")
+
     def _other(self, name: str, d) -> None:
         key = repr(d)
         if isinstance(d, TextDrawing):
             key = d.text + repr(np.round(d.position, 4).tolist())
+        elif isinstance(d, LineDrawing):
+            key = d.segments.tobytes() + d.colors.tobytes()
         else:
             key = repr((np.round(d.position, 4).tolist(), d.radius, d.color))
         old = self._nodes.get(name)
@@ -289,6 +327,10 @@ class StationPage:
         if isinstance(d, TextDrawing):
             handle = self.server.scene.add_label(name, d.text, position=d.position,
                                                  anchor="top-center")
+        elif isinstance(d, LineDrawing):     # waypoint grippers: shown as the toggle says
+            handle = self.server.scene.add_line_segments(
+                name, d.segments, d.colors, thickness=LINE_PX, thickness_units="screen",
+                visible=bool(self.waypoints.value))
         else:
             handle = self.server.scene.add_icosphere(name, radius=d.radius, color=d.color,
                                                      position=d.position)
@@ -301,7 +343,7 @@ class StationPage:
         the active candidate's label text; the candidates of the objects in ``refused`` are
         drawn as outlines."""
         with self._lock:
-            wanted = {name for name in self._nodes if name.startswith("/pending/")}
+            wanted = {name for name in self._nodes if name.startswith(("/pending/", "/path"))}
             fit = drawings.get(("candidate", active_id)) if active_id is not None else None
             if fit is not None and isinstance(fit, MeshDrawing):
                 self._place_gizmo(fit)

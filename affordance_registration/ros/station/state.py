@@ -16,7 +16,7 @@ from ...core.labels import REFUSED_PREFIX, standing
 from ..glue.conversions import ConversionError, pose_to_matrix
 from ..glue.mesh_refs import referenced_mesh
 
-__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "apply_markers", "active_object",
+__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "LineDrawing", "apply_markers", "active_object",
            "candidate_standing", "candidate_label", "candidate_options", "status_markdown"]
 
 
@@ -57,6 +57,16 @@ class SphereDrawing:
     frame: str
 
 
+@dataclass(frozen=True)
+class LineDrawing:
+    """A LINE_LIST marker (the engine's waypoint grippers): ``segments`` (S, 2, 3) float32 in
+    the header frame (the marker's pose applied), ``colors`` (S, 2, 3) uint8."""
+
+    segments: np.ndarray = field(repr=False)
+    colors: np.ndarray = field(repr=False)
+    frame: str
+
+
 def _rgb(c) -> tuple:
     return tuple(int(round(255 * min(1.0, max(0.0, v)))) for v in (c.r, c.g, c.b))
 
@@ -85,13 +95,23 @@ def _drawing(m: Marker):
         p = m.pose.position
         return SphereDrawing(np.array([p.x, p.y, p.z]), 0.5 * float(m.scale.x), _rgb(m.color),
                              frame)
+    if m.type == Marker.LINE_LIST:
+        n = len(m.points) // 2 * 2
+        if n == 0:
+            return None
+        T = pose_to_matrix(m.pose)
+        pts = np.array([(p.x, p.y, p.z) for p in m.points[:n]], dtype=float) @ T[:3, :3].T
+        colors = [_rgb(c) for c in m.colors[:n]] if len(m.colors) >= n else [_rgb(m.color)] * n
+        return LineDrawing((pts + T[:3, 3]).astype(np.float32).reshape(-1, 2, 3),
+                           np.array(colors, dtype=np.uint8).reshape(-1, 2, 3), frame)
     return None
 
 
 def apply_markers(current: dict, msg: MarkerArray) -> dict:
     """The drawings after a MarkerArray: ``current`` maps (namespace, id) to a drawing;
     DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, MESH_RESOURCE -- the
-    file:// or package:// mesh loaded once --, CUBE, CYLINDER, TEXT_VIEW_FACING and SPHERE;
+    file:// or package:// mesh loaded once --, CUBE, CYLINDER, TEXT_VIEW_FACING, SPHERE and
+    LINE_LIST;
     other types, and markers that cannot be converted, are left out). Returns a new dict."""
     out = dict(current)
     for m in msg.markers:
