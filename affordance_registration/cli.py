@@ -83,7 +83,11 @@ def cmd_fit(args) -> int:
            "verdict": verdict(report.candidates), "no_match": refused,
            "reason": best.reason, "noise": round(float(best.noise), 9),
            "candidates": [c.to_dict() for c in report.candidates],
+           "ambiguity": report.ambiguity.to_dict(),
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
+    view = registrar.suggest_view(report) if args.suggest_view else None
+    if args.suggest_view:
+        doc["suggested_view"] = None if view is None else view.to_dict()
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
@@ -106,6 +110,10 @@ def cmd_fit(args) -> int:
         size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
               f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}")
+    print(report.ambiguity.describe())
+    if args.suggest_view:
+        print(f"suggested view: {view.describe()}" if view is not None else
+              "suggested view: none (the click is settled, or the scan has no viewpoint)")
     return 0
 
 
@@ -451,6 +459,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "cloud with no single viewpoint (an accumulated map: no visibility "
                         "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
+    p.add_argument("--suggest-view", action="store_true",
+                   help="for an unsettled click, where the sensor should look from to settle "
+                        "it (an optical-frame pose in the scene's frame; bounds: fit.viewpoint.*)")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")

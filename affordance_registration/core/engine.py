@@ -234,7 +234,7 @@ class AffordanceEngine:
             obj = TrackedObject(id=self._state.next_id, click=report.point,
                                 candidates=report.candidates, refined=frozenset({0}),
                                 context=report.context, scene_version=version,
-                                fit_s=report.timing_s["total"])
+                                fit_s=report.timing_s["total"], ambiguity=report.ambiguity)
             self._commit(replace(self._state, objects=self._state.objects + (obj,),
                                  active_id=obj.id, next_id=obj.id + 1), "click")
             self._last_timing = dict(report.timing_s)

@@ -56,6 +56,7 @@ import numpy as np
 from ..errors import RegistrationError
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
+from .ambiguity import Ambiguity, assess
 from .articulation import articulate, prefer_nominal
 from .hypotheses import (
     Hypotheses,
@@ -74,6 +75,7 @@ from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
 from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
+from .viewpoint import suggest_view
 
 __all__ = ["Registrar"]
 
@@ -134,18 +136,49 @@ class Registrar:
                 raise RegistrationError("no templates to fit")
             specific = [n for n in names if self.library[n].primitive is None]
             primitives = [n for n in names if self.library[n].primitive is not None]
+            alternatives = ()
             if self.settings.method == "paper":
                 candidates = self.paper.fit(ctx, specific) if specific else ()
             else:
-                candidates = self._fit_default(ctx, specific) if specific else ()
+                candidates, alternatives = self._fit_default(ctx, specific) if specific \
+                    else ((), ())
             t_prim = time.perf_counter()
             if primitives:
                 candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives))
-        t2 = time.perf_counter()
-        timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
+            t2 = time.perf_counter()
+            ambiguity = self.assess(ctx, candidates, alternatives)
+        t3 = time.perf_counter()
+        timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0, "ambiguity": t3 - t2}
         if primitives:
             timing["primitives"] = t2 - t_prim
-        return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
+        return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx,
+                         alternatives=alternatives, ambiguity=ambiguity)
+
+    def assess(self, ctx: ClickContext, candidates, alternatives=()) -> Ambiguity:
+        """Whether the ranked ``candidates`` of a click settle it (:func:`.ambiguity.assess`;
+        nothing about them changes)."""
+        s = self.settings
+
+        def model_of(r: FitResult) -> Model:
+            return self._model(r.template, r.joints, r.scale, r.dimensions)
+
+        def refine(r: FitResult) -> FitResult:       # a second pose, finished as a leader is
+            fit = fine_stage(ctx, model_of(r), r.T_scene_model[:3, :3], r.T_scene_model[:3, 3],
+                             s.stages.fine, s)
+            return result(ctx, fit.models[0], fit.R[0], fit.t[0], s)
+        with single_threaded_blas():
+            return assess(ctx, candidates, alternatives, model_of, s, refine)
+
+    def suggest_view(self, report: FitReport, T_scene_optical: np.ndarray | None = None):
+        """Where the sensor should look from to settle an unsettled click
+        (:func:`.viewpoint.suggest_view`), or None when it is settled or the scan has no
+        viewpoint. ``T_scene_optical``: the sensor's current pose (its roll is kept)."""
+        amb = report.ambiguity or self.assess(report.context, report.candidates,
+                                              report.alternatives)
+        if amb.settled:
+            return None
+        with single_threaded_blas():
+            return suggest_view(report.context, amb, self.settings, T_scene_optical)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
               joints: dict | None = None, scale: float = 1.0,
@@ -177,7 +210,8 @@ class Registrar:
 
     # ------------------------------------------------------------------ the default method
     def _fit_default(self, ctx: ClickContext, names: list[str]) -> tuple:
-        """The default method, stage by stage."""
+        """The default method, stage by stage: (the ranked candidates, every medium-stage
+        hypothesis's result)."""
         s = self.settings
         t0 = time.perf_counter()
         rng = np.random.default_rng(s.seed)
@@ -209,7 +243,8 @@ class Registrar:
         hyps = hyps.after(icp(ctx, hyps, s.stages.medium, s))
         # 5. rank: the best hypothesis per template by the two-way residual (the prefilter's
         #    behind)
-        ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
+        best, every = self._best_per_template(ctx, hyps)
+        ranked = rank(best + set_aside)
         # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
         # 7. the leaders -- the winner and the runners-up close to it: each a sweep about its
@@ -222,7 +257,7 @@ class Registrar:
         fitted = [r for r in ranked if not r.prefiltered]
         judged = self._judged(ctx, fitted) + [r for r in ranked if r.prefiltered]
         total = time.perf_counter() - t0
-        return rank([replace(r, time_s=total) for r in judged])
+        return rank([replace(r, time_s=total) for r in judged]), tuple(every)
 
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
@@ -260,13 +295,14 @@ class Registrar:
         return [m for _, m in variants], np.array([i for i, _ in variants])
 
     def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
-        """Each template's best hypothesis by the residual, ranked."""
+        """Each template's best hypothesis by the residual, ranked, and every hypothesis's
+        result (the ambiguity's second poses)."""
         best: dict[int, FitResult] = {}
-        for i, res in zip(hyps.index.tolist(), results(ctx, hyps, self.settings,
-                                                       hyps.iterations, hyps.converged)):
+        every = results(ctx, hyps, self.settings, hyps.iterations, hyps.converged)
+        for i, res in zip(hyps.index.tolist(), every):
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
-        return rank(best.values())
+        return rank(best.values()), every
 
     def _articulate_leaders(self, ctx: ClickContext, ranked: tuple, iterations: int):
         """Joint values and scale of the articulated templates among the leading candidates
