@@ -152,6 +152,10 @@ def cmd_simulate(args) -> int:
 def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
     log = (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if args.row:                        # one row alone (its own seeds): for its numbers
+        from .evaluation.viewpoints import format_row, viewpoint_row
+        print("\n".join(format_row(viewpoint_row(log=log))))
+        return 0
     result = run_bench(quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks,
                        out=args.out, log=log)
     print(format_table(result))
@@ -489,6 +493,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--paper-clicks", type=int, default=None,
                    help="clicks for the slow paper baseline (default 25; 0 = all)")
     p.add_argument("--out", default="bench_output/bench.json", help="JSON output path")
+    p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "

@@ -33,6 +33,8 @@ class TrackedObject:
     fit_s: float = 0.0                      #: time the click's fit took
     #: whether the click's answer is settled (registration.ambiguity.Ambiguity; None: unknown)
     ambiguity: object = field(default=None, repr=False, compare=False)
+    #: where the sensor should look from to settle it (registration.viewpoint.SuggestedView)
+    suggested_view: object = field(default=None, repr=False, compare=False)
 
     @property
     def shown(self) -> FitResult:
@@ -70,7 +72,9 @@ class TrackedObject:
                 "no_match": self.no_match, "verdict": verdict(self.candidates),
                 "reason": self.candidates[0].reason if self.candidates else None,
                 "candidates": [c.to_dict() for c in self.candidates],
-                "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict()}
+                "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict(),
+                "suggested_view": None if self.suggested_view is None else
+                self.suggested_view.to_dict()}
 
     @property
     def no_match(self) -> bool:

@@ -1,14 +1,15 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The engine's state drawn as RViz markers (``~/markers``): the shown candidate of each open
-object, its moving part, its label and the click; registered objects in their own colour. An
-object where no template fits (the verdict) is grey and its label starts "no template fits
-here"."""
+object, its moving part, its label and the click, and for an unsettled one the frustum of the
+view that would settle it; registered objects in their own colour. An object where no template
+fits (the verdict) is grey and its label starts "no template fits here"."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from geometry_msgs.msg import Point
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -16,11 +17,40 @@ from ...core.labels import REFUSED_PREFIX, standing
 from ...core.registration import describe_primitive, verdict
 from .conversions import likelihood_color, mesh_marker, sphere_marker, text_marker
 
-__all__ = ["state_markers", "joint_text", "MOVING_COLOR", "REGISTERED_COLOR"]
+__all__ = ["state_markers", "joint_text", "frustum_marker", "MOVING_COLOR", "REGISTERED_COLOR",
+           "VIEW_COLOR"]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
 NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
 REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
+VIEW_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.2, a=0.9)         #: a suggested view's frustum
+#: a suggested view's frustum: this deep (m) and this wide / high per metre of depth (about a
+#: depth camera's 75 x 65 degrees)
+FRUSTUM_DEPTH, FRUSTUM_HALF_X, FRUSTUM_HALF_Y = 0.15, 0.77, 0.64
+
+
+def frustum_marker(T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: int,
+                   stamp) -> Marker:
+    """A camera frustum (LINE_LIST) at an optical-frame pose (z forward, x right, y down): the
+    four edges from the centre and the far rectangle, and a tick at its top edge (y up)."""
+    d, hx, hy = FRUSTUM_DEPTH, FRUSTUM_HALF_X * FRUSTUM_DEPTH, FRUSTUM_HALF_Y * FRUSTUM_DEPTH
+    corners = [(-hx, -hy, d), (hx, -hy, d), (hx, hy, d), (-hx, hy, d)]
+    segments = [((0, 0, 0), c) for c in corners]
+    segments += [(corners[k], corners[(k + 1) % 4]) for k in range(4)]
+    segments.append(((0.0, -hy, d), (0.0, -1.4 * hy, d)))
+    m = Marker()
+    m.header.frame_id, m.header.stamp = frame, stamp
+    m.ns, m.id, m.type, m.action = ns, int(marker_id), Marker.LINE_LIST, Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = 0.005
+    m.color = VIEW_COLOR
+    R, t = np.asarray(T_scene_optical, float)[:3, :3], np.asarray(T_scene_optical, float)[:3, 3]
+    for a, b in segments:
+        for q in (a, b):
+            x, y, z = R @ np.asarray(q, float) + t
+            pt = Point(x=float(x), y=float(y), z=float(z))
+            m.points.append(pt)
+    return m
 
 
 def _geometry(library, template: str, dimensions: dict):
@@ -82,6 +112,9 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
                                            "candidate_label", obj.id, stamp))
         markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
+        if obj.suggested_view is not None:
+            markers.markers.append(frustum_marker(obj.suggested_view.T_scene_optical, frame,
+                                                  "suggested_view", obj.id, stamp))
     for reg in state.registered:
         if reg.template not in library:
             continue
