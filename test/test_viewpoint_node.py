@@ -17,8 +17,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from affordance_registration.core.registration.viewpoint import optical_pose
 from affordance_registration.core.transforms import invert, pose_error
-from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, \
-    simulate_taskboard
+from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, simulate_taskboard
 from affordance_registration.evaluation.viewpoints import scan, taskboard_meshes
 from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2
 
