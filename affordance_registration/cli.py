@@ -85,7 +85,7 @@ def cmd_fit(args) -> int:
            "candidates": [c.to_dict() for c in report.candidates],
            "ambiguity": report.ambiguity.to_dict(),
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
-    view = registrar.suggest_view(report) if args.suggest_view else None
+    view = registrar.suggest_view(report, scene=scene) if args.suggest_view else None
     if args.suggest_view:
         doc["suggested_view"] = None if view is None else view.to_dict()
     if args.json:

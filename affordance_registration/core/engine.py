@@ -246,7 +246,7 @@ class AffordanceEngine:
         None); the suggestion's time is in the report's timing (``suggest_view``)."""
         report = self.registrar.fit(scene, point)
         t0 = time.perf_counter()
-        view = self.registrar.suggest_view(report, self._T_scene_optical)
+        view = self.registrar.suggest_view(report, self._T_scene_optical, scene)
         report.timing_s["suggest_view"] = time.perf_counter() - t0
         return report, view
 

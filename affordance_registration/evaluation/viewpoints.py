@@ -121,16 +121,17 @@ def random_view(origin, target, normal, distance: float, settings: FitSettings, 
 
 def _fit(registrar, pts, labels, origin, k: int, near, library, truth):
     """Fit the click on object ``k`` (its visible point nearest ``near``) of a scan; (report,
-    click, top-1, pose ok) or None when the scan does not see the object."""
+    click, top-1, pose ok, the scene) or None when the scan does not see the object."""
     mine = pts[labels == k + 1]
     if len(mine) < 10:
         return None
     click = mine[int(np.argmin(np.linalg.norm(mine - near, axis=1)))]
-    report = registrar.fit(Scene(pts, sensor_origin=origin), click)
+    scene = Scene(pts, sensor_origin=origin)
+    report = registrar.fit(scene, click)
     best = report.candidates[0]
     top1 = best.template == truth.template
     dt, da = pose_error(best.T_scene_model, truth.T_scene_model, library[truth.template].symmetry)
-    return report, click, top1, top1 and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
+    return report, click, top1, top1 and dt <= POSE_TOL_M and da <= POSE_TOL_RAD, scene
 
 
 def _jobs(library, seeds):
@@ -156,13 +157,13 @@ def evaluate(registrar: Registrar, library, seeds, faults: bool = False, log=Non
         near = np.median(mine, axis=0)
         first = _fit(registrar, pts, labels, origin, k, near, library, truth)
         clicks += 1
-        report, click, top1, ok = first
+        report, click, top1, ok, scene = first
         amb = report.ambiguity
         if ok and amb.settled:
             continue
         t0 = time.perf_counter()
-        view = registrar.suggest_view(report, T_scene_optical=T_first) if not amb.settled else \
-            registrar.suggest_view(_unsettled(report), T_scene_optical=T_first)
+        view = registrar.suggest_view(report if not amb.settled else _unsettled(report),
+                                      T_scene_optical=T_first, scene=scene)
         suggest_s.append(time.perf_counter() - t0)
         case = {"seed": seed, "object": k, "template": truth.template, "kind": kind,
                 "first": {"top1": top1, "ok": ok}, "settled": amb.settled,

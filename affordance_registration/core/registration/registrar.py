@@ -54,8 +54,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import RegistrationError
+from ..plane import _ransac_plane
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
+from ..voxels import voxel_downsample
 from .ambiguity import Ambiguity, assess
 from .articulation import articulate, prefer_nominal
 from .hypotheses import (
@@ -80,6 +82,10 @@ from .viewpoint import suggest_view
 __all__ = ["Registrar"]
 
 BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
+OCCLUDER_VOXEL = 0.01      #: m: the scan beyond the crop hides a suggested view at this grain
+#: a click without a support plane in its crop: the wider scan's dominant plane (holding at least
+#: this share of it) is the surface a suggested view stays in front of
+SUPPORT_FRACTION = 0.2
 
 #: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
@@ -169,16 +175,28 @@ class Registrar:
         with single_threaded_blas():
             return assess(ctx, candidates, alternatives, model_of, s, refine)
 
-    def suggest_view(self, report: FitReport, T_scene_optical: np.ndarray | None = None):
+    def suggest_view(self, report: FitReport, T_scene_optical: np.ndarray | None = None,
+                     scene: Scene | None = None):
         """Where the sensor should look from to settle an unsettled click
         (:func:`.viewpoint.suggest_view`), or None when it is settled or the scan has no
-        viewpoint. ``T_scene_optical``: the sensor's current pose (its roll is kept)."""
+        viewpoint. ``T_scene_optical``: the sensor's current pose (its roll is kept);
+        ``scene``: the whole scan, whose points within ``viewpoint.max_distance`` of the click
+        (``OCCLUDER_VOXEL`` apart) may hide the object too (else only the crop's)."""
         amb = report.ambiguity or self.assess(report.context, report.candidates,
                                               report.alternatives)
         if amb.settled:
             return None
+        ctx = report.context
         with single_threaded_blas():
-            return suggest_view(report.context, amb, self.settings, T_scene_optical)
+            occluders, support = None, ctx.support
+            if scene is not None:
+                near = scene.around(report.point, self.settings.viewpoint.max_distance)
+                occluders = voxel_downsample(near.points, OCCLUDER_VOXEL) if near is not None \
+                    else None
+                if support is None and occluders is not None:   # the wider scan's own plane
+                    support = _ransac_plane(occluders, OCCLUDER_VOXEL, SUPPORT_FRACTION,
+                                            ctx.sensor_origin, self.settings.seed)
+            return suggest_view(ctx, amb, self.settings, T_scene_optical, occluders, support)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
               joints: dict | None = None, scale: float = 1.0,

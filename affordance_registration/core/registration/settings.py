@@ -333,7 +333,7 @@ class ViewpointSettings(_Group):
     weak_ratio: float = knob(0.01, "the best pose is weakly held when the smallest eigenvalue "
                                    "of its point-to-plane Hessian is below this x the largest",
                              FRACTION)
-    rivals: int = knob(3, "at most this many rivals are compared for a suggested view")
+    rivals: int = knob(2, "at most this many rivals are compared for a suggested view")
     min_distance: float = knob(0.5, "a suggested view is at least this far from the object (m)")
     max_distance: float = knob(1.5, "... and at most this far (m; the two are taken in order)")
     max_angle: float = knob(math.radians(70.0), "... and turned at most this much from the "
@@ -342,9 +342,9 @@ class ViewpointSettings(_Group):
     min_elevation: float = knob(math.radians(20.0), "... and at least this high above the support "
                                                     "plane, on its open side (rad)",
                                 limits=(0.01, math.pi / 2))
-    directions: int = knob(48, "view directions sampled within those bounds")
+    directions: int = knob(40, "view directions sampled within those bounds")
     distances: int = knob(3, "distances sampled within the range, per direction")
-    samples: int = knob(2000, "template samples per hypothesis in the predicted views")
+    samples: int = knob(1200, "template samples per hypothesis in the predicted views")
     grazing_angle: float = knob(math.radians(70.0), "a predicted surface seen more obliquely "
                                                     "than this returns nothing (rad)")
     depth_difference: float = knob(0.01, "two predictions differ where their depths differ by "

@@ -16,7 +16,8 @@ scores the fewest differing bins over the rivals (all must be told apart from th
 is suggested. Bins are square in tangent space, ``crop.voxel`` / the middle distance across, so a
 nearer view has more of them on the object (as a real sensor has more pixels there).
 
-Only the crop around the click occludes (objects beyond it are not known to the fit). The pose
+The crop around the click occludes, and the rest of the scan within reach where the caller
+gives it (:meth:`~.registrar.Registrar.suggest_view`'s ``scene``). The pose
 is an optical frame (z forward, x right, y down) in the cloud's frame; its roll follows the
 current sensor's where that is known, else "down" is into the support plane.
 """
@@ -238,10 +239,13 @@ def tolerance(z: np.ndarray, b: float, s) -> np.ndarray:
 
 
 def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
-                 T_scene_optical: np.ndarray | None = None) -> SuggestedView | None:
+                 T_scene_optical: np.ndarray | None = None,
+                 occluders: np.ndarray | None = None, support=None) -> SuggestedView | None:
     """The sensor pose within the ``viewpoint`` bounds that best tells the rivals of ``amb``
     apart and shows most of the best candidate (see the module's description), or None
-    without a viewpoint or hypotheses."""
+    without a viewpoint or hypotheses. ``occluders`` (N, 3): more of the scan that may hide the
+    object (the crop's points always do); ``support``: the plane the views stay in front of
+    (default the crop's support plane; none: no such bound)."""
     t0 = time.perf_counter()
     s = settings.viewpoint
     if ctx.sensor_origin is None or not amb.rivals or amb.rivals[0].model is None:
@@ -257,8 +261,9 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
     r0 = float(np.linalg.norm(d0))
     d0 = d0 / max(r0, 1e-9)
     dirs = _directions(d0, s.max_angle, s.directions)
-    if ctx.support is not None:
-        normal = ctx.support.normal * (1.0 if ctx.support.normal @ d0 >= 0 else -1.0)
+    support = ctx.support if support is None else support
+    if support is not None:
+        normal = support.normal * (1.0 if support.normal @ d0 >= 0 else -1.0)
         dirs = dirs[dirs @ normal >= math.sin(s.min_elevation) - 1e-9]
         down = -normal
     else:
@@ -273,7 +278,11 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
     current = optical_pose(origin, target, down)
     around = (target + distances[:, None, None] * dirs[None]).reshape(-1, 3)
     poses = np.concatenate([current[None], optical_pose(around, target, down)])
-    pred, surface, seen, bins, depth = predict_views(ctx, hyps, poses, settings)
+    if occluders is not None:            # the scan beyond the crop, the support plane left out
+        if support is not None:
+            occluders = occluders[np.abs(support.distance(occluders)) > 2 * ctx.plane_threshold]
+        occluders = np.concatenate([_occluders(ctx), occluders])
+    pred, surface, seen, bins, depth = predict_views(ctx, hyps, poses, settings, occluders)
     new = seen & ~seen[:, :1]          # samples in sight from there, out of sight now
     b = bin_size(ctx, s)
     V = len(poses)
