@@ -5,21 +5,26 @@
 Candidate sensor poses are sampled within the ``viewpoint`` bounds: ``directions`` directions
 about the best candidate's centre, at most ``max_angle`` from the current view, at least
 ``min_elevation`` above the support plane on its open side (the sensor's), each at
-``distances`` distances in [``min_distance``, ``max_distance``]. From each, the sensor's view
-is predicted for every hypothesis to tell apart (:class:`~.ambiguity.Ambiguity`'s rivals; a
-weakly held pose's rival is itself moved along its weak motion): a z-buffer of the scan around
-the click (the occluder: the crop's points, as observed) and the hypothesis's posed samples
-that face the sensor within ``grazing_angle``. Two predictions differ in a bin where one shows
-the hypothesis's surface and their depths differ by more than ``depth_difference``. A view
-scores the fewest differing bins over the rivals (all must be told apart from the best) plus
-``visibility_weight`` x the bins of the best candidate's surface it shows; the best-scoring view
-is suggested. Bins are square in tangent space, ``crop.voxel`` / the middle distance across, so a
-nearer view has more of them on the object (as a real sensor has more pixels there).
+``distances`` distances in [``min_distance``, ``max_distance``]. From each, and from the current
+pose, the sensor's view is predicted for every hypothesis to tell apart
+(:class:`~.ambiguity.Ambiguity`'s rivals; a weakly held pose's rival is itself moved along its
+weak motion): a z-buffer of the scan around the click (the occluder: the crop's points off the
+support plane, and the rest of the scan within reach where it is given) and of the hypothesis's
+posed samples that face the sensor within ``grazing_angle`` (:func:`predict_views`). A sample is
+in sight where neither its own surface nor the scan is nearer in its bin by more than a
+tolerance (``depth_difference`` plus two bins' width at its depth).
 
-The crop around the click occludes, and the rest of the scan within reach where the caller
-gives it (:meth:`~.registrar.Registrar.suggest_view`'s ``scene``). The pose
-is an optical frame (z forward, x right, y down) in the cloud's frame; its roll follows the
-current sensor's where that is known, else "down" is into the support plane.
+What a view would tell: the samples of each hypothesis it newly brings into sight (out of sight
+from the current view: what the scan already shows has been judged) whose depth the other
+hypothesis's prediction contradicts there -- for the best against each rival and each rival
+against the best, the rivals weighted by how likely each is against the best (the inverse
+residual ratio). A view scores that plus ``visibility_weight`` x the best candidate's newly
+visible samples; the best-scoring view is suggested. Bins are square in tangent space,
+``crop.voxel`` / the middle distance across, so a nearer view has more of them on the object
+(as a real sensor has more pixels there).
+
+The pose is an optical frame (z forward, x right, y down) in the cloud's frame; its roll
+follows the current sensor's where that is known, else "down" is into the support plane.
 """
 from __future__ import annotations
 
@@ -47,8 +52,8 @@ GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
 class SuggestedView:
     """A suggested sensor pose: ``T_scene_optical`` (4x4; z forward, x right, y down) looking at
     ``target`` (3,) from ``distance`` (m), turned ``turn`` (rad) from the current view about the
-    target; ``differing``: the bins where the rivals' predictions differ from the best's (the
-    fewest over the rivals) and ``separation`` their share of the bins showing any hypothesis;
+    target; ``differing``: the newly seen samples where the rivals' predictions contradict each
+    other (weighted over the rivals) and ``separation`` their share of all samples in sight;
     ``visible`` / ``visible_now``: the share of the best candidate's samples the sensor would
     see from there / sees from the current view; ``views``: the poses scored."""
 
@@ -80,7 +85,8 @@ class SuggestedView:
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_optical],
                 "target": [round(float(v), 6) for v in self.target],
                 "distance": round(self.distance, 4), "turn_deg": round(math.degrees(self.turn), 2),
-                "differing_bins": int(self.differing), "separation": round(self.separation, 4),
+                "differing_samples": int(self.differing),
+                "separation": round(self.separation, 4),
                 "visible": round(self.visible, 4), "visible_now": round(self.visible_now, 4),
                 "score": round(self.score, 3), "views_scored": self.views,
                 "time_s": round(self.time_s, 6), "text": self.describe()}
