@@ -225,3 +225,32 @@ def test_taskboard_meshes_rescan_the_simulated_scene(board, library):
         assert abs(len(mine) - len(sim)) <= 0.1 * len(sim) + 5
         if len(sim):
             assert np.linalg.norm(np.median(mine, axis=0) - np.median(sim, axis=0)) < 0.01
+
+
+def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(board, library):
+    """The engine (no ROS): an unsettled click gets its suggested view in the status; the scan
+    from that view, set as the new scene, is followed by fitting the untouched click anew --
+    settled and right."""
+    from affordance_registration.core.engine import AffordanceEngine
+    k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
+    obj = board.objects[k]
+    meshes = taskboard_meshes(board, library)
+    T_first = _edge_on(board, k)
+    pts, labels, origin = scan(meshes, T_first, np.random.default_rng(1))
+    engine = AffordanceEngine(library.specific())
+    engine.set_scene(pts, sensor_origin=origin, T_scene_optical=T_first)
+    mine = pts[labels == k + 1]
+    engine.click(mine[int(np.argmin(np.linalg.norm(mine - obj.T_scene_model[:3, 3], axis=1)))])
+    o = engine.status()["objects"][0]
+    assert o["ambiguity"]["settled"] is False and o["suggested_view"] is not None
+    assert "unsettled" in engine.active_object().describe()
+    T_view = np.asarray(o["suggested_view"]["pose"])
+    p2, _, o2 = scan(meshes, T_view, np.random.default_rng(2))
+    engine.set_scene(p2, sensor_origin=o2, T_scene_optical=T_view)
+    said = engine.follow_scene()
+    assert said is not None and "fitted again on the new cloud" in said
+    now = engine.active_object()
+    assert now.ambiguity.settled and now.suggested_view is None
+    best = now.candidates[0]
+    dt, da = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
+    assert best.template == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
