@@ -106,3 +106,21 @@ def test_an_unsettled_click_gets_a_suggested_view_and_the_view_settles_it(
                             library[obj.template].symmetry)
         assert best["template"] == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
         assert o["suggested_view"] is None
+
+
+def test_the_station_panel_says_why_a_click_is_unsettled_and_where_to_look_from():
+    from affordance_registration.ros.station.state import status_markdown
+    obj = {"id": 1, "active": True, "shown": 0, "no_match": False, "verdict": "fits",
+           "candidates": [{"rank": 1, "template": "gate_valve", "probability": 0.4,
+                           "fits": True, "joints": {}, "scale": 1.0, "state": None,
+                           "primitive": None, "dimensions": None}],
+           "ambiguity": {"settled": False, "kinds": ["weakly_held"],
+                         "reasons": ["the scan barely holds gate_valve along one motion"]},
+           "suggested_view": {"text": "look from (0.1, 0.2, 0.3), 0.50 m from the object"}}
+    md = status_markdown({"objects": [obj], "active_id": 1}, True, NS, "", "")
+    assert "**Unsettled**: the scan barely holds gate_valve along one motion" in md
+    assert "**suggested view**: look from (0.1, 0.2, 0.3)" in md
+    settled = dict(obj, ambiguity={"settled": True, "kinds": [], "reasons": []},
+                   suggested_view=None)
+    assert "Unsettled" not in status_markdown({"objects": [settled], "active_id": 1}, True, NS,
+                                              "", "")
