@@ -155,9 +155,9 @@ def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
 def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
                     last_action: str, fitting: str = "", stale_error: bool = False) -> str:
     """The status panel: engine connection, a click being fitted (``fitting``), open object and
-    its verdict, why it is unsettled and the suggested view, counts, fit time, what the engine is doing, its last message and error (left
-    out when ``stale_error``: a later message came after it), the cloud, the reply to the last
-    button."""
+    its verdict, why it is unsettled and the suggested view, counts, fit time, what the engine
+    is doing, its last message and error (left out when ``stale_error``: a later message came
+    after it), the cloud, the reply to the last button."""
     lines = []
     if not connected:
         lines.append(f"**Engine not running**: nothing publishes {engine}/status (start "
