@@ -233,7 +233,8 @@ def format_row(row: dict) -> list:
                      f"views wrong or unsettled): first view {pct(r, 'first')}; re-scanned from "
                      f"the suggested view {pct(r, 'suggested')}, a random view "
                      f"{pct(r, 'random')}, the first view again {pct(r, 'again')}; suggestion "
-                     f"median {r['suggest_median_s']:.3f} s")
+                     f"median {r['suggest_median_s']:.3f} s, max {r['suggest_max_s']:.3f} s; "
+                     + ", ".join(f"{k} {n}" for k, n in r["by_kind"].items()))
         u = r["on_unsettled"]
         if r["unsettled"]:
             lines.append(f"  on the {r['unsettled']} unsettled: first {pct(u, 'first')}; "
