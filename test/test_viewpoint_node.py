@@ -124,3 +124,34 @@ def test_the_station_panel_says_why_a_click_is_unsettled_and_where_to_look_from(
                    suggested_view=None)
     assert "Unsettled" not in status_markdown({"objects": [settled], "active_id": 1}, True, NS,
                                               "", "")
+
+
+def test_the_station_draws_the_suggested_views_frustum():
+    """The frustum marker becomes line segments on the station's page (its real viser server,
+    no browser), at the suggested pose."""
+    import socket
+
+    from affordance_registration.ros.glue.markers import frustum_marker
+    from affordance_registration.ros.station.page import PageHandlers, StationPage
+    from affordance_registration.ros.station.state import LinesDrawing, apply_markers
+    T = optical_pose(np.array([0.3, -0.2, 0.1]), np.array([0.0, 0.0, 1.0]),
+                     np.array([0.0, 1.0, 0.0]))
+    arr = MarkerArray(markers=[frustum_marker(T, FRAME, "suggested_view", 4, None)])
+    drawings = apply_markers({}, arr)
+    d = drawings[("suggested_view", 4)]
+    assert isinstance(d, LinesDrawing) and d.segments.shape == (9, 2, 3)
+    assert np.allclose(d.segments[0, 0], T[:3, 3])
+    far = d.segments[4:8].reshape(-1, 3)          # the far rectangle, 0.15 m along the view
+    assert np.allclose((far - T[:3, 3]) @ T[:3, 2], 0.15)
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    handlers = PageHandlers(*[lambda *a, **k: None] * len(PageHandlers.__dataclass_fields__))
+    page = StationPage("127.0.0.1", port, 60.0, 0.003, handlers)
+    try:
+        page.show_scene(drawings, None, "")
+        assert "/objects/suggested_view_4" in page._nodes
+        page.show_scene({}, None, "")
+        assert "/objects/suggested_view_4" not in page._nodes
+    finally:
+        page.stop()

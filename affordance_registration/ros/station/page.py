@@ -14,7 +14,7 @@ import numpy as np
 from ...core import display
 from ...core.errors import AffordanceError
 from ...core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
-from .state import MeshDrawing, TextDrawing
+from .state import LinesDrawing, MeshDrawing, TextDrawing
 
 __all__ = ["StationPage", "PageHandlers", "gizmo_scale", "ACTIONS", "DIMENSIONS"]
 
@@ -29,6 +29,7 @@ REFUSED_RGB = (150, 150, 150)           # a candidate the verdict refuses: a gre
 REFUSED_OPACITY = 0.5                   # ... half transparent
 PENDING_RGB = (255, 140, 0)             # the click being fitted
 PENDING_RADIUS = 0.008                  # m
+LINE_THICKNESS = 0.004                  # m: a suggested view's frustum lines
 
 
 def gizmo_scale(vertices: np.ndarray) -> float:
@@ -281,6 +282,8 @@ class StationPage:
         key = repr(d)
         if isinstance(d, TextDrawing):
             key = d.text + repr(np.round(d.position, 4).tolist())
+        elif isinstance(d, LinesDrawing):
+            key = repr((np.round(d.segments, 4).tolist(), d.color))
         else:
             key = repr((np.round(d.position, 4).tolist(), d.radius, d.color))
         old = self._nodes.get(name)
@@ -289,6 +292,9 @@ class StationPage:
         if isinstance(d, TextDrawing):
             handle = self.server.scene.add_label(name, d.text, position=d.position,
                                                  anchor="top-center")
+        elif isinstance(d, LinesDrawing):          # a suggested view's frustum
+            handle = self.server.scene.add_line_segments(
+                name, d.segments.astype(np.float32), d.color, thickness=LINE_THICKNESS)
         else:
             handle = self.server.scene.add_icosphere(name, radius=d.radius, color=d.color,
                                                      position=d.position)

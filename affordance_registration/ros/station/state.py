@@ -15,7 +15,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ...core.labels import REFUSED_PREFIX, standing
 from ..glue.conversions import ConversionError, pose_to_matrix
 
-__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "apply_markers", "active_object",
+__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "LinesDrawing", "apply_markers", "active_object",
            "candidate_standing", "candidate_label", "candidate_options", "status_markdown"]
 
 
@@ -55,6 +55,16 @@ class SphereDrawing:
     frame: str
 
 
+@dataclass(frozen=True)
+class LinesDrawing:
+    """A LINE_LIST marker (a suggested view's frustum): ``segments`` (N, 2, 3) in the header
+    frame (the marker's pose applied), RGB ``color`` 0-255."""
+
+    segments: np.ndarray = field(repr=False)
+    color: tuple
+    frame: str
+
+
 def _rgb(c) -> tuple:
     return tuple(int(round(255 * min(1.0, max(0.0, v)))) for v in (c.r, c.g, c.b))
 
@@ -74,6 +84,14 @@ def _drawing(m: Marker):
     if m.type == Marker.TEXT_VIEW_FACING:
         p = m.pose.position
         return TextDrawing(m.text, np.array([p.x, p.y, p.z]), frame)
+    if m.type == Marker.LINE_LIST:
+        n = len(m.points) // 2 * 2
+        if n == 0:
+            return None
+        T = pose_to_matrix(m.pose)
+        pts = np.array([(p.x, p.y, p.z) for p in m.points[:n]], dtype=float)
+        return LinesDrawing((pts @ T[:3, :3].T + T[:3, 3]).reshape(-1, 2, 3), _rgb(m.color),
+                            frame)
     if m.type == Marker.SPHERE:
         p = m.pose.position
         return SphereDrawing(np.array([p.x, p.y, p.z]), 0.5 * float(m.scale.x), _rgb(m.color),
@@ -83,7 +101,8 @@ def _drawing(m: Marker):
 
 def apply_markers(current: dict, msg: MarkerArray) -> dict:
     """The drawings after a MarkerArray: ``current`` maps (namespace, id) to a drawing;
-    DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, TEXT_VIEW_FACING and SPHERE;
+    DELETEALL clears, DELETE removes, ADD/MODIFY sets (TRIANGLE_LIST, TEXT_VIEW_FACING, SPHERE and
+    LINE_LIST;
     other types, and markers that cannot be converted, are left out). Returns a new dict."""
     out = dict(current)
     for m in msg.markers:
