@@ -27,7 +27,7 @@ from affordance_registration.core.registration.ambiguity import (
 from affordance_registration.core.registration.viewpoint import optical_pose, predict_views
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary
-from affordance_registration.core.transforms import invert, make_T, pose_error
+from affordance_registration.core.transforms import axis_angle_matrix, invert, make_T, pose_error
 from affordance_registration.evaluation.simulation import (
     PANEL_SIZE,
     POSE_TOL_M,
@@ -254,3 +254,25 @@ def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(boa
     best = now.candidates[0]
     dt, da = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
     assert best.template == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
+
+
+def test_a_rigidly_moved_scene_gets_the_rigidly_moved_suggestion(board, default, library):
+    """Nothing in the suggestion assumes an axis of the cloud's frame: the edge-on scan moved
+    rigidly (points, click, sensor pose) gets the same view, moved."""
+    k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
+    T_first = _edge_on(board, k)
+    pts, labels, origin = scan(taskboard_meshes(board, library), T_first,
+                               np.random.default_rng(1))
+    mine = pts[labels == k + 1]
+    click = mine[int(np.argmin(np.linalg.norm(mine - board.objects[k].T_scene_model[:3, 3],
+                                              axis=1)))]
+    M = make_T(axis_angle_matrix([0.3, -0.2, 1.9], 1.9), [2.0, -1.0, 0.5])
+
+    def suggestion(P, c, o, T):
+        scene = Scene(P, sensor_origin=o)
+        return default.suggest_view(default.fit(scene, c), T, scene)
+    here = suggestion(pts, click, origin, T_first)
+    there = suggestion(pts @ M[:3, :3].T + M[:3, 3], M[:3, :3] @ click + M[:3, 3],
+                       M[:3, :3] @ origin + M[:3, 3], M @ T_first)
+    assert here is not None and there is not None
+    assert np.allclose(M @ here.T_scene_optical, there.T_scene_optical, atol=1e-6)

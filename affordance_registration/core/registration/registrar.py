@@ -191,8 +191,8 @@ class Registrar:
             occluders, support = None, ctx.support
             if scene is not None:
                 near = scene.around(report.point, self.settings.viewpoint.max_distance)
-                occluders = voxel_downsample(near.points, OCCLUDER_VOXEL) if near is not None \
-                    else None
+                occluders = None if near is None else voxel_downsample(   # a grid on the scan
+                    near.points, OCCLUDER_VOXEL, report.point, ctx.frame)
                 if support is None and occluders is not None:   # the wider scan's own plane
                     support = _ransac_plane(occluders, OCCLUDER_VOXEL, SUPPORT_FRACTION,
                                             ctx.sensor_origin, self.settings.seed)

@@ -8,7 +8,7 @@ about the best candidate's centre, at most ``max_angle`` from the current view, 
 ``distances`` distances in [``min_distance``, ``max_distance``]. From each, and from the current
 pose, the sensor's view is predicted for every hypothesis to tell apart
 (:class:`~.ambiguity.Ambiguity`'s rivals; a weakly held pose's rival is itself moved along its
-weak motion): a z-buffer of the scan around the click (the occluder: the crop's points off the
+weak motion, both ways): a z-buffer of the scan around the click (the occluder: the crop's points off the
 support plane, and the rest of the scan within reach where it is given) and of the hypothesis's
 posed samples that face the sensor within ``grazing_angle`` (:func:`predict_views`). A sample is
 in sight where neither its own surface nor the scan is nearer in its bin by more than a
@@ -24,7 +24,8 @@ visible samples; the best-scoring view is suggested. Bins are square in tangent 
 (as a real sensor has more pixels there).
 
 The pose is an optical frame (z forward, x right, y down) in the cloud's frame; its roll
-follows the current sensor's where that is known, else "down" is into the support plane.
+follows the current sensor's where that is known, else "down" is into the support plane (or
+along an axis of the frame attached to the scan around the click).
 """
 from __future__ import annotations
 
@@ -109,10 +110,13 @@ def optical_pose(origin: np.ndarray, target: np.ndarray, down: np.ndarray) -> np
     return T
 
 
-def _directions(d0: np.ndarray, max_angle: float, n: int) -> np.ndarray:
+def _directions(d0: np.ndarray, max_angle: float, n: int, frame: np.ndarray) -> np.ndarray:
     """``n`` unit directions (n, 3) spread evenly (a Fibonacci spiral) over the cap of half-angle
-    ``max_angle`` about ``d0``, ``d0`` itself first."""
-    e1 = np.cross(d0, [1.0, 0.0, 0.0] if abs(d0[0]) < 0.9 else [0.0, 1.0, 0.0])
+    ``max_angle`` about ``d0``, ``d0`` itself first; the spiral starts from the axis of
+    ``frame`` (3, 3: attached to the scan) farthest from ``d0``, so a rigidly moved scene gets
+    the rigidly moved directions."""
+    ref = frame[:, int(np.argmin(np.abs(frame.T @ d0)))]
+    e1 = ref - d0 * (ref @ d0)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(d0, e1)
     k = np.arange(n - 1)
@@ -124,16 +128,22 @@ def _directions(d0: np.ndarray, max_angle: float, n: int) -> np.ndarray:
     return np.concatenate([d0[None], dirs])
 
 
-def _weak_rival(ctx: ClickContext, best: Hypothesis, amb: Ambiguity,
-                settings: FitSettings) -> Hypothesis | None:
-    """The best pose moved along its weak motion (samples moving ``WEAK_STEP``), or None."""
+def _weak_rivals(ctx: ClickContext, best: Hypothesis, amb: Ambiguity,
+                 settings: FitSettings) -> list:
+    """The best pose moved both ways along its weak motion (samples moving ``WEAK_STEP``):
+    [] when it is not weakly held."""
     if amb.weak_direction is None or best.model is None:
-        return None
+        return []
     held = pose_hessian(ctx, best.model, best.T_scene_model, settings)
     if held is None:
-        return None
+        return []
+    return [_moved(best, held, np.asarray(amb.weak_direction, float) * sign) for sign in (1, -1)]
+
+
+def _moved(best: Hypothesis, held, m: np.ndarray) -> Hypothesis:
+    """``best`` moved by the motion ``m`` (rotation, translation about the held samples'
+    centroid) scaled so that its samples move ``WEAK_STEP``."""
     _, c, L = held
-    m = np.asarray(amb.weak_direction, float)
     w, v = m[:3], m[3:]
     step = WEAK_STEP / max(float(np.linalg.norm(v) + np.linalg.norm(w) * L), 1e-9)
     angle = step * float(np.linalg.norm(w))
@@ -257,23 +267,21 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
     if ctx.sensor_origin is None or not amb.rivals or amb.rivals[0].model is None:
         return None
     hyps = list(amb.rivals)
-    weak = _weak_rival(ctx, hyps[0], amb, settings)
-    if weak is not None:
-        hyps.append(weak)
+    hyps += _weak_rivals(ctx, hyps[0], amb, settings)
     best = hyps[0]
     target = best.T_scene_model[:3, :3] @ best.model.centroid + best.T_scene_model[:3, 3]
     origin = ctx.sensor_origin
     d0 = origin - target
     r0 = float(np.linalg.norm(d0))
     d0 = d0 / max(r0, 1e-9)
-    dirs = _directions(d0, s.max_angle, s.directions)
+    dirs = _directions(d0, s.max_angle, s.directions, ctx.frame)
     support = ctx.support if support is None else support
     if support is not None:
         normal = support.normal * (1.0 if support.normal @ d0 >= 0 else -1.0)
         dirs = dirs[dirs @ normal >= math.sin(s.min_elevation) - 1e-9]
         down = -normal
-    else:
-        down = np.array([0.0, 0.0, -1.0])
+    else:                       # an axis of the frame attached to the scan (none of the cloud's)
+        down = ctx.frame[:, 1]
     if T_scene_optical is not None:
         down = np.asarray(T_scene_optical, float)[:3, 1]
     if not len(dirs):
