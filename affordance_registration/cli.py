@@ -85,7 +85,11 @@ def cmd_fit(args) -> int:
            "verdict": verdict(report.candidates), "no_match": refused,
            "reason": best.reason, "noise": round(float(best.noise), 9),
            "candidates": [c.to_dict() for c in report.candidates],
+           "ambiguity": report.ambiguity.to_dict(),
            "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
+    view = registrar.suggest_view(report, scene=scene) if args.suggest_view else None
+    if args.suggest_view:
+        doc["suggested_view"] = None if view is None else view.to_dict()
     if args.json:
         from .core.waypoints import waypoints_dict
         for entry, c in zip(doc["candidates"][:LEADING], report.candidates):
@@ -111,6 +115,10 @@ def cmd_fit(args) -> int:
         size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
               f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}")
+    print(report.ambiguity.describe())
+    if args.suggest_view:
+        print(f"suggested view: {view.describe()}" if view is not None else
+              "suggested view: none (the click is settled, or the scan has no viewpoint)")
     return 0
 
 
@@ -149,6 +157,10 @@ def cmd_simulate(args) -> int:
 def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
     log = (lambda *a: print(*a, file=sys.stderr, flush=True))
+    if args.row:                        # one row alone (its own seeds): for its numbers
+        from .evaluation.viewpoints import format_row, viewpoint_row
+        print("\n".join(format_row(viewpoint_row(log=log))))
+        return 0
     result = run_bench(quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks,
                        out=args.out, log=log)
     print(format_table(result))
@@ -456,6 +468,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "cloud with no single viewpoint (an accumulated map: no visibility "
                         "terms); default: a PCD's VIEWPOINT, else the frame's origin")
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
+    p.add_argument("--suggest-view", action="store_true",
+                   help="for an unsettled click, where the sensor should look from to settle "
+                        "it (an optical-frame pose in the scene's frame; bounds: fit.viewpoint.*)")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")
@@ -483,6 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--paper-clicks", type=int, default=None,
                    help="clicks for the slow paper baseline (default 25; 0 = all)")
     p.add_argument("--out", default="bench_output/bench.json", help="JSON output path")
+    p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "

@@ -30,7 +30,8 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
               "--json", check=True)
     doc = json.loads(res.stdout)
     assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "reason", "noise",
-                        "candidates", "timing_s"}
+                        "candidates", "ambiguity", "timing_s"}
+    assert doc["ambiguity"]["settled"] is True and doc["ambiguity"]["kinds"] == []
     assert len(doc["point"]) == 3 and doc["sensor_origin"] == [0.0, 0.0, 0.0]
     assert doc["verdict"] == "fits" and doc["no_match"] is False
     ranks = [c["rank"] for c in doc["candidates"]]

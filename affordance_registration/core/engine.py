@@ -230,16 +230,26 @@ class AffordanceEngine:
                     if obj.id != self._state.active_id:
                         self._commit(replace(self._state, active_id=obj.id), "select")
                     return f"selected object {obj.id}: {obj.describe()}"
-        report = self.registrar.fit(scene, p)          # outside the lock: fitting takes time
+        report, view = self._fit(scene, p)          # outside the lock: fitting takes time
         with self._lock:
             obj = TrackedObject(id=self._state.next_id, click=report.point,
                                 candidates=report.candidates, refined=frozenset({0}),
                                 context=report.context, scene_version=version,
-                                fit_s=report.timing_s["total"])
+                                fit_s=report.timing_s["total"], ambiguity=report.ambiguity,
+                                suggested_view=view)
             self._commit(replace(self._state, objects=self._state.objects + (obj,),
                                  active_id=obj.id, next_id=obj.id + 1), "click")
             self._last_timing = dict(report.timing_s)
             return f"object {obj.id}: {obj.describe()} ({report.timing_s['total']:.2f} s)"
+
+    def _fit(self, scene: Scene, point: np.ndarray):
+        """(the fit of a click, where the sensor should look from when it is unsettled or
+        None); the suggestion's time is in the report's timing (``suggest_view``)."""
+        report = self.registrar.fit(scene, point)
+        t0 = time.perf_counter()
+        view = self.registrar.suggest_view(report, self._T_scene_optical, scene)
+        report.timing_s["suggest_view"] = time.perf_counter() - t0
+        return report, view
 
     def _cycle(self, step: int) -> str:
         with self._lock:
@@ -477,11 +487,26 @@ class AffordanceEngine:
     def follow_scene(self) -> str | None:
         """Refit the selected object on the latest scene if it was fitted on an older one (a
         new cloud arrived), from its current pose, keeping its joint values; not an undo step.
-        None when there is nothing to follow."""
+        An unsettled object the operator has not touched is fitted anew at its click instead
+        (all templates: a view from elsewhere can settle it). None when there is nothing to
+        follow."""
         with self._lock:
             obj = self._find(self._state.active_id)
             if obj is None or self._scene is None or obj.scene_version == self._scene_version:
                 return None
+            scene, version = self._scene, self._scene_version
+        if obj.ambiguity is not None and not obj.ambiguity.settled and not obj.corrections \
+                and not obj.model_changes:     # untouched and unsettled: the click fitted anew
+            report, view = self._fit(scene, obj.click)
+            with self._lock:
+                if self._find(obj.id) is not obj:
+                    raise EngineStateError("the object changed during the refit; refit again")
+                new = replace(obj, candidates=report.candidates, active=0, context=report.context,
+                              refined=frozenset({0}), scene_version=version,
+                              ambiguity=report.ambiguity, suggested_view=view)
+                self._state = self._replace_object(new)
+                self._last_timing = dict(report.timing_s)
+                return f"object {obj.id}: fitted again on the new cloud: {new.describe()}"
         return self.refit(coalesce=True).replace(": refit ", ": followed the new cloud: ", 1)
 
     def accept(self) -> str:

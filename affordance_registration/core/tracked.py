@@ -31,6 +31,10 @@ class TrackedObject:
     context: ClickContext | None = field(default=None, repr=False, compare=False)
     scene_version: int = 0
     fit_s: float = 0.0                      #: time the click's fit took
+    #: whether the click's answer is settled (registration.ambiguity.Ambiguity; None: unknown)
+    ambiguity: object = field(default=None, repr=False, compare=False)
+    #: where the sensor should look from to settle it (registration.viewpoint.SuggestedView)
+    suggested_view: object = field(default=None, repr=False, compare=False)
 
     @property
     def shown(self) -> FitResult:
@@ -67,7 +71,10 @@ class TrackedObject:
                 "corrections": self.corrections, "model_changes": self.model_changes,
                 "no_match": self.no_match, "verdict": verdict(self.candidates),
                 "reason": self.candidates[0].reason if self.candidates else None,
-                "candidates": [c.to_dict() for c in self.candidates]}
+                "candidates": [c.to_dict() for c in self.candidates],
+                "ambiguity": None if self.ambiguity is None else self.ambiguity.to_dict(),
+                "suggested_view": None if self.suggested_view is None else
+                self.suggested_view.to_dict()}
 
     @property
     def no_match(self) -> bool:
@@ -93,8 +100,10 @@ class TrackedObject:
         # probability is shared with every template and "no template fits here", so a right
         # fit reads 0.3-0.4 -- a number that reads as doubt
         margin = margin_text([k.probability for k in self.candidates], self.active)
+        doubt = f" — {self.ambiguity.describe()}" if self.ambiguity is not None and \
+            not self.ambiguity.settled else ""
         return (f"{said}{c.template}{extra} — rank {self.active + 1}/{len(self.candidates)}"
-                f"{' — ' + margin if margin else ''} — coverage {c.coverage:.2f}")
+                f"{' — ' + margin if margin else ''} — coverage {c.coverage:.2f}{doubt}")
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,9 @@ the panel clicks without a viewpoint (``sensor_origin none``), the panel scenes 
 the depth-camera fault model (:class:`FaultModel`), and the real Armadillo range scans of
 ``or-pcd`` (fetched with pip into a cache; left out with a line saying why when that fails).
 
+Viewpoint advice: hard first views (grazing, occluded, far, edge-on) wrong or unsettled, re-scanned
+from the suggested view, a random one and the first one again (:mod:`.viewpoints`).
+
 Speed lines, measured click by click in turn (each click fitted by every variant before the
 next, so load changes hit them alike): the default method on 1 and 2 threads, and libraries of
 5/10/20/40 templates (the five and scaled / stretched variants of them) with how often the
@@ -61,6 +64,7 @@ from .bench_rows import (
     variant_library,
 )
 from .simulation import POSE_TOL_M, POSE_TOL_RAD, sized_library
+from .viewpoints import REPORT_SEEDS, TUNING_SEEDS, format_row, viewpoint_row
 
 __all__ = ["run_bench", "format_table", "variant_library", "MIN_VISIBLE", "VARIANT_SCALES",
            "LIBRARY_SIZES"]
@@ -121,12 +125,17 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     log("real range scans (the Armadillo, or-pcd) ...")
     real = _real_scan_rows(library, log)
     captures = _real_capture_rows(library, jobs, quick, log)
+    log("viewpoint advice on hard first views (tuning and reported seeds) ...")
+    viewpoint = viewpoint_row(library, log, *((TUNING_SEEDS[:2], REPORT_SEEDS[:4]) if quick
+                                              else ()))
     result = {"scenes": n_scenes, "clicks": len(jobs), "table_clicks": len(table_jobs),
               "real_scans": real,
               "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
               "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
               "articulated": articulated, "library_sizes": library_rows,
               "large_cloud": large, "threads": threads_rows, **captures,
+              "viewpoint": {k: {kk: vv for kk, vv in v.items() if kk != "cases"}
+                            for k, v in viewpoint.items()},
               "machine": {"cpus": os.cpu_count()}}
     extra = _ros_conversion_bench()
     if extra:
@@ -231,6 +240,7 @@ def format_table(result: dict) -> str:
             f"{k}: ranked first {v['ranked_first']:.0%}, pose ok {v['pose_success']:.0%}, "
             f"median {v['median_s']:.2f} s" for k, v in real.items()))
     lines += _real_capture_lines(result)
+    lines += format_row(result.get("viewpoint") or {})
     lines.append(f"refit after a correction (1.5 cm, 8 deg): median "
                  f"{result['refit']['median_s']*1000:.1f} ms, "
                  f"lands within tolerance {result['refit']['success']:.1%}")

@@ -54,8 +54,11 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import RegistrationError
+from ..plane import _ransac_plane
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
+from ..voxels import voxel_downsample
+from .ambiguity import Ambiguity, assess
 from .articulation import articulate, prefer_nominal
 from .hypotheses import (
     Hypotheses,
@@ -74,10 +77,15 @@ from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
 from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
+from .viewpoint import suggest_view
 
 __all__ = ["Registrar"]
 
 BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
+OCCLUDER_VOXEL = 0.01      #: m: the scan beyond the crop hides a suggested view at this grain
+#: a click without a support plane in its crop: the wider scan's dominant plane (holding at least
+#: this share of it) is the surface a suggested view stays in front of
+SUPPORT_FRACTION = 0.2
 
 #: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
@@ -134,18 +142,61 @@ class Registrar:
                 raise RegistrationError("no templates to fit")
             specific = [n for n in names if self.library[n].primitive is None]
             primitives = [n for n in names if self.library[n].primitive is not None]
+            alternatives = ()
             if self.settings.method == "paper":
                 candidates = self.paper.fit(ctx, specific) if specific else ()
             else:
-                candidates = self._fit_default(ctx, specific) if specific else ()
+                candidates, alternatives = self._fit_default(ctx, specific) if specific \
+                    else ((), ())
             t_prim = time.perf_counter()
             if primitives:
                 candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives))
-        t2 = time.perf_counter()
-        timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0}
+            t2 = time.perf_counter()
+            ambiguity = self.assess(ctx, candidates, alternatives)
+        t3 = time.perf_counter()
+        timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0, "ambiguity": t3 - t2}
         if primitives:
             timing["primitives"] = t2 - t_prim
-        return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx)
+        return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx,
+                         alternatives=alternatives, ambiguity=ambiguity)
+
+    def assess(self, ctx: ClickContext, candidates, alternatives=()) -> Ambiguity:
+        """Whether the ranked ``candidates`` of a click settle it (:func:`.ambiguity.assess`;
+        nothing about them changes)."""
+        s = self.settings
+
+        def model_of(r: FitResult) -> Model:
+            return self._model(r.template, r.joints, r.scale, r.dimensions)
+
+        def refine(r: FitResult) -> FitResult:       # a second pose, finished as a leader is
+            fit = fine_stage(ctx, model_of(r), r.T_scene_model[:3, :3], r.T_scene_model[:3, 3],
+                             s.stages.fine, s)
+            return result(ctx, fit.models[0], fit.R[0], fit.t[0], s)
+        with single_threaded_blas():
+            return assess(ctx, candidates, alternatives, model_of, s, refine)
+
+    def suggest_view(self, report: FitReport, T_scene_optical: np.ndarray | None = None,
+                     scene: Scene | None = None):
+        """Where the sensor should look from to settle an unsettled click
+        (:func:`.viewpoint.suggest_view`), or None when it is settled or the scan has no
+        viewpoint. ``T_scene_optical``: the sensor's current pose (its roll is kept);
+        ``scene``: the whole scan, whose points within ``viewpoint.max_distance`` of the click
+        (``OCCLUDER_VOXEL`` apart) may hide the object too (else only the crop's)."""
+        amb = report.ambiguity or self.assess(report.context, report.candidates,
+                                              report.alternatives)
+        if amb.settled:
+            return None
+        ctx = report.context
+        with single_threaded_blas():
+            occluders, support = None, ctx.support
+            if scene is not None:
+                near = scene.around(report.point, self.settings.viewpoint.max_distance)
+                occluders = None if near is None else voxel_downsample(   # a grid on the scan
+                    near.points, OCCLUDER_VOXEL, report.point, ctx.frame)
+                if support is None and occluders is not None:   # the wider scan's own plane
+                    support = _ransac_plane(occluders, OCCLUDER_VOXEL, SUPPORT_FRACTION,
+                                            ctx.sensor_origin, self.settings.seed)
+            return suggest_view(ctx, amb, self.settings, T_scene_optical, occluders, support)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
               joints: dict | None = None, scale: float = 1.0,
@@ -177,7 +228,8 @@ class Registrar:
 
     # ------------------------------------------------------------------ the default method
     def _fit_default(self, ctx: ClickContext, names: list[str]) -> tuple:
-        """The default method, stage by stage."""
+        """The default method, stage by stage: (the ranked candidates, every medium-stage
+        hypothesis's result)."""
         s = self.settings
         t0 = time.perf_counter()
         rng = np.random.default_rng(s.seed)
@@ -209,7 +261,8 @@ class Registrar:
         hyps = hyps.after(icp(ctx, hyps, s.stages.medium, s))
         # 5. rank: the best hypothesis per template by the two-way residual (the prefilter's
         #    behind)
-        ranked = rank(self._best_per_template(ctx, hyps) + set_aside)
+        best, every = self._best_per_template(ctx, hyps)
+        ranked = rank(best + set_aside)
         # 6. articulated templates among the leaders: joint value and scale with the pose
         ranked, models = self._articulate_leaders(ctx, ranked, hyps.iterations)
         # 7. the leaders -- the winner and the runners-up close to it: each a sweep about its
@@ -222,7 +275,7 @@ class Registrar:
         fitted = [r for r in ranked if not r.prefiltered]
         judged = self._judged(ctx, fitted) + [r for r in ranked if r.prefiltered]
         total = time.perf_counter() - t0
-        return rank([replace(r, time_s=total) for r in judged])
+        return rank([replace(r, time_s=total) for r in judged]), tuple(every)
 
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
@@ -260,13 +313,14 @@ class Registrar:
         return [m for _, m in variants], np.array([i for i, _ in variants])
 
     def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
-        """Each template's best hypothesis by the residual, ranked."""
+        """Each template's best hypothesis by the residual, ranked, and every hypothesis's
+        result (the ambiguity's second poses)."""
         best: dict[int, FitResult] = {}
-        for i, res in zip(hyps.index.tolist(), results(ctx, hyps, self.settings,
-                                                       hyps.iterations, hyps.converged)):
+        every = results(ctx, hyps, self.settings, hyps.iterations, hyps.converged)
+        for i, res in zip(hyps.index.tolist(), every):
             if i not in best or res.likelihood > best[i].likelihood:
                 best[i] = res
-        return rank(best.values())
+        return rank(best.values()), every
 
     def _articulate_leaders(self, ctx: ClickContext, ranked: tuple, iterations: int):
         """Joint values and scale of the articulated templates among the leading candidates

@@ -96,12 +96,18 @@ class IcpResult(Batch):
 
 @dataclass(frozen=True)
 class FitReport:
-    """The ranked candidates of one click (best first) and where the time went."""
+    """The ranked candidates of one click (best first), where the time went and whether the
+    answer is settled."""
 
     point: np.ndarray
     candidates: tuple
     timing_s: dict
     context: ClickContext = field(repr=False)
+    #: the fit's other hypotheses (FitResult, medium stage: each template's distinct poses),
+    #: which the ambiguity reads for a second pose of the best template
+    alternatives: tuple = field(default=(), repr=False)
+    #: whether the answer is settled (:class:`~.ambiguity.Ambiguity`; None: not assessed)
+    ambiguity: object = None
 
 
 def rank(results, no_match_likelihood: float = 1.0 / NO_MATCH_RESIDUAL) -> tuple:

@@ -315,11 +315,50 @@ class RefitSettings(_Group):
     max_turn: float = knob(math.radians(30.0), "... and turns at most this much (rad)")
 
 
+@dataclass(frozen=True)
+class ViewpointSettings(_Group):
+    """Whether a click's answer is settled, and where the sensor should look from when it is not
+    (:mod:`.ambiguity`, :mod:`.viewpoint`): they only add information to a fit, never change it."""
+
+    name = "viewpoint"
+    #: the leading candidates within this factor of the best's residual are rivals: a template
+    #: and a near copy of it, or one template in two poses, the data cannot tell apart
+    margin: float = knob(1.3, "a candidate or pose within this factor of the best's residual "
+                               "is a rival (the click is unsettled)", limits=(1.0, 10.0))
+    pose_distance: float = knob(0.005, "one template's poses farther apart than this are "
+                                       "distinct hypotheses (m)")
+    pose_angle: float = knob(math.radians(5.0), "... or turned more than this, symmetry-aware "
+                                                "(rad)")
+    #: a flat face seen edge-on: the residual barely changes along some motion
+    weak_ratio: float = knob(0.01, "the best pose is weakly held when the smallest eigenvalue "
+                                   "of its point-to-plane Hessian is below this x the largest",
+                             FRACTION)
+    rivals: int = knob(2, "at most this many rivals are compared for a suggested view")
+    min_distance: float = knob(0.5, "a suggested view is at least this far from the object (m)")
+    max_distance: float = knob(1.5, "... and at most this far (m; the two are taken in order)")
+    max_angle: float = knob(math.radians(70.0), "... and turned at most this much from the "
+                                                "current view about the object (rad)",
+                            limits=(0.01, math.pi))
+    min_elevation: float = knob(math.radians(20.0), "... and at least this high above the support "
+                                                    "plane, on its open side (rad)",
+                                limits=(0.01, math.pi / 2))
+    directions: int = knob(40, "view directions sampled within those bounds")
+    distances: int = knob(3, "distances sampled within the range, per direction")
+    samples: int = knob(1200, "template samples per hypothesis in the predicted views")
+    grazing_angle: float = knob(math.radians(70.0), "a predicted surface seen more obliquely "
+                                                    "than this returns nothing (rad)")
+    depth_difference: float = knob(0.01, "two predictions differ where their depths differ by "
+                                         "more than this (m)")
+    visibility_weight: float = knob(0.1, "weight of the best candidate's visible surface "
+                                          "against the rivals' differences in a view's score")
+
+
+
 #: the groups, by their field name in :class:`FitSettings`
 GROUPS = {g.name: g for g in (CropSettings, IcpSettings, ScoringSettings, HypothesesSettings,
                               CoarseSettings, PrefilterSettings, MediumSettings, FineSettings,
                               FinishSettings, ArticulationSettings, VerdictSettings,
-                              RefitSettings)}
+                              RefitSettings, ViewpointSettings)}
 
 
 def _group(cls):
@@ -359,6 +398,7 @@ class FitSettings:
     articulation: ArticulationSettings = _group(ArticulationSettings)
     verdict: VerdictSettings = _group(VerdictSettings)
     refit: RefitSettings = _group(RefitSettings)
+    viewpoint: ViewpointSettings = _group(ViewpointSettings)
 
     def __post_init__(self):
         for f in fields(self):

@@ -7,7 +7,8 @@ object where no template fits (the verdict) is grey and its label starts "no tem
 here". Each waypoint is drawn as a small gripper (namespaces ``candidate_waypoints`` and
 ``registered_waypoints``, one LINE_LIST per object): two fingers closing along the waypoint's y
 with their tips at the waypoint, the palm and a stem back along its -z, its x axis in red, and a
-grey line from the ``pre_`` pose (the approach)."""
+grey line from the ``pre_`` pose (the approach). For an unsettled object, the frustum of the view
+that would settle it (``suggested_view``)."""
 from __future__ import annotations
 
 import math
@@ -23,7 +24,8 @@ from ...core.waypoints import waypoint_poses
 from .conversions import likelihood_color, sphere_marker, text_marker
 from .mesh_refs import template_markers
 
-__all__ = ["state_markers", "joint_text", "waypoint_marker", "MOVING_COLOR", "REGISTERED_COLOR"]
+__all__ = ["state_markers", "joint_text", "waypoint_marker", "frustum_marker", "MOVING_COLOR",
+           "REGISTERED_COLOR", "VIEW_COLOR"]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
 NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
@@ -63,6 +65,36 @@ def waypoint_marker(library, fit, frame: str, ns: str, marker_id: int, stamp) ->
             for q in (wp.T_pre[:3, 3], wp.T[:3, 3]):
                 m.points.append(Point(x=float(q[0]), y=float(q[1]), z=float(q[2])))
                 m.colors.append(APPROACH_COLOR)
+    return m
+
+
+VIEW_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.2, a=0.9)         #: a suggested view's frustum
+#: a suggested view's frustum: this deep (m) and this wide / high per metre of depth (about a
+#: depth camera's 75 x 65 degrees)
+FRUSTUM_DEPTH, FRUSTUM_HALF_X, FRUSTUM_HALF_Y = 0.15, 0.77, 0.64
+
+
+def frustum_marker(T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: int,
+                   stamp) -> Marker:
+    """A camera frustum (LINE_LIST) at an optical-frame pose (z forward, x right, y down): the
+    four edges from the centre and the far rectangle, and a tick at its top edge (y up)."""
+    d, hx, hy = FRUSTUM_DEPTH, FRUSTUM_HALF_X * FRUSTUM_DEPTH, FRUSTUM_HALF_Y * FRUSTUM_DEPTH
+    corners = [(-hx, -hy, d), (hx, -hy, d), (hx, hy, d), (-hx, hy, d)]
+    segments = [((0, 0, 0), c) for c in corners]
+    segments += [(corners[k], corners[(k + 1) % 4]) for k in range(4)]
+    segments.append(((0.0, -hy, d), (0.0, -1.4 * hy, d)))
+    m = Marker()
+    m.header.frame_id, m.header.stamp = frame, stamp
+    m.ns, m.id, m.type, m.action = ns, int(marker_id), Marker.LINE_LIST, Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = 0.005
+    m.color = VIEW_COLOR
+    R, t = np.asarray(T_scene_optical, float)[:3, :3], np.asarray(T_scene_optical, float)[:3, 3]
+    for a, b in segments:
+        for q in (a, b):
+            x, y, z = R @ np.asarray(q, float) + t
+            pt = Point(x=float(x), y=float(y), z=float(z))
+            m.points.append(pt)
     return m
 
 
@@ -124,6 +156,9 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         gripper = waypoint_marker(library, c, frame, "candidate_waypoints", obj.id, stamp)
         if gripper is not None:
             markers.markers.append(gripper)
+        if obj.suggested_view is not None:
+            markers.markers.append(frustum_marker(obj.suggested_view.T_scene_optical, frame,
+                                                  "suggested_view", obj.id, stamp))
     for reg in state.registered:
         if reg.template not in library:
             continue

@@ -132,6 +132,8 @@ class EngineNode(Node):
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
         self.pub_status = self.create_publisher(String, "~/status", LATCHED)
         self.paths = PathRequests(self)     # ~/path_request -> ~/path
+        #: where the sensor should look from to settle the selected object (optical frame)
+        self.pub_view = self.create_publisher(PoseStamped, "~/suggested_view", LATCHED)
         # service calls wait for the stream without holding the default callback group: the
         # subscriptions and the publishing timer keep running meanwhile
         services = ReentrantCallbackGroup()
@@ -545,6 +547,9 @@ class EngineNode(Node):
         active = self.engine.active_object()
         if active is not None:
             self.pub_fit.publish(pose_stamped(active.shown.T_scene_model, frame, stamp))
+            if active.suggested_view is not None:
+                self.pub_view.publish(pose_stamped(active.suggested_view.T_scene_optical, frame,
+                                                   stamp))
         arr = PoseArray()
         arr.header.frame_id, arr.header.stamp = frame, stamp
         arr.poses = [matrix_to_pose(r.T_scene_model) for r in state.registered]

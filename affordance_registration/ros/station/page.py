@@ -327,10 +327,10 @@ class StationPage:
         if isinstance(d, TextDrawing):
             handle = self.server.scene.add_label(name, d.text, position=d.position,
                                                  anchor="top-center")
-        elif isinstance(d, LineDrawing):     # waypoint grippers: shown as the toggle says
+        elif isinstance(d, LineDrawing):     # waypoint grippers (as the toggle says), a view
             handle = self.server.scene.add_line_segments(
                 name, d.segments, d.colors, thickness=LINE_PX, thickness_units="screen",
-                visible=bool(self.waypoints.value))
+                visible=bool(self.waypoints.value) or "_waypoints_" not in name)
         else:
             handle = self.server.scene.add_icosphere(name, radius=d.radius, color=d.color,
                                                      position=d.position)

@@ -59,8 +59,9 @@ class SphereDrawing:
 
 @dataclass(frozen=True)
 class LineDrawing:
-    """A LINE_LIST marker (the engine's waypoint grippers): ``segments`` (S, 2, 3) float32 in
-    the header frame (the marker's pose applied), ``colors`` (S, 2, 3) uint8."""
+    """A LINE_LIST marker (the engine's waypoint grippers, a suggested view's frustum):
+    ``segments`` (S, 2, 3) float32 in the header frame (the marker's pose applied), ``colors``
+    (S, 2, 3) uint8 (the marker's per-point colours, or its one colour)."""
 
     segments: np.ndarray = field(repr=False)
     colors: np.ndarray = field(repr=False)
@@ -183,9 +184,9 @@ def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
 def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
                     last_action: str, fitting: str = "", stale_error: bool = False) -> str:
     """The status panel: engine connection, a click being fitted (``fitting``), open object and
-    its verdict, counts, fit time, what the engine is doing, its last message and error (left
-    out when ``stale_error``: a later message came after it), the cloud, the reply to the last
-    button."""
+    its verdict, why it is unsettled and the suggested view, counts, fit time, what the engine
+    is doing, its last message and error (left out when ``stale_error``: a later message came
+    after it), the cloud, the reply to the last button."""
     lines = []
     if not connected:
         lines.append(f"**Engine not running**: nothing publishes {engine}/status (start "
@@ -205,6 +206,11 @@ def status_markdown(status: dict | None, connected: bool, engine: str, cloud: st
     if obj and candidate_standing(obj)[1]:
         lines.append("**Verdict**: the shown candidate is refused (drawn as a grey outline); "
                      "Accept registers it anyway, marked as an operator override")
+    amb = (obj or {}).get("ambiguity") or {}
+    if amb.get("settled") is False:         # why it is not settled, and the view that would
+        view = (obj.get("suggested_view") or {}).get("text")
+        lines.append(f"**Unsettled**: {'; '.join(amb.get('reasons') or [])}"
+                     + (f" — **suggested view**: {view}" if view else ""))
     counts = st.get("counts") or {}
     lines.append(f"**Objects**: {counts.get('objects', 0)} open, "
                  f"{counts.get('registered', len(st.get('registered') or []))} registered, "

@@ -1,0 +1,278 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""Viewpoint advice (core/registration/ambiguity.py, viewpoint.py): whether a click is settled
+and why, and where the sensor should look from when it is not -- on simulated taskboards and
+on a constructed case (a symmetric handwheel seen edge-on), re-scanned by the simulator from the
+suggested view. No ROS."""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from affordance_registration.core.affordance_template import AffordanceTemplate, Symmetry
+from affordance_registration.core.registration import FitSettings, Registrar
+from affordance_registration.core.registration.ambiguity import (
+    REFUSED,
+    RIVAL_POSE,
+    RIVAL_TEMPLATE,
+    WEAKLY_HELD,
+    Hypothesis,
+)
+from affordance_registration.core.registration.viewpoint import optical_pose, predict_views
+from affordance_registration.core.scene import Scene
+from affordance_registration.core.templates import TemplateLibrary
+from affordance_registration.core.transforms import axis_angle_matrix, invert, make_T, pose_error
+from affordance_registration.evaluation.simulation import (
+    PANEL_SIZE,
+    POSE_TOL_M,
+    POSE_TOL_RAD,
+    simulate_taskboard,
+    write_scene,
+)
+from affordance_registration.evaluation.viewpoints import scan, taskboard_meshes
+
+EDGE_ON = 84.0        #: deg off the panel normal: the gate valve's handwheel seen edge-on
+
+
+@pytest.fixture(scope="module")
+def board(library):
+    return simulate_taskboard(library, 7)
+
+
+@pytest.fixture(scope="module")
+def default(library):
+    registrar = Registrar(library.specific())
+    registrar.warm_up()
+    return registrar
+
+
+def _edge_on(sim, k: int) -> np.ndarray:
+    """A sensor 0.9 m from object ``k`` of the board, EDGE_ON deg off the panel normal."""
+    to_board = invert(sim.T_scene_board)
+    centre = to_board[:3, :3] @ sim.objects[k].T_scene_model[:3, 3] + to_board[:3, 3]
+    target = centre + np.array([0.0, 0.0, 0.02])
+    a = math.radians(EDGE_ON)
+    pos = target + 0.9 * np.array([math.sin(a), 0.0, math.cos(a)])
+    return sim.T_scene_board @ optical_pose(pos, target, np.array([0.0, 0.0, -1.0]))
+
+
+def _scan_fit(registrar, meshes, T_cam, k, near, seed):
+    pts, labels, origin = scan(meshes, T_cam, np.random.default_rng(seed))
+    mine = pts[labels == k + 1]
+    click = mine[int(np.argmin(np.linalg.norm(mine - near, axis=1)))]
+    return registrar.fit(Scene(pts, sensor_origin=origin), click)
+
+
+def _right(report, obj, library) -> bool:
+    best = report.candidates[0]
+    dt, da = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
+    return best.template == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
+
+
+def test_a_symmetric_handwheel_seen_edge_on_gets_a_view_of_its_face(board, default, library):
+    """The gate valve's handwheel (4-fold symmetric) seen edge-on: the scan holds it weakly and
+    in more than one pose. The suggested view sees the face the first view could not (the
+    wheel's front, out of the panel), and re-scanned from there (the simulator renders it) the
+    fit is right and settled."""
+    k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
+    obj = board.objects[k]
+    meshes = taskboard_meshes(board, library)
+    T_first = _edge_on(board, k)
+    near = obj.T_scene_model[:3, 3]
+    report = _scan_fit(default, meshes, T_first, k, near, 1)
+    amb = report.ambiguity
+    assert not amb.settled, amb.describe()
+    assert {WEAKLY_HELD, RIVAL_POSE} & set(amb.kinds)
+    view = default.suggest_view(report, T_scene_optical=T_first)
+    assert view is not None
+    s = default.settings.viewpoint
+    T = view.T_scene_optical
+    to_target = view.target - T[:3, 3]
+    assert s.min_distance - 1e-9 <= np.linalg.norm(to_target) <= s.max_distance + 1e-9
+    assert np.allclose(T[:3, 2], to_target / np.linalg.norm(to_target), atol=1e-9)
+    assert view.turn <= s.max_angle + 1e-9
+    normal = report.context.support.normal
+    normal = normal if normal @ (report.context.sensor_origin - view.target) > 0 else -normal
+    assert to_target @ -normal >= math.sin(s.min_elevation) * np.linalg.norm(to_target) - 1e-9
+    # the wheel's front face -- of the true object (the samples facing out of the panel) --
+    # is predicted out of sight from the first view and in sight from the suggested one
+    truth = Hypothesis(obj.template, obj.T_scene_model, 0.0,
+                       default.models.model(library[obj.template]))
+    P, N = truth.model.samples(s.samples)
+    front = N[:, 2] > 0.7
+    seen = predict_views(report.context, [truth], np.stack([T_first, T]),
+                         default.settings)[2][0]
+    assert seen[0][front].mean() < 0.1, seen[0][front].mean()
+    assert seen[1][front].mean() > 0.4, seen[1][front].mean()
+    # re-scanned from there, the fit is right and settled
+    again = _scan_fit(default, meshes, T, k, report.point, 2)
+    assert _right(again, obj, library), again.candidates[0].template
+    assert again.ambiguity.settled, again.ambiguity.describe()
+
+
+def test_a_clear_click_is_settled_and_asks_for_no_view(board, default):
+    obj = next(o for o in board.objects if o.template == "ball_valve")
+    report = default.fit(Scene(board.points), obj.click)
+    amb = report.ambiguity
+    assert amb.settled and amb.kinds == () and amb.reasons == (), amb
+    assert amb.weakest is not None and amb.weakest >= default.settings.viewpoint.weak_ratio
+    assert amb.describe() == "settled"
+    assert default.suggest_view(report) is None
+
+
+def test_two_copies_of_a_template_are_rivals_and_rank_as_before(board, library):
+    """The same mesh under two names: they score alike, so the click is unsettled -- and the
+    ambiguity only adds information: the original template's fit is unchanged."""
+    tpl = library["ball_valve"]
+    twin = AffordanceTemplate("ball_valve_twin", "twin.yaml", tpl.mesh, symmetry=tpl.symmetry)
+    obj = next(o for o in board.objects if o.template == "ball_valve")
+    alone = Registrar(TemplateLibrary([tpl])).fit(Scene(board.points), obj.click)
+    report = Registrar(TemplateLibrary([tpl, twin])).fit(Scene(board.points), obj.click)
+    amb = report.ambiguity
+    assert not amb.settled and RIVAL_TEMPLATE in amb.kinds
+    assert {h.template for h in amb.rivals} == {"ball_valve", "ball_valve_twin"}
+    assert amb.to_dict()["settled"] is False and len(amb.to_dict()["rivals"]) == 2
+    mine = next(c for c in report.candidates if c.template == "ball_valve")
+    assert np.allclose(mine.T_scene_model, alone.candidates[0].T_scene_model, atol=1e-6)
+
+
+def test_a_click_on_the_bare_panel_is_unsettled_because_the_verdict_refuses(board, default):
+    pts = board.organized.reshape(-1, 3)
+    labels = board.labels.reshape(-1)
+    panel = pts[(labels == 0) & np.all(np.isfinite(pts), axis=1)].astype(float)
+    centres = np.array([o.T_scene_model[:3, 3] for o in board.objects])
+    far = np.min(np.linalg.norm(panel[:, None] - centres[None], axis=2), axis=1) > 0.2
+    report = default.fit(Scene(board.points), panel[np.flatnonzero(far)[0]])
+    amb = report.ambiguity
+    assert report.candidates[0].fits is False
+    assert not amb.settled and REFUSED in amb.kinds
+    assert amb.reasons[amb.kinds.index(REFUSED)].startswith("the verdict refuses")
+
+
+def test_a_flat_plate_seen_face_on_is_weakly_held():
+    """A thin plate on the panel seen face on: its top face holds it against sliding across
+    itself only by its 4 mm edges -- weakly."""
+    plate = trimesh.creation.box(extents=(0.2, 0.2, 0.004))
+    plate.apply_translation([0, 0, 0.002])
+    lib = TemplateLibrary([AffordanceTemplate("plate", "plate.yaml", plate,
+                                              symmetry=Symmetry((0, 0, 1), 4))])
+    panel = trimesh.creation.box(extents=PANEL_SIZE)
+    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    T_cam = make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.8])     # looking straight down
+    pts, labels, origin = scan([(panel, np.eye(4)), (plate, np.eye(4))], T_cam,
+                               np.random.default_rng(3))
+    report = Registrar(lib).fit(Scene(pts, sensor_origin=origin), [0.03, 0.02, 0.004])
+    amb = report.ambiguity
+    assert amb.weakest is not None and amb.weakest < FitSettings().viewpoint.weak_ratio
+    assert WEAKLY_HELD in amb.kinds and not amb.settled
+    assert amb.weak_direction is not None and len(amb.weak_direction) == 6
+
+
+def test_fit_json_reports_the_ambiguity_and_the_suggested_view(tmp_path, board, library):
+    write_scene(board, str(tmp_path))
+    obj = next(o for o in board.objects if o.template == "grab_handle")
+    cmd = [sys.executable, "-m", "affordance_registration.cli", "fit", "--scene",
+           str(tmp_path / "scene.ply"), "--point", *map(str, obj.click), "--json",
+           "--suggest-view"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    amb = doc["ambiguity"]
+    assert isinstance(amb["settled"], bool) and isinstance(amb["reasons"], list)
+    assert "suggested_view" in doc
+    if amb["settled"]:
+        assert doc["suggested_view"] is None
+    else:
+        v = doc["suggested_view"]
+        assert len(v["position"]) == 3 and len(v["orientation_xyzw"]) == 4
+        assert 0.5 - 1e-6 <= v["distance"] <= 1.5 + 1e-6
+    text = subprocess.run(cmd[:-2] + ["--suggest-view"], capture_output=True, text=True,
+                          timeout=600)
+    assert text.returncode == 0 and "suggested view:" in text.stdout
+    assert ("settled" in text.stdout.splitlines()[-2])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-3, 3), min_size=9, max_size=9))
+def test_an_optical_pose_looks_at_its_target_and_is_a_rotation(v):
+    origin, target, down = np.array(v[:3]), np.array(v[3:6]), np.array(v[6:])
+    if np.linalg.norm(target - origin) < 1e-3 or np.linalg.norm(down) < 1e-3:
+        return
+    T = optical_pose(origin, target, down)
+    R = T[:3, :3]
+    assert np.allclose(R.T @ R, np.eye(3), atol=1e-9) and np.linalg.det(R) > 0
+    assert np.allclose(R[:, 2], (target - origin) / np.linalg.norm(target - origin), atol=1e-9)
+    assert np.allclose(T[:3, 3], origin)
+    y = down - R[:, 2] * (down @ R[:, 2])
+    if np.linalg.norm(y) > 1e-3:                       # y as near "down" as the view allows
+        assert R[:, 1] @ y > 0
+
+
+def test_taskboard_meshes_rescan_the_simulated_scene(board, library):
+    """A re-scan from the simulator's own camera (the scene frame's origin, optical) sees what
+    the simulation saw: the same objects at the same places."""
+    pts, labels, origin = scan(taskboard_meshes(board, library), np.eye(4), None)
+    assert np.allclose(origin, 0.0)
+    for k, o in enumerate(board.objects, start=1):
+        mine = pts[labels == k]
+        sim = board.organized[board.labels == k].astype(float)
+        assert abs(len(mine) - len(sim)) <= 0.1 * len(sim) + 5
+        if len(sim):
+            assert np.linalg.norm(np.median(mine, axis=0) - np.median(sim, axis=0)) < 0.01
+
+
+def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(board, library):
+    """The engine (no ROS): an unsettled click gets its suggested view in the status; the scan
+    from that view, set as the new scene, is followed by fitting the untouched click anew --
+    settled and right."""
+    from affordance_registration.core.engine import AffordanceEngine
+    k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
+    obj = board.objects[k]
+    meshes = taskboard_meshes(board, library)
+    T_first = _edge_on(board, k)
+    pts, labels, origin = scan(meshes, T_first, np.random.default_rng(1))
+    engine = AffordanceEngine(library.specific())
+    engine.set_scene(pts, sensor_origin=origin, T_scene_optical=T_first)
+    mine = pts[labels == k + 1]
+    engine.click(mine[int(np.argmin(np.linalg.norm(mine - obj.T_scene_model[:3, 3], axis=1)))])
+    o = engine.status()["objects"][0]
+    assert o["ambiguity"]["settled"] is False and o["suggested_view"] is not None
+    assert "unsettled" in engine.active_object().describe()
+    T_view = np.asarray(o["suggested_view"]["pose"])
+    p2, _, o2 = scan(meshes, T_view, np.random.default_rng(2))
+    engine.set_scene(p2, sensor_origin=o2, T_scene_optical=T_view)
+    said = engine.follow_scene()
+    assert said is not None and "fitted again on the new cloud" in said
+    now = engine.active_object()
+    assert now.ambiguity.settled and now.suggested_view is None
+    best = now.candidates[0]
+    dt, da = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
+    assert best.template == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
+
+
+def test_a_rigidly_moved_scene_gets_the_rigidly_moved_suggestion(board, default, library):
+    """Nothing in the suggestion assumes an axis of the cloud's frame: the edge-on scan moved
+    rigidly (points, click, sensor pose) gets the same view, moved."""
+    k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
+    T_first = _edge_on(board, k)
+    pts, labels, origin = scan(taskboard_meshes(board, library), T_first,
+                               np.random.default_rng(1))
+    mine = pts[labels == k + 1]
+    click = mine[int(np.argmin(np.linalg.norm(mine - board.objects[k].T_scene_model[:3, 3],
+                                              axis=1)))]
+    M = make_T(axis_angle_matrix([0.3, -0.2, 1.9], 1.9), [2.0, -1.0, 0.5])
+
+    def suggestion(P, c, o, T):
+        scene = Scene(P, sensor_origin=o)
+        return default.suggest_view(default.fit(scene, c), T, scene)
+    here = suggestion(pts, click, origin, T_first)
+    there = suggestion(pts @ M[:3, :3].T + M[:3, 3], M[:3, :3] @ click + M[:3, 3],
+                       M[:3, :3] @ origin + M[:3, 3], M @ T_first)
+    assert here is not None and there is not None
+    assert np.allclose(M @ here.T_scene_optical, there.T_scene_optical, atol=1e-6)
