@@ -133,13 +133,13 @@ def test_the_station_draws_the_suggested_views_frustum():
 
     from affordance_registration.ros.glue.markers import frustum_marker
     from affordance_registration.ros.station.page import PageHandlers, StationPage
-    from affordance_registration.ros.station.state import LinesDrawing, apply_markers
+    from affordance_registration.ros.station.state import LineDrawing, apply_markers
     T = optical_pose(np.array([0.3, -0.2, 0.1]), np.array([0.0, 0.0, 1.0]),
                      np.array([0.0, 1.0, 0.0]))
     arr = MarkerArray(markers=[frustum_marker(T, FRAME, "suggested_view", 4, None)])
     drawings = apply_markers({}, arr)
     d = drawings[("suggested_view", 4)]
-    assert isinstance(d, LinesDrawing) and d.segments.shape == (9, 2, 3)
+    assert isinstance(d, LineDrawing) and d.segments.shape == (9, 2, 3)
     assert np.allclose(d.segments[0, 0], T[:3, 3])
     far = d.segments[4:8].reshape(-1, 3)          # the far rectangle, 0.15 m along the view
     assert np.allclose((far - T[:3, 3]) @ T[:3, 2], 0.15)
