@@ -456,30 +456,32 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
             "clutter": clutter}
 
 
+def _over_ros(module: str, function: str, seeds, clicks: int, what: str, log) -> dict | None:
+    """``evaluation.<module>.<function>(seeds, clicks, out_dir, log=log)`` in a temporary
+    folder; None without the ROS packages."""
+    import importlib
+    import tempfile
+    try:
+        measure = getattr(importlib.import_module(f".{module}", __package__), function)
+    except ImportError:
+        return None
+    log(f"{what}, over ROS, on {clicks} clicks ...")
+    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
+        return measure(seeds, clicks, out, log=log)
+
+
 def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:
     """The refit row over ROS: the same corrections made with SpaceMouse pushes to a live
     engine node, which refits once the twists stop (needs the ROS packages)."""
-    try:
-        from .session import measure_push_refit
-    except ImportError:
-        return None
-    import tempfile
-    log(f"refit after a SpaceMouse push, over ROS, on {clicks} clicks ...")
-    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
-        return measure_push_refit(seeds, clicks, out, log=log)
+    return _over_ros("session", "measure_push_refit", seeds, clicks,
+                     "refit after a SpaceMouse push", log)
 
 
 def _ros_latency_bench(seeds, clicks: int, log) -> dict | None:
     """The engine node over ROS against the same fits in this process: click -> status, status
     -> markers, markers message size, idle CPU (needs the ROS packages)."""
-    try:
-        from .ros_latency import measure_node_latency
-    except ImportError:
-        return None
-    import tempfile
-    log(f"the engine node's latencies over ROS, on {clicks} clicks ...")
-    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
-        return measure_node_latency(seeds, clicks, out, log=log)
+    return _over_ros("ros_latency", "measure_node_latency", seeds, clicks,
+                     "the engine node's latencies", log)
 
 
 def _ros_conversion_bench(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict | None:
