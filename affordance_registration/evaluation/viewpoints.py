@@ -242,11 +242,3 @@ def format_row(row: dict) -> list:
                          f"{pct(u, 'again')}")
     return lines
 
-
-if __name__ == "__main__":     # the row alone: python -m affordance_registration.evaluation.viewpoints
-    import json
-    import sys
-    out = viewpoint_row(log=lambda m: print(m, file=sys.stderr, flush=True))
-    print("\n".join(format_row(out)))
-    print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "cases"} for k, v in out.items()},
-                     indent=1))
