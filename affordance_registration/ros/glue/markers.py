@@ -21,7 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ...core.labels import REFUSED_PREFIX, standing
 from ...core.registration import describe_primitive, verdict
 from ...core.waypoints import waypoint_poses
-from .conversions import likelihood_color, sphere_marker, text_marker
+from .conversions import _marker, likelihood_color, sphere_marker, text_marker
 from .mesh_refs import template_markers
 
 __all__ = ["state_markers", "joint_text", "waypoint_marker", "frustum_marker", "MOVING_COLOR",
@@ -47,10 +47,7 @@ def waypoint_marker(library, fit, frame: str, ns: str, marker_id: int, stamp) ->
     poses = waypoint_poses(library[fit.template], fit)
     if not poses:
         return None
-    m = Marker()
-    m.header.frame_id, m.header.stamp = frame, stamp
-    m.ns, m.id, m.type, m.action = ns, int(marker_id), Marker.LINE_LIST, Marker.ADD
-    m.pose.orientation.w = 1.0
+    m = _marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
     m.scale.x = 0.003                  # line width (m)
     m.color = GRIPPER_COLOR
     for wp in poses:
@@ -83,10 +80,7 @@ def frustum_marker(T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: 
     segments = [((0, 0, 0), c) for c in corners]
     segments += [(corners[k], corners[(k + 1) % 4]) for k in range(4)]
     segments.append(((0.0, -hy, d), (0.0, -1.4 * hy, d)))
-    m = Marker()
-    m.header.frame_id, m.header.stamp = frame, stamp
-    m.ns, m.id, m.type, m.action = ns, int(marker_id), Marker.LINE_LIST, Marker.ADD
-    m.pose.orientation.w = 1.0
+    m = _marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
     m.scale.x = 0.005
     m.color = VIEW_COLOR
     R, t = np.asarray(T_scene_optical, float)[:3, :3], np.asarray(T_scene_optical, float)[:3, 3]
