@@ -11,19 +11,33 @@ import math
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .voxels import _minus
 
-__all__ = ["segment", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS", "SEGMENT_FLAT_DEG"]
+__all__ = ["segment", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
 
-#: the cluster's segments (``ClickContext.segments``): voxels this many voxel edges apart are
-#: neighbours, their normals from SEGMENT_NEIGHBOURS points; a pair stays joined where the
-#: normals are within SEGMENT_FLAT_DEG (one surface, with a real sensor's noise) or meet
-#: convexly
+#: the cluster's segments (``ClickContext.segments``) are grown in two steps, as in locally
+#: convex connected patches: smooth patches first -- voxels this many voxel edges apart are
+#: neighbours, their normals and surface variation from SEGMENT_NEIGHBOURS points, joined where
+#: both are flat (variation at most EDGE_VARIATION) and their normals within SEGMENT_SMOOTH_DEG;
+#: the voxels on edges (a real sensor blurs a concave seam into a band of normals turning by a
+#: few degrees a voxel, which joined two touching objects pair by pair) go to the nearest patch
+#: of at least MIN_PATCH voxels
 SEGMENT_REACH = 1.8
 SEGMENT_NEIGHBOURS = 12
-SEGMENT_FLAT_DEG = 20.0
+SEGMENT_SMOOTH_DEG = 15.0
+EDGE_VARIATION = 0.03
+MIN_PATCH = 3
+#: ... then patches within ADJACENT_REACH voxel edges of each other (at CONTACT_VOXELS voxels
+#: of each at least) are joined where they meet convexly or within CONCAVE_DEG of flat, judged
+#: from each patch's flat voxels within LOCAL_REACH voxel edges of where they meet (their mean
+#: normal and position): a box's faces stay one segment, two touching objects do not
+ADJACENT_REACH = 3.0
+CONTACT_VOXELS = 2
+LOCAL_REACH = 10.0
+CONCAVE_DEG = 10.0
 
 
 def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
@@ -31,18 +45,70 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
     """Segment labels (N,) of voxelized ``points`` (N, 3) cut at concave edges (see
     ``ClickContext.segments``); ``tree``: a tree over them when one exists."""
     P = points
-    if len(P) < 3:
-        return np.zeros(len(P), np.int64)
-    n = pca_normals(P, SEGMENT_NEIGHBOURS, tree)
+    N = len(P)
+    if N < 3:
+        return np.zeros(N, np.int64)
+    n, variation = pca_normals(P, SEGMENT_NEIGHBOURS, tree, variation=True)
     towards = (origin - P) if origin is not None else (P - P.mean(axis=0))
     n[np.einsum("ij,ij->i", n, towards) < 0] *= -1      # towards the sensor, or outwards
+    patch, core = _smooth_patches(P, n, variation, voxel)
+    if not core.any():
+        return np.zeros(N, np.int64)
+    pairs = pairs_within(P, ADJACENT_REACH * voxel)
+    pairs = pairs[patch[pairs[:, 0]] != patch[pairs[:, 1]]]
+    if not len(pairs):
+        return np.unique(patch, return_inverse=True)[1]
+    A = np.concatenate([pairs[:, 0], pairs[:, 1]])       # each contact seen from both sides
+    B = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    sides, group = np.unique(patch[A] * N + patch[B], return_inverse=True)
+    voxels = np.bincount(np.unique(group * N + A) // N, minlength=len(sides))
+    at = np.stack([np.bincount(group, weights=P[A, k], minlength=len(sides))
+                   for k in range(3)], axis=1) / np.bincount(group)[:, None]
+    local = cKDTree(P).query_ball_point(at, LOCAL_REACH * voxel)
+    mean_n, mean_p = np.zeros((len(sides), 3)), at.copy()
+    own = sides // N
+    for g, idx in enumerate(local):
+        idx = np.asarray(idx, np.int64)
+        idx = idx[core[idx] & (patch[idx] == own[g])]
+        if len(idx):
+            mean_n[g], mean_p[g] = n[idx].mean(axis=0), P[idx].mean(axis=0)
+    back = {int(k): g for g, k in enumerate(sides)}
+    join = []
+    for g, key in enumerate(sides):
+        i, j = divmod(int(key), N)
+        h = back[j * N + i]
+        if i > j or voxels[g] < CONTACT_VOXELS or voxels[h] < CONTACT_VOXELS:
+            continue
+        ni, nj = _unit(mean_n[g]), _unit(mean_n[h])
+        if ni is None or nj is None:
+            continue
+        convex = (ni - nj) @ (mean_p[g] - mean_p[h]) > 0
+        if convex or ni @ nj >= math.cos(math.radians(CONCAVE_DEG)):
+            join.append((i, j))
+    merged = _components(N, np.array(join, np.int64).reshape(-1, 2))[patch]
+    return np.unique(merged, return_inverse=True)[1]
+
+
+def _smooth_patches(P: np.ndarray, n: np.ndarray, variation: np.ndarray, voxel: float):
+    """Smooth patch labels (N,) -- every voxel in one, edge voxels in their nearest's -- and
+    which voxels are a patch's own flat ones (N,) bool."""
     pairs = pairs_within(P, SEGMENT_REACH * voxel)
     a, b = pairs[:, 0], pairs[:, 1]
-    step = np.take(P, a, axis=0) - np.take(P, b, axis=0)
-    na, nb = np.take(n, a, axis=0), np.take(n, b, axis=0)
-    flat = np.einsum("ij,ij->i", na, nb) >= math.cos(math.radians(SEGMENT_FLAT_DEG))
-    convex = np.einsum("ij,ij->i", na - nb, step) > 0
-    return _components(len(P), pairs[flat | convex])
+    flat = variation <= EDGE_VARIATION
+    smooth = np.take(flat, a) & np.take(flat, b) & (
+        np.einsum("ij,ij->i", np.take(n, a, axis=0), np.take(n, b, axis=0))
+        >= math.cos(math.radians(SEGMENT_SMOOTH_DEG)))
+    patch = _components(len(P), pairs[smooth])
+    core = flat & (np.bincount(patch)[patch] >= MIN_PATCH)
+    if core.any() and not core.all():
+        _, j = nearest(build_tree(P[core]), P[~core])
+        patch[~core] = patch[core][j]
+    return patch, core
+
+
+def _unit(v: np.ndarray):
+    norm = float(np.linalg.norm(v))
+    return v / norm if norm > 1e-9 else None
 
 
 def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,

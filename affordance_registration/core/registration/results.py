@@ -58,6 +58,9 @@ class FitResult:
     prefiltered: bool = False
     #: the share of the clicked object's points on the candidate's surface (the verdict)
     explained: float = 0.0
+    #: m, the residual the verdict reads: template -> scene as ranked, and the clicked
+    #: object's points (not the touching neighbours of the cluster) -> template
+    object_residual: float = 0.0
     noise: float = 0.0                               #: m, the scan's noise around the click
     reason: str | None = None                        #: why it does not fit (None: it fits)
     #: a primitive template's kind ("box", "cylinder") and fitted dimensions (m: a box's
@@ -74,6 +77,7 @@ class FitResult:
                 "coverage": round(float(self.coverage), 4),
                 "inlier_rmse": round(float(self.inlier_rmse), 9),
                 "explained": round(float(self.explained), 4),
+                "object_residual": round(float(self.object_residual), 9),
                 "noise": round(float(self.noise), 9), "fits": self.fits, "reason": self.reason,
                 "primitive": self.primitive,
                 "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}

@@ -92,7 +92,13 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         settings.verdict.min_coverage_no_viewpoint
     widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider
     covered_within = widen * settings.verdict.coverage_distance
-    explained = _explained(ctx, models, T, widen * settings.verdict.explained_distance)
+    explained, object_bwd = _explained(ctx, models, T, widen * settings.verdict.explained_distance,
+                                       settings.scoring.cap)
+    # the verdict's residual is the object's: template -> scene as ranked, object -> template
+    # over the clicked object's points only (touching neighbours in the cluster are not the
+    # template's to explain), plus the click penalty
+    object_residual = 0.5 * (_forward(dist, vis, settings)[0] + object_bwd) + click_penalty(
+        ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]), settings)
     max_residual = widen * settings.verdict.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
@@ -115,17 +121,19 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         # (without a viewpoint nothing is known of what the sensor saw, the cluster's
         # segments nor the two-way residual's visibility: coverage alone judges there)
         seen_from = ctx.sensor_origin is not None
+        obj_res = float(object_residual[k])
         why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
                if cov < bar else "",
                f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
                f"{settings.verdict.min_explained:.0%})"
                if seen_from and explained[k] < settings.verdict.min_explained else "",
-               f"its surface runs {res.residual * 1e3:.1f} mm from the scan on average (a fit "
-               f"is within {max_residual * 1e3:.1f} mm)"
-               if seen_from and res.residual > max_residual else ""]
+               f"its surface and the object run {obj_res * 1e3:.1f} mm apart on average (a "
+               f"fit is within {max_residual * 1e3:.1f} mm)"
+               if seen_from and obj_res > max_residual else ""]
         why = "; ".join(w for w in why if w)
         out.append(replace(res, coverage=cov, inlier_rmse=rmse, explained=float(explained[k]),
-                           noise=ctx.noise, fits=not why, reason=why or None))
+                           object_residual=obj_res, noise=ctx.noise, fits=not why,
+                           reason=why or None))
     return out
 
 
@@ -135,25 +143,27 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
 OBJECT_SEGMENT = 0.3
 
 
-def _explained(ctx: ClickContext, models, T: np.ndarray, within: float) -> np.ndarray:
+def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float):
     """The share (B,) of the clicked object's cluster points within ``within`` of each posed
-    candidate's surface. The object is the clicked segment of the cluster and every segment
+    candidate's surface, and their capped mean distance to it (B,, m, capped at ``cap``). The
+    object is the clicked segment of the cluster and every segment
     (``ClickContext.segments``) the candidate lies on for at least ``OBJECT_SEGMENT`` of its
     points: touching neighbours, and a sensor's mixed pixels bridging to them, do not count
     against a candidate; the rest of an object it is too small for does."""
     pts, labels = ctx.cluster, ctx.segments
     local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]          # (B, K, 3) model frames
-    on = surface_distances(list(models), local, within * 2) <= within
+    dist = np.minimum(surface_distances(list(models), local, max(cap, within * 2)), cap)
+    on = dist <= within
     counts = np.bincount(labels)
     clicked = labels[int(np.argmin(ctx._cluster_to_click))]
-    out = np.empty(len(T))
+    share_on, mean_d = np.empty(len(T)), np.empty(len(T))
     for k in range(len(T)):
         share = np.bincount(labels, weights=on[k], minlength=len(counts)) / counts
         part = share >= OBJECT_SEGMENT
         part[clicked] = True
         mine = part[labels]
-        out[k] = float(on[k][mine].mean())
-    return out
+        share_on[k], mean_d[k] = float(on[k][mine].mean()), float(dist[k][mine].mean())
+    return share_on, mean_d
 
 
 def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) -> np.ndarray:

@@ -296,7 +296,8 @@ class VerdictSettings(_Group):
                                      "explained_distance of the template's surface", FRACTION)
     explained_distance: float = knob(0.008, "see min_explained (m)")
     #: a template whose surface runs several millimetres off the object is some other object's
-    max_residual: float = knob(0.005, "a fitting candidate's residual is at most this (m)")
+    max_residual: float = knob(0.005, "a fitting candidate's object residual (its surface "
+                                      "and the clicked object's points) is at most this (m)")
     #: a noisier scan (``ClickContext.noise``) widens the verdict's distances in proportion
     noise_reference: float = knob(0.0015, "the verdict's distances hold for a scan noise up to "
                                           "this (m)")
