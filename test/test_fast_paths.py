@@ -100,6 +100,12 @@ def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
     assert np.array_equal(facing(ctx, X, Nw, s) | edge, front | edge)
     for g, w in zip(got, want):
         assert np.array_equal(g | edge, w | edge)
+    # a primitive's rows: what something else hides by occluder_gap or more is not exposed
+    rows = np.arange(len(models)) % 2 == 0
+    exposed = visible(ctx, X, Nw, s, exposed=True, occluded=rows)[2]
+    hidden = np.isfinite(obs) & (obs < z - s.verdict.occluder_gap)
+    assert np.array_equal(exposed[~rows] | edge[~rows], want[2][~rows] | edge[~rows])
+    assert np.array_equal(exposed[rows] | edge[rows], (want[2] & ~hidden)[rows] | edge[rows])
     got_obs, got_z = ctx.range_image.lookup(X)
     assert np.array_equal(got_z, z)
     assert np.array_equal(got_obs, obs, equal_nan=True)

@@ -31,13 +31,15 @@ SEGMENT_SMOOTH_DEG = 15.0
 EDGE_VARIATION = 0.03
 MIN_PATCH = 3
 #: ... then patches within ADJACENT_REACH voxel edges of each other (at CONTACT_VOXELS voxels
-#: of each at least) are joined where they meet convexly or within CONCAVE_DEG of flat, judged
+#: of each at least) are joined where they meet convexly or within CONCAVE_DEG of flat (and
+#: within COPLANAR voxel edges of one plane: one surface the noise cut), judged
 #: from each patch's flat voxels within LOCAL_REACH voxel edges of where they meet (their mean
 #: normal and position): a box's faces stay one segment, two touching objects do not
 ADJACENT_REACH = 3.0
 CONTACT_VOXELS = 2
 LOCAL_REACH = 10.0
 CONCAVE_DEG = 10.0
+COPLANAR = 2.0
 
 
 def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
@@ -82,8 +84,12 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
         ni, nj = _unit(mean_n[g]), _unit(mean_n[h])
         if ni is None or nj is None:
             continue
-        convex = (ni - nj) @ (mean_p[g] - mean_p[h]) > 0
-        if convex or ni @ nj >= math.cos(math.radians(CONCAVE_DEG)):
+        step = mean_p[g] - mean_p[h]
+        convex = (ni - nj) @ step > 0
+        # (one surface cut by the noise: nearly parallel, and in one plane)
+        flat = ni @ nj >= math.cos(math.radians(CONCAVE_DEG)) and \
+            max(abs(step @ ni), abs(step @ nj)) <= COPLANAR * voxel
+        if convex or flat:
             join.append((i, j))
     merged = _components(N, np.array(join, np.int64).reshape(-1, 2))[patch]
     return np.unique(merged, return_inverse=True)[1]

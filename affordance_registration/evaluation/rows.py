@@ -48,7 +48,8 @@ def _kinect_summary(records: list) -> dict:
     any_primitive = any(r["primitive"] is not None for r in records)
     ok = [r for r in records if r["error"] is None or r["template"] is not None]
     refused = [r["primitive"] is not None or r["fits"] is not True for r in ok]
-    scored = [r["score"] for r in records]
+    # (the primitives' label score counts the boxes and cylinders: an "other" has no right one)
+    scored = [r["score"] for r in records if r.get("object_kind") in ("box", "cylinder")]
     kind_flags = []
     for r in records:
         if r["uniform_kind"] is not None:
@@ -77,7 +78,8 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
     a summary: ``scenes``, ``objects``, ``errors``, ``called_fits`` (a specific template
     said to fit), ``refused_by_library`` (share whose best is not a fitting specific template),
     ``primitive_recall`` / ``primitive_precision`` (medians of the label score),
-    ``primitive_pass`` (share passing it), ``kind_right`` (share of the objects of the
+    ``primitive_pass`` (share passing it; both over the objects that are boxes or cylinders,
+    ``realdata.OBJECT_KINDS``), ``kind_right`` (share of the objects of the
     scenes whose objects are all boxes or all cylinders, ``realdata.ALL_OF_KIND``, fitted as
     that primitive), ``median_s`` per click. None where the registrar gives no
     primitives (or there is no data: every summary then has 0 objects)."""

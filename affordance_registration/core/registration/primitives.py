@@ -11,13 +11,13 @@ from the surface it stands on -- +z along the support's normal -- and
   (its edges' directions tried), its height the top of the points above the support (its base
   on the support when the points reach down to it, else at their lowest);
 * a cylinder stands (axis along the normal: a circle fitted to the side points' footprint) or
-  lies (axis across the normal, along the direction the surface normals leave out: a circle
-  fitted to the points seen along the axis); the one with the lower residual is kept.
+  lies (axis across the normal, along the direction the surface normals leave out -- or, for a
+  short wide one showing its end face, across that: a circle fitted to the points seen along
+  the axis); the one with the lower residual is kept.
 
-Without a support the object's principal axes take its place. The measured primitive is then
-refined like an operator's correction (:func:`.refit.refit`: local ICP, the pose only), and its
-dimensions measured again in the refined frame. Dimensions are clipped to the template's ranges;
-a primitive is judged (:func:`.scoring.judge`) like any candidate.
+Without a support the object's principal axes take its place. The best of the ways it may stand
+is then refined at its measured size (the fine stage, the pose only); dimensions are clipped to
+the template's ranges, and a primitive is judged (:func:`.scoring.judge`) like any candidate.
 """
 from __future__ import annotations
 
@@ -84,7 +84,10 @@ def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelC
                        refine=False)
         if best is None or res.likelihood > best.likelihood:
             best = res
-    return best
+    # the best way it stands, its pose refined at its measured size (a real scan's mixed
+    # pixels and a lip or a rounded edge leave the measured pose a few millimetres off)
+    refined = _refined(ctx, template, cache, settings, best.T_scene_model, best.dimensions)
+    return refined if refined.likelihood > best.likelihood else best
 
 
 def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> FitResult:
@@ -166,6 +169,11 @@ def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support,
         axis /= np.linalg.norm(axis)
         yield _measure_in(kind, _frame(up, axis, points.mean(axis=0)), points, normals, None,
                           None)
+        # a short, wide one lying (a tin on its side) shows its end face more than its side:
+        # its axis is then the across direction the normals favour
+        across = np.cross(up, axis)
+        yield _measure_in(kind, _frame(up, across, points.mean(axis=0)), points, normals,
+                          None, None)
 
 
 def _up(support, points: np.ndarray) -> np.ndarray | None:

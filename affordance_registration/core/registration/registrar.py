@@ -90,6 +90,15 @@ SUPPORT_FRACTION = 0.2
 #: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
 TRUNCATED = 0.95
+#: ... and measured again in a crop this many times as large
+WIDER = 2.0
+
+
+def _truncated(ctx: ClickContext, measured) -> bool:
+    """Whether the clicked object's points (``measured``, :func:`.primitives.object_points`)
+    reach the edge of the crop."""
+    return float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1))) >= \
+        TRUNCATED * ctx.radius
 
 
 class Registrar:
@@ -117,12 +126,14 @@ class Registrar:
             tpl.resting_rotations(s.hypotheses.resting_poses)
             self.models.surface(tpl)
 
-    def prepare(self, scene: Scene, click) -> ClickContext:
-        """Snap the click to the surface and prepare the crop around it. Only the part of the
-        scene that can be in the crop is read (one pass over the cloud): the points within the
-        crop radius plus the snap distance of the click hold the snapped point and its crop."""
+    def prepare(self, scene: Scene, click, radius: float | None = None) -> ClickContext:
+        """Snap the click to the surface and prepare the crop around it (``radius``, m: by
+        default the library's, ``crop.factor`` times its largest template). Only the part of
+        the scene that can be in the crop is read (one pass over the cloud): the points within
+        the crop radius plus the snap distance of the click hold the snapped point and its
+        crop."""
         s = self.settings
-        radius = s.crop.factor * self.library.max_diameter
+        radius = s.crop.factor * self.library.max_diameter if radius is None else radius
         with single_threaded_blas():
             part = scene.around(click, radius + s.crop.snap_distance)
             snapped = (scene if part is None else part).snap(click, s.crop.snap_distance)  # None: why
@@ -150,7 +161,8 @@ class Registrar:
                     else ((), ())
             t_prim = time.perf_counter()
             if primitives:
-                candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives))
+                candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives,
+                                                                          scene))
             t2 = time.perf_counter()
             ambiguity = self.assess(ctx, candidates, alternatives)
         t3 = time.perf_counter()
@@ -283,17 +295,22 @@ class Registrar:
         return judge(ctx, [self._model(r.template, r.joints, r.scale, r.dimensions)
                            for r in results], results, self.settings)
 
-    def _fit_primitives(self, ctx: ClickContext, names: list[str]) -> list:
+    def _fit_primitives(self, ctx: ClickContext, names: list[str],
+                        scene: Scene | None = None) -> list:
         """The primitive templates ``names``, measured and refined (:mod:`.primitives`),
-        judged."""
+        judged. An object that runs past the crop is measured again in a crop WIDER times as
+        large (from ``scene``): a box longer than the library's templates is still a box; a
+        wall runs past that one too, and is refused."""
         t0 = time.perf_counter()
         measured = object_points(ctx)          # the clicked object, once for every primitive
+        if _truncated(ctx, measured) and scene is not None:
+            ctx = self.prepare(scene, ctx.click, WIDER * ctx.radius)
+            measured = object_points(ctx)
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
                                 measured=measured) for n in names]
         total = time.perf_counter() - t0
         judged = [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
-        reach = float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1)))
-        if reach >= TRUNCATED * ctx.radius:    # a wall, or an object larger than the crop
+        if _truncated(ctx, measured):       # a wall, or an object larger than the crop
             why = (f"the clicked surface runs past the {ctx.radius:.2f} m around the click: "
                    f"it cannot be measured")
             judged = [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)

@@ -37,15 +37,17 @@ MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is
 PLANE_COVERED = 0.8
 
 
-def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings):
+def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings,
+                       occluded: np.ndarray | None = None):
     """The capped distances (B, n) from ``n`` posed samples of each hypothesis to the scene
     (free-space violations at the cap), which of the samples the sensor could have seen and
-    which face it where it returned something (hidden or not)."""
+    which face it where it returned something (hidden or not; in the rows ``occluded`` marks,
+    not where something else stands in front: :func:`.visibility.visible`)."""
     cap = settings.scoring.cap
     P, N = stack_samples(batch.models, n)
     X = pose_points(batch.R, batch.t, P)
     Nw = rotate(batch.R, N)
-    vis, violated, exposed = visible(ctx, X, Nw, settings, exposed=True)
+    vis, violated, exposed = visible(ctx, X, Nw, settings, exposed=True, occluded=occluded)
     dist = np.full(vis.shape, cap)
     d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
     dist[vis] = np.minimum(d_v, cap)
@@ -86,8 +88,12 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     if not fits:
         return []
     T = np.stack([r.T_scene_model for r in fits])
+    # a primitive is measured from what is seen of the object: the part something else hides
+    # is not held against it; a specific template claims what it is, and is judged on all of
+    # it the sensor faces
+    primitive = np.array([m.template.primitive is not None for m in models])
     dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
-                                            settings.scoring.samples, settings)
+                                            settings.scoring.samples, settings, primitive)
     bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
         settings.verdict.min_coverage_no_viewpoint
     widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider

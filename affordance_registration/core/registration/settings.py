@@ -291,6 +291,12 @@ class VerdictSettings(_Group):
     #: a one-sided scan covers about half of an object
     min_coverage_no_viewpoint: float = knob(0.3, "the same without a viewpoint, where every "
                                                  "sample counts", FRACTION)
+    #: a box behind another is seen around its edges: the part hidden behind the other is not
+    #: held against its primitive (but a primitive sunk into a surface, its samples just behind
+    #: it, is; and a specific template is judged on everything it faces)
+    occluder_gap: float = knob(0.03, "a primitive's samples hidden at least this far behind "
+                                     "the scan (another object in front) do not count towards "
+                                     "its coverage (m)")
     #: a valve inside a box's points covers itself but explains a fraction of the box
     min_explained: float = knob(0.8, "share of the clicked object's points within "
                                      "explained_distance of the template's surface", FRACTION)

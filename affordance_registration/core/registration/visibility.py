@@ -51,12 +51,14 @@ def _facing(D: np.ndarray, Nw: np.ndarray, grazing_angle: float) -> np.ndarray:
 
 
 def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettings,
-            exposed: bool = False):
+            exposed: bool = False, occluded: np.ndarray | None = None):
     """(seen, violated), both (B, S) bool, for posed samples X (B, S, 3) with normals Nw
     (B, S, 3) in the scene frame: seen = facing the sensor with a return that is not in front of
     them; violated = facing it while the sensor saw through where they would be. With
     ``exposed`` also the samples facing the sensor in a direction it returned something, hidden
-    or not (what a fit's coverage is judged over)."""
+    or not (what a fit's coverage is judged over) -- in the rows ``occluded`` (B,) bool marks,
+    not those hidden ``verdict.occluder_gap`` or more behind the return either, where something
+    else stands in front of them."""
     origin, image = ctx.sensor_origin, ctx.range_image
     if origin is None:
         front = np.ones(X.shape[:-1], bool)
@@ -72,6 +74,8 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
     m = settings.scoring.free_space_margin
     # NaN (no return) compares False: an unknown direction is neither hidden nor violated
     known = front & (obs == obs) if exposed else None
+    if exposed and occluded is not None and occluded.any():
+        known[occluded] &= obs[occluded] >= depth[occluded] - settings.verdict.occluder_gap
     seen = front & (obs >= depth - m)
     violated = front & (obs > depth + m)
     return (seen, violated, known) if exposed else (seen, violated)
