@@ -1,12 +1,12 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The loop of ``station --demo`` over ROS: the simulated scan node (its own process) starts on a
-hard first view of the demo's taskboard -- the quarter-turn valve seen edge-on (76-85 deg off the
-panel's normal), which the engine (its own process) fits wrong and calls unsettled --; a request on ``sensor_view_request``
-with the engine's suggested view moves the simulated sensor there, its new scan and pose reach
-the engine (the sensor's frame on TF), and the click is fitted anew: the right template, within
-the pose tolerance, settled. Bad requests are refused in one log line each and the node keeps
-running."""
+hard first view of the demo's taskboard -- the quarter-turn valve seen edge-on (76-85 deg off
+the panel's normal), which the engine (its own process) fits wrong and calls unsettled --; a
+request on ``sensor_view_request`` with the engine's suggested view moves the simulated sensor
+there, its new scan and pose reach the engine (the sensor's frame on TF), and the click is
+fitted anew: the right template, within the pose tolerance, settled. Bad requests are refused
+in one log line each and the node keeps running."""
 import math
 import sys
 
@@ -17,10 +17,8 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from affordance_registration.core.transforms import matrix_to_quat_xyzw, pose_error
-from affordance_registration.evaluation.simulated_scan import parse_pose, render_organized, \
-    view_problem
-from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, \
-    simulate_taskboard
+from affordance_registration.evaluation.simulated_scan import parse_pose, render_organized, view_problem
+from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, simulate_taskboard
 from affordance_registration.evaluation.viewpoints import hard_view, taskboard_meshes
 from affordance_registration.ros.glue.conversions import pose_stamped, transform_to_matrix
 from affordance_registration.ros.glue.tf import STATIC_LISTENER_QOS, load_tf_message

@@ -38,8 +38,7 @@ from ..core.errors import AffordanceError
 from ..core.templates import TemplateLibrary
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 from ..ros.glue.cloud_publisher import LatchedCloudPublisher
-from ..ros.glue.conversions import ConversionError, matrix_to_transform, pose_to_matrix, \
-    xyz_to_pointcloud2
+from ..ros.glue.conversions import ConversionError, matrix_to_transform, pose_to_matrix, xyz_to_pointcloud2
 from ..ros.glue.qos import INPUT, LATCHED
 from ..ros.glue.tf import load_tf_message
 from ..ros.standins.spin import run_node
