@@ -1,0 +1,96 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""The station's "Move sensor here" in a real browser, the whole loop of ``station --demo``: the
+simulated scan (starting on a hard first view: the demo taskboard's quarter-turn valve seen
+edge-on), the engine and the station as separate processes, headless chromium driven by
+Playwright. The button is there only while the open object is unsettled with a suggested view;
+pressing it publishes exactly that view on ``/sensor_view_request``; the simulated sensor moves
+there, the engine fits the click anew and it settles, and the button goes. A client without the
+station's access secret is refused in one log line and publishes nothing."""
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+from browser_helpers import (
+    browser_page,
+    chromium_missing,
+    free_port,
+    scan_argv,
+    station_argv,
+    station_url,
+    wait_text,
+    wait_until,
+)
+from geometry_msgs.msg import PointStamped, PoseStamped
+from ros_helpers import LATCHED, Client, engine_process
+from std_msgs.msg import String
+from test_sensor_move import FRAME, SEED, SENSOR, edge_on_case, pose_text
+
+from affordance_registration.ros.glue.conversions import pose_to_matrix
+
+NS = "/affordance_engine"
+REQUEST = "/sensor_view_request"
+
+
+def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_click(
+        tmp_path, library, ros_context, processes):
+    missing = chromium_missing()
+    assert not missing, missing
+    sim, T_first, click, truth = edge_on_case(library)
+    port = free_port()
+    scan = processes(scan_argv(seed=SEED, sensor_pose=pose_text(T_first)), "scan")
+    processes(engine_process(tmp_path, {"sensor_frame": SENSOR}))
+    station = processes(station_argv(port), "station")
+    client = Client("station_move_sensor_test")
+    client.subscribe(String, f"{NS}/status", LATCHED)
+    client.subscribe(PoseStamped, f"{NS}/suggested_view", LATCHED)
+    client.subscribe(PoseStamped, REQUEST, keep=True)
+    pub_click = client.node.create_publisher(PointStamped, "/clicked_point", 10)
+    try:
+        assert station.wait_output("operator station on", 90), station.output()
+        client.wait_for_subscribers(pub_click, timeout=90)
+        with browser_page(station_url(port)) as page:
+            wait_text(page, r"Engine: /affordance_engine — idle")
+            wait_text(page, rf"points in '{FRAME}'")
+            button = page.get_by_role("button", name="Move sensor here", exact=True)
+            assert not button.is_visible()          # nothing open: no suggestion
+
+            msg = PointStamped()
+            msg.header.frame_id = FRAME
+            msg.point.x, msg.point.y, msg.point.z = map(float, click)
+            pub_click.publish(msg)
+            wait_text(page, r"Unsettled: .*suggested view: look from")
+            obj = client.wait_for(lambda: client.status(f"{NS}/status")["objects"][0], 30,
+                                  "the open object")
+            assert obj["ambiguity"]["settled"] is False
+            T_view = np.asarray(obj["suggested_view"]["pose"])
+            button.wait_for(state="visible", timeout=60_000)
+
+            button.click()
+            sent = client.wait_for(lambda: client.history.get(REQUEST), 30, "the request")
+            assert len(sent) == 1 and sent[0].header.frame_id == FRAME
+            assert np.allclose(pose_to_matrix(sent[0].pose), T_view, atol=1e-8)
+            engine_view = client.latest[f"{NS}/suggested_view"]
+            assert np.allclose(pose_to_matrix(sent[0].pose), pose_to_matrix(engine_view.pose),
+                               atol=1e-6)
+            wait_text(page, rf"Move sensor here: sent \(.*\) in '{FRAME}' on {REQUEST}$")
+
+            # the simulated sensor moves, the click is fitted anew and settles: no button
+            assert scan.wait_output("moved the sensor to", 90), scan.output()[-2000:]
+            wait_text(page, rf"Shown: #1 {truth.template} .*— rank 1/")
+            wait_until(lambda: "fitted again on the new cloud" in
+                       (client.status(f"{NS}/status")["node"]["last_message"]), 120,
+                       "the refit on the new cloud")
+            button.wait_for(state="hidden", timeout=60_000)
+            assert client.status(f"{NS}/status")["objects"][0]["ambiguity"]["settled"]
+            assert page.get_by_text("Unsettled").count() == 0
+
+            # only the operator: without the access secret, the page is refused (one line)
+            with pytest.raises(urllib.error.HTTPError) as refused:
+                urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10)
+            assert refused.value.code == 403
+            assert station.wait_output("station: refused '/' from", 30)
+            assert len(client.history[REQUEST]) == 1
+    finally:
+        client.close()
