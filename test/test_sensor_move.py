@@ -11,13 +11,20 @@ import math
 import sys
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import PointStamped, PoseStamped
 from ros_helpers import LATCHED, Client, NodeProcess, engine_process
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
+from affordance_registration.core.errors import AffordanceError
 from affordance_registration.core.transforms import matrix_to_quat_xyzw, pose_error
-from affordance_registration.evaluation.simulated_scan import parse_pose, render_organized, view_problem
+from affordance_registration.evaluation.simulated_scan import (
+    check_first_view,
+    parse_pose,
+    render_organized,
+    view_problem,
+)
 from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, simulate_taskboard
 from affordance_registration.evaluation.viewpoints import hard_view, taskboard_meshes
 from affordance_registration.ros.glue.conversions import pose_stamped, transform_to_matrix
@@ -40,7 +47,6 @@ def edge_on_case(library):
     sim = simulate_taskboard(library, SEED)
     k = next(i for i, o in enumerate(sim.objects) if o.template == "quarter_turn_valve")
     T = hard_view(sim, k, "edge-on", np.random.default_rng(SEED * 100 + k))
-    T = parse_pose(pose_text(T))                 # as the node reads it from its parameter
     organized, labels = render_organized(taskboard_meshes(sim, library), T, None)
     mine = organized[labels == k + 1].astype(float)
     click = mine[int(np.argmin(np.linalg.norm(mine - np.median(mine, axis=0), axis=1)))]
@@ -61,11 +67,24 @@ def test_view_problem_refuses_poses_inside_behind_and_far_from_the_panel(library
     assert "m from the panel" in view_problem(B, at(0.0, 0.0, 3.5))
 
 
+def test_first_view_and_sensor_pose_are_checked(library):
+    assert check_first_view("camera", library) is None
+    assert check_first_view("far:gate_valve", library) == ("far", "gate_valve")
+    for bad in ("edge-on", "edge-on:box", "sideways:gate_valve", ""):
+        with pytest.raises(AffordanceError, match="first view must be"):
+            check_first_view(bad, library)
+    T = parse_pose("0.1 0.2 0.3 0 0 0.7071068 0.7071068")
+    assert np.allclose(T[:3, 3], [0.1, 0.2, 0.3]) and np.allclose(T[:3, 0], [0, 1, 0])
+    for bad in ("1 2 3", "0 0 0 0 0 0 2", "0 0 nan 0 0 0 1", "a b c d e f g"):
+        with pytest.raises(AffordanceError, match="sensor_pose"):
+            parse_pose(bad)
+
+
 def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, library):
     sim, T_first, click, truth = edge_on_case(library)
     scan = NodeProcess([sys.executable, "-m", "affordance_registration.evaluation.simulated_scan",
                         "--ros-args", "-p", f"seed:={SEED}", "-p",
-                        f"sensor_pose:={pose_text(T_first)}"], tmp_path / "scan.log")
+                        "first_view:=edge-on:quarter_turn_valve"], tmp_path / "scan.log")
     engine = engine_process(tmp_path, {"sensor_frame": SENSOR})
     client = Client("sensor_move_tester")
     try:

@@ -25,8 +25,10 @@ with one log line; the sensor stays where it was.
 
 Parameters: ``seed`` (7), ``layout`` (panel | table), ``frame_id``
 (``camera_depth_optical_frame``), ``sensor_frame`` (``simulated_camera_optical_frame``),
-``sensor_pose`` ('' = the first camera; else ``"x y z qx qy qz qw"`` in ``frame_id``: the sensor
-starts there), ``rate`` (0 Hz: once).
+``first_view`` (``camera``: the simulator's camera; ``KIND:TEMPLATE``, e.g.
+``edge-on:quarter_turn_valve``: the sensor starts on the viewpoint bench row's hard first view
+of that object, :func:`~.viewpoints.hard_view`), ``sensor_pose`` ('' = as ``first_view`` says;
+else ``"x y z qx qy qz qw"`` in ``frame_id``: the sensor starts there), ``rate`` (0 Hz: once).
 """
 from __future__ import annotations
 
@@ -43,9 +45,10 @@ from ..ros.glue.qos import INPUT, LATCHED
 from ..ros.glue.tf import load_tf_message
 from ..ros.standins.spin import run_node
 from .simulation import DepthCamera, simulate_taskboard
-from .viewpoints import taskboard_meshes
+from .viewpoints import KINDS, hard_view, taskboard_meshes
 
-__all__ = ["SimulatedScanNode", "view_problem", "render_organized", "parse_pose", "main",
+__all__ = ["SimulatedScanNode", "view_problem", "render_organized", "parse_pose", "first_view",
+           "check_first_view", "main",
            "REQUEST_TOPIC", "MIN_CLEARANCE_M", "MAX_RANGE_M", "MIN_POINTS"]
 
 REQUEST_TOPIC = "sensor_view_request"    #: where the sensor is asked to move to
@@ -67,6 +70,29 @@ def parse_pose(text: str) -> np.ndarray:
     if abs(np.linalg.norm(q) - 1.0) > 0.01:
         raise AffordanceError(f"sensor_pose: the quaternion is not unit length ({text!r})")
     return make_T(quat_xyzw_to_matrix(q / np.linalg.norm(q)), values[:3])
+
+
+def check_first_view(text: str, library: TemplateLibrary) -> tuple[str, str] | None:
+    """``first_view`` as (kind, template), None for ``camera``; AffordanceError naming what is
+    wrong (not ``KIND:TEMPLATE`` of a kind of :data:`~.viewpoints.KINDS` and a template the
+    taskboard has)."""
+    text = str(text).strip()
+    if text == "camera":
+        return None
+    kind, _, template = text.partition(":")
+    placed = [n for n in library if library[n].primitive is None]
+    if kind not in KINDS or template not in placed:
+        raise AffordanceError(f"first view must be 'camera' or KIND:TEMPLATE with KIND one of "
+                              f"{', '.join(KINDS)} and TEMPLATE one of {', '.join(placed)}, got "
+                              f"{text[:80]!r}")
+    return kind, template
+
+
+def first_view(sim, kind: str, template: str) -> np.ndarray:
+    """The hard first view ``kind`` of the object ``template`` of ``sim`` (the scene frame), as
+    the viewpoint bench row draws it for that object."""
+    k = next(i for i, o in enumerate(sim.objects) if o.template == template)
+    return hard_view(sim, k, kind, np.random.default_rng(sim.seed * 100 + k))
 
 
 def view_problem(T_scene_board: np.ndarray, T_scene_sensor: np.ndarray) -> str:
@@ -104,6 +130,7 @@ class SimulatedScanNode(Node):
         self.sensor_frame = str(self.declare_parameter(
             "sensor_frame", "simulated_camera_optical_frame").value).strip()
         start = str(self.declare_parameter("sensor_pose", "").value).strip()
+        view = str(self.declare_parameter("first_view", "camera").value)
         rate = float(self.declare_parameter("rate", 0.0).value)
         if seed < 0:
             raise AffordanceError(f"seed must be >= 0, got {seed}")
@@ -115,13 +142,14 @@ class SimulatedScanNode(Node):
             raise AffordanceError(f"sensor_frame must name a frame other than frame_id "
                                   f"'{self.frame}'")
         library = TemplateLibrary.load()
+        hard = check_first_view(view, library)
         self.sim = simulate_taskboard(library, seed, layout=layout)
         self.meshes = taskboard_meshes(self.sim, library)
         self.T_sensor = np.eye(4)
         self._moves = 0
         organized = self.sim.organized
-        if start:
-            T = parse_pose(start)
+        if start or hard:
+            T = parse_pose(start) if start else first_view(self.sim, *hard)
             problem = view_problem(self.sim.T_scene_board, T)
             if problem:
                 raise AffordanceError(f"sensor_pose: {problem}")
