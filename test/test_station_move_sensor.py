@@ -1,33 +1,36 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""The station's "Move sensor here" in a real browser, the whole loop of ``station --demo``: the
-simulated scan (starting on a hard first view: the demo taskboard's quarter-turn valve seen
-edge-on), the engine and the station as separate processes, headless chromium driven by
-Playwright. The button is there only while the open object is unsettled with a suggested view;
-pressing it publishes exactly that view on ``/sensor_view_request``; the simulated sensor moves
-there, the engine fits the click anew and it settles, and the button goes. A client without the
-station's access secret is refused in one log line and publishes nothing."""
+"""The station's "Move sensor here" in a real browser, the whole loop of ``station --demo`` as a
+newcomer runs it: ``affordance-registration station --demo --first-view
+edge-on:quarter_turn_valve`` starts the simulated scan (on a hard first view: the demo
+taskboard's quarter-turn valve seen edge-on), the engine and the station as separate processes;
+headless chromium driven by Playwright. The button is there only while the open object is
+unsettled with a suggested view; pressing it publishes exactly that view on
+``/sensor_view_request``; the simulated sensor moves there, the engine fits the click anew and
+it settles, and the button goes. A client without the station's access secret is refused in
+one log line and publishes nothing."""
+import sys
 import urllib.error
 import urllib.request
 
 import numpy as np
 import pytest
 from browser_helpers import (
+    STATION_SECRET,
     browser_page,
     chromium_missing,
     free_port,
-    scan_argv,
-    station_argv,
     station_url,
     wait_text,
     wait_until,
 )
 from geometry_msgs.msg import PointStamped, PoseStamped
-from ros_helpers import LATCHED, Client, engine_process
+from ros_helpers import LATCHED, Client, NodeProcess
 from std_msgs.msg import String
-from test_sensor_move import FRAME, SEED, SENSOR, edge_on_case, pose_text
+from test_sensor_move import FRAME, edge_on_case
 
 from affordance_registration.ros.glue.conversions import pose_to_matrix
+from affordance_registration.ros.station.access import SECRET_ENV
 
 NS = "/affordance_engine"
 REQUEST = "/sensor_view_request"
@@ -37,18 +40,25 @@ def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_clic
         tmp_path, library, ros_context, processes):
     missing = chromium_missing()
     assert not missing, missing
-    sim, T_first, click, truth = edge_on_case(library)
+    _, _, click, truth = edge_on_case(library)
     port = free_port()
-    scan = processes(scan_argv(seed=SEED, sensor_pose=pose_text(T_first)), "scan")
-    processes(engine_process(tmp_path, {"sensor_frame": SENSOR}))
-    station = processes(station_argv(port), "station")
+    out = tmp_path / "out"
+    demo = processes(NodeProcess(
+        [sys.executable, "-m", "affordance_registration.cli", "station", "--demo",
+         "--first-view", "edge-on:quarter_turn_valve", "--port", str(port), "--out", str(out)],
+        tmp_path / "demo.log", env={SECRET_ENV: STATION_SECRET}))
+
+    def nodes() -> str:
+        """The nodes' output (the demo writes it to station_demo.log)."""
+        path = out / "station_demo.log"
+        return path.read_text() if path.exists() else ""
     client = Client("station_move_sensor_test")
     client.subscribe(String, f"{NS}/status", LATCHED)
     client.subscribe(PoseStamped, f"{NS}/suggested_view", LATCHED)
     client.subscribe(PoseStamped, REQUEST, keep=True)
     pub_click = client.node.create_publisher(PointStamped, "/clicked_point", 10)
     try:
-        assert station.wait_output("operator station on", 90), station.output()
+        assert demo.wait_output("operator station: ", 180), demo.output()
         client.wait_for_subscribers(pub_click, timeout=90)
         with browser_page(station_url(port)) as page:
             wait_text(page, r"Engine: /affordance_engine — idle")
@@ -77,7 +87,8 @@ def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_clic
             wait_text(page, rf"Move sensor here: sent \(.*\) in '{FRAME}' on {REQUEST}$")
 
             # the simulated sensor moves, the click is fitted anew and settles: no button
-            assert scan.wait_output("moved the sensor to", 90), scan.output()[-2000:]
+            wait_until(lambda: "[affordance_simulated_scan]: moved the sensor to" in nodes(), 90,
+                       "the simulated sensor to move")
             wait_text(page, rf"Shown: #1 {truth.template} .*— rank 1/")
             wait_until(lambda: "fitted again on the new cloud" in
                        (client.status(f"{NS}/status")["node"]["last_message"]), 120,
@@ -90,7 +101,7 @@ def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_clic
             with pytest.raises(urllib.error.HTTPError) as refused:
                 urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10)
             assert refused.value.code == 403
-            assert station.wait_output("station: refused '/' from", 30)
+            wait_until(lambda: "station: refused '/' from" in nodes(), 30, "the refusal")
             assert len(client.history[REQUEST]) == 1
     finally:
         client.close()
