@@ -105,3 +105,19 @@ def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_clic
             assert len(client.history[REQUEST]) == 1
     finally:
         client.close()
+
+
+def test_the_suggested_pose_is_offered_only_for_an_unsettled_object_with_a_usable_view():
+    from affordance_registration.core.registration.viewpoint import optical_pose
+    from affordance_registration.ros.station.state import suggested_pose
+    T = optical_pose(np.array([0.3, -0.2, 0.1]), np.array([0.0, 0.0, 1.0]),
+                     np.array([0.0, 1.0, 0.0]))
+    obj = {"ambiguity": {"settled": False, "kinds": ["rival_template"], "reasons": ["..."]},
+           "suggested_view": {"pose": T.tolist(), "text": "look from ..."}}
+    assert np.array_equal(suggested_pose(obj), T)
+    assert suggested_pose(None) is None
+    assert suggested_pose(dict(obj, ambiguity={"settled": True})) is None
+    assert suggested_pose(dict(obj, ambiguity=None)) is None       # an older engine
+    assert suggested_pose(dict(obj, suggested_view=None)) is None   # no view found
+    for bad in ([[1, 2], [3, 4]], [["a"] * 4] * 4, (np.eye(4) * np.nan).tolist(), "pose"):
+        assert suggested_pose(dict(obj, suggested_view={"pose": bad})) is None, bad
