@@ -17,11 +17,12 @@ taken from.
 A request on ``sensor_view_request`` (geometry_msgs/PoseStamped: an optical frame -- z forward,
 x right, y down -- in ``frame_id``, as the engine's ``~/suggested_view`` and the station's "Move
 sensor here" button give it) moves the sensor there: the scene is rendered again from that pose
-(new sensor noise), the sensor's new pose goes out on ``/tf_static`` and then the new cloud on
-``points``. A request that is not a pose in ``frame_id``, that puts the sensor behind or inside
-the panel (less than :data:`MIN_CLEARANCE_M` in front of it), farther than :data:`MAX_RANGE_M`
-from the panel's centre, or from where the sensor would see none of the taskboard is refused
-with one log line; the sensor stays where it was.
+(new sensor noise), the sensor's new pose goes out on ``/tf_static`` and, once its readers have
+received it (at most :data:`ACK_TIMEOUT_S`), the new cloud on ``points``. A request that is not
+a pose in ``frame_id``, that puts the sensor behind or inside the panel (less than
+:data:`MIN_CLEARANCE_M` in front of it), farther than :data:`MAX_RANGE_M` from the panel's
+centre, or from where the sensor would see fewer than :data:`MIN_POINTS` points of the
+taskboard is refused with one log line; the sensor stays where it was.
 
 Parameters: ``seed`` (7), ``layout`` (panel | table), ``frame_id``
 (``camera_depth_optical_frame``), ``sensor_frame`` (``simulated_camera_optical_frame``),
@@ -34,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
+from rclpy.duration import Duration
 from rclpy.node import Node
 
 from ..core.errors import AffordanceError
@@ -55,6 +57,7 @@ REQUEST_TOPIC = "sensor_view_request"    #: where the sensor is asked to move to
 MIN_CLEARANCE_M = 0.05      #: the sensor stays at least this far in front of the panel
 MAX_RANGE_M = 3.0           #: and at most this far from the panel's centre
 MIN_POINTS = 1000           #: a view that sees fewer points of the taskboard is refused
+ACK_TIMEOUT_S = 2.0         #: the longest wait for the sensor's pose to be received
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -184,6 +187,9 @@ class SimulatedScanNode(Node):
         t.transform = matrix_to_transform(self.T_sensor)
         TFMessage, pub = self._tf
         pub.publish(TFMessage(transforms=[t]))
+        # the engine looks the sensor up when it uses a cloud: the pose is received (acked by
+        # every reliable reader, e.g. the engine's TF listener) before the cloud goes out
+        pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
 
     def _refuse(self, why: str) -> None:
         self.get_logger().warning(f"{REQUEST_TOPIC}: not moved: {why}")
