@@ -128,16 +128,18 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         inside[:3, 3] = sim.T_scene_board[:3, 3]
         far = T_view.copy()
         far[:3, 3] = T_view[:3, 3] + 10.0 * (T_view[:3, 3] - sim.T_scene_board[:3, 3])
+        away = T_view @ np.diag([1.0, -1.0, -1.0, 1.0])     # looking away from the board
         nan = pose_stamped(T_view, FRAME)
         nan.pose.position.x = math.nan
         for bad, line in ((nan, "not moved: pose has NaN"),
                           (pose_stamped(T_view, "map"), "not moved: the pose is in 'map'"),
                           (pose_stamped(inside, FRAME), "the panel (0.000 m in front"),
-                          (pose_stamped(far, FRAME), "m from the panel (at most 3.0 m)")):
+                          (pose_stamped(far, FRAME), "m from the panel (at most 3.0 m)"),
+                          (pose_stamped(away, FRAME), "would see 0 points of the taskboard")):
             pub_view.publish(bad)
             assert scan.wait_output(line, 60), scan.output()[-2000:]
         assert scan.proc.poll() is None
-        assert scan.output().count("not moved:") == 4
+        assert scan.output().count("not moved:") == 5
         assert len(client.history["/points"]) == clouds
 
         # the suggested view: a new cloud from there, the click fitted anew, settled and right
