@@ -118,6 +118,7 @@ def test_the_suggested_pose_is_offered_only_for_an_unsettled_object_with_a_usabl
     assert suggested_pose(None) is None
     assert suggested_pose(dict(obj, ambiguity={"settled": True})) is None
     assert suggested_pose(dict(obj, ambiguity=None)) is None       # an older engine
+    assert suggested_pose(dict(obj, ambiguity="unsettled")) is None
     assert suggested_pose(dict(obj, suggested_view=None)) is None   # no view found
     for bad in ([[1, 2], [3, 4]], [["a"] * 4] * 4, (np.eye(4) * np.nan).tolist(), "pose"):
         assert suggested_pose(dict(obj, suggested_view={"pose": bad})) is None, bad

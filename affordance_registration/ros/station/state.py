@@ -188,7 +188,8 @@ def suggested_pose(obj: dict | None) -> np.ndarray | None:
     or no usable pose."""
     amb = (obj or {}).get("ambiguity") or {}
     view = (obj or {}).get("suggested_view") or {}
-    if amb.get("settled") is not False or not isinstance(view, dict) or not view.get("pose"):
+    if not isinstance(amb, dict) or amb.get("settled") is not False or \
+            not isinstance(view, dict) or not view.get("pose"):
         return None
     try:
         T = np.asarray(view["pose"], dtype=float)
