@@ -53,6 +53,26 @@ def edge_on_case(library):
     return sim, T, click, sim.objects[k]
 
 
+def click_on(client, pub, status, point, tries: int = 5) -> None:
+    """Click ``point`` and wait for its fit. An engine that has not yet heard the sensor's frame
+    on TF (its transient-local /tf_static reader may match after the cloud's) refuses the click
+    in one line naming the sensor frame: the click is sent again then."""
+    msg = PointStamped()
+    msg.header.frame_id = FRAME
+    msg.point.x, msg.point.y, msg.point.z = map(float, point)
+    def handled() -> int:
+        return int(((status().get("node") or {}).get("handled") or {}).get("/clicked_point", 0))
+    for _ in range(tries):
+        before = handled()
+        pub.publish(msg)
+        client.wait_for(lambda: handled() > before and status()["node"]["idle"], 120,
+                        "the click to be handled")
+        if status().get("objects"):
+            return
+        assert f"the sensor frame '{SENSOR}'" in status()["node"]["last_error"], status()["node"]
+    raise AssertionError(f"the click was refused {tries} times: {status()['node']}")
+
+
 def test_view_problem_refuses_poses_inside_behind_and_far_from_the_panel(library):
     sim = simulate_taskboard(library, SEED)
     B = sim.T_scene_board
@@ -107,12 +127,7 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         client.wait_for_subscribers(pub_view, timeout=90)
         status = lambda: client.status(f"{NS}/status") or {}  # noqa: E731
         client.wait_for(lambda: status().get("node", {}).get("cloud"), 90, "the first cloud")
-        msg = PointStamped()
-        msg.header.frame_id = FRAME
-        msg.point.x, msg.point.y, msg.point.z = map(float, click)
-        pub_click.publish(msg)
-        client.wait_for(lambda: status().get("objects") and status()["node"]["idle"], 120,
-                        "the first fit")
+        click_on(client, pub_click, status, click)
         o = status()["objects"][0]
         assert o["ambiguity"]["settled"] is False, o["ambiguity"]
         first = o["candidates"][0]
@@ -160,6 +175,18 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         assert dt <= POSE_TOL_M and da <= POSE_TOL_RAD, (dt, math.degrees(da))
         assert status()["objects"][0]["suggested_view"] is None
         assert status()["node"]["cloud"]["frame_id"] == FRAME
+
+        # a flood of requests is not queued up: the latest is moved to (a bad one last marks
+        # when all have been read)
+        moved = scan.output().count("moved the sensor to")
+        for _ in range(30):
+            pub_view.publish(pose_stamped(T_view, FRAME))
+        pub_view.publish(pose_stamped(T_view, "flood_end"))
+        assert scan.wait_output("the pose is in 'flood_end'", 60), scan.output()[-2000:]
+        client.wait_for(lambda: scan.output().count("moved the sensor to") > moved, 60,
+                        "the move after the flood")
+        assert scan.output().count("moved the sensor to") - moved <= 10
+        assert scan.proc.poll() is None
     finally:
         client.close()
         for proc in (engine, scan):

@@ -22,7 +22,9 @@ received it (at most :data:`ACK_TIMEOUT_S`), the new cloud on ``points``. A requ
 a pose in ``frame_id``, that puts the sensor behind or inside the panel (less than
 :data:`MIN_CLEARANCE_M` in front of it), farther than :data:`MAX_RANGE_M` from the panel's
 centre, or from where the sensor would see fewer than :data:`MIN_POINTS` points of the
-taskboard is refused with one log line; the sensor stays where it was.
+taskboard is refused with one log line; the sensor stays where it was. Requests that come
+in a burst (or while a scan is being rendered) are not queued up: the latest is moved to, once
+none came for :data:`MOVE_SETTLE_S`.
 
 Parameters: ``seed`` (7), ``layout`` (panel | table), ``frame_id``
 (``camera_depth_optical_frame``), ``sensor_frame`` (``simulated_camera_optical_frame``),
@@ -32,6 +34,8 @@ of that object, :func:`~.viewpoints.hard_view`), ``sensor_pose`` ('' = as ``firs
 else ``"x y z qx qy qz qw"`` in ``frame_id``: the sensor starts there), ``rate`` (0 Hz: once).
 """
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, TransformStamped
@@ -58,6 +62,8 @@ MIN_CLEARANCE_M = 0.05      #: the sensor stays at least this far in front of th
 MAX_RANGE_M = 3.0           #: and at most this far from the panel's centre
 MIN_POINTS = 1000           #: a view that sees fewer points of the taskboard is refused
 ACK_TIMEOUT_S = 2.0         #: the longest wait for the sensor's pose to be received
+MOVE_CHECK_S = 0.05         #: s between looks for a request to move to
+MOVE_SETTLE_S = 0.2         #: ... moved to once no newer one came for this long
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -163,7 +169,9 @@ class SimulatedScanNode(Node):
             (TFMessage, self.create_publisher(TFMessage, "/tf_static", LATCHED))
         self._publish_sensor()
         self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(organized, self.frame))
+        self._pending = None        # the latest request not yet moved to
         self.create_subscription(PoseStamped, REQUEST_TOPIC, self._on_request, INPUT)
+        self.create_timer(MOVE_CHECK_S, self._move)
         if rate > 0:
             self.create_timer(1.0 / rate, self.cloud.publish)
         n = int(np.all(np.isfinite(organized.reshape(-1, 3)), axis=1).sum())
@@ -209,6 +217,14 @@ class SimulatedScanNode(Node):
         if problem:
             self._refuse(f"the pose ({', '.join(f'{v:.3f}' for v in T[:3, 3])}): {problem}")
             return
+        self._pending = (T, time.monotonic())     # the latest request wins (see _move)
+
+    def _move(self) -> None:
+        """Move to the latest request once no newer one came for MOVE_SETTLE_S: a burst of
+        requests (read one per turn of the executor, between renders) is one move."""
+        if self._pending is None or time.monotonic() - self._pending[1] < MOVE_SETTLE_S:
+            return
+        T, self._pending = self._pending[0], None
         organized = self._render(T)
         n = int(np.all(np.isfinite(organized.reshape(-1, 3)), axis=1).sum())
         if n < MIN_POINTS:
