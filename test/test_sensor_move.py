@@ -55,8 +55,9 @@ def edge_on_case(library):
 
 def click_on(client, pub, status, point, tries: int = 5) -> None:
     """Click ``point`` and wait for its fit. An engine that has not yet heard the sensor's frame
-    on TF (its transient-local /tf_static reader may match after the cloud's) refuses the click
-    in one line naming the sensor frame: the click is sent again then."""
+    on TF (its transient-local /tf_static reader may match after the cloud's) cannot use the
+    cloud and refuses the click in one line saying which transform it lacks: the click is sent
+    again then."""
     msg = PointStamped()
     msg.header.frame_id = FRAME
     msg.point.x, msg.point.y, msg.point.z = map(float, point)
@@ -69,7 +70,8 @@ def click_on(client, pub, status, point, tries: int = 5) -> None:
                         "the click to be handled")
         if status().get("objects"):
             return
-        assert f"the sensor frame '{SENSOR}'" in status()["node"]["last_error"], status()["node"]
+        assert "no transform" in status()["node"]["last_error"] or \
+            "has no known transform" in status()["node"]["last_error"], status()["node"]
     raise AssertionError(f"the click was refused {tries} times: {status()['node']}")
 
 

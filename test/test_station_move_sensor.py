@@ -27,7 +27,7 @@ from browser_helpers import (
 from geometry_msgs.msg import PointStamped, PoseStamped
 from ros_helpers import LATCHED, Client, NodeProcess
 from std_msgs.msg import String
-from test_sensor_move import FRAME, edge_on_case
+from test_sensor_move import FRAME, click_on, edge_on_case
 
 from affordance_registration.ros.glue.conversions import pose_to_matrix
 from affordance_registration.ros.station.access import SECRET_ENV
@@ -66,10 +66,7 @@ def test_move_sensor_here_sends_the_suggested_view_and_the_loop_settles_the_clic
             button = page.get_by_role("button", name="Move sensor here", exact=True)
             assert not button.is_visible()          # nothing open: no suggestion
 
-            msg = PointStamped()
-            msg.header.frame_id = FRAME
-            msg.point.x, msg.point.y, msg.point.z = map(float, click)
-            pub_click.publish(msg)
+            click_on(client, pub_click, lambda: client.status(f"{NS}/status") or {}, click)
             wait_text(page, r"Unsettled: .*suggested view: look from")
             obj = client.wait_for(lambda: client.status(f"{NS}/status")["objects"][0], 30,
                                   "the open object")

@@ -24,7 +24,7 @@ a pose in ``frame_id``, that puts the sensor behind or inside the panel (less th
 centre, or from where the sensor would see fewer than :data:`MIN_POINTS` points of the
 taskboard is refused with one log line; the sensor stays where it was. Requests that come
 in a burst (or while a scan is being rendered) are not queued up: the latest is moved to, once
-none came for :data:`MOVE_SETTLE_S`.
+none came for :data:`MOVE_SETTLE_S` (a steady stream: every :data:`MOVE_LATEST_S`).
 
 Parameters: ``seed`` (7), ``layout`` (panel | table), ``frame_id``
 (``camera_depth_optical_frame``), ``sensor_frame`` (``simulated_camera_optical_frame``),
@@ -64,6 +64,7 @@ MIN_POINTS = 1000           #: a view that sees fewer points of the taskboard is
 ACK_TIMEOUT_S = 2.0         #: the longest wait for the sensor's pose to be received
 MOVE_CHECK_S = 0.05         #: s between looks for a request to move to
 MOVE_SETTLE_S = 0.2         #: ... moved to once no newer one came for this long
+MOVE_LATEST_S = 1.0         #: ... or, at the latest, this long after the oldest waiting came
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -217,12 +218,16 @@ class SimulatedScanNode(Node):
         if problem:
             self._refuse(f"the pose ({', '.join(f'{v:.3f}' for v in T[:3, 3])}): {problem}")
             return
-        self._pending = (T, time.monotonic())     # the latest request wins (see _move)
+        now = time.monotonic()      # the latest request wins (see _move)
+        self._pending = (T, now, now if self._pending is None else self._pending[2])
 
     def _move(self) -> None:
-        """Move to the latest request once no newer one came for MOVE_SETTLE_S: a burst of
-        requests (read one per turn of the executor, between renders) is one move."""
-        if self._pending is None or time.monotonic() - self._pending[1] < MOVE_SETTLE_S:
+        """Move to the latest request once no newer one came for MOVE_SETTLE_S (or the oldest
+        waiting came MOVE_LATEST_S ago): a burst of requests (read one per turn of the executor,
+        between renders) is one move, and a steady stream of them moves once a second."""
+        now = time.monotonic()
+        if self._pending is None or (now - self._pending[1] < MOVE_SETTLE_S and
+                                     now - self._pending[2] < MOVE_LATEST_S):
             return
         T, self._pending = self._pending[0], None
         organized = self._render(T)
