@@ -279,7 +279,9 @@ def cmd_station(args) -> int:
         what = f"an engine node and the scan {scene} (in {args.units})"
     else:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
-        given["seed"] = str(_seed(args.seed))
+        from .evaluation.simulated_scan import check_first_view
+        check_first_view(args.first_view, _library(None))
+        given.update(seed=str(_seed(args.seed)), first_view=args.first_view)
         what = f"an engine node and a simulated taskboard scan (seed {_seed(args.seed)})"
     launch = os.path.join(package_share("affordance_registration"), "launch_configs",
                           launch_name)
@@ -542,6 +544,9 @@ def _add_station_and_tool_parsers(sub) -> None:
                    help="address the page is served on (default 127.0.0.1: this machine "
                         "only; 0.0.0.0 serves every interface)")
     p.add_argument("--seed", default="7", help="with --demo: the simulated scene (default 7)")
+    p.add_argument("--first-view", default="camera", metavar="KIND:TEMPLATE",
+                   help="with --demo: where the sensor starts: camera (default) or a hard view "
+                        "of one object, e.g. edge-on:quarter_turn_valve (try Move sensor here)")
     p.add_argument("--out", default="station_output",
                    help="with --demo or --scene: registrations file and node logs (default "
                         "station_output)")

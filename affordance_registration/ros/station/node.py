@@ -16,6 +16,10 @@ colour and a status panel. On the page the operator
   std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
 * sees the engine's waypoint grippers (the "Waypoints" toggle hides them) and, with "Show path",
   the path of the selected object's waypoint to the state typed in "Path to state" (``paths.py``);
+* presses "Move sensor here" (shown while the open object is unsettled and the engine suggests a
+  view): that view goes out on ``sensor_view_request`` (geometry_msgs/PoseStamped, an optical
+  frame in the cloud's frame) for whatever moves the sensor (in ``station --demo``, the
+  simulated scan node);
 * looks around: the browser camera is published on ``view_pose`` (an optical frame in the cloud's
   frame), so SpaceMouse pushes move the object in the view the operator is looking at.
 
@@ -71,6 +75,7 @@ from .state import (
     candidate_options,
     candidate_standing,
     status_markdown,
+    suggested_pose,
 )
 
 __all__ = ["StationNode", "feedback_message", "click_message", "check_port", "check_parameters",
@@ -189,6 +194,7 @@ class StationNode(Node):
         self.pub_view = self.create_publisher(PoseStamped, "view_pose", INPUT)
         self.pub_select = self.create_publisher(String, f"{self.engine}/select_model", INPUT)
         self.pub_dimension = self.create_publisher(String, f"{self.engine}/set_dimension", INPUT)
+        self.pub_sensor = self.create_publisher(PoseStamped, "sensor_view_request", INPUT)
         ns = "/" + p["interactive_namespace"].strip("/")
         self.pub_feedback = self.create_publisher(InteractiveMarkerFeedback, f"{ns}/feedback",
                                                   INPUT)
@@ -206,6 +212,7 @@ class StationNode(Node):
                                                  select=self._select, drag=self._drag,
                                                  camera=self._camera,
                                                  dimension=self._dimension,
+                                                 move_sensor=self._move_sensor,
                                                  path=lambda state: self.paths.request(state),
                                                  waypoints=lambda shown, drawn:
                                                  self.paths.toggled(shown, drawn)))
@@ -323,6 +330,18 @@ class StationNode(Node):
             return
         self.pub_dimension.publish(String(data=f"{name}={value:.6g}"))
         self._note(f"{name} {value * 1000:.1f} mm: sent")
+
+    def _move_sensor(self) -> None:
+        """The suggested view of the open object on ``sensor_view_request``."""
+        T, frame = suggested_pose(active_object(self._status)), self._frame()
+        if T is None or not frame:
+            self._note("Move sensor here: not sent, the open object has no suggested view")
+            return
+        self.pub_sensor.publish(pose_stamped(T, frame, self.get_clock().now().to_msg()))
+        where = ", ".join(f"{v:.3f}" for v in T[:3, 3])
+        self._note(f"Move sensor here: sent ({where}) in '{frame}' on "
+                   f"{self.pub_sensor.topic_name}" + ("" if self.pub_sensor.get_subscription_count()
+                                                      else " (nothing subscribes to it)"))
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
         F = InteractiveMarkerFeedback
@@ -495,6 +514,7 @@ class StationNode(Node):
         shown = obj["candidates"][obj["shown"]] if obj else {}
         self.page.show_dimensions(shown.get("dimensions") if shown.get("primitive") else None)
         self.page.enable(self._connected)
+        self.page.show_move_sensor(self._connected and suggested_pose(obj) is not None)
 
     def _render_scene(self) -> None:
         obj = active_object(self._status)

@@ -73,6 +73,8 @@ class PageHandlers:
     path: Callable = lambda state: None
     #: ``waypoints(shown, drawn)``: the waypoints toggle changed (``drawn``: grippers drawn)
     waypoints: Callable = lambda shown, drawn: None
+    #: ``move_sensor()``: "Move sensor here" pressed (send the suggested view)
+    move_sensor: Callable = lambda: None
 
 
 class StationPage:
@@ -106,6 +108,11 @@ class StationPage:
             button = gui.add_button(label)
             button.on_click(lambda event, action=action: self.h.action(action))
             self.buttons[action] = button
+        # shown while the open object is unsettled and the engine suggests where to look from
+        self.move_sensor = gui.add_button(
+            "Move sensor here", visible=False,
+            hint="ask whatever moves the sensor to scan from the suggested view")
+        self.move_sensor.on_click(lambda event: self.h.move_sensor())
         # a primitive's dimensions (m), shown while the shown candidate is one
         self.dimensions = {}
         for name in DIMENSIONS:
@@ -265,6 +272,11 @@ class StationPage:
         for button in self.buttons.values():
             if button.disabled == connected:
                 button.disabled = not connected
+
+    def show_move_sensor(self, shown: bool) -> None:
+        """The "Move sensor here" button, shown or hidden."""
+        if self.move_sensor.visible != shown:
+            self.move_sensor.visible = shown
 
     def _mesh(self, name: str, d: MeshDrawing, T: np.ndarray, refused: bool = False) -> None:
         digest = d.digest + ("/refused" if refused else "")

@@ -17,7 +17,8 @@ from ..glue.conversions import ConversionError, pose_to_matrix
 from ..glue.mesh_refs import referenced_mesh
 
 __all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "LineDrawing", "apply_markers", "active_object",
-           "candidate_standing", "candidate_label", "candidate_options", "status_markdown"]
+           "candidate_standing", "candidate_label", "candidate_options", "status_markdown",
+           "suggested_pose"]
 
 
 # ============================================================================ messages -> drawings
@@ -179,6 +180,24 @@ def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
         verdict = {True: "fits", False: "does not fit"}.get(c.get("fits"), "not judged")
         out.append((f"{i + 1}. {c['template']} ({verdict})", c["template"]))
     return out
+
+
+def suggested_pose(obj: dict | None) -> np.ndarray | None:
+    """The sensor pose (4x4, an optical frame in the cloud's frame) the engine's status suggests
+    for an unsettled object -- what "Move sensor here" sends --, or None: settled, no view found,
+    or no usable pose."""
+    amb = (obj or {}).get("ambiguity") or {}
+    view = (obj or {}).get("suggested_view") or {}
+    if not isinstance(amb, dict) or amb.get("settled") is not False or \
+            not isinstance(view, dict) or not view.get("pose"):
+        return None
+    try:
+        T = np.asarray(view["pose"], dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        return None
+    return T
 
 
 def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
