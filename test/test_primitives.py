@@ -153,10 +153,10 @@ def test_the_noise_estimate_follows_the_scan(library):
     assert noisy > 1.5 * clean
 
 
-def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library):
-    """A box and a cylinder standing on a table a centimetre apart -- one cluster (its gap is
-    2.5 cm) -- fall into two segments, each mostly one object. (Touching, they are one: where
-    one's side meets the other's edge, the geometry alone looks like one object's edge.)"""
+@pytest.mark.parametrize("gap", [0.01, 0.0])
+def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library, gap):
+    """A box and a cylinder standing on a table a centimetre apart or touching -- one cluster
+    (its gap is 2.5 cm) -- fall into two segments, each mostly one object."""
     a = library["box"].sized({"x": 0.12, "y": 0.08, "z": 0.10})
     b = library["cylinder"].sized({"radius": 0.04, "length": 0.16})
     import trimesh
@@ -169,7 +169,7 @@ def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library):
     T_cam_table = invert(_look_at(np.array([0.05, -0.58, 0.69]), np.array([0.05, 0.0, 0.05])))
     meshes = [(table, T_cam_table @ make_T(None, [0, 0, -0.01])),
               (a.mesh, T_cam_table @ make_T(None, [0.0, 0.0, 0.0])),
-              (b.mesh, T_cam_table @ make_T(None, [0.06 + 0.04 + 0.01, 0.0, 0.0]))]
+              (b.mesh, T_cam_table @ make_T(None, [0.06 + 0.04 + gap, 0.0, 0.0]))]
     organized, labels = DepthCamera().render(meshes, np.random.default_rng(1))
     scene = Scene(organized)
     click = organized[labels == 1][len(organized[labels == 1]) // 2]
@@ -262,3 +262,28 @@ def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path,
                             "--scene", str(path), "--point", *map(str, obj["click"])],
                            capture_output=True, text=True, timeout=600)
     assert table.returncode == 0 and "fitted as a box" in table.stdout
+
+
+def test_a_box_longer_than_the_crop_is_measured_in_a_wider_one(library):
+    """A 0.55 m box on a table -- past the crop around the click (the taskboard templates set it
+    at 0.24 m) -- is measured again in a crop twice as large: fitted as a box, accepted, every
+    dimension within 5 mm."""
+    import trimesh
+
+    from affordance_registration.core.transforms import invert, make_T
+    from affordance_registration.evaluation.rows import _look_at
+    from affordance_registration.evaluation.simulation import DepthCamera
+    dims = {"x": 0.55, "y": 0.10, "z": 0.08}
+    box = library["box"].sized(dims)
+    table = trimesh.creation.box(extents=(1.5, 1.5, 0.02))
+    T_cam_table = invert(_look_at(np.array([0.0, -0.7, 0.8]), np.array([0.0, 0.0, 0.04])))
+    organized, labels = DepthCamera().render(
+        [(table, T_cam_table @ make_T(None, [0, 0, -0.01])), (box.mesh, T_cam_table)],
+        np.random.default_rng(1))
+    pts = organized[labels == 1]
+    click = pts[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))]
+    rep = Registrar(library).fit(Scene(organized), click)
+    assert rep.context.radius < dims["x"] / 2          # the box runs past the first crop
+    best = rep.candidates[0]
+    assert best.primitive == "box" and best.fits is True, best.reason
+    assert all(abs(best.dimensions[k] - v) <= 0.005 for k, v in dims.items()), best.dimensions

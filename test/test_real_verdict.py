@@ -44,8 +44,9 @@ def kinect_records(data_dir, library):
 
 def test_the_library_refuses_every_real_kinect_object(kinect_records):
     """No box, can or bowl of mOSD is called a valve, an e-stop or a handle: at least 95% of
-    the labelled objects get 'no template fits here' (this code: all 37, tuning and held-out
-    scenes alike), each with a reason."""
+    the labelled objects get 'no template fits here' (this code: 36 of 37 -- learn8's small box
+    half hidden behind a large one passes for an emergency stop's housing), each with a
+    reason."""
     assert len(kinect_records) >= 30
     assert not [r for r in kinect_records if r["error"]]
     refused = [r["primitive"] is not None or r["fits"] is not True for r in kinect_records]
@@ -69,12 +70,63 @@ def test_primitives_on_the_boxes_of_real_scans(kinect_records):
 
 def test_primitive_kind_on_scenes_of_one_kind(kinect_records):
     """On the scenes whose objects are all boxes or all cylinders, the primitive shown is of
-    that kind for at least half the objects (stacked boxes and touching cans are where it is
-    not yet right: the bench's rows say how often)."""
+    that kind for at least 85% of the objects (this code: 21 of 23; stacked boxes and
+    touching cans included)."""
     of_kind = [r for r in kinect_records if r["uniform_kind"] is not None]
     assert len(of_kind) >= 15
     right = [r["primitive"] == r["uniform_kind"] for r in of_kind]
-    assert np.mean(right) >= 0.5
+    assert np.mean(right) >= 0.85, np.mean(right)
+
+
+def test_primitives_explain_the_real_boxes_and_cylinders(kinect_records):
+    """Every labelled box and closed cylinder of the learn scenes (``OBJECT_KINDS``: not the
+    bowl nor the open tub), touching, stacked and half hidden ones included: the label score
+    -- of the object's points at least 90% within max(6 mm, 3 sigma) of the fitted surface,
+    of the scan's points on it at least 90% the object's -- passes on at least 75% of them
+    (this code: 27 of 34, 20 of 24 tuning and 7 of 10 held-out; the issue's target is 90%),
+    and the fitted primitive is accepted on at least 85%."""
+    objects = [r for r in kinect_records if r["object_kind"] in ("box", "cylinder")]
+    assert len(objects) >= 30
+    passes = [bool(r["score"] and r["score"]["passes"]) for r in objects]
+    assert np.mean(passes) >= 0.75, [(r["scene"], r["object"]) for r, ok in
+                                     zip(objects, passes) if not ok]
+    accepted = [r["primitive"] is not None and r["fits"] is True for r in objects]
+    assert np.mean(accepted) >= 0.85, np.mean(accepted)
+
+
+@pytest.fixture(scope="module")
+def touching(data_dir, library):
+    """The clicked segment of each object of the learn scenes whose objects touch (stacked
+    boxes, a box lying on another, a tub on a tin): (scene, object, purity, completeness) --
+    the share of the segment's cluster voxels that are the object's, and of the object's
+    cluster voxels in the segment."""
+    from scipy.spatial import cKDTree
+    registrar = Registrar(library)
+    out = []
+    for n in (17, 20, 25, 41):
+        path = f"{rd.osd_dir(data_dir)}/learn{n}.pcd"
+        cloud = rd.read_labelled_pcd(path)
+        pts, ids = cloud.points.reshape(-1, 3), cloud.object_ids.reshape(-1)
+        valid = np.all(np.isfinite(pts), axis=1)
+        tree = cKDTree(pts[valid])
+        scene = Scene(pts, sensor_origin=cloud.viewpoint)
+        for obj in rd.labelled_objects(cloud):
+            ctx = registrar.prepare(scene, obj.click)
+            owner = ids[valid][tree.query(ctx.cluster)[1]]
+            seg = ctx.segments
+            mine = seg == seg[int(np.argmin(ctx._cluster_to_click))]
+            both = (mine & (owner == obj.id)).sum()
+            out.append((cloud.name, obj.id, both / mine.sum(), both / (owner == obj.id).sum()))
+    return out
+
+
+def test_touching_real_objects_are_segments_of_their_own(touching):
+    """Where two real objects touch -- a Kinect blurs their seam into a band of normals turning
+    a few degrees a voxel, which joined them pair by pair -- each clicked object's segment is
+    at least 90% that object and holds at least 90% of it (this code: all 9)."""
+    assert len(touching) >= 8
+    bad = [t for t in touching if t[2] < 0.9 or t[3] < 0.9]
+    assert not bad, bad
 
 
 def test_the_milk_carton_is_found_in_its_real_scene(data_dir, library, tmp_path):
