@@ -305,9 +305,9 @@ class EngineNode(Node):
         if msg is None:
             raise EngineStateError(f"no usable point cloud yet on '{self._sub_points.topic_name}'"
                                    + (f": {self._dropped}" if self._dropped else ""))
-        if count == self._converted:
-            return
-        self._converted = count
+        if count == self._converted and self.engine.has_scene:
+            return          # (a cloud that was unusable with no scene is tried again: its
+        self._converted = count     # sensor frame may have reached TF since)
         try:
             pts, _ = pointcloud2_to_xyz(msg)
             origin, T_optical = self._sensor(msg.header.frame_id, header_stamp_s(msg.header))
