@@ -182,3 +182,17 @@ def test_a_scanned_templates_file_frame_does_not_matter(armadillo, seed, far):
     T = Registrar(TemplateLibrary([moved])).fit(scene, click).candidates[0].T_scene_model
     dt, dr = pose_error(T @ B, T0)
     assert dt <= 1e-4 and math.degrees(dr) <= 0.01, (dt, math.degrees(dr))
+
+
+def test_the_real_capture_cost_row_fits_real_and_simulated_clicks_alternately(data_dir, library):
+    """The bench's row "real Kinect click against a simulated panel click": two pairs, each a
+    real mOSD click and a simulated one fitted by the same registrar, their medians and the
+    median ratio."""
+    from affordance_registration.evaluation.bench_rows import _jobs
+    from affordance_registration.evaluation.rows import real_capture_cost
+    jobs = _jobs(library.specific(), [3])
+    out = real_capture_cost(Registrar(library), jobs, clicks=2,
+                            scenes=rd.osd_scene_paths(data_dir)[:1])
+    assert out["pairs"] == 2
+    assert out["real_median_s"] > 0 and out["simulated_median_s"] > 0
+    assert 0.05 < out["ratio"] < 50

@@ -197,6 +197,11 @@ def _real_capture_lines(result: dict) -> list:
                 f"{_pct(r['primitive_precision'])} (median), passing both 90% "
                 f"{_pct(r['primitive_pass'])}, kind right {_pct(r['kind_right'])}, median "
                 f"{r['median_s']:.2f} s a click")
+    cost = (k or {}).get("cost")
+    if cost:
+        lines.append(f"real Kinect click against a simulated panel click, alternately "
+                     f"({cost['pairs']} pairs, one registrar): {cost['ratio']:.2f}x (median "
+                     f"{cost['real_median_s']:.2f} s against {cost['simulated_median_s']:.2f} s)")
     for name, r in (result.get("primitives_simulated") or {}).items():
         a = r["all"]
         lines.append(f"primitives on simulated boxes and cylinders ({name}, {a['clicks']} "

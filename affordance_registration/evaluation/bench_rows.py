@@ -434,7 +434,7 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
     taskboard templates, the primitives scored against the labels, tuning and held-out
     scenes apart); simulated boxes and cylinders with true dimensions (the seeds of the
     development and others); the Armadillo among real objects, PCL's milk carton."""
-    from .rows import clutter_rows, real_kinect_rows, simulated_primitive_rows
+    from .rows import clutter_rows, real_capture_cost, real_kinect_rows, simulated_primitive_rows
     full = TemplateLibrary.load()
     with_primitives = Registrar(full)
     log("default library with its primitives on the panel clicks ...")
@@ -444,6 +444,8 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
     log("real Kinect scans (mOSD learn) ...")
     kinect = real_kinect_rows(library=full, log=log)
     kinect.pop("records")
+    log("a real capture's click against a simulated one, alternately ...")
+    kinect["cost"] = real_capture_cost(with_primitives, jobs, 10 if quick else 20)
     n = 3 if quick else 10
     log("simulated boxes and cylinders with true dimensions ...")
     simulated = {"development seeds": simulated_primitive_rows(seeds=range(5000, 5000 + n),

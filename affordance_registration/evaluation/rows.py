@@ -99,6 +99,39 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
             "records": records}
 
 
+def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | None:
+    """What a click on a real capture costs against a simulated bench click, in one process
+    with one ``registrar``: mOSD objects (``scenes``, default the shared learn scenes, clicked
+    in their middle) and the simulated ``jobs`` ((scene, object) pairs) fitted alternately, a
+    real click then a simulated one, ``clicks`` pairs. Returns {"pairs", "real_median_s",
+    "simulated_median_s", "ratio"} (the median of the pairs' ratios), None without data."""
+    from ..core.scene import Scene
+    from .realdata import labelled_objects, read_labelled_pcd
+    real = []
+    for path in (list(scenes) if scenes is not None else osd_scene_paths()):
+        cloud = read_labelled_pcd(path)
+        scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
+        real += [(scene, obj.click) for obj in labelled_objects(cloud)]
+    n = min(clicks, len(real), len(jobs))
+    if n == 0:
+        return None
+    pick = np.linspace(0, len(real) - 1, n).astype(int)       # spread over the scenes
+    times = []
+    for k in range(n):
+        scene, click = real[pick[k]]
+        t0 = time.perf_counter()
+        registrar.fit(scene, click)
+        t_real = time.perf_counter() - t0
+        scene, obj = jobs[k % len(jobs)]
+        t0 = time.perf_counter()
+        registrar.fit(scene, obj.click)
+        times.append((t_real, time.perf_counter() - t0))
+    t = np.array(times)
+    return {"pairs": n, "real_median_s": float(np.median(t[:, 0])),
+            "simulated_median_s": float(np.median(t[:, 1])),
+            "ratio": float(np.median(t[:, 0] / t[:, 1]))}
+
+
 # ---------------------------------------------------------------------------- simulated
 def _mosd_camera():
     """The camera of the mOSD scans: a Kinect's 640 x 480 at fx = fy = 525 (their pixels
