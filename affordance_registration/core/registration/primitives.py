@@ -36,7 +36,10 @@ from .results import FitResult
 from .scoring import result
 from .settings import FitSettings
 
-__all__ = ["fit_primitive", "object_points"]
+__all__ = ["fit_primitive", "refine_primitive", "object_points"]
+
+#: the primitives within this share of the best one's likelihood (as measured) are refined
+REFINE_SHARE = 0.8
 
 #: points this close to the support (m) reach down to it: the base lies on the support
 BASE_REACH = 0.03
@@ -63,12 +66,14 @@ FLOOR_FRACTION = 0.15
 
 def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
                   settings: FitSettings, dimensions: dict | None = None,
-                  T_init: np.ndarray | None = None, measured=None) -> FitResult:
+                  T_init: np.ndarray | None = None, measured=None,
+                  refine: bool = True) -> FitResult:
     """The primitive ``template`` fitted to the clicked object: pose and dimensions measured
     from the object's points (and, with REFINE_ROUNDS, the pose refined and the dimensions
     measured again in the refined frame). ``dimensions`` (and ``T_init``, the pose to refine
     from): the operator's, kept as given -- only the pose is refined. ``measured``: what
-    :func:`object_points` gives for this click (computed when None)."""
+    :func:`object_points` gives for this click (computed when None). ``refine`` False: the
+    measured pose as it is (:func:`refine_primitive` refines it later)."""
     points, normals, support, up = measured if measured is not None else object_points(ctx)
     if dimensions is not None:
         T = _as_pose(T_init) if T_init is not None else \
@@ -84,10 +89,16 @@ def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelC
                        refine=False)
         if best is None or res.likelihood > best.likelihood:
             best = res
-    # the best way it stands, its pose refined at its measured size (a real scan's mixed
-    # pixels and a lip or a rounded edge leave the measured pose a few millimetres off)
-    refined = _refined(ctx, template, cache, settings, best.T_scene_model, best.dimensions)
-    return refined if refined.likelihood > best.likelihood else best
+    return refine_primitive(ctx, template, cache, settings, best) if refine else best
+
+
+def refine_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
+                     settings: FitSettings, res: FitResult) -> FitResult:
+    """A measured primitive ``res``, its pose refined at its measured size (a real scan's mixed
+    pixels and a lip or a rounded edge leave the measured pose a few millimetres off), where
+    that explains the scan better."""
+    refined = _refined(ctx, template, cache, settings, res.T_scene_model, res.dimensions)
+    return refined if refined.likelihood > res.likelihood else res
 
 
 def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> FitResult:

@@ -72,7 +72,7 @@ from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
 from .parallel import run, single_threaded_blas
-from .primitives import fit_primitive, object_points
+from .primitives import REFINE_SHARE, fit_primitive, object_points, refine_primitive
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import judge, result, results, scores
@@ -161,8 +161,10 @@ class Registrar:
                     else ((), ())
             t_prim = time.perf_counter()
             if primitives:
+                # (a specific template that fits ranks above them: they are not refined)
+                refine = not any(r.fits for r in candidates)
                 candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives,
-                                                                          scene))
+                                                                          scene, refine))
             t2 = time.perf_counter()
             ambiguity = self.assess(ctx, candidates, alternatives)
         t3 = time.perf_counter()
@@ -296,9 +298,10 @@ class Registrar:
                            for r in results], results, self.settings)
 
     def _fit_primitives(self, ctx: ClickContext, names: list[str],
-                        scene: Scene | None = None) -> list:
+                        scene: Scene | None = None, refine: bool = True) -> list:
         """The primitive templates ``names``, measured and refined (:mod:`.primitives`),
-        judged. An object that runs past the crop is measured again in a crop WIDER times as
+        judged; with ``refine``, those that may lead refined (:func:`.primitives.refine_primitive`).
+        An object that runs past the crop is measured again in a crop WIDER times as
         large (from ``scene``): a box longer than the library's templates is still a box; a
         wall runs past that one too, and is refused."""
         t0 = time.perf_counter()
@@ -307,7 +310,12 @@ class Registrar:
             ctx = self.prepare(scene, ctx.click, WIDER * ctx.radius)
             measured = object_points(ctx)
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
-                                measured=measured) for n in names]
+                                measured=measured, refine=False) for n in names]
+        # (refining costs an ICP: only the primitives that may lead are refined)
+        lead = max(r.likelihood for r in fitted)
+        fitted = [refine_primitive(ctx, self.library[n], self.models, self.settings, r)
+                  if refine and r.likelihood >= REFINE_SHARE * lead else r
+                  for n, r in zip(names, fitted)]
         total = time.perf_counter() - t0
         judged = [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
         if _truncated(ctx, measured):       # a wall, or an object larger than the crop
