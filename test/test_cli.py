@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 
 from affordance_registration.core.transforms import pose_error
@@ -20,10 +21,18 @@ def run(*args, check=False):
     return out
 
 
-def test_simulate_then_fit_json_contract(tmp_path, library):
-    out = tmp_path / "scene"
+@pytest.fixture(scope="module")
+def scene11(tmp_path_factory):
+    """``simulate --seed 11``, run once for the tests that fit its scene (they only read it):
+    (its folder, the command's stdout)."""
+    out = tmp_path_factory.mktemp("cli") / "scene"
     res = run("simulate", "--out", str(out), "--seed", "11", check=True)
-    assert "5 objects" in res.stdout
+    return out, res.stdout
+
+
+def test_simulate_then_fit_json_contract(scene11, library):
+    out, stdout = scene11
+    assert "5 objects" in stdout
     truth = yaml.safe_load((out / "truth.yaml").read_text())
     obj = truth["objects"][0]
     res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
@@ -100,7 +109,7 @@ def test_fit_bad_input(tmp_path):
     assert "no points" in line
 
 
-def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
+def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, library):
     """With 15 templates (the five and copies of them scaled 0.75 and 1.4) the prefilter sets
     clearly worse ones aside: --json gives them ``fits`` null and coverage 0, the table a '-'
     where their coverage and RMSE would be; the fitted ones carry their verdict."""
@@ -116,8 +125,7 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
         for label, scale in (("", 1.0), ("_small", 0.75), ("_large", 1.4)):
             (lib / f"{name}{label}.yaml").write_text(yaml.safe_dump(
                 dict(doc, name=f"{name}{label}", mesh_scale=scale)))
-    out = tmp_path / "scene"
-    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
     args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
             "--templates", str(lib))
@@ -133,7 +141,7 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
         assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
 
 
-def test_settings_print_load_and_reach_the_fit(tmp_path):
+def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):
     """``settings`` prints the defaults as YAML (what ``fit --settings`` reads), ``settings FILE``
     the whole of what a partial file gives; ``fit --settings`` fits with them (a 2 mm snap
     distance refuses a click 1 cm off the surface) and a bad file is one line, exit 2."""
@@ -145,8 +153,7 @@ def test_settings_print_load_and_reach_the_fit(tmp_path):
     res = run("settings", str(partial), check=True)
     assert FitSettings.from_dict(yaml.safe_load(res.stdout)) == \
         FitSettings(seed=4).with_(**{"crop.snap_distance": 0.002})
-    out = tmp_path / "scene"
-    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
     off = list(obj["click"])
     off[2] -= 0.01
