@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 
 from affordance_registration.core.transforms import pose_error
@@ -20,14 +21,43 @@ def run(*args, check=False):
     return out
 
 
-def test_simulate_then_fit_json_contract(tmp_path, library):
-    out = tmp_path / "scene"
+def run_all(*commands):
+    """Independent CLI commands (argument lists) run at the same time, each its own process;
+    their results in order (mostly each one's start-up: the second core takes half)."""
+    procs = [subprocess.Popen([sys.executable, "-m", "affordance_registration.cli", *args],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for args in commands]
+    results = []
+    try:
+        for proc in procs:
+            stdout, stderr = proc.communicate(timeout=300)
+            results.append(subprocess.CompletedProcess(proc.args, proc.returncode, stdout,
+                                                       stderr))
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    return results
+
+
+@pytest.fixture(scope="module")
+def scene11(tmp_path_factory):
+    """``simulate --seed 11``, run once for the tests that fit its scene (they only read it):
+    (its folder, the command's stdout)."""
+    out = tmp_path_factory.mktemp("cli") / "scene"
     res = run("simulate", "--out", str(out), "--seed", "11", check=True)
-    assert "5 objects" in res.stdout
+    return out, res.stdout
+
+
+def test_simulate_then_fit_json_contract(scene11, library):
+    out, stdout = scene11
+    assert "5 objects" in stdout
     truth = yaml.safe_load((out / "truth.yaml").read_text())
     obj = truth["objects"][0]
-    res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
-              "--json", check=True)
+    fit = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]))
+    res, table = run_all((*fit, "--json"), fit)        # the JSON and the readable table
+    assert res.returncode == 0 and table.returncode == 0, res.stderr + table.stderr
     doc = json.loads(res.stdout)
     assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "reason", "noise",
                         "candidates", "ambiguity", "timing_s"}
@@ -58,9 +88,7 @@ def test_simulate_then_fit_json_contract(tmp_path, library):
                         library[obj["template"]].symmetry)
     assert dt < 0.005 and dr < math.radians(5)
     # the readable table names the templates in rank order
-    res = run("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
-              check=True)
-    lines = res.stdout.splitlines()
+    lines = table.stdout.splitlines()
     assert lines[1].startswith(f"{obj['template']} fits")          # the verdict, then the table
     assert lines[2].split()[:2] == ["rank", "template"] and lines[3].split()[1] == obj["template"]
 
@@ -74,19 +102,23 @@ def _one_line_error(res):
 
 
 def test_simulate_bad_input_leaves_no_output(tmp_path):
-    line = _one_line_error(run("simulate", "--out", str(tmp_path / "a"), "--seed", "minus one"))
-    assert "--seed" in line and not (tmp_path / "a").exists()
-    line = _one_line_error(run("simulate", "--out", str(tmp_path / "b"), "--seed", "-4"))
-    assert "--seed" in line and not (tmp_path / "b").exists()
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    line = _one_line_error(run("simulate", "--out", str(blocker / "out"), "--seed", "1"))
-    assert str(blocker / "out") in line
     broken = tmp_path / "lib"
     broken.mkdir()
     (broken / "valve.yaml").write_text("name: valve\nmesh: nowhere.stl\n")
-    line = _one_line_error(run("simulate", "--out", str(tmp_path / "c"), "--templates",
-                               str(broken)))
+    words, negative, blocked, library = run_all(
+        ("simulate", "--out", str(tmp_path / "a"), "--seed", "minus one"),
+        ("simulate", "--out", str(tmp_path / "b"), "--seed", "-4"),
+        ("simulate", "--out", str(blocker / "out"), "--seed", "1"),
+        ("simulate", "--out", str(tmp_path / "c"), "--templates", str(broken)))
+    line = _one_line_error(words)
+    assert "--seed" in line and not (tmp_path / "a").exists()
+    line = _one_line_error(negative)
+    assert "--seed" in line and not (tmp_path / "b").exists()
+    line = _one_line_error(blocked)
+    assert str(blocker / "out") in line
+    line = _one_line_error(library)
     assert "valve.yaml" in line and "key 'mesh'" in line and not (tmp_path / "c").exists()
 
 
@@ -100,7 +132,7 @@ def test_fit_bad_input(tmp_path):
     assert "no points" in line
 
 
-def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
+def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, library):
     """With 15 templates (the five and copies of them scaled 0.75 and 1.4) the prefilter sets
     clearly worse ones aside: --json gives them ``fits`` null and coverage 0, the table a '-'
     where their coverage and RMSE would be; the fitted ones carry their verdict."""
@@ -116,24 +148,25 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, library):
         for label, scale in (("", 1.0), ("_small", 0.75), ("_large", 1.4)):
             (lib / f"{name}{label}.yaml").write_text(yaml.safe_dump(
                 dict(doc, name=f"{name}{label}", mesh_scale=scale)))
-    out = tmp_path / "scene"
-    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
     args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
             "--templates", str(lib))
-    cands = json.loads(run(*args, "--json", check=True).stdout)["candidates"]
+    as_json, as_table = run_all((*args, "--json"), args)
+    assert as_json.returncode == 0 and as_table.returncode == 0, as_json.stderr + as_table.stderr
+    cands = json.loads(as_json.stdout)["candidates"]
     assert len(cands) == 15 and cands[0]["template"] == obj["template"]
     aside = [c for c in cands if c["prefiltered"]]
     assert aside and all(c["fits"] is None and c["coverage"] == 0 for c in aside)
     assert all(isinstance(c["fits"], bool) for c in cands if not c["prefiltered"])
-    rows = {line.split()[1]: line.split() for line in run(*args, check=True).stdout.splitlines()
+    rows = {line.split()[1]: line.split() for line in as_table.stdout.splitlines()
             if line.split()[:1] and line.split()[0].isdigit()}
     assert len(rows) == 15
     for c in cands:
         assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
 
 
-def test_settings_print_load_and_reach_the_fit(tmp_path):
+def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):
     """``settings`` prints the defaults as YAML (what ``fit --settings`` reads), ``settings FILE``
     the whole of what a partial file gives; ``fit --settings`` fits with them (a 2 mm snap
     distance refuses a click 1 cm off the surface) and a bad file is one line, exit 2."""
@@ -145,20 +178,23 @@ def test_settings_print_load_and_reach_the_fit(tmp_path):
     res = run("settings", str(partial), check=True)
     assert FitSettings.from_dict(yaml.safe_load(res.stdout)) == \
         FitSettings(seed=4).with_(**{"crop.snap_distance": 0.002})
-    out = tmp_path / "scene"
-    run("simulate", "--out", str(out), "--seed", "11", check=True)
+    out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
     off = list(obj["click"])
     off[2] -= 0.01
     args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, off))
-    line = _one_line_error(run(*args, "--settings", str(partial)))
+    bad = (("crop:\n  snap: 1\n", "unknown setting crop.snap"),
+           ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
+           ("[1, 2\n", "is not YAML"))
+    for k, (text, _) in enumerate(bad):
+        (tmp_path / f"bad{k}.yaml").write_text(text)
+    snapped, default, *refused = run_all(
+        (*args, "--settings", str(partial)), (*args, "--json"),
+        *((*args, "--settings", str(tmp_path / f"bad{k}.yaml")) for k in range(len(bad))))
+    line = _one_line_error(snapped)
     assert "limit 0.2 cm" in line and res.returncode == 0
-    assert run(*args, "--json", check=True).returncode == 0      # the default 3 cm snaps it
-    for text, words in (("crop:\n  snap: 1\n", "unknown setting crop.snap"),
-                        ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
-                        ("[1, 2\n", "is not YAML")):
-        partial.write_text(text)
-        res = run(*args, "--settings", str(partial))
+    assert default.returncode == 0, default.stderr              # the default 3 cm snaps it
+    for (_, words), res in zip(bad, refused):
         assert res.returncode == 2 and words in _one_line_error(res), res.stderr
     res = run("settings", str(tmp_path / "nowhere.yaml"))
     assert res.returncode == 2 and "cannot read settings file" in _one_line_error(res)

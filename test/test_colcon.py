@@ -71,25 +71,57 @@ class Workspace:
                                 start_new_session=True)
 
 
+def _colcon_argv(*args, log_base="log") -> list[str]:
+    return [str(VENV_BIN / "colcon"), "--log-base", log_base, *args]
+
+
 def _colcon(root: Path, *args) -> subprocess.CompletedProcess:
-    return subprocess.run([str(VENV_BIN / "colcon"), "--log-base", "log", *args], cwd=root,
-                          capture_output=True, text=True, env=_env(), timeout=600)
+    return subprocess.run(_colcon_argv(*args), cwd=root, capture_output=True, text=True,
+                          env=_env(), timeout=600)
+
+
+def _started(argv, cwd) -> subprocess.Popen:
+    return subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=_env())
+
+
+def _finished(proc: subprocess.Popen, timeout: float) -> subprocess.CompletedProcess:
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        stdout, stderr = proc.communicate()
+        raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
 
 
 @pytest.fixture(scope="module")
 def workspaces(tmp_path_factory):
+    """The plain and the symlink install of one workspace, built at the same time (separate
+    build, install and log folders: the two builds share only the read-only src/)."""
     root = tmp_path_factory.mktemp("colcon_ws")
     shutil.copytree(ROOT, root / "src" / PKG, ignore=IGNORE, symlinks=True)
-    built = {}
-    for kind, extra in (("plain", []), ("symlink", ["--symlink-install"])):
-        ws = Workspace(root, kind)
-        out = _colcon(root, "build", "--build-base", ws.build.name, "--install-base",
-                      ws.install.name, "--event-handlers", "console_direct+", *extra)
-        assert out.returncode == 0, f"colcon build {' '.join(extra)}:\n{out.stdout[-3000:]}" \
-                                    f"{out.stderr[-3000:]}"
-        # setuptools says nothing about options it does not know (tests_require was one)
-        assert "Unknown distribution option" not in out.stdout + out.stderr
-        built[kind] = ws
+    kinds = (("plain", []), ("symlink", ["--symlink-install"]))
+    builds = {}
+    try:
+        for kind, extra in kinds:
+            ws = Workspace(root, kind)
+            builds[kind] = (ws, extra, _started(_colcon_argv(
+                "build", "--build-base", ws.build.name, "--install-base", ws.install.name,
+                "--event-handlers", "console_direct+", *extra, log_base=f"log_{kind}"), root))
+        built = {}
+        for kind, (ws, extra, proc) in builds.items():
+            out = _finished(proc, 600)
+            assert out.returncode == 0, f"colcon build {' '.join(extra)}:\n{out.stdout[-3000:]}" \
+                                        f"{out.stderr[-3000:]}"
+            # setuptools says nothing about options it does not know (tests_require was one)
+            assert "Unknown distribution option" not in out.stdout + out.stderr
+            built[kind] = ws
+    finally:
+        for _, _, proc in builds.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     return built
 
 
@@ -212,12 +244,15 @@ def test_colcon_test_collects_the_whole_suite(workspaces):
     every test the source tree's ``make test`` collects (collected only: running it here would
     repeat ``make test``)."""
     ws = workspaces["plain"]
-    out = _colcon(ws.root, "test", "--build-base", ws.build.name, "--install-base",
-                  ws.install.name, "--event-handlers", "console_direct+", "--pytest-args",
-                  "--collect-only", "-q")
-    here = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q",
-                           "-p", "no:cacheprovider", "test"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300, env=_env())
+    # the source tree's collection runs while the workspace's does (each is mostly imports)
+    here = _started([sys.executable, "-m", "pytest", "--collect-only", "-q",
+                     "-p", "no:cacheprovider", "test"], ROOT)
+    try:
+        out = _colcon(ws.root, "test", "--build-base", ws.build.name, "--install-base",
+                      ws.install.name, "--event-handlers", "console_direct+", "--pytest-args",
+                      "--collect-only", "-q")
+    finally:
+        here = _finished(here, 300)
     counted = [re.search(r"(\d+) tests? collected", o) for o in (out.stdout, here.stdout)]
     assert all(counted), out.stdout[-2000:] + here.stdout[-2000:]
     in_workspace, in_tree = (int(m.group(1)) for m in counted)

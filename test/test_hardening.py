@@ -11,6 +11,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -42,6 +43,40 @@ def run_cli(*args, limit_gb=2.0, timeout=30):
     res = subprocess.run([sys.executable, "-m", "affordance_registration.cli", *args],
                          capture_output=True, text=True, timeout=timeout, preexec_fn=limit)
     return res.returncode, res.stderr
+
+
+def run_cli_all(*commands, limit_gb=2.0, timeout=30, at_once=2):
+    """Independent CLI commands, ``at_once`` at a time (the machine's two cores), each its own
+    process with :func:`run_cli`'s memory limit and ``timeout`` from its own start;
+    [(code, stderr, seconds it ran)] in order."""
+    def limit():
+        size = int(limit_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (size, size))
+    waiting = list(enumerate(commands))
+    running, results = {}, [None] * len(commands)
+    try:
+        while waiting or running:
+            while waiting and len(running) < at_once:
+                k, args = waiting.pop(0)
+                err = tempfile.TemporaryFile("w+")         # no pipe to fill up meanwhile
+                running[k] = (time.monotonic(), err, subprocess.Popen(
+                    [sys.executable, "-m", "affordance_registration.cli", *args],
+                    stdout=subprocess.DEVNULL, stderr=err, text=True, preexec_fn=limit))
+            for k, (t0, err, proc) in list(running.items()):
+                if proc.poll() is not None:
+                    err.seek(0)
+                    results[k] = (proc.returncode, err.read(), time.monotonic() - t0)
+                    err.close()
+                    del running[k]
+                elif time.monotonic() - t0 > timeout:
+                    raise subprocess.TimeoutExpired(proc.args, timeout)
+            time.sleep(0.02)
+    finally:
+        for _, err, proc in running.values():
+            proc.kill()
+            proc.wait()
+            err.close()
+    return results
 
 
 def one_line(code, err):
@@ -207,11 +242,13 @@ def test_fit_refuses_unreadable_arrays_and_oversized_files_in_one_line(tmp_path)
     (tmp_path / "nan.ply").write_text(
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
         "property float z\nend_header\n0 0 1\nnot-a-number 0 1\n0 1 1\n")
-    for name, expected in (("text.npy", "expected numbers"), ("rec.npy", "expected numbers"),
-                           ("liar.ply", "1,000,000,000 points"),
-                           ("nan.ply", "does not hold x, y, z as numbers")):
-        line = one_line(*run_cli("fit", "--scene", str(tmp_path / name), "--point", "0", "0",
-                                 "1"))
+    cases = (("text.npy", "expected numbers"), ("rec.npy", "expected numbers"),
+             ("liar.ply", "1,000,000,000 points"),
+             ("nan.ply", "does not hold x, y, z as numbers"))
+    results = run_cli_all(*(("fit", "--scene", str(tmp_path / name), "--point", "0", "0", "1")
+                            for name, _ in cases))
+    for (name, expected), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
         assert name in line and expected in line, line
 
 
@@ -238,13 +275,13 @@ def test_bad_template_files_are_one_line(tmp_path):
               "continuous: true"),
              ("relative", "name: v\nmesh: ../elsewhere/x.stl\n", "outside the template's folder"),
              ("absolute", f"name: v\nmesh: {outside / 'x.stl'}\n", "outside the template's folder")]
-    for name, text, expected in cases:
-        lib = _library(tmp_path, name, text)
-        t0 = time.monotonic()
-        line = one_line(*run_cli("simulate", "--out", str(tmp_path / f"out_{name}"),
-                                 "--templates", str(lib)))
+    libs = [_library(tmp_path, name, text) for name, text, _ in cases]
+    results = run_cli_all(*(("simulate", "--out", str(tmp_path / f"out_{name}"), "--templates",
+                             str(lib)) for (name, _, _), lib in zip(cases, libs)))
+    for (name, _, expected), (code, err, seconds) in zip(cases, results):
+        line = one_line(code, err)
         assert "t.yaml" in line and expected in line, line
-        assert time.monotonic() - t0 < 30
+        assert seconds < 30
         assert not (tmp_path / f"out_{name}").exists()
     # the YAML may opt out of the folder rule explicitly
     lib = _library(tmp_path, "opted", f"name: v\nmesh: {outside / 'x.stl'}\n"

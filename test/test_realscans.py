@@ -117,7 +117,28 @@ def _held_by_others(view, views) -> float:
     return float(np.mean(cKDTree(others).query(common(view)[::5])[0] <= 0.002))
 
 
-def test_a_template_of_the_other_views_finds_each_view_it_covers(tmp_path, views):
+@pytest.fixture(scope="module")
+def others_fit(views, tmp_path_factory):
+    """``get(view_name)``: (a registrar of the other views merged as the template "armadillo",
+    its best candidate on that view's scan and click), made once per view for the module: the
+    two tests below fit the same view with the same template (the fit is deterministic)."""
+    made = {}
+
+    def get(name):
+        if name not in made:
+            view = next(v for v in views if v.name == name)
+            tpl = load_template(write_point_template([v for v in views if v is not view],
+                                                     str(tmp_path_factory.mktemp(name)),
+                                                     "armadillo"))
+            registrar = Registrar(TemplateLibrary([tpl]))
+            best = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
+                                 view_click(view)).candidates[0]
+            made[name] = registrar, best
+        return made[name]
+    return get
+
+
+def test_a_template_of_the_other_views_finds_each_view_it_covers(views, others_fit):
     """The other views merged as the template: each view whose surface they hold (at least
     two fifths of its points within 2 mm of theirs -- ArmadilloBack_0 and _330 most, _60 half;
     _180 a seventh, see the bench's real-scans row) is found within 5 mm / 5 deg; where they
@@ -128,10 +149,7 @@ def test_a_template_of_the_other_views_finds_each_view_it_covers(tmp_path, views
     assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_60",
                                          "ArmadilloBack_330"}
     for view in covered:
-        tpl = load_template(write_point_template([v for v in views if v is not view],
-                                                 str(tmp_path / view.name), "armadillo"))
-        best = Registrar(TemplateLibrary([tpl])).fit(
-            Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)).candidates[0]
+        _, best = others_fit(view.name)
         dt, dr = pose_error(best.T_scene_model, view_truth(view))
         assert dt <= 0.005 and dr <= math.radians(5), (view.name, dt, math.degrees(dr))
         assert best.fits == (held[view.name] >= 0.7), (view.name, best.coverage)
@@ -159,16 +177,12 @@ def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path
         assert lone.probability < 0.9, view.name         # never 1.00 for a poor fit
 
 
-def test_a_real_scan_moved_rigidly_gives_the_moved_fit(tmp_path, views):
+def test_a_real_scan_moved_rigidly_gives_the_moved_fit(views, others_fit):
     """Equivariance with a point-cloud template (whose hypotheses include matched shape
     features): the scan, click and scanner moved by T give T . (the original fit)."""
     view = next(v for v in views if v.name == "ArmadilloBack_330")
-    tpl = load_template(write_point_template([v for v in views if v is not view],
-                                             str(tmp_path), "armadillo"))
-    registrar = Registrar(TemplateLibrary([tpl]))
+    registrar, original = others_fit(view.name)
     click = view_click(view)
-    original = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
-                             click).candidates[0]
     rng = np.random.default_rng(18)
     for _ in range(2):
         R = random_rotations(1, rng)[0]
