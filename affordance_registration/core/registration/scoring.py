@@ -92,8 +92,9 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     # is not held against it; a specific template claims what it is, and is judged on all of
     # it the sensor faces
     primitive = np.array([m.template.primitive is not None for m in models])
-    dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
-                                            settings.scoring.samples, settings, primitive)
+    batch = Batch.of(models, T[:, :3, :3], T[:, :3, 3])
+    dist, vis, exposed = _forward_distances(ctx, batch, settings.scoring.samples, settings,
+                                            primitive)
     bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
         settings.verdict.min_coverage_no_viewpoint
     widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider
@@ -103,8 +104,8 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     # the verdict's residual is the object's: template -> scene as ranked, object -> template
     # over the clicked object's points only (touching neighbours in the cluster are not the
     # template's to explain), plus the click penalty
-    object_residual = 0.5 * (_forward(dist, vis, settings)[0] + object_bwd) + click_penalty(
-        ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]), settings)
+    object_residual = 0.5 * (_forward(dist, vis, settings)[0] + object_bwd) + \
+        click_penalty(ctx, batch, settings)
     max_residual = widen * settings.verdict.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
