@@ -42,11 +42,14 @@ MARKERS_TOPIC = f"{NS}/markers"
 
 
 class _Arrivals:
-    """Arrival times (monotonic s) of ``~/markers`` messages and their serialized sizes (bytes),
-    and of ``~/status`` messages with the selected object's id and whether the node was idle."""
+    """Arrival times (monotonic s) of ``~/markers`` messages with their serialized sizes (bytes)
+    and the objects whose candidate they draw, and of ``~/status`` messages with the selected
+    object's id and whether the node was idle. A click's status and its markers are each found
+    by what they show (an object not known before the click), not by the order the two
+    callbacks ran in: on a loaded machine the markers' callback may run first."""
 
     def __init__(self, node):
-        self.markers: list[tuple[float, int]] = []
+        self.markers: list[tuple[float, int, frozenset]] = []
         self.status: list[tuple[float, int | None, bool]] = []
         self._lock = threading.Lock()
         node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED)
@@ -58,32 +61,37 @@ class _Arrivals:
         with self._lock:
             self.status.append((time.monotonic(), active, bool(st.get("node", {}).get("idle"))))
 
-    def status_showing(self, t0: float, known: set) -> float | None:
-        """When the first status after ``t0`` arrived that selects an object not in ``known``
-        with the node idle (the status that shows a click's fit)."""
-        with self._lock:
-            return next((t for t, active, idle in self.status
-                         if t >= t0 and idle and active is not None and active not in known), None)
-
     def _on_markers(self, msg):
         size = len(serialize_message(msg))
+        drawn = frozenset(m.id for m in msg.markers if m.ns == "candidate")
         with self._lock:
-            self.markers.append((time.monotonic(), size))
+            self.markers.append((time.monotonic(), size, drawn))
+
+    def _first(self, pick, timeout: float):
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                found = pick()
+            if found is not None or time.monotonic() >= deadline:
+                return found
+            time.sleep(0.005)
+
+    def status_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
+        """When the first status after ``t0`` arrived that selects an object not in ``known``
+        with the node idle (the status that shows a click's fit); waits up to ``timeout``."""
+        return self._first(lambda: next((t for t, active, idle in self.status if t >= t0 and idle
+                                         and active is not None and active not in known), None),
+                           timeout)
+
+    def markers_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
+        """When the first markers message after ``t0`` arrived that draws the candidate of an
+        object not in ``known`` (the markers that show a click's fit); waits up to ``timeout``."""
+        return self._first(lambda: next((t for t, _, drawn in self.markers
+                                         if t >= t0 and drawn - known), None), timeout)
 
     def heard(self) -> list[tuple[float, int]]:
         with self._lock:
-            return list(self.markers)
-
-    def markers_after(self, t: float, timeout: float = 10.0) -> tuple[float, int] | None:
-        """The first markers message heard after ``t`` (waits up to ``timeout``)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self._lock:
-                later = [m for m in self.markers if m[0] >= t]
-            if later:
-                return later[0]
-            time.sleep(0.005)
-        return None
+            return [(t, size) for t, size, _ in self.markers]
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -128,15 +136,17 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                     operator.click(obj.click)
                     # when the status that showed the fit arrived (a loaded machine may run
                     # the markers' callback before the wait above returns)
-                    t_status = arrivals.status_showing(t0, known) or time.monotonic()
+                    t_status = arrivals.status_showing(t0, known)
+                    t_markers = arrivals.markers_showing(t0, known)
+                    if t_status is None:
+                        t_status = time.monotonic()
                     t0_local = time.perf_counter()
                     local.click(obj.click)
                     local_s.append(time.perf_counter() - t0_local)
                     node_s.append(t_status - t0)
                     ratios.append(node_s[-1] / local_s[-1])
-                    got = arrivals.markers_after(t_status)
-                    if got is not None:
-                        to_markers_ms.append(max(0.0, got[0] - t_status) * 1000)
+                    if t_markers is not None:
+                        to_markers_ms.append(max(0.0, t_markers - t_status) * 1000)
                     operator.accept()
                     local.accept()
                 log(f"  over ROS: {n} clicks, click -> status {statistics.median(ratios):.2f}x "
