@@ -51,30 +51,28 @@ class _Arrivals:
     def __init__(self, node):
         self.markers: list[tuple[float, int, frozenset]] = []
         self.status: list[tuple[float, int | None, bool]] = []
-        self._lock = threading.Lock()
+        self._cv = threading.Condition()
         node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED)
         node.create_subscription(String, f"{NS}/status", self._on_status, LATCHED)
 
     def _on_status(self, msg):
         st = json.loads(msg.data)
         active = next((o["id"] for o in st.get("objects", []) if o.get("active")), None)
-        with self._lock:
+        with self._cv:
             self.status.append((time.monotonic(), active, bool(st.get("node", {}).get("idle"))))
+            self._cv.notify_all()
 
     def _on_markers(self, msg):
         size = len(serialize_message(msg))
         drawn = frozenset(m.id for m in msg.markers if m.ns == "candidate")
-        with self._lock:
+        with self._cv:
             self.markers.append((time.monotonic(), size, drawn))
+            self._cv.notify_all()
 
     def _first(self, pick, timeout: float):
-        deadline = time.monotonic() + timeout
-        while True:
-            with self._lock:
-                found = pick()
-            if found is not None or time.monotonic() >= deadline:
-                return found
-            time.sleep(0.005)
+        """What ``pick`` finds in the arrivals, waiting for new ones (up to ``timeout``)."""
+        with self._cv:
+            return self._cv.wait_for(pick, timeout)
 
     def status_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
         """When the first status after ``t0`` arrived that selects an object not in ``known``
@@ -90,7 +88,7 @@ class _Arrivals:
                                          if t >= t0 and drawn - known), None), timeout)
 
     def heard(self) -> list[tuple[float, int]]:
-        with self._lock:
+        with self._cv:
             return [(t, size) for t, size, _ in self.markers]
 
 
@@ -134,8 +132,8 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                     known = {o["id"] for o in (watch.latest or {}).get("objects", [])}
                     t0 = time.monotonic()
                     operator.click(obj.click)
-                    # when the status that showed the fit arrived (a loaded machine may run
-                    # the markers' callback before the wait above returns)
+                    # when the status that showed the fit arrived, and the markers that drew
+                    # it: each found by what it shows (a loaded machine runs either first)
                     t_status = arrivals.status_showing(t0, known)
                     t_markers = arrivals.markers_showing(t0, known)
                     if t_status is None:
