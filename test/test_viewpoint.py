@@ -29,9 +29,9 @@ from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import axis_angle_matrix, invert, make_T, pose_error
 from affordance_registration.evaluation.simulation import (
-    PANEL_SIZE,
     POSE_TOL_M,
     POSE_TOL_RAD,
+    panel_mesh,
     simulate_taskboard,
     write_scene,
 )
@@ -162,8 +162,7 @@ def test_a_flat_plate_seen_face_on_is_weakly_held():
     plate.apply_translation([0, 0, 0.002])
     lib = TemplateLibrary([AffordanceTemplate("plate", "plate.yaml", plate,
                                               symmetry=Symmetry((0, 0, 1), 4))])
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    panel = panel_mesh()
     T_cam = make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.8])     # looking straight down
     pts, labels, origin = scan([(panel, np.eye(4)), (plate, np.eye(4))], T_cam,
                                np.random.default_rng(3))
@@ -307,8 +306,7 @@ def test_two_templates_differing_only_on_a_hidden_face_get_a_view_of_that_face()
         AffordanceTemplate("slab", "slab.yaml", slab, symmetry=Symmetry((0, 0, 1), 4)),
         AffordanceTemplate("knobbed_slab", "knobbed_slab.yaml",
                            trimesh.util.concatenate([slab, knob]))])
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
+    panel = panel_mesh()
     meshes = [(panel, np.eye(4)), (slab, np.eye(4)), (knob, np.eye(4))]   # labels 0, 1, 2
     registrar = Registrar(lib)
     s = registrar.settings.viewpoint

@@ -30,7 +30,7 @@ from ..core.transforms import axis_angle_matrix, invert, make_T
 __all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
            "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
            "SimulatedOperator", "failures", "operator_correction", "truth_joints",
-           "POSE_TOL_M", "POSE_TOL_RAD", "KINECT_NFOV", "SIZED", "sized_library"]
+           "POSE_TOL_M", "POSE_TOL_RAD", "PANEL_SIZE", "panel_mesh", "KINECT_NFOV", "SIZED", "sized_library"]
 
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
@@ -277,6 +277,11 @@ def _rows(T: np.ndarray) -> list:
 PANEL_SIZE = (1.0, 0.6, 0.02)
 
 
+def panel_mesh() -> trimesh.Trimesh:
+    """The taskboard's panel in its own frame: its top face at z = 0, +z out of it."""
+    return trimesh.creation.box(extents=PANEL_SIZE, transform=make_T(np.eye(3), [0, 0, -PANEL_SIZE[2] / 2]))
+
+
 def _camera_pose(rng: np.random.Generator) -> np.ndarray:
     """T_board_cam: 0.6-1.3 m from a point near the panel centre, up to 40 deg off its normal."""
     dist = rng.uniform(0.6, 1.3)
@@ -353,9 +358,7 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     positions = _place(radii, rng, half_x, half_y)
     T_board_cam = _camera_pose(rng)
     T_cam_board = invert(T_board_cam)
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
-    meshes = [(panel, T_cam_board)]
+    meshes = [(panel_mesh(), T_cam_board)]
     poses = []
     for mesh, R, p in zip(meshes_at, rotations, positions):
         lift = -float((np.asarray(mesh.vertices) @ R.T)[:, 2].min()) if layout == "table" else 0.0

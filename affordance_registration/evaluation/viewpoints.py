@@ -23,13 +23,19 @@ import math
 import time
 
 import numpy as np
-import trimesh
 
 from ..core.registration import FitSettings, Registrar
 from ..core.scene import Scene
 from ..core.templates import TemplateLibrary
 from ..core.transforms import invert, pose_error
-from .simulation import PANEL_SIZE, POSE_TOL_M, POSE_TOL_RAD, DepthCamera, FaultModel, simulate_taskboard
+from .simulation import (
+    POSE_TOL_M,
+    POSE_TOL_RAD,
+    DepthCamera,
+    FaultModel,
+    panel_mesh,
+    simulate_taskboard,
+)
 
 __all__ = ["scan", "taskboard_meshes", "hard_view", "random_view", "viewpoint_row",
            "TUNING_SEEDS", "REPORT_SEEDS", "KINDS"]
@@ -56,9 +62,7 @@ def scan(meshes, T_scene_cam: np.ndarray, rng, camera: DepthCamera | None = None
 def taskboard_meshes(sim, library: TemplateLibrary) -> list:
     """The meshes of a simulated taskboard in its scene frame: the panel first, then each object
     (its joint values and scale) -- label k + 1 is object k."""
-    panel = trimesh.creation.box(extents=PANEL_SIZE)
-    panel.apply_translation([0, 0, -PANEL_SIZE[2] / 2])
-    out = [(panel, sim.T_scene_board)]
+    out = [(panel_mesh(), sim.T_scene_board)]
     for o in sim.objects:
         tpl = library[o.template]
         out.append((tpl.mesh_at(tpl.joint_value(o.joints or {}), o.scale), o.T_scene_model))
