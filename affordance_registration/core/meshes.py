@@ -51,6 +51,13 @@ def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = Fals
     return scene.compute_distance(query).numpy().astype(float)
 
 
+def _cross3(a, b) -> np.ndarray:
+    """``np.cross`` of two 3-vectors, the same float operations without its per-call overhead
+    (resting_facets calls it for each of a few thousand hull faces at every start)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]], dtype=float)
+
+
 def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
     """(R_rest, area) of every convex-hull facet the object can rest on, largest first."""
     from scipy.spatial import ConvexHull
@@ -61,20 +68,26 @@ def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
     for facet, normal in zip(hull.facets, hull.facets_normal):
         in_facet[facet] = True
         groups.append((facet, np.asarray(normal)))
+    face_normals = hull.face_normals
     for f in np.flatnonzero(~in_facet):
-        groups.append((np.array([f]), np.asarray(hull.face_normals[f])))
+        groups.append((np.array([f]), np.asarray(face_normals[f])))
+    # trimesh re-hashes a mesh on every cached-property access: read them once
+    hull_vertices, hull_faces, area_faces = (np.asarray(a) for a in (hull.vertices, hull.faces,
+                                                                        hull.area_faces))
     out = []
     for faces, normal in groups:
-        verts = hull.vertices[np.unique(hull.faces[faces])]
-        area = float(hull.area_faces[faces].sum())
+        verts = hull_vertices[np.unique(hull_faces[faces])]
+        area = float(area_faces[faces].sum())
         if area < 1e-6:
             continue
         # centre of mass projected onto the facet plane, inside the facet polygon?
-        u = np.cross(normal, [1.0, 0, 0] if abs(normal[0]) < 0.9 else [0, 1.0, 0])
+        u = _cross3(normal, (1.0, 0.0, 0.0) if abs(normal[0]) < 0.9 else (0.0, 1.0, 0.0))
         u /= np.linalg.norm(u)
-        v = np.cross(normal, u)
+        v = _cross3(normal, u)
         poly = np.stack([verts @ u, verts @ v], axis=1)
         p = np.array([com @ u, com @ v])
+        if (p < poly.min(axis=0)).any() or (p > poly.max(axis=0)).any():
+            continue    # outside the facet's bounding box, so outside the facet: no hull needed
         try:
             eq = ConvexHull(poly).equations
         except Exception:   # degenerate (collinear) facet
@@ -83,7 +96,7 @@ def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
             continue
         # rotation taking the facet normal to -z
         target = np.array([0.0, 0.0, -1.0])
-        axis = np.cross(normal, target)
+        axis = _cross3(normal, target)
         s_, c_ = np.linalg.norm(axis), float(normal @ target)
         if s_ < 1e-9:
             R = np.eye(3) if c_ > 0 else axis_angle_matrix([1.0, 0, 0], math.pi)
