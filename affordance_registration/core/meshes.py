@@ -63,17 +63,16 @@ def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
     from scipy.spatial import ConvexHull
     hull = mesh.convex_hull
     com = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
-    in_facet = np.zeros(len(hull.faces), bool)
+    # trimesh re-hashes a mesh on every cached-property access: read its arrays once
+    hull_vertices, hull_faces, area_faces, face_normals = (
+        np.asarray(a) for a in (hull.vertices, hull.faces, hull.area_faces, hull.face_normals))
+    in_facet = np.zeros(len(hull_faces), bool)
     groups = []
     for facet, normal in zip(hull.facets, hull.facets_normal):
         in_facet[facet] = True
         groups.append((facet, np.asarray(normal)))
-    face_normals = hull.face_normals
     for f in np.flatnonzero(~in_facet):
-        groups.append((np.array([f]), np.asarray(face_normals[f])))
-    # trimesh re-hashes a mesh on every cached-property access: read them once
-    hull_vertices, hull_faces, area_faces = (np.asarray(a) for a in (hull.vertices, hull.faces,
-                                                                        hull.area_faces))
+        groups.append((np.array([f]), face_normals[f]))
     out = []
     for faces, normal in groups:
         verts = hull_vertices[np.unique(hull_faces[faces])]
