@@ -4,6 +4,9 @@
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
+# make test runs the suite on this many pytest-xdist workers (whole files each, each in its own ROS
+# domain); TEST_WORKERS=0 runs it in one process
+TEST_WORKERS ?= 2
 STAMP  := $(VENV)/.installed
 TF2_STAMP := $(VENV)/.tf2_msgs
 TF2_SOURCES := affordance_registration/ros/standins/interfaces/build.py \
@@ -73,7 +76,7 @@ demo: setup
 test: setup browser
 	@$(PY) -c "from affordance_registration.evaluation.realscans import fetch_or_pcd; fetch_or_pcd()" \
 	  || echo "could not fetch or-pcd: the real-scan tests will fail"
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
 
 bench: setup
 	$(VENV)/bin/affordance-registration bench

@@ -7,7 +7,13 @@ import sys
 import tempfile
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+# `make test` runs the suite on pytest-xdist workers, which inherit the controller's environment:
+# the controller (or a plain pytest run) picks an odd domain, and worker gwN takes that plus N, so
+# two workers of one run never share a domain (and two runs rarely do).
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + 2 * (os.getpid() % 50)))
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _WORKER.startswith("gw") and _WORKER[2:].isdigit():
+    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) + int(_WORKER[2:])) % 102)
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
 
 import pytest  # noqa: E402
