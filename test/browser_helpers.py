@@ -5,7 +5,6 @@ Playwright, with a fresh profile each time. Playwright's own browser download is
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import re
 import shutil
@@ -14,25 +13,16 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
-CHROMIUM = os.environ.get("AFFORDANCE_CHROMIUM", "/usr/bin/chromium")
-ARGS = ["--headless", "--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--no-first-run"]
-VIEWPORT = {"width": 1100, "height": 700}
-
-
-def chromium_missing() -> str:
-    """'' when the browser test can run, else why not."""
-    if not os.access(CHROMIUM, os.X_OK):
-        return (f"{CHROMIUM} not found: `make test` installs Debian's chromium (as root), or "
-                f"apt-get install chromium")
-    try:
-        import playwright  # noqa: F401
-    except ImportError:
-        return "playwright is not installed (pip install -e '.[test]')"
-    return ""
+from affordance_registration.evaluation.browser_latency import (  # noqa: E402,F401
+    CHROMIUM,
+    VIEWPORT,
+    at_sensor,
+    chromium_missing,
+    on_canvas,
+    page_pixel,
+    station_command,
+)
+from affordance_registration.evaluation.browser_latency import CHROMIUM_ARGS as ARGS  # noqa: E402
 
 
 def free_port() -> int:
@@ -87,18 +77,7 @@ def canvas_box(page) -> dict:
 
 def pixel(T_world_optical, fov_deg: float, box: dict, point) -> tuple[float, float]:
     """Page coordinates of a world point seen through the page's camera."""
-    from affordance_registration.core.display import project
-    uv = project(T_world_optical, math.radians(fov_deg), box["width"], box["height"],
-                 np.asarray(point, dtype=float)[None])[0]
-    return float(box["x"] + uv[0]), float(box["y"] + uv[1])
-
-
-def on_canvas(page, xy: tuple) -> bool:
-    """Whether the page point shows the 3D view (not the panel or the edge of the page)."""
-    if not all(math.isfinite(v) for v in xy):        # behind the camera
-        return False
-    return bool(page.evaluate("([x, y]) => { const e = document.elementFromPoint(x, y); "
-                              "return e !== null && e.tagName === 'CANVAS'; }", list(xy)))
+    return page_pixel(T_world_optical, box, point, fov_deg)
 
 
 def drag(page, start: tuple, end: tuple, steps: int = 12) -> None:
@@ -123,12 +102,7 @@ def station_url(port: int, secret: str = STATION_SECRET) -> str:
 
 
 def station_argv(port: int, **params) -> list[str]:
-    params.setdefault("access_secret", STATION_SECRET)
-    argv = [sys.executable, "-m", "affordance_registration.ros.station.node", "--ros-args",
-            "-p", f"port:={port}"]
-    for key, value in params.items():
-        argv += ["-p", f"{key}:={value}"]
-    return argv
+    return station_command(port, params.pop("access_secret", STATION_SECRET), **params)
 
 
 def scan_argv(seed: int = 7, **params) -> list[str]:
@@ -149,14 +123,6 @@ def wait_until(predicate, timeout_s: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def _at_sensor(T: np.ndarray) -> bool:
-    """The station's first view of a cloud in a sensor frame: at the sensor, or stepped back
-    from it along the view (to frame the cloud): on the line through the frame's origin along
-    the camera's z axis, behind the origin."""
-    p, z = T[:3, 3], T[:3, 2]
-    return bool(np.linalg.norm(np.cross(p, z)) < 1e-3 and p @ z <= 1e-6)
-
-
 def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
     """The page's camera once it stands at the sensor or behind it along its view (the
     station's first view of a cloud in a sensor frame) and has not moved for a second: the last
@@ -166,7 +132,7 @@ def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
 
     def settled():
         hist = client.history.get(topic) or []
-        if not hist or not _at_sensor(pose_to_matrix(hist[-1].pose)):
+        if not hist or not at_sensor(pose_to_matrix(hist[-1].pose)):
             return None
         n = len(hist)
         time.sleep(1.0)

@@ -54,25 +54,11 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
+from affordance_registration.evaluation.browser_latency import OBSERVE  # noqa: E402
 from affordance_registration.evaluation.simulation import simulate_taskboard  # noqa: E402
 from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2  # noqa: E402
 
 FRAME = "camera_depth_optical_frame"
-#: records on the page when a text first appears (window.__arShown, ms) and when the next mouse
-#: press happened (window.__arClick)
-OBSERVE = """text => {
-  if (window.__arObserver) window.__arObserver.disconnect();
-  window.__arShown = null; window.__arClick = null;
-  document.addEventListener('pointerdown', () => { window.__arClick ??= performance.now(); },
-                            {once: true, capture: true});
-  const seen = () => { if (window.__arShown === null && document.body.innerText.includes(text))
-                         window.__arShown = performance.now(); };
-  window.__arObserver = new MutationObserver(seen);
-  window.__arObserver.observe(document.body,
-                                     {subtree: true, childList: true, characterData: true});
-}"""
-
-
 def screenshot(page, T_view, box, library, args) -> int:
     """The README's picture: two objects accepted (blue), a third one shown with its label and
     gizmo."""

@@ -30,7 +30,9 @@ next, so load changes hit them alike): the default method on 1 and 2 threads, an
 library prefilter decided. Click -> result from a 1024 x 1024 organized cloud (``Scene()`` plus
 the fit), and ``Scene()`` after the PointCloud2 conversion. Over ROS, the live engine node in
 its own process against the same fits in this one (:mod:`.ros_latency`): click -> status over
-the in-process fit, status -> markers, markers message size, idle engine CPU.
+the in-process fit, status -> markers, markers message size, idle engine CPU; and the browser
+station's click -> label in headless Chromium (:mod:`.browser_latency`; left out, with its
+reason, where Playwright or the browser is missing).
 """
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ from .bench_rows import (
     _any_frame_rows,
     _articulated_rows,
     _baseline_fit,
+    _browser_latency_bench,
     _evaluate,
     _jobs,
     _large_cloud_row,
@@ -146,6 +149,9 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     latency = _ros_latency_bench(range(1000, 1000 + n_scenes), 5 if quick else 20, log)
     if latency:
         result["ros_latency"] = latency
+    browser = _browser_latency_bench(range(1000, 1000 + n_scenes), 3 if quick else 10, log)
+    if browser:
+        result["browser_latency"] = browser
     if out:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         with open(out, "w", encoding="utf-8") as handle:
@@ -270,6 +276,12 @@ def format_table(result: dict) -> str:
                      f"{lat['objects_shown_last']} objects {lat['markers_bytes_last'] / 1000:.0f} kB "
                      f"(largest {lat['markers_bytes_max'] / 1000:.0f} kB); idle engine "
                      f"{lat['idle_engine_cores']:.3f} cores")
+    web = result.get("browser_latency")
+    if web and web["clicks"]:
+        lines.append(f"the browser station (headless Chromium, {web['clicks']} clicks, display budget "
+                     f"{web['display_points']:,} points): click -> label median "
+                     f"{web['click_to_label_s']:.2f} s (max {web['click_to_label_max_s']:.2f}); the "
+                     f"engine's part (clicked_point -> status) {web['engine_click_to_status_s']:.2f} s")
     for r in result.get("threads", ()):
         lines.append(f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
                      f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first")

@@ -486,6 +486,13 @@ def _ros_latency_bench(seeds, clicks: int, log) -> dict | None:
                      "the engine node's latencies", log)
 
 
+def _browser_latency_bench(seeds, clicks: int, log) -> dict | None:
+    """The browser station's click -> label: headless Chromium at a live station and engine node
+    (needs the ROS packages, Playwright and Debian's chromium; left out with its reason else)."""
+    return _over_ros("browser_latency", "measure_browser_latency", seeds, clicks,
+                     "the browser station's click -> label", log)
+
+
 def _ros_conversion_bench(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict | None:
     """PointCloud2 <-> numpy for a 1-million-point organized cloud with NaN holes, then Scene()
     (needs the ROS messages)."""
