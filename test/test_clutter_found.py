@@ -18,9 +18,10 @@ DATA = rd.shared_data_dir()
 needs_data = pytest.mark.skipif(DATA is None or rd.osd_dir(DATA) is None, reason=rd.SKIP_REASON)
 
 #: measured: 11 of the 12 held-out clicks (4 scenes x seeds 0-2) ranked first and within
-#: 5 mm / 5 deg (learn44 seed 0 lands 146 deg off); one more may go on another machine's BLAS
-HELD_OUT_FOUND = 10
-SEEDS = (0, 1, 2)
+#: 5 mm / 5 deg (learn44 seed 0 lands 146 deg off; the bench's clutter row runs all three seeds).
+#: The suite runs seeds 1 and 2 (8 clicks; all 8 found): one may go on another machine's BLAS
+HELD_OUT_FOUND = 7
+SEEDS = (1, 2)
 
 
 @pytest.fixture(scope="module")
