@@ -452,3 +452,28 @@ def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypat
         if tie == 1.0:      # stopped early, the two are a coin flip apart
             assert cands[1].residual <= 1.001 * cands[0].residual
     assert firsts[near_tie][0] == "grab_handle" and firsts[1.0][0] == "grab_handle@y0.7"
+
+
+def test_the_held_out_variant_family_is_rigid_stretches_along_random_directions(library):
+    """The bench's held-out library family: each variant is its template stretched or squeezed
+    by 20-50% along one direction (volume by that factor, the other two directions kept), not
+    along an axis of the template's frame; the same seed, the same family."""
+    from affordance_registration.evaluation.bench_rows import stretched_library
+    base = library.specific()
+    big, again = stretched_library(base, 40), stretched_library(base, 40)
+    assert len(big) == 40 and list(big) == list(again)
+    for name in big:
+        if "@" not in name:
+            continue
+        src = base[name.split("@")[0]].mesh_at(0.0, 1.0)
+        mesh = big[name].mesh_at(0.0, 1.0)
+        np.testing.assert_array_equal(mesh.vertices, again[name].mesh_at(0.0, 1.0).vertices)
+        # the linear map taking the template's vertices to the variant's: I + (f - 1) u u^T
+        M = np.linalg.lstsq(src.vertices, mesh.vertices, rcond=None)[0].T
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
+        assert np.allclose(M, M.T, atol=1e-9)
+        stretch = w[np.argmax(np.abs(w - 1.0))]
+        assert 0.2 - 1e-9 <= abs(stretch - 1.0) <= 0.5 + 1e-9
+        assert np.sum(np.abs(w - 1.0) < 1e-9) == 2              # the other two directions kept
+        u = V[:, np.argmax(np.abs(w - 1.0))]
+        assert np.max(np.abs(u)) < 1.0 - 1e-3                   # not along a frame axis

@@ -26,7 +26,8 @@ from the suggested view, a random one and the first one again (:mod:`.viewpoints
 
 Speed lines, measured click by click in turn (each click fitted by every variant before the
 next, so load changes hit them alike): the default method on 1 and 2 threads, and libraries of
-5/10/20/40 templates (the five and scaled / stretched variants of them) with how often the
+5/10/20/40 templates (the five and scaled / stretched variants of them) and of 5/40 of a family
+made differently (random-direction stretches, kept out of the prefilter's tuning), with how often the
 library prefilter decided. Click -> result from a 1024 x 1024 organized cloud (``Scene()`` plus
 the fit), and ``Scene()`` after the PointCloud2 conversion. Over ROS, the live engine node in
 its own process against the same fits in this one (:mod:`.ros_latency`): click -> status over
@@ -64,6 +65,7 @@ from .bench_rows import (
     _ros_latency_bench,
     _ros_push_refit_bench,
     _threads_rows,
+    stretched_library,
     variant_library,
 )
 from .simulation import POSE_TOL_M, POSE_TOL_RAD, sized_library
@@ -123,6 +125,8 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     threads_rows = _threads_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
     library_rows = _library_rows(library, lib_jobs)
+    log(f"libraries of 5 and 40 of a held-out variant family on {len(lib_jobs)} clicks ...")
+    held_out_library_rows = _library_rows(library, lib_jobs, (5, 40), stretched_library)
     log("click -> result on 1M-point organized clouds ...")
     large = _large_cloud_row(library, range(1000, 1000 + (2 if quick else 4)), log)
     log("real range scans (the Armadillo, or-pcd) ...")
@@ -136,6 +140,7 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
               "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
               "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
               "articulated": articulated, "library_sizes": library_rows,
+              "library_sizes_held_out_family": held_out_library_rows,
               "large_cloud": large, "threads": threads_rows, **captures,
               "viewpoint": {k: {kk: vv for kk, vv in v.items() if kk != "cases"}
                             for k, v in viewpoint.items()},
@@ -291,6 +296,12 @@ def format_table(result: dict) -> str:
                      f"{r['top1']:.1%}; prefilter decided on {r['prefilter_decided']:.0%} of "
                      f"clicks, {r['prefilter_set_aside_per_click']:.1f} templates set aside, "
                      f"the true one on {r['true_template_set_aside']} clicks")
+    for r in result.get("library_sizes_held_out_family", ())[1:]:
+        lines.append(f"held-out variant family (random-direction stretches): library of "
+                     f"{r['templates']} templates ({r['clicks']} clicks) median {r['median_s']:.3f} s"
+                     f" = {r['ratio_to_first']:.2f}x the five, true template first {r['top1']:.1%}; "
+                     f"prefilter decided on {r['prefilter_decided']:.0%} of clicks, the true one "
+                     f"set aside on {r['true_template_set_aside']}")
     large = result.get("large_cloud")
     if large:
         lines.append(f"click -> result from a {large['points']:,}-point organized cloud "

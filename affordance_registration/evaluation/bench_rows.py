@@ -264,14 +264,36 @@ def variant_library(library: TemplateLibrary, size: int,
     return TemplateLibrary(tpls)
 
 
-def _library_rows(library, jobs, sizes=LIBRARY_SIZES) -> list:
+def stretched_library(library: TemplateLibrary, size: int, seed: int = 0) -> TemplateLibrary:
+    """A variant family made differently from :func:`variant_library` (and kept out of the
+    prefilter's tuning): the library and ``size - len(library)`` rigid variants, round robin
+    over its templates, each stretched or squeezed by 20-50% along a random direction (not an
+    axis of the template's frame), named ``<template>@r<k>``."""
+    from ..core.templates import AffordanceTemplate
+    rng = np.random.default_rng(seed)
+    tpls = [library[n] for n in library]
+    for k in range(max(0, size - len(tpls))):
+        base = tpls[k % len(library)]
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        f = 1.0 + rng.uniform(0.2, 0.5) * rng.choice([-1.0, 1.0])
+        T = np.eye(4)
+        T[:3, :3] += (f - 1.0) * np.outer(u, u)
+        mesh = base.mesh_at(0.0, 1.0).copy()
+        mesh.apply_transform(T)
+        tpls.append(AffordanceTemplate(f"{base.name}@r{k}", base.path, mesh, symmetry=None,
+                                       description=f"{base.name} x{f:.2f} along {np.round(u, 2)}"))
+    return TemplateLibrary(tpls)
+
+
+def _library_rows(library, jobs, sizes=LIBRARY_SIZES, family=variant_library) -> list:
     """The same clicks fitted with libraries of ``sizes`` templates (the five and their
-    variants), each click by every library in turn (so a change of the machine's load hits
-    every size alike): median time, the median over clicks of its ratio to the first size's
-    time, the true template ranked first, and how often the library prefilter set templates
-    aside (clicks where it did, templates per click, clicks where the true template was among
-    them)."""
-    regs = [Registrar(variant_library(library, size)) for size in sizes]
+    variants of ``family``), each click by every library in turn (so a change of the machine's
+    load hits every size alike): median time, the median over clicks of its ratio to the first
+    size's time, the true template ranked first, and how often the library prefilter set
+    templates aside (clicks where it did, templates per click, clicks where the true template
+    was among them)."""
+    regs = [Registrar(family(library, size)) for size in sizes]
     for reg in regs:
         reg.warm_up()
     times = np.zeros((len(jobs), len(sizes)))
