@@ -477,3 +477,17 @@ def test_the_held_out_variant_family_is_rigid_stretches_along_random_directions(
         assert np.sum(np.abs(w - 1.0) < 1e-9) == 2              # the other two directions kept
         u = V[:, np.argmax(np.abs(w - 1.0))]
         assert np.max(np.abs(u)) < 1.0 - 1e-3                   # not along a frame axis
+
+
+def test_the_bench_prints_the_held_out_family_row():
+    """format_table names the held-out family's 40-template row with its ratio to the five."""
+    from affordance_registration.evaluation.bench import format_table
+    rows = [{"templates": n, "clicks": 40, "median_s": s, "ratio_to_first": r, "top1": t,
+             "prefilter_decided": d, "prefilter_set_aside_per_click": a, "true_template_set_aside": 0}
+            for n, s, r, t, d, a in ((5, 0.3, 1.0, 1.0, 0.0, 0.0), (40, 0.6, 1.97, 0.925, 1.0, 33.6))]
+    table = format_table({"rows": [], "refit": {"median_s": 0.01, "success": 1.0}, "scenes": 1,
+                          "pose_tolerance": {"m": 0.005, "deg": 5.0}, "machine": {"cpus": 2},
+                          "library_sizes_held_out_family": rows})
+    line = next(x for x in table.splitlines() if x.startswith("held-out variant family"))
+    assert "library of 40 templates" in line and "= 1.97x the five" in line, line
+    assert "true template first 92.5%" in line and "library of 5 " not in table, table
