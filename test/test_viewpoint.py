@@ -24,7 +24,11 @@ from affordance_registration.core.registration.ambiguity import (
     WEAKLY_HELD,
     Hypothesis,
 )
-from affordance_registration.core.registration.viewpoint import optical_pose, predict_views
+from affordance_registration.core.registration.viewpoint import (
+    nearest_of_3x3,
+    optical_pose,
+    predict_views,
+)
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import axis_angle_matrix, invert, make_T, pose_error
@@ -195,6 +199,22 @@ def test_fit_json_reports_the_ambiguity_and_the_suggested_view(tmp_path, board, 
                           timeout=600)
     assert text.returncode == 0 and "suggested view:" in text.stdout
     assert ("settled" in text.stdout.splitlines()[-2])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(1, 12), st.floats(0.0, 1.0), st.integers(0, 2**32 - 1))
+def test_the_predicted_views_3x3_nearest_is_scipys_minimum_filter(views, n, fill, seed):
+    """Filtered over each view's box around its bins only, the z-buffer's 3 x 3 nearest is
+    bit for bit scipy's filter of the whole image (empty views, bins on the border, full ones)."""
+    from scipy.ndimage import minimum_filter
+    rng = np.random.default_rng(seed)
+    img = np.full((views, n, n), np.inf, np.float32)
+    some = rng.random(img.shape) < fill * rng.random((views, 1, 1))
+    img[some] = rng.uniform(0.3, 2.0, int(some.sum())).astype(np.float32)
+    want = minimum_filter(img, size=(1, 3, 3), mode="constant", cval=np.inf)
+    got = nearest_of_3x3(img)
+    assert got.dtype == img.dtype and got.shape == img.shape
+    np.testing.assert_array_equal(got, want)
 
 
 @settings(max_examples=60, deadline=None)

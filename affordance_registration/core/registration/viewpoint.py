@@ -221,8 +221,7 @@ def _render(poses, occ, posed, n: int, b: float, s):
         """(raw, and with each bin the nearest of its 3 x 3: no holes between samples)."""
         img = np.full(outside + 1, np.inf, np.float32)
         np.minimum.at(img, flat.ravel(), z.ravel())
-        return img, minimum_filter(img[:-1].reshape(V, n, n), size=(1, 3, 3), mode="constant",
-                                   cval=np.inf)
+        return img, nearest_of_3x3(img[:-1].reshape(V, n, n))
 
     occ_img = zbuffer(*project(occ))[1]
     occ_flat = np.append(occ_img.ravel(), np.inf)
@@ -245,6 +244,22 @@ def _render(poses, occ, posed, n: int, b: float, s):
         bins.append(np.where(flat < outside, flat - np.arange(V)[:, None] * n * n, n * n))
     return np.stack(preds), np.stack(surfaces), np.stack(seen), np.stack(bins), \
         np.stack(depths)
+
+
+def nearest_of_3x3(img: np.ndarray) -> np.ndarray:
+    """Each bin of the (V, n, n) depth images the nearest of its 3 x 3 (``minimum_filter``
+    with ``size=(1, 3, 3)`` beyond an inf border), filtered only over each view's box around
+    the bins it has (the rest of a far view's image is empty): the same numbers."""
+    out = np.full(img.shape, np.inf, img.dtype)
+    finite = np.isfinite(img)
+    rows, cols = finite.any(axis=2), finite.any(axis=1)
+    for v in np.flatnonzero(rows.any(axis=1)):
+        r, c = np.flatnonzero(rows[v]), np.flatnonzero(cols[v])
+        r0, r1 = max(r[0] - 1, 0), min(r[-1] + 2, img.shape[1])
+        c0, c1 = max(c[0] - 1, 0), min(c[-1] + 2, img.shape[2])
+        out[v, r0:r1, c0:c1] = minimum_filter(img[v, r0:r1, c0:c1], size=3, mode="constant",
+                                              cval=np.inf)
+    return out
 
 
 def tolerance(z: np.ndarray, b: float, s) -> np.ndarray:
