@@ -121,13 +121,12 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
     refit_med, refit_ok = _refit_times(default, jobs, library, np.random.default_rng(5))
     log("articulated taskboards (joint values, states, scale) ...")
     articulated = _articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
-    lib_jobs = jobs[::max(1, len(jobs) // 40)][:40]
+    lib_jobs = _spread(jobs, 40)
     log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
     threads_rows = _threads_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
     library_rows = _library_rows(library, lib_jobs)
-    held_out = _jobs(library, range(7000, 7000 + n_scenes))    # taskboards no knob was chosen on
-    held_out = held_out[::max(1, len(held_out) // 40)][:40]
+    held_out = _spread(_jobs(library, range(7000, 7000 + n_scenes)), 40)   # no knob chosen there
     log(f"libraries of 5 and 40 of a held-out variant family on {len(held_out)} held-out clicks ...")
     held_out_library_rows = _library_rows(library, held_out, (5, 40), stretched_library)
     log("click -> result on 1M-point organized clouds ...")
@@ -239,6 +238,11 @@ def _real_capture_lines(result: dict) -> list:
                      f"{m['error_mm']} mm (at its centroid) / {m['error_deg']} deg, accepted "
                      f"{m['fits']}")
     return lines
+
+
+def _spread(jobs: list, n: int) -> list:
+    """At most ``n`` of ``jobs``, evenly spaced over them (every scene's clicks alike)."""
+    return jobs[::max(1, len(jobs) // n)][:n]
 
 
 def format_table(result: dict) -> str:

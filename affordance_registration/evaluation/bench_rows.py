@@ -250,18 +250,24 @@ def variant_library(library: TemplateLibrary, size: int,
     through ``scales``, (label, x, y, z) factors): each a template's mesh at its joints'
     zero, scaled by the factors, named ``<template>@<label>``; a uniform scale keeps the
     symmetry."""
-    from ..core.templates import AffordanceTemplate
     tpls = [library[n] for n in library]
     for k in range(max(0, size - len(tpls))):
         base = tpls[k % len(library)]
         label, *factors = scales[(k // len(library)) % len(scales)]
-        mesh = base.mesh_at(0.0, 1.0).copy()
-        mesh.apply_transform(np.diag(factors + [1.0]))
         uniform = len(set(factors)) == 1
-        tpls.append(AffordanceTemplate(f"{base.name}@{label}", base.path, mesh,
-                                       symmetry=base.symmetry if uniform else None,
-                                       description=f"{base.name} scaled {factors}"))
+        tpls.append(_linear_copy(base, label, np.diag(factors + [1.0]),
+                                 base.symmetry if uniform else None, f"scaled {factors}"))
     return TemplateLibrary(tpls)
+
+
+def _linear_copy(base, label: str, T: np.ndarray, symmetry, how: str):
+    """``base``'s mesh at its joints' zero moved by the 4x4 ``T``, a rigid template named
+    ``<base>@<label>`` with ``symmetry``, described as ``<base> <how>``."""
+    from ..core.templates import AffordanceTemplate
+    mesh = base.mesh_at(0.0, 1.0).copy()
+    mesh.apply_transform(T)
+    return AffordanceTemplate(f"{base.name}@{label}", base.path, mesh, symmetry=symmetry,
+                              description=f"{base.name} {how}")
 
 
 def stretched_library(library: TemplateLibrary, size: int, seed: int = 0) -> TemplateLibrary:
@@ -269,7 +275,6 @@ def stretched_library(library: TemplateLibrary, size: int, seed: int = 0) -> Tem
     prefilter's tuning): the library and ``size - len(library)`` rigid variants, round robin
     over its templates, each stretched or squeezed by 20-50% along a random direction (not an
     axis of the template's frame), named ``<template>@r<k>``."""
-    from ..core.templates import AffordanceTemplate
     rng = np.random.default_rng(seed)
     tpls = [library[n] for n in library]
     for k in range(max(0, size - len(tpls))):
@@ -279,10 +284,7 @@ def stretched_library(library: TemplateLibrary, size: int, seed: int = 0) -> Tem
         f = 1.0 + rng.uniform(0.2, 0.5) * rng.choice([-1.0, 1.0])
         T = np.eye(4)
         T[:3, :3] += (f - 1.0) * np.outer(u, u)
-        mesh = base.mesh_at(0.0, 1.0).copy()
-        mesh.apply_transform(T)
-        tpls.append(AffordanceTemplate(f"{base.name}@r{k}", base.path, mesh, symmetry=None,
-                                       description=f"{base.name} x{f:.2f} along {np.round(u, 2)}"))
+        tpls.append(_linear_copy(base, f"r{k}", T, None, f"x{f:.2f} along {np.round(u, 2)}"))
     return TemplateLibrary(tpls)
 
 
