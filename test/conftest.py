@@ -23,6 +23,7 @@ try:      # a clear line, not a traceback, where the package's dependencies are 
     import scipy  # noqa: E402,F401
     import trimesh  # noqa: E402,F401
     import yaml  # noqa: E402,F401
+    from hypothesis import settings as _hypothesis_settings  # noqa: E402
 except ImportError as exc:
     raise pytest.UsageError(
         f"the tests need the package's Python dependencies ({exc}); install them into the "
@@ -31,6 +32,12 @@ except ImportError as exc:
         f"Python colcon runs with)") from None
 
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
+
+# No Hypothesis deadline anywhere in the suite: these machines are shared and noisy, and a 200 ms
+# per-example deadline is a wall-clock bound that a busy core breaks (a test's own @settings still
+# sets its example count).
+_hypothesis_settings.register_profile("suite", deadline=None)
+_hypothesis_settings.load_profile("suite")
 
 
 @pytest.fixture(scope="session")

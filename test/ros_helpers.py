@@ -163,7 +163,9 @@ class Client:
             time.sleep(0.02)
         raise AssertionError(f"timed out waiting for {what}" + (f" ({last_exc!r})" if last_exc else ""))
 
-    def call(self, srv_type, name, request=None, timeout=10.0):
+    def call(self, srv_type, name, request=None, timeout=60.0):
+        """The service's answer; waits for it (an event: it returns as soon as the answer is in),
+        up to ``timeout`` s, generous because a busy engine answers after the fit under way."""
         client = self.node.create_client(srv_type, name)
         if not client.wait_for_service(timeout_sec=timeout):
             raise AssertionError(f"service {name} not available")
