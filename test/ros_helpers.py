@@ -45,7 +45,7 @@ class NodeProcess:
         with open(self.log_path) as handle:
             return handle.read()
 
-    def wait_output(self, text: str, timeout: float = 20.0) -> bool:
+    def wait_output(self, text: str, timeout: float = 60.0) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if text in self.output():
@@ -150,7 +150,7 @@ class Client:
         msg = self.latest.get(topic)
         return None if msg is None else json.loads(msg.data)
 
-    def wait_for(self, predicate, timeout=20.0, what="condition"):
+    def wait_for(self, predicate, timeout=60.0, what="condition"):
         deadline = time.monotonic() + timeout
         last_exc = None
         while time.monotonic() < deadline:

@@ -36,7 +36,7 @@ def node(ros_context):
     n.destroy_node()
 
 
-def _wait(pred, timeout=10.0):
+def _wait(pred, timeout=60.0):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if pred():

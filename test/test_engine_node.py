@@ -45,7 +45,7 @@ def status(s):
     return s["client"].status(f"{NS}/status")
 
 
-def wait_error(s, text, timeout=15):
+def wait_error(s, text, timeout=60):
     return s["client"].wait_for(lambda: text in (status(s) or {}).get("node", {}).get("last_error", ""),
                                 timeout, f"error containing {text!r}")
 
@@ -171,7 +171,7 @@ def test_twist_burst_moves_in_the_view_frame_then_refits(session, library):
     # twists stopped: the node refits after refit_idle_s and lands back on the object
     client.wait_for(lambda: pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose),
                                        obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
-                    timeout=15, what="the refit to land on the object")
+                    timeout=60, what="the refit to land on the object")
     dt, dr = pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose), obj.T_scene_model,
                         library[obj.template].symmetry)
     assert dt < TOL_M and dr < TOL_RAD

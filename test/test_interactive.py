@@ -176,7 +176,7 @@ def test_dragging_3cm_off_and_releasing_refits_back_onto_the_object(session, lib
     proto.send(F.MOUSE_UP, matrix_to_pose(Tk))
     sym = library[obj.template].symmetry
     s["client"].wait_for(lambda: pose_error(pose_to_matrix(marker(s).pose), obj.T_scene_model,
-                                            sym)[0] < 0.005, timeout=15, what="the refit")
+                                            sym)[0] < 0.005, timeout=60, what="the refit")
     dt, dr = pose_error(pose_to_matrix(marker(s).pose), obj.T_scene_model, sym)
     assert dt < 0.005 and dr < math.radians(5)
 
