@@ -123,6 +123,20 @@ def test_a_specific_template_that_fits_outranks_the_primitives(registrar, panel_
         assert verdict(rep.candidates) == "fits" and not no_match(rep.candidates)
 
 
+@pytest.mark.parametrize("seed", [2000, 2001])
+def test_an_emergency_stop_shows_what_sets_it_apart_from_a_box(registrar, seed):
+    """An emergency stop lying on a table, where a box fits its housing too: its button is
+    seen, so it is shown and fits, with the share of what a box does not have that the sensor
+    saw above the bar (the distinction test was made on these clicks)."""
+    sim = simulate_taskboard(TemplateLibrary.load().specific(), seed, layout="table")
+    stops = [o for o in sim.objects if o.template == "emergency_stop" and o.visible_points >= 200]
+    assert stops
+    for obj in stops:
+        best = registrar.fit(Scene(sim.organized), obj.click).candidates[0]
+        assert best.template == "emergency_stop" and best.fits is True, best.reason
+        assert best.distinct is not None and best.distinct >= registrar.settings.verdict.min_distinct
+
+
 def test_the_verdict_refuses_what_does_not_explain_the_object(registrar, panel_scene, library):
     """A small template inside a big object's points covers itself but explains little of
     the object: refused with the reason; the same fit of the right template is accepted."""

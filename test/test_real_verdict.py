@@ -44,8 +44,7 @@ def kinect_records(data_dir, library):
 
 def test_the_library_refuses_every_real_kinect_object(kinect_records):
     """No box, can or bowl of mOSD is called a valve, an e-stop or a handle: at least 95% of
-    the labelled objects get 'no template fits here' (this code: 36 of 37 -- learn8's small box
-    half hidden behind a large one passes for an emergency stop's housing), each with a
+    the labelled objects get 'no template fits here' (this code: 37 of 37), each with a
     reason."""
     assert len(kinect_records) >= 30
     assert not [r for r in kinect_records if r["error"]]
@@ -55,6 +54,27 @@ def test_the_library_refuses_every_real_kinect_object(kinect_records):
     for held in (True, False):
         part = [ok for r, ok in zip(kinect_records, refused) if r["held_out"] == held]
         assert part and np.mean(part) >= 0.9
+
+
+def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_dir, library):
+    """learn8's small box, half hidden behind a large one, is covered by an emergency stop's
+    housing (coverage at the bar), but the button is not there: of the e-stop's surface that
+    a box does not have, less than the bar is seen, so it does not fit, says why, and the box
+    primitive is shown and fits."""
+    path = [p for p in rd.osd_scene_paths(data_dir) if rd.scene_name(p) == "learn8"]
+    if not path:
+        pytest.skip("learn8 is not among the shared mOSD scenes")
+    cloud = rd.read_labelled_pcd(path[0])
+    obj = [o for o in rd.labelled_objects(cloud) if o.id == 3][0]
+    registrar = Registrar(library)
+    rep = registrar.fit(Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint),
+                        obj.click)
+    stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
+    assert stop.fits is False and stop.distinct is not None
+    assert stop.distinct < registrar.settings.verdict.min_distinct
+    assert "no more than a box" in stop.reason
+    best = rep.candidates[0]
+    assert best.primitive == "box" and best.fits is True
 
 
 def test_primitives_on_the_boxes_of_real_scans(kinect_records):

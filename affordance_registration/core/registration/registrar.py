@@ -75,7 +75,7 @@ from .parallel import run, single_threaded_blas
 from .primitives import REFINE_SHARE, fit_primitive, object_points, refine_primitive
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import judge, result, results, scores
+from .scoring import distinguished, judge, result, results, scores
 from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 from .viewpoint import suggest_view
 
@@ -163,8 +163,13 @@ class Registrar:
             if primitives:
                 # (a specific template that fits ranks above them: they are not refined)
                 refine = not any(r.fits for r in candidates)
-                candidates = rank(list(candidates) + self._fit_primitives(ctx, primitives,
-                                                                          scene, refine))
+                fitted = self._fit_primitives(ctx, primitives, scene, refine)
+                if not refine:
+                    # ... when the scan shows what sets it apart from the primitive
+                    candidates = self._distinguished(ctx, candidates, fitted)
+                    if not any(r.fits for r in candidates):
+                        fitted = self._fit_primitives(ctx, primitives, scene, True)
+                candidates = rank(list(candidates) + fitted)
             t2 = time.perf_counter()
             ambiguity = self.assess(ctx, candidates, alternatives)
         t3 = time.perf_counter()
@@ -296,6 +301,20 @@ class Registrar:
         results = list(results)
         return judge(ctx, [self._model(r.template, r.joints, r.scale, r.dimensions)
                            for r in results], results, self.settings)
+
+    def _distinguished(self, ctx: ClickContext, candidates, primitives) -> list:
+        """``candidates`` with the fitting specific ones tested against the best fitting of
+        ``primitives`` (:func:`.scoring.distinguished`); unchanged when none of those fits."""
+        fitting = [r for r in primitives if r.fits]
+        if not fitting:
+            return list(candidates)
+        best = max(fitting, key=lambda r: r.likelihood)
+        tested = [r for r in candidates if r.fits and r.primitive is None]
+        done = dict(zip(map(id, tested), distinguished(
+            ctx, [self._model(r.template, r.joints, r.scale, r.dimensions) for r in tested],
+            tested, self._model(best.template, best.joints, best.scale, best.dimensions),
+            best, self.settings)))
+        return [done.get(id(r), r) for r in candidates]
 
     def _fit_primitives(self, ctx: ClickContext, names: list[str],
                         scene: Scene | None = None, refine: bool = True) -> list:

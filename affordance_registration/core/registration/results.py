@@ -67,6 +67,9 @@ class FitResult:
     #: "x", "y", "z", a cylinder's "radius", "length"); None and {} for a specific template
     primitive: str | None = None
     dimensions: dict = field(default_factory=dict)
+    #: of the surface that sets a specific template apart from the primitive fitting the same
+    #: click, the share the sensor saw (:func:`.scoring.distinguished`; None: not measured)
+    distinct: float | None = None
 
     def to_dict(self) -> dict:
         return {"rank": self.rank, "template": self.template,
@@ -82,6 +85,7 @@ class FitResult:
                 "primitive": self.primitive,
                 "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
                 if self.primitive else None,
+                "distinct": None if self.distinct is None else round(float(self.distinct), 4),
                 "iterations": self.iterations, "converged": self.converged,
                 "prefiltered": self.prefiltered, "time_s": round(self.time_s, 6),
                 "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}

@@ -27,7 +27,8 @@ from .results import FitResult
 from .settings import FitSettings
 from .visibility import visible
 
-__all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "self_hidden",
+__all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "distinguished",
+           "self_hidden",
            "scores", "result", "results"]
 
 MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
@@ -117,11 +118,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
             on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
             if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
                 near &= ~on_plane          # it covers the wall around the click, not an object
-        seen = exposed[k].copy()
-        rows = np.flatnonzero(seen)
-        if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
-            seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
-                                  settings.scoring.free_space_margin)]] = False
+        seen = _seen(ctx, model, P, R, t, exposed[k], settings)
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
         rmse = math.sqrt(float((dist[k][near & seen] ** 2).sum()) / max(n_near, 1))
@@ -141,6 +138,71 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         out.append(replace(res, coverage=cov, inlier_rmse=rmse, explained=float(explained[k]),
                            object_residual=obj_res, noise=ctx.noise, fits=not why,
                            reason=why or None))
+    return out
+
+
+def _seen(ctx: ClickContext, model: Model, P: np.ndarray, R, t, exposed: np.ndarray,
+          settings: FitSettings) -> np.ndarray:
+    """Which of the model's samples ``P`` (S, 3, model frame), posed at (R, t), face the
+    sensor where it returned something (``exposed``, (S,) bool) and are not hidden by the
+    model's own surface. (S,) bool."""
+    seen = exposed.copy()
+    rows = np.flatnonzero(seen)
+    if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
+        seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
+                              settings.scoring.free_space_margin)]] = False
+    return seen
+
+
+#: a specific template differs from a primitive where it shows the sensor at least this share
+#: of its surface more than ``verdict.distinct_distance`` off the primitive's; less, and the scan
+#: cannot tell them apart (the distinction test is not made)
+DISTINCT_SHARE = 0.1
+
+
+def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
+                  primitive_fit: FitResult, settings: FitSettings) -> list:
+    """Each of ``fits`` (fitting specific candidates, their models in ``models``) tested against
+    the primitive that fits the same click (``primitive_fit``, its model ``primitive_model``):
+    the samples of the candidate the sensor faces (as :func:`judge` counts them) that lie more
+    than ``verdict.distinct_distance`` from the posed primitive's surface are what sets the
+    template apart -- an emergency stop's button on a box's housing. When they are at least
+    ``DISTINCT_SHARE`` of what it shows, at least ``verdict.min_distinct`` of them must be
+    covered (within the verdict's widened ``coverage_distance``), or the candidate does not fit:
+    the object is no more than the primitive. ``distinct`` is that share (None where the
+    test is not made)."""
+    fits = list(fits)
+    if ctx.sensor_origin is None or not fits:
+        return fits
+    s = settings
+    widen = max(1.0, ctx.noise / s.verdict.noise_reference)
+    Tp = primitive_fit.T_scene_model
+    out = []
+    for model, res in zip(models, fits):
+        T = res.T_scene_model
+        R, t = T[:3, :3], T[:3, 3]
+        dist, vis, exposed = _forward_distances(ctx, Batch.of([model], R[None], t[None]),
+                                                s.scoring.samples, s, np.array([False]))
+        P = model.samples(s.scoring.samples)[0]
+        X = P @ R.T + t
+        seen = _seen(ctx, model, P, R, t, exposed[0], s)
+        off = surface_distances([primitive_model], ((X - Tp[:3, 3]) @ Tp[:3, :3])[None],
+                                2 * s.verdict.distinct_distance)[0]
+        distinct = seen & (off > s.verdict.distinct_distance)
+        n = int(distinct.sum())
+        if n == 0 or n < DISTINCT_SHARE * max(int(seen.sum()), 1):
+            out.append(res)
+            continue
+        share = float((distinct & vis[0] & (dist[0] <= widen * s.verdict.coverage_distance)
+                       ).sum()) / n
+        if share >= s.verdict.min_distinct:
+            out.append(replace(res, distinct=share))
+            continue
+        why = (f"of its surface that a {primitive_fit.primitive} does not have, {share:.0%} is "
+               f"seen (a fit needs {s.verdict.min_distinct:.0%}): here it is no more than a "
+               f"{primitive_fit.primitive}")
+        out.append(replace(res, distinct=share, fits=False,
+                           reason=f"{res.reason}; {why}" if res.reason else why))
     return out
 
 

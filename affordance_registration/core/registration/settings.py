@@ -304,6 +304,13 @@ class VerdictSettings(_Group):
     #: a template whose surface runs several millimetres off the object is some other object's
     max_residual: float = knob(0.005, "a fitting candidate's object residual (its surface "
                                       "and the clicked object's points) is at most this (m)")
+    #: an emergency stop fitted to a plain box covers the housing but not the button: what
+    #: sets a template apart from the primitive that fits the same click must be seen
+    distinct_distance: float = knob(0.01, "a specific template's samples this far off the "
+                                          "surface of the primitive fitting the same click set "
+                                          "it apart from it (m)")
+    min_distinct: float = knob(0.25, "a specific template fits only when at least this share "
+                                     "of those it shows the sensor is covered", FRACTION)
     #: a noisier scan (``ClickContext.noise``) widens the verdict's distances in proportion
     noise_reference: float = knob(0.0015, "the verdict's distances hold for a scan noise up to "
                                           "this (m)")
