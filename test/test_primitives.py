@@ -137,6 +137,55 @@ def test_an_emergency_stop_shows_what_sets_it_apart_from_a_box(registrar, seed):
         assert best.distinct is not None and best.distinct >= registrar.settings.verdict.min_distinct
 
 
+def _table_scene(boxes, poles, seed=0):
+    """A simulated table (the mOSD camera 1 m away, 30 deg above it, looking along +y) with
+    ``boxes`` [((x, y, z) extents, (px, py))] and standing ``poles`` [(radius, height,
+    (px, py))]: (organized, labels), label 1 the first box."""
+    import trimesh
+
+    from affordance_registration.core.transforms import invert, make_T
+    from affordance_registration.evaluation.rows import TABLE, _look_at, _mosd_camera
+    from affordance_registration.evaluation.simulation import DepthCamera
+    meshes = [(trimesh.creation.box(extents=TABLE), make_T(None, [0, 0, -TABLE[2] / 2]))]
+    meshes += [(trimesh.creation.box(extents=ext), make_T(None, [px, py, ext[2] / 2]))
+               for ext, (px, py) in boxes]
+    meshes += [(trimesh.creation.cylinder(radius=r, height=h, sections=48),
+                make_T(None, [px, py, h / 2])) for r, h, (px, py) in poles]
+    e = math.radians(30.0)
+    T_cam_table = invert(_look_at(np.array([0.0, -math.cos(e), math.sin(e)]), np.zeros(3)))
+    return DepthCamera(_mosd_camera()).render([(m, T_cam_table @ T) for m, T in meshes],
+                                              np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_a_box_split_by_a_pole_in_front_is_measured_whole(registrar, side):
+    """A 0.26 m box seen left and right of a pole standing in front of it: a click on either
+    piece measures the whole box (the line between the pieces is hidden behind the pole)."""
+    from affordance_registration.evaluation.realdata import click_in_middle
+    organized, labels = _table_scene([((0.26, 0.06, 0.08), (0.0, 0.0))],
+                                     [(0.03, 0.30, (0.0, -0.14))])
+    box = labels == 1
+    cols = np.nonzero(box.any(axis=0))[0]
+    column = np.arange(box.shape[1])[None, :]
+    piece = box & ((column < cols.mean()) if side == "left" else (column > cols.mean()))
+    best = registrar.fit(Scene(organized), click_in_middle(organized, piece)[0],
+                         templates=["box"]).candidates[0]
+    assert abs(best.dimensions["x"] - 0.26) <= DIM_TOL, best.dimensions
+    assert best.fits is True
+
+
+def test_two_boxes_with_the_table_seen_between_them_stay_two(registrar):
+    """Two 0.10 m boxes 4 cm apart with nothing in front: the table shows between them, so a
+    click on one measures that one alone."""
+    from affordance_registration.evaluation.realdata import click_in_middle
+    organized, labels = _table_scene([((0.10, 0.06, 0.08), (-0.07, 0.0)),
+                                      ((0.10, 0.06, 0.08), (0.07, 0.0))], [])
+    for label in (1, 2):
+        best = registrar.fit(Scene(organized), click_in_middle(organized, labels == label)[0],
+                             templates=["box"]).candidates[0]
+        assert abs(best.dimensions["x"] - 0.10) <= DIM_TOL, best.dimensions
+
+
 def test_the_verdict_refuses_what_does_not_explain_the_object(registrar, panel_scene, library):
     """A small template inside a big object's points covers itself but explains little of
     the object: refused with the reason; the same fit of the right template is accepted."""

@@ -77,6 +77,18 @@ def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_di
     assert best.primitive == "box" and best.fits is True
 
 
+@pytest.mark.parametrize("scene,object_id", [("learn28", 3), ("learn32", 3)])
+def test_a_real_object_split_by_one_in_front_is_measured_whole(kinect_records, scene,
+                                                               object_id):
+    """learn28's box and learn32's tube are each seen on both sides of an object standing in
+    front of them: the primitive measured from the clicked piece covers both pieces (the label
+    score passes: recall and precision at least 90%)."""
+    rec = [r for r in kinect_records if r["scene"] == scene and r["object"] == object_id]
+    if not rec:
+        pytest.skip(f"{scene} is not among the shared mOSD scenes")
+    assert rec[0]["score"] is not None and rec[0]["score"]["passes"], rec[0]
+
+
 def test_primitives_on_the_boxes_of_real_scans(kinect_records):
     """The single boxes of learn0-16 (no box touching another): the box primitive is the best
     candidate and explains the labels -- of the object's points at least 90% on its surface,
@@ -102,13 +114,13 @@ def test_primitives_explain_the_real_boxes_and_cylinders(kinect_records):
     """Every labelled box and closed cylinder of the learn scenes (``OBJECT_KINDS``: not the
     bowl nor the open tub), touching, stacked and half hidden ones included: the label score
     -- of the object's points at least 90% within max(6 mm, 3 sigma) of the fitted surface,
-    of the scan's points on it at least 90% the object's -- passes on at least 75% of them
-    (this code: 27 of 34, 20 of 24 tuning and 7 of 10 held-out; the issue's target is 90%),
-    and the fitted primitive is accepted on at least 85%."""
+    of the scan's points on it at least 90% the object's -- passes on at least 85% of them
+    (this code: 30 of 34, 22 of 24 tuning and 8 of 10 held-out; the issue's target is 90% of
+    each), and the fitted primitive is accepted on at least 85%."""
     objects = [r for r in kinect_records if r["object_kind"] in ("box", "cylinder")]
     assert len(objects) >= 30
     passes = [bool(r["score"] and r["score"]["passes"]) for r in objects]
-    assert np.mean(passes) >= 0.75, [(r["scene"], r["object"]) for r, ok in
+    assert np.mean(passes) >= 0.85, [(r["scene"], r["object"]) for r, ok in
                                      zip(objects, passes) if not ok]
     accepted = [r["primitive"] is not None and r["fits"] is True for r in objects]
     assert np.mean(accepted) >= 0.85, np.mean(accepted)

@@ -60,6 +60,7 @@ from ..templates import TemplateLibrary
 from ..voxels import voxel_downsample
 from .ambiguity import Ambiguity, assess
 from .articulation import articulate, prefer_nominal
+from .hidden_parts import hidden_parts, joined
 from .hypotheses import (
     Hypotheses,
     best_per_template,
@@ -69,10 +70,10 @@ from .hypotheses import (
     yaw_sweep_starts,
 )
 from .icp import fine_stage, icp
-from .model import Batch, Model, ModelCache
+from .model import Batch, Model, ModelCache, surface_distances
 from .paper import PaperMethod
 from .parallel import run, single_threaded_blas
-from .primitives import REFINE_SHARE, fit_primitive, object_points, refine_primitive
+from .primitives import MEASURE_POINTS, REFINE_SHARE, fit_primitive, object_points, refine_primitive
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import distinguished, judge, result, results, scores
@@ -330,6 +331,7 @@ class Registrar:
             measured = object_points(ctx)
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
                                 measured=measured, refine=False) for n in names]
+        fitted = self._with_hidden_parts(ctx, scene, names, measured, fitted)
         # (refining costs an ICP: only the primitives that may lead are refined)
         lead = max(r.likelihood for r in fitted)
         fitted = [refine_primitive(ctx, self.library[n], self.models, self.settings, r)
@@ -343,6 +345,31 @@ class Registrar:
             judged = [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
                       for r in judged]
         return judged
+
+    def _with_hidden_parts(self, ctx: ClickContext, scene, names, measured, fitted) -> list:
+        """``fitted`` (one primitive of each of ``names``, measured on the clicked part), each
+        measured again with the pieces of the object something in front splits off
+        (:func:`.hidden_parts.hidden_parts`) where there are any, and kept so when that one
+        explains the clicked part and every piece: the share of each within the verdict's
+        (widened) ``explained_distance`` of its surface is at least ``verdict.min_explained``."""
+        clicked = ctx.cluster[ctx.segments == ctx.segments[int(np.argmin(ctx._cluster_to_click))]]
+        parts = hidden_parts(ctx, scene, clicked, self.settings)
+        if not parts:
+            return fitted
+        v = self.settings.verdict
+        within = max(1.0, ctx.noise / v.noise_reference) * v.explained_distance
+        both = joined(measured, parts, MEASURE_POINTS)
+        out = []
+        for name, alone in zip(names, fitted):
+            res = fit_primitive(ctx, self.library[name], self.models, self.settings,
+                                measured=both, refine=False)
+            model = self._model(res.template, res.joints, res.scale, res.dimensions)
+            T = res.T_scene_model
+            shares = [float(np.mean(surface_distances(
+                [model], ((p - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0] <= within))
+                for p in [measured[0]] + [q for q, _ in parts]]
+            out.append(res if min(shares) >= v.min_explained else alone)
+        return out
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with

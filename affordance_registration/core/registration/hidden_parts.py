@@ -1,0 +1,121 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""The parts of a clicked object that something standing in front of it splits off.
+
+A box behind a can is seen left and right of the can: two pieces of the scan, not connected,
+and the click lands on one of them. A primitive measured on that piece alone is half the box.
+Another piece is taken for part of the same object when
+
+* it lies off the support, outside the click's cluster, and is not much smaller than the
+  clicked part (``MIN_PART`` of its points);
+* the straight line from the clicked part to it (between their nearest points, at most
+  ``BRIDGE_REACH`` long) is hidden all along: wherever the sensor returned something in its
+  direction, that return lies at least ``verdict.occluder_gap`` in front of the line -- what
+  splits them stands in front (two boxes side by side show the table between them instead);
+
+and the primitive measured on both pieces explains each of them (the registrar's test). The
+pieces come at the scan's full resolution, with normals towards the sensor, as
+:func:`.primitives.object_points` gives the clicked part.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..click_context import RangeImage
+from ..neighbours import build_tree, nearest, pca_normals
+from ..scene import ClickContext
+from ..segmentation import _gap_components
+from .settings import FitSettings
+
+__all__ = ["hidden_parts", "joined"]
+
+#: a piece at most this far (m) from the clicked part may be split off it
+BRIDGE_REACH = 0.12
+#: points along the line between them, their ends left out
+BRIDGE_SAMPLES = 9
+#: at least this share of those points has a return (the rest: no evidence either way)
+BRIDGE_KNOWN = 0.5
+#: a piece holds at least this share of the clicked part's voxels (and 10)
+MIN_PART = 0.2
+#: steps between the voxels of one piece (m; the cluster's own gap)
+PIECE_GAP = 0.025
+
+
+def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSettings) -> list:
+    """The pieces of the crop split off the clicked part ``clicked`` (its voxels, (K, 3)) by
+    something in front of it (see the module), each as (points (N, 3), normals (N, 3)) at
+    the scan's full resolution from ``scene``; [] without a viewpoint, a support, a range
+    image or a scene."""
+    if scene is None or ctx.sensor_origin is None or ctx.support is None or \
+            ctx.range_image is None or len(clicked) < 10:
+        return []
+    crop = ctx.crop
+    off = ctx.support.distance(crop) > ctx.plane_threshold
+    d, _ = nearest(ctx.cluster_tree, crop, 1e-9)
+    rest = crop[off & ~np.isfinite(d)]
+    if len(rest) < 10:
+        return []
+    labels = _gap_components(rest, PIECE_GAP)
+    counts = np.bincount(labels)
+    tree_a = build_tree(clicked)
+    image, pieces = None, []
+    for k in np.flatnonzero(counts >= max(10, MIN_PART * len(clicked))):
+        piece = rest[labels == k]
+        dist, idx = nearest(tree_a, piece, BRIDGE_REACH)
+        if not np.isfinite(dist).any():
+            continue
+        j = int(np.argmin(dist))
+        a, b = clicked[idx[j]], piece[j]
+        s = np.linspace(0.0, 1.0, BRIDGE_SAMPLES + 2)[1:-1, None]
+        # (what stands in front may lie outside the crop: the whole scan in its cone)
+        image = _cone_image(ctx, scene) if image is None else image
+        obs, depth = image.lookup(a + s * (b - a))
+        known = obs == obs
+        if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or \
+                not np.all(obs[known] < depth[known] - settings.verdict.occluder_gap):
+            continue
+        pieces.append(_full_resolution(ctx, scene, piece))
+    return [p for p in pieces if len(p[0]) >= 10]
+
+
+def _cone_image(ctx: ClickContext, scene) -> RangeImage:
+    """The range image of the crop (as the click's context has it), of every scan point in
+    the cone from the sensor that the crop's sphere fills: what stands in front of the crop
+    too."""
+    origin = ctx.sensor_origin
+    axis = ctx.click - origin
+    reach = float(np.linalg.norm(axis))
+    axis = axis / reach
+    rel = scene.points - origin
+    along = rel @ axis
+    cos_cone = np.sqrt(max(0.0, 1.0 - min(1.0, ctx.radius / reach) ** 2))
+    inside = (along > 1e-3) & (along >= cos_cone * np.linalg.norm(rel, axis=1))
+    return RangeImage(scene.points[inside], origin, bin_size=ctx.range_image.bin,
+                      frame=ctx.range_image.frame)
+
+
+def _full_resolution(ctx: ClickContext, scene, voxels: np.ndarray):
+    """The scan's points within a voxel of ``voxels`` (and of the click's crop), with PCA
+    normals turned towards the sensor."""
+    pts = scene.points
+    near = np.einsum("ij,ij->i", pts - ctx.click, pts - ctx.click) <= ctx.radius ** 2
+    pts = pts[near]
+    d, _ = nearest(build_tree(voxels), pts, ctx.voxel)
+    pts = pts[np.isfinite(d)]
+    if len(pts) < 10:
+        return pts, np.zeros_like(pts)
+    normals = pca_normals(pts, 12, build_tree(pts))
+    normals[np.einsum("ij,ij->i", normals, ctx.sensor_origin - pts) < 0] *= -1
+    return pts, normals
+
+
+def joined(measured, parts, limit: int):
+    """``measured`` (:func:`.primitives.object_points`' tuple) with the points and normals of
+    ``parts`` added, an even subset of at most ``limit`` of them."""
+    points, normals, support, up = measured
+    points = np.concatenate([points] + [p for p, _ in parts])
+    normals = np.concatenate([normals] + [n for _, n in parts])
+    if len(points) > limit:
+        keep = np.linspace(0, len(points) - 1, limit).astype(np.int64)
+        points, normals = points[keep], normals[keep]
+    return points, normals, support, up
