@@ -80,15 +80,16 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
 
 def _cone_image(ctx: ClickContext, scene) -> RangeImage:
     """The range image of the crop (as the click's context has it), of every scan point in
-    the cone from the sensor that the crop's sphere fills: what stands in front of the crop
-    too."""
+    the cone from the sensor that the crop's sphere fills (at most 60 degrees round the ray):
+    what stands in front of the crop too."""
     origin = ctx.sensor_origin
     axis = ctx.click - origin
     reach = float(np.linalg.norm(axis))
     axis = axis / reach
     rel = scene.points - origin
     along = rel @ axis
-    cos_cone = np.sqrt(max(0.0, 1.0 - min(1.0, ctx.radius / reach) ** 2))
+    # (at most 60 degrees off the ray: a sensor inside the crop would see half a sphere)
+    cos_cone = max(0.5, float(np.sqrt(max(0.0, 1.0 - min(1.0, ctx.radius / reach) ** 2))))
     inside = (along > 1e-3) & (along >= cos_cone * np.linalg.norm(rel, axis=1))
     return RangeImage(scene.points[inside], origin, bin_size=ctx.range_image.bin,
                       frame=ctx.range_image.frame)
