@@ -12,6 +12,8 @@ import sys
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from affordance_registration.core.engine import AffordanceEngine, load_registrations
 from affordance_registration.core.errors import AffordanceError, EngineStateError, TemplateError
@@ -172,6 +174,38 @@ def test_a_box_split_by_a_pole_in_front_is_measured_whole(registrar, side):
                          templates=["box"]).candidates[0]
     assert abs(best.dimensions["x"] - 0.26) <= DIM_TOL, best.dimensions
     assert best.fits is True
+
+
+@settings(max_examples=4, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**31 - 1))
+def test_the_split_box_measures_the_same_in_any_frame(registrar, split_box, seed):
+    """The split box's scan, click and sensor origin moved by a random rigid transform: the
+    same dimensions (the pieces, the line between them and what hides it do not depend on the
+    scan's axes)."""
+    from affordance_registration.core.transforms import make_T, random_rotations
+    organized, click, dims = split_box
+    rng = np.random.default_rng(seed)
+    T = make_T(random_rotations(1, rng)[0], rng.uniform(-3.0, 3.0, 3))
+    pts = organized.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    moved = registrar.fit(Scene(pts, sensor_origin=T[:3, 3]), T[:3, :3] @ click + T[:3, 3],
+                          templates=["box"]).candidates[0]
+    for key, value in dims.items():
+        assert abs(moved.dimensions[key] - value) <= 1e-4, (key, moved.dimensions, dims)
+
+
+@pytest.fixture(scope="module")
+def split_box(registrar):
+    """The split box of the test above, clicked on its left piece: (organized, click, the
+    fitted dimensions in the camera frame)."""
+    from affordance_registration.evaluation.realdata import click_in_middle
+    organized, labels = _table_scene([((0.26, 0.06, 0.08), (0.0, 0.0))],
+                                     [(0.03, 0.30, (0.0, -0.14))])
+    box = labels == 1
+    cols = np.nonzero(box.any(axis=0))[0]
+    piece = box & (np.arange(box.shape[1])[None, :] < cols.mean())
+    click = click_in_middle(organized, piece)[0]
+    best = registrar.fit(Scene(organized), click, templates=["box"]).candidates[0]
+    return organized, np.asarray(click, float), dict(best.dimensions)
 
 
 def test_two_boxes_with_the_table_seen_between_them_stay_two(registrar):
