@@ -9,6 +9,7 @@ fitted anew: the right template, within the pose tolerance, settled. Bad request
 in one log line each and the node keeps running."""
 import math
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -53,17 +54,20 @@ def edge_on_case(library):
     return sim, T, click, sim.objects[k]
 
 
-def click_on(client, pub, status, point, tries: int = 5) -> None:
+def click_on(client, pub, status, point, within: float = 60.0) -> None:
     """Click ``point`` and wait for its fit. An engine that has not yet heard the sensor's frame
     on TF (its transient-local /tf_static reader may match after the cloud's) cannot use the
     cloud and refuses the click in one line saying which transform it lacks: the click is sent
-    again then."""
+    again then (a quarter second after the refusal), until it is fitted or ``within`` seconds
+    have passed."""
     msg = PointStamped()
     msg.header.frame_id = FRAME
     msg.point.x, msg.point.y, msg.point.z = map(float, point)
     def handled() -> int:
         return int(((status().get("node") or {}).get("handled") or {}).get("/clicked_point", 0))
-    for _ in range(tries):
+    deadline, tries = time.monotonic() + within, 0
+    while time.monotonic() < deadline:
+        tries += 1
         before = handled()
         pub.publish(msg)
         client.wait_for(lambda: handled() > before and status()["node"]["idle"], 120,
@@ -72,6 +76,7 @@ def click_on(client, pub, status, point, tries: int = 5) -> None:
             return
         assert "no transform" in status()["node"]["last_error"] or \
             "has no known transform" in status()["node"]["last_error"], status()["node"]
+        time.sleep(0.25)
     raise AssertionError(f"the click was refused {tries} times: {status()['node']}")
 
 
