@@ -66,10 +66,13 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
             continue
         j = int(np.argmin(dist))
         a, b = clicked[idx[j]], piece[j]
-        s = np.linspace(0.0, 1.0, BRIDGE_SAMPLES + 2)[1:-1, None]
+        line = a + np.linspace(0.0, 1.0, BRIDGE_SAMPLES + 2)[1:-1, None] * (b - a)
+        obs, depth = ctx.range_image.lookup(line)
+        if np.any(obs > depth + settings.scoring.free_space_margin):
+            continue            # the sensor saw past the line: nothing stands in front there
         # (what stands in front may lie outside the crop: the whole scan in its cone)
         image = _cone_image(ctx, scene) if image is None else image
-        obs, depth = image.lookup(a + s * (b - a))
+        obs, depth = image.lookup(line)
         known = obs == obs
         if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or \
                 not np.all(obs[known] < depth[known] - settings.verdict.occluder_gap):
