@@ -177,15 +177,15 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
     s = settings
     widen = max(1.0, ctx.noise / s.verdict.noise_reference)
     Tp = primitive_fit.T_scene_model
+    T = np.stack([r.T_scene_model for r in fits])
+    dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
+                                            s.scoring.samples, s, np.zeros(len(fits), bool))
     out = []
-    for model, res in zip(models, fits):
-        T = res.T_scene_model
-        R, t = T[:3, :3], T[:3, 3]
-        dist, vis, exposed = _forward_distances(ctx, Batch.of([model], R[None], t[None]),
-                                                s.scoring.samples, s, np.array([False]))
+    for k, (model, res) in enumerate(zip(models, fits)):
+        R, t = T[k, :3, :3], T[k, :3, 3]
         P = model.samples(s.scoring.samples)[0]
         X = P @ R.T + t
-        seen = _seen(ctx, model, P, R, t, exposed[0], s)
+        seen = _seen(ctx, model, P, R, t, exposed[k], s)
         off = surface_distances([primitive_model], ((X - Tp[:3, 3]) @ Tp[:3, :3])[None],
                                 2 * s.verdict.distinct_distance)[0]
         distinct = seen & (off > s.verdict.distinct_distance)
@@ -193,7 +193,7 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
         if n == 0 or n < DISTINCT_SHARE * max(int(seen.sum()), 1):
             out.append(res)
             continue
-        share = float((distinct & vis[0] & (dist[0] <= widen * s.verdict.coverage_distance)
+        share = float((distinct & vis[k] & (dist[k] <= widen * s.verdict.coverage_distance)
                        ).sum()) / n
         if share >= s.verdict.min_distinct:
             out.append(replace(res, distinct=share))
