@@ -159,10 +159,9 @@ def _table_scene(boxes, poles, seed=0):
                                               np.random.default_rng(seed))
 
 
-@pytest.mark.parametrize("side", ["left", "right"])
-def test_a_box_split_by_a_pole_in_front_is_measured_whole(registrar, side):
-    """A 0.26 m box seen left and right of a pole standing in front of it: a click on either
-    piece measures the whole box (the line between the pieces is hidden behind the pole)."""
+def _split_box(side: str):
+    """A 0.26 m box behind a pole that splits it in two, clicked in the middle of its ``side``
+    ("left" or "right") piece: (organized, click (3,))."""
     from affordance_registration.evaluation.realdata import click_in_middle
     organized, labels = _table_scene([((0.26, 0.06, 0.08), (0.0, 0.0))],
                                      [(0.03, 0.30, (0.0, -0.14))])
@@ -170,8 +169,15 @@ def test_a_box_split_by_a_pole_in_front_is_measured_whole(registrar, side):
     cols = np.nonzero(box.any(axis=0))[0]
     column = np.arange(box.shape[1])[None, :]
     piece = box & ((column < cols.mean()) if side == "left" else (column > cols.mean()))
-    best = registrar.fit(Scene(organized), click_in_middle(organized, piece)[0],
-                         templates=["box"]).candidates[0]
+    return organized, np.asarray(click_in_middle(organized, piece)[0], float)
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_a_box_split_by_a_pole_in_front_is_measured_whole(registrar, side):
+    """A 0.26 m box seen left and right of a pole standing in front of it: a click on either
+    piece measures the whole box (the line between the pieces is hidden behind the pole)."""
+    organized, click = _split_box(side)
+    best = registrar.fit(Scene(organized), click, templates=["box"]).candidates[0]
     assert abs(best.dimensions["x"] - 0.26) <= DIM_TOL, best.dimensions
     assert best.fits is True
 
@@ -195,17 +201,11 @@ def test_the_split_box_measures_the_same_in_any_frame(registrar, split_box, seed
 
 @pytest.fixture(scope="module")
 def split_box(registrar):
-    """The split box of the test above, clicked on its left piece: (organized, click, the
+    """The split box (:func:`_split_box`), clicked on its left piece: (organized, click, the
     fitted dimensions in the camera frame)."""
-    from affordance_registration.evaluation.realdata import click_in_middle
-    organized, labels = _table_scene([((0.26, 0.06, 0.08), (0.0, 0.0))],
-                                     [(0.03, 0.30, (0.0, -0.14))])
-    box = labels == 1
-    cols = np.nonzero(box.any(axis=0))[0]
-    piece = box & (np.arange(box.shape[1])[None, :] < cols.mean())
-    click = click_in_middle(organized, piece)[0]
+    organized, click = _split_box("left")
     best = registrar.fit(Scene(organized), click, templates=["box"]).candidates[0]
-    return organized, np.asarray(click, float), dict(best.dimensions)
+    return organized, click, dict(best.dimensions)
 
 
 def test_two_boxes_with_the_table_seen_between_them_stay_two(registrar):
