@@ -76,7 +76,7 @@ from .parallel import run, single_threaded_blas
 from .primitives import MEASURE_POINTS, REFINE_SHARE, fit_primitive, object_points, refine_primitive
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import distinguished, judge, result, results, scores
+from .scoring import distinguished, explained_share, judge, result, results, scores, widening
 from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 from .viewpoint import suggest_view
 
@@ -93,6 +93,9 @@ SUPPORT_FRACTION = 0.2
 TRUNCATED = 0.95
 #: ... and measured again in a crop this many times as large
 WIDER = 2.0
+#: :meth:`Registrar._worth` judges a leader's explained share on an even subsample of this many
+#: cluster points (its margins are wide: a few points' noise does not matter)
+WORTH_POINTS = 400
 
 
 def _truncated(ctx: ClickContext, measured) -> bool:
@@ -357,7 +360,7 @@ class Registrar:
         if not parts:
             return fitted
         v = self.settings.verdict
-        within = max(1.0, ctx.noise / v.noise_reference) * v.explained_distance
+        within = widening(ctx, self.settings) * v.explained_distance
         both = joined(measured, parts, MEASURE_POINTS)
         out = []
         for name, alone in zip(names, fitted):
@@ -411,11 +414,13 @@ class Registrar:
             return model, result(ctx, model, R, t, s, iterations, converged)
 
         # the best first (the others' margin is to its estimate), then the others side by side
+        # (and none for a leader that cannot come to fit)
         leaders = [r for r in ranked[:s.articulation.candidates]
                    if self.library[r.template].articulated]
         for first in (True, False):
-            todo = [r for r in leaders if (r.template == ranked[0].template) == first
-                    and r.residual <= s.articulation.margin * ranked[0].residual]
+            todo = self._worth(ctx, [r for r in leaders if (r.template == ranked[0].template) == first
+                                     and r.residual <= s.articulation.margin * ranked[0].residual],
+                               {}, s.articulation.explained_margin)[0]
             for r, (model, res) in zip(todo, run([lambda r=r: estimate(r) for r in todo],
                                                  s.threads)):
                 models[r.template] = model
@@ -431,30 +436,49 @@ class Registrar:
         resolution; the fine stage tells them apart (and where they finish within
         ``NEAR_TIE`` of each other, fine stages run to the plain step thresholds do). A
         finished residual is never above the one it started from, and every candidate left
-        out ranked behind those finished, so the ranking stays consistent."""
+        out ranked behind those finished, so the ranking stays consistent. A leader that
+        cannot come to fit (:meth:`_worth`) keeps its medium-resolution result."""
         s = self.settings
         n = 1
         while n < min(s.finish.candidates, len(ranked)) and not ranked[n].prefiltered and \
                 ranked[n].residual <= s.finish.margin * ranked[0].residual:
             n += 1
+        leaders, hopeless = self._worth(ctx, ranked[:n], models, s.finish.explained_margin)
+        if not leaders:
+            return rank(hopeless + list(ranked[n:]))
 
         def lead(win):
             swept = self._before_fine(ctx, win, models)
             return swept, self._finish(ctx, win, swept, iterations)
 
-        swept, done = map(list, zip(*run([lambda r=r: lead(r) for r in ranked[:n]],
-                                         s.threads)))
+        swept, done = map(list, zip(*run([lambda r=r: lead(r) for r in leaders], s.threads)))
         # a near tie -- a template and a squeezed copy of it can finish within 0.1% of each
         # other -- is decided on fine stages run to the plain step thresholds (not
         # FINE_CONVERGED x them)
         best = min(r.residual for r in done)
-        tied = [k for k in range(n) if done[k].residual <= NEAR_TIE * best]
+        tied = [k for k in range(len(done)) if done[k].residual <= NEAR_TIE * best]
         if len(tied) > 1:
-            again = run([lambda k=k: self._finish(ctx, ranked[k], swept[k], iterations, 1.0)
+            again = run([lambda k=k: self._finish(ctx, leaders[k], swept[k], iterations, 1.0)
                          for k in tied], s.threads)
             for k, r in zip(tied, again):
                 done[k] = r
-        return rank(list(done) + list(ranked[n:]))
+        return rank(list(done) + hopeless + list(ranked[n:]))
+
+    def _worth(self, ctx: ClickContext, leaders, models: dict, margin: float) -> tuple:
+        """(the ``leaders`` to work on, those left as they are): a leader that explains less
+        than ``verdict.min_explained - margin`` of the clicked object's points
+        (:func:`.scoring.explained_share`) cannot come to fit -- a valve in a box's points --
+        and is not worked on. Without a viewpoint (no such share) every leader is."""
+        s = self.settings
+        leaders = list(leaders)
+        floor = s.verdict.min_explained - margin
+        if ctx.sensor_origin is None or floor <= 0.0:
+            return leaders, []
+        share = explained_share(ctx, [models.get(r.template) or self._model(r.template, r.joints,
+                                                                              r.scale)
+                                      for r in leaders], leaders, s, WORTH_POINTS)
+        return ([r for r, e in zip(leaders, share) if e >= floor],
+                [r for r, e in zip(leaders, share) if e < floor])
 
     def _before_fine(self, ctx: ClickContext, win: FitResult, models: dict) -> tuple:
         """A leader's yaw sweep (and, articulated, its joint once more after it):

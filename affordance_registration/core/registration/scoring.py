@@ -28,6 +28,7 @@ from .settings import FitSettings
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "distinguished",
+           "widening", "explained_share",
            "self_hidden",
            "scores", "result", "results"]
 
@@ -98,7 +99,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
                                             primitive)
     bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
         settings.verdict.min_coverage_no_viewpoint
-    widen = max(1.0, ctx.noise / settings.verdict.noise_reference)      # a noisier scan: wider
+    widen = widening(ctx, settings)
     covered_within = widen * settings.verdict.coverage_distance
     explained, object_bwd = _explained(ctx, models, T, widen * settings.verdict.explained_distance,
                                        settings.scoring.cap)
@@ -141,6 +142,27 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     return out
 
 
+def widening(ctx: ClickContext, settings: FitSettings) -> float:
+    """How much wider than the simulator's the verdict's distances are around this click: the
+    scan's measured noise over ``verdict.noise_reference``, at least 1 (a noisier scan: wider)."""
+    return max(1.0, ctx.noise / settings.verdict.noise_reference)
+
+
+def explained_share(ctx: ClickContext, models, fits, settings: FitSettings,
+                    points: int | None = None) -> np.ndarray:
+    """The share (B,) of the clicked object's points each of ``fits`` (posed ``models``)
+    explains, as :func:`judge` counts it (``FitResult.explained``), over an even, fixed
+    subsample of at most ``points`` cluster points (None: all of them); all zero without a
+    viewpoint (no segments)."""
+    fits = list(fits)
+    if ctx.sensor_origin is None or not fits:
+        return np.zeros(len(fits))
+    T = np.stack([r.T_scene_model for r in fits])
+    return _explained(ctx, list(models), T,
+                      widening(ctx, settings) * settings.verdict.explained_distance,
+                      settings.scoring.cap, points)[0]
+
+
 def _seen(ctx: ClickContext, model: Model, P: np.ndarray, R, t, exposed: np.ndarray,
           settings: FitSettings) -> np.ndarray:
     """Which of the model's samples ``P`` (S, 3, model frame), posed at (R, t), face the
@@ -175,7 +197,7 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
     if ctx.sensor_origin is None or not fits:
         return fits
     s = settings
-    widen = max(1.0, ctx.noise / s.verdict.noise_reference)
+    widen = widening(ctx, s)
     Tp = primitive_fit.T_scene_model
     T = np.stack([r.T_scene_model for r in fits])
     dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
@@ -212,25 +234,33 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
 OBJECT_SEGMENT = 0.3
 
 
-def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float):
+def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float,
+               points: int | None = None):
     """The share (B,) of the clicked object's cluster points within ``within`` of each posed
     candidate's surface, and their capped mean distance to it (B,, m, capped at ``cap``). The
     object is the clicked segment of the cluster and every segment
     (``ClickContext.segments``) the candidate lies on for at least ``OBJECT_SEGMENT`` of its
     points: touching neighbours, and a sensor's mixed pixels bridging to them, do not count
-    against a candidate; the rest of an object it is too small for does."""
+    against a candidate; the rest of an object it is too small for does. ``points``: over an
+    even, fixed subsample of at most that many cluster points (None: all)."""
     pts, labels = ctx.cluster, ctx.segments
+    clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    if points is not None and len(pts) > points:
+        pick = (np.arange(points) * (len(pts) / points)).astype(np.int64)
+        pts, labels = pts[pick], labels[pick]
     local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]          # (B, K, 3) model frames
     dist = np.minimum(surface_distances(list(models), local, max(cap, within * 2)), cap)
     on = dist <= within
-    counts = np.bincount(labels)
-    clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    counts = np.maximum(np.bincount(labels, minlength=int(clicked) + 1), 1)
     share_on, mean_d = np.empty(len(T)), np.empty(len(T))
     for k in range(len(T)):
         share = np.bincount(labels, weights=on[k], minlength=len(counts)) / counts
         part = share >= OBJECT_SEGMENT
         part[clicked] = True
         mine = part[labels]
+        if not mine.any():          # (a subsample without the clicked segment: unknown)
+            share_on[k], mean_d[k] = 1.0, 0.0
+            continue
         share_on[k], mean_d[k] = float(on[k][mine].mean()), float(dist[k][mine].mean())
     return share_on, mean_d
 

@@ -250,6 +250,13 @@ class FinishSettings(_Group):
     candidates: int = knob(4, "the winner and, of the next candidates - 1, those within margin "
                               "are finished (1: the winner alone)")
     margin: float = knob(1.3, "finished: a residual within this factor of the winner's")
+    #: the fine stage raised a leader's explained share by at most 0.10 on the simulated
+    #: panels, tables and articulated boards and 0.24 on mOSD's tuning scenes: one this far
+    #: below the verdict's bar cannot come to fit, and finishing it costs a real click most of
+    #: its time (several such leaders within margin of each other)
+    explained_margin: float = knob(0.3, "a leader explaining less than verdict.min_explained "
+                                        "minus this share of the clicked object's points is not "
+                                        "finished (1: every one is)", FRACTION)
 
 
 @dataclass(frozen=True)
@@ -259,6 +266,11 @@ class ArticulationSettings(_Group):
     name = "articulation"
     candidates: int = knob(4, "at most this many leading candidates get them estimated", COUNT0)
     margin: float = knob(1.3, "those with a residual within this factor of the best")
+    #: a valve fitted rigidly with its handle turned explained at least 0.49 of its points on
+    #: the simulated articulated boards (a rigid fit's share rose by up to 0.51 with its joint)
+    explained_margin: float = knob(0.55, "a leader explaining less than verdict.min_explained "
+                                         "minus this share of the clicked object's points gets "
+                                         "none (1: every one does)", FRACTION)
     joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits")
     scale_sweep: int = knob(7, "scales tried across a template's scale range")
     #: an articulated candidate whose rigid fit touches the plane under the click keeps
