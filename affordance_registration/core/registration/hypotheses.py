@@ -30,6 +30,11 @@ DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as 
 ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
 
 MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
+#: a click off an object's middle: where the clicked segment of the cluster (no larger than
+#: SEGMENT_REACH x a template's radius) has its mean more than CENTRE_SHIFT x the template's
+#: diameter from the centre the click gives, the yaw sweeps start over that mean too
+SEGMENT_REACH = 1.1
+CENTRE_SHIFT = 0.1
 FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
 
 
@@ -117,6 +122,12 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, np.concatenate(offsets)))
         family.append(np.concatenate([d.families, np.full(len(R0) - k, RANDOM)]))
+        middle = _segment_middle(ctx, model, centre) if k else None
+        if middle is not None:      # the sweeps again, over the clicked object's middle
+            index.append(np.full(k, i))
+            Rs.append(R0[:k])
+            ts.append(_starts(ctx, model, R0[:k], middle, np.zeros((k, 3))))
+            family.append(d.families)
         if getattr(getattr(model, "template", model), "is_point_template", False):
             # a scanned object: poses from matched shape features too (their own generator,
             # so the other templates' draws stay as they are)
@@ -130,6 +141,21 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     index = np.concatenate(index)
     return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
                       index, np.concatenate(family))
+
+
+def _segment_middle(ctx: ClickContext, model, centre: np.ndarray) -> np.ndarray | None:
+    """The mean (3,) of the clicked segment of the cluster (``ClickContext.segments``) where
+    the template's centroid could lie there and the click's ``centre`` does not: the segment
+    lies within ``SEGMENT_REACH`` x the template's radius of its mean, which is more than
+    ``CENTRE_SHIFT`` x its diameter from ``centre`` (a handle clicked near one end: the cluster
+    points within reach of the click are mostly that end's). None otherwise."""
+    labels = ctx.segments
+    pts = ctx.cluster[labels == labels[int(np.argmin(ctx._cluster_to_click))]]
+    middle = pts.mean(axis=0)
+    if np.linalg.norm(middle - centre) <= CENTRE_SHIFT * model.diameter:
+        return None
+    reach = np.sqrt(((pts - middle) ** 2).sum(axis=1).max())
+    return middle if reach <= SEGMENT_REACH * 0.5 * model.diameter else None
 
 
 @dataclass(frozen=True)
