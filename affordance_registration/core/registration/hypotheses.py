@@ -80,10 +80,11 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     Without a plane: uniformly random orientations around the cluster (drawn in the frame
     attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The template's
     centroid starts over the cluster points within reach of the click (the cluster may have
-    merged with a neighbour); random ones get an offset of up to ``RANDOM_OFFSET`` of the
-    diameter (the paper's restarts use up to the diameter). A point-cloud template (a scanned
-    object) also starts from the poses its shape features match, in the crop and in the
-    cluster (:mod:`.features`)."""
+    merged with a neighbour) -- and the yaw sweeps also over the clicked segment's middle
+    where the click is off it (:func:`_segment_middle`); random ones get an offset of up to
+    ``RANDOM_OFFSET`` of the diameter (the paper's restarts use up to the diameter). A
+    point-cloud template (a scanned object) also starts from the poses its shape features
+    match, in the crop and in the cluster (:mod:`.features`)."""
     up = cluster_axis = None
     if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
         up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
