@@ -161,3 +161,8 @@ class ClickContext:
         are within SEGMENT_FLAT_DEG of each other or meet convexly (a box's edges). A convex
         object is one segment; the verdict asks which segments a candidate explains."""
         return segment(self.cluster, self.sensor_origin, self.voxel, self.cluster_tree)
+
+    @cached_property
+    def clicked_segment(self) -> int:
+        """The label (of ``segments``) of the segment the cluster point nearest the click is in."""
+        return int(self.segments[int(np.argmin(self._cluster_to_click))])

@@ -150,8 +150,7 @@ def _segment_middle(ctx: ClickContext, model, centre: np.ndarray) -> np.ndarray 
     lies within ``SEGMENT_REACH`` x the template's radius of its mean, which is more than
     ``CENTRE_SHIFT`` x its diameter from ``centre`` (a handle clicked near one end: the cluster
     points within reach of the click are mostly that end's). None otherwise."""
-    labels = ctx.segments
-    pts = ctx.cluster[labels == labels[int(np.argmin(ctx._cluster_to_click))]]
+    pts = ctx.cluster[ctx.segments == ctx.clicked_segment]
     middle = pts.mean(axis=0)
     if np.linalg.norm(middle - centre) <= CENTRE_SHIFT * model.diameter:
         return None

@@ -124,7 +124,7 @@ def object_points(ctx: ClickContext):
     across from its side), and the object is cut from what lies above it; without one the
     face is the object's top."""
     cluster, labels, support = ctx.cluster, ctx.segments, ctx.support
-    clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    clicked = ctx.clicked_segment
     up = None
     if ctx.plane is None and support is not None and \
             abs(support.distance(ctx.click[None])[0]) <= 2 * ctx.plane_threshold:

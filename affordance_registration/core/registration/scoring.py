@@ -244,7 +244,7 @@ def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: flo
     against a candidate; the rest of an object it is too small for does. ``points``: over an
     even, fixed subsample of at most that many cluster points (None: all)."""
     pts, labels = ctx.cluster, ctx.segments
-    clicked = labels[int(np.argmin(ctx._cluster_to_click))]
+    clicked = ctx.clicked_segment
     if points is not None and len(pts) > points:
         pick = (np.arange(points) * (len(pts) / points)).astype(np.int64)
         pts, labels = pts[pick], labels[pick]
