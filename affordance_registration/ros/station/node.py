@@ -400,10 +400,14 @@ class StationNode(Node):
             self._status = inbox.status
             refresh = True
         refresh = self._settle_pending_click(now) or refresh
-        self._draw_pending_click()
         refresh = self._watch_engine(now) or refresh
-        if refresh:                     # the panel first: the meshes can take longer
+        if refresh:
+            # the panel first, in a message window of its own: the browser applies a window
+            # that touches only the panel at once, one with scene changes (the fitting marker,
+            # the meshes) at its next frame
             self._render_panel()
+            self.page.flush()
+        self._draw_pending_click()
         for msg in inbox.markers:
             self._drawings = apply_markers(self._drawings, msg)
         if refresh or inbox.markers:

@@ -248,6 +248,10 @@ class StationPage:
         if self.status.content != status:
             self.status.content = status
 
+    def flush(self) -> None:
+        """Send what the page was told so far in a message window of its own."""
+        self.server.flush()
+
     def show_candidates(self, options: list[tuple[str, str]], shown: str | None) -> None:
         """The dropdown: the ranked candidates, the shown one selected."""
         texts = [text for text, _ in options] or ["none"]
