@@ -196,10 +196,15 @@ def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: i
         # on the plane: the lowest point 1 mm above it, the centroid over the sliding point
         height = 0.001 - d - float((posed @ normal).min())
         mean = posed.mean(axis=0)
+        # (a step whose centroid lies farther than the body's reach plus CONTACT from every
+        # object point cannot touch: only the others are queried point by point)
+        reach = float(np.sqrt(((posed - mean) ** 2).sum(axis=1).max())) + CONTACT + 1e-6
         T = None
         for i, step in enumerate(np.arange(0.6, -0.003, -0.003)):   # slide in until contact
             t = centre + direction * step - mean
             t = t - normal * (t @ normal) + normal * height
+            if tree.query(mean + t, distance_upper_bound=reach)[0] == np.inf:
+                continue
             dist, _ = tree.query(posed + t, distance_upper_bound=CONTACT)
             if np.isfinite(dist).any():
                 T = make_T(R, t) if i > 0 else None      # in contact from the start: inside
