@@ -166,3 +166,15 @@ class ClickContext:
     def clicked_segment(self) -> int:
         """The label (of ``segments``) of the segment the cluster point nearest the click is in."""
         return int(self.segments[int(np.argmin(self._cluster_to_click))])
+
+    @cached_property
+    def clicked_points(self) -> np.ndarray:
+        """The cluster points (M, 3) of the clicked segment (``clicked_segment``)."""
+        return self.cluster[self.segments == self.clicked_segment]
+
+    @cached_property
+    def clicked_spread(self) -> tuple[np.ndarray, float]:
+        """The clicked segment's mean (3,) and the largest distance (m) of its points from it."""
+        pts = self.clicked_points
+        middle = pts.mean(axis=0)
+        return middle, float(np.sqrt(((pts - middle) ** 2).sum(axis=1).max()))

@@ -150,11 +150,9 @@ def _segment_middle(ctx: ClickContext, model, centre: np.ndarray) -> np.ndarray 
     lies within ``SEGMENT_REACH`` x the template's radius of its mean, which is more than
     ``CENTRE_SHIFT`` x its diameter from ``centre`` (a handle clicked near one end: the cluster
     points within reach of the click are mostly that end's). None otherwise."""
-    pts = ctx.cluster[ctx.segments == ctx.clicked_segment]
-    middle = pts.mean(axis=0)
+    middle, reach = ctx.clicked_spread
     if np.linalg.norm(middle - centre) <= CENTRE_SHIFT * model.diameter:
         return None
-    reach = np.sqrt(((pts - middle) ** 2).sum(axis=1).max())
     return middle if reach <= SEGMENT_REACH * 0.5 * model.diameter else None
 
 

@@ -355,8 +355,7 @@ class Registrar:
         (:func:`.hidden_parts.hidden_parts`) where there are any, and kept so when that one
         explains the clicked part and every piece: the share of each within the verdict's
         (widened) ``explained_distance`` of its surface is at least ``verdict.min_explained``."""
-        clicked = ctx.cluster[ctx.segments == ctx.clicked_segment]
-        parts = hidden_parts(ctx, scene, clicked, self.settings)
+        parts = hidden_parts(ctx, scene, ctx.clicked_points, self.settings)
         if not parts:
             return fitted
         v = self.settings.verdict
