@@ -134,6 +134,9 @@ def test_save_and_load_round_trip(engine, engine_and_scene, tmp_path, library):
         assert np.allclose(a.T_scene_model, b.T_scene_model, atol=1e-8)
         assert a.frame_id == "cam"
     assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]   # no temp files
+    # written with libyaml's emitter: the very text PyYAML's own safe dumper writes
+    text = path.read_text(encoding="utf-8")
+    assert text == yaml.safe_dump(yaml.safe_load(text), sort_keys=False)
     other = AffordanceEngine(library)
     other.load(str(path))
     assert len(other.state.registered) == 2
@@ -153,7 +156,7 @@ def test_save_is_atomic_when_writing_fails(engine, tmp_path, monkeypatch):
 
     def broken_dump(*a, **k):
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(store.yaml, "safe_dump", broken_dump)
+    monkeypatch.setattr(store.yaml, "dump", broken_dump)
     with pytest.raises(AffordanceError, match="cannot save"):
         engine.save(str(path))
     assert path.read_text() == original

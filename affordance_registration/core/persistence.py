@@ -39,6 +39,11 @@ __all__ = ["RegistrationStore", "registrations_document", "backup_path", "save_r
 REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
 
 
+#: PyYAML's safe dumper with libyaml's emitter where the wheel has it (the same text as
+#: ``yaml.safe_dump``, four times faster: the node writes the whole file after every change)
+SAFE_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
+
 def registrations_document(registrations, frame_id: str = "", library=None) -> str:
     """The YAML text of a registrations file holding ``registrations``; with the template
     ``library``, each carries its ``waypoints`` (in its frame). They are for the file's readers
@@ -50,7 +55,7 @@ def registrations_document(registrations, frame_id: str = "", library=None) -> s
     doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
            "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
            "registrations": entries}
-    return yaml.safe_dump(doc, sort_keys=False)
+    return yaml.dump(doc, Dumper=SAFE_DUMPER, sort_keys=False)
 
 
 def save_registrations(path: str, registrations, frame_id: str = "", library=None) -> str:
