@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from affordance_registration.core.transforms import axis_angle_matrix
+from affordance_registration.core.transforms import axis_angle_matrix, matrix_to_quat_xyzw
 
 _axis = st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=3).filter(
     lambda a: math.fsum(x * x for x in a) > 1e-12)
@@ -35,6 +35,15 @@ def test_axis_angle_matrix_has_scipys_digits(axes, angles):
             _scipy_axis_angle(a, q)
         assert got.shape == want.shape
         assert np.array_equal(got, want)
+
+
+@settings(max_examples=400, deadline=None)
+@given(axis=_axis, angle=st.one_of(st.floats(-10.0, 10.0), st.sampled_from([0.0, math.pi, -math.pi])))
+def test_matrix_to_quaternion_has_scipys_digits(axis, angle):
+    R = _scipy_axis_angle(axis, angle)
+    want = Rotation.from_matrix(R).as_quat()
+    want = want if want[3] >= 0 else -want
+    assert np.array_equal(matrix_to_quat_xyzw(R), want)
 
 
 # -- visibility: one pass over the offsets from the sensor, against the formulas it replaced --

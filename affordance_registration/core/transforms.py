@@ -186,10 +186,10 @@ def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
     for k in (1, 2, 3):
         if decision[k] > decision[c]:
             c = k
-    q = [0.0, 0.0, 0.0, 0.0]
     if c == 3:
         q = [m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1], 1 + trace]
     else:
+        q = [0.0, 0.0, 0.0, 0.0]
         i, j, k = c, (c + 1) % 3, (c + 2) % 3
         q[i] = 1 - trace + 2 * m[i][i]
         q[j] = m[j][i] + m[i][j]
