@@ -22,10 +22,13 @@ Supported (what the package's own launch files and typical operator stations use
 Substitutions: ``$(var NAME)``, ``$(env NAME [DEFAULT])``, ``$(find-pkg-share PKG)``. Launch
 arguments are given as ``NAME:=VALUE`` on the command line. Executables are found on PATH (a venv's
 console scripts) or under ``lib/PKG`` of an ament prefix. Ctrl-C (SIGINT) or SIGTERM stops every
-node: SIGINT first, SIGTERM after ``grace`` seconds, SIGKILL after twice that.
+node: SIGINT first, SIGTERM after ``grace`` seconds (5, as ``ros2 launch``'s sigterm_timeout),
+SIGKILL after another ``grace``; a node that did not end cleanly is named with its exit code or
+signal.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -42,6 +45,8 @@ from ...core.errors import AffordanceError
 __all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
 
 PACKAGE = "affordance_registration"
+CLEAN_EXIT = (0, -signal.SIGINT, 130)              # ended on its own, or on our SIGINT
+SIGNALS = {s.value for s in signal.Signals}
 
 
 class LaunchError(AffordanceError):
@@ -259,7 +264,7 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
 class Launcher:
     """Starts the nodes of a launch file and stops them together."""
 
-    def __init__(self, nodes: list[NodeAction], env: dict | None = None, grace: float = 2.0,
+    def __init__(self, nodes: list[NodeAction], env: dict | None = None, grace: float = 5.0,
                  log=None, output=None):
         self.nodes = nodes
         self.env = dict(os.environ if env is None else env)
@@ -288,18 +293,32 @@ class Launcher:
         return self.stop()
 
     def stop(self) -> int:
+        """SIGINT every node still running; SIGTERM what is left after ``grace`` seconds,
+        SIGKILL after another ``grace``. Logs each node that did not end cleanly (its exit
+        code or signal, and the escalation it needed); returns 0 only if every node ended on
+        its own or on SIGINT."""
+        sent: dict[int, str] = {}
         for sig, wait in ((signal.SIGINT, self.grace), (signal.SIGTERM, self.grace),
                           (signal.SIGKILL, self.grace)):
             alive = [p for p in self.procs if p.poll() is None]
             if not alive:
                 break
             for p in alive:
-                p.send_signal(sig)
+                with contextlib.suppress(ProcessLookupError):
+                    p.send_signal(sig)
+                sent[p.pid] = signal.Signals(sig).name
             deadline = time.monotonic() + wait
             while time.monotonic() < deadline and any(p.poll() is None for p in alive):
                 time.sleep(0.05)
         codes = [p.wait() for p in self.procs]
-        return 0 if all(c in (0, -signal.SIGINT, 130) for c in codes) else 1
+        for node, proc, code in zip(self.nodes, self.procs, codes):
+            if code not in CLEAN_EXIT or sent.get(proc.pid) not in (None, "SIGINT"):
+                how = (f"signal {signal.Signals(-code).name}" if code < 0 and -code in SIGNALS
+                       else f"exit code {code}")
+                after = f" after {sent[proc.pid]}" if proc.pid in sent else ""
+                self.log(f"[launch] {node.name or node.executable} (pid {proc.pid}) ended with "
+                         f"{how}{after}")
+        return 0 if all(c in CLEAN_EXIT for c in codes) else 1
 
 
 def run_launch_file(path: str, arguments: dict, fastdds_profile: str | None = None) -> int:
