@@ -163,6 +163,12 @@ class Client:
             time.sleep(0.02)
         raise AssertionError(f"timed out waiting for {what}" + (f" ({last_exc!r})" if last_exc else ""))
 
+    def wait_for_cloud(self, timeout=60.0, what="the engine's cloud",
+                       topic="/affordance_engine/status"):
+        """Until the engine's status (on ``topic``) says it holds a cloud."""
+        return self.wait_for(lambda: (self.status(topic) or {}).get("node", {}).get("cloud"),
+                             timeout, what)
+
     def call(self, srv_type, name, request=None, timeout=60.0):
         """The service's answer; waits for it (an event: it returns as soon as the answer is in),
         up to ``timeout`` s, generous because a busy engine answers after the fit under way."""

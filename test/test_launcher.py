@@ -94,8 +94,7 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
         assert not res.success and "no object selected" in res.message
         assert get_parameters(client, ["fit.coarse.samples"]) == {"fit.coarse.samples": 32}
         pub.publish(xyz_to_pointcloud2(np.random.default_rng(0).uniform(0, 1, (100, 3)), "cam"))
-        client.wait_for(lambda: (client.status() or {}).get("node", {}).get("cloud"),
-                        what="the cloud on the remapped topic")
+        client.wait_for_cloud(what="the cloud on the remapped topic")
         code, _ = proc.interrupt(timeout=30)
         assert code == 0, proc.output()            # ended on SIGINT: no SIGTERM, no SIGKILL
         assert "shutting down" in proc.output()

@@ -109,8 +109,7 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
 
             # click the object's pixel once the engine (started after the station) holds the
             # cloud too -- else, on a loaded machine, the click beats its first cloud
-            client.wait_for(lambda: (client.status() or {}).get("node", {}).get("cloud"), 90,
-                            "the engine's first cloud")
+            client.wait_for_cloud(90, "the engine's first cloud")
             xy = pixel(T_view, FOV_DEG, canvas_box(page), truth.click)
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)

@@ -306,7 +306,7 @@ class Launcher:
             for p in alive:
                 with contextlib.suppress(ProcessLookupError):
                     p.send_signal(sig)
-                sent[p.pid] = signal.Signals(sig).name
+                sent[p.pid] = sig.name
             deadline = time.monotonic() + wait
             while time.monotonic() < deadline and any(p.poll() is None for p in alive):
                 time.sleep(0.05)
