@@ -19,12 +19,13 @@ import numpy as np
 
 from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError, bounded
+from .memo import PerRecord
 from .persistence import REGISTRATIONS_FORMAT, load_registrations, save_registrations
 from .registration import NO_MATCH, FitResult, FitSettings, Registrar
 from .scene import Scene
 from .templates import TemplateLibrary
 from .tracked import EngineState, Registration, TrackedObject
-from .transforms import is_rigid
+from .transforms import finite_transform, is_rigid
 from .waypoints import Trajectory, trajectory, waypoints_dict
 
 __all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
@@ -35,9 +36,9 @@ class AffordanceEngine:
     """The operator-facing registration engine.
 
     Every action returns a message a person can read, or raises :class:`EngineStateError` when it
-    does not apply now (nothing selected, nothing to undo, no joint...) and :class:`SceneError`
-    for a bad click. ``select_radius``: a click within this fraction of the shown template's diameter from
-    an object's centre selects that object instead of starting a new one.
+    does not apply now (nothing selected, nothing to undo, no joint...) and :class:`SceneError` for
+    a bad click. ``select_radius``: a click within this fraction of the shown template's diameter
+    from an object's centre selects that object instead of starting a new one.
     """
 
     def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
@@ -63,6 +64,7 @@ class AffordanceEngine:
         self._T_scene_optical: np.ndarray | None = None
         self._last_action = ""
         self._last_timing: dict = {}
+        self._entries = PerRecord(lambda r, lib: dict(r.to_dict(), waypoints=waypoints_dict(lib, r)))
         #: the drag in progress: (object id, candidate index, pose and corrections before it)
         self._drag_start: tuple | None = None
 
@@ -137,7 +139,7 @@ class AffordanceEngine:
         scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
                                                                frame_id=frame_id)
         if T_scene_optical is not None:
-            T_scene_optical = _transform(T_scene_optical, "the sensor pose")
+            T_scene_optical = finite_transform(T_scene_optical, "the sensor pose")
         with self._lock:
             self._scene = scene
             self._scene_version += 1
@@ -150,7 +152,7 @@ class AffordanceEngine:
         registration, the undo history, the drag in progress and the view are re-expressed in
         the new frame, ``T_new_old`` (4x4, rigid) being the old frame's pose in the new one.
         Open objects are re-cropped on their next refit. Returns a line saying what moved."""
-        T = _transform(T_new_old, "the transform between the old and the new frame")
+        T = finite_transform(T_new_old, "the transform between the old and the new frame")
 
         def obj_in_new(o: TrackedObject) -> TrackedObject:
             cands = tuple(replace(c, T_scene_model=T @ c.T_scene_model) for c in o.candidates)
@@ -197,7 +199,7 @@ class AffordanceEngine:
         """The operator's view pose (x right, y up, z to the viewer) in the scene frame, or None
         for the default: looking through the sensor (see :meth:`set_scene`)."""
         if T_scene_view is not None:
-            T_scene_view = _transform(T_scene_view, "view pose")
+            T_scene_view = finite_transform(T_scene_view, "view pose")
         with self._lock:
             self._T_scene_view = T_scene_view
 
@@ -579,22 +581,14 @@ class AffordanceEngine:
     # ------------------------------------------------------------------ status
     def status(self) -> dict:
         """A JSON-ready summary: objects of interest with ranked candidates, registrations;
-        each with the ``waypoints`` of its shown candidate or registration (cloud frame)."""
+        each with the ``waypoints`` of its shown candidate or registration (cloud frame). A
+        registration is immutable: its entry is made once (``self._entries``) and copied."""
         with self._lock:
             st, lib = self._state, self.library
             return {"frame_id": self._frame_id, "active_id": st.active_id,
                     "objects": [dict(o.to_dict(st.active_id),
                                      waypoints=waypoints_dict(lib, o.shown)) for o in st.objects],
-                    "registered": [dict(r.to_dict(), waypoints=waypoints_dict(lib, r))
-                                   for r in st.registered],
+                    "registered": [dict(e) for e in self._entries.values(st.registered, lib)],
                     "counts": {"objects": len(st.objects), "registered": len(st.registered),
                                "undo": len(self._undo)},
                     "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()}}
-
-
-def _transform(T, what: str) -> np.ndarray:
-    """``T`` as a finite 4x4 float array; anything else is an error naming ``what``."""
-    T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise AffordanceError(f"{what} must be a finite 4x4 transform")
-    return T

@@ -9,9 +9,11 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .errors import AffordanceError
+
 __all__ = [
-    "finite_vector", "make_T", "is_rigid", "RIGID_ATOL", "invert", "transform_points", "rotate",
-    "pose_points",
+    "finite_vector", "finite_transform", "make_T", "is_rigid", "RIGID_ATOL", "invert",
+    "transform_points", "rotate", "pose_points",
     "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "unit_quaternions", "align_z_to", "align_x_to",
     "quat_xyzw_to_matrix",
@@ -28,6 +30,14 @@ def finite_vector(value, what: str, error=ValueError, length: int = 3) -> np.nda
     if v.shape != (length,) or not np.all(np.isfinite(v)):
         raise error(f"{what} must be {length} finite numbers, got {value!r}")
     return v
+
+
+def finite_transform(T, what: str, error=AffordanceError) -> np.ndarray:
+    """``T`` as a finite 4x4 float array; anything else is ``error`` naming ``what``."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise error(f"{what} must be a finite 4x4 transform")
+    return T
 
 
 #: how far the rotation block's R^T R may be from the identity, per element, in a pose taken

@@ -19,13 +19,14 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ...core.labels import REFUSED_PREFIX, standing
+from ...core.memo import PerRecord
 from ...core.registration import describe_primitive, verdict
 from ...core.waypoints import waypoint_poses
 from .conversions import _marker, likelihood_color, sphere_marker, text_marker
 from .mesh_refs import template_markers
 
-__all__ = ["state_markers", "joint_text", "waypoint_marker", "frustum_marker", "MOVING_COLOR",
-           "REGISTERED_COLOR", "VIEW_COLOR"]
+__all__ = ["state_markers", "registered_markers_memo", "joint_text", "waypoint_marker",
+           "frustum_marker", "MOVING_COLOR", "REGISTERED_COLOR", "VIEW_COLOR"]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
 NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
@@ -121,10 +122,34 @@ def _object_markers(tpl, T, joints, scale, frame, ns, marker_id, colour, stamp) 
                             MOVING_COLOR, stamp)
 
 
-def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerArray:
+def _registered_markers(reg, library, frame: str) -> tuple | None:
+    """What is drawn of a registration whatever the view, unstamped: its template's markers (by
+    reference, at its joint values, scale and size), its waypoints' gripper (or None), its
+    label's text and how far below its origin the label goes (half its diameter, m). None for
+    a template the library does not hold."""
+    if reg.template not in library:
+        return None
+    tpl = _geometry(library, reg.template, reg.dimensions)
+    return (_object_markers(tpl, reg.T_scene_model, reg.joints, reg.scale, frame, "registered",
+                            reg.id, REGISTERED_COLOR, None),
+            waypoint_marker(library, reg, frame, "registered_waypoints", reg.id, None),
+            f"{reg.template} #{reg.id}{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}",
+            0.5 * tpl.diameter)
+
+
+def registered_markers_memo() -> PerRecord:
+    """A memo for :func:`state_markers`: each registration's view-independent markers made once
+    (a registration is immutable), for a publisher that draws the state again and again."""
+    return PerRecord(_registered_markers)
+
+
+def state_markers(state, library, frame: str, stamp, up: np.ndarray,
+                  memo: PerRecord | None = None) -> MarkerArray:
     """A DELETEALL, then the open objects' shown candidates and the registrations of ``state``
     (an :class:`~affordance_registration.core.engine.EngineState`). ``up`` (3,) is the screen's
-    up direction in ``frame`` (labels go below the objects)."""
+    up direction in ``frame`` (labels go below the objects). ``memo``
+    (:func:`registered_markers_memo`): the registrations' markers as made for an earlier call,
+    stamped ``stamp`` (they are the same messages)."""
     markers = MarkerArray()
     clear = Marker()
     clear.action = Marker.DELETEALL
@@ -153,17 +178,17 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray) -> MarkerAr
         if obj.suggested_view is not None:
             markers.markers.append(frustum_marker(obj.suggested_view.T_scene_optical, frame,
                                                   "suggested_view", obj.id, stamp))
-    for reg in state.registered:
-        if reg.template not in library:
+    drawn = (memo or registered_markers_memo()).values(state.registered, library, frame)
+    for reg, made in zip(state.registered, drawn):
+        if made is None:
             continue
-        tpl = _geometry(library, reg.template, reg.dimensions)
-        markers.markers += _object_markers(tpl, reg.T_scene_model, reg.joints, reg.scale, frame,
-                                           "registered", reg.id, REGISTERED_COLOR, stamp)
-        text = f"{reg.template} #{reg.id}" \
-            f"{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}"
-        markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - 0.5 * tpl.diameter
-                                           * up, frame, "registered_label", reg.id, stamp))
-        gripper = waypoint_marker(library, reg, frame, "registered_waypoints", reg.id, stamp)
+        meshes, gripper, text, below = made
+        if stamp is not None:
+            for m in meshes + [gripper] * (gripper is not None):
+                m.header.stamp = stamp
+        markers.markers += meshes
+        markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - below * up, frame,
+                                           "registered_label", reg.id, stamp))
         if gripper is not None:
             markers.markers.append(gripper)
     return markers

@@ -34,6 +34,7 @@ import threading
 import numpy as np
 from geometry_msgs.msg import TransformStamped
 
+from ...core.memo import PerRecord
 from ...core.transforms import invert
 from ...core.waypoints import waypoint_poses
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
@@ -86,6 +87,17 @@ def _transform(parent: str, child: str, T_parent_child: np.ndarray, stamp) -> Tr
     return t
 
 
+def _registration_frames(reg, parent_frame: str, library) -> list:
+    """(parent, child, T_parent_child) of a registration's frame and its waypoints' (none where
+    it has no parent frame)."""
+    parent = (reg.frame_id or parent_frame).lstrip("/")
+    if not parent:
+        return []
+    child = registration_frame(reg.template, reg.id)
+    return [(parent, child, np.asarray(reg.T_scene_model, dtype=float))] + \
+        [(child, name, T) for name, T in waypoint_frames(library, reg, child)]
+
+
 class TfBroadcaster:
     """Registrations on /tf_static and the shown candidate on /tf (see the module docstring).
     Without tf2_msgs every call is a no-op and ``available`` is False."""
@@ -97,6 +109,7 @@ class TfBroadcaster:
         self._static_key: tuple = ()
         self._static: dict[str, TransformStamped] = {}    # child -> transform as last sent
         self._candidate: list = []         # the candidate's transform and its waypoints'
+        self._frames = PerRecord(_registration_frames)      # made once per registration
 
         if not self.available:
             node.get_logger().warning("tf2_msgs is not installed: registrations are not "
@@ -114,13 +127,7 @@ class TfBroadcaster:
         pose and parent did not change keeps its stamp. Returns whether a message went out."""
         if not self.available:
             return False
-        frames = []
-        for reg in registered:
-            parent = (reg.frame_id or parent_frame).lstrip("/")
-            if parent:
-                child = registration_frame(reg.template, reg.id)
-                frames.append((parent, child, np.asarray(reg.T_scene_model, dtype=float)))
-                frames += [(child, name, T) for name, T in waypoint_frames(library, reg, child)]
+        frames = [f for fs in self._frames.values(registered, parent_frame, library) for f in fs]
         key = tuple((parent, child, T.tobytes()) for parent, child, T in frames)
         if key == self._static_key:
             return False

@@ -52,7 +52,7 @@ from ..glue.conversions import (
     source_stamp_s,
 )
 from ..glue.frames import FrameError, StaticFrames, T_frame_optical
-from ..glue.markers import state_markers
+from ..glue.markers import registered_markers_memo, state_markers
 from ..glue.paths import PathRequests
 from ..glue.qos import INPUT as INPUT_QOS
 from ..glue.qos import LATCHED
@@ -93,6 +93,7 @@ class EngineNode(Node):
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
+        self._drawn = registered_markers_memo()     # each registration's markers, made once
 
         self._lock = threading.Lock()
         self._cloud_msg: PointCloud2 | None = None
@@ -560,7 +561,7 @@ class EngineNode(Node):
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
-        self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up))
+        self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up, self._drawn))
         self.interactive.sync()
 
     def shutdown(self) -> None:

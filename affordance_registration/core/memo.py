@@ -1,0 +1,45 @@
+# Copyright 2026 affordance_registration developers
+# SPDX-License-Identifier: Apache-2.0
+"""What is computed from an immutable record, computed once per record.
+
+The engine's state is immutable: a registration, once accepted, is the same object in every
+later state until it is undone, moved to another frame or replaced. Whatever is drawn or said of
+it -- its status entry, its markers, its TF frames -- is therefore the same every time the state
+is published, and a session with many registrations would otherwise rebuild all of it for every
+click. :class:`PerRecord` keeps one value per record, found by the record's identity (records
+hold numpy arrays and are not hashable) and checked against the record itself, so a new record
+that reuses a freed object's ``id`` is never given the old one's value.
+"""
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Hashable, Iterable
+
+__all__ = ["PerRecord"]
+
+
+class PerRecord:
+    """``compute(record, *context)`` memoised per record and ``context`` (hashable: the frame,
+    say): :meth:`values` returns one value per record and keeps only the values of the records
+    it was last given, so what it holds is bounded by the current state. Thread-safe."""
+
+    def __init__(self, compute: Callable):
+        self._compute = compute
+        self._held: dict[int, tuple] = {}          # id(record) -> (record, context, value)
+        self._lock = threading.Lock()
+
+    def values(self, records: Iterable, *context: Hashable) -> list:
+        """``compute(record, *context)`` of each of ``records``, in order (computed for the
+        records, or the context, not seen in the last call)."""
+        records = list(records)
+        with self._lock:
+            held, kept = self._held, {}
+            out = []
+            for record in records:
+                entry = held.get(id(record))
+                if entry is None or entry[0] is not record or entry[1] != context:
+                    entry = (record, context, self._compute(record, *context))
+                kept[id(record)] = entry
+                out.append(entry[2])
+            self._held = kept
+            return out
