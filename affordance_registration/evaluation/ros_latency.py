@@ -9,7 +9,9 @@ one machine whatever its load:
 
 * click -> status / in-process fit: from publishing the click to the ``~/status`` that shows
   its fit (the node idle again), over the in-process ``AffordanceEngine.click`` on the same
-  cloud and point (median of the per-click ratios);
+  cloud and point (median of the per-click ratios); and the fit's own time in the node (the
+  status's ``timing_s``) over the in-process one, which tells a fit slowed down in the node
+  from work the node adds around it;
 * status -> markers: from that status to the next ``~/markers`` message (median, ms);
 * markers message size: the serialized size of each ``~/markers`` message (largest, and the
   one after the last accept, with that many objects shown);
@@ -50,7 +52,7 @@ class _Arrivals:
 
     def __init__(self, node):
         self.markers: list[tuple[float, int, frozenset]] = []
-        self.status: list[tuple[float, int | None, bool]] = []
+        self.status: list[tuple[float, int | None, bool, float | None]] = []
         self._cv = threading.Condition()
         node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED)
         node.create_subscription(String, f"{NS}/status", self._on_status, LATCHED)
@@ -58,8 +60,10 @@ class _Arrivals:
     def _on_status(self, msg):
         st = json.loads(msg.data)
         active = next((o["id"] for o in st.get("objects", []) if o.get("active")), None)
+        fit_s = (st.get("timing_s") or {}).get("total")
         with self._cv:
-            self.status.append((time.monotonic(), active, bool(st.get("node", {}).get("idle"))))
+            self.status.append((time.monotonic(), active, bool(st.get("node", {}).get("idle")),
+                                fit_s))
             self._cv.notify_all()
 
     def _on_markers(self, msg):
@@ -74,12 +78,13 @@ class _Arrivals:
         with self._cv:
             return self._cv.wait_for(pick, timeout)
 
-    def status_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
-        """When the first status after ``t0`` arrived that selects an object not in ``known``
-        with the node idle (the status that shows a click's fit); waits up to ``timeout``."""
-        return self._first(lambda: next((t for t, active, idle in self.status if t >= t0 and idle
-                                         and active is not None and active not in known), None),
-                           timeout)
+    def status_showing(self, t0: float, known: set, timeout: float = 10.0) -> tuple | None:
+        """(when it arrived, the node's fit time in it (s)) of the first status after ``t0``
+        that selects an object not in ``known`` with the node idle (the status that shows a
+        click's fit); waits up to ``timeout``."""
+        return self._first(lambda: next(((t, fit_s) for t, active, idle, fit_s in self.status
+                                         if t >= t0 and idle and active is not None
+                                         and active not in known), None), timeout)
 
     def markers_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
         """When the first markers message after ``t0`` arrived that draws the candidate of an
@@ -106,7 +111,7 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
     library = TemplateLibrary.load()
     local = AffordanceEngine(library)
     launcher = start_engine(out_dir)
-    ratios, node_s, local_s, to_markers_ms = [], [], [], []
+    ratios, node_s, local_s, to_markers_ms, fit_ratios = [], [], [], [], []
     n, last_size, idle_cores = 0, None, None
     try:
         with background_node("affordance_latency_bench") as node:
@@ -134,7 +139,7 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                     operator.click(obj.click)
                     # when the status that showed the fit arrived, and the markers that drew
                     # it: each found by what it shows (a loaded machine runs either first)
-                    t_status = arrivals.status_showing(t0, known)
+                    t_status, node_fit = arrivals.status_showing(t0, known) or (None, None)
                     t_markers = arrivals.markers_showing(t0, known)
                     if t_status is None:
                         t_status = time.monotonic()
@@ -143,6 +148,8 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                     local_s.append(time.perf_counter() - t0_local)
                     node_s.append(t_status - t0)
                     ratios.append(node_s[-1] / local_s[-1])
+                    if node_fit:
+                        fit_ratios.append(node_fit / local_s[-1])
                     if t_markers is not None:
                         to_markers_ms.append(max(0.0, t_markers - t_status) * 1000)
                     operator.accept()
@@ -163,6 +170,7 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
             "click_to_status_over_fit": statistics.median(ratios) if ratios else None,
             "node_click_to_status_s": statistics.median(node_s) if node_s else None,
             "in_process_fit_s": statistics.median(local_s) if local_s else None,
+            "node_fit_over_fit": statistics.median(fit_ratios) if fit_ratios else None,
             "status_to_markers_ms": statistics.median(to_markers_ms) if to_markers_ms else None,
             "markers_bytes_max": max(sizes) if sizes else None,
             "markers_bytes_last": last_size, "objects_shown_last": shown,
