@@ -18,6 +18,8 @@ def test_the_over_ros_row_measures_the_live_node(ros_context, tmp_path):
     # each click was heard back in a status and in markers, and fitted here too
     assert row["node_click_to_status_s"] > 0 and row["in_process_fit_s"] > 0
     assert math.isfinite(row["click_to_status_over_fit"]) and row["click_to_status_over_fit"] > 0
+    # the node's own fit time came back in its status (the fit inside the node over this one)
+    assert math.isfinite(row["node_fit_over_fit"]) and row["node_fit_over_fit"] > 0
     assert row["status_to_markers_ms"] is not None and row["status_to_markers_ms"] >= 0
     # the engine's CPU time over the quiet spell (CPU, not wall clock: a loaded machine lowers
     # it): far below a core spinning (publishing on change, no polling loop)

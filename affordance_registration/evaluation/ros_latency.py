@@ -25,7 +25,7 @@ import statistics
 import threading
 import time
 
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
@@ -48,13 +48,18 @@ class _Arrivals:
     and the objects whose candidate they draw, and of ``~/status`` messages with the selected
     object's id and whether the node was idle. A click's status and its markers are each found
     by what they show (an object not known before the click), not by the order the two
-    callbacks ran in: on a loaded machine the markers' callback may run first."""
+    callbacks ran in: on a loaded machine the markers' callback may run first.
+
+    The markers are taken as they came (serialized) and read only when asked for: reading a
+    MarkerArray of tens of objects into Python costs this process CPU that the node, fitting
+    the click on the same cores, would otherwise lose to the measurement."""
 
     def __init__(self, node):
-        self.markers: list[tuple[float, int, frozenset]] = []
+        self.markers: list[tuple[float, bytes]] = []
+        self._drawn: dict[int, frozenset] = {}          # index -> candidates drawn (read once)
         self.status: list[tuple[float, int | None, bool, float | None]] = []
         self._cv = threading.Condition()
-        node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED)
+        node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED, raw=True)
         node.create_subscription(String, f"{NS}/status", self._on_status, LATCHED)
 
     def _on_status(self, msg):
@@ -66,12 +71,17 @@ class _Arrivals:
                                 fit_s))
             self._cv.notify_all()
 
-    def _on_markers(self, msg):
-        size = len(serialize_message(msg))
-        drawn = frozenset(m.id for m in msg.markers if m.ns == "candidate")
+    def _on_markers(self, raw: bytes):
         with self._cv:
-            self.markers.append((time.monotonic(), size, drawn))
+            self.markers.append((time.monotonic(), raw))
             self._cv.notify_all()
+
+    def _candidates(self, k: int) -> frozenset:
+        """The objects whose candidate the ``k``-th markers message draws (read once)."""
+        if k not in self._drawn:
+            msg = deserialize_message(self.markers[k][1], MarkerArray)
+            self._drawn[k] = frozenset(m.id for m in msg.markers if m.ns == "candidate")
+        return self._drawn[k]
 
     def _first(self, pick, timeout: float):
         """What ``pick`` finds in the arrivals, waiting for new ones (up to ``timeout``)."""
@@ -89,12 +99,14 @@ class _Arrivals:
     def markers_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
         """When the first markers message after ``t0`` arrived that draws the candidate of an
         object not in ``known`` (the markers that show a click's fit); waits up to ``timeout``."""
-        return self._first(lambda: next((t for t, _, drawn in self.markers
-                                         if t >= t0 and drawn - known), None), timeout)
+        return self._first(lambda: next((t for k, (t, _) in enumerate(self.markers)
+                                         if t >= t0 and self._candidates(k) - known), None),
+                           timeout)
 
     def heard(self) -> list[tuple[float, int]]:
+        """(arrival, serialized size in bytes) of every markers message."""
         with self._cv:
-            return [(t, size) for t, size, _ in self.markers]
+            return [(t, len(raw)) for t, raw in self.markers]
 
 
 def _cpu_seconds(pid: int) -> float:
