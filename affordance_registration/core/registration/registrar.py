@@ -268,8 +268,13 @@ class Registrar:
             s.coarse.keep else 0
         set_aside = ()
         if 0 < split < s.coarse.iterations:
-            hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s, span=(0, split)))
-            score = scores(ctx, hyps, s, s.coarse.samples, BACKWARD_SUBSAMPLE)
+            # (a library of more than twice what the prefilter keeps takes its first look on
+            #  prefilter.samples template samples and as many cluster points)
+            screen = s.prefilter.samples if 0 < 2 * s.prefilter.keep < len(names) else 0
+            look = replace(s.stages.coarse, samples=screen) if screen else s.stages.coarse
+            hyps = hyps.after(icp(ctx, hyps, look, s, span=(0, split)))
+            score = scores(ctx, hyps, s, look.samples, min(screen, BACKWARD_SUBSAMPLE) if screen
+                           else BACKWARD_SUBSAMPLE)
             hyps, score, set_aside = prefilter(hyps, score, names, s)
             hyps = hyps.take(best_per_template(hyps, score, s.coarse.keep))
             hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s, span=(split, s.coarse.iterations)))

@@ -209,6 +209,13 @@ class PrefilterSettings(_Group):
     margin: float = knob(1.4, "a template whose coarse score exceeds this x the best leaves")
     iterations: int = knob(3, "coarse iterations before the prefilter first decides (0: only "
                               "after the coarse stage)", COUNT0)
+    #: a library of more than twice ``keep`` templates is screened on fewer samples: the first
+    #: look at every restart of every template is what a large library pays for (chosen on
+    #: the bench's variant family, 80 clicks: 48 never set the true template aside; 32 did
+    #: twice). A library of a few templates gains little and keeps its fits as they were
+    samples: int = knob(48, "template samples (and cluster points) per restart in the first "
+                            "look, in a library of more than 2 x keep templates (0: the coarse "
+                            "stage's)", COUNT0)
 
 
 @dataclass(frozen=True)
