@@ -28,3 +28,26 @@ def test_two_clicks_timed_on_the_page(tmp_path):
                           "pose_tolerance": {"m": 0.005, "deg": 5.0}, "machine": {"cpus": 2},
                           "browser_latency": row})
     assert f"click -> label median {row['click_to_label_s']:.2f} s" in table, table
+
+
+def test_a_live_graph_row_that_fails_is_left_out_with_its_reason(monkeypatch):
+    """A row over the live graph that fails (here the page's wait running out, as a loaded
+    machine's can) does not end the bench, whose other rows took many minutes: the row is left
+    out, and the table says so with the reason."""
+    from affordance_registration.evaluation import browser_latency
+    from affordance_registration.evaluation.bench import format_table
+    from affordance_registration.evaluation.bench_rows import _browser_latency_bench
+
+    def times_out(seeds, clicks, out_dir, log=print):
+        raise TimeoutError("Locator.wait_for: Timeout 120000ms exceeded.\nCall log: ...")
+    monkeypatch.setattr(browser_latency, "measure_browser_latency", times_out)
+    logged = []
+    row = _browser_latency_bench([7], 2, logged.append)
+    assert row == {"clicks": 0, "left_out": "TimeoutError: Locator.wait_for: Timeout 120000ms "
+                                            "exceeded."}
+    assert any("left out" in line for line in logged), logged
+    table = format_table({"rows": [], "refit": {"median_s": 0.01, "success": 1.0}, "scenes": 1,
+                          "pose_tolerance": {"m": 0.005, "deg": 5.0}, "machine": {"cpus": 2},
+                          "browser_latency": row, "push_refit_ros": row})
+    assert "the browser station: left out (TimeoutError: Locator.wait_for" in table, table
+    assert "refit after a SpaceMouse push over ROS: left out (TimeoutError" in table, table

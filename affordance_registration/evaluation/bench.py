@@ -274,8 +274,13 @@ def format_table(result: dict) -> str:
                      f"{a['state_right']:.1%}, scale within 3% {a['scale_within_3pct']:.1%} of "
                      f"{a['scaled']}; median {a['median_s']:.3f} s = {a['time_ratio_to_rigid']:.2f}x "
                      f"rigid ({a['rigid_median_s']:.3f} s)")
+    for key, what in (("push_refit_ros", "refit after a SpaceMouse push over ROS"),
+                      ("ros_latency", "the engine node over ROS"),
+                      ("browser_latency", "the browser station")):
+        if (result.get(key) or {}).get("left_out"):
+            lines.append(f"{what}: left out ({result[key]['left_out']})")
     pushed = result.get("push_refit_ros")
-    if pushed:
+    if pushed and not pushed.get("left_out"):
         lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
                      f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
                      f" corrections {pushed['core_success']:.1%}")

@@ -484,7 +484,9 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
 
 def _over_ros(module: str, function: str, seeds, clicks: int, what: str, log) -> dict | None:
     """``evaluation.<module>.<function>(seeds, clicks, out_dir, log=log)`` in a temporary
-    folder; None without the ROS packages."""
+    folder; None without the ROS packages. A live graph's row that fails (a node, a browser, a
+    wait that ran out) is left out of the table with its reason, ``{"clicks": 0, "left_out":
+    reason}``: the bench's other rows, measured over many minutes, still come out."""
     import importlib
     import tempfile
     try:
@@ -492,8 +494,14 @@ def _over_ros(module: str, function: str, seeds, clicks: int, what: str, log) ->
     except ImportError:
         return None
     log(f"{what}, over ROS, on {clicks} clicks ...")
-    with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
-        return measure(seeds, clicks, out, log=log)
+    try:
+        with tempfile.TemporaryDirectory(prefix="ar_bench_ros_") as out:
+            return measure(seeds, clicks, out, log=log)
+    except Exception as exc:       # (any failure of the live graph: the row says which)
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        reason = f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+        log(f"  {what}: the row is left out ({reason})")
+        return {"clicks": 0, "left_out": reason}
 
 
 def _ros_push_refit_bench(seeds, clicks: int, log) -> dict | None:

@@ -104,8 +104,10 @@ def at_sensor(T: np.ndarray) -> bool:
 
 
 class _Heard:
-    """What this process hears: the station's camera (``/view_pose``), and when a click and the
-    status that shows a given object arrived."""
+    """What this process hears: the station's camera (``/view_pose``), when a click and the
+    status that shows a given object arrived, and how many clouds the engine has received (its
+    status: the station shows a cloud from its own subscription, and a click the engine gets
+    before the cloud is refused)."""
 
     def __init__(self, node, status_topic: str):
         from geometry_msgs.msg import PointStamped, PoseStamped
@@ -116,6 +118,7 @@ class _Heard:
         self.views: list = []
         self.times: dict = {}
         self.expect: int | None = None
+        self.clouds = 0
         node.create_subscription(PoseStamped, "/view_pose", self._on_view, 10)
         node.create_subscription(PointStamped, "/clicked_point", self._on_click, 10)
         node.create_subscription(String, status_topic, self._on_status, LATCHED)
@@ -131,10 +134,20 @@ class _Heard:
             self.times.setdefault("click", time.monotonic())
 
     def _on_status(self, msg):
-        ids = {o.get("id") for o in json.loads(msg.data).get("objects", [])}
+        st = json.loads(msg.data)
+        ids = {o.get("id") for o in st.get("objects", [])}
+        cloud = (st.get("node") or {}).get("cloud") or {}
         with self._cv:
             if self.expect in ids:
                 self.times.setdefault("status", time.monotonic())
+            self.clouds = max(self.clouds, int(cloud.get("received", 0)))
+            self._cv.notify_all()
+
+    def engine_holds(self, clouds: int, timeout_s: float = 90.0) -> None:
+        """Wait until the engine has received more than ``clouds`` clouds."""
+        with self._cv:
+            if not self._cv.wait_for(lambda: self.clouds > clouds, timeout_s):
+                raise TimeoutError("the engine did not receive the cloud")
 
     def arm(self, object_id: int) -> None:
         with self._cv:
@@ -155,9 +168,41 @@ class _Heard:
                 self._cv.wait(min(left, 0.2))
 
 
+def _show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: float = 10.0):
+    """Publish the cloud ``msg`` until the page shows it (the text ``shown``): once the engine
+    and the station both read the topic, and again while the page has not shown it -- their
+    cloud readers are volatile (best effort where ``points_reliable`` is off), so one cloud
+    published before they matched, or one a best-effort reader dropped, never reaches them; a
+    sensor's stream would send the next."""
+    deadline = time.monotonic() + timeout_s
+    while pub.get_subscription_count() < 2:        # the engine's reader and the station's
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{pub.get_subscription_count()} of the engine and the station "
+                               f"read the cloud topic after {timeout_s:.0f} s")
+        time.sleep(0.05)
+    while True:
+        pub.publish(msg)
+        left = deadline - time.monotonic()
+        try:
+            return _wait_text(page, shown, min(every_s, left))
+        except TimeoutError:
+            if time.monotonic() + 1.0 >= deadline:
+                raise
+
+
 def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
+    """Wait until the page shows ``pattern`` (a regular expression); a TimeoutError that says
+    what the page showed instead."""
     import re
-    page.get_by_text(re.compile(pattern)).first.wait_for(state="visible", timeout=timeout_s * 1000)
+
+    from playwright.sync_api import TimeoutError as PageTimeout
+    try:
+        page.get_by_text(re.compile(pattern)).first.wait_for(state="visible",
+                                                             timeout=timeout_s * 1000)
+    except PageTimeout:
+        shown = " | ".join(page.inner_text("body").split("\n"))[:300]
+        raise TimeoutError(f"the page did not show {pattern!r} in {timeout_s:.0f} s; it showed: "
+                           f"{shown}") from None
 
 
 @contextlib.contextmanager
@@ -240,8 +285,10 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
                         break
                     sim = simulate_taskboard(library, seed)
                     n_points = int(np.all(np.isfinite(sim.organized.reshape(-1, 3)), axis=1).sum())
-                    pub.publish(_cloud_message(sim.organized.reshape(-1, 3)))
-                    _wait_text(page, rf"{n_points:,} points in '{FRAME}'")
+                    clouds = heard.clouds
+                    _show_cloud(page, pub, _cloud_message(sim.organized.reshape(-1, 3)),
+                                rf"{n_points:,} points in '{FRAME}'")
+                    heard.engine_holds(clouds)
                     T_view = heard.settled_view()
                     box = page.locator("canvas").first.bounding_box()
                     for obj in sim.objects:
@@ -260,9 +307,12 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
                         templates.append(shown)
                         right += obj.template in shown
                         t = heard.times
+                        part = ""
                         if "click" in t and "status" in t:
                             engine.append(t["status"] - t["click"])
-                        log(f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s")
+                            part = f" (the engine's part {engine[-1]:.2f} s)"
+                        log(f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s"
+                            f"{part}")
             finally:
                 ctx.close()
     finally:
