@@ -345,6 +345,40 @@ def test_joint_state_in_status_markers_and_joint_steps(session, library):
     assert not res.success and "no joint" in res.message
 
 
+def test_markers_are_sent_when_what_they_draw_changes(session, library):
+    """~/markers draws the engine's state: a change of the status alone (a save, a click queued
+    while its fit runs) sends no markers message; the fit that adds the object does, and it
+    draws the object."""
+    from visualization_msgs.msg import MarkerArray
+    s = session
+    client = s["client"]
+    topic = f"{NS}/markers"
+    client.subscribe(MarkerArray, topic, LATCHED, keep=True)
+    client.wait_for(lambda: client.history.get(topic), what="the latched markers")
+    sim = simulate_taskboard(library, 1004)
+    received = (status(s)["node"]["cloud"] or {}).get("received", 0)
+    s["pubs"]["points"].publish(cloud_msg(sim.organized))
+    client.wait_for(lambda: status(s)["node"]["cloud"]["received"] > received, what="the cloud")
+    st = status(s)
+    known = {o["id"] for o in st["objects"]}
+    # (an object farthest from the open ones: a click near one selects it instead of fitting)
+    clicked = np.array([o["click"] for o in st["objects"]]).reshape(-1, 3)
+    obj = max((o for o in sim.objects if o.click is not None),
+              key=lambda o: np.min(np.linalg.norm(clicked - o.click, axis=1), initial=np.inf))
+    n0 = len(client.history[topic])
+    assert trigger(s, "save").success         # the status changes (the file's count), not the state
+    click(s, obj.click)
+    new = client.wait_for(lambda: {o["id"] for o in status(s)["objects"]} - known, 60,
+                          "the clicked object fitted")
+    client.wait_for(lambda: any(m.ns == "candidate" and m.id in new
+                                for m in client.history[topic][-1].markers), 60,
+                    "the markers drawing it")
+    since = client.history[topic][n0:]
+    assert since and all(any(m.ns == "candidate" and m.id in new for m in ma.markers)
+                         for ma in since), [sorted({m.id for m in ma.markers if m.ns == "candidate"})
+                                            for ma in since]
+
+
 def test_sigint_stops_the_node_quickly(session):
     code, took = session["proc"].interrupt(timeout=20)
     # about 0.3 s on an idle machine (msg_docs promises 2 s); the bound allows a loaded one

@@ -94,6 +94,7 @@ class EngineNode(Node):
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
         self._drawn = registered_markers_memo()     # each registration's markers, made once
+        self._markers_of: tuple = ()       # the (state, frame, view up) ~/markers last drew
 
         self._lock = threading.Lock()
         self._cloud_msg: PointCloud2 | None = None
@@ -561,7 +562,15 @@ class EngineNode(Node):
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
-        self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up, self._drawn))
+        # the markers draw the engine's state (immutable: a change is a new state) in the frame
+        # and the view: a change of the queue or the node alone, as a click's while its fit
+        # runs, leaves them as they are
+        drawn = (state, frame, tuple(np.round(up, 9)))
+        if len(self._markers_of) != 3 or self._markers_of[0] is not state or \
+                self._markers_of[1:] != drawn[1:]:
+            self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up,
+                                                   self._drawn))
+            self._markers_of = drawn
         self.interactive.sync()
 
     def shutdown(self) -> None:
