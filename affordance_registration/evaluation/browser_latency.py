@@ -183,8 +183,8 @@ def _show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: f
     while True:
         pub.publish(msg)
         left = deadline - time.monotonic()
-        try:
-            return _wait_text(page, shown, min(every_s, left))
+        try:        # (never 0: Playwright's timeout 0 waits for ever)
+            return _wait_text(page, shown, min(every_s, max(left, 1.0)))
         except TimeoutError:
             if time.monotonic() + 1.0 >= deadline:
                 raise

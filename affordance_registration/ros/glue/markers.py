@@ -184,7 +184,7 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray,
             continue
         meshes, gripper, text, below = made
         if stamp is not None:
-            for m in meshes + [gripper] * (gripper is not None):
+            for m in meshes if gripper is None else meshes + [gripper]:
                 m.header.stamp = stamp
         markers.markers += meshes
         markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - below * up, frame,
