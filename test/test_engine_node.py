@@ -385,6 +385,44 @@ def test_sigint_stops_the_node_quickly(session):
     assert code == 0 and took < 5.0, (code, took)
 
 
+def test_a_new_template_library_redraws_the_registrations(ros_context, tmp_path, library):
+    """The registrations stay when templates_dir changes (no object open): the engine's state is
+    the same, but ~/markers draws them again from the new library's files."""
+    import shutil
+
+    from visualization_msgs.msg import MarkerArray
+
+    from affordance_registration.core.templates import default_models_dir
+    topic = f"{NS}/markers"
+    copy = tmp_path / "models_copy"
+    shutil.copytree(default_models_dir(), copy)
+    sim = simulate_taskboard(library, 7)
+    with engine_session(tmp_path, {}, "library_redraw_tester",
+                        {"points": (PointCloud2, "/points", 1),
+                         "click": (PointStamped, "/clicked_point", 10)},
+                        [(MarkerArray, topic, LATCHED, True)], sim=sim) as s:
+        client = s["client"]
+        s["pubs"]["points"].publish(cloud_msg(sim.organized))
+        client.wait_for_cloud()
+        click(s, sim.objects[0].click)
+        client.wait_for(lambda: status(s)["objects"], 60, "the click fitted")
+        assert trigger(s, "accept").success
+
+        def registered_meshes():
+            ma = client.latest.get(topic)
+            return {m.mesh_resource for m in (ma.markers if ma else [])
+                    if m.ns.startswith("registered") and m.mesh_resource}
+        before = client.wait_for(registered_meshes, 60, "the registration drawn")
+        assert not any(str(copy) in uri for uri in before)
+        req = SetParameters.Request(parameters=[Parameter(
+            name="templates_dir", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                       string_value=str(copy)))])
+        assert client.call(SetParameters, f"{NS}/set_parameters", req).results[0].successful
+        after = client.wait_for(lambda: {u for u in registered_meshes() if str(copy) in u}, 60,
+                                "the registration drawn from the new library")
+        assert len(after) == len(before)
+
+
 def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path, library):
     """An engine node whose fits take at least 8 s (a slow fitter): a SpaceMouse push, a
     next/previous service pair and an accept button sent while a click's fit runs all act, in

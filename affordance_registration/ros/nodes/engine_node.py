@@ -94,7 +94,8 @@ class EngineNode(Node):
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
         self._drawn = registered_markers_memo()     # each registration's markers, made once
-        self._markers_of: tuple = ()       # the (state, frame, view up) ~/markers last drew
+        #: what ~/markers last drew: (state, library, frame, view up)
+        self._markers_of: tuple = (None, None, None, None)
 
         self._lock = threading.Lock()
         self._cloud_msg: PointCloud2 | None = None
@@ -562,12 +563,12 @@ class EngineNode(Node):
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
-        # the markers draw the engine's state (immutable: a change is a new state) in the frame
-        # and the view: a change of the queue or the node alone, as a click's while its fit
-        # runs, leaves them as they are
-        drawn = (state, frame, tuple(np.round(up, 9)))
-        if len(self._markers_of) != 3 or self._markers_of[0] is not state or \
-                self._markers_of[1:] != drawn[1:]:
+        # the markers draw the engine's state (immutable: a change is a new state) with the
+        # library in the frame and the view: a change of the queue or the node alone, as a
+        # click's while its fit runs, leaves them as they are
+        drawn = (state, self.library, frame, tuple(np.round(up, 9)))
+        last = self._markers_of
+        if last[0] is not state or last[1] is not self.library or last[2:] != drawn[2:]:
             self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up,
                                                    self._drawn))
             self._markers_of = drawn
