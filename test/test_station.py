@@ -34,6 +34,7 @@ from affordance_registration.ros.station.state import (
     apply_markers,
     candidate_label,
     candidate_options,
+    fitting_marker,
     status_markdown,
 )
 
@@ -299,6 +300,18 @@ def test_labels_and_the_status_panel():
     assert down.startswith("**Engine not running**")
 
 
+@given(st.floats(0.0, 1e4), st.floats(0.0, 600.0), st.floats(0.0, 600.0))
+def test_the_fitting_marker_waits_its_delay_and_goes_with_the_click(sent_at, waited, delay):
+    assume(abs(waited - delay) > 1e-6)        # (sent_at + waited - sent_at is rounded)
+    point = np.array([0.1, 0.2, 0.3])
+    drawn = fitting_marker(point, sent_at, sent_at + waited, delay)
+    # drawn (the very same point: the station redraws only when it changes) exactly when the
+    # click has waited its delay; a delay of 0 draws it at once; no click, no marker
+    assert (drawn is point) == (waited >= delay) and (drawn is None) == (waited < delay)
+    assert fitting_marker(point, sent_at, sent_at, 0.0) is point
+    assert fitting_marker(None, sent_at, sent_at + waited, delay) is None
+
+
 def test_gizmo_feedback_is_an_interactive_marker_client():
     T = np.eye(4)
     T[:3, 3] = [0.1, 0.2, 0.3]
@@ -312,7 +325,8 @@ def test_parameters_and_port_are_checked():
     good = {name: default for name, (default, _) in PARAMETERS.items()}
     assert check_parameters(good) == ""
     for name, bad in (("up", "sideways"), ("display_points", 10), ("fov_deg", 170.0),
-                      ("engine", "affordance_engine"), ("color_by", "rgb")):
+                      ("engine", "affordance_engine"), ("color_by", "rgb"),
+                      ("fitting_marker_delay", -0.1)):
         assert name in check_parameters(dict(good, **{name: bad}))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

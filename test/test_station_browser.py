@@ -75,7 +75,9 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
     assert not missing, missing
     port = free_port()
     processes(scan_argv(seed=panel_scene.seed), "scan")
-    station = processes(station_argv(port, display_points=60000), "station")
+    # the "fitting…" marker drawn at once (by default only a fit slower than 0.5 s gets it)
+    station = processes(station_argv(port, display_points=60000, fitting_marker_delay=0.0),
+                        "station")
     client = Client("station_browser_test")
     client.subscribe(PoseStamped, "/view_pose", keep=True)
     client.subscribe(String, "/affordance_engine/status", LATCHED)
@@ -120,6 +122,11 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
                                 60, "the fit in this client's status")
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, err
+            # the marker at the click went up with the click and down with its fit
+            wait_until(lambda: "fitting marker cleared" in station.output(), 60,
+                       "the fitting marker cleared")
+            log = station.output()
+            assert log.index("fitting marker shown") < log.index("fitting marker cleared")
 
             # Next, Previous
             page.get_by_role("button", name="Next", exact=True).click()

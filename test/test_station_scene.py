@@ -137,10 +137,13 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/\d+ — fits, \d+\.\dx the next")
             assert page.evaluate("window.__sawFitting === true")
             node_log = out_dir / "station_scene.log"       # every node's output
-            wait_until(lambda: "fitting marker cleared" in node_log.read_text(), 60,
-                       "the fitting marker cleared")
+            # the "fitting…" marker only for a fit slower than fitting_marker_delay (0.5 s):
+            # whether this one was depends on the machine's load; drawn, it went again
             log = node_log.read_text()
-            assert log.index("fitting marker shown") < log.index("fitting marker cleared")
+            assert log.count("fitting marker shown") <= 1
+            if "fitting marker shown" in log:
+                wait_until(lambda: "fitting marker cleared" in node_log.read_text(), 60,
+                           "the fitting marker cleared")
             assert "Fitting:" not in page.locator("body").inner_text()
             page.get_by_role("button", name="Accept", exact=True).click()
             wait_text(page, r"Objects: 0 open, 1 registered")

@@ -74,6 +74,7 @@ from .state import (
     candidate_label,
     candidate_options,
     candidate_standing,
+    fitting_marker,
     status_markdown,
     suggested_pose,
 )
@@ -407,7 +408,7 @@ class StationNode(Node):
             # the meshes) at its next frame
             self._render_panel()
             self.page.flush()
-        self._draw_pending_click()
+        self._draw_pending_click(now)
         for msg in inbox.markers:
             self._drawings = apply_markers(self._drawings, msg)
         if refresh or inbox.markers:
@@ -442,14 +443,19 @@ class StationNode(Node):
                 self._last_action = ""    # what happened is in Shown and Last message
             return True
 
-    def _draw_pending_click(self) -> None:
+    def _draw_pending_click(self, now: float) -> None:
+        """The "fitting…" marker once the click has waited ``fitting_marker_delay`` for its
+        fit: a fast fit's label comes without it (on software WebGL each drawn frame holds the
+        page for a few hundred ms, and the label would wait for it); the panel says "Fitting"
+        at once."""
         with self._lock:
             pending = self._pending
-        point = None if pending is None else pending.point
+        point = None if pending is None else fitting_marker(
+            pending.point, pending.sent_at, now, float(self.p["fitting_marker_delay"]))
         if point is not self._drawn.pending:
             self.page.show_pending_click(point)
             self._drawn.pending = point
-            self.get_logger().info("fitting marker shown" if pending else
+            self.get_logger().info("fitting marker shown" if point is not None else
                                    "fitting marker cleared")
 
     def _watch_engine(self, now: float) -> bool:

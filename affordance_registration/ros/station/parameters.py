@@ -28,6 +28,9 @@ PARAMETERS = {
     "view_rate": (10.0, "Hz, highest rate of view_pose messages"),
     "cloud_rate": (2.0, "Hz, highest rate the page's cloud is replaced at"),
     "click_cone_deg": (0.5, "a click picks cloud points within this angle of its ray"),
+    "fitting_marker_delay": (0.5, "s, a click still being fitted after this long gets the "
+                                  "'fitting…' marker drawn where it landed (0: at once); the "
+                                  "panel's Fitting line shows at once"),
     "access_secret": ("", "the secret the page and its websocket need ('' = the "
                           "AFFORDANCE_STATION_SECRET environment variable, else a random one "
                           "per start, shown in the URL the station logs); at least 16 characters"),
@@ -61,7 +64,7 @@ def check_parameters(p: dict) -> str:
         return f"display_points must be within 1000-5000000, got {p['display_points']}"
     for name, lo, hi in (("point_size", 1e-4, 1.0), ("fov_deg", 10.0, 120.0),
                          ("view_rate", 0.5, 60.0), ("cloud_rate", 0.1, 30.0),
-                         ("click_cone_deg", 0.05, 10.0)):
+                         ("click_cone_deg", 0.05, 10.0), ("fitting_marker_delay", 0.0, 3600.0)):
         if not lo <= float(p[name]) <= hi:
             return f"{name} must be within {lo}-{hi}, got {p[name]}"
     for name in ("engine", "interactive_namespace"):

@@ -17,8 +17,8 @@ from ..glue.conversions import ConversionError, pose_to_matrix
 from ..glue.mesh_refs import referenced_mesh
 
 __all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "LineDrawing", "apply_markers", "active_object",
-           "candidate_standing", "candidate_label", "candidate_options", "status_markdown",
-           "suggested_pose"]
+           "candidate_standing", "candidate_label", "candidate_options", "fitting_marker",
+           "status_markdown", "suggested_pose"]
 
 
 # ============================================================================ messages -> drawings
@@ -180,6 +180,14 @@ def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
         verdict = {True: "fits", False: "does not fit"}.get(c.get("fits"), "not judged")
         out.append((f"{i + 1}. {c['template']} ({verdict})", c["template"]))
     return out
+
+
+def fitting_marker(point: np.ndarray | None, sent_at: float, now: float,
+                   delay: float) -> np.ndarray | None:
+    """Where the "fitting…" marker is drawn: the point of the click being fitted (None: no
+    click is) once it has waited ``delay`` s since it was sent at ``sent_at``, else None (the
+    same object as ``point``: the station redraws only when it changes)."""
+    return point if point is not None and now - sent_at >= delay else None
 
 
 def suggested_pose(obj: dict | None) -> np.ndarray | None:
