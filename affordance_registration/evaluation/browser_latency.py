@@ -9,7 +9,10 @@ click on an object's pixel it measures, on the page's own clock, the time from t
 to the moment the page shows that click's label ("Shown: #k ..."; a mutation observer, not
 Playwright's polling): the fit, the engine's status, the station and the browser's update
 included. The engine's part (``/clicked_point`` -> the status that shows the fit, as heard by
-this process) is reported beside it.
+this process) is reported beside it. Each click is made on a page at rest, as an operator's is:
+once the station has sent the previous fit's meshes and the page has drawn no frame for
+QUIET_MS (clicked into the frames of the result just shown, a click on software WebGL waited for
+them).
 
 Without Playwright or the browser the row is left out with its reason
 (:func:`chromium_missing`). The station's browser tests share this module's launch settings and
@@ -55,6 +58,24 @@ OBSERVE = """text => {
   window.__arObserver.observe(document.body,
                                      {subtree: true, childList: true, characterData: true});
 }"""
+
+#: resolves once the page's main thread has run no long task (a drawn frame, on software WebGL)
+#: for ``ms`` milliseconds (a check that ran late counts as one: the thread was held)
+QUIET = """ms => new Promise(resolve => {
+  let last = performance.now(), prev = last;
+  const seen = new PerformanceObserver(list => { for (const e of list.getEntries())
+    last = Math.max(last, e.startTime + e.duration); });
+  seen.observe({type: 'longtask'});
+  const check = () => {
+    const now = performance.now();
+    if (now - prev > 100) last = now;
+    prev = now;
+    if (now - last >= ms) { seen.disconnect(); resolve(); } else setTimeout(check, 25);
+  };
+  setTimeout(check, 25);
+})"""
+#: the page counts as settled after this long without a drawn frame (ms)
+QUIET_MS = 300
 
 
 def chromium_missing(chromium: str = CHROMIUM) -> str:
@@ -205,6 +226,22 @@ def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
                            f"{shown}") from None
 
 
+def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
+    """Wait until the station has logged drawing object ``drawn`` (0: none yet) and then the
+    page has drawn no frame for QUIET_MS: the next click lands on a page at rest, as an
+    operator's does, not in the frames of the result just shown (on software WebGL each holds
+    the page's main thread for 100-400 ms). A station that never logs it is waited for
+    ``timeout_s``, not for ever."""
+    path = os.path.join(out_dir, "station.log")
+    deadline = time.monotonic() + timeout_s
+    while drawn and time.monotonic() < deadline:
+        with open(path, errors="replace") as f:
+            if f"drawn: object {drawn} as" in f.read():
+                break
+        time.sleep(0.05)
+    page.evaluate(QUIET, QUIET_MS)
+
+
 @contextlib.contextmanager
 def _station(port: int, secret: str, out_dir: str, params: dict):
     log = open(os.path.join(out_dir, "station.log"), "w")
@@ -299,6 +336,9 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
                             continue
                         k += 1
                         heard.arm(k)
+                        # an operator clicks a page that shows the last result: wait until the
+                        # station has sent the last fit's meshes and the page has drawn them
+                        _settle(page, out_dir, k - 1)
                         page.evaluate(OBSERVE, f"Shown: #{k} ")
                         page.mouse.click(*xy)
                         _wait_text(page, rf"Shown: #{k} ")
