@@ -76,6 +76,8 @@ QUIET = """ms => new Promise(resolve => {
 })"""
 #: the page counts as settled after this long without a drawn frame (ms)
 QUIET_MS = 300
+#: the station's output, in the row's folder (what it draws is read from it)
+STATION_LOG = "station.log"
 
 
 def chromium_missing(chromium: str = CHROMIUM) -> str:
@@ -232,7 +234,7 @@ def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
     operator's does, not in the frames of the result just shown (on software WebGL each holds
     the page's main thread for 100-400 ms). A station that never logs it is waited for
     ``timeout_s``, not for ever."""
-    path = os.path.join(out_dir, "station.log")
+    path = os.path.join(out_dir, STATION_LOG)
     deadline = time.monotonic() + timeout_s
     while drawn and time.monotonic() < deadline:
         with open(path, errors="replace") as f:
@@ -244,7 +246,7 @@ def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
 
 @contextlib.contextmanager
 def _station(port: int, secret: str, out_dir: str, params: dict):
-    log = open(os.path.join(out_dir, "station.log"), "w")
+    log = open(os.path.join(out_dir, STATION_LOG), "w")
     proc = subprocess.Popen(station_command(port, secret, **params), stdout=log,
                             stderr=subprocess.STDOUT)
     try:
