@@ -217,7 +217,8 @@ def _real_capture_lines(result: dict) -> list:
                      f"{cost['real_median_s']:.2f} s against {cost['simulated_median_s']:.2f} s)")
     for name, r in (result.get("primitives_simulated") or {}).items():
         a = r["all"]
-        lines.append(f"primitives on simulated boxes and cylinders ({name}, {a['clicks']} "
+        lines.append(f"primitives on simulated {r.get('scenes', 'boxes and cylinders')} "
+                     f"({name}, {a['clicks']} "
                      f"clicks): kind right {_pct(a['kind_right'])}, dimensions within 5 mm "
                      f"{_pct(a['dims_within_5mm'])}, pose within 5 mm / 5 deg "
                      f"{_pct(a['pose_ok'])}, median {a['median_s']:.2f} s")

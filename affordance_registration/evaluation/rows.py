@@ -21,6 +21,7 @@ from ..core.transforms import axis_angle_matrix, invert, make_T, pose_error
 from .realdata import HELD_OUT, click_in_middle, evaluate_scene, osd_scene_paths, scene_name
 
 __all__ = ["real_kinect_rows", "simulated_primitive_rows", "clutter_rows", "simulate_primitives",
+           "simulate_stack",
            "primitive_pose_error", "DIM_TOL", "POSE_TOL_M", "POSE_TOL_DEG"]
 
 DIM_TOL = 0.005                 #: m: a fitted dimension is right within this
@@ -164,8 +165,6 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
     rng = np.random.default_rng(seed)
     cam = camera or DepthCamera(_mosd_camera())
     objects, meshes, placed = [], [], []
-    table = trimesh.creation.box(extents=TABLE)
-    T_table_mesh = make_T(None, [0.0, 0.0, -TABLE[2] / 2])
     for _ in range(n_objects):
         if rng.random() < 0.5:
             x = rng.uniform(0.08, 0.30)
@@ -192,6 +191,17 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
         objects.append({"kind": kind, "dimensions": {k: float(v) for k, v in dims.items()},
                         "T_table_model": T_table_model})
         meshes.append((mesh, T_table_model @ offset))
+    return _rendered(rng, cam, objects, meshes)
+
+
+def _rendered(rng, cam, objects: list, meshes: list):
+    """The table with ``meshes`` ((mesh, T_table_mesh) each, one per object) rendered by
+    ``cam`` from a seeded viewpoint 0.8-1.3 m away at 35-65 deg above the table: (organized
+    (H, W, 3), ``objects`` each given ``visible``, ``click`` and ``T_scene_model`` for its
+    ``T_table_model``)."""
+    import trimesh
+    table = trimesh.creation.box(extents=TABLE)
+    T_table_mesh = make_T(None, [0.0, 0.0, -TABLE[2] / 2])
     dist, elev = rng.uniform(0.8, 1.3), math.radians(rng.uniform(35, 65))
     az = rng.uniform(-0.5, 0.5) - math.pi / 2
     eye = dist * np.array([math.cos(elev) * math.cos(az), math.cos(elev) * math.sin(az),
@@ -206,6 +216,36 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
         obj["click"] = click_in_middle(organized, mask)[0] if obj["visible"] else None
         obj["T_scene_model"] = T_cam_table @ obj.pop("T_table_model")
     return organized, objects
+
+
+def simulate_stack(seed: int, camera=None):
+    """A seeded table with two stacked boxes, as :func:`simulate_primitives` gives its scenes:
+    a box 0.15-0.30 m long on the table, a smaller one on its top face (turned by up to 17 deg
+    against it, its centre up to 2 cm off the lower one's) -- where the lower one's top face
+    meets the upper one's sides, a concave step the segments must cut. The objects: the lower
+    box, then the upper one."""
+    import trimesh
+
+    from .simulation import DepthCamera
+    rng = np.random.default_rng(seed)
+    cam = camera or DepthCamera(_mosd_camera())
+    x = rng.uniform(0.15, 0.30)
+    y = rng.uniform(0.10, x - 0.01)
+    lower = {"x": x, "y": y, "z": rng.uniform(0.05, 0.15)}
+    x2 = rng.uniform(0.08, 0.9 * x)
+    upper = {"x": x2, "y": rng.uniform(0.05, min(x2, y) - 0.005), "z": rng.uniform(0.04, 0.15)}
+    yaw = rng.uniform(0, 2 * math.pi)
+    poses = [make_T(axis_angle_matrix([0, 0, 1], yaw), [0.0, 0.0, 0.0])]
+    yaw += rng.uniform(-0.3, 0.3)
+    shift = rng.uniform(-0.02, 0.02, 2)
+    poses.append(make_T(axis_angle_matrix([0, 0, 1], yaw), [shift[0], shift[1], lower["z"]]))
+    objects, meshes = [], []
+    for dims, T in zip((lower, upper), poses):
+        objects.append({"kind": "box", "dimensions": {k: float(v) for k, v in dims.items()},
+                        "T_table_model": T})
+        meshes.append((trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"])),
+                       T @ make_T(None, [0.0, 0.0, dims["z"] / 2])))
+    return _rendered(rng, cam, objects, meshes)
 
 
 def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
@@ -230,19 +270,22 @@ def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
 
 
 def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), library=None,
-                             n_objects: int = 3, min_visible: int = 500) -> dict:
+                             n_objects: int = 3, min_visible: int = 500,
+                             stacked: bool = False) -> dict:
     """"Primitives on simulated boxes and cylinders": each object of the
-    :func:`simulate_primitives` scenes of ``seeds`` with at least ``min_visible`` points,
+    :func:`simulate_primitives` scenes of ``seeds`` (with ``stacked``, the two boxes of the
+    :func:`simulate_stack` ones) with at least ``min_visible`` points,
     clicked in its middle. Per kind and overall: ``clicks``, ``kind_right`` (the best
     candidate is that primitive), ``dims_within_5mm`` (every dimension), ``pose_ok`` (within
     5 mm / 5 deg, :func:`primitive_pose_error`), ``median_s``; the rates None where the
-    registrar reports no primitives."""
+    registrar reports no primitives. ``scenes`` names them."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
     registrar = (registrar_factory or Registrar)(library if library is not None else _bundled())
     recs = []
     for seed in seeds:
-        organized, objects = simulate_primitives(seed, n_objects)
+        organized, objects = simulate_stack(seed) if stacked else \
+            simulate_primitives(seed, n_objects)
         scene = Scene(organized)
         for obj in objects:
             if obj["visible"] < min_visible:
@@ -278,7 +321,8 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
                 else None,
                 "pose_ok": _share([bool(r["pose"]) for r in rows]) if any_primitive else None,
                 "median_s": _median([r["time_s"] for r in rows])}
-    return {"all": summary(recs), "box": summary([r for r in recs if r["kind"] == "box"]),
+    return {"scenes": "stacked boxes" if stacked else "boxes and cylinders",
+            "all": summary(recs), "box": summary([r for r in recs if r["kind"] == "box"]),
             "cylinder": summary([r for r in recs if r["kind"] == "cylinder"]),
             "end_face": "either end face of a cylinder is accepted as its origin"}
 
