@@ -40,6 +40,13 @@ CONTACT_VOXELS = 2
 LOCAL_REACH = 10.0
 CONCAVE_DEG = 10.0
 COPLANAR = 2.0
+#: ... and not where one of them is a plane (its flat voxels there within PLANAR voxel edges of
+#: their mean plane, RMS) with the other's standing in front of it by more than STEP voxel
+#: edges: a box standing on another's top face, where the test of the two sides' means --
+#: each side's signed distance from the other's plane, summed -- nearly cancels (the side
+#: face stands in front of the top face's plane, the top face lies behind the side's)
+PLANAR = 0.3
+STEP = 2.0
 
 
 def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
@@ -68,12 +75,16 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
                    for k in range(3)], axis=1) / np.bincount(group)[:, None]
     local = cKDTree(P).query_ball_point(at, LOCAL_REACH * voxel)
     mean_n, mean_p = np.zeros((len(sides), 3)), at.copy()
+    planar = np.zeros(len(sides), bool)
     own = sides // N
     for g, idx in enumerate(local):
         idx = np.asarray(idx, np.int64)
         idx = idx[core[idx] & (patch[idx] == own[g])]
         if len(idx):
             mean_n[g], mean_p[g] = n[idx].mean(axis=0), P[idx].mean(axis=0)
+            u = _unit(mean_n[g])
+            planar[g] = u is not None and len(idx) >= 3 and \
+                float(np.sqrt(np.mean(((P[idx] - mean_p[g]) @ u) ** 2))) <= PLANAR * voxel
     back = {int(k): g for g, k in enumerate(sides)}
     join = []
     for g, key in enumerate(sides):
@@ -85,7 +96,9 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
         if ni is None or nj is None:
             continue
         step = mean_p[g] - mean_p[h]
-        convex = (ni - nj) @ step > 0
+        in_front = (planar[g] and ni @ -step > STEP * voxel) or \
+            (planar[h] and nj @ step > STEP * voxel)
+        convex = (ni - nj) @ step > 0 and not in_front
         # (one surface cut by the noise: nearly parallel, and in one plane)
         flat = ni @ nj >= math.cos(math.radians(CONCAVE_DEG)) and \
             max(abs(step @ ni), abs(step @ nj)) <= COPLANAR * voxel
