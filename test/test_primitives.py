@@ -139,6 +139,27 @@ def test_an_emergency_stop_shows_what_sets_it_apart_from_a_box(registrar, seed):
         assert best.distinct is not None and best.distinct >= registrar.settings.verdict.min_distinct
 
 
+def test_a_template_that_explains_less_of_the_object_than_a_box_is_no_fit(registrar):
+    """The upper box of a stacked pair (``simulate_stack`` seed 4, 95 x 74 x 81 mm) is covered
+    by an emergency stop's housing lying on its side, button away from the sensor: nothing
+    that sets the e-stop apart is seen (no distinction test), but the housing leaves the box's
+    longer edges unexplained where the box primitive explains all of it -- the e-stop does not
+    fit, says so, and the box is shown, fitting, within 5 mm of the box's dimensions."""
+    from affordance_registration.evaluation.rows import simulate_stack
+    organized, objects = simulate_stack(4)
+    obj = objects[1]
+    rep = registrar.fit(Scene(organized), obj["click"])
+    stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
+    box = [c for c in rep.candidates if c.template == "box"][0]
+    margin = registrar.settings.verdict.explained_margin
+    assert stop.fits is False and box.fits is True
+    assert stop.explained < box.explained - margin and "a box explains" in stop.reason
+    best = rep.candidates[0]
+    assert best.primitive == "box" and best.fits is True
+    assert all(abs(best.dimensions[a] - v) <= DIM_TOL
+               for a, v in obj["dimensions"].items()), best.dimensions
+
+
 def _table_scene(boxes, poles, seed=0):
     """A simulated table (the mOSD camera 1 m away, 30 deg above it, looking along +y) with
     ``boxes`` [((x, y, z) extents, (px, py))] and standing ``poles`` [(radius, height,

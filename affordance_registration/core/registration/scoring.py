@@ -185,8 +185,11 @@ DISTINCT_SHARE = 0.1
 def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
                   primitive_fit: FitResult, settings: FitSettings) -> list:
     """Each of ``fits`` (fitting specific candidates, their models in ``models``) tested against
-    the primitive that fits the same click (``primitive_fit``, its model ``primitive_model``):
-    the samples of the candidate the sensor faces (as :func:`judge` counts them) that lie more
+    the primitive that fits the same click (``primitive_fit``, its model ``primitive_model``).
+    It must explain the clicked object nearly as well: a share of its points at most
+    ``verdict.explained_margin`` below the primitive's (a box on a stack, read as an emergency
+    stop lying on its side, leaves the box's longer edges unexplained). And the samples of the
+    candidate the sensor faces (as :func:`judge` counts them) that lie more
     than ``verdict.distinct_distance`` from the posed primitive's surface are what sets the
     template apart -- an emergency stop's button on a box's housing. When they are at least
     ``DISTINCT_SHARE`` of what it shows, at least ``verdict.min_distinct`` of them must be
@@ -202,8 +205,15 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
     T = np.stack([r.T_scene_model for r in fits])
     dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
                                             s.scoring.samples, s, np.zeros(len(fits), bool))
+    kind = primitive_fit.primitive
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
+        why = []
+        if res.explained is not None and primitive_fit.explained is not None and \
+                res.explained < primitive_fit.explained - s.verdict.explained_margin:
+            why.append(f"a {kind} explains {primitive_fit.explained:.0%} of the clicked "
+                       f"object's points, it {res.explained:.0%} (a fit explains no more than "
+                       f"{s.verdict.explained_margin:.0%} less than a fitting primitive)")
         R, t = T[k, :3, :3], T[k, :3, 3]
         P = model.samples(s.scoring.samples)[0]
         X = P @ R.T + t
@@ -212,17 +222,18 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
                                 2 * s.verdict.distinct_distance)[0]
         distinct = seen & (off > s.verdict.distinct_distance)
         n = int(distinct.sum())
-        if n == 0 or n < DISTINCT_SHARE * max(int(seen.sum()), 1):
-            out.append(res)
+        share = None
+        if n and n >= DISTINCT_SHARE * max(int(seen.sum()), 1):
+            share = float((distinct & vis[k] & (dist[k] <= widen * s.verdict.coverage_distance)
+                           ).sum()) / n
+            if share < s.verdict.min_distinct:
+                why.append(f"of its surface that a {kind} does not have, {share:.0%} is seen (a "
+                           f"fit needs {s.verdict.min_distinct:.0%}): here it is no more than a "
+                           f"{kind}")
+        if not why:
+            out.append(res if share is None else replace(res, distinct=share))
             continue
-        share = float((distinct & vis[k] & (dist[k] <= widen * s.verdict.coverage_distance)
-                       ).sum()) / n
-        if share >= s.verdict.min_distinct:
-            out.append(replace(res, distinct=share))
-            continue
-        why = (f"of its surface that a {primitive_fit.primitive} does not have, {share:.0%} is "
-               f"seen (a fit needs {s.verdict.min_distinct:.0%}): here it is no more than a "
-               f"{primitive_fit.primitive}")
+        why = "; ".join(why)
         out.append(replace(res, distinct=share, fits=False,
                            reason=f"{res.reason}; {why}" if res.reason else why))
     return out

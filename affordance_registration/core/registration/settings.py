@@ -330,6 +330,11 @@ class VerdictSettings(_Group):
                                           "it apart from it (m)")
     min_distinct: float = knob(0.25, "a specific template fits only when at least this share "
                                      "of those it shows the sensor is covered", FRACTION)
+    #: a box on a stack read as an emergency stop lying on its side: the housing explains
+    #: most of the box, the box primitive all of it
+    explained_margin: float = knob(0.05, "a specific template fits only when it explains at "
+                                         "most this share of the clicked object's points less "
+                                         "than the primitive fitting the same click", FRACTION)
     #: a noisier scan (``ClickContext.noise``) widens the verdict's distances in proportion
     noise_reference: float = knob(0.0015, "the verdict's distances hold for a scan noise up to "
                                           "this (m)")
