@@ -307,11 +307,12 @@ def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library, gap)
 
 
 #: (seed, box: 0 the lower, 1 the upper) of ``simulate_stack`` scenes the concave-step rule
-#: was developed on, and whether the fit measures that box within 5 mm: the upper box of seed
-#: 2 takes a side face of the lower box for the surface it stands on (found lying), and the
-#: lower box of seed 6 is measured from its part on one side of the upper one
-STACKED = [(2, 0, True), (2, 1, False), (3, 1, True), (6, 0, False), (6, 1, True),
-           (8, 0, True), (8, 1, True)]
+#: and the floor search were developed on, and whether the fit measures that box within 5 mm:
+#: the lower box of seed 6 is measured from its part on one side of the upper one, the upper
+#: box of seed 11 15 mm too long (the upper boxes of seeds 2 and 11 are those whose crop's
+#: dominant plane is the lower box's side face in front of them)
+STACKED = [(2, 0, True), (2, 1, True), (3, 1, True), (6, 0, False), (6, 1, True),
+           (8, 0, True), (8, 1, True), (11, 1, False)]
 
 
 @pytest.mark.parametrize("seed,k,measured", STACKED)
@@ -319,8 +320,9 @@ def test_segments_cut_a_box_standing_on_another(library, seed, k, measured):
     """Two stacked boxes (``simulate_stack``): where the upper one's sides meet the lower
     one's top face -- a concave step whose two sides' means nearly cancel in the convexity
     test -- the segments cut: the clicked segment is that box, and it is fitted as a box
-    (its dimensions within 5 mm where ``measured``). The bench's stacked rows report the
-    seeds not looked at."""
+    standing as it does (its z within 5 deg of the box's: an upper box does not stand on the
+    face of the lower one in front of it), its dimensions within 5 mm where ``measured``. The
+    bench's stacked rows report the seeds not looked at."""
     from affordance_registration.evaluation.realdata import box_distance
     from affordance_registration.evaluation.rows import simulate_stack
     organized, objects = simulate_stack(seed)
@@ -338,6 +340,8 @@ def test_segments_cut_a_box_standing_on_another(library, seed, k, measured):
     assert (clicked[owner == k]).mean() > 0.8
     best = reg.fit(scene, obj["click"]).candidates[0]
     assert best.primitive == "box", best.template
+    tilt = math.degrees(math.acos(abs(best.T_scene_model[:3, 2] @ obj["T_scene_model"][:3, 2])))
+    assert tilt <= 5.0, tilt
     if measured:
         assert all(abs(best.dimensions[a] - v) <= DIM_TOL
                    for a, v in obj["dimensions"].items()), best.dimensions

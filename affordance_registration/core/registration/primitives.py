@@ -62,6 +62,9 @@ SIDES_SEEN = 0.05
 #: a click on the crop's dominant plane: the support is a plane holding at least this fraction
 #: of the points off it, the click above it
 FLOOR_FRACTION = 0.15
+#: planes the click lies behind (another object's face in front of it) are set aside this many
+#: times in the search for the surface the clicked object stands on
+FLOOR_TRIES = 3
 
 
 def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
@@ -114,32 +117,38 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
 
 def object_points(ctx: ClickContext):
     """The clicked object's full-resolution points, their normals (towards the sensor), the
-    surface it stands
-    on (a :class:`~..scene.Plane`, or None) and the object's up direction (None: unknown): the
-    points whose nearest cluster voxel lies in
-    the clicked segment of the cluster. Where the click is on the crop's dominant plane (a
-    box's large face), that plane is the object's and the cluster holds what it stands on
-    too: the largest plane among the points off that face (FLOOR_FRACTION of them at least),
-    with the click on its sensor's side, is the support (a table under a box's top face, or
-    across from its side), and the object is cut from what lies above it; without one the
-    face is the object's top."""
+    surface it stands on (a :class:`~..scene.Plane`, or None) and the object's up direction
+    (None: unknown): the points whose nearest cluster voxel lies in the clicked segment of the
+    cluster. Where the click is on the crop's dominant plane (a box's large face), that plane
+    is the object's and the cluster holds what it stands on too: the support is looked for
+    among the points off that face (:func:`_floor`: a table under a box's top face, or across
+    from its side), and the object is cut from what lies above it; without one the face is the
+    object's top. Where the crop has no dominant plane, or one the click lies behind (the face
+    of a larger box in front of a smaller one standing on it), the support is looked for among
+    the cluster's other segments (none there: that plane, if any, stays the support)."""
     cluster, labels, support = ctx.cluster, ctx.segments, ctx.support
     clicked = ctx.clicked_segment
+    thr = ctx.plane_threshold
     up = None
     if ctx.plane is None and support is not None and \
-            abs(support.distance(ctx.click[None])[0]) <= 2 * ctx.plane_threshold:
+            abs(support.distance(ctx.click[None])[0]) <= 2 * thr:
         # (without a floor, the face is the object's top: +z out of it, the base unseen)
         face, support, up = support, None, np.asarray(support.normal, float)
-        off = np.abs(face.distance(cluster)) > ctx.plane_threshold
-        floor = _ransac_plane(cluster[off], ctx.plane_threshold, FLOOR_FRACTION,
-                              ctx.sensor_origin, 0) if off.sum() >= 50 else None
-        if floor is not None and floor.distance(ctx.click[None])[0] > 2 * ctx.plane_threshold:
-            above = floor.distance(cluster) > ctx.plane_threshold
+        floor = _floor(ctx, cluster[np.abs(face.distance(cluster)) > thr])
+        if floor is not None:
+            above = floor.distance(cluster) > thr
             if above.sum() >= 10:
                 cluster = cluster[above]
                 labels = segment(cluster, ctx.sensor_origin, ctx.voxel)
                 clicked = labels[int(np.argmin(np.linalg.norm(cluster - ctx.click, axis=1)))]
                 support, up = floor, None
+    elif ctx.sensor_origin is not None and (
+            support is None or support.distance(ctx.click[None])[0] < -2 * thr):
+        off = labels != clicked
+        if support is not None:
+            off &= np.abs(support.distance(cluster)) > thr
+        # (none found: a plane in front still gives the object's axis)
+        support = _floor(ctx, cluster[off]) or support
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
     d, idx = nearest(tree, ctx.fine, ctx.voxel)
     mine = np.isfinite(d)
@@ -154,6 +163,25 @@ def object_points(ctx: ClickContext):
         keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
         points, normals = points[keep], normals[keep]
     return points, normals, support, (_up(support, points) if up is None else up)
+
+
+def _floor(ctx: ClickContext, points: np.ndarray):
+    """The surface the clicked object stands on, among ``points`` (off the object): the largest
+    plane holding at least ``FLOOR_FRACTION`` of them with the click more than two plane
+    thresholds on its sensor's side; a plane the click lies behind is set aside (its points
+    taken out) and the next largest looked for, up to ``FLOOR_TRIES`` planes. None: none."""
+    thr, left = ctx.plane_threshold, points
+    for attempt in range(FLOOR_TRIES):
+        if len(left) < 50:
+            return None
+        plane = _ransac_plane(left, thr, min(1.0, FLOOR_FRACTION * len(points) / len(left)),
+                              ctx.sensor_origin, attempt)
+        if plane is None:
+            return None
+        if plane.distance(ctx.click[None])[0] > 2 * thr:
+            return plane
+        left = left[np.abs(plane.distance(left)) > thr]
+    return None
 
 
 def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support,
