@@ -36,6 +36,25 @@ def test_env_var_names_the_data_folder(tmp_path, monkeypatch):
     assert rd.osd_scene_paths() == []
 
 
+def test_the_bench_says_when_the_real_rows_were_not_measured(tmp_path, monkeypatch):
+    """A bench run without the shared data (a checkout elsewhere, the variable unset) does not
+    drop the real Kinect rows silently: the table says they were not measured and how to give
+    the data; with the data there, it says nothing of the kind."""
+    from affordance_registration.core.templates import TemplateLibrary
+    from affordance_registration.evaluation.bench import _real_capture_lines
+    from affordance_registration.evaluation.rows import real_kinect_rows
+    monkeypatch.setenv(rd.DATA_ENV, str(tmp_path))
+    lines = _real_capture_lines({"rows": [], "real_kinect": real_kinect_rows(
+        library=TemplateLibrary.load())})
+    assert len(lines) == 1 and "not measured" in lines[0] and rd.DATA_ENV in lines[0]
+    if DATA is not None and rd.osd_dir(DATA) is not None:
+        path = [p for p in rd.osd_scene_paths(DATA) if rd.scene_name(p) == "learn0"]
+        monkeypatch.setenv(rd.DATA_ENV, DATA)
+        lines = _real_capture_lines({"rows": [], "real_kinect": real_kinect_rows(
+            library=TemplateLibrary.load(), scenes=path)})
+        assert lines and not any("not measured" in line for line in lines)
+
+
 def test_split_is_fixed_one_held_out_scene_per_kind():
     held = [n for n in rd.HELD_OUT]
     assert sorted(rd.scene_kind(f"learn{n}") for n in held) == sorted(rd.SCENE_KINDS)

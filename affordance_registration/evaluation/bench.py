@@ -69,6 +69,7 @@ from .bench_rows import (
     stretched_library,
     variant_library,
 )
+from .realdata import DATA_ENV
 from .simulation import POSE_TOL_M, POSE_TOL_RAD, sized_library
 from .viewpoints import REPORT_SEEDS, TUNING_SEEDS, format_row, viewpoint_row
 
@@ -210,6 +211,9 @@ def _real_capture_lines(result: dict) -> list:
                 f"{_pct(r['primitive_precision'])} (median), passing both 90% "
                 f"{_pct(r['primitive_pass'])}, kind right {_pct(r['kind_right'])}, median "
                 f"{r['median_s']:.2f} s a click")
+    if k is not None and not any((k.get(p) or {}).get("objects") for p in ("tuning", "held_out")):
+        lines.append(f"real Kinect (mOSD learn): not measured -- no shared mOSD scenes (set "
+                     f"{DATA_ENV} to the shared data folder)")
     cost = (k or {}).get("cost")
     if cost:
         lines.append(f"real Kinect click against a simulated panel click, alternately "
@@ -233,6 +237,9 @@ def _real_capture_lines(result: dict) -> list:
         lines.append(f"clutter, held-out scenes ({a['clicks']} clicks): ranked first "
                      f"{_pct(a['ranked_first'])}, found within 5 mm / 5 deg {_pct(a['found'])}, "
                      f"accepted {_pct(a['fits'])}")
+    for key, what in (("armadillo", "clutter"), ("milk", "PCL's milk carton")):
+        if c and c.get(key) is None and c.get(f"{key}_why"):
+            lines.append(f"{what}: not measured -- {c[f'{key}_why']}")
     if c.get("milk"):
         m = c["milk"]
         lines.append(f"PCL's milk carton in its real scene: ranked first {m['ranked_first']}, "
