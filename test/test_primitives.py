@@ -160,6 +160,31 @@ def test_a_template_that_explains_less_of_the_object_than_a_box_is_no_fit(regist
                for a, v in obj["dimensions"].items()), best.dimensions
 
 
+def test_a_refit_keeps_the_clicks_verdict_against_the_primitives(library, panel_scene):
+    """The operator shows the refused emergency stop on the stacked box and refits it: the
+    refit's verdict still weighs it against the box (it stays refused, saying why) -- it
+    read "fits" before, the refit judged it alone. A right taskboard fit refitted stays
+    accepted."""
+    from affordance_registration.evaluation.rows import simulate_stack
+    organized, objects = simulate_stack(4)
+    engine = AffordanceEngine(library)
+    engine.set_scene(organized, frame_id="cam")
+    engine.click(objects[1]["click"])
+    engine.select_model("emergency_stop")
+    for _ in range(2):
+        shown = engine.active_object().shown
+        assert shown.template == "emergency_stop" and shown.fits is False
+        assert "a box explains" in shown.reason
+        engine.refit()
+    engine = AffordanceEngine(library)
+    engine.set_scene(panel_scene.organized, frame_id="cam")
+    for obj in panel_scene.objects[:2]:
+        engine.click(obj.click)
+        engine.refit()
+        shown = engine.active_object().shown
+        assert shown.template == obj.template and shown.fits is True, shown.reason
+
+
 def _table_scene(boxes, poles, seed=0):
     """A simulated table (the mOSD camera 1 m away, 30 deg above it, looking along +y) with
     ``boxes`` [((x, y, z) extents, (px, py))] and standing ``poles`` [(radius, height,

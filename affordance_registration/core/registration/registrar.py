@@ -48,7 +48,9 @@ one-sided scans (the README's benchmark measures both):
 """
 from __future__ import annotations
 
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import replace
 
 import numpy as np
@@ -83,6 +85,8 @@ from .viewpoint import suggest_view
 __all__ = ["Registrar"]
 
 BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
+#: the click contexts whose primitive fits are kept for their refits' verdicts
+PRIMITIVES_KEPT = 8
 OCCLUDER_VOXEL = 0.01      #: m: the scan beyond the crop hides a suggested view at this grain
 #: a click without a support plane in its crop: the wider scan's dominant plane (holding at least
 #: this share of it) is the surface a suggested view stays in front of
@@ -116,6 +120,10 @@ class Registrar:
         self.settings = (settings or FitSettings()).validate()
         self.models = ModelCache()
         self.paper = PaperMethod(library, self.settings)
+        # the primitives fitted to the last few clicks (a refit's verdict asks what the
+        # click's asked): id(context) -> (context, fitted)
+        self._primitives_seen: OrderedDict = OrderedDict()
+        self._primitives_lock = threading.Lock()
 
     # ------------------------------------------------------------------ public API
     def warm_up(self) -> None:
@@ -173,6 +181,7 @@ class Registrar:
                     candidates = self._distinguished(ctx, candidates, fitted)
                     if not any(r.fits for r in candidates):
                         fitted = self._fit_primitives(ctx, primitives, scene, True)
+                self._remember_primitives(ctx, fitted)
                 candidates = rank(list(candidates) + fitted)
             t2 = time.perf_counter()
             ambiguity = self.assess(ctx, candidates, alternatives)
@@ -247,7 +256,30 @@ class Registrar:
             res = refit(ctx, model, T_init, self.settings,
                         hold_joint=bool(joints) if hold_joint is None else hold_joint)
             res = self._judged(ctx, [res])[0]
+            if res.fits:        # as at the click: it must show more than a primitive does
+                res = self._distinguished(ctx, [res], self._primitives_for(ctx))[0]
         return replace(res, time_s=time.perf_counter() - t0)
+
+    def _primitives_for(self, ctx: ClickContext) -> list:
+        """The library's primitives fitted to ``ctx``'s click: those its fit found (kept for
+        the last ``PRIMITIVES_KEPT`` click contexts), else measured now (and kept)."""
+        names = [n for n in self.library if self.library[n].primitive is not None]
+        if not names or ctx.sensor_origin is None:
+            return []
+        with self._primitives_lock:
+            hit = self._primitives_seen.get(id(ctx))
+        if hit is not None and hit[0] is ctx:
+            return hit[1]
+        fitted = self._fit_primitives(ctx, names, refine=False)
+        self._remember_primitives(ctx, fitted)
+        return fitted
+
+    def _remember_primitives(self, ctx: ClickContext, fitted: list) -> None:
+        with self._primitives_lock:
+            self._primitives_seen[id(ctx)] = (ctx, list(fitted))
+            self._primitives_seen.move_to_end(id(ctx))
+            while len(self._primitives_seen) > PRIMITIVES_KEPT:
+                self._primitives_seen.popitem(last=False)
 
     # ------------------------------------------------------------------ the default method
     def _fit_default(self, ctx: ClickContext, names: list[str]) -> tuple:
