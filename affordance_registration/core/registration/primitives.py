@@ -53,6 +53,8 @@ SIDE_COS = 0.5
 #: least FACE_POINTS of them
 FACE_COS = 0.8
 FACE_POINTS = 20
+#: a box's top face points lie within this (m) of its top
+TOP_BAND = 0.01
 #: at most this many of the object's points are measured (an even subset)
 MEASURE_POINTS = 2000
 #: rounds of pose refinement (the fine stage) and measuring again before the final measure
@@ -305,6 +307,9 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
         if lo_z - floor <= BASE_REACH or sides.sum() < max(FACE_POINTS, SIDES_SEEN * len(nl)):
             lo_z = floor
     if kind == "box":
+        # (the top face's points are those at its height: a lower box's top face the clicked
+        # one stands on faces up too)
+        top &= z >= hi_z - TOP_BAND
         lo_x, hi_x = _bounds(local[:, 0], nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS, top)
         lo_y, hi_y = _bounds(local[:, 1], nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS, top)
         size = [hi_x - lo_x, hi_y - lo_y]
