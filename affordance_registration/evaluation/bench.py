@@ -238,7 +238,7 @@ def _real_capture_lines(result: dict) -> list:
                      f"{_pct(a['ranked_first'])}, found within 5 mm / 5 deg {_pct(a['found'])}, "
                      f"accepted {_pct(a['fits'])}")
     for key, what in (("armadillo", "clutter"), ("milk", "PCL's milk carton")):
-        if c and c.get(key) is None and c.get(f"{key}_why"):
+        if c.get(key) is None and c.get(f"{key}_why"):
             lines.append(f"{what}: not measured -- {c[f'{key}_why']}")
     if c.get("milk"):
         m = c["milk"]

@@ -149,8 +149,9 @@ def object_points(ctx: ClickContext):
         off = labels != clicked
         if support is not None:
             off &= np.abs(support.distance(cluster)) > thr
-        # (none found: a plane in front still gives the object's axis)
-        support = _floor(ctx, cluster[off]) or support
+        floor = _floor(ctx, cluster[off])
+        if floor is not None:       # (none found: a plane in front still gives the axis)
+            support = floor
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
     d, idx = nearest(tree, ctx.fine, ctx.voxel)
     mine = np.isfinite(d)
