@@ -449,26 +449,62 @@ def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path,
     assert table.returncode == 0 and "fitted as a box" in table.stdout
 
 
-def test_a_box_longer_than_the_crop_is_measured_in_a_wider_one(library):
-    """A 0.55 m box on a table -- past the crop around the click (the taskboard templates set it
-    at 0.24 m) -- is measured again in a crop twice as large: fitted as a box, accepted, every
-    dimension within 5 mm."""
+def _long_box_on_table(library, dims):
+    """A box of ``dims`` on a table 2.5 x 1.5 m, rendered from 0.7 m before and 0.8 m above
+    it: (the organized cloud, a click in the middle of the box)."""
     import trimesh
 
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import _look_at
     from affordance_registration.evaluation.simulation import DepthCamera
-    dims = {"x": 0.55, "y": 0.10, "z": 0.08}
-    box = library["box"].sized(dims)
-    table = trimesh.creation.box(extents=(1.5, 1.5, 0.02))
+    box = trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"]))
+    box.apply_translation([0, 0, dims["z"] / 2])            # the primitive's frame: base centre
+    table = trimesh.creation.box(extents=(2.5, 1.5, 0.02))
     T_cam_table = invert(_look_at(np.array([0.0, -0.7, 0.8]), np.array([0.0, 0.0, 0.04])))
     organized, labels = DepthCamera().render(
-        [(table, T_cam_table @ make_T(None, [0, 0, -0.01])), (box.mesh, T_cam_table)],
+        [(table, T_cam_table @ make_T(None, [0, 0, -0.01])), (box, T_cam_table)],
         np.random.default_rng(1))
     pts = organized[labels == 1]
-    click = pts[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))]
+    return organized, pts[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))]
+
+
+def test_a_box_longer_than_the_crop_is_measured_in_a_wider_one(library):
+    """A 0.55 m box on a table -- past the crop around the click (the taskboard templates set it
+    at 0.24 m) -- is measured again in a crop twice as large: fitted as a box, accepted, every
+    dimension within 5 mm."""
+    dims = {"x": 0.55, "y": 0.10, "z": 0.08}
+    organized, click = _long_box_on_table(library, dims)
     rep = Registrar(library).fit(Scene(organized), click)
     assert rep.context.radius < dims["x"] / 2          # the box runs past the first crop
     best = rep.candidates[0]
     assert best.primitive == "box" and best.fits is True, best.reason
     assert all(abs(best.dimensions[k] - v) <= 0.005 for k, v in dims.items()), best.dimensions
+
+
+def test_an_object_past_the_wider_crop_stays_refused_after_a_refit(library):
+    """A 1.2 m box runs past the wider crop too: its box is refused at the click ("runs past
+    ... it cannot be measured"), and a refit of it -- the engine's, from the object's own
+    cloud, and the registrar's without a cloud to widen the crop from -- keeps that verdict
+    (a refit judged the crop's part alone: a 0.6 m box explains it all, and read "fits").
+    The 0.55 m box, measured in the wider crop, stays accepted after the engine's refit."""
+    from affordance_registration.core.engine import AffordanceEngine
+    for length, accepted in ((1.2, False), (0.55, True)):
+        organized, click = _long_box_on_table(library, {"x": length, "y": 0.10, "z": 0.08})
+        engine = AffordanceEngine(library)
+        engine.set_scene(organized)
+        engine.click(click)
+        engine.select_model("box")
+        for step in ("click", "refit"):
+            if step == "refit":
+                engine.refit()
+            obj = engine.status()["objects"][0]
+            box = obj["candidates"][obj["shown"]]
+            assert box["template"] == "box" and box["fits"] is accepted, (length, step, box)
+            assert accepted or "runs past" in box["reason"], box["reason"]
+        if not accepted:
+            registrar = Registrar(library)
+            rep = registrar.fit(Scene(organized), click)
+            fitted = next(c for c in rep.candidates if c.template == "box")
+            again = registrar.refit(rep.context, "box", fitted.T_scene_model,
+                                    dimensions=fitted.dimensions)
+            assert again.fits is False and "runs past" in again.reason, again.reason

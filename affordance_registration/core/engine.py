@@ -267,8 +267,10 @@ class AffordanceEngine:
         ctx, candidates, refined = obj.context, obj.candidates, obj.refined
         if active not in refined and ctx is not None:
             cand = candidates[active]
-            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
-                                          cand.scale, dimensions=cand.dimensions or None)
+            better = self.registrar.refit(  # (the object's own cloud: a primitive may widen)
+                ctx, cand.template, cand.T_scene_model, cand.joints, cand.scale,
+                dimensions=cand.dimensions or None,
+                scene=self._scene if obj.scene_version == self._scene_version else None)
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = obj.with_candidate(active, cand).candidates
@@ -464,7 +466,7 @@ class AffordanceEngine:
         shown = obj.shown
         res = self.registrar.refit(ctx, shown.template, shown.T_scene_model, shown.joints,
                                    shown.scale, hold_joint=hold_joint,
-                                   dimensions=shown.dimensions or None)
+                                   dimensions=shown.dimensions or None, scene=scene)
         if hold_joint and shown.joints:       # the operator's value, whatever the settings
             res = replace(res, joints=dict(shown.joints), state=shown.state)
         with self._lock:

@@ -36,7 +36,7 @@ from .results import FitResult
 from .scoring import result
 from .settings import FitSettings
 
-__all__ = ["fit_primitive", "refine_primitive", "object_points"]
+__all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "past_crop"]
 
 #: the primitives within this share of the best one's likelihood (as measured) are refined
 REFINE_SHARE = 0.8
@@ -67,6 +67,9 @@ FLOOR_FRACTION = 0.15
 #: planes the click lies behind (another object's face in front of it) are set aside this many
 #: times in the search for the surface the clicked object stands on
 FLOOR_TRIES = 3
+#: the clicked object reaching this fraction of the crop's radius from the click is cut off by
+#: the crop (a wall, a table, an object larger than the library's templates): not measured
+TRUNCATED = 0.95
 
 
 def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
@@ -115,6 +118,24 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
         R, t, iterations, converged = fit.R[0], fit.t[0], fit.iterations, fit.converged[0]
     res = result(ctx, model, R, t, settings, iterations, converged)
     return replace(res, primitive=template.primitive, dimensions=model.template.dimensions)
+
+
+def truncated(ctx: ClickContext, measured) -> bool:
+    """Whether the clicked object's points (``measured``: :func:`object_points`) reach the edge
+    of the crop."""
+    return float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1))) >= \
+        TRUNCATED * ctx.radius
+
+
+def past_crop(ctx: ClickContext, measured, judged: list) -> list:
+    """The ``judged`` primitives, refused where the clicked object (``measured`` in ``ctx``)
+    runs past the crop: a wall, or an object larger than the crop."""
+    if not truncated(ctx, measured):
+        return judged
+    why = f"the clicked surface runs past the {ctx.radius:.2f} m around the click: " \
+        "it cannot be measured"
+    return [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
+            for r in judged]
 
 
 def object_points(ctx: ClickContext):

@@ -75,7 +75,15 @@ from .icp import fine_stage, icp
 from .model import Batch, Model, ModelCache, surface_distances
 from .paper import PaperMethod
 from .parallel import run, single_threaded_blas
-from .primitives import MEASURE_POINTS, REFINE_SHARE, fit_primitive, object_points, refine_primitive
+from .primitives import (
+    MEASURE_POINTS,
+    REFINE_SHARE,
+    fit_primitive,
+    object_points,
+    past_crop,
+    refine_primitive,
+    truncated,
+)
 from .refit import refit
 from .results import FitReport, FitResult, rank
 from .scoring import distinguished, explained_share, judge, result, results, scores, widening
@@ -92,21 +100,12 @@ OCCLUDER_VOXEL = 0.01      #: m: the scan beyond the crop hides a suggested view
 #: this share of it) is the surface a suggested view stays in front of
 SUPPORT_FRACTION = 0.2
 
-#: a primitive's object reaching this fraction of the crop's radius from the click is cut off by
-#: the crop (a wall, a table, an object larger than the library's templates): not measured
-TRUNCATED = 0.95
-#: ... and measured again in a crop this many times as large
+#: a primitive's object running past the crop (:func:`.primitives.truncated`) is measured again
+#: in a crop this many times as large
 WIDER = 2.0
 #: :meth:`Registrar._worth` judges a leader's explained share on an even subsample of this many
 #: cluster points (its margins are wide: a few points' noise does not matter)
 WORTH_POINTS = 400
-
-
-def _truncated(ctx: ClickContext, measured) -> bool:
-    """Whether the clicked object's points (``measured``, :func:`.primitives.object_points`)
-    reach the edge of the crop."""
-    return float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1))) >= \
-        TRUNCATED * ctx.radius
 
 
 class Registrar:
@@ -231,8 +230,8 @@ class Registrar:
             return suggest_view(ctx, amb, self.settings, T_scene_optical, occluders, support)
 
     def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
-              joints: dict | None = None, scale: float = 1.0,
-              hold_joint: bool | None = None, dimensions: dict | None = None) -> FitResult:
+              joints: dict | None = None, scale: float = 1.0, hold_joint: bool | None = None,
+              dimensions: dict | None = None, scene: Scene | None = None) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
         ``refit.max_move`` / ``refit.max_turn`` from ``T_init``: a refit that would jump back to a
@@ -243,13 +242,16 @@ class Registrar:
         pose and scale only; by default (None) a joint value that is given is kept -- estimated
         once with the click, then changed by the operator's joint corrections, not by refits of
         the pose -- and one that is not given is estimated. A primitive keeps ``dimensions``
-        as given (the operator's or the click's); without them they are measured again."""
+        as given (the operator's or the click's); without them they are measured again.
+        ``scene``: the scan ``ctx`` was cut from -- the verdict asks what the click's asked
+        (a primitive's object running past the crop is measured in a wider one from it)."""
         t0 = time.perf_counter()
         if self.library[template].primitive is not None:
             with single_threaded_blas():
+                wide, measured = self._measured(ctx, scene)
                 res = fit_primitive(ctx, self.library[template], self.models, self.settings,
-                                    dimensions, T_init)
-                res = self._judged(ctx, [res])[0]
+                                    dimensions, T_init, measured if wide is ctx else None)
+                res = past_crop(wide, measured, self._judged(ctx, [res]))[0]
             return replace(res, time_s=time.perf_counter() - t0)
         model = self._model(template, joints, scale)
         with single_threaded_blas():
@@ -257,10 +259,10 @@ class Registrar:
                         hold_joint=bool(joints) if hold_joint is None else hold_joint)
             res = self._judged(ctx, [res])[0]
             if res.fits:        # as at the click: it must show more than a primitive does
-                res = self._distinguished(ctx, [res], self._primitives_for(ctx))[0]
+                res = self._distinguished(ctx, [res], self._primitives_for(ctx, scene))[0]
         return replace(res, time_s=time.perf_counter() - t0)
 
-    def _primitives_for(self, ctx: ClickContext) -> list:
+    def _primitives_for(self, ctx: ClickContext, scene: Scene | None = None) -> list:
         """The library's primitives fitted to ``ctx``'s click: those its fit found (kept for
         the last ``PRIMITIVES_KEPT`` click contexts), else measured now (and kept)."""
         names = [n for n in self.library if self.library[n].primitive is not None]
@@ -270,7 +272,7 @@ class Registrar:
             hit = self._primitives_seen.get(id(ctx))
         if hit is not None and hit[0] is ctx:
             return hit[1]
-        fitted = self._fit_primitives(ctx, names, refine=False)
+        fitted = self._fit_primitives(ctx, names, scene, refine=False)
         self._remember_primitives(ctx, fitted)
         return fitted
 
@@ -365,10 +367,7 @@ class Registrar:
         large (from ``scene``): a box longer than the library's templates is still a box; a
         wall runs past that one too, and is refused."""
         t0 = time.perf_counter()
-        measured = object_points(ctx)          # the clicked object, once for every primitive
-        if _truncated(ctx, measured) and scene is not None:
-            ctx = self.prepare(scene, ctx.click, WIDER * ctx.radius)
-            measured = object_points(ctx)
+        ctx, measured = self._measured(ctx, scene)     # once for every primitive
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
                                 measured=measured, refine=False) for n in names]
         fitted = self._with_hidden_parts(ctx, scene, names, measured, fitted)
@@ -378,13 +377,17 @@ class Registrar:
                   if refine and r.likelihood >= REFINE_SHARE * lead else r
                   for n, r in zip(names, fitted)]
         total = time.perf_counter() - t0
-        judged = [replace(r, time_s=total) for r in self._judged(ctx, fitted)]
-        if _truncated(ctx, measured):       # a wall, or an object larger than the crop
-            why = (f"the clicked surface runs past the {ctx.radius:.2f} m around the click: "
-                   f"it cannot be measured")
-            judged = [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
-                      for r in judged]
-        return judged
+        return past_crop(ctx, measured,
+                         [replace(r, time_s=total) for r in self._judged(ctx, fitted)])
+
+    def _measured(self, ctx: ClickContext, scene: Scene | None) -> tuple:
+        """(the context, the clicked object's points in it: :func:`.primitives.object_points`)
+        -- where they run past ``ctx``'s crop, a crop WIDER times as large from ``scene``."""
+        measured = object_points(ctx)
+        if truncated(ctx, measured) and scene is not None:
+            ctx = self.prepare(scene, ctx.click, WIDER * ctx.radius)
+            measured = object_points(ctx)
+        return ctx, measured
 
     def _with_hidden_parts(self, ctx: ClickContext, scene, names, measured, fitted) -> list:
         """``fitted`` (one primitive of each of ``names``, measured on the clicked part), each
