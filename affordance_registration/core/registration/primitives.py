@@ -127,10 +127,10 @@ def truncated(ctx: ClickContext, measured) -> bool:
         TRUNCATED * ctx.radius
 
 
-def past_crop(ctx: ClickContext, measured, judged: list) -> list:
-    """The ``judged`` primitives, refused where the clicked object (``measured`` in ``ctx``)
-    runs past the crop: a wall, or an object larger than the crop."""
-    if not truncated(ctx, measured):
+def past_crop(ctx: ClickContext, past: bool, judged: list) -> list:
+    """The ``judged`` primitives, refused where the clicked object runs ``past`` the crop of
+    ``ctx`` (:func:`truncated`): a wall, or an object larger than the crop."""
+    if not past:
         return judged
     why = f"the clicked surface runs past the {ctx.radius:.2f} m around the click: " \
         "it cannot be measured"

@@ -248,10 +248,10 @@ class Registrar:
         t0 = time.perf_counter()
         if self.library[template].primitive is not None:
             with single_threaded_blas():
-                wide, measured = self._measured(ctx, scene)
+                wide, measured, past = self._measured(ctx, scene)
                 res = fit_primitive(ctx, self.library[template], self.models, self.settings,
                                     dimensions, T_init, measured if wide is ctx else None)
-                res = past_crop(wide, measured, self._judged(ctx, [res]))[0]
+                res = past_crop(wide, past, self._judged(ctx, [res]))[0]
             return replace(res, time_s=time.perf_counter() - t0)
         model = self._model(template, joints, scale)
         with single_threaded_blas():
@@ -367,7 +367,7 @@ class Registrar:
         large (from ``scene``): a box longer than the library's templates is still a box; a
         wall runs past that one too, and is refused."""
         t0 = time.perf_counter()
-        ctx, measured = self._measured(ctx, scene)     # once for every primitive
+        ctx, measured, past = self._measured(ctx, scene)     # once for every primitive
         fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
                                 measured=measured, refine=False) for n in names]
         fitted = self._with_hidden_parts(ctx, scene, names, measured, fitted)
@@ -377,17 +377,22 @@ class Registrar:
                   if refine and r.likelihood >= REFINE_SHARE * lead else r
                   for n, r in zip(names, fitted)]
         total = time.perf_counter() - t0
-        return past_crop(ctx, measured,
+        return past_crop(ctx, past,
                          [replace(r, time_s=total) for r in self._judged(ctx, fitted)])
 
     def _measured(self, ctx: ClickContext, scene: Scene | None) -> tuple:
-        """(the context, the clicked object's points in it: :func:`.primitives.object_points`)
-        -- where they run past ``ctx``'s crop, a crop WIDER times as large from ``scene``."""
+        """(the context, the clicked object's points in it, whether they run past its crop).
+        Where they run past ``ctx``'s, they are measured again in a crop WIDER times as large
+        from ``scene``, kept where they run past ``ctx``'s crop there too; else ``ctx`` held
+        all of it (the wider crop's coarser segments split it: a box another stands on)."""
         measured = object_points(ctx)
-        if truncated(ctx, measured) and scene is not None:
-            ctx = self.prepare(scene, ctx.click, WIDER * ctx.radius)
-            measured = object_points(ctx)
-        return ctx, measured
+        if not truncated(ctx, measured) or scene is None:
+            return ctx, measured, truncated(ctx, measured)
+        wide = self.prepare(scene, ctx.click, WIDER * ctx.radius)
+        again = object_points(wide)
+        if not truncated(ctx, again):
+            return ctx, measured, False
+        return wide, again, truncated(wide, again)
 
     def _with_hidden_parts(self, ctx: ClickContext, scene, names, measured, fitted) -> list:
         """``fitted`` (one primitive of each of ``names``, measured on the clicked part), each
