@@ -267,10 +267,11 @@ class AffordanceEngine:
         ctx, candidates, refined = obj.context, obj.candidates, obj.refined
         if active not in refined and ctx is not None:
             cand = candidates[active]
-            better = self.registrar.refit(  # (the object's own cloud: a primitive may widen)
-                ctx, cand.template, cand.T_scene_model, cand.joints, cand.scale,
-                dimensions=cand.dimensions or None,
-                scene=self._scene if obj.scene_version == self._scene_version else None)
+            with self._lock:        # the object's own cloud: a primitive's crop may widen
+                scene = self._scene if obj.scene_version == self._scene_version else None
+            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
+                                          cand.scale, dimensions=cand.dimensions or None,
+                                          scene=scene)
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = obj.with_candidate(active, cand).candidates
