@@ -302,15 +302,13 @@ def _edge_angles(uv: np.ndarray) -> np.ndarray:
     return np.unique(np.round(np.mod(np.arctan2(d[:, 1], d[:, 0]), math.pi / 2), 4))
 
 
-def _bounds(along: np.ndarray, face_pos, face_neg, across=None) -> tuple[float, float]:
+def _bounds(along: np.ndarray, face_pos, face_neg, top=None) -> tuple[float, float]:
     """The extent (lo, hi) of the points ``along`` an axis: a face seen on either side is
     where its points' median lies (a face's noise averages out), an unseen one where the
-    points end -- the points of the faces ``across`` the axis (the top face and the side
-    faces along it) where they are seen (a face has no mixed pixels along its edges' outside;
-    a side face shows where an object in front hides the top face's end), else all of them
-    (percentiles, past mixed pixels)."""
-    if across is not None and across.sum() >= FACE_POINTS:
-        lo, hi = np.percentile(along[across], [100 - EDGE, EDGE])
+    points end -- the points of the ``top`` face where it is seen (a top face has no mixed
+    pixels along its edges' outside), else all of them (percentiles, past mixed pixels)."""
+    if top is not None and top.sum() >= FACE_POINTS:
+        lo, hi = np.percentile(along[top], [100 - EDGE, EDGE])
     else:
         lo, hi = np.percentile(along, [LOW, HIGH])
     if face_pos.sum() >= FACE_POINTS:
@@ -340,10 +338,8 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
         # (the top face's points are those at its height: a lower box's top face the clicked
         # one stands on faces up too)
         top &= z >= hi_z - TOP_BAND
-        x_pos, x_neg = nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS
-        y_pos, y_neg = nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS
-        lo_x, hi_x = _bounds(local[:, 0], x_pos, x_neg, top | y_pos | y_neg)
-        lo_y, hi_y = _bounds(local[:, 1], y_pos, y_neg, top | x_pos | x_neg)
+        lo_x, hi_x = _bounds(local[:, 0], nl[:, 0] > FACE_COS, nl[:, 0] < -FACE_COS, top)
+        lo_y, hi_y = _bounds(local[:, 1], nl[:, 1] > FACE_COS, nl[:, 1] < -FACE_COS, top)
         size = [hi_x - lo_x, hi_y - lo_y]
         centre = np.array([(lo_x + hi_x) / 2, (lo_y + hi_y) / 2, lo_z])
         axes = R
