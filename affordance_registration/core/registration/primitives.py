@@ -40,11 +40,6 @@ __all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "p
 
 #: the primitives within this share of the best one's likelihood (as measured) are refined
 REFINE_SHARE = 0.8
-#: ... by a few millimetres (m): a refined pose farther from the measured one has slid along a
-#: face whose ends the scan hardly bounds (a neighbour's points pull it), and the measured pose
-#: stays (of the mOSD tuning clicks' shown primitives this changes one: learn16's tall box slid
-#: 10.7 mm along its front face, leaving 5% of its labelled points off its surface)
-REFINE_MOVE = 0.006
 
 #: points this close to the support (m) reach down to it: the base lies on the support
 BASE_REACH = 0.03
@@ -109,10 +104,9 @@ def refine_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: Mod
                      settings: FitSettings, res: FitResult) -> FitResult:
     """A measured primitive ``res``, its pose refined at its measured size (a real scan's mixed
     pixels and a lip or a rounded edge leave the measured pose a few millimetres off), where
-    that explains the scan better and moves it at most REFINE_MOVE."""
+    that explains the scan better."""
     refined = _refined(ctx, template, cache, settings, res.T_scene_model, res.dimensions)
-    moved = np.linalg.norm(refined.T_scene_model[:3, 3] - res.T_scene_model[:3, 3])
-    return refined if refined.likelihood > res.likelihood and moved <= REFINE_MOVE else res
+    return refined if refined.likelihood > res.likelihood else res
 
 
 def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> FitResult:
