@@ -386,13 +386,13 @@ class Registrar:
         from ``scene``, kept where they run past ``ctx``'s crop there too; else ``ctx`` held
         all of it (the wider crop's coarser segments split it: a box another stands on)."""
         measured = object_points(ctx)
-        if not truncated(ctx, measured) or scene is None:
-            return ctx, measured, truncated(ctx, measured)
+        past = truncated(ctx, measured)
+        if not past or scene is None:
+            return ctx, measured, past
         wide = self.prepare(scene, ctx.click, WIDER * ctx.radius)
         again = object_points(wide)
-        if not truncated(ctx, again):
-            return ctx, measured, False
-        return wide, again, truncated(wide, again)
+        return (wide, again, truncated(wide, again)) if truncated(ctx, again) else \
+            (ctx, measured, False)
 
     def _with_hidden_parts(self, ctx: ClickContext, scene, names, measured, fitted) -> list:
         """``fitted`` (one primitive of each of ``names``, measured on the clicked part), each
