@@ -125,6 +125,37 @@ def test_a_specific_template_that_fits_outranks_the_primitives(registrar, panel_
         assert verdict(rep.candidates) == "fits" and not no_match(rep.candidates)
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.booleans(), st.booleans(), st.floats(1.0, 1000.0)),
+                min_size=1, max_size=8))
+def test_who_leads_when_nothing_specific_fits(rows):
+    """The ranking's rule (README, "Objects outside the library"): a specific template that
+    fits leads; else a primitive that fits; where nothing fits, the specific templates stay
+    first as the best guess (the right object refused at its right pose, its segment joined
+    to a neighbour, is shown rather than a box around both); within a group, by likelihood."""
+    from affordance_registration.core.registration.results import FitResult, rank
+    results = [FitResult(template=f"{'box' if prim else 't'}{i}", T_scene_model=np.eye(4),
+                         residual=1.0 / lik, likelihood=lik, fits=fits,
+                         primitive="box" if prim else None)
+               for i, (prim, fits, lik) in enumerate(rows)]
+    ranked = rank(results)
+    assert sorted(r.template for r in ranked) == sorted(r.template for r in results)
+    assert [r.rank for r in ranked] == list(range(1, len(rows) + 1))
+    specific_fits = any(f and not p for p, f, _ in rows)
+    primitive_fits = any(f and p for p, f, _ in rows)
+    leaders_are_primitives = primitive_fits and not specific_fits
+    group = [(r.primitive is not None) != leaders_are_primitives for r in ranked]
+    assert group == sorted(group)
+    for a, b in zip(ranked, ranked[1:]):
+        if (a.primitive is None) == (b.primitive is None):
+            assert a.likelihood >= b.likelihood
+    if any(not p for p, _, _ in rows) and not primitive_fits:
+        assert ranked[0].primitive is None
+        assert no_match(ranked) == (ranked[0].fits is not True)
+    if leaders_are_primitives:
+        assert ranked[0].primitive == "box" and no_match(ranked)
+
+
 @pytest.mark.parametrize("seed", [2000, 2001])
 def test_an_emergency_stop_shows_what_sets_it_apart_from_a_box(registrar, seed):
     """An emergency stop lying on a table, where a box fits its housing too: its button is
