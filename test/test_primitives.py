@@ -125,6 +125,22 @@ def test_a_specific_template_that_fits_outranks_the_primitives(registrar, panel_
         assert verdict(rep.candidates) == "fits" and not no_match(rep.candidates)
 
 
+def test_a_box_measured_from_part_of_its_segment_is_refused(registrar):
+    """``simulate_primitives`` seed 5009's large box (0.228 x 0.155 x 0.100 m): its top face's
+    noisy smooth patches join into two segments, and the box measured from the clicked one is
+    0.095 m deep. The patch of the top face it leaves out does not count as a neighbour for a
+    primitive (it is held to all of what it was measured from, while a specific template
+    is not held to patches it does not come near): the box explains too little and is refused,
+    not shown as a fit at the wrong size."""
+    organized, objects = simulate_primitives(5009)
+    obj = objects[0]
+    assert obj["kind"] == "box" and abs(obj["dimensions"]["y"] - 0.155) < 0.001
+    box = next(c for c in registrar.fit(Scene(organized), obj["click"]).candidates
+               if c.primitive == "box")
+    assert box.dimensions["y"] < obj["dimensions"]["y"] - 0.03      # (the premise)
+    assert box.fits is False and box.explained < 0.8 and "explains" in box.reason
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.booleans(), st.booleans(), st.floats(1.0, 1000.0)),
                 min_size=1, max_size=8))

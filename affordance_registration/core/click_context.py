@@ -16,7 +16,7 @@ import numpy as np
 from .errors import SceneError
 from .neighbours import KDTree, k_nearest
 from .plane import Plane
-from .segmentation import segment
+from .segmentation import segments_and_patches
 from .voxels import _minus
 
 __all__ = ["ClickContext", "RangeImage", "NOISE_NEIGHBOURS", "NOISE_SAMPLES"]
@@ -160,12 +160,29 @@ class ClickContext:
         stands on) -- neighbours SEGMENT_REACH voxels apart stay joined where their normals
         are within SEGMENT_FLAT_DEG of each other or meet convexly (a box's edges). A convex
         object is one segment; the verdict asks which segments a candidate explains."""
-        return segment(self.cluster, self.sensor_origin, self.voxel, self.cluster_tree)
+        return self._segmentation[0]
+
+    @cached_property
+    def patches(self) -> np.ndarray:
+        """The smooth patch label (N,) of each cluster point: the pieces ``segments`` joins,
+        each a surface whose normals turn smoothly (a box's face, a can's side)."""
+        return self._segmentation[1]
+
+    @cached_property
+    def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
+        return segments_and_patches(self.cluster, self.sensor_origin, self.voxel,
+                                    self.cluster_tree)
 
     @cached_property
     def clicked_segment(self) -> int:
         """The label (of ``segments``) of the segment the cluster point nearest the click is in."""
         return int(self.segments[int(np.argmin(self._cluster_to_click))])
+
+    @cached_property
+    def clicked_patch(self) -> int:
+        """The label (of ``patches``) of the smooth patch the cluster point nearest the click is
+        in."""
+        return int(self.patches[int(np.argmin(self._cluster_to_click))])
 
     @cached_property
     def clicked_points(self) -> np.ndarray:

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .voxels import _minus
 
-__all__ = ["segment", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
+__all__ = ["segment", "segments_and_patches", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
 
 #: the cluster's segments (``ClickContext.segments``) are grown in two steps, as in locally
 #: convex connected patches: smooth patches first -- voxels this many voxel edges apart are
@@ -53,20 +53,28 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
             tree: KDTree | None = None) -> np.ndarray:
     """Segment labels (N,) of voxelized ``points`` (N, 3) cut at concave edges (see
     ``ClickContext.segments``); ``tree``: a tree over them when one exists."""
+    return segments_and_patches(points, origin, voxel, tree)[0]
+
+
+def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: float,
+                         tree: KDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The segment labels (N,) of :func:`segment` and the smooth patch labels (N,) they were
+    joined from (``ClickContext.patches``), each numbered from 0."""
     P = points
     N = len(P)
     if N < 3:
-        return np.zeros(N, np.int64)
+        return np.zeros(N, np.int64), np.zeros(N, np.int64)
     n, variation = pca_normals(P, SEGMENT_NEIGHBOURS, tree, variation=True)
     towards = (origin - P) if origin is not None else (P - P.mean(axis=0))
     n[np.einsum("ij,ij->i", n, towards) < 0] *= -1      # towards the sensor, or outwards
     patch, core = _smooth_patches(P, n, variation, voxel)
+    patch = np.unique(patch, return_inverse=True)[1]
     if not core.any():
-        return np.zeros(N, np.int64)
+        return np.zeros(N, np.int64), patch
     pairs = pairs_within(P, ADJACENT_REACH * voxel)
     pairs = pairs[patch[pairs[:, 0]] != patch[pairs[:, 1]]]
     if not len(pairs):
-        return np.unique(patch, return_inverse=True)[1]
+        return patch, patch
     A = np.concatenate([pairs[:, 0], pairs[:, 1]])       # each contact seen from both sides
     B = np.concatenate([pairs[:, 1], pairs[:, 0]])
     sides, group = np.unique(patch[A] * N + patch[B], return_inverse=True)
@@ -105,7 +113,7 @@ def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
         if convex or flat:
             join.append((i, j))
     merged = _components(N, np.array(join, np.int64).reshape(-1, 2))[patch]
-    return np.unique(merged, return_inverse=True)[1]
+    return np.unique(merged, return_inverse=True)[1], patch
 
 
 def _smooth_patches(P: np.ndarray, n: np.ndarray, variation: np.ndarray, voxel: float):

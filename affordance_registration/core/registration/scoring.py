@@ -243,6 +243,14 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
 #: the candidate stands for (with the clicked segment); one that merely touches it (less) is a
 #: neighbour
 OBJECT_SEGMENT = 0.3
+#: ... and within those segments, a smooth patch (``ClickContext.patches``: a box's face, a
+#: can's side) of which less than this share lies on a specific template is a neighbour the
+#: segment joined across their contact (a statue touching a box, one small patch of it meeting
+#: the box's face convexly), not a part of the object the template leaves unexplained -- the
+#: clicked patch aside. A template inside an object's points lies on part of its faces (a
+#: valve in a box covers part of the face it sits in, more than this share of it): that face
+#: counts. A primitive is held to all of its segments (they are what it was measured from)
+NEIGHBOUR_PATCH = 0.05
 
 
 def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float,
@@ -252,23 +260,32 @@ def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: flo
     object is the clicked segment of the cluster and every segment
     (``ClickContext.segments``) the candidate lies on for at least ``OBJECT_SEGMENT`` of its
     points: touching neighbours, and a sensor's mixed pixels bridging to them, do not count
-    against a candidate; the rest of an object it is too small for does. ``points``: over an
-    even, fixed subsample of at most that many cluster points (None: all)."""
-    pts, labels = ctx.cluster, ctx.segments
+    against a candidate; the rest of an object it is too small for does -- for a specific
+    template, but for the smooth patches of those segments it does not come near
+    (``NEIGHBOUR_PATCH``). ``points``: over an even, fixed subsample of at most that many
+    cluster points (None: all)."""
+    pts, labels, patches = ctx.cluster, ctx.segments, ctx.patches
     clicked = ctx.clicked_segment
+    clicked_patch = ctx.clicked_patch
     if points is not None and len(pts) > points:
         pick = (np.arange(points) * (len(pts) / points)).astype(np.int64)
-        pts, labels = pts[pick], labels[pick]
+        pts, labels, patches = pts[pick], labels[pick], patches[pick]
     local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]          # (B, K, 3) model frames
     dist = np.minimum(surface_distances(list(models), local, max(cap, within * 2)), cap)
     on = dist <= within
     counts = np.maximum(np.bincount(labels, minlength=int(clicked) + 1), 1)
+    patch_counts = np.maximum(np.bincount(patches, minlength=clicked_patch + 1), 1)
     share_on, mean_d = np.empty(len(T)), np.empty(len(T))
     for k in range(len(T)):
         share = np.bincount(labels, weights=on[k], minlength=len(counts)) / counts
         part = share >= OBJECT_SEGMENT
         part[clicked] = True
         mine = part[labels]
+        if models[k].template.primitive is None:
+            near = np.bincount(patches, weights=on[k], minlength=len(patch_counts)) / \
+                patch_counts >= NEIGHBOUR_PATCH
+            near[clicked_patch] = True
+            mine &= near[patches]
         if not mine.any():          # (a subsample without the clicked segment: unknown)
             share_on[k], mean_d[k] = 1.0, 0.0
             continue
