@@ -102,7 +102,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     widen = widening(ctx, settings)
     covered_within = widen * settings.verdict.coverage_distance
     explained, object_bwd = _explained(ctx, models, T, widen * settings.verdict.explained_distance,
-                                       settings.scoring.cap)
+                                       settings.scoring.cap, settings.verdict.min_explained)
     # the verdict's residual is the object's: template -> scene as ranked, object -> template
     # over the clicked object's points only (touching neighbours in the cluster are not the
     # template's to explain), plus the click penalty
@@ -160,7 +160,7 @@ def explained_share(ctx: ClickContext, models, fits, settings: FitSettings,
     T = np.stack([r.T_scene_model for r in fits])
     return _explained(ctx, list(models), T,
                       widening(ctx, settings) * settings.verdict.explained_distance,
-                      settings.scoring.cap, points)[0]
+                      settings.scoring.cap, settings.verdict.min_explained, points)[0]
 
 
 def _seen(ctx: ClickContext, model: Model, P: np.ndarray, R, t, exposed: np.ndarray,
@@ -243,27 +243,29 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
 #: the candidate stands for (with the clicked segment); one that merely touches it (less) is a
 #: neighbour
 OBJECT_SEGMENT = 0.3
-#: ... and within those segments, a smooth patch (``ClickContext.patches``: a box's face, a
-#: can's side) of which less than this share lies on a specific template is a neighbour the
+#: ... and within those segments, the smooth patches (``ClickContext.patches``: a box's face, a
+#: can's side) of which less than this share lies on a specific template are a neighbour the
 #: segment joined across their contact (a statue touching a box, one small patch of it meeting
-#: the box's face convexly), not a part of the object the template leaves unexplained -- the
-#: clicked patch aside. A template inside an object's points lies on part of its faces (a
-#: valve in a box covers part of the face it sits in, more than this share of it): that face
-#: counts. A primitive is held to all of its segments (they are what it was measured from)
+#: the box's face convexly) where the template explains the rest to the verdict's bar -- the
+#: clicked patch aside; else they count, as before. A template inside an object's points lies
+#: on part of its faces (a valve in a box covers part of the face it sits in, more than this
+#: share of it): that face counts. A primitive is held to all of its segments (they are what
+#: it was measured from)
 NEIGHBOUR_PATCH = 0.05
 
 
 def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float,
-               points: int | None = None):
+               bar: float, points: int | None = None):
     """The share (B,) of the clicked object's cluster points within ``within`` of each posed
     candidate's surface, and their capped mean distance to it (B,, m, capped at ``cap``). The
     object is the clicked segment of the cluster and every segment
     (``ClickContext.segments``) the candidate lies on for at least ``OBJECT_SEGMENT`` of its
     points: touching neighbours, and a sensor's mixed pixels bridging to them, do not count
-    against a candidate; the rest of an object it is too small for does -- for a specific
-    template, but for the smooth patches of those segments it does not come near
-    (``NEIGHBOUR_PATCH``). ``points``: over an even, fixed subsample of at most that many
-    cluster points (None: all)."""
+    against a candidate; the rest of an object it is too small for does. A specific template
+    that explains less than ``bar`` of that, but at least ``bar`` of it without the smooth
+    patches it does not come near (``NEIGHBOUR_PATCH``), is judged on the latter: they are a
+    neighbour the segment joined. ``points``: over an even, fixed subsample of at most that
+    many cluster points (None: all)."""
     pts, labels, patches = ctx.cluster, ctx.segments, ctx.patches
     clicked = ctx.clicked_segment
     clicked_patch = ctx.clicked_patch
@@ -281,15 +283,17 @@ def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: flo
         part = share >= OBJECT_SEGMENT
         part[clicked] = True
         mine = part[labels]
-        if models[k].template.primitive is None:
-            near = np.bincount(patches, weights=on[k], minlength=len(patch_counts)) / \
-                patch_counts >= NEIGHBOUR_PATCH
-            near[clicked_patch] = True
-            mine &= near[patches]
         if not mine.any():          # (a subsample without the clicked segment: unknown)
             share_on[k], mean_d[k] = 1.0, 0.0
             continue
         share_on[k], mean_d[k] = float(on[k][mine].mean()), float(dist[k][mine].mean())
+        if models[k].template.primitive is None and share_on[k] < bar:
+            near = np.bincount(patches, weights=on[k], minlength=len(patch_counts)) / \
+                patch_counts >= NEIGHBOUR_PATCH
+            near[clicked_patch] = True
+            own = mine & near[patches]
+            if own.any() and on[k][own].mean() >= bar:
+                share_on[k], mean_d[k] = float(on[k][own].mean()), float(dist[k][own].mean())
     return share_on, mean_d
 
 
