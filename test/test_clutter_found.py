@@ -101,18 +101,16 @@ def test_a_known_object_joined_to_the_box_it_touches_is_accepted(armadillo, scen
     scene_ = Scene(case.points.reshape(-1, 3), sensor_origin=case.sensor_origin)
     # the premise: the clicked segment holds most of the touched object's cluster points
     ctx = registrar.prepare(scene_, case.click)
-    flat = case.points.reshape(-1, 3)
+    flat, ids = case.points.reshape(-1, 3), rd.object_ids(case.labels)
     ok = np.all(np.isfinite(flat), axis=1)
-    owner = np.where(case.labels >= 10, case.labels // 10, 0).reshape(-1)[ok][
-        cKDTree(flat[ok]).query(ctx.cluster)[1]]
+    owner = ids.reshape(-1)[ok][cKDTree(flat[ok]).query(ctx.cluster)[1]]
     theirs = owner == touched
     assert (ctx.segments[theirs] == ctx.clicked_segment).mean() > 0.9
     best = registrar.fit(scene_, case.click).candidates[0]
     dt, dr = pose_error(best.T_scene_model, case.T_scene_model)
     assert best.template == tpl.name and dt <= 0.005 and np.degrees(dr) <= 5.0
     assert best.fits is True and best.explained >= 0.8, best.reason
-    click, _ = rd.click_in_middle(case.points, np.where(case.labels >= 10, case.labels // 10,
-                                                        0) == touched)
+    click, _ = rd.click_in_middle(case.points, ids == touched)
     there = registrar.fit(scene_, click).candidates
     assert not any(c.template == tpl.name and c.fits for c in there), \
         [(c.template, c.fits, c.explained) for c in there[:3]]

@@ -34,7 +34,7 @@ __all__ = ["DATA_ENV", "SKIP_REASON", "SCENE_KINDS", "HELD_OUT", "MIN_OBJECT_POI
            "MIN_TOLERANCE", "NOISE_SIGMAS", "PASS_RECALL", "PASS_PRECISION",
            "shared_data_dir", "osd_dir", "osd_scene_paths", "scene_name", "scene_kind",
            "is_held_out", "ALL_OF_KIND", "uniform_kind", "OBJECT_KINDS", "object_kind",
-           "LabelledCloud", "read_labelled_pcd", "Intrinsics",
+           "LabelledCloud", "object_ids", "read_labelled_pcd", "Intrinsics",
            "fit_intrinsics", "LabelledObject", "labelled_objects", "click_in_middle",
            "table_points", "fit_plane", "box_distance", "cylinder_distance",
            "primitive_distance", "inside_region", "local_noise", "PrimitiveScore",
@@ -190,8 +190,14 @@ class LabelledCloud:
 
     @property
     def object_ids(self) -> np.ndarray:
-        """(H, W) int64: the object id of each pixel (label // 10, 0 for table and invalid)."""
-        return np.where(self.labels >= 10, self.labels // 10, 0)
+        """(H, W) int64: the object id of each pixel (:func:`object_ids`)."""
+        return object_ids(self.labels)
+
+
+def object_ids(labels: np.ndarray) -> np.ndarray:
+    """The object id of each of mOSD's ``labels`` (label // 10; 0 for the table, invalid
+    points and anything labelled below 10, such as a placed object's -1)."""
+    return np.where(labels >= 10, labels // 10, 0)
 
 
 def read_labelled_pcd(path: str) -> LabelledCloud:
