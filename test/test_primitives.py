@@ -232,24 +232,57 @@ def test_a_refit_keeps_the_clicks_verdict_against_the_primitives(library, panel_
         assert shown.template == obj.template and shown.fits is True, shown.reason
 
 
-def _table_scene(boxes, poles, seed=0):
-    """A simulated table (the mOSD camera 1 m away, 30 deg above it, looking along +y) with
-    ``boxes`` [((x, y, z) extents, (px, py))] and standing ``poles`` [(radius, height,
-    (px, py))]: (organized, labels), label 1 the first box."""
+def _table_scene(boxes, poles, seed=0, meshes=(), elevation=30.0):
+    """A simulated table (the mOSD camera 1 m away, ``elevation`` deg above it, looking along
+    +y) with ``boxes`` [((x, y, z) extents, (px, py))], standing ``poles`` [(radius, height,
+    (px, py))] and ``meshes`` [(trimesh, T_table_mesh)]: (organized, labels), label 1 the
+    first of them."""
     import trimesh
 
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import TABLE, _look_at, _mosd_camera
     from affordance_registration.evaluation.simulation import DepthCamera
+    extra = list(meshes)
     meshes = [(trimesh.creation.box(extents=TABLE), make_T(None, [0, 0, -TABLE[2] / 2]))]
     meshes += [(trimesh.creation.box(extents=ext), make_T(None, [px, py, ext[2] / 2]))
                for ext, (px, py) in boxes]
     meshes += [(trimesh.creation.cylinder(radius=r, height=h, sections=48),
                 make_T(None, [px, py, h / 2])) for r, h, (px, py) in poles]
-    e = math.radians(30.0)
+    meshes += extra
+    e = math.radians(elevation)
     T_cam_table = invert(_look_at(np.array([0.0, -math.cos(e), math.sin(e)]), np.zeros(3)))
     return DepthCamera(_mosd_camera()).render([(m, T_cam_table @ T) for m, T in meshes],
                                               np.random.default_rng(seed))
+
+
+def _gable_carton(x: float, y: float, body: float, ridge: float):
+    """A milk carton's shape: an x by y by ``body`` box under a gable roof whose ridge (along
+    x, ``ridge`` m above the base) runs over the middle of the top."""
+    import trimesh
+    corners = [(sx * x / 2, sy * y / 2, z) for z in (0.0, body) for sx in (-1, 1)
+               for sy in (-1, 1)]
+    return trimesh.convex.convex_hull(np.array(corners + [(-x / 2, 0.0, ridge),
+                                                          (x / 2, 0.0, ridge)]))
+
+
+@pytest.mark.parametrize("yaw", [45.0, 70.0])
+def test_a_gable_top_carton_is_measured_to_its_body(registrar, yaw):
+    """A carton 0.095 m square, its body 0.20 m tall under a ridge 0.245 m up, turned so both
+    roof slopes are seen: the box's top face is only the strip along the ridge, and the box
+    is measured to where the carton's points end across it, not to the strip's edge (which
+    made it half as deep and refused); it fits, its height between the eaves and the ridge."""
+    from affordance_registration.core.transforms import axis_angle_matrix, make_T
+    from affordance_registration.evaluation.realdata import click_in_middle
+    carton = (_gable_carton(0.095, 0.095, 0.20, 0.245),
+              make_T(axis_angle_matrix([0, 0, 1], math.radians(yaw)), [0.0, 0.0, 0.0]))
+    organized, labels = _table_scene([], [], meshes=[carton], elevation=50.0)
+    click = np.asarray(click_in_middle(organized, labels == 1)[0], float)
+    rep = registrar.fit(Scene(organized), click)
+    best = rep.candidates[0]
+    assert best.primitive == "box" and best.fits is True, (best.template, best.reason)
+    assert abs(best.dimensions["x"] - 0.095) <= DIM_TOL, best.dimensions
+    assert abs(best.dimensions["y"] - 0.095) <= DIM_TOL, best.dimensions
+    assert 0.20 - DIM_TOL <= best.dimensions["z"] <= 0.245, best.dimensions
 
 
 def _split_box(side: str):

@@ -55,6 +55,9 @@ FACE_COS = 0.8
 FACE_POINTS = 20
 #: a box's top face points lie within this (m) of its top
 TOP_BAND = 0.01
+#: more than this share of a box's points past its top face's edge (by TOP_BAND) are more
+#: than mixed pixels: the top face seen is not all of the box's top there
+PAST_TOP = 0.05
 #: at most this many of the object's points are measured (an even subset)
 MEASURE_POINTS = 2000
 #: rounds of pose refinement (the fine stage) and measuring again before the final measure
@@ -300,11 +303,19 @@ def _bounds(along: np.ndarray, face_pos, face_neg, top=None) -> tuple[float, flo
     """The extent (lo, hi) of the points ``along`` an axis: a face seen on either side is
     where its points' median lies (a face's noise averages out), an unseen one where the
     points end -- the points of the ``top`` face where it is seen (a top face has no mixed
-    pixels along its edges' outside), else all of them (percentiles, past mixed pixels)."""
+    pixels along its edges' outside), else all of them (percentiles, past mixed pixels). Where
+    more than ``PAST_TOP`` of the points lie past the top face's edge (by ``TOP_BAND``), the
+    top seen is not all of the object's top there -- a carton's ridge between its roof's
+    slopes, a top face half hidden by an object in front: there all of them."""
+    lo, hi = np.percentile(along, [LOW, HIGH])
     if top is not None and top.sum() >= FACE_POINTS:
-        lo, hi = np.percentile(along[top], [100 - EDGE, EDGE])
-    else:
-        lo, hi = np.percentile(along, [LOW, HIGH])
+        # (where more of the points lie past the top face's edge than mixed pixels would, the
+        # top is part of the object's top -- a carton's ridge: there the points end)
+        lo_top, hi_top = np.percentile(along[top], [100 - EDGE, EDGE])
+        if np.mean(along < lo_top - TOP_BAND) < PAST_TOP:
+            lo = lo_top
+        if np.mean(along > hi_top + TOP_BAND) < PAST_TOP:
+            hi = hi_top
     if face_pos.sum() >= FACE_POINTS:
         hi = float(np.median(along[face_pos]))
     if face_neg.sum() >= FACE_POINTS:
