@@ -245,6 +245,15 @@ def _real_capture_lines(result: dict) -> list:
         lines.append(f"PCL's milk carton in its real scene: ranked first {m['ranked_first']}, "
                      f"{m['error_mm']} mm (at its centroid) / {m['error_deg']} deg, accepted "
                      f"{m['fits']}")
+        box = m.get("as_box")
+        if box:
+            shown = f"a {box['primitive']} " + " x ".join(
+                f"{v:.3f}" for v in box["dimensions"].values()) + " m" \
+                if box["primitive"] else box["template"]
+            body = "" if box["body_on_box"] is None else \
+                f", its body on the box {_pct(box['body_on_box'])}"
+            lines.append(f"PCL's milk carton without its template (the bundled library): "
+                         f"shown as {shown}, accepted {box['fits']}{body}")
     return lines
 
 

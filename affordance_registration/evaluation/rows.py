@@ -368,6 +368,22 @@ def _armadillo_row(registrar, tpl, yml: str, bases, seeds) -> dict:
             "median_s": _median([r["time_s"] for r in records]), "records": records}
 
 
+def _milk_as_box(factory, case) -> dict:
+    """The milk carton's click with the bundled library alone (no carton template): the
+    leader's ``template``, ``primitive``, ``fits``, ``dimensions`` and, where it is a box,
+    ``body_on_box`` (:func:`.clutter.milk_body_on_box`: the share of the carton's body on it)."""
+    from ..core.scene import Scene
+    from ..core.templates import TemplateLibrary
+    from .clutter import milk_body_on_box
+    best = factory(TemplateLibrary(list(_bundled().values()))).fit(
+        Scene.from_file(case.scene), case.click).candidates[0]
+    dims = {k: round(float(v), 4) for k, v in (best.dimensions or {}).items()}
+    body = milk_body_on_box(case.carton, best.T_scene_model, best.dimensions)[1] \
+        if best.primitive == "box" else None
+    return {"template": best.template, "primitive": best.primitive, "fits": best.fits,
+            "dimensions": dims, "body_on_box": body}
+
+
 def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
                  with_library: bool = True, milk: bool = True, held_out_scenes=None) -> dict:
     """The clutter rows. "armadillo": the Armadillo template (all four views merged) in a
@@ -378,7 +394,8 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
     ``median_s``, ``records`` (one per click). "armadillo_held_out": the same on
     ``held_out_scenes`` (default the held-out learn scenes, ``realdata.HELD_OUT``; [] for
     none). "milk": PCL's milk carton as a point-cloud template in the bundled library, clicked
-    on the carton: ranked first, within 2 mm / 2 deg of the identity, accepted. A row whose
+    on the carton: ranked first, within 2 mm / 2 deg of the identity, accepted; "as_box" the
+    same click without the carton's template (:func:`_milk_as_box`). A row whose
     data is absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
@@ -432,6 +449,7 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
                                    e_t <= 0.002 and math.degrees(e_r) <= 2.0,
                                    "fits": best.fits, "template": best.template,
                                    "time_s": time.perf_counter() - t0}
+                    out["milk"]["as_box"] = _milk_as_box(factory, case)
                 except AffordanceError as exc:
                     out["milk"], out["milk_why"] = None, str(exc)
     return out
