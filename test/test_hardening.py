@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 import yaml
 from geometry_msgs.msg import PointStamped, Twist
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from ros_helpers import engine_process, engine_session
@@ -250,6 +252,74 @@ def test_fit_refuses_unreadable_arrays_and_oversized_files_in_one_line(tmp_path)
     for (name, expected), (code, err, _) in zip(cases, results):
         line = one_line(code, err)
         assert name in line and expected in line, line
+
+
+def _binary_ply(count: int, pts: np.ndarray, props=("x", "y", "z"), element="") -> bytes:
+    head = "".join(f"property float {p}\n" if p != "list" else "property list uchar int z\n"
+                   for p in props)
+    return (f"ply\nformat binary_little_endian 1.0\nelement vertex {count}{element}\n{head}"
+            f"end_header\n").encode() + pts.astype("<f4").tobytes()
+
+
+def _binary_pcd(points: int, pts: np.ndarray, width=None, height=1, types="F F F",
+                sizes="4 4 4") -> bytes:
+    width = points if width is None else width
+    return (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE {sizes}\nTYPE {types}\n"
+            f"COUNT 1 1 1\nWIDTH {width}\nHEIGHT {height}\nVIEWPOINT 0 0 0 1 0 0 0\n"
+            f"POINTS {points}\nDATA binary\n").encode() + pts.astype("<f4").tobytes()
+
+
+def test_point_file_headers_that_do_not_match_their_data_are_one_line(tmp_path):
+    """A PLY or PCD whose header does not describe its data -- more or fewer points than it
+    holds, WIDTH x HEIGHT not its POINTS, a type that is not one, no z, a list property on the
+    vertices, a malformed element line, a compressed payload whose sizes disagree with the
+    header (Open3D read past its buffer there: a segfault) -- is refused in one line before
+    any reader touches it; nothing is read short or padded with garbage."""
+    pts = np.random.default_rng(0).uniform(-1, 1, (1000, 3))
+    files = {"fewer.ply": _binary_ply(900, pts), "more.ply": _binary_ply(1100, pts),
+             "element.ply": _binary_ply(1000, pts, element=" 7"),
+             "noz.ply": _binary_ply(1000, pts, props=("x", "y", "w")),
+             "list.ply": _binary_ply(1000, pts, props=("x", "y", "list")),
+             "fewer.pcd": _binary_pcd(900, pts), "grid.pcd": _binary_pcd(1000, pts, 100, 7),
+             "type.pcd": _binary_pcd(1000, pts, types="Q Q Q"),
+             "size.pcd": _binary_pcd(1000, pts, sizes="3 3 3")}
+    cases = [("fewer.ply", "does not match the data"), ("more.ply", "only 12,000 bytes"),
+             ("element.ply", "bad element line"), ("noz.ply", "no x, y, z"),
+             ("list.ply", "a list property"), ("fewer.pcd", "does not match the data"),
+             ("grid.pcd", "WIDTH 100 x HEIGHT 7"), ("type.pcd", "not a PCD type"),
+             ("size.pcd", "not a PCD type")]
+    from affordance_registration.evaluation.realdata import shared_data_dir
+    milk = os.path.join(shared_data_dir() or "", "pcl", "milk.pcd")
+    if os.path.isfile(milk):          # binary_compressed (the shared data): the segfault
+        data = open(milk, "rb").read()
+        files["packed.pcd"] = data.replace(b"POINTS 13704", b"POINTS 100000", 1).replace(
+            b"WIDTH 13704", b"WIDTH 100000", 1)
+        cases.append(("packed.pcd", "unpacks to 164,448 bytes"))
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    results = run_cli_all(*(("fit", "--scene", str(tmp_path / name), "--point", "0", "0", "1")
+                            for name, _ in cases))
+    for (name, expected), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
+        assert name in line and expected in line, line
+
+
+@settings(max_examples=25, deadline=None)
+@given(count=st.integers(0, 5000), kind=st.sampled_from(["ply", "pcd"]))
+def test_any_point_count_but_the_true_one_is_refused(tmp_path_factory, count, kind):
+    """A binary cloud of 1000 points whose header announces ``count``: read whole when it is
+    1000, else refused with one line naming the file -- never read short or past its end."""
+    from affordance_registration.core.errors import SceneError
+    from affordance_registration.core.pointfiles import read_points
+    pts = np.random.default_rng(1).uniform(-1, 1, (1000, 3))
+    path = tmp_path_factory.mktemp("count") / f"c.{kind}"
+    path.write_bytes(_binary_ply(count, pts) if kind == "ply" else _binary_pcd(count, pts))
+    if count == 1000:
+        np.testing.assert_allclose(read_points(str(path)).points, pts, atol=1e-6)
+        return
+    with pytest.raises(SceneError) as err:
+        read_points(str(path))
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
 
 
 def _library(tmp_path, name, text):

@@ -22,6 +22,8 @@ __all__ = ["PointFile", "read_points", "check_header", "MAX_FILE_BYTES", "MAX_PO
 #: the largest point or mesh file read (bytes) and the most points one may hold
 MAX_FILE_BYTES = 2_000_000_000
 MAX_POINTS = 10_000_000
+#: the sizes (bytes) a PCD field of each TYPE may have
+_PCD_SIZES = {"F": (4, 8), "I": (1, 2, 4, 8), "U": (1, 2, 4, 8)}
 _HEADER_LIMIT = 65536           # bytes of header read before giving up on finding its end
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
               "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
@@ -72,11 +74,14 @@ def _check_ply(path: str, size: int, error) -> dict:
         words = line.split()
         if words[:1] == ["format"] and len(words) >= 2:
             fmt = words[1]
-        elif words[:1] == ["element"] and len(words) == 3:
+        elif words[:1] == ["element"]:
             try:
+                if len(words) != 3:
+                    raise ValueError
                 count = int(words[2])
             except ValueError:
-                raise _fail(path, f"bad element line {line!r}", error) from None
+                raise _fail(path, f"bad element line {line!r} (element <name> <count>)",
+                            error) from None
             if count < 0:
                 raise _fail(path, f"negative element count in {line!r}", error)
             elements.append([words[1], count, 0, 0, []])
@@ -88,6 +93,9 @@ def _check_ply(path: str, size: int, error) -> dict:
             elements[-1][2] += _PLY_SIZES[kind]    # a list holds at least its length
             elements[-1][3] += 1
             elements[-1][4].append(words[-1] if words[1] != "list" else None)
+            if words[1] == "list" and elements[-1][0] == "vertex":
+                raise _fail(path, f"a list property on the vertices ({line!r}): not a point "
+                                  f"cloud this reads", error)
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise _fail(path, f"unknown PLY format {fmt!r}", error)
     # an ASCII value takes at least two bytes (a digit and a separator)
@@ -96,8 +104,14 @@ def _check_ply(path: str, size: int, error) -> dict:
     counts = {name: count for name, count, _, _, _ in elements}
     names = [e[0] for e in elements]
     vertex = elements[names.index("vertex")] if "vertex" in names else None
+    if vertex is not None and not all(c in vertex[4] for c in "xyz"):
+        raise _fail(path, f"its vertices have no x, y, z among their properties "
+                          f"({', '.join(map(str, vertex[4]))})", error)
+    # a binary file of fixed-size elements holds exactly what its header announces
+    exact = fmt != "ascii" and all(None not in e[4] for e in elements)
     return {"points": counts.get("vertex", 0), "faces": counts.get("face", 0) > 0,
             "needed": needed, "available": size - header_bytes, "ascii": fmt == "ascii",
+            "exact": exact,
             "header_bytes": header_bytes, "columns": vertex[4] if vertex else [],
             "skip": sum(e[1] for e in elements[:names.index("vertex")]) if vertex else 0}
 
@@ -117,14 +131,41 @@ def _check_pcd(path: str, size: int, error) -> dict:
     except (ValueError, IndexError):
         raise _fail(path, "malformed PCD header (POINTS, SIZE, COUNT or VIEWPOINT)", error) \
             from None
-    if points < 0 or len(sizes) != len(counts) or not sizes:
+    if points < 0 or len(sizes) != len(counts) or not sizes or min(counts) < 1:
         raise _fail(path, "malformed PCD header (POINTS, SIZE or COUNT)", error)
+    names, types = fields.get("FIELDS", []), [t.upper() for t in fields.get("TYPE", [])]
+    if len(names) != len(sizes) or len(types) != len(sizes):
+        raise _fail(path, "malformed PCD header (FIELDS, SIZE and TYPE differ in length)", error)
+    for name, kind, nbytes in zip(names, types, sizes):
+        if nbytes not in _PCD_SIZES.get(kind, ()):
+            raise _fail(path, f"field {name!r}: TYPE {kind} SIZE {nbytes} is not a PCD type "
+                              f"(F 4 or 8, I or U 1, 2, 4 or 8)", error)
+    if not all(c in names for c in "xyz"):
+        raise _fail(path, f"no x, y, z among its fields ({', '.join(names)})", error)
+    try:
+        width = int(fields.get("WIDTH", [str(points)])[0])
+        height = int(fields.get("HEIGHT", ["1"])[0])
+    except (ValueError, IndexError):
+        raise _fail(path, "malformed PCD header (WIDTH or HEIGHT)", error) from None
+    if width < 0 or height < 0 or width * height != points:
+        raise _fail(path, f"WIDTH {width} x HEIGHT {height} is not its POINTS {points:,}",
+                    error)
     data = (fields.get("DATA") or [""])[0].lower()
     point_bytes = sum(s * c for s, c in zip(sizes, counts))
     needed = {"binary": points * point_bytes, "ascii": points * 2 * len(sizes),
               "binary_compressed": 8}.get(data)
     if needed is None:
         raise _fail(path, f"unknown PCD DATA {data!r}", error)
+    if data == "binary_compressed" and size - header_bytes >= 8:
+        # its payload: the compressed and the uncompressed size (uint32 each), then the data
+        with open(path, "rb") as handle:
+            handle.seek(header_bytes)
+            packed, unpacked = np.frombuffer(handle.read(8), dtype="<u4")
+        if int(unpacked) != points * point_bytes:
+            raise _fail(path, f"its compressed data unpacks to {int(unpacked):,} bytes, not the "
+                              f"{points * point_bytes:,} of its {points:,} points (corrupt)",
+                        error)
+        needed = 8 + int(packed)
     if viewpoint is not None and (len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint))):
         raise _fail(path, "VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz)", error)
     columns = []
@@ -133,7 +174,7 @@ def _check_pcd(path: str, size: int, error) -> dict:
     return {"points": points, "faces": False, "needed": needed,
             "available": size - header_bytes, "viewpoint": viewpoint,
             "ascii": data == "ascii", "header_bytes": header_bytes, "columns": columns,
-            "skip": 0}
+            "skip": 0, "exact": data == "binary"}
 
 
 def check_header(path: str, error=SceneError) -> dict:
@@ -159,6 +200,10 @@ def check_header(path: str, error=SceneError) -> dict:
         raise _fail(path, f"its header claims {info['points']:,} points but the file holds "
                           f"only {max(info['available'], 0):,} bytes of data (truncated or "
                           f"corrupt)", error)
+    if info.get("exact") and info["needed"] != info["available"]:
+        raise _fail(path, f"its header claims {info['points']:,} points in "
+                          f"{info['needed']:,} bytes but the file holds {info['available']:,} "
+                          f"bytes of data (the header does not match the data)", error)
     return info
 
 
