@@ -16,6 +16,7 @@ import re
 import sys
 import time
 
+from .cli_bag import add_bag_parser
 from .core.errors import AffordanceError
 
 EXIT_ERROR = 2
@@ -319,46 +320,6 @@ def cmd_station(args) -> int:
         return launcher.wait(stop.is_set)
 
 
-# ---------------------------------------------------------------------------- bag
-def cmd_bag(args) -> int:
-    from .ros.standins.bag import bag_info
-    if args.bag_command == "info":
-        info = bag_info(args.bag)
-        print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
-        for t in info["topics"]:
-            print(f"  {t['topic']:<32} {t['type']:<36} {t['count']:>6}")
-        return 0
-    import signal
-    import threading
-
-    from .ros.standins.spin import background_node
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *a: stop.set())
-    signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    with background_node("affordance_bag") as node:
-        if args.bag_command == "record":
-            from .ros.standins.bag import Recorder
-            recorder = Recorder(node, args.out, args.topics)
-            t0 = time.monotonic()
-            while not stop.is_set() and (args.duration is None or
-                                         time.monotonic() - t0 < args.duration):
-                time.sleep(0.05)
-            counts = recorder.close()
-            print(f"recorded {sum(counts.values())} messages into {args.out}: {counts}")
-        else:
-            from .ros.standins.bag import Player, StatusPacer
-            pace = StatusPacer(node, args.status_topic, args.pace_timeout) if args.paced \
-                else None
-            player = Player(node, args.bag, rate=args.rate, start_offset=args.start_offset,
-                            topics=args.topics or None, loop=args.loop, pace=pace)
-            if args.wait_for_subscribers and not player.wait_for_subscribers(
-                    args.wait_for_subscribers):
-                print("not every topic has a subscriber; playing anyway", file=sys.stderr)
-            n = player.play(stop)
-            print(f"played {n} messages from {args.bag}")
-    return 0
-
-
 # ---------------------------------------------------------------------------- launch
 def cmd_launch(args) -> int:
     from .ros.standins.launcher import LaunchError, package_share, run_launch_file
@@ -410,35 +371,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _add_bag_parser(sub) -> None:
-    """The ``bag`` subcommand and its own subcommands."""
-    p = sub.add_parser("bag", help="rosbag2 bags: record, play, info")
-    bsub = p.add_subparsers(dest="bag_command", required=True, parser_class=_Parser)
-    b = bsub.add_parser("record", help="record topics into a new bag (MCAP)")
-    b.add_argument("out", help="the new bag's folder")
-    b.add_argument("topics", nargs="+", help="topics to record")
-    b.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
-    b = bsub.add_parser("play", help="republish a bag with its original timing")
-    b.add_argument("bag", help="the bag's folder")
-    b.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
-    b.add_argument("--start-offset", type=float, default=0.0, help="seconds into the bag")
-    b.add_argument("--topics", nargs="*", default=None, help="play only these (default: all)")
-    b.add_argument("--loop", action="store_true", help="start again at the end")
-    b.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="SECONDS",
-                   help="wait up to this long for a subscriber on every topic first")
-    b.add_argument("--paced", action="store_true",
-                   help="send each message once the engine node has finished with the ones "
-                        "before it (watching its status), keeping the recorded timing only "
-                        "within bursts (a SpaceMouse push); default: wall-clock timing")
-    b.add_argument("--status-topic", default="/affordance_engine/status",
-                   help="with --paced: the node's JSON status topic")
-    b.add_argument("--pace-timeout", type=float, default=60.0, metavar="SECONDS",
-                   help="with --paced: give up when the node takes longer than this")
-    b = bsub.add_parser("info", help="topics, types, counts, duration")
-    b.add_argument("bag", help="the bag's folder")
-    p.set_defaults(func=cmd_bag)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="affordance-registration",
@@ -477,12 +409,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")
     p.add_argument("file", nargs="?", help="a settings file to check and print in full")
-    p.add_argument("--node-params", action="store_true", help="the node's parameter file instead")
-    p.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--node-params", action="store_true",
+                       help="the node's parameter file instead")
+    which.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
-    p.add_argument("--out", required=True, help="output folder (scene.ply, truth.yaml, ...)")
+    p.add_argument("--out", type=_path, required=True, help="output folder (scene.ply, truth.yaml, ...)")
     p.add_argument("--seed", default="0", help="the simulated scene (default 0)")
     p.add_argument("--layout", choices=("panel", "table"), default="panel",
                    help="panel (default): objects mounted on a wall panel; table: lying on a "
@@ -499,14 +433,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=int, default=None, help="panel scenes (default 20)")
     p.add_argument("--paper-clicks", type=int, default=None,
                    help="clicks for the slow paper baseline (default 25; 0 = all)")
-    p.add_argument("--out", default="bench_output/bench.json", help="JSON output path")
+    p.add_argument("--out", type=_path, default="bench_output/bench.json", help="JSON output path")
     p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "
                                     "live engine node, print the results, write demo_output/")
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
-    p.add_argument("--out", default="demo_output",
+    p.add_argument("--out", type=_path, default="demo_output",
                    help="output folder (default demo_output)")
     p.add_argument("--core", action="store_true",
                    help="no ROS: a simulated operator on the core engine in this process")
@@ -517,7 +451,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("session", help="record a simulated operator session (scene, engine node, "
                                        "operator over ROS) as a rosbag2 bag")
-    p.add_argument("--out", required=True, help="folder for the bag and truth.yaml")
+    p.add_argument("--out", type=_path, required=True, help="folder for the bag and truth.yaml")
     p.add_argument("--seed", default="7", help="the simulated scene (default 7)")
     p.set_defaults(func=cmd_session)
 
@@ -547,12 +481,12 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.add_argument("--first-view", default="camera", metavar="KIND:TEMPLATE",
                    help="with --demo: where the sensor starts: camera (default) or a hard view "
                         "of one object, e.g. edge-on:quarter_turn_valve (try Move sensor here)")
-    p.add_argument("--out", default="station_output",
+    p.add_argument("--out", type=_path, default="station_output",
                    help="with --demo or --scene: registrations file and node logs (default "
                         "station_output)")
     p.set_defaults(func=cmd_station)
 
-    _add_bag_parser(sub)
+    add_bag_parser(sub, _Parser)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")
@@ -568,21 +502,46 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.set_defaults(func=cmd_spacemouse)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
-    p.add_argument("--out", default="models", help="output folder (default models)")
+    p.add_argument("--out", type=_path, default="models", help="output folder (default models)")
     p.set_defaults(func=cmd_generate_models)
+
+
+def _path(text: str) -> str:
+    """An option naming a file or folder: not empty (an empty --out wrote into the current
+    folder), no NUL byte."""
+    if not text.strip() or "\0" in text:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a path (name a file or folder)")
+    return text
+
+
+def _quiet_stdout() -> None:
+    """Whatever stdout could not take is dropped (else Python says so again at exit)."""
+    try:
+        sys.stdout.flush()
+    except OSError:
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
 
 
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()            # (stdout on a full disk: said here, not at exit)
+        return code
     except AffordanceError as exc:
         return _fail(str(exc))
     except KeyboardInterrupt:
         return 130
     except MemoryError:
         return _fail("out of memory")
+    except OSError as exc:            # a path that cannot be read or written, a full disk
+        _quiet_stdout()
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        return _fail(f"{where}{exc.strerror or exc}")
     except Exception as exc:          # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
         if os.environ.get("AFFORDANCE_DEBUG"):
             raise

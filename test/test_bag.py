@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """rosbag2 bags (record / play / info) and the replay of the bundled operator session into a live
 engine node -- the regression test of a real recorded bag."""
+import math
 import os
 import shutil
 import subprocess
@@ -11,11 +12,14 @@ import time
 
 import pytest
 import yaml
+from hypothesis import HealthCheck, Phase, example, given, settings
+from hypothesis import strategies as st
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-from affordance_registration.ros.standins.bag import BagError, Player, Recorder, bag_info
+from affordance_registration.ros.standins import bag as bag_module
+from affordance_registration.ros.standins.bag import BagError, Player, Recorder, StatusPacer, bag_info
 
 SESSION = os.path.join(os.path.dirname(__file__), "data", "session")
 
@@ -131,6 +135,225 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
                           str(garbage)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and "garbage" in out.stderr
+
+
+def _cli(*argv_lists, timeout=60):
+    """Run ``affordance-registration ARGV`` for each argv at once; (exit code, stdout, stderr)
+    of each, the exit code None for one still running after ``timeout`` s (then killed: a
+    regression that hangs fails instead of hanging the suite)."""
+    procs = [subprocess.Popen([sys.executable, "-m", "affordance_registration.cli", *argv],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for argv in argv_lists]
+    deadline, results = time.monotonic() + timeout, []
+    for proc in procs:
+        try:
+            out, err = proc.communicate(timeout=max(0.1, deadline - time.monotonic()))
+            results.append((proc.returncode, out, err))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+            results.append((None, out, err))
+    return results
+
+
+def _one_line_error(result, *words):
+    """Exit 2 and exactly one line on stderr, naming each of ``words`` (no traceback, no
+    internal error)."""
+    code, out, err = result
+    assert code == 2, (code, out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err and "internal error" not in err, err
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    return lines[0]
+
+
+def test_a_fifo_or_device_in_a_bag_is_refused_not_read(tmp_path):
+    """A bag whose metadata.yaml or storage file is a FIFO (or a device, or a folder), or a bag
+    file that is a FIFO: one line naming it, exit 2 -- reading it would block for ever."""
+    src = os.path.join(SESSION, "bag")
+    fifo_meta = tmp_path / "fifo_meta"
+    fifo_meta.mkdir()
+    os.mkfifo(fifo_meta / "metadata.yaml")
+    shutil.copy(os.path.join(src, "bag.mcap"), fifo_meta)
+    fifo_mcap = tmp_path / "fifo_mcap"
+    fifo_mcap.mkdir()
+    shutil.copy(os.path.join(src, "metadata.yaml"), fifo_mcap)
+    os.mkfifo(fifo_mcap / "bag.mcap")
+    device = tmp_path / "device"
+    device.mkdir()
+    shutil.copy(os.path.join(src, "metadata.yaml"), device)
+    os.symlink("/dev/zero", device / "bag.mcap")
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    (folder / "metadata.yaml").mkdir()
+    fifo_file = tmp_path / "fifo.mcap"
+    os.mkfifo(fifo_file)
+    cases = [(fifo_meta, fifo_meta / "metadata.yaml", "FIFO"),
+             (fifo_mcap, fifo_mcap / "bag.mcap", "FIFO"),
+             (device, device / "bag.mcap", "device"),
+             (folder, folder / "metadata.yaml", "folder"),
+             (fifo_file, fifo_file, "FIFO")]
+    commands = ("info", "play")
+    results = iter(_cli(*[["bag", command, str(bag)] for bag, _, _ in cases
+                          for command in commands]))
+    for bag, path, kind in cases:
+        for command in commands:
+            result = next(results)
+            assert result[0] is not None, f"bag {command} {bag.name}: still running after 60 s"
+            _one_line_error(result, str(path), kind, "not a regular file")
+    with pytest.raises(BagError, match="not a regular file"):
+        bag_info(str(fifo_mcap))
+
+
+#: the numeric options of `bag record` / `bag play`, and whether 0 is refused too
+NUMBERS = [("record", "--duration", True), ("play", "--rate", True),
+           ("play", "--start-offset", False), ("play", "--wait-for-subscribers", False),
+           ("play", "--pace-timeout", True)]
+
+
+def _bag_argv(command, option, value, out):
+    if command == "record":
+        return ["bag", "record", str(out), "/bagtest/numbers", option, value]
+    return ["bag", "play", os.path.join(SESSION, "bag"), "--paced", option, value]
+
+
+@settings(max_examples=8, deadline=None, phases=(Phase.explicit, Phase.reuse, Phase.generate),
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(which=st.sampled_from(NUMBERS),
+       value=st.one_of(st.sampled_from([math.nan, math.inf, -math.inf]),
+                       st.floats(max_value=-1e-6, allow_nan=False, allow_infinity=False),
+                       st.just(0.0)))
+@example(which=NUMBERS[4], value=math.nan)          # it waited for ever
+@example(which=NUMBERS[2], value=math.nan)          # it blamed the bag
+@example(which=NUMBERS[0], value=-1.0)              # it was accepted
+@example(which=NUMBERS[3], value=math.nan)          # it was accepted
+def test_bad_numeric_options_give_one_line(tmp_path, which, value):
+    """nan, inf or a negative number (or 0 where 0 makes no sense) for any numeric option of
+    `bag record` / `bag play`: one line naming the option, exit 2, nothing created."""
+    command, option, positive = which
+    if value == 0 and not positive:
+        return                          # 0 s into the bag, no wait: fine
+    out = tmp_path / f"rec_{option.strip('-')}_{value}"
+    result, = _cli(_bag_argv(command, option, repr(value), out))
+    assert result[0] is not None, f"{option} {value!r}: still running after 60 s"
+    _one_line_error(result, option)
+    assert not out.exists()
+
+
+def test_a_start_offset_past_the_end_says_so(tmp_path):
+    """An offset past the end of a healthy bag names the offset, not the bag as corrupt."""
+    result, = _cli(["bag", "play", os.path.join(SESSION, "bag"), "--start-offset", "1e300"])
+    line = _one_line_error(result, "past the end")
+    assert "corrupt" not in line and "truncated" not in line
+
+
+def test_a_bad_topic_name_is_refused_before_any_file(node, tmp_path):
+    """`bag record` with a name that breaks the ROS 2 topic name rules: one line saying so,
+    exit 2, and neither the bag folder nor any file of it made."""
+    out = tmp_path / "nb"
+    results = _cli(["bag", "record", str(out), "bad topic!!", "--duration", "1"],
+                   ["bag", "record", str(tmp_path / "nb2" / "deeper"), "/fine", "a//b",
+                    "--duration", "1"],
+                   ["bag", "play", os.path.join(SESSION, "bag"), "--paced",
+                    "--status-topic", "not ok"])
+    _one_line_error(results[0], "'bad topic!!'", "topic name")
+    _one_line_error(results[1], "'a//b'", "topic name")
+    _one_line_error(results[2], "'not ok'", "topic name")
+    assert sorted(os.listdir(tmp_path)) == []
+    with pytest.raises(BagError, match="not a valid ROS 2 topic name"):
+        Recorder(node, str(out), ["/fine", "{no such}/topic"])
+    assert not out.exists()
+    # a relative name is recorded under its full name, once
+    rec = Recorder(node, str(out), ["bagtest/rel", "/bagtest/rel"])
+    assert rec.topics == ["/bagtest/rel"]
+    rec.close()
+    assert rec.kept and (out / "metadata.yaml").exists()
+
+
+def test_a_failed_recording_leaves_no_partial_bag(node, tmp_path, monkeypatch):
+    """A recording that fails after its folder was made removes what it made: when it starts
+    (here: no typestore), when a write fails (a full disk), and when a topic's type cannot be
+    recorded -- then the bag is kept only if it holds what was recorded before."""
+    out = tmp_path / "new" / "bag"
+
+    def broken():
+        raise OSError(28, "No space left on device")
+    with monkeypatch.context() as m:
+        m.setattr(bag_module, "_typestore", broken)
+        with pytest.raises(OSError):
+            Recorder(node, str(out), ["/bagtest/fail"])
+    assert not (tmp_path / "new").exists()
+
+    pub = node.create_publisher(String, "/bagtest/full", 10)
+    rec = Recorder(node, str(out), ["/bagtest/full"])
+    assert _wait(lambda: "/bagtest/full" in rec.connections)
+    assert _wait(lambda: pub.get_subscription_count() >= 1)
+
+    def full(*args):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(rec.writer, "write", full)
+    pub.publish(String(data="lost"))
+    assert _wait(lambda: rec.error is not None)
+    assert "No space left" in rec.error and "\n" not in rec.error
+    rec.close()
+    assert not rec.kept and not (tmp_path / "new").exists()
+    node.destroy_publisher(pub)
+
+    # a topic whose type cannot be recorded (rosbags does not know it), found while recording:
+    # the timer's failure is kept in .error (not raised in the node's spin thread); with nothing
+    # recorded yet there is no bag, else the bag keeps what was recorded before
+    from rosbags.typesys import Stores, get_typestore
+    rec = Recorder(node, str(out), ["/bagtest/odd"])
+    rec.typestore = get_typestore(Stores.EMPTY)
+    pub = node.create_publisher(String, "/bagtest/odd", 10)
+    assert _wait(lambda: rec.error is not None)
+    assert "/bagtest/odd" in rec.error and "is unknown" in rec.error and "\n" not in rec.error
+    rec.close()
+    assert not rec.kept and not (tmp_path / "new").exists()
+    node.destroy_publisher(pub)
+
+    pub = node.create_publisher(String, "/bagtest/keep", 10)
+    rec = Recorder(node, str(out), ["/bagtest/keep", "/bagtest/odd2"])
+    assert _wait(lambda: "/bagtest/keep" in rec.connections)
+    assert _wait(lambda: pub.get_subscription_count() >= 1)
+    pub.publish(String(data="kept"))
+    assert _wait(lambda: rec.counts["/bagtest/keep"] == 1)
+    rec.typestore = get_typestore(Stores.EMPTY)
+    odd = node.create_publisher(String, "/bagtest/odd2", 10)
+    assert _wait(lambda: rec.error is not None)
+    assert rec.close() == {"/bagtest/keep": 1, "/bagtest/odd2": 0}
+    assert rec.kept and bag_info(str(out))["messages"] == 1
+    node.destroy_publisher(pub)
+    node.destroy_publisher(odd)
+
+
+def test_a_loop_over_nothing_ends_and_a_wait_can_be_stopped(node, tmp_path):
+    """`--loop` over a bag with no messages returns instead of reopening it for ever; a wait
+    for subscribers ends when told to stop; bad numbers are refused by the classes too."""
+    out = str(tmp_path / "empty")
+    Recorder(node, out, ["/bagtest/nobody"]).close()
+    assert bag_info(out)["messages"] == 0
+    player = Player(node, out, loop=True)
+    stop, done = threading.Event(), []
+    t = threading.Thread(target=lambda: done.append(player.play(stop)), daemon=True)
+    t.start()
+    t.join(timeout=30)
+    stop.set()
+    assert done == [0], "a loop over an empty bag did not end"
+    stop = threading.Event()
+    stop.set()
+    t0 = time.monotonic()
+    assert not Player(node, os.path.join(SESSION, "bag")).wait_for_subscribers(60, stop)
+    assert time.monotonic() - t0 < 10
+    for bad in (math.nan, math.inf, -1.0):
+        with pytest.raises(BagError, match="start offset"):
+            Player(node, os.path.join(SESSION, "bag"), start_offset=bad)
+        with pytest.raises(BagError, match="rate"):
+            Player(node, os.path.join(SESSION, "bag"), rate=bad)
+        with pytest.raises(BagError, match="timeout"):
+            StatusPacer(node, timeout=bad)
 
 
 def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library):

@@ -160,7 +160,7 @@ def test_a_fit_parameter_change_is_validated_and_rebuilds_the_fitter(configured)
     client.subscribe(String, f"{NS}/status", LATCHED)
     bad = _set(client, "fit.coarse.samples", 0)
     assert not bad.successful and bad.reason == \
-        "fit.coarse.samples must be an integer >= 1, got 0"
+        "fit.coarse.samples must be an integer >= 1, at most 10000, got 0"
     bad = _set(client, "fit.hypotheses.yaw_restarts", 0)       # fine alone ...
     assert bad.successful
     bad = _set(client, "fit.hypotheses.random_restarts", 0)    # ... not with this one too

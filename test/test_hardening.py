@@ -322,6 +322,55 @@ def test_any_point_count_but_the_true_one_is_refused(tmp_path_factory, count, ki
     assert str(path) in str(err.value) and "\n" not in str(err.value)
 
 
+def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_line(tmp_path):
+    """A FIFO where a settings, template or launch file is read (each blocked its reader for
+    good), /dev/null as a settings file, a FIFO where a session writes its truth; an empty
+    --out (it wrote into the current folder); two outputs of one save that are one file (a
+    symbolic link from one to the other: the scene was lost under the truth); a folder where
+    one template of the library is written (the ones before it were written): one line each,
+    exit 2, nothing written."""
+    for name in ("settings.yaml", "launch.yaml"):
+        os.mkfifo(tmp_path / name)
+    lib = tmp_path / "lib"
+    shutil.copytree(MODELS, lib)
+    os.mkfifo(lib / "zz.yaml")
+    session = tmp_path / "session"
+    session.mkdir()
+    os.mkfifo(session / "truth.yaml")
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    os.symlink("truth.yaml", linked / "scene.ply")
+    models = tmp_path / "models"
+    (models / "quarter_turn_valve.yaml").mkdir(parents=True)
+    cloud = tmp_path / "cloud.ply"
+    cloud.write_bytes(_binary_ply(1000, np.random.default_rng(2).uniform(-1, 1, (1000, 3))))
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("coarse: " + "[" * 2000 + "]" * 2000 + "\n")
+    cases = [(("settings", str(tmp_path / "settings.yaml")), "not a regular file"),
+             (("settings", "/dev/null"), "not a regular file"),
+             (("simulate", "--out", str(tmp_path / "o1"), "--templates", str(lib)),
+              "not a regular file"),
+             (("launch", str(tmp_path / "launch.yaml")), "not a regular file"),
+             (("session", "--out", str(session)), "not a regular file"),
+             (("simulate", "--out", ""), "is not a path"),
+             (("simulate", "--out", str(linked)), "are one file"),
+             (("generate-models", "--out", str(models)), "is a folder"),
+             # and options: a sensor 1e300 m away (numpy's overflow warnings made it three
+             # lines), settings nested 2000 deep, two exclusive views of the settings
+             (("fit", "--scene", str(cloud), "--point", "0", "0", "1", "--sensor-origin",
+               "1e300", "0", "0"), "more than 1e+09 m"),
+             (("settings", str(deep)), "nested too deeply"),
+             (("settings", "--node-params", "--markdown"), "not allowed with")]
+    results = run_cli_all(*(args for args, _ in cases), timeout=60)
+    for (args, expected), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
+        assert expected in line, (args, line)
+    assert not (tmp_path / "o1").exists() and os.listdir(linked) == ["scene.ply"]
+    assert os.path.islink(linked / "scene.ply") and sorted(os.listdir(models)) == \
+        ["quarter_turn_valve.yaml"]
+    assert os.listdir(session) == ["truth.yaml"]
+
+
 def _library(tmp_path, name, text):
     lib = tmp_path / name
     lib.mkdir()

@@ -48,14 +48,18 @@ def test_with_changes_one_knob_and_keeps_the_rest():
 
 
 @pytest.mark.parametrize("change, words", [
-    ({"coarse.samples": 0}, "coarse.samples must be an integer >= 1, got 0"),
-    ({"coarse.samples": 2.5}, "coarse.samples must be an integer >= 1, got 2.5"),
+    ({"coarse.samples": 0}, "coarse.samples must be an integer >= 1, at most 10000, got 0"),
+    ({"coarse.samples": 2.5}, "coarse.samples must be an integer >= 1, at most 10000, got 2.5"),
+    # (a count is a fit's memory: 100,000,000 coarse samples took all of 24 GB)
+    ({"coarse.samples": 100_000_000},
+     "coarse.samples must be an integer >= 1, at most 10000, got 100000000"),
+    ({"fine.points": 10_001}, "fine.points must be an integer >= 0, at most 10000, got 10001"),
     ({"crop.voxel": -1.0}, "crop.voxel must be a positive number in [0.001, 0.05], got -1.0"),
     ({"crop.voxel": 1.0}, "crop.voxel must be a positive number in [0.001, 0.05], got 1.0"),
     ({"verdict.min_coverage": 1.5}, "verdict.min_coverage must be a number in (0, 1]"),
     ({"scoring.cap": math.nan}, "scoring.cap must be a positive number, got nan"),
     ({"articulated": "yes"}, "articulated must be true or false, got 'yes'"),
-    ({"threads": True}, "threads must be an integer >= 1, got True"),
+    ({"threads": True}, "threads must be an integer >= 1, at most 10000, got True"),
     ({"mode": "sideways"}, "mode must be one of: auto, mounted, free, got 'sideways'"),
     ({"seed": -1}, "seed must be an integer >= 0 in [0, 2147483647], got -1"),
     ({"hypotheses.yaw_restarts": 0, "hypotheses.random_restarts": 0},

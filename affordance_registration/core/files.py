@@ -5,13 +5,18 @@ renamed into place, so a failure (a full disk, a crash) never leaves a half-writ
 
 Only regular files are ever replaced: a path that is a device, a FIFO, a socket or a folder is
 refused (as root, a rename over ``/dev/something`` would replace the device node). A symbolic
-link is followed: its target is written. A file that existed keeps its permission bits (and, for
-root, its owner); a new one gets the process's umask like any file it creates. Temporary files
-are named ``.<name>.tmp-<pid>-<random>``; those of processes that no longer run (killed while
-saving) are removed by the next write to that folder.
+link is followed: its target is written; two paths of one write that are one file are refused.
+A file that existed keeps its permission bits (and, for root, its owner); a new one gets the
+process's umask like any file it creates. Temporary files are named
+``.<name>.tmp-<pid>-<random>``; those of processes that no longer run (killed while saving) are
+removed by the next write to that folder.
+
+Files are read with :func:`open_regular`: only a regular file (a FIFO would block the reader for
+good, a device never end).
 """
 from __future__ import annotations
 
+import errno
 import os
 import re
 import stat
@@ -19,7 +24,7 @@ import tempfile
 import threading
 from typing import Mapping
 
-__all__ = ["write_atomically"]
+__all__ = ["write_atomically", "open_regular", "not_regular"]
 
 _UMASK_LOCK = threading.Lock()
 _TEMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-[^.]+$")
@@ -90,6 +95,13 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
     absolute paths written, in the order given."""
     staged: list[tuple[str, str]] = []
     mode_new = 0o666 & ~_umask()
+    finals: dict[str, str] = {}
+    for path in files:               # every target checked before anything is written
+        final, _ = _target(path)
+        if final in finals:
+            raise OSError(errno.EINVAL, f"{path} and {finals[final]} are one file (a symbolic "
+                                        f"link): neither written", path)
+        finals[final] = path
     try:
         for path, content in files.items():
             final, st = _target(path)
@@ -115,3 +127,33 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
                 os.unlink(tmp)
         raise
     return [final for _, final in staged]
+
+
+def open_regular(path: str, encoding: str | None = None):
+    """Open ``path`` for reading -- text in ``encoding``, else binary -- when it is a regular
+    file (a symbolic link to one included). A folder, FIFO, device or socket raises
+    ``OSError`` (its ``strerror`` says which) without blocking: the file is opened
+    non-blocking, checked, then read as usual."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", path)
+        if not stat.S_ISREG(mode):
+            raise OSError(errno.EINVAL, f"is not a regular file ({not_regular(mode)})", path)
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "r" if encoding else "rb", encoding=encoding)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def not_regular(mode: int) -> str | None:
+    """What a file of ``mode`` (``os.stat``'s ``st_mode``) is when it is not a regular file --
+    "a folder", "a FIFO", "a device", "a socket" -- else None."""
+    if stat.S_ISREG(mode):
+        return None
+    return "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
+        "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
+        "a socket" if stat.S_ISSOCK(mode) else "not a file"
+

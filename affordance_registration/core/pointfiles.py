@@ -229,7 +229,8 @@ def read_points(path: str, error=SceneError) -> PointFile:
     for anything unreadable, oversized or incomplete."""
     path = str(path)
     if not os.path.isfile(path):
-        raise _fail(path, "no such file", error)
+        raise _fail(path, "is not a regular file (a folder, FIFO or device)"
+                    if os.path.exists(path) else "no such file", error)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".npy":
         return _read_npy(path, error)

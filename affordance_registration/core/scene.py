@@ -49,6 +49,9 @@ from .voxels import _mean_rows, _minus, local_frame, voxel_downsample
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
            "local_frame", "segment", "NO_VIEWPOINT"]
 
+#: a sensor origin farther than this (m) from its frame's origin is refused: beyond any map
+#: frame (UTM northings are below 1e7 m), and its squared distances would overflow
+MAX_ORIGIN = 1e9
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
 NO_VIEWPOINT = "none"
@@ -291,7 +294,11 @@ def _origin(value) -> np.ndarray | None:
             return None
         raise SceneError(f"sensor origin must be 3 finite numbers or '{NO_VIEWPOINT}', "
                          f"got {value!r}")
-    return finite_vector(value, "sensor origin", SceneError)
+    origin = finite_vector(value, "sensor origin", SceneError)
+    if np.max(np.abs(origin)) > MAX_ORIGIN:
+        raise SceneError(f"sensor origin {origin.tolist()} lies more than {MAX_ORIGIN:.0e} m "
+                         f"from the frame's origin: not a place a sensor can be")
+    return origin
 
 
 def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:

@@ -51,6 +51,7 @@ import yaml
 
 from .affordance_template import AffordanceTemplate, Joint, Symmetry, _scale_range
 from .errors import TemplateError
+from .files import open_regular
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
@@ -78,7 +79,7 @@ def load_template(path: str) -> AffordanceTemplate:
         if os.path.getsize(path) > MAX_YAML_BYTES:
             raise TemplateError(f"{path}: larger than {MAX_YAML_BYTES // 1000} kB: not a "
                                 f"template file")
-        with open(path, encoding="utf-8") as handle:
+        with open_regular(path, encoding="utf-8") as handle:
             doc = yaml.safe_load(handle)
     except OSError as exc:
         raise TemplateError(f"{path}: cannot read: {exc.strerror}") from None

@@ -25,6 +25,7 @@ from std_srvs.srv import Trigger
 
 from ..core.corrections import R_VIEW_SPACENAV, view_from_optical
 from ..core.errors import AffordanceError
+from ..core.files import write_atomically
 from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
 from ..ros.glue.conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
@@ -205,7 +206,12 @@ def start_engine(out_dir: str, log=None, extra_args: dict | None = None) -> Laun
     args = {"registrations_file": os.path.join(os.path.abspath(out_dir), "registrations.yaml"),
             "resume": "false"}
     args.update(extra_args or {})
-    log_file = open(os.path.join(out_dir, "engine.log"), "w")
+    # (the log is streamed: a FIFO or a device in its place is refused, not opened -- a FIFO
+    # with no reader would block here for good)
+    log_path = os.path.join(out_dir, "engine.log")
+    if os.path.exists(log_path) and not os.path.isfile(log_path):
+        raise AffordanceError(f"{log_path}: is not a regular file: not replaced")
+    log_file = open(log_path, "w")
     launcher = Launcher(parse_launch_file(launch, args), log=log or (lambda m: None),
                         output=log_file)
     launcher.start()
@@ -227,8 +233,8 @@ def record_session(out_dir: str, seed: int = 7, log=print) -> dict:
     bag_path = os.path.join(out_dir, "bag")
     if os.path.exists(bag_path):
         raise AffordanceError(f"{bag_path} exists already")
-    with open(os.path.join(out_dir, "truth.yaml"), "w", encoding="utf-8") as handle:
-        yaml.safe_dump(sim.truth(), handle, sort_keys=False)
+    write_atomically({os.path.join(out_dir, "truth.yaml"):
+                      yaml.safe_dump(sim.truth(), sort_keys=False)})
     # twists as TwistStamped: a replay integrates them over their recorded header stamps, so it
     # moves the objects exactly as the recording did, however the machine is loaded
     launcher = start_engine(out_dir, extra_args={"twist_stamped": "true"})
@@ -365,8 +371,7 @@ def replay_session(session_dir: str, out_dir: str, rate: float = 1.0, log=print)
     # the verdict: against the truth, and against what the node reported when it was recorded
     rows = compare_with_recording(session_rows(live, truth, library),
                                   recorded[-1]["registered"], live["registered"], library)
-    with open(os.path.join(out_dir, "status.json"), "w", encoding="utf-8") as handle:
-        json.dump(live, handle, indent=1)
+    write_atomically({os.path.join(out_dir, "status.json"): json.dumps(live, indent=1)})
     from .render import render_verdict, write_png
     from .simulation import CameraIntrinsics
     picture = os.path.join(out_dir, "registrations.png")

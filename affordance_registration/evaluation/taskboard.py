@@ -240,12 +240,13 @@ def taskboard_specs() -> list[TemplateSpec]:
 
 def write_library(out_dir: str) -> list[str]:
     """Write every taskboard template (STL meshes + YAML) into ``out_dir``; returns YAML paths.
-    Each template's files land together (atomically, the YAML last)."""
-    written = []
+    The library's files land together (atomically): where one cannot be written (a folder or
+    a FIFO in its place, a full disk), none is."""
+    written, files = [], {}
     for spec in taskboard_specs():
         doc: dict = {"name": spec.name, "description": spec.description,
                      "mesh": f"meshes/{spec.name}.stl", "mesh_scale": 1.0}
-        files = {os.path.join(out_dir, doc["mesh"]): spec.full_mesh().export(file_type="stl")}
+        files[os.path.join(out_dir, doc["mesh"])] = spec.full_mesh().export(file_type="stl")
         if spec.scale:
             doc["scale"] = list(spec.scale)
         if spec.symmetry:
@@ -266,6 +267,6 @@ def write_library(out_dir: str) -> list[str]:
         text += yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
         path = os.path.join(out_dir, f"{spec.name}.yaml")
         files[path] = text
-        write_atomically(files)
         written.append(path)
+    write_atomically(files)
     return written

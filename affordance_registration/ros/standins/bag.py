@@ -11,21 +11,103 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import os
+import re
+import shutil
+import stat
 import threading
 import time
+from pathlib import PurePath
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ...core.errors import AffordanceError
+from ...core.files import not_regular
 from ..glue.qos import LATCHED
 
-__all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "message_class",
-           "read_messages"]
+__all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "check_number",
+           "message_class", "read_messages", "topic_name"]
 
 
 class BagError(AffordanceError):
     """A bag cannot be read or written (the message says which and why)."""
+
+
+def check_number(name: str, value, positive: bool = False) -> float:
+    """``value`` as a float that is finite and >= 0 (> 0 with ``positive``); else a
+    :class:`BagError` naming ``name`` (an option such as ``--rate``)."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not math.isfinite(number) or number < 0 or (positive and number == 0):
+        raise BagError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, "
+                       f"got {value}")
+    return number
+
+
+def topic_name(name, node_name: str = "affordance_bag", namespace: str = "/") -> str:
+    """``name`` checked by the ROS 2 topic name rules and expanded as a node called
+    ``node_name`` in ``namespace`` would (``points`` -> ``/points``); else a :class:`BagError`
+    saying why."""
+    from rclpy.exceptions import NameValidationException
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    from rclpy.validate_topic_name import validate_topic_name
+    try:
+        if not isinstance(name, str):
+            raise ValueError("not a string")
+        validate_topic_name(name)
+        full = expand_topic_name(name, node_name, namespace)
+        validate_full_topic_name(full)
+        return full
+    except (NameValidationException, ValueError, TypeError) as exc:
+        text = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
+        # rclpy's texts: "Invalid topic name: <why>:" or "topic name '..' is invalid: <why>, at
+        # <C source>:<line>"
+        text = re.sub(r"^Invalid topic name: |:$|^topic name .* is invalid: |, at \S+:\d+$", "",
+                      text)
+        raise BagError(f"{name!r} is not a valid ROS 2 topic name ({text})") from None
+
+
+def _regular_file(path: str) -> None:
+    """A BagError naming ``path`` unless it is a regular file (a link is followed): reading a
+    FIFO or a device would block or never end."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return                       # rosbags says what is missing
+    except OSError as exc:
+        raise BagError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    kind = not_regular(mode)
+    if kind is not None:
+        raise BagError(f"{path}: not a regular file ({kind}), cannot be read as part of a bag")
+
+
+def _check_bag_files(path: str) -> None:
+    """Every file rosbags will read for the bag at ``path`` is a regular file: the bag file
+    itself, or a bag folder's metadata.yaml and the storage files it lists."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise BagError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if not stat.S_ISDIR(mode):
+        _regular_file(path)
+        return
+    meta = os.path.join(path, "metadata.yaml")
+    _regular_file(meta)
+    if not os.path.exists(meta):
+        return
+    import yaml
+    try:
+        with open(meta, "rb") as handle:
+            files = yaml.safe_load(handle)["rosbag2_bagfile_information"]["relative_file_paths"]
+    except Exception:                # rosbags says what is wrong with the metadata
+        return
+    for name in files if isinstance(files, list) else ():
+        if isinstance(name, str):     # rosbags reads each by its name in the bag folder
+            _regular_file(os.path.join(path, PurePath(name).name))
 
 
 def message_class(type_name: str):
@@ -68,33 +150,63 @@ def _from_rosbags_qos(qos_list) -> QoSProfile:
                       reliability=reliability, durability=durability)
 
 
+def _first_missing(path: str) -> str | None:
+    """The outermost folder that creating ``path`` (with its parents) would create; None when
+    ``path`` exists."""
+    path = os.path.abspath(path)
+    if os.path.lexists(path):
+        return None
+    while not os.path.lexists(os.path.dirname(path)) and os.path.dirname(path) != path:
+        path = os.path.dirname(path)
+    return path
+
+
 class Recorder:
     """Records topics into a new bag. Each topic is subscribed when a publisher appears, with a
-    QoS that matches every publisher (reliable / transient local only if all of them are)."""
+    QoS that matches every publisher (reliable / transient local only if all of them are).
+
+    The topic names are checked (and expanded: ``points`` -> ``/points``) before anything is
+    created. A recording that fails -- here, or later in :attr:`error` (a topic whose type
+    cannot be recorded, a write that failed) -- leaves no partial bag: :meth:`close` keeps the
+    bag only when it is whole and, after such a failure, holds messages; else the folders this
+    recorder created are removed."""
 
     def __init__(self, node, out: str, topics):
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
         self.node = node
-        self.topics = list(topics)
+        self.topics = list(dict.fromkeys(
+            topic_name(t, node.get_name(), node.get_namespace()) for t in topics))
         if not self.topics:
             raise BagError("name at least one topic to record")
+        #: one line saying why the recording failed in the background, else None
+        self.error: str | None = None
+        self.kept = False                       # close() left a whole bag
+        self._created = _first_missing(out)     # what to remove if the recording fails
+        self._write_failed = False
+        self.out = out
         try:
             self.writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
             self.writer.open()
         except (WriterError, OSError) as exc:
+            self._remove()
             raise BagError(f"cannot create bag {out}: {exc}") from None
-        self.out = out
-        self.typestore = _typestore()
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {t: 0 for t in self.topics}
         self._lock = threading.Lock()
         self._closed = False
-        self._timer = node.create_timer(0.1, self._discover)
-        self._discover()
+        self._timer = None
+        try:
+            self.typestore = _typestore()
+            self._discover()
+            # after the first look: the timer's and this one must not add a topic twice
+            self._timer = node.create_timer(0.1, self._discover_in_background)
+        except BaseException:
+            self.abort()
+            raise
 
     def _discover(self) -> None:
         for topic in self.topics:
-            if topic in self.connections:
+            if topic in self.connections or self._closed:
                 continue
             infos = self.node.get_publishers_info_by_topic(topic)
             if not infos:
@@ -110,35 +222,99 @@ class Recorder:
                              else DurabilityPolicy.VOLATILE)
             cls = message_class(type_name)
             with self._lock:
-                conn = self.writer.add_connection(
-                    topic, type_name, typestore=self.typestore,
-                    offered_qos_profiles=[_to_rosbags_qos(infos[0].qos_profile)])
+                if self._closed:
+                    return
+                try:
+                    conn = self.writer.add_connection(
+                        topic, type_name, typestore=self.typestore,
+                        offered_qos_profiles=[_to_rosbags_qos(infos[0].qos_profile)])
+                except Exception as exc:     # a type rosbags' typestore does not know
+                    why = str(exc).splitlines()[0] if str(exc) else ""
+                    raise BagError(f"cannot record {topic} ({type_name}) into {self.out}: "
+                                   f"{exc.__class__.__name__}: {why}") from None
                 self.connections[topic] = conn
             self.node.create_subscription(cls, topic, self._writer_for(topic, conn), qos,
                                           raw=True)
             self.node.get_logger().info(f"recording {topic} ({type_name})")
 
+    def _discover_in_background(self) -> None:
+        """The timer's look for publishers: a failure is kept in :attr:`error` (an exception
+        would end the node's spin thread) and stops the looking."""
+        try:
+            self._discover()
+        except Exception as exc:
+            if self.error is None:
+                self.error = str(exc) if isinstance(exc, BagError) else \
+                    f"cannot record into {self.out}: {exc.__class__.__name__}: " \
+                    f"{str(exc).splitlines()[0] if str(exc) else ''}"
+            if self._timer is not None:
+                self._timer.cancel()
+
     def _writer_for(self, topic, conn):
         def write(data: bytes) -> None:
             stamp = self.node.get_clock().now().nanoseconds
             with self._lock:
-                if not self._closed:
+                if self._closed or self._write_failed:
+                    return
+                try:
                     self.writer.write(conn, stamp, data)
-                    self.counts[topic] += 1
+                except Exception as exc:     # a full disk: the bag is broken from here on
+                    self._write_failed = True
+                    if self.error is None:
+                        self.error = f"writing {self.out} failed ({exc.__class__.__name__}: " \
+                                     f"{str(exc).splitlines()[0] if str(exc) else ''})"
+                    return
+                self.counts[topic] += 1
         return write
 
     def close(self) -> dict:
+        """Finish the bag (its metadata.yaml written); returns the messages recorded per topic.
+        After a failure (:attr:`error`) the bag is kept only if it is whole and holds messages,
+        else removed; :attr:`kept` says which. A bag that cannot be finished is removed and
+        raises :class:`BagError`."""
         with self._lock:
-            if not self._closed:
-                self._closed = True
+            if self._closed:
+                return dict(self.counts)
+            self._closed = True
+            if self._timer is not None:
+                self._timer.cancel()
+            try:
                 self.writer.close()
+            except Exception as exc:
+                self._remove()
+                raise BagError(f"cannot finish bag {self.out} ({exc.__class__.__name__}: "
+                               f"{str(exc).splitlines()[0] if str(exc) else ''}); "
+                               f"it is removed") from None
+            if self._write_failed or (self.error is not None and not sum(self.counts.values())):
+                self._remove()
+            else:
+                self.kept = True
         return dict(self.counts)
+
+    def abort(self) -> None:
+        """Stop recording and remove the bag (and the folders created for it)."""
+        with self._lock:
+            self._closed = True
+            if self._timer is not None:
+                self._timer.cancel()
+            try:
+                self.writer.close()          # lets go of the storage file
+            except Exception:
+                pass
+            self.kept = False
+            self._remove()
+
+    def _remove(self) -> None:
+        if self._created is not None and os.path.isdir(self._created) \
+                and not os.path.islink(self._created):
+            shutil.rmtree(self._created, ignore_errors=True)
 
 
 def _open_reader(path: str):
     from rosbags.rosbag2 import Reader
     if not os.path.exists(path):
         raise BagError(f"{path}: no such bag")
+    _check_bag_files(path)
     try:
         reader = Reader(path)
         reader.open()
@@ -190,14 +366,14 @@ class StatusPacer:
 
     def __init__(self, node, status_topic: str = "/affordance_engine/status",
                  timeout: float = 60.0):
-        self.timeout = float(timeout)
-        self.status_topic = status_topic
+        self.timeout = check_number("the pace timeout", timeout, positive=True)
+        self.status_topic = topic_name(status_topic, node.get_name(), node.get_namespace())
         self._cv = threading.Condition()
         self._status: dict | None = None
         self._baseline: dict | None = None
         qos = LATCHED
         from std_msgs.msg import String
-        node.create_subscription(String, status_topic, self._on_status, qos)
+        node.create_subscription(String, self.status_topic, self._on_status, qos)
 
     def _on_status(self, msg) -> None:
         try:
@@ -247,11 +423,11 @@ class Player:
     def __init__(self, node, path: str, rate: float = 1.0, start_offset: float = 0.0,
                  topics=None, loop: bool = False, pace: "StatusPacer | None" = None,
                  burst_gap: float = 0.1):
-        if not rate > 0:
-            raise BagError("--rate must be positive")
+        rate = check_number("the rate", rate, positive=True)
+        start_offset = check_number("the start offset", start_offset)
         self.node, self.path = node, path
         self.rate, self.start_offset, self.loop = rate, start_offset, loop
-        self.pace, self.burst_gap = pace, float(burst_gap)
+        self.pace, self.burst_gap = pace, check_number("the burst gap", burst_gap)
         self.counts: dict[str, int] = {}         # messages published per topic
         reader = _open_reader(path)
         try:
@@ -261,8 +437,12 @@ class Player:
             if missing:
                 raise BagError(f"{path}: no topic(s) {', '.join(sorted(missing))} in the bag")
             self.start = reader.start_time
+            duration_s = reader.duration / 1e9 if reader.message_count else 0.0
         finally:
             reader.close()
+        if start_offset > 0 and start_offset >= duration_s:
+            raise BagError(f"the start offset {start_offset:g} s is past the end of {path} "
+                           f"({duration_s:.2f} s long)")
         self.publishers = {}
         for c in self.connections:
             if c.topic not in self.publishers:
@@ -271,9 +451,11 @@ class Player:
                                                                  c.topic, qos)
         self.published = 0
 
-    def wait_for_subscribers(self, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+    def wait_for_subscribers(self, timeout: float, stop: threading.Event | None = None) -> bool:
+        """Wait up to ``timeout`` s (or until ``stop`` is set) for a subscriber on every topic;
+        whether there is one."""
+        deadline = time.monotonic() + check_number("the subscriber wait", timeout)
+        while time.monotonic() < deadline and not (stop is not None and stop.is_set()):
             if all(p.get_subscription_count() > 0 for p in self.publishers.values()):
                 return True
             time.sleep(0.05)
@@ -284,6 +466,7 @@ class Player:
         stop = stop or threading.Event()
         while True:
             reader = _open_reader(self.path)
+            before = self.published
             try:
                 self._play_once(reader, stop)
             except BagError:
@@ -293,8 +476,8 @@ class Player:
                                f"{exc}); the bag is truncated or corrupt") from None
             finally:
                 reader.close()
-            if not self.loop or stop.is_set():
-                return self.published
+            if not self.loop or stop.is_set() or self.published == before:
+                return self.published           # (a loop over nothing would never end)
 
     def _play_once(self, reader, stop: threading.Event) -> None:
         t_bag0 = self.start + int(self.start_offset * 1e9)

@@ -41,6 +41,7 @@ from pathlib import Path
 import yaml
 
 from ...core.errors import AffordanceError
+from ...core.files import open_regular
 
 __all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
 
@@ -183,7 +184,7 @@ def _resolve(words: list[str], variables: dict, where: str) -> str:
 def _read_yaml(path: str):
     """A launch file's YAML (one clear LaunchError for anything unreadable)."""
     try:
-        with open(path, encoding="utf-8") as handle:
+        with open_regular(path, encoding="utf-8") as handle:
             return yaml.safe_load(handle)
     except OSError as exc:
         raise LaunchError(f"{path}: cannot read: {exc.strerror}") from None
