@@ -25,6 +25,8 @@ LEADING = 3
 
 
 def _fail(msg: str) -> int:
+    # (one line whatever the message holds: a path or a key with a newline in it)
+    msg = str(msg).replace("\r", "\\r").replace("\n", "\\n")
     print(f"affordance-registration: error: {msg}", file=sys.stderr)
     return EXIT_ERROR
 
@@ -491,9 +493,10 @@ def _add_station_and_tool_parsers(sub) -> None:
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")
     p.add_argument("arguments", nargs="*", help="launch arguments NAME:=VALUE")
-    p.add_argument("--shm", action="store_true",
-                   help="use the package's Fast DDS profile (shared memory, localhost)")
-    p.add_argument("--fastdds-profile", default=None, help="a Fast DDS XML profile to use")
+    profile = p.add_mutually_exclusive_group()
+    profile.add_argument("--shm", action="store_true",
+                         help="use the package's Fast DDS profile (shared memory, localhost)")
+    profile.add_argument("--fastdds-profile", default=None, help="a Fast DDS XML profile to use")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("spacemouse", help="SpaceMouse devices")
@@ -528,6 +531,8 @@ def _quiet_stdout() -> None:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if sys.stdout is None:            # (started with stdout closed: nothing could be said)
+        return _fail("standard output is closed: nothing done")
     try:
         code = args.func(args)
         sys.stdout.flush()            # (stdout on a full disk: said here, not at exit)

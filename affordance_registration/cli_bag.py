@@ -9,7 +9,7 @@ import time
 
 
 def cmd_bag(args) -> int:
-    from .ros.standins.bag import BagError, bag_info, check_number, topic_name
+    from .ros.standins.bag import RATE_LIMITS, BagError, bag_info, check_number, topic_name
     if args.bag_command == "info":
         info = bag_info(args.bag)
         print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
@@ -23,7 +23,7 @@ def cmd_bag(args) -> int:
         for topic in args.topics:
             topic_name(topic)
     else:
-        check_number("--rate", args.rate, positive=True)
+        check_number("--rate", args.rate, positive=True, limits=RATE_LIMITS)
         check_number("--start-offset", args.start_offset)
         check_number("--wait-for-subscribers", args.wait_for_subscribers)
         check_number("--pace-timeout", args.pace_timeout, positive=True)
@@ -78,7 +78,7 @@ def add_bag_parser(sub, parser_class) -> None:
                    help="seconds, > 0 (default: until Ctrl-C)")
     b = bsub.add_parser("play", help="republish a bag with its original timing")
     b.add_argument("bag", help="the bag's folder")
-    b.add_argument("--rate", type=float, default=1.0, help="speed factor, > 0 (default 1)")
+    b.add_argument("--rate", type=float, default=1.0, help="speed factor, in [0.001, 1000] (default 1)")
     b.add_argument("--start-offset", type=float, default=0.0,
                    help="seconds into the bag (>= 0, before its end; default 0)")
     b.add_argument("--topics", nargs="*", default=None, help="play only these (default: all)")

@@ -371,6 +371,54 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     assert os.listdir(session) == ["truth.yaml"]
 
 
+def test_huge_numbers_strings_newlines_and_odd_options_are_one_line(tmp_path):
+    """From a second probe: integers of hundreds or thousands of digits in a settings or
+    template file (an OverflowError, a ValueError: internal errors), a range written as text
+    ("19" read as [1, 9]), an axis of 1e200 (numpy's warnings, then a LinAlgError), a mesh
+    scale of 1e-10, a knob name holding a newline (two lines), a settings file of megabytes
+    (a minute to refuse, a 9 MB line), a bag rate of 1e-300 (a play that never ends), a node
+    whose 'pkg' is a number, --shm with --fastdds-profile, and a closed stdout: one line, exit
+    2, each."""
+    big = "1" * 400
+    files = {"big.yaml": f"scoring: {{cap: {big}}}\n", "huge.yaml": f"seed: {'9' * 5000}\n",
+             "newline.yaml": 'coarse: {"sam\\nples": 3}\n',
+             "megabytes.yaml": "# " + "x" * 1_100_000 + "\n"}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    handle = "name: h\nmesh: meshes/grab_handle.stl\n"
+    libs = {"text_scale": handle + 'scale: "19"\n',
+            "big_scale": handle + f"mesh_scale: {big}\n",
+            "tiny_scale": handle.replace("stl\n", "stl\nmesh_scale: 1.0e-10\n"),
+            "axis": handle + "symmetry: {axis: [1.0e+200, 0, 0], order: 2}\n",
+            "box_text": 'name: b\nprimitive: box\nsize: {x: "59", y: [0.1, 0.2], z: [0.1, 0.2]}\n'}
+    for name, text in libs.items():
+        _library(tmp_path, name, text)
+    (tmp_path / "pkg.launch.yaml").write_text("launch:\n- node: {pkg: 5, exec: x}\n")
+    cases = [(("settings", str(tmp_path / "big.yaml")), "must be a positive number"),
+             (("settings", str(tmp_path / "huge.yaml")), "not YAML this reads"),
+             (("settings", str(tmp_path / "newline.yaml")), "sam\\nples"),
+             (("settings", str(tmp_path / "megabytes.yaml")), "larger than 1000 kB"),
+             (("bag", "play", str(tmp_path), "--rate", "1e-300"), "must be in [0.001, 1000]"),
+             (("launch", str(tmp_path / "pkg.launch.yaml")), "'pkg' must be text"),
+             (("launch", str(tmp_path / "pkg.launch.yaml"), "--shm", "--fastdds-profile", "x"),
+              "not allowed with")]
+    cases += [(("simulate", "--out", str(tmp_path / f"o_{name}"), "--templates",
+                str(tmp_path / name)), expected)
+              for name, expected in (("text_scale", "expected [min, max]"),
+                                     ("big_scale", "too large for a float"),
+                                     ("tiny_scale", "expected a number in"),
+                                     ("axis", "within +-1e+06"),
+                                     ("box_text", "expected [min, max] in metres"))]
+    results = run_cli_all(*(args for args, _ in cases), timeout=60)
+    for (args, expected), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
+        assert expected in line, (args, line)
+    closed = subprocess.run(["sh", "-c", f"{sys.executable} -m affordance_registration.cli "
+                                         f"settings >&-"], capture_output=True, text=True,
+                            timeout=60)
+    assert "standard output is closed" in one_line(closed.returncode, closed.stderr)
+
+
 def _library(tmp_path, name, text):
     lib = tmp_path / name
     lib.mkdir()

@@ -363,12 +363,20 @@ class AffordanceTemplate:
         return best
 
 
+#: a template's scale range and its mesh_scale lie within [1 / MAX_SCALE, MAX_SCALE]: a mesh
+#: in micrometres is the smallest unit a file is written in; 1e300 overflows
+MAX_SCALE = 1e6
+
+
 def _scale_range(value) -> tuple:
     """(min, max) from a ``scale`` value; ValueError saying what is wrong."""
     try:
+        if isinstance(value, (str, bytes)):         # ("19" is not [1, 9])
+            raise TypeError
         lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"expected [min, max], got {value!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"expected 0 < min < max, got {value!r}")
+    if not (math.isfinite(lo) and math.isfinite(hi) and 1 / MAX_SCALE <= lo < hi <= MAX_SCALE):
+        raise ValueError(f"expected {1 / MAX_SCALE:g} <= min < max <= {MAX_SCALE:g}, got "
+                         f"{value!r}")
     return lo, hi

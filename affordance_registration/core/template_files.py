@@ -49,12 +49,13 @@ import numpy as np
 import trimesh
 import yaml
 
-from .affordance_template import AffordanceTemplate, Joint, Symmetry, _scale_range
+from .affordance_template import MAX_SCALE, AffordanceTemplate, Joint, Symmetry, _scale_range
 from .errors import TemplateError
 from .files import open_regular
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
+from .transforms import MAX_TEMPLATE_VALUE
 from .waypoints import parse_waypoints
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
@@ -76,6 +77,14 @@ def load_template(path: str) -> AffordanceTemplate:
     """Load one template YAML file. Raises :class:`TemplateError` naming the file and key."""
     path = str(path)
     try:
+        return _load_template(path)
+    except OverflowError:           # an integer of hundreds of digits, wherever it is
+        raise TemplateError(f"{path}: a number too large for a float (beyond 1.8e308)") \
+            from None
+
+
+def _load_template(path: str) -> AffordanceTemplate:
+    try:
         if os.path.getsize(path) > MAX_YAML_BYTES:
             raise TemplateError(f"{path}: larger than {MAX_YAML_BYTES // 1000} kB: not a "
                                 f"template file")
@@ -89,6 +98,9 @@ def load_template(path: str) -> AffordanceTemplate:
         raise TemplateError(f"{path}: not valid YAML: {exc}".splitlines()[0]) from None
     except RecursionError:
         raise TemplateError(f"{path}: YAML nested too deeply") from None
+    except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
+        raise TemplateError(f"{path}: not YAML this reads "
+                            f"({str(exc).splitlines()[0][:80]})") from None
     if not isinstance(doc, dict):
         raise TemplateError(f"{path}: expected a mapping with at least 'name' and 'mesh'")
     unknown = set(doc) - _KNOWN_KEYS
@@ -106,8 +118,9 @@ def load_template(path: str) -> AffordanceTemplate:
         raise _fail(path, "mesh", "missing")
     scale = doc.get("mesh_scale", 1.0)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) \
-            or scale <= 0:
-        raise _fail(path, "mesh_scale", f"expected a positive number, got {scale!r}")
+            or not 1 / MAX_SCALE <= scale <= MAX_SCALE:
+        raise _fail(path, "mesh_scale", f"expected a number in [{1 / MAX_SCALE:g}, "
+                                        f"{MAX_SCALE:g}], got {scale!r}")
     external = doc.get("allow_external_files", False)
     if external not in (True, False):
         raise _fail(path, "allow_external_files", f"expected true or false, got {external!r}")
@@ -170,8 +183,10 @@ def _primitive_template(path: str, doc: dict, name: str, description: str) -> Af
     ranges = {}
     for key, value in specs.items():
         try:
+            if isinstance(value, (str, bytes)):     # ("12" is not [1, 2])
+                raise TypeError
             lo, hi = (float(v) for v in value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise _fail(path, key, f"expected [min, max] in metres, got {value!r}") from None
         if not (math.isfinite(lo) and math.isfinite(hi) and MIN_DIMENSION <= lo <= hi
                 and hi <= MAX_TEMPLATE_SIZE):
@@ -193,10 +208,12 @@ def _fail(path: str, key: str, msg: str) -> TemplateError:
 def _vector(path: str, key: str, value, length: int = 3) -> tuple:
     try:
         arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise _fail(path, key, f"expected {length} numbers, got {value!r}") from None
-    if arr.shape != (length,) or not np.all(np.isfinite(arr)):
-        raise _fail(path, key, f"expected {length} finite numbers, got {value!r}")
+    if arr.shape != (length,) or not np.all(np.isfinite(arr)) or \
+            np.max(np.abs(arr)) > MAX_TEMPLATE_VALUE:
+        raise _fail(path, key, f"expected {length} finite numbers within "
+                               f"+-{MAX_TEMPLATE_VALUE:.0e}, got {value!r}")
     return tuple(float(v) for v in arr)
 
 

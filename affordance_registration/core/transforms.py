@@ -21,6 +21,11 @@ __all__ = [
 ]
 
 
+#: a template's vectors (axes, origins, waypoint positions and directions) lie within this of
+#: zero: a template is an object, and 1e200 overflows when an axis is normalised
+MAX_TEMPLATE_VALUE = 1e6
+
+
 def finite_vector(value, what: str, error=ValueError, length: int = 3) -> np.ndarray:
     """``value`` as a float64 vector of ``length`` finite numbers, else ``error`` naming it."""
     try:

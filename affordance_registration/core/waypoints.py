@@ -46,7 +46,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import AffordanceError, TemplateError
-from .transforms import axis_angle_matrix, make_T, matrix_to_quat_xyzw
+from .transforms import MAX_TEMPLATE_VALUE, axis_angle_matrix, make_T, matrix_to_quat_xyzw
 
 __all__ = ["Waypoint", "WaypointPose", "Trajectory", "parse_waypoints", "waypoint_poses",
            "trajectory", "waypoints_dict", "MAX_WAYPOINTS", "PATH_STEP_RAD", "PATH_STEP_M"]
@@ -189,10 +189,12 @@ def _name(value, key: str, fail) -> str:
 def _vector(value, key: str, fail, length: int = 3) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise fail(key, f"expected {length} numbers, got {value!r}") from None
-    if arr.shape != (length,) or not np.all(np.isfinite(arr)):
-        raise fail(key, f"expected {length} finite numbers, got {value!r}")
+    if arr.shape != (length,) or not np.all(np.isfinite(arr)) or \
+            np.max(np.abs(arr)) > MAX_TEMPLATE_VALUE:
+        raise fail(key, f"expected {length} finite numbers within +-{MAX_TEMPLATE_VALUE:.0e}, "
+                        f"got {value!r}")
     return arr
 
 

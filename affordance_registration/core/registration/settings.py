@@ -48,6 +48,8 @@ NEAR_TIE = 1.02
 # --------------------------------------------------------------------------- knobs
 #: the rules a knob's value follows (``knob(rule=...)``); a tuple of strings is a choice
 POSITIVE, COUNT, COUNT0, FRACTION, SWITCH = "positive", "count", "count0", "fraction", "switch"
+#: the largest settings file read (bytes): every knob set takes a few kB
+MAX_SETTINGS_BYTES = 1_000_000
 #: the largest value of any count (samples, points, iterations): a fit's memory grows with them
 #: (coarse.samples 20,000 takes 1.8 GB, 100,000 more than 8 GB) -- no count needs more
 MAX_COUNT = 10_000
@@ -87,11 +89,23 @@ def _check(name: str, f, v) -> None:
         ok = isinstance(v, int) and not isinstance(v, bool) and \
             (1 if rule == COUNT else 0) <= v <= (MAX_COUNT if limits is None else limits[1])
     else:
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
-            and v > 0 and (rule != FRACTION or v <= 1)
+        try:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+                and v > 0 and (rule != FRACTION or v <= 1)
+        except OverflowError:          # an integer of hundreds of digits
+            ok = False
     ok = ok and (limits is None or limits[0] <= v <= limits[1])
     if not ok:
-        raise RegistrationError(f"{name} must be {describe_rule(f)}, got {v!r}")
+        raise RegistrationError(f"{name} must be {describe_rule(f)}, got {_shown(v)}")
+
+
+def _shown(v) -> str:
+    """``repr(v)``, cut to 80 characters (an integer of thousands of digits has no repr)."""
+    try:
+        text = repr(v)
+    except ValueError:
+        return "an integer of more than 4300 digits"
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 @dataclass(frozen=True)
@@ -536,10 +550,17 @@ class FitSettings:
         path = os.path.expanduser(str(path))
         try:
             with open_regular(path, encoding="utf-8") as handle:
+                if os.fstat(handle.fileno()).st_size > MAX_SETTINGS_BYTES:
+                    raise RegistrationError(f"settings file {path}: larger than "
+                                            f"{MAX_SETTINGS_BYTES // 1000} kB: not a settings "
+                                            f"file")
                 data = yaml.safe_load(handle)
         except (OSError, UnicodeDecodeError) as exc:
             raise RegistrationError(f"cannot read settings file {path}: "
                                     f"{getattr(exc, 'strerror', None) or exc}") from None
+        except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
+            raise RegistrationError(f"settings file {path} is not YAML this reads "
+                                    f"({str(exc).splitlines()[0][:80]})") from None
         except yaml.YAMLError as exc:
             where = getattr(exc, "problem_mark", None)
             at = f" (line {where.line + 1})" if where is not None else ""
@@ -569,5 +590,8 @@ def _as_type(f, value):
     """A value read from a file for knob ``f``: an integer where a float is expected becomes
     that float (YAML's ``1`` for ``1.0``); anything else is left to the knob's rule."""
     if isinstance(f.default, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:         # hundreds of digits: the rule refuses it as it is
+            return value
     return value

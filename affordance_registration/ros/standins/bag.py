@@ -34,9 +34,14 @@ class BagError(AffordanceError):
     """A bag cannot be read or written (the message says which and why)."""
 
 
-def check_number(name: str, value, positive: bool = False) -> float:
-    """``value`` as a float that is finite and >= 0 (> 0 with ``positive``); else a
-    :class:`BagError` naming ``name`` (an option such as ``--rate``)."""
+#: a playback rate outside these plays a bag for ever or all at once (--rate 1e-300 never ended)
+RATE_LIMITS = (1e-3, 1e3)
+
+
+def check_number(name: str, value, positive: bool = False, limits=None) -> float:
+    """``value`` as a float that is finite and >= 0 (> 0 with ``positive``; within ``limits``
+    (lo, hi) where given); else a :class:`BagError` naming ``name`` (an option such as
+    ``--rate``)."""
     try:
         number = float(value)
     except (TypeError, ValueError, OverflowError):
@@ -44,6 +49,8 @@ def check_number(name: str, value, positive: bool = False) -> float:
     if not math.isfinite(number) or number < 0 or (positive and number == 0):
         raise BagError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, "
                        f"got {value}")
+    if limits is not None and not limits[0] <= number <= limits[1]:
+        raise BagError(f"{name} must be in [{limits[0]:g}, {limits[1]:g}], got {value}")
     return number
 
 
@@ -423,7 +430,7 @@ class Player:
     def __init__(self, node, path: str, rate: float = 1.0, start_offset: float = 0.0,
                  topics=None, loop: bool = False, pace: "StatusPacer | None" = None,
                  burst_gap: float = 0.1):
-        rate = check_number("the rate", rate, positive=True)
+        rate = check_number("the rate", rate, positive=True, limits=RATE_LIMITS)
         start_offset = check_number("the start offset", start_offset)
         self.node, self.path = node, path
         self.rate, self.start_offset, self.loop = rate, start_offset, loop

@@ -233,6 +233,9 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
         elif kind == "node":
             if "pkg" not in body or "exec" not in body:
                 raise LaunchError(f"{where}: node needs 'pkg' and 'exec'")
+            for key in ("pkg", "exec", "name", "namespace"):
+                if body.get(key) is not None and not isinstance(body[key], str):
+                    raise LaunchError(f"{where}: node '{key}' must be text, got {body[key]!r}")
             sub = (lambda v: substitute(v, variables, where))
             node = NodeAction(pkg=sub(body["pkg"]), executable=sub(body["exec"]),
                               name=sub(body.get("name")), namespace=sub(body.get("namespace")),
@@ -276,14 +279,21 @@ class Launcher:
         self.output = output      # a file for every node's output (None: as the launch file says)
 
     def start(self) -> None:
-        for node in self.nodes:
-            cmd = node.command()
-            self.log(f"[launch] starting {node.name or node.executable}: {' '.join(cmd)}")
-            out = None if node.output == "screen" else subprocess.DEVNULL
-            if self.output is not None:
-                out = self.output
-            self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out,
-                                               stderr=subprocess.STDOUT if out else None))
+        """Start every node: every executable is found first (a missing one starts none);
+        where one still cannot be started, the ones already started are stopped before the
+        error is raised -- none is left running."""
+        commands = [node.command() for node in self.nodes]
+        try:
+            for node, cmd in zip(self.nodes, commands):
+                self.log(f"[launch] starting {node.name or node.executable}: {' '.join(cmd)}")
+                out = None if node.output == "screen" else subprocess.DEVNULL
+                if self.output is not None:
+                    out = self.output
+                self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out,
+                                                   stderr=subprocess.STDOUT if out else None))
+        except BaseException:
+            self.stop()
+            raise
 
     def wait(self, stop_requested) -> int:
         """Run until every node exits or ``stop_requested()`` is true; returns an exit code."""
