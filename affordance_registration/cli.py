@@ -20,6 +20,8 @@ from .cli_bag import add_bag_parser
 from .core.errors import AffordanceError
 
 EXIT_ERROR = 2
+#: the largest --seed (a node's integer parameter holds it; fit.seed's bound too)
+MAX_SEED = 2**31 - 1
 #: how many of the ranked candidates `fit --json` gives waypoints (the ones an operator looks at)
 LEADING = 3
 
@@ -36,8 +38,8 @@ def _seed(text: str) -> int:
         value = int(text)
     except ValueError:
         raise AffordanceError(f"--seed must be a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise AffordanceError(f"--seed must be a non-negative integer, got {text!r}")
+    if not 0 <= value <= MAX_SEED:
+        raise AffordanceError(f"--seed must be an integer in [0, {MAX_SEED}], got {text!r}")
     return value
 
 
@@ -272,6 +274,10 @@ def cmd_station(args) -> int:
     import urllib.request
 
     from .ros.standins.launcher import Launcher, package_share, parse_launch_file
+    if args.demo:               # (checked before --out is made: a refusal leaves no folder)
+        from .evaluation.simulated_scan import check_first_view
+        check_first_view(args.first_view, _library(None))
+        _seed(args.seed)
     os.makedirs(args.out, exist_ok=True)
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
     given = {"host": args.host, "port": str(args.port), "registrations_file": registrations,
@@ -282,8 +288,6 @@ def cmd_station(args) -> int:
         what = f"an engine node and the scan {scene} (in {args.units})"
     else:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
-        from .evaluation.simulated_scan import check_first_view
-        check_first_view(args.first_view, _library(None))
         given.update(seed=str(_seed(args.seed)), first_view=args.first_view)
         what = f"an engine node and a simulated taskboard scan (seed {_seed(args.seed)})"
     launch = os.path.join(package_share("affordance_registration"), "launch_configs",

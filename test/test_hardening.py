@@ -282,12 +282,14 @@ def test_point_file_headers_that_do_not_match_their_data_are_one_line(tmp_path):
              "list.ply": _binary_ply(1000, pts, props=("x", "y", "list")),
              "fewer.pcd": _binary_pcd(900, pts), "grid.pcd": _binary_pcd(1000, pts, 100, 7),
              "type.pcd": _binary_pcd(1000, pts, types="Q Q Q"),
-             "size.pcd": _binary_pcd(1000, pts, sizes="3 3 3")}
+             "size.pcd": _binary_pcd(1000, pts, sizes="3 3 3"),
+             "extra.ply": b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n"
+                          b"property float y\nproperty float z\nend_header\n0 0 1\n0 1 1\n1 1 1\n"}
     cases = [("fewer.ply", "does not match the data"), ("more.ply", "only 12,000 bytes"),
              ("element.ply", "bad element line"), ("noz.ply", "no x, y, z"),
              ("list.ply", "a list property"), ("fewer.pcd", "does not match the data"),
              ("grid.pcd", "WIDTH 100 x HEIGHT 7"), ("type.pcd", "not a PCD type"),
-             ("size.pcd", "not a PCD type")]
+             ("size.pcd", "not a PCD type"), ("extra.ply", "announces 2 rows of data")]
     from affordance_registration.evaluation.realdata import shared_data_dir
     milk = os.path.join(shared_data_dir() or "", "pcl", "milk.pcd")
     if os.path.isfile(milk):          # binary_compressed (the shared data): the segfault
@@ -371,6 +373,13 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     assert os.listdir(session) == ["truth.yaml"]
 
 
+def _free_port() -> int:
+    import socket
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
 def test_huge_numbers_strings_newlines_and_odd_options_are_one_line(tmp_path):
     """From a second probe: integers of hundreds or thousands of digits in a settings or
     template file (an OverflowError, a ValueError: internal errors), a range written as text
@@ -401,7 +410,11 @@ def test_huge_numbers_strings_newlines_and_odd_options_are_one_line(tmp_path):
              (("bag", "play", str(tmp_path), "--rate", "1e-300"), "must be in [0.001, 1000]"),
              (("launch", str(tmp_path / "pkg.launch.yaml")), "'pkg' must be text"),
              (("launch", str(tmp_path / "pkg.launch.yaml"), "--shm", "--fastdds-profile", "x"),
-              "not allowed with")]
+              "not allowed with"),
+             # a seed no node parameter holds (the nodes started, then failed), checked before
+             # --out is made
+             (("station", "--demo", "--seed", "9" * 23, "--port", str(_free_port()), "--out",
+               str(tmp_path / "station")), "--seed must be an integer in")]
     cases += [(("simulate", "--out", str(tmp_path / f"o_{name}"), "--templates",
                 str(tmp_path / name)), expected)
               for name, expected in (("text_scale", "expected [min, max]"),
@@ -413,6 +426,7 @@ def test_huge_numbers_strings_newlines_and_odd_options_are_one_line(tmp_path):
     for (args, expected), (code, err, _) in zip(cases, results):
         line = one_line(code, err)
         assert expected in line, (args, line)
+    assert not (tmp_path / "station").exists()
     closed = subprocess.run(["sh", "-c", f"{sys.executable} -m affordance_registration.cli "
                                          f"settings >&-"], capture_output=True, text=True,
                             timeout=60)

@@ -111,7 +111,7 @@ def _check_ply(path: str, size: int, error) -> dict:
     exact = fmt != "ascii" and all(None not in e[4] for e in elements)
     return {"points": counts.get("vertex", 0), "faces": counts.get("face", 0) > 0,
             "needed": needed, "available": size - header_bytes, "ascii": fmt == "ascii",
-            "exact": exact,
+            "exact": exact, "rows": sum(counts.values()),
             "header_bytes": header_bytes, "columns": vertex[4] if vertex else [],
             "skip": sum(e[1] for e in elements[:names.index("vertex")]) if vertex else 0}
 
@@ -174,7 +174,7 @@ def _check_pcd(path: str, size: int, error) -> dict:
     return {"points": points, "faces": False, "needed": needed,
             "available": size - header_bytes, "viewpoint": viewpoint,
             "ascii": data == "ascii", "header_bytes": header_bytes, "columns": columns,
-            "skip": 0, "exact": data == "binary"}
+            "skip": 0, "exact": data == "binary", "rows": points}
 
 
 def check_header(path: str, error=SceneError) -> dict:
@@ -269,6 +269,10 @@ def _read_ascii(path: str, info: dict, error) -> np.ndarray:
     with open(path, "rb") as handle:
         handle.seek(info["header_bytes"])
         text = handle.read().decode("ascii", errors="replace").splitlines()
+    held = sum(1 for line in text if line.strip())
+    if held != info["rows"]:          # (an element a line: more rows were dropped unread)
+        raise _fail(path, f"its header announces {info['rows']:,} rows of data but it holds "
+                          f"{held:,} (the header does not match the data)", error)
     rows = text[info["skip"]:info["skip"] + info["points"]]
     if not rows:
         return np.zeros((0, 3))
