@@ -236,7 +236,8 @@ def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
             raise _fail(yaml_path, key, f"{rel} is outside the template's folder {folder} "
                                         f"(set 'allow_external_files: true' to allow that)")
     if not os.path.isfile(path):
-        raise _fail(yaml_path, key, f"file not found: {path}")
+        raise _fail(yaml_path, key, f"not a regular file (a folder, FIFO or device): {path}"
+                    if os.path.exists(path) else f"file not found: {path}")
     if os.path.getsize(path) > MAX_FILE_BYTES:
         raise _fail(yaml_path, key, f"{path} is larger than {MAX_FILE_BYTES / 1e9:.0f} GB")
     return path
