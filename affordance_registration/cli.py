@@ -12,14 +12,12 @@ import argparse
 import json
 import math
 import os
-import re
 import sys
 import time
 
-from .cli_bag import add_bag_parser
+from .cli_args import EXIT_ERROR, Parser, add_bag_parser, path_arg, quiet_stdout
 from .core.errors import AffordanceError
 
-EXIT_ERROR = 2
 #: the largest --seed (a node's integer parameter holds it; fit.seed's bound too)
 MAX_SEED = 2**31 - 1
 #: how many of the ranked candidates `fit --json` gives waypoints (the ones an operator looks at)
@@ -326,6 +324,66 @@ def cmd_station(args) -> int:
         return launcher.wait(stop.is_set)
 
 
+# ---------------------------------------------------------------------------- bag
+def cmd_bag(args) -> int:
+    from .ros.standins.bag import RATE_LIMITS, BagError, bag_info, check_number, topic_name
+    if args.bag_command == "info":
+        info = bag_info(args.bag)
+        print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
+        for t in info["topics"]:
+            print(f"  {t['topic']:<32} {t['type']:<36} {t['count']:>6}")
+        return 0
+    # every option checked before a node starts or a file is made
+    if args.bag_command == "record":
+        if args.duration is not None:
+            check_number("--duration", args.duration, positive=True)
+        for topic in args.topics:
+            topic_name(topic)
+    else:
+        check_number("--rate", args.rate, positive=True, limits=RATE_LIMITS)
+        check_number("--start-offset", args.start_offset)
+        check_number("--wait-for-subscribers", args.wait_for_subscribers)
+        check_number("--pace-timeout", args.pace_timeout, positive=True)
+        topic_name(args.status_topic)
+    import signal
+    import threading
+
+    from .ros.standins.spin import background_node
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *a: stop.set())
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    with background_node("affordance_bag") as node:
+        if args.bag_command == "record":
+            from .ros.standins.bag import Recorder
+            recorder = Recorder(node, args.out, args.topics)
+            try:
+                t0 = time.monotonic()
+                while not stop.is_set() and recorder.error is None and (
+                        args.duration is None or time.monotonic() - t0 < args.duration):
+                    time.sleep(0.05)
+            except BaseException:
+                recorder.abort()
+                raise
+            counts = recorder.close()
+            if recorder.error is not None:
+                raise BagError(f"{recorder.error}; recording stopped" + (
+                    f", the {sum(counts.values())} messages recorded before are in {args.out}"
+                    if recorder.kept else f", {args.out} removed"))
+            print(f"recorded {sum(counts.values())} messages into {args.out}: {counts}")
+        else:
+            from .ros.standins.bag import Player, StatusPacer
+            pace = StatusPacer(node, args.status_topic, args.pace_timeout) if args.paced \
+                else None
+            player = Player(node, args.bag, rate=args.rate, start_offset=args.start_offset,
+                            topics=args.topics or None, loop=args.loop, pace=pace)
+            if args.wait_for_subscribers and not player.wait_for_subscribers(
+                    args.wait_for_subscribers, stop) and not stop.is_set():
+                print("not every topic has a subscriber; playing anyway", file=sys.stderr)
+            n = player.play(stop)
+            print(f"played {n} messages from {args.bag}")
+    return 0
+
+
 # ---------------------------------------------------------------------------- launch
 def cmd_launch(args) -> int:
     from .ros.standins.launcher import LaunchError, package_share, run_launch_file
@@ -364,24 +422,11 @@ def cmd_generate_models(args) -> int:
     return 0
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors (exit 2, "see --help"), and numbers such as
-    ``-1e-3`` taken as values, not as options (argparse knows only ``-1`` and ``-0.5``)."""
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$"
-                                                   r"|^-(inf|nan)$", re.IGNORECASE)
-
-    def error(self, message):
-        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = Parser(
         prog="affordance-registration",
         description="Click-to-fit affordance template registration (ROS 2).")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
     p.add_argument("--scene", required=True,
@@ -422,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
-    p.add_argument("--out", type=_path, required=True, help="output folder (scene.ply, truth.yaml, ...)")
+    p.add_argument("--out", type=path_arg, required=True, help="output folder (scene.ply, truth.yaml, ...)")
     p.add_argument("--seed", default="0", help="the simulated scene (default 0)")
     p.add_argument("--layout", choices=("panel", "table"), default="panel",
                    help="panel (default): objects mounted on a wall panel; table: lying on a "
@@ -439,14 +484,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=int, default=None, help="panel scenes (default 20)")
     p.add_argument("--paper-clicks", type=int, default=None,
                    help="clicks for the slow paper baseline (default 25; 0 = all)")
-    p.add_argument("--out", type=_path, default="bench_output/bench.json", help="JSON output path")
+    p.add_argument("--out", type=path_arg, default="bench_output/bench.json", help="JSON output path")
     p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "
                                     "live engine node, print the results, write demo_output/")
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
-    p.add_argument("--out", type=_path, default="demo_output",
+    p.add_argument("--out", type=path_arg, default="demo_output",
                    help="output folder (default demo_output)")
     p.add_argument("--core", action="store_true",
                    help="no ROS: a simulated operator on the core engine in this process")
@@ -457,7 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("session", help="record a simulated operator session (scene, engine node, "
                                        "operator over ROS) as a rosbag2 bag")
-    p.add_argument("--out", type=_path, required=True, help="folder for the bag and truth.yaml")
+    p.add_argument("--out", type=path_arg, required=True, help="folder for the bag and truth.yaml")
     p.add_argument("--seed", default="7", help="the simulated scene (default 7)")
     p.set_defaults(func=cmd_session)
 
@@ -487,12 +532,12 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.add_argument("--first-view", default="camera", metavar="KIND:TEMPLATE",
                    help="with --demo: where the sensor starts: camera (default) or a hard view "
                         "of one object, e.g. edge-on:quarter_turn_valve (try Move sensor here)")
-    p.add_argument("--out", type=_path, default="station_output",
+    p.add_argument("--out", type=path_arg, default="station_output",
                    help="with --demo or --scene: registrations file and node logs (default "
                         "station_output)")
     p.set_defaults(func=cmd_station)
 
-    add_bag_parser(sub, _Parser)
+    add_bag_parser(sub, cmd_bag)
 
     p = sub.add_parser("launch", help="start the nodes of a ROS 2 YAML launch file")
     p.add_argument("file", help="a *.launch.yaml file")
@@ -509,27 +554,8 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.set_defaults(func=cmd_spacemouse)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
-    p.add_argument("--out", type=_path, default="models", help="output folder (default models)")
+    p.add_argument("--out", type=path_arg, default="models", help="output folder (default models)")
     p.set_defaults(func=cmd_generate_models)
-
-
-def _path(text: str) -> str:
-    """An option naming a file or folder: not empty (an empty --out wrote into the current
-    folder), no NUL byte."""
-    if not text.strip() or "\0" in text:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a path (name a file or folder)")
-    return text
-
-
-def _quiet_stdout() -> None:
-    """Whatever stdout could not take is dropped (else Python says so again at exit)."""
-    try:
-        sys.stdout.flush()
-    except OSError:
-        try:
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        except (OSError, ValueError):
-            pass
 
 
 def main(argv=None) -> int:
@@ -548,7 +574,7 @@ def main(argv=None) -> int:
     except MemoryError:
         return _fail("out of memory")
     except OSError as exc:            # a path that cannot be read or written, a full disk
-        _quiet_stdout()
+        quiet_stdout()
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         return _fail(f"{where}{exc.strerror or exc}")
     except Exception as exc:          # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
