@@ -95,16 +95,15 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
     absolute paths written, in the order given."""
     staged: list[tuple[str, str]] = []
     mode_new = 0o666 & ~_umask()
-    finals: dict[str, str] = {}
+    targets: dict[str, tuple] = {}   # final path -> (the path given, its stat)
     for path in files:               # every target checked before anything is written
-        final, _ = _target(path)
-        if final in finals:
-            raise OSError(errno.EINVAL, f"{path} and {finals[final]} are one file (a symbolic "
-                                        f"link): neither written", path)
-        finals[final] = path
+        final, st = _target(path)
+        if final in targets:
+            raise OSError(errno.EINVAL, f"{path} and {targets[final][0]} are one file (a "
+                                        f"symbolic link): neither written", path)
+        targets[final] = (path, st)
     try:
-        for path, content in files.items():
-            final, st = _target(path)
+        for (final, (_, st)), content in zip(targets.items(), files.values()):
             folder, name = os.path.split(final)
             os.makedirs(folder, exist_ok=True)
             _remove_stale(folder, name)
@@ -156,4 +155,3 @@ def not_regular(mode: int) -> str | None:
     return "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
         "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
         "a socket" if stat.S_ISSOCK(mode) else "not a file"
-

@@ -309,8 +309,6 @@ def _bounds(along: np.ndarray, face_pos, face_neg, top=None) -> tuple[float, flo
     slopes, a top face half hidden by an object in front: there all of them."""
     lo, hi = np.percentile(along, [LOW, HIGH])
     if top is not None and top.sum() >= FACE_POINTS:
-        # (where more of the points lie past the top face's edge than mixed pixels would, the
-        # top is part of the object's top -- a carton's ridge: there the points end)
         lo_top, hi_top = np.percentile(along[top], [100 - EDGE, EDGE])
         if np.mean(along < lo_top - TOP_BAND) < PAST_TOP:
             lo = lo_top
