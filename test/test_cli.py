@@ -185,7 +185,7 @@ def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):
     args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, off))
     bad = (("crop:\n  snap: 1\n", "unknown setting crop.snap"),
            ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
-           ("[1, 2\n", "is not YAML"))
+           ("[1, 2\n", "not valid YAML (line 2)"))
     for k, (text, _) in enumerate(bad):
         (tmp_path / f"bad{k}.yaml").write_text(text)
     snapped, default, *refused = run_all(
@@ -197,4 +197,4 @@ def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):
     for (_, words), res in zip(bad, refused):
         assert res.returncode == 2 and words in _one_line_error(res), res.stderr
     res = run("settings", str(tmp_path / "nowhere.yaml"))
-    assert res.returncode == 2 and "cannot read settings file" in _one_line_error(res)
+    assert res.returncode == 2 and "nowhere.yaml: cannot read: No such file" in _one_line_error(res)

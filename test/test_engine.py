@@ -228,3 +228,48 @@ def test_a_correction_or_a_saved_pose_that_is_not_rigid_is_refused(engine, engin
                                     "registrations": [{"template": sim.objects[2].template,
                                                        "pose": np.round(T0, 6).tolist()}]}))
     assert len(load_registrations(str(path), library)) == 1
+
+
+def test_a_registrations_file_that_is_not_one_is_refused_in_one_line(library, tmp_path):
+    """A FIFO (it blocked the loader for good), a key written twice, values of the wrong kind
+    (an internal error each), bytes that are not UTF-8: one line naming the file; nothing
+    loaded."""
+    import os
+    import threading
+    fmt = "format: affordance_registration/registrations/1\n"
+    entry = "  - template: ball_valve\n    pose: " + str(np.eye(4).tolist()) + "\n"
+    files = {"twice.yaml": fmt + "format: x\nregistrations: []\n",
+             "likelihood.yaml": fmt + "registrations:\n" + entry + "    likelihood: high\n",
+             "joints.yaml": fmt + "registrations:\n" + entry + "    joints: [1, 2]\n",
+             "click.yaml": fmt + "registrations:\n" + entry + "    click: [1, 2]\n",
+             "state.yaml": fmt + "registrations:\n" + entry + "    state: [open]\n",
+             "id.yaml": fmt + "registrations:\n" + entry + "    id: 1e999\n",
+             "list.yaml": fmt + "registrations: {a: 1}\n",
+             "entry.yaml": fmt + "registrations:\n  - [1, 2]\n",
+             "bytes.yaml": fmt.encode() + b"frame_id: \xff\n"}
+    expected = {"twice.yaml": "the key 'format' is written twice", "likelihood.yaml": "wrong kind",
+                "joints.yaml": "wrong kind", "click.yaml": "'click' must be three numbers",
+                "state.yaml": "'state' must be text", "id.yaml": "wrong kind",
+                "list.yaml": "'registrations' must be a list", "entry.yaml": "must be a mapping",
+                "bytes.yaml": "not UTF-8", "fifo.yaml": "not a regular file (a FIFO)"}
+    for name, text in files.items():
+        (tmp_path / name).write_bytes(text if isinstance(text, bytes) else text.encode())
+    os.mkfifo(tmp_path / "fifo.yaml")
+    engine = AffordanceEngine(library)
+    errors = {}
+
+    def load_all():
+        for name in expected:
+            try:
+                engine.load(str(tmp_path / name))
+            except AffordanceError as exc:
+                errors[name] = str(exc)
+
+    worker = threading.Thread(target=load_all, daemon=True)
+    worker.start()
+    worker.join(60)
+    assert not worker.is_alive(), f"a load blocked; done: {sorted(errors)}"
+    for name, words in expected.items():
+        assert name in errors.get(name, "") and words in errors[name], (name, errors.get(name))
+        assert "\n" not in errors[name]
+    assert engine.state.registered == ()

@@ -65,6 +65,11 @@ def test_substitutions_and_errors(tmp_path, monkeypatch):
         parse_launch_file(str(bad))[0].command()
     with pytest.raises(LaunchError, match="cannot read"):
         parse_launch_file(str(tmp_path / "missing.yaml"))
+    # a node's key written twice: PyYAML kept the last one silently
+    bad.write_text("launch:\n- node:\n    pkg: affordance_registration\n"
+                   "    exec: affordance_engine\n    exec: affordance_spacemouse\n")
+    with pytest.raises(LaunchError, match=r"\(line 5\): the key 'exec' is written twice"):
+        parse_launch_file(str(bad))
 
 
 def test_an_empty_argument_is_passed_as_the_empty_string():

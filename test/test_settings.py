@@ -135,10 +135,11 @@ def test_load_reads_a_partial_file_and_refuses_a_bad_one_with_one_line(tmp_path)
     assert FitSettings.load(str(tmp_path / "empty.yaml")) == FitSettings()
     cases = {"missing.yaml": None, "list.yaml": "- 1\n- 2\n", "broken.yaml": "coarse: [1,\n",
              "unknown.yaml": "coarse:\n  sample: 3\n", "bad.yaml": "fine:\n  points: -1\n",
-             "bytes.yaml": b"seed: \xff\xfe\n"}
-    words = {"missing.yaml": "cannot read settings file", "list.yaml": "must be a mapping",
-             "broken.yaml": "is not YAML", "unknown.yaml": "unknown setting coarse.sample",
-             "bad.yaml": "fine.points must be an integer >= 0", "bytes.yaml": "cannot read"}
+             "bytes.yaml": b"seed: \xff\xfe\n", "twice.yaml": "seed: 1\nfine:\n  points: 3\nseed: 2\n"}
+    words = {"missing.yaml": ": cannot read: No such file", "list.yaml": "must be a mapping",
+             "broken.yaml": "not valid YAML (line 2)", "unknown.yaml": "unknown setting coarse.sample",
+             "bad.yaml": "fine.points must be an integer >= 0", "bytes.yaml": "not UTF-8",
+             "twice.yaml": "not valid YAML (line 4): the key 'seed' is written twice"}
     for name, text in cases.items():
         path = tmp_path / name
         if isinstance(text, bytes):
@@ -148,6 +149,7 @@ def test_load_reads_a_partial_file_and_refuses_a_bad_one_with_one_line(tmp_path)
         with pytest.raises(RegistrationError) as err:
             FitSettings.load(str(path))
         assert words[name] in str(err.value) and "\n" not in str(err.value), str(err.value)
+        assert str(err.value).startswith(f"settings file {path}"), str(err.value)
 
 
 def test_the_dump_of_the_defaults_is_every_knob_at_its_declared_default():

@@ -198,8 +198,10 @@ def test_push_moves_the_fit_in_the_view_and_the_engine_refits(ros_context, tmp_p
     from affordance_registration.evaluation.simulation import simulate_taskboard
     dev = ScriptedDevice(tmp_path / "hid.fifo")
     mouse = spacemouse_process(tmp_path, dev.path)
-    # the pushed pose stays 2 s before the refit, so ~/fit shows it on a loaded machine too
-    engine = engine_process(tmp_path, {"refit_idle_s": 2.0})
+    # the pushed pose stays 6 s before the refit, longer than each wait for it below: what
+    # moved right is a pushed pose, never a refit (a refit from a push too short to pass 5 mm
+    # moved y and z too, and was once taken for the push on a loaded machine)
+    engine = engine_process(tmp_path, {"refit_idle_s": 6.0})
     client = Client("spacemouse_engine_tester")
     try:
         client.subscribe(String, "/affordance_engine/status", LATCHED)

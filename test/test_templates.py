@@ -190,6 +190,11 @@ def test_yaml_that_does_not_parse(tmp_path):
     path = _write(tmp_path, "name: [unclosed\n")
     with pytest.raises(TemplateError, match="not valid YAML"):
         load_template(path)
+    # a key written twice (PyYAML kept the last one silently)
+    path = _write(tmp_path, "name: a\nmesh: box.stl\nname: b\n", name="twice.yaml")
+    with pytest.raises(TemplateError, match=r"twice.yaml: not valid YAML \(line 3\): the key "
+                                            r"'name' is written twice"):
+        load_template(path)
 
 
 def test_duplicate_names_and_empty_directory(tmp_path):

@@ -12,7 +12,10 @@ process's umask like any file it creates. Temporary files are named
 removed by the next write to that folder.
 
 Files are read with :func:`open_regular`: only a regular file (a FIFO would block the reader for
-good, a device never end).
+good, a device never end). :func:`read_yaml` reads a YAML file that way and turns whatever makes
+it unreadable into one line: a missing file, not UTF-8, not YAML, nested too deeply, a number
+PyYAML cannot convert, too large, or a key written twice in one mapping (PyYAML would keep the
+last one silently; a settings, template or launch file with a key twice is a mistake).
 """
 from __future__ import annotations
 
@@ -24,7 +27,9 @@ import tempfile
 import threading
 from typing import Mapping
 
-__all__ = ["write_atomically", "open_regular", "not_regular"]
+import yaml
+
+__all__ = ["write_atomically", "open_regular", "not_regular", "read_yaml"]
 
 _UMASK_LOCK = threading.Lock()
 _TEMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-[^.]+$")
@@ -155,3 +160,53 @@ def not_regular(mode: int) -> str | None:
     return "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
         "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
         "a socket" if stat.S_ISSOCK(mode) else "not a file"
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that has one key twice (merge keys ``<<`` aside:
+    a merged key may be overridden, as YAML intends)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    twice = key in seen
+                    seen.add(key)
+                except TypeError:                 # unhashable: PyYAML says so itself
+                    continue
+                if twice:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"the key {key!r} is written twice", key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+def read_yaml(path: str, error: type[Exception], label: str | None = None,
+              max_bytes: int | None = None, kind: str = "YAML file"):
+    """The YAML document of the regular file ``path`` (None for an empty one). Anything that
+    keeps it from being read raises ``error`` with one line starting with ``label`` (default:
+    the path): it cannot be read (missing, a folder, a FIFO ...), is larger than ``max_bytes``
+    ("not a ``kind``"), is not UTF-8, is not YAML (with the line), nests too deeply, holds a
+    number PyYAML cannot convert, or writes a key twice in one mapping."""
+    label = str(path) if label is None else label
+    try:
+        with open_regular(path, encoding="utf-8") as handle:
+            if max_bytes is not None and os.fstat(handle.fileno()).st_size > max_bytes:
+                raise error(f"{label}: larger than {max_bytes // 1000} kB: not a {kind}")
+            return yaml.load(handle, Loader=_UniqueKeyLoader)
+    except OSError as exc:
+        raise error(f"{label}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise error(f"{label}: not UTF-8 text") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" (line {mark.line + 1})" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise error(f"{label}: not valid YAML{at}: {str(problem).splitlines()[0][:120]}") from None
+    except RecursionError:
+        raise error(f"{label}: YAML nested too deeply") from None
+    except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
+        raise error(f"{label}: not YAML this reads ({str(exc).splitlines()[0][:80]})") from None

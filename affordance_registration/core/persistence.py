@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from .errors import AffordanceError
-from .files import write_atomically
+from .files import read_yaml, write_atomically
 from .templates import TemplateLibrary
 from .tracked import Registration
 from .transforms import is_rigid
@@ -42,6 +42,9 @@ REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
 #: PyYAML's safe dumper with libyaml's emitter where the wheel has it (the same text as
 #: ``yaml.safe_dump``, four times faster: the node writes the whole file after every change)
 SAFE_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+#: a registrations file larger than this is not read (bytes; a thousand objects with their
+#: waypoints take about 2 MB)
+MAX_REGISTRATIONS_BYTES = 20_000_000
 
 
 def registrations_document(registrations, frame_id: str = "", library=None) -> str:
@@ -70,45 +73,60 @@ def save_registrations(path: str, registrations, frame_id: str = "", library=Non
 
 def load_registrations(path: str, library: TemplateLibrary | None = None) -> tuple:
     """Read a registrations file; each entry is checked (template known, pose a rigid 4x4)."""
-    try:
-        with open(path, encoding="utf-8") as handle:
-            doc = yaml.safe_load(handle)
-    except OSError as exc:
-        raise AffordanceError(f"cannot read registrations {path}: {exc.strerror}") from None
-    except yaml.YAMLError:
-        raise AffordanceError(f"{path}: not valid YAML") from None
+    doc = read_yaml(path, AffordanceError, label=f"registrations {path}",
+                    max_bytes=MAX_REGISTRATIONS_BYTES, kind="registrations file")
     if not isinstance(doc, dict) or doc.get("format") != REGISTRATIONS_FORMAT:
         raise AffordanceError(f"{path}: not a registrations file (format {REGISTRATIONS_FORMAT})")
+    entries = doc.get("registrations") or []
+    if not isinstance(entries, list):
+        raise AffordanceError(f"{path}: 'registrations' must be a list")
     out = []
-    for i, entry in enumerate(doc.get("registrations") or []):
+    for i, entry in enumerate(entries):
         where = f"{path}: registrations[{i}]"
+        if not isinstance(entry, dict):
+            raise AffordanceError(f"{where}: must be a mapping")
         try:
-            T = np.asarray(entry["pose"], dtype=float)
-            template = str(entry["template"])
-        except (KeyError, TypeError, ValueError):
-            raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
-        if not is_rigid(T):
-            raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
-        if library is not None and template not in library:
-            raise AffordanceError(f"{where}: unknown template '{template}'")
-        primitive, dims = _primitive_of(entry, where, library[template] if library is not None
-                                        else None)
-        out.append(Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
-                                likelihood=float(entry.get("likelihood", 0.0)),
-                                probability=float(entry.get("probability", 0.0)),
-                                residual=float(entry.get("residual", 0.0)),
-                                click=np.asarray(entry.get("click", T[:3, 3]), dtype=float),
-                                frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
-                                joints={str(k): float(v) for k, v in
-                                        (entry.get("joints") or {}).items()},
-                                state=entry.get("state"), scale=float(entry.get("scale", 1.0)),
-                                primitive=primitive, dimensions=dims,
-                                ranked_first=str(entry.get("ranked_first", "")),
-                                model_changes=int(entry.get("model_changes", 0)),
-                                corrections=int(entry.get("corrections", 0)),
-                                fit_s=float(entry.get("fit_s", 0.0)),
-                                override=entry.get("override") is True))
+            out.append(_registration(entry, where, doc, i, library))
+        except (TypeError, ValueError, AttributeError, OverflowError):
+            raise AffordanceError(f"{where}: a value of the wrong kind (numbers for id, "
+                                  f"likelihood, scale, joints ...; text for template, state)") \
+                from None
     return tuple(out)
+
+
+def _registration(entry: dict, where: str, doc: dict, i: int, library) -> Registration:
+    """One entry of a registrations file, checked (a value of the wrong kind raises TypeError,
+    ValueError or AttributeError, which the caller words)."""
+    try:
+        T = np.asarray(entry["pose"], dtype=float)
+        template = str(entry["template"])
+    except (KeyError, TypeError, ValueError):
+        raise AffordanceError(f"{where}: needs 'template' and a 4x4 'pose'") from None
+    if not is_rigid(T):
+        raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
+    if library is not None and template not in library:
+        raise AffordanceError(f"{where}: unknown template '{template}'")
+    primitive, dims = _primitive_of(entry, where, library[template] if library is not None
+                                    else None)
+    click = np.asarray(entry.get("click", T[:3, 3]), dtype=float)
+    if click.shape != (3,):
+        raise AffordanceError(f"{where}: 'click' must be three numbers")
+    state = entry.get("state")
+    if state is not None and not isinstance(state, str):
+        raise AffordanceError(f"{where}: 'state' must be text")
+    return Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
+                        likelihood=float(entry.get("likelihood", 0.0)),
+                        probability=float(entry.get("probability", 0.0)),
+                        residual=float(entry.get("residual", 0.0)), click=click,
+                        frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
+                        joints={str(k): float(v) for k, v in (entry.get("joints") or {}).items()},
+                        state=state, scale=float(entry.get("scale", 1.0)),
+                        primitive=primitive, dimensions=dims,
+                        ranked_first=str(entry.get("ranked_first", "")),
+                        model_changes=int(entry.get("model_changes", 0)),
+                        corrections=int(entry.get("corrections", 0)),
+                        fit_s=float(entry.get("fit_s", 0.0)),
+                        override=entry.get("override") is True)
 
 
 def _primitive_of(entry: dict, where: str, template) -> tuple:

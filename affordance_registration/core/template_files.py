@@ -47,11 +47,10 @@ import os
 
 import numpy as np
 import trimesh
-import yaml
 
 from .affordance_template import MAX_SCALE, AffordanceTemplate, Joint, Symmetry, _scale_range
 from .errors import TemplateError
-from .files import open_regular
+from .files import read_yaml
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
@@ -84,23 +83,7 @@ def load_template(path: str) -> AffordanceTemplate:
 
 
 def _load_template(path: str) -> AffordanceTemplate:
-    try:
-        if os.path.getsize(path) > MAX_YAML_BYTES:
-            raise TemplateError(f"{path}: larger than {MAX_YAML_BYTES // 1000} kB: not a "
-                                f"template file")
-        with open_regular(path, encoding="utf-8") as handle:
-            doc = yaml.safe_load(handle)
-    except OSError as exc:
-        raise TemplateError(f"{path}: cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise TemplateError(f"{path}: not UTF-8 text") from None
-    except yaml.YAMLError as exc:
-        raise TemplateError(f"{path}: not valid YAML: {exc}".splitlines()[0]) from None
-    except RecursionError:
-        raise TemplateError(f"{path}: YAML nested too deeply") from None
-    except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
-        raise TemplateError(f"{path}: not YAML this reads "
-                            f"({str(exc).splitlines()[0][:80]})") from None
+    doc = read_yaml(path, TemplateError, max_bytes=MAX_YAML_BYTES, kind="template file")
     if not isinstance(doc, dict):
         raise TemplateError(f"{path}: expected a mapping with at least 'name' and 'mesh'")
     unknown = set(doc) - _KNOWN_KEYS

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import yaml
 
 from ..errors import RegistrationError
-from ..files import open_regular
+from ..files import read_yaml
 
 __all__ = ["FitSettings", "Stage", "Stages", "CLUSTER", "FINE", "knob"]
 
@@ -548,25 +548,8 @@ class FitSettings:
         or malformed file, an unknown name or a bad value raises :class:`RegistrationError`
         with one line."""
         path = os.path.expanduser(str(path))
-        try:
-            with open_regular(path, encoding="utf-8") as handle:
-                if os.fstat(handle.fileno()).st_size > MAX_SETTINGS_BYTES:
-                    raise RegistrationError(f"settings file {path}: larger than "
-                                            f"{MAX_SETTINGS_BYTES // 1000} kB: not a settings "
-                                            f"file")
-                data = yaml.safe_load(handle)
-        except (OSError, UnicodeDecodeError) as exc:
-            raise RegistrationError(f"cannot read settings file {path}: "
-                                    f"{getattr(exc, 'strerror', None) or exc}") from None
-        except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
-            raise RegistrationError(f"settings file {path} is not YAML this reads "
-                                    f"({str(exc).splitlines()[0][:80]})") from None
-        except yaml.YAMLError as exc:
-            where = getattr(exc, "problem_mark", None)
-            at = f" (line {where.line + 1})" if where is not None else ""
-            raise RegistrationError(f"settings file {path} is not YAML{at}") from None
-        except RecursionError:
-            raise RegistrationError(f"settings file {path}: YAML nested too deeply") from None
+        data = read_yaml(path, RegistrationError, label=f"settings file {path}",
+                         max_bytes=MAX_SETTINGS_BYTES, kind="settings file")
         try:
             return cls.from_dict({} if data is None else data)
         except RegistrationError as exc:

@@ -41,7 +41,7 @@ from pathlib import Path
 import yaml
 
 from ...core.errors import AffordanceError
-from ...core.files import open_regular
+from ...core.files import read_yaml
 
 __all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
 
@@ -127,6 +127,8 @@ def find_executable(pkg: str, executable: str) -> str:
 
 #: nesting depth of substitutions inside substitutions ($(find-pkg-share $(var pkg)) is 2)
 MAX_SUBSTITUTION_DEPTH = 16
+#: a launch file larger than this is not one (bytes)
+MAX_LAUNCH_BYTES = 1_000_000
 
 
 def substitute(text, variables: dict, where: str, depth: int = 0):
@@ -181,21 +183,6 @@ def _resolve(words: list[str], variables: dict, where: str) -> str:
     raise LaunchError(f"{where}: unsupported substitution $({kind})")
 
 
-def _read_yaml(path: str):
-    """A launch file's YAML (one clear LaunchError for anything unreadable)."""
-    try:
-        with open_regular(path, encoding="utf-8") as handle:
-            return yaml.safe_load(handle)
-    except OSError as exc:
-        raise LaunchError(f"{path}: cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise LaunchError(f"{path}: not UTF-8 text") from None
-    except yaml.YAMLError as exc:
-        raise LaunchError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
-    except RecursionError:
-        raise LaunchError(f"{path}: YAML nested too deeply") from None
-
-
 def _entries(body: dict, key: str, where: str) -> list[dict]:
     """The list of mappings under ``key`` of a node (param, remap)."""
     value = body.get(key) or []
@@ -206,7 +193,7 @@ def _entries(body: dict, key: str, where: str) -> list[dict]:
 
 def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeAction]:
     """Parse a YAML launch file into node actions (arguments resolved)."""
-    doc = _read_yaml(path)
+    doc = read_yaml(path, LaunchError, max_bytes=MAX_LAUNCH_BYTES, kind="launch file")
     if not isinstance(doc, dict) or not isinstance(doc.get("launch"), list):
         raise LaunchError(f"{path}: expected a top-level 'launch:' list")
     given = dict(arguments or {})
