@@ -356,7 +356,19 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     cloud.write_bytes(_binary_ply(1000, np.random.default_rng(2).uniform(-1, 1, (1000, 3))))
     deep = tmp_path / "deep.yaml"
     deep.write_text("coarse: " + "[" * 2000 + "]" * 2000 + "\n")
-    cases = [(("settings", str(tmp_path / "settings.yaml")), "not a regular file"),
+    # a recorded session to replay whose truth is a FIFO (the replay blocked) or not a truth
+    # (a KeyError); the bag is never reached
+    replays = {}
+    for name in ("fifo_truth", "bad_truth"):
+        replays[name] = tmp_path / name
+        replays[name].mkdir()
+    os.mkfifo(replays["fifo_truth"] / "truth.yaml")
+    (replays["bad_truth"] / "truth.yaml").write_text("objects: [{T_scene_model: [1, 2]}]\n")
+    cases = [(("demo", "--session", str(replays["fifo_truth"]), "--out", str(tmp_path / "d1")),
+              "not a regular file (a FIFO)"),
+             (("demo", "--session", str(replays["bad_truth"]), "--out", str(tmp_path / "d2")),
+              "not a truth file"),
+             (("settings", str(tmp_path / "settings.yaml")), "not a regular file"),
              (("settings", "/dev/null"), "not a regular file"),
              (("simulate", "--out", str(tmp_path / "o1"), "--templates", str(lib)),
               "not a regular file"),

@@ -23,7 +23,7 @@ import trimesh
 import yaml
 
 from ..core.errors import AffordanceError
-from ..core.files import write_atomically
+from ..core.files import read_yaml, write_atomically
 from ..core.templates import TemplateLibrary, mesh_distance
 from ..core.transforms import axis_angle_matrix, invert, make_T
 
@@ -32,6 +32,8 @@ __all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "Simul
            "SimulatedOperator", "failures", "operator_correction", "truth_joints",
            "POSE_TOL_M", "POSE_TOL_RAD", "PANEL_SIZE", "panel_mesh", "KINECT_NFOV", "SIZED", "sized_library"]
 
+#: a truth.yaml larger than this is not one (bytes)
+MAX_TRUTH_BYTES = 20_000_000
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
 POSE_TOL_M = 0.005
@@ -482,14 +484,24 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
 
 def load_truth(path: str) -> dict:
     """Read a ``truth.yaml``; poses come back as 4x4 arrays and clicks as (3,) arrays."""
-    with open(path, encoding="utf-8") as handle:
-        doc = yaml.safe_load(handle)
-    for obj in doc.get("objects", []):
-        obj["T_scene_model"] = np.asarray(obj["T_scene_model"], dtype=float)
-        if obj.get("click") is not None:
-            obj["click"] = np.asarray(obj["click"], dtype=float)
-    doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float)
+    doc = read_yaml(path, AffordanceError, max_bytes=MAX_TRUTH_BYTES, kind="truth file")
+    try:
+        for obj in doc.get("objects", []):
+            obj["T_scene_model"] = _matrix(obj["T_scene_model"], (4, 4))
+            if obj.get("click") is not None:
+                obj["click"] = _matrix(obj["click"], (3,))
+        doc["T_scene_board"] = _matrix(doc["T_scene_board"], (4, 4))
+    except (AttributeError, KeyError, TypeError, ValueError):
+        raise AffordanceError(f"{path}: not a truth file (objects with a 4x4 T_scene_model, "
+                              f"T_scene_board)") from None
     return doc
+
+
+def _matrix(value, shape: tuple) -> np.ndarray:
+    out = np.asarray(value, dtype=float)
+    if out.shape != shape:
+        raise ValueError(f"expected {shape}")
+    return out
 
 
 def operator_correction(T_true: np.ndarray, centroid, rng: np.random.Generator,
