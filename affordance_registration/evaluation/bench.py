@@ -188,6 +188,14 @@ def _pct(v) -> str:
     return "-" if v is None else f"{v:.0%}"
 
 
+def _refined(r: dict) -> str:
+    """The real Kinect line's note on the fits refined on the labels (label_ceiling)."""
+    if r.get("refined_pass") is None:
+        return ""
+    return f" (the same fits least-squares refined on each object's labelled points: " \
+           f"{_pct(r['refined_pass'])} of {r['refined_objects']})"
+
+
 def _real_capture_lines(result: dict) -> list:
     """The table's lines of :func:`_real_capture_rows`."""
     lines = []
@@ -209,8 +217,8 @@ def _real_capture_lines(result: dict) -> list:
                 f"{r['scenes']} scenes): refused by the library {_pct(r['refused_by_library'])}, "
                 f"primitive recall {_pct(r['primitive_recall'])} / precision "
                 f"{_pct(r['primitive_precision'])} (median), passing both 90% "
-                f"{_pct(r['primitive_pass'])}, kind right {_pct(r['kind_right'])}, median "
-                f"{r['median_s']:.2f} s a click")
+                f"{_pct(r['primitive_pass'])}{_refined(r)}, kind right "
+                f"{_pct(r['kind_right'])}, median {r['median_s']:.2f} s a click")
     if k is not None and not any((k.get(p) or {}).get("objects") for p in ("tuning", "held_out")):
         lines.append(f"real Kinect (mOSD learn): not measured -- no shared mOSD scenes (set "
                      f"{DATA_ENV} to the shared data folder)")

@@ -466,7 +466,7 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
                     library)
     row.pop("outcomes")
     log("real Kinect scans (mOSD learn) ...")
-    kinect = real_kinect_rows(library=full, log=log)
+    kinect = real_kinect_rows(library=full, log=log, refined=True)
     kinect.pop("records")
     log("a real capture's click against a simulated one, alternately ...")
     kinect["cost"] = real_capture_cost(with_primitives, jobs, 10 if quick else 20)

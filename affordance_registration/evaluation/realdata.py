@@ -508,7 +508,7 @@ def _dims_dict(dims) -> dict | None:
 
 
 def evaluate_scene(registrar, scene_path: str | LabelledCloud,
-                   min_points: int = MIN_OBJECT_POINTS) -> list[dict]:
+                   min_points: int = MIN_OBJECT_POINTS, refined: bool = False) -> list[dict]:
     """Click the middle of every labelled object (>= ``min_points``) of an mOSD scene with
     ``registrar`` (a :class:`core.registration.Registrar`) -- the sensor at the origin -- and
     return one record per object:
@@ -519,7 +519,9 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
     (these three read with getattr: None where the registrar does not give them), ``score``
     (:meth:`PrimitiveScore.to_dict` when the best candidate is a box or cylinder with
     dimensions, else None), ``time_s`` (the fit's wall time) and ``error`` (a fit that raised:
-    its one-line message, the other fields None)."""
+    its one-line message, the other fields None); with ``refined``, also ``refined_score``:
+    the score of that fit refined on the object's labelled points
+    (:func:`.label_ceiling.refined_score`) where it is of the object's kind, else None."""
     from ..core.scene import Scene
     cloud = scene_path if isinstance(scene_path, LabelledCloud) else \
         read_labelled_pcd(scene_path)
@@ -536,7 +538,8 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
                else None,
                "n_points": obj.n_points, "click": [round(float(v), 6) for v in obj.click],
                "template": None, "fits": None, "primitive": None, "dimensions": None,
-               "explained": None, "score": None, "time_s": None, "error": None}
+               "explained": None, "score": None, "refined_score": None, "time_s": None,
+               "error": None}
         t0 = time.perf_counter()
         try:
             best = registrar.fit(scene, obj.click).candidates[0]
@@ -554,6 +557,10 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
             try:
                 rec["score"] = score_primitive(cloud, obj, primitive, best.T_scene_model,
                                                dims).to_dict()
+                if refined and primitive == rec["object_kind"]:
+                    from .label_ceiling import refined_score
+                    rec["refined_score"] = refined_score(cloud, obj, primitive,
+                                                         best.T_scene_model, dims).to_dict()
             except (AffordanceError, KeyError, ValueError) as exc:
                 rec["error"] = f"scoring: {exc}"
         records.append(rec)

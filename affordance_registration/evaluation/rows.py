@@ -46,6 +46,7 @@ def _median(values) -> float | None:
 
 # ---------------------------------------------------------------------------- real Kinect
 def _kinect_summary(records: list) -> dict:
+    refined = any(r.get("refined_score") for r in records)
     any_primitive = any(r["primitive"] is not None for r in records)
     ok = [r for r in records if r["error"] is None or r["template"] is not None]
     refused = [r["primitive"] is not None or r["fits"] is not True for r in ok]
@@ -67,11 +68,17 @@ def _kinect_summary(records: list) -> dict:
         "primitive_pass": _share([bool(s and s["passes"]) for s in scored])
         if any_primitive else None,
         "kind_right": _share(kind_flags) if any_primitive and kind_flags else None,
+        # the same fits refined on the objects' labels (where of the right kind): the rule's
+        # reach on these objects (label_ceiling)
+        "refined_pass": _share([r["refined_score"]["passes"] for r in records
+                                if r.get("refined_score")]) if refined else None,
+        "refined_objects": sum(bool(r.get("refined_score")) for r in records),
         "median_s": _median([r["time_s"] for r in records]),
     }
 
 
-def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None) -> dict:
+def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None,
+                     refined: bool = False) -> dict:
     """The "real Kinect (mOSD learn)" rows: every labelled object (>= 1500 points) of
     ``scenes`` (paths; default all shared learn scenes) clicked in its middle with
     ``registrar_factory(library)`` (default ``Registrar``; ``library`` default the bundled
@@ -82,7 +89,10 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
     ``primitive_pass`` (share passing it; both over the objects that are boxes or cylinders,
     ``realdata.OBJECT_KINDS``), ``kind_right`` (share of the objects of the
     scenes whose objects are all boxes or all cylinders, ``realdata.ALL_OF_KIND``, fitted as
-    that primitive), ``median_s`` per click. None where the registrar gives no
+    that primitive), ``median_s`` per click; with ``refined``, ``refined_pass``: the share of
+    the objects fitted with their own kind whose fit, refined on their labelled points
+    (:mod:`.label_ceiling`), passes the label score (``refined_objects`` of them). None where
+    the registrar gives no
     primitives (or there is no data: every summary then has 0 objects)."""
     from ..core.registration import Registrar
     factory = registrar_factory or Registrar
@@ -92,7 +102,7 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
     for path in paths:
         if log:
             log(f"real Kinect: {scene_name(path)} ...")
-        records += evaluate_scene(registrar, path)
+        records += evaluate_scene(registrar, path, refined=refined)
     held = [r for r in records if r["held_out"]]
     tune = [r for r in records if not r["held_out"]]
     return {"tuning": _kinect_summary(tune), "held_out": _kinect_summary(held),
