@@ -8,6 +8,7 @@ visibility terms look up (:class:`RangeImage`).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -172,6 +173,20 @@ class ClickContext:
     def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
         return segments_and_patches(self.cluster, self.sensor_origin, self.voxel,
                                     self.cluster_tree)
+
+    def with_clicked_part(self, keep: np.ndarray) -> "ClickContext":
+        """This context with its clicked segment cut in two: the segment's cluster points not in
+        ``keep`` (N,) bool over the cluster become a segment of their own (a box standing on
+        another with their sides flush, which the segments joined). Everything else is
+        shared; what depends on the segments is computed again."""
+        labels = np.array(self.segments)
+        labels[(labels == self.clicked_segment) & ~np.asarray(keep, bool)] = labels.max() + 1
+        out = copy.copy(self)
+        for name in ("segments", "patches", "clicked_segment", "clicked_patch", "clicked_points",
+                     "clicked_spread"):
+            out.__dict__.pop(name, None)
+        out.__dict__["_segmentation"] = (labels, self.patches)
+        return out
 
     @cached_property
     def clicked_segment(self) -> int:

@@ -25,9 +25,12 @@ from ..click_context import RangeImage
 from ..neighbours import build_tree, nearest, pca_normals
 from ..scene import ClickContext
 from ..segmentation import _gap_components
+from .model import surface_distances
+from .primitives import MEASURE_POINTS
+from .scoring import widening
 from .settings import FitSettings
 
-__all__ = ["hidden_parts", "joined"]
+__all__ = ["hidden_parts", "joined", "with_hidden_parts"]
 
 #: a piece at most this far (m) from the clicked part may be split off it
 BRIDGE_REACH = 0.12
@@ -123,3 +126,29 @@ def joined(measured, parts, limit: int):
         keep = np.linspace(0, len(points) - 1, limit).astype(np.int64)
         points, normals = points[keep], normals[keep]
     return points, normals, support, up
+
+
+def with_hidden_parts(ctx: ClickContext, scene, measured, fitted: list, fit_on, model_of,
+                      settings: FitSettings) -> list:
+    """``fitted`` (one primitive each, measured on the clicked part: ``measured``), each
+    measured again with the pieces of the object something in front splits off
+    (:func:`hidden_parts`) where there are any, and kept so when that one explains the clicked
+    part and every piece: the share of each within the verdict's (widened)
+    ``explained_distance`` of its surface is at least ``verdict.min_explained``.
+    ``fit_on(measured, k)``: the k-th primitive measured on such a tuple; ``model_of(result)``:
+    a result's model."""
+    parts = hidden_parts(ctx, scene, ctx.clicked_points, settings)
+    if not parts:
+        return fitted
+    v = settings.verdict
+    within = widening(ctx, settings) * v.explained_distance
+    both = joined(measured, parts, MEASURE_POINTS)
+    out = []
+    for k, alone in enumerate(fitted):
+        res = fit_on(both, k)
+        model, T = model_of(res), res.T_scene_model
+        shares = [float(np.mean(surface_distances(
+            [model], ((p - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0] <= within))
+            for p in [measured[0]] + [q for q, _ in parts]]
+        out.append(res if min(shares) >= v.min_explained else alone)
+    return out

@@ -36,7 +36,8 @@ from .results import FitResult
 from .scoring import result
 from .settings import FitSettings
 
-__all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "past_crop"]
+__all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "past_crop",
+           "stacked"]
 
 #: the primitives within this share of the best one's likelihood (as measured) are refined
 REFINE_SHARE = 0.8
@@ -70,6 +71,10 @@ FLOOR_FRACTION = 0.15
 #: planes the click lies behind (another object's face in front of it) are set aside this many
 #: times in the search for the surface the clicked object stands on
 FLOOR_TRIES = 3
+#: a stack the segments did not part (boxes standing on each other, a side of one flush with
+#: the other's): the object's up-facing points lie at heights more than TOP_BAND apart, each
+#: level holding at least this share of its points (and FACE_POINTS)
+STACK_SHARE = 0.03
 #: the clicked object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
 TRUNCATED = 0.95
@@ -190,6 +195,37 @@ def object_points(ctx: ClickContext):
         keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
         points, normals = points[keep], normals[keep]
     return points, normals, support, (_up(support, points) if up is None else up)
+
+
+def stacked(ctx: ClickContext, measured):
+    """The clicked box of a stack the segments took for one object: where the clicked
+    object's up-facing points (``measured``: :func:`object_points`' tuple) lie at two or more
+    heights over its support (levels more than TOP_BAND apart, each at least STACK_SHARE of
+    the points), the part between the level tops below and above the click -- standing on
+    the support or on the level below it. Returns (``ctx`` with its clicked segment cut there
+    (:meth:`ClickContext.with_clicked_part`), the part's ``measured`` tuple), or None: one
+    level, no support, or too few points in the part."""
+    points, normals, support, up = measured
+    if support is None or up is None:
+        return None
+    sign = 1.0 if float(np.asarray(support.normal) @ up) > 0 else -1.0
+    height = sign * support.distance(points)
+    tops = np.sort(height[normals @ up > FACE_COS])
+    groups = np.split(tops, np.flatnonzero(np.diff(tops) > TOP_BAND) + 1) if len(tops) else []
+    levels = [g for g in groups if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))]
+    if len(levels) < 2:
+        return None
+    cuts = [float(np.percentile(g, EDGE)) for g in levels[:-1]]     # each lower level's top
+    k = int(np.searchsorted(cuts, sign * float(support.distance(ctx.click[None])[0])))
+    lo, hi = (cuts[k - 1] if k else -np.inf), (cuts[k] if k < len(cuts) else np.inf)
+    part = (height > lo) & (height <= hi)
+    if part.sum() < FACE_POINTS:
+        return None
+    base = support if k == 0 else \
+        replace(support, d=float(support.d - sign * np.median(levels[k - 1])))
+    on_cluster = sign * support.distance(ctx.cluster)
+    cut = ctx.with_clicked_part((on_cluster > lo) & (on_cluster <= hi))
+    return cut, (points[part], normals[part], base, up)
 
 
 def _floor(ctx: ClickContext, points: np.ndarray):

@@ -62,7 +62,7 @@ from ..templates import TemplateLibrary
 from ..voxels import voxel_downsample
 from .ambiguity import Ambiguity, assess
 from .articulation import articulate, prefer_nominal
-from .hidden_parts import hidden_parts, joined
+from .hidden_parts import with_hidden_parts
 from .hypotheses import (
     Hypotheses,
     best_per_template,
@@ -72,21 +72,21 @@ from .hypotheses import (
     yaw_sweep_starts,
 )
 from .icp import fine_stage, icp
-from .model import Batch, Model, ModelCache, surface_distances
+from .model import Batch, Model, ModelCache
 from .paper import PaperMethod
 from .parallel import run, single_threaded_blas
 from .primitives import (
-    MEASURE_POINTS,
     REFINE_SHARE,
     fit_primitive,
     object_points,
     past_crop,
     refine_primitive,
+    stacked,
     truncated,
 )
 from .refit import refit
 from .results import FitReport, FitResult, rank
-from .scoring import distinguished, explained_share, judge, result, results, scores, widening
+from .scoring import distinguished, explained_share, judge, result, results, scores
 from .settings import NEAR_TIE, REST_SAMPLES, SAMPLE_SEED, FitSettings
 from .viewpoint import suggest_view
 
@@ -194,10 +194,7 @@ class Registrar:
     def assess(self, ctx: ClickContext, candidates, alternatives=()) -> Ambiguity:
         """Whether the ranked ``candidates`` of a click settle it (:func:`.ambiguity.assess`;
         nothing about them changes)."""
-        s = self.settings
-
-        def model_of(r: FitResult) -> Model:
-            return self._model(r.template, r.joints, r.scale, r.dimensions)
+        s, model_of = self.settings, self._model_of
 
         def refine(r: FitResult) -> FitResult:       # a second pose, finished as a leader is
             fit = fine_stage(ctx, model_of(r), r.T_scene_model[:3, :3], r.T_scene_model[:3, 3],
@@ -249,9 +246,16 @@ class Registrar:
         if self.library[template].primitive is not None:
             with single_threaded_blas():
                 wide, measured, past = self._measured(ctx, scene)
-                res = fit_primitive(ctx, self.library[template], self.models, self.settings,
-                                    dimensions, T_init, measured if wide is ctx else None)
-                res = past_crop(wide, past, self._judged(ctx, [res]))[0]
+                res = self._judged(ctx, [fit_primitive(
+                    ctx, self.library[template], self.models, self.settings, dimensions, T_init,
+                    measured if wide is ctx else None)])[0]
+                cut = stacked(ctx, measured) if wide is ctx and not res.fits else None
+                if cut is not None:         # on a stack: as at the click (_fit_primitives)
+                    alt = self._judged(cut[0], [fit_primitive(
+                        cut[0], self.library[template], self.models, self.settings, dimensions,
+                        T_init, cut[1])])[0]
+                    res = alt if alt.fits else res
+                res = past_crop(wide, past, [res])[0]
             return replace(res, time_s=time.perf_counter() - t0)
         model = self._model(template, joints, scale)
         with single_threaded_blas():
@@ -339,11 +343,13 @@ class Registrar:
         total = time.perf_counter() - t0
         return rank([replace(r, time_s=total) for r in judged]), tuple(every)
 
+    def _model_of(self, r: FitResult) -> Model:
+        return self._model(r.template, r.joints, r.scale, r.dimensions)
+
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
         results = list(results)
-        return judge(ctx, [self._model(r.template, r.joints, r.scale, r.dimensions)
-                           for r in results], results, self.settings)
+        return judge(ctx, [self._model_of(r) for r in results], results, self.settings)
 
     def _distinguished(self, ctx: ClickContext, candidates, primitives) -> list:
         """``candidates`` with the fitting specific ones tested against the best fitting of
@@ -354,9 +360,8 @@ class Registrar:
         best = max(fitting, key=lambda r: r.likelihood)
         tested = [r for r in candidates if r.fits and r.primitive is None]
         done = dict(zip(map(id, tested), distinguished(
-            ctx, [self._model(r.template, r.joints, r.scale, r.dimensions) for r in tested],
-            tested, self._model(best.template, best.joints, best.scale, best.dimensions),
-            best, self.settings)))
+            ctx, [self._model_of(r) for r in tested], tested, self._model_of(best), best,
+            self.settings)))
         return [done.get(id(r), r) for r in candidates]
 
     def _fit_primitives(self, ctx: ClickContext, names: list[str],
@@ -365,20 +370,36 @@ class Registrar:
         judged; with ``refine``, those that may lead refined (:func:`.primitives.refine_primitive`).
         An object that runs past the crop is measured again in a crop WIDER times as
         large (from ``scene``): a box longer than the library's templates is still a box; a
-        wall runs past that one too, and is refused."""
+        wall runs past that one too, and is refused. With ``refine`` (no specific template
+        fits), where none fits boxes stacked that the segments took for one object
+        (:func:`.primitives.stacked`), they are measured and judged on the clicked one."""
         t0 = time.perf_counter()
         ctx, measured, past = self._measured(ctx, scene)     # once for every primitive
-        fitted = [fit_primitive(ctx, self.library[n], self.models, self.settings,
-                                measured=measured, refine=False) for n in names]
-        fitted = self._with_hidden_parts(ctx, scene, names, measured, fitted)
+        judged = self._primitives_on(ctx, scene, names, measured, refine)
+        cut = stacked(ctx, measured) if refine and not any(r.fits for r in judged) else None
+        if cut is not None:
+            on_part = self._primitives_on(cut[0], scene, names, cut[1], refine)
+            judged = on_part if any(r.fits for r in on_part) else judged
+        total = time.perf_counter() - t0
+        return past_crop(ctx, past, [replace(r, time_s=total) for r in judged])
+
+    def _primitives_on(self, ctx: ClickContext, scene, names, measured, refine: bool) -> list:
+        """The primitives ``names`` measured on ``measured`` (:func:`.primitives.object_points`'
+        tuple) and on it with the pieces something in front splits off
+        (:func:`.hidden_parts.with_hidden_parts`), those that may lead refined with ``refine``,
+        judged in ``ctx``."""
+        def fit_on(points, k):
+            return fit_primitive(ctx, self.library[names[k]], self.models, self.settings,
+                                 measured=points, refine=False)
+        fitted = with_hidden_parts(ctx, scene, measured, [fit_on(measured, k) for k in
+                                                          range(len(names))], fit_on,
+                                   self._model_of, self.settings)
         # (refining costs an ICP: only the primitives that may lead are refined)
         lead = max(r.likelihood for r in fitted)
-        fitted = [refine_primitive(ctx, self.library[n], self.models, self.settings, r)
-                  if refine and r.likelihood >= REFINE_SHARE * lead else r
-                  for n, r in zip(names, fitted)]
-        total = time.perf_counter() - t0
-        return past_crop(ctx, past,
-                         [replace(r, time_s=total) for r in self._judged(ctx, fitted)])
+        return self._judged(ctx, [refine_primitive(ctx, self.library[n], self.models,
+                                                   self.settings, r)
+                                  if refine and r.likelihood >= REFINE_SHARE * lead else r
+                                  for n, r in zip(names, fitted)])
 
     def _measured(self, ctx: ClickContext, scene: Scene | None) -> tuple:
         """(the context, the clicked object's points in it, whether they run past its crop).
@@ -393,30 +414,6 @@ class Registrar:
         again = object_points(wide)
         return (wide, again, truncated(wide, again)) if truncated(ctx, again) else \
             (ctx, measured, False)
-
-    def _with_hidden_parts(self, ctx: ClickContext, scene, names, measured, fitted) -> list:
-        """``fitted`` (one primitive of each of ``names``, measured on the clicked part), each
-        measured again with the pieces of the object something in front splits off
-        (:func:`.hidden_parts.hidden_parts`) where there are any, and kept so when that one
-        explains the clicked part and every piece: the share of each within the verdict's
-        (widened) ``explained_distance`` of its surface is at least ``verdict.min_explained``."""
-        parts = hidden_parts(ctx, scene, ctx.clicked_points, self.settings)
-        if not parts:
-            return fitted
-        v = self.settings.verdict
-        within = widening(ctx, self.settings) * v.explained_distance
-        both = joined(measured, parts, MEASURE_POINTS)
-        out = []
-        for name, alone in zip(names, fitted):
-            res = fit_primitive(ctx, self.library[name], self.models, self.settings,
-                                measured=both, refine=False)
-            model = self._model(res.template, res.joints, res.scale, res.dimensions)
-            T = res.T_scene_model
-            shares = [float(np.mean(surface_distances(
-                [model], ((p - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0] <= within))
-                for p in [measured[0]] + [q for q, _ in parts]]
-            out.append(res if min(shares) >= v.min_explained else alone)
-        return out
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with
