@@ -54,7 +54,7 @@ from .files import read_yaml
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
-from .transforms import MAX_TEMPLATE_VALUE
+from .transforms import template_vector
 from .waypoints import parse_waypoints
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
@@ -189,15 +189,8 @@ def _fail(path: str, key: str, msg: str) -> TemplateError:
 
 
 def _vector(path: str, key: str, value, length: int = 3) -> tuple:
-    try:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError, OverflowError):
-        raise _fail(path, key, f"expected {length} numbers, got {value!r}") from None
-    if arr.shape != (length,) or not np.all(np.isfinite(arr)) or \
-            np.max(np.abs(arr)) > MAX_TEMPLATE_VALUE:
-        raise _fail(path, key, f"expected {length} finite numbers within "
-                               f"+-{MAX_TEMPLATE_VALUE:.0e}, got {value!r}")
-    return tuple(float(v) for v in arr)
+    return tuple(float(v) for v in template_vector(value, key, lambda k, m: _fail(path, k, m),
+                                                   length))
 
 
 def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:

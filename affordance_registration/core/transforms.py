@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from .errors import AffordanceError
 
 __all__ = [
-    "finite_vector", "finite_transform", "make_T", "is_rigid", "RIGID_ATOL", "invert",
+    "finite_vector", "template_vector", "finite_transform", "make_T", "is_rigid", "RIGID_ATOL", "invert",
     "transform_points", "rotate", "pose_points",
     "rotation_angle", "pose_error",
     "axis_angle_matrix", "random_rotations", "unit_quaternions", "align_z_to", "align_x_to",
@@ -30,10 +30,24 @@ def finite_vector(value, what: str, error=ValueError, length: int = 3) -> np.nda
     """``value`` as a float64 vector of ``length`` finite numbers, else ``error`` naming it."""
     try:
         v = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise error(f"{what} must be {length} numbers, got {value!r}") from None
     if v.shape != (length,) or not np.all(np.isfinite(v)):
         raise error(f"{what} must be {length} finite numbers, got {value!r}")
+    return v
+
+
+def template_vector(value, key: str, fail, length: int = 3) -> np.ndarray:
+    """A template file's entry ``key`` as ``length`` finite numbers within
+    +-``MAX_TEMPLATE_VALUE``; anything else raises ``fail(key, message)``."""
+    try:
+        v = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise fail(key, f"expected {length} numbers, got {value!r}") from None
+    if v.shape != (length,) or not np.all(np.isfinite(v)) or \
+            np.max(np.abs(v)) > MAX_TEMPLATE_VALUE:
+        raise fail(key, f"expected {length} finite numbers within +-{MAX_TEMPLATE_VALUE:.0e}, "
+                        f"got {value!r}")
     return v
 
 

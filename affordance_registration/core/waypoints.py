@@ -46,7 +46,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import AffordanceError, TemplateError
-from .transforms import MAX_TEMPLATE_VALUE, axis_angle_matrix, make_T, matrix_to_quat_xyzw
+from .transforms import axis_angle_matrix, make_T, matrix_to_quat_xyzw, template_vector
 
 __all__ = ["Waypoint", "WaypointPose", "Trajectory", "parse_waypoints", "waypoint_poses",
            "trajectory", "waypoints_dict", "MAX_WAYPOINTS", "PATH_STEP_RAD", "PATH_STEP_M"]
@@ -160,7 +160,7 @@ def parse_waypoints(path: str, value, joints: tuple, scale: float,
         if "position" not in spec:
             raise fail(f"{key}.position", "missing")
         unit = 1.0 if primitive is not None else scale
-        position = _vector(spec["position"], f"{key}.position", fail) * unit
+        position = template_vector(spec["position"], f"{key}.position", fail) * unit
         if float(np.linalg.norm(position)) > 100.0:
             raise fail(f"{key}.position", "more than 100 m from the template's origin")
         R = _orientation(spec, key, fail)
@@ -186,26 +186,14 @@ def _name(value, key: str, fail) -> str:
     return value
 
 
-def _vector(value, key: str, fail, length: int = 3) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError, OverflowError):
-        raise fail(key, f"expected {length} numbers, got {value!r}") from None
-    if arr.shape != (length,) or not np.all(np.isfinite(arr)) or \
-            np.max(np.abs(arr)) > MAX_TEMPLATE_VALUE:
-        raise fail(key, f"expected {length} finite numbers within +-{MAX_TEMPLATE_VALUE:.0e}, "
-                        f"got {value!r}")
-    return arr
-
-
 def _orientation(spec: dict, key: str, fail) -> np.ndarray:
     if "rpy" in spec and "quaternion" in spec:
         raise fail(f"{key}.rpy", "give either rpy or quaternion, not both")
     if "rpy" in spec:
-        rpy = _vector(spec["rpy"], f"{key}.rpy", fail)
+        rpy = template_vector(spec["rpy"], f"{key}.rpy", fail)
         return Rotation.from_euler("xyz", rpy).as_matrix()      # fixed axes: roll, pitch, yaw
     if "quaternion" in spec:
-        q = _vector(spec["quaternion"], f"{key}.quaternion", fail, 4)
+        q = template_vector(spec["quaternion"], f"{key}.quaternion", fail, 4)
         norm = float(np.linalg.norm(q))
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
             raise fail(f"{key}.quaternion", f"not a unit quaternion [x, y, z, w]: its norm is "
@@ -219,7 +207,7 @@ def _approach(value, key: str, fail, unit: float):
         return None, 0.0
     if not isinstance(value, dict) or set(value) != {"direction", "distance"}:
         raise fail(key, f"expected {{direction: [x, y, z], distance: D}}, got {value!r}")
-    d = _vector(value["direction"], f"{key}.direction", fail)
+    d = template_vector(value["direction"], f"{key}.direction", fail)
     if float(np.linalg.norm(d)) < 1e-9:
         raise fail(f"{key}.direction", "must not be zero")
     distance = value["distance"]
