@@ -364,7 +364,12 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
         replays[name].mkdir()
     os.mkfifo(replays["fifo_truth"] / "truth.yaml")
     (replays["bad_truth"] / "truth.yaml").write_text("objects: [{T_scene_model: [1, 2]}]\n")
-    cases = [(("demo", "--session", str(replays["fifo_truth"]), "--out", str(tmp_path / "d1")),
+    # two symbolic links to each other as the scan: it read "no such file"
+    os.symlink("loop_b.ply", tmp_path / "loop_a.ply")
+    os.symlink("loop_a.ply", tmp_path / "loop_b.ply")
+    cases = [(("fit", "--scene", str(tmp_path / "loop_a.ply"), "--point", "0", "0", "1"),
+              "loop_a.ply: too many levels of symbolic links"),
+             (("demo", "--session", str(replays["fifo_truth"]), "--out", str(tmp_path / "d1")),
               "not a regular file (a FIFO)"),
              (("demo", "--session", str(replays["bad_truth"]), "--out", str(tmp_path / "d2")),
               "not a truth file"),

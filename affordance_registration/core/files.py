@@ -29,7 +29,7 @@ from typing import Mapping
 
 import yaml
 
-__all__ = ["write_atomically", "open_regular", "not_regular", "read_yaml"]
+__all__ = ["write_atomically", "open_regular", "not_regular", "read_yaml", "unreadable"]
 
 _UMASK_LOCK = threading.Lock()
 _TEMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-[^.]+$")
@@ -150,6 +150,21 @@ def open_regular(path: str, encoding: str | None = None):
     except BaseException:
         os.close(fd)
         raise
+
+
+def unreadable(path: str) -> str | None:
+    """Why ``path`` cannot be read as a regular file -- "no such file", "is not a regular file
+    (a FIFO)" (a folder, a device, a socket), or the system's reason ("too many levels of
+    symbolic links", "permission denied") -- or None where it can (a symbolic link to a regular
+    file included)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "no such file"
+    except (OSError, ValueError) as exc:       # (ValueError: a NUL byte in the path)
+        return str(getattr(exc, "strerror", None) or exc).lower()
+    kind = not_regular(mode)
+    return None if kind is None else f"is not a regular file ({kind})"
 
 
 def not_regular(mode: int) -> str | None:

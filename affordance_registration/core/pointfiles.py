@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SceneError
+from .files import unreadable
 
 __all__ = ["PointFile", "read_points", "check_header", "MAX_FILE_BYTES", "MAX_POINTS"]
 
@@ -228,9 +229,9 @@ def read_points(path: str, error=SceneError) -> PointFile:
     """Read a PLY, PCD or organized ``.npy`` file. Raises ``error`` (one line naming the file)
     for anything unreadable, oversized or incomplete."""
     path = str(path)
-    if not os.path.isfile(path):
-        raise _fail(path, "is not a regular file (a folder, FIFO or device)"
-                    if os.path.exists(path) else "no such file", error)
+    why = unreadable(path)
+    if why is not None:
+        raise _fail(path, why, error)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".npy":
         return _read_npy(path, error)

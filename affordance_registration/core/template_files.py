@@ -50,7 +50,7 @@ import trimesh
 
 from .affordance_template import MAX_SCALE, AffordanceTemplate, Joint, Symmetry, _scale_range
 from .errors import TemplateError
-from .files import read_yaml
+from .files import read_yaml, unreadable
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
@@ -211,9 +211,9 @@ def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
         if not any(os.path.commonpath([real, root]) == root for root in roots):
             raise _fail(yaml_path, key, f"{rel} is outside the template's folder {folder} "
                                         f"(set 'allow_external_files: true' to allow that)")
-    if not os.path.isfile(path):
-        raise _fail(yaml_path, key, f"not a regular file (a folder, FIFO or device): {path}"
-                    if os.path.exists(path) else f"file not found: {path}")
+    why = unreadable(path)
+    if why is not None:
+        raise _fail(yaml_path, key, f"{path}: {why}")
     if os.path.getsize(path) > MAX_FILE_BYTES:
         raise _fail(yaml_path, key, f"{path} is larger than {MAX_FILE_BYTES / 1e9:.0f} GB")
     return path
