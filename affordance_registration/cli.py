@@ -35,7 +35,7 @@ def _seed(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise AffordanceError(f"--seed must be a non-negative integer, got {text!r}") from None
+        value = -1
     if not 0 <= value <= MAX_SEED:
         raise AffordanceError(f"--seed must be an integer in [0, {MAX_SEED}], got {text!r}")
     return value
