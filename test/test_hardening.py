@@ -356,6 +356,8 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     cloud.write_bytes(_binary_ply(1000, np.random.default_rng(2).uniform(-1, 1, (1000, 3))))
     deep = tmp_path / "deep.yaml"
     deep.write_text("coarse: " + "[" * 2000 + "]" * 2000 + "\n")
+    far = tmp_path / "far.yaml"
+    far.write_text("viewpoint: {min_distance: 2000}\n")
     # a recorded session to replay whose truth is a FIFO (the replay blocked) or not a truth
     # (a KeyError); the bag is never reached
     replays = {}
@@ -387,7 +389,13 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
              (("fit", "--scene", str(cloud), "--point", "0", "0", "1", "--sensor-origin",
                "1e300", "0", "0"), "more than 1e+09 m"),
              (("settings", str(deep)), "nested too deeply"),
-             (("settings", "--node-params", "--markdown"), "not allowed with")]
+             (("settings", "--node-params", "--markdown"), "not allowed with"),
+             # a click 1e308 m away (a line of 1070 characters with a 300-digit number), views
+             # suggested from 2 km (out of memory; 1e12 m: an internal OverflowError)
+             (("fit", "--scene", str(cloud), "--point", "1e308", "0", "1"),
+              "the click (1e+308, 0, 1) lies more than 1e+09 m"),
+             (("settings", str(far)), "viewpoint.min_distance must be a positive number in "
+                                      "[0.05, 50.0], got 2000")]
     results = run_cli_all(*(args for args, _ in cases), timeout=60)
     for (args, expected), (code, err, _) in zip(cases, results):
         line = one_line(code, err)

@@ -87,14 +87,14 @@ def _valid(default, rule):
         return st.booleans()
     if rule.startswith("one of: "):
         return st.sampled_from(rule[len("one of: "):].split(", "))
+    if " in [" in rule:
+        lo, hi = (float(v) for v in rule.split(" in [")[1].rstrip("]").split(", "))
+        return st.integers(int(lo), int(hi)) if isinstance(default, int) else st.floats(lo, hi)
     if isinstance(default, int):
         lo = 0 if ">= 0" in rule else 1
         return st.integers(lo, 10_000)
     if "in (0, 1]" in rule:
         return st.floats(1e-6, 1.0)
-    if " in [" in rule:
-        lo, hi = (float(v) for v in rule.split(" in [")[1].rstrip("]").split(", "))
-        return st.floats(lo, hi)
     return st.floats(1e-9, 1e6)
 
 

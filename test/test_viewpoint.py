@@ -25,6 +25,8 @@ from affordance_registration.core.registration.ambiguity import (
     Hypothesis,
 )
 from affordance_registration.core.registration.viewpoint import (
+    VIEW_BINS,
+    _image_size,
     nearest_of_3x3,
     optical_pose,
     predict_views,
@@ -363,3 +365,36 @@ def test_two_templates_differing_only_on_a_hidden_face_get_a_view_of_that_face()
                            again[int(np.argmin(np.linalg.norm(again - click, axis=1)))])
         assert re.candidates[0].template == "knobbed_slab", (seed, re.ambiguity.describe())
     assert unsettled >= 3, unsettled
+
+
+@settings(max_examples=200, deadline=None)
+@given(width=st.floats(1e-6, 1e4), b=st.floats(1e-12, 1.0), views=st.integers(1, 100_000))
+def test_predicted_images_stay_within_their_bin_budget_and_span_their_width(width, b, views):
+    """Whatever the sensor's distance and the number of views, the predicted images of one
+    hypothesis hold at most VIEW_BINS bins (a sensor 1 cm from the object asked for gigabytes)
+    and still span the object's width: the bins grow coarser instead."""
+    n, bin_ = _image_size(width, b, views)
+    assert 2 <= n and views * n * n <= max(VIEW_BINS, views * 16 * 16)
+    assert (n - 1) * bin_ >= width * (1 - 1e-9) and bin_ >= b
+
+
+def test_a_sensor_centimetres_from_the_object_gets_coarser_views_not_gigabytes(board, default):
+    """The predicted views from one pose 0.9 m away and a hundred 3 cm from the object (the
+    near ones need images 800 bins across): the images keep to the budget, and the far view
+    still sees what it saw alone."""
+    obj = board.objects[0]
+    hyp = Hypothesis(obj.template, obj.T_scene_model, 0.0,
+                     default.models.model(default.library[obj.template]))
+    report = default.fit(Scene(board.organized), obj.click)
+    target = obj.T_scene_model[:3, 3]
+    out = report.context.sensor_origin - target
+    out /= np.linalg.norm(out)
+    far = optical_pose(target + 0.9 * out, target, np.array([0.0, 0.0, -1.0]))
+    near = optical_pose(target + 0.03 * out, target, np.array([0.0, 0.0, -1.0]))
+    alone = predict_views(report.context, [hyp], far[None], default.settings)
+    both = predict_views(report.context, [hyp], np.stack([far] + [near] * 100),
+                         default.settings)
+    assert both[0].shape[1] * both[0].shape[2] * both[0].shape[3] <= VIEW_BINS
+    assert both[5] > alone[5]                          # coarser bins
+    seen_alone, seen_both = alone[2][0, 0].mean(), both[2][0, 0].mean()
+    assert seen_alone > 0.2 and abs(seen_both - seen_alone) < 0.15, (seen_alone, seen_both)

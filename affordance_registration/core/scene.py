@@ -49,7 +49,7 @@ from .voxels import _mean_rows, _minus, local_frame, voxel_downsample
 __all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
            "local_frame", "segment", "NO_VIEWPOINT"]
 
-#: a sensor origin farther than this (m) from its frame's origin is refused: beyond any map
+#: a sensor origin or a click farther than this (m) from its frame's origin is refused: beyond any map
 #: frame (UTM northings are below 1e7 m), and its squared distances would overflow
 MAX_ORIGIN = 1e9
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
@@ -282,7 +282,11 @@ class Scene:
 
 
 def _point3(value, what: str) -> np.ndarray:
-    return finite_vector(value, what, SceneError)
+    p = finite_vector(value, what, SceneError)
+    if np.max(np.abs(p)) > MAX_ORIGIN:
+        raise SceneError(f"the {what} ({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}) lies more than "
+                         f"{MAX_ORIGIN:.0e} m from the scan's origin")
+    return p
 
 
 def _origin(value) -> np.ndarray | None:

@@ -179,7 +179,8 @@ class ScoringSettings(_Group):
     samples: int = knob(600, "template samples per candidate in the residual")
     free_space_margin: float = knob(0.01, "depth tolerance of the visibility tests (m)")
     grazing_angle: float = knob(math.radians(89.0),
-                                "samples seen more obliquely than this count as unseen (rad)")
+                                "samples seen more obliquely than this count as unseen (rad)",
+                                limits=(0.01, math.pi / 2))
     click_tolerance: float = knob(0.015, "a candidate's surface should pass this close to the "
                                          "click (m)")
 
@@ -194,7 +195,7 @@ class HypothesesSettings(_Group):
     free_restarts: int = knob(40, "random restarts per template when there is no plane")
     resting_poses: int = knob(5, "stable resting facets tried per template (a plane found)",
                               COUNT0)
-    resting_yaws: int = knob(6, "yaw steps per resting facet", COUNT0)
+    resting_yaws: int = knob(6, "yaw steps per resting facet", COUNT0, limits=(0, 360))
 
     def _rules(self) -> None:
         if self.yaw_restarts + self.random_restarts == 0:
@@ -272,7 +273,8 @@ class FinishSettings(_Group):
     """The leaders' finish: yaw sweep, fine stage, ranked again on the fine residual."""
 
     name = "finish"
-    yaw_sweep: int = knob(8, "leaders re-tried at this many angles about their axis", COUNT0)
+    yaw_sweep: int = knob(8, "leaders re-tried at this many angles about their axis", COUNT0,
+                          limits=(0, 360))
     yaw_sweep_keep: int = knob(3, "of those, ranked on the medium residual, the best this many "
                                   "go on (0: all)", COUNT0)
     candidates: int = knob(4, "the winner and, of the next candidates - 1, those within margin "
@@ -299,7 +301,8 @@ class ArticulationSettings(_Group):
     explained_margin: float = knob(0.55, "a leader explaining less than verdict.min_explained "
                                          "minus this share of the clicked object's points gets "
                                          "none (1: every one does)", FRACTION)
-    joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits")
+    joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits",
+                            limits=(1, 360))
     scale_sweep: int = knob(7, "scales tried across a template's scale range")
     #: an articulated candidate whose rigid fit touches the plane under the click keeps
     #: touching it: the joint must not be traded for the whole object floating off it
@@ -311,10 +314,12 @@ class ArticulationSettings(_Group):
     #: a sensor returns little from ~70 deg on, and samples it could not have returned count
     #: against the larger of two sizes (pose ranking keeps ``scoring.grazing_angle``)
     scale_grazing_angle: float = knob(math.radians(80.0), "where a scale is decided, samples "
-                                      "seen more obliquely than this count as unseen (rad)")
-    rounds: int = knob(3, "rounds of local joint / scale steps after the sweep", COUNT0)
+                                      "seen more obliquely than this count as unseen (rad)",
+                                      limits=(0.01, math.pi / 2))
+    rounds: int = knob(3, "rounds of local joint / scale steps after the sweep", COUNT0,
+                       limits=(0, 20))
     finish_rounds: int = knob(1, "rounds of local joint / scale steps in a leader's finish",
-                              COUNT0)
+                              COUNT0, limits=(0, 20))
     sweep_iterations: int = knob(5, "ICP iterations per sweep hypothesis", COUNT0)
 
 
@@ -371,7 +376,8 @@ class RefitSettings(_Group):
     samples: int = knob(800, "template samples of the final ICP")
     iterations: int = knob(12, "ICP iterations of the final ICP")
     max_move: float = knob(0.05, "a refit moves at most this far from the correction (m)")
-    max_turn: float = knob(math.radians(30.0), "... and turns at most this much (rad)")
+    max_turn: float = knob(math.radians(30.0), "... and turns at most this much (rad)",
+                           limits=(0.001, math.pi))
 
 
 @dataclass(frozen=True)
@@ -387,25 +393,29 @@ class ViewpointSettings(_Group):
     pose_distance: float = knob(0.005, "one template's poses farther apart than this are "
                                        "distinct hypotheses (m)")
     pose_angle: float = knob(math.radians(5.0), "... or turned more than this, symmetry-aware "
-                                                "(rad)")
+                                                "(rad)", limits=(0.001, math.pi))
     #: a flat face seen edge-on: the residual barely changes along some motion
     weak_ratio: float = knob(0.01, "the best pose is weakly held when the smallest eigenvalue "
                                    "of its point-to-plane Hessian is below this x the largest",
                              FRACTION)
     rivals: int = knob(2, "at most this many rivals are compared for a suggested view")
-    min_distance: float = knob(0.5, "a suggested view is at least this far from the object (m)")
-    max_distance: float = knob(1.5, "... and at most this far (m; the two are taken in order)")
+    min_distance: float = knob(0.5, "a suggested view is at least this far from the object (m)",
+                               limits=(0.05, 50.0))
+    max_distance: float = knob(1.5, "... and at most this far (m; the two are taken in order)",
+                               limits=(0.05, 50.0))
     max_angle: float = knob(math.radians(70.0), "... and turned at most this much from the "
                                                 "current view about the object (rad)",
                             limits=(0.01, math.pi))
     min_elevation: float = knob(math.radians(20.0), "... and at least this high above the support "
                                                     "plane, on its open side (rad)",
                                 limits=(0.01, math.pi / 2))
-    directions: int = knob(40, "view directions sampled within those bounds")
-    distances: int = knob(3, "distances sampled within the range, per direction")
+    directions: int = knob(40, "view directions sampled within those bounds", limits=(1, 200))
+    distances: int = knob(3, "distances sampled within the range, per direction",
+                          limits=(1, 10))
     samples: int = knob(1200, "template samples per hypothesis in the predicted views")
     grazing_angle: float = knob(math.radians(70.0), "a predicted surface seen more obliquely "
-                                                    "than this returns nothing (rad)")
+                                                    "than this returns nothing (rad)",
+                             limits=(0.01, math.pi / 2))
     depth_difference: float = knob(0.01, "two predictions differ where their depths differ by "
                                          "more than this (m)")
     visibility_weight: float = knob(0.1, "weight of the best candidate's visible surface "
@@ -442,9 +452,10 @@ class FitSettings:
     #: the pieces of a batch side by side; the numbers do not depend on it
     threads: int = knob(2, "threads one click may use (1: the calling thread alone)")
     #: the paper baseline (``method: paper``) has three knobs of its own, beside ``method``
-    paper_restarts: int = knob(25, "paper baseline: random restarts per template")
+    paper_restarts: int = knob(25, "paper baseline: random restarts per template",
+                               limits=(1, 250))
     paper_iterations: int = knob(100, "paper baseline: ICP iterations per restart")
-    paper_samples: int = knob(500, "paper baseline: template samples")
+    paper_samples: int = knob(500, "paper baseline: template samples", limits=(1, 2000))
     crop: CropSettings = _group(CropSettings)
     icp: IcpSettings = _group(IcpSettings)
     scoring: ScoringSettings = _group(ScoringSettings)

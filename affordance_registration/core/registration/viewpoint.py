@@ -47,6 +47,9 @@ __all__ = ["SuggestedView", "suggest_view", "predict_views", "optical_pose", "WE
 #: a weakly held pose's rival is moved along its weak motion until its samples move this far (m)
 WEAK_STEP = 0.02
 GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
+#: the predicted views of one hypothesis hold at most this many bins in all (V x n x n; at the
+#: defaults 121 views of about 170 x 170)
+VIEW_BINS = 8_000_000
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,8 @@ def predict_views(ctx: ClickContext, hyps, poses: np.ndarray, settings: FitSetti
     from each sensor pose (V, 4, 4, optical frames): (pred (H, V, n, n) depth, inf where
     nothing; surface (H, V, n, n) bool: the hypothesis's surface shows there; seen (H, V, S)
     bool: which of its ``viewpoint.samples`` samples (``Model.samples`` order) the sensor would
-    see; bins (H, V, S): each sample's bin (n * n: none); depth (H, V, S): its depth).
+    see; bins (H, V, S): each sample's bin (n * n: none); depth (H, V, S): its depth; the
+    bin's size, tangent space: :func:`bin_size`, coarser where VIEW_BINS asks).
     ``occluders``: the scan points that hide (default the crop's, less the support plane's).
     The poses are rendered in parts side by side (``threads``)."""
     s = settings.viewpoint
@@ -181,20 +185,30 @@ def predict_views(ctx: ClickContext, hyps, poses: np.ndarray, settings: FitSetti
     centre = 0.5 * (allX.min(axis=0) + allX.max(axis=0))
     reach = float(np.linalg.norm(allX - centre, axis=1).max()) * 1.1 + 2 * ctx.voxel
     dist = np.linalg.norm(poses[:, :3, 3] - centre, axis=1)
-    half = np.arctan(reach / np.maximum(dist - reach, 0.05)).max()
-    b = bin_size(ctx, s)
-    n = int(math.ceil(2 * math.tan(half) / b)) + 1
+    half = float(np.arctan(reach / np.maximum(dist - reach, 0.05)).max())
+    n, b = _image_size(2 * math.tan(half), bin_size(ctx, s), len(poses))
 
     def render(part):
         return _render(part, occ, posed, n, b, s)
     done = run([lambda idx=idx: render(poses[idx]) for idx in parts(len(poses), settings.threads,
                                                                      8)], settings.threads)
-    return tuple(np.concatenate([d[k] for d in done], axis=1) for k in range(5))
+    return tuple(np.concatenate([d[k] for d in done], axis=1) for k in range(5)) + (b,)
 
 
 def bin_size(ctx: ClickContext, s) -> float:
     """The predicted views' bin (tangent space): the crop's voxel at the middle distance."""
     return ctx.voxel / (0.5 * (s.min_distance + s.max_distance))
+
+
+def _image_size(width: float, b: float, views: int) -> tuple[int, float]:
+    """(n, bin) of the predicted views' n x n images spanning ``width`` (tangent space) in bins
+    ``b``: at most VIEW_BINS bins over the ``views`` -- a view close to the object (the sensor
+    a few centimetres from it) or very many views make the bins coarser, not the images
+    larger (they grew to gigabytes)."""
+    n_max = max(16, int(math.sqrt(VIEW_BINS / max(views, 1))))
+    if not width / b < n_max - 1:
+        b = width / (n_max - 1)
+    return min(int(math.ceil(width / b)) + 1, n_max), b
 
 
 def _render(poses, occ, posed, n: int, b: float, s):
@@ -311,9 +325,8 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
         if support is not None:
             occluders = occluders[np.abs(support.distance(occluders)) > 2 * ctx.plane_threshold]
         occluders = np.concatenate([_occluders(ctx), occluders])
-    pred, surface, seen, bins, depth = predict_views(ctx, hyps, poses, settings, occluders)
+    pred, surface, seen, bins, depth, b = predict_views(ctx, hyps, poses, settings, occluders)
     new = seen & ~seen[:, :1]          # samples in sight from there, out of sight now
-    b = bin_size(ctx, s)
     V = len(poses)
     flat = np.concatenate([pred.reshape(len(hyps), V, -1),
                            np.full((len(hyps), V, 1), np.inf, pred.dtype)], axis=2)
