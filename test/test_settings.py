@@ -135,11 +135,14 @@ def test_load_reads_a_partial_file_and_refuses_a_bad_one_with_one_line(tmp_path)
     assert FitSettings.load(str(tmp_path / "empty.yaml")) == FitSettings()
     cases = {"missing.yaml": None, "list.yaml": "- 1\n- 2\n", "broken.yaml": "coarse: [1,\n",
              "unknown.yaml": "coarse:\n  sample: 3\n", "bad.yaml": "fine:\n  points: -1\n",
-             "bytes.yaml": b"seed: \xff\xfe\n", "twice.yaml": "seed: 1\nfine:\n  points: 3\nseed: 2\n"}
+             "bytes.yaml": b"seed: \xff\xfe\n", "twice.yaml": "seed: 1\nfine:\n  points: 3\nseed: 2\n",
+             "enote.yaml": "crop:\n  voxel: 2e-3\n"}
     words = {"missing.yaml": ": cannot read: No such file", "list.yaml": "must be a mapping",
              "broken.yaml": "not valid YAML (line 2)", "unknown.yaml": "unknown setting coarse.sample",
              "bad.yaml": "fine.points must be an integer >= 0", "bytes.yaml": "not UTF-8",
-             "twice.yaml": "not valid YAML (line 4): the key 'seed' is written twice"}
+             "twice.yaml": "not valid YAML (line 4): the key 'seed' is written twice",
+             "enote.yaml": "got '2e-3' (text: YAML reads a number in e-notation as one only "
+                           "with a dot, as 1.0e-3)"}
     for name, text in cases.items():
         path = tmp_path / name
         if isinstance(text, bytes):

@@ -96,7 +96,20 @@ def _check(name: str, f, v) -> None:
             ok = False
     ok = ok and (limits is None or limits[0] <= v <= limits[1])
     if not ok:
-        raise RegistrationError(f"{name} must be {describe_rule(f)}, got {_shown(v)}")
+        raise RegistrationError(f"{name} must be {describe_rule(f)}, got {_shown(v)}"
+                                f"{_number_as_text(v)}")
+
+
+def _number_as_text(v) -> str:
+    """A hint where a number came as text: YAML 1.1 reads ``1e-3`` (no dot) as a string."""
+    if not isinstance(v, str) or "e" not in v.lower():
+        return ""
+    try:
+        number = float(v)
+    except ValueError:
+        return ""
+    return " (text: YAML reads a number in e-notation as one only with a dot, as 1.0e-3)" \
+        if math.isfinite(number) else ""
 
 
 def _shown(v) -> str:
