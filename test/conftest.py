@@ -41,6 +41,17 @@ _hypothesis_settings.load_profile("suite")
 
 
 @pytest.fixture(scope="session")
+def data_dir():
+    """The shared real data folder (../shared/data or $AFFORDANCE_SHARED_DATA) holding the mOSD
+    scenes; the test skips with one line without it."""
+    from affordance_registration.evaluation import realdata as rd
+    folder = rd.shared_data_dir()
+    if folder is None or rd.osd_dir(folder) is None:
+        pytest.skip(rd.SKIP_REASON)
+    return folder
+
+
+@pytest.fixture(scope="session")
 def library():
     return TemplateLibrary.load()
 

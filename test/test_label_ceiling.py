@@ -54,14 +54,6 @@ def test_a_box_is_refined_onto_the_points_it_explains(seed):
     assert all(abs(refined[k] - dims[k]) < 0.0015 for k in dims), (refined, dims)
 
 
-@pytest.fixture(scope="module")
-def data_dir():
-    folder = rd.shared_data_dir()
-    if folder is None or rd.osd_dir(folder) is None:
-        pytest.skip(rd.SKIP_REASON)
-    return folder
-
-
 @pytest.mark.parametrize("scene,object_id,passes", [("learn17", 2, False), ("learn41", 2, False),
                                                     ("learn0", 2, True)])
 def test_the_tuning_misses_are_the_rules_not_the_fits(data_dir, library, scene, object_id,

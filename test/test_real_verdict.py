@@ -23,14 +23,6 @@ from affordance_registration.evaluation.clutter import milk_body_on_box, milk_ca
 
 
 @pytest.fixture(scope="module")
-def data_dir():
-    folder = rd.shared_data_dir()
-    if folder is None or rd.osd_dir(folder) is None:
-        pytest.skip(rd.SKIP_REASON)
-    return folder
-
-
-@pytest.fixture(scope="module")
 def kinect_records(data_dir, library):
     """Every labelled object (>= 1500 points) of the shared mOSD learn scenes, clicked in its
     middle, fitted with the default library (the taskboard templates, a box, a cylinder)."""

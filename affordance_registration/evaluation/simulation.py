@@ -32,8 +32,7 @@ __all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "Simul
            "SimulatedOperator", "failures", "operator_correction", "truth_joints",
            "POSE_TOL_M", "POSE_TOL_RAD", "PANEL_SIZE", "panel_mesh", "KINECT_NFOV", "SIZED", "sized_library"]
 
-#: a truth.yaml larger than this is not one (bytes)
-MAX_TRUTH_BYTES = 20_000_000
+MAX_TRUTH_BYTES = 20_000_000      #: a truth.yaml larger than this is not one (bytes)
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
 POSE_TOL_M = 0.005
@@ -456,8 +455,7 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
     """Write ``scene.ply``, ``scene_organized.npy`` and ``truth.yaml`` into ``out_dir``.
 
     Everything is written to temporary files first and renamed into place at the end, so a
-    failure leaves no half-finished output. Returns the paths written.
-    """
+    failure leaves no half-finished output. Returns the paths written."""
     out_dir = os.path.abspath(out_dir)
     try:
         os.makedirs(out_dir, exist_ok=True)
@@ -465,10 +463,8 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
         raise AffordanceError(f"cannot create output folder {out_dir}: {exc.strerror}") from None
     if not os.access(out_dir, os.W_OK):
         raise AffordanceError(f"output folder {out_dir} is not writable")
-    payloads = {
-        "scene.ply": ply_bytes(scene.points),
-        "truth.yaml": yaml.safe_dump(scene.truth(), sort_keys=False).encode(),
-    }
+    payloads = {"scene.ply": ply_bytes(scene.points),
+                "truth.yaml": yaml.safe_dump(scene.truth(), sort_keys=False).encode()}
     import io
     buf = io.BytesIO()
     np.save(buf, scene.organized)
@@ -487,21 +483,14 @@ def load_truth(path: str) -> dict:
     doc = read_yaml(path, AffordanceError, max_bytes=MAX_TRUTH_BYTES, kind="truth file")
     try:
         for obj in doc.get("objects", []):
-            obj["T_scene_model"] = _matrix(obj["T_scene_model"], (4, 4))
+            obj["T_scene_model"] = np.asarray(obj["T_scene_model"], dtype=float).reshape(4, 4)
             if obj.get("click") is not None:
-                obj["click"] = _matrix(obj["click"], (3,))
-        doc["T_scene_board"] = _matrix(doc["T_scene_board"], (4, 4))
-    except (AttributeError, KeyError, TypeError, ValueError):
-        raise AffordanceError(f"{path}: not a truth file (objects with a 4x4 T_scene_model, "
-                              f"T_scene_board)") from None
+                obj["click"] = np.asarray(obj["click"], dtype=float).reshape(3)
+        doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float).reshape(4, 4)
+    except (AttributeError, KeyError, TypeError, ValueError):   # (a wrong size: reshape's)
+        raise AffordanceError(f"{path}: not a truth file (4x4 T_scene_model, T_scene_board)") \
+            from None
     return doc
-
-
-def _matrix(value, shape: tuple) -> np.ndarray:
-    out = np.asarray(value, dtype=float)
-    if out.shape != shape:
-        raise ValueError(f"expected {shape}")
-    return out
 
 
 def operator_correction(T_true: np.ndarray, centroid, rng: np.random.Generator,

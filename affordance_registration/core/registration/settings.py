@@ -193,7 +193,7 @@ class ScoringSettings(_Group):
     free_space_margin: float = knob(0.01, "depth tolerance of the visibility tests (m)")
     grazing_angle: float = knob(math.radians(89.0),
                                 "samples seen more obliquely than this count as unseen (rad)",
-                                limits=(0.01, math.pi / 2))
+                                limits=(0.01, math.pi))
     click_tolerance: float = knob(0.015, "a candidate's surface should pass this close to the "
                                          "click (m)")
 
@@ -286,8 +286,7 @@ class FinishSettings(_Group):
     """The leaders' finish: yaw sweep, fine stage, ranked again on the fine residual."""
 
     name = "finish"
-    yaw_sweep: int = knob(8, "leaders re-tried at this many angles about their axis", COUNT0,
-                          limits=(0, 360))
+    yaw_sweep: int = knob(8, "leaders re-tried at this many angles about their axis", COUNT0, limits=(0, 360))
     yaw_sweep_keep: int = knob(3, "of those, ranked on the medium residual, the best this many "
                                   "go on (0: all)", COUNT0)
     candidates: int = knob(4, "the winner and, of the next candidates - 1, those within margin "
@@ -314,8 +313,7 @@ class ArticulationSettings(_Group):
     explained_margin: float = knob(0.55, "a leader explaining less than verdict.min_explained "
                                          "minus this share of the clicked object's points gets "
                                          "none (1: every one does)", FRACTION)
-    joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits",
-                            limits=(1, 360))
+    joint_sweep: int = knob(11, "joint values tried across a revolute joint's limits", limits=(1, 360))
     scale_sweep: int = knob(7, "scales tried across a template's scale range")
     #: an articulated candidate whose rigid fit touches the plane under the click keeps
     #: touching it: the joint must not be traded for the whole object floating off it
@@ -328,9 +326,8 @@ class ArticulationSettings(_Group):
     #: against the larger of two sizes (pose ranking keeps ``scoring.grazing_angle``)
     scale_grazing_angle: float = knob(math.radians(80.0), "where a scale is decided, samples "
                                       "seen more obliquely than this count as unseen (rad)",
-                                      limits=(0.01, math.pi / 2))
-    rounds: int = knob(3, "rounds of local joint / scale steps after the sweep", COUNT0,
-                       limits=(0, 20))
+                                      limits=(0.01, math.pi))
+    rounds: int = knob(3, "rounds of local joint / scale steps after the sweep", COUNT0, limits=(0, 20))
     finish_rounds: int = knob(1, "rounds of local joint / scale steps in a leader's finish",
                               COUNT0, limits=(0, 20))
     sweep_iterations: int = knob(5, "ICP iterations per sweep hypothesis", COUNT0)
@@ -423,12 +420,11 @@ class ViewpointSettings(_Group):
                                                     "plane, on its open side (rad)",
                                 limits=(0.01, math.pi / 2))
     directions: int = knob(40, "view directions sampled within those bounds", limits=(1, 200))
-    distances: int = knob(3, "distances sampled within the range, per direction",
-                          limits=(1, 10))
+    distances: int = knob(3, "distances sampled within the range, per direction", limits=(1, 10))
     samples: int = knob(1200, "template samples per hypothesis in the predicted views")
     grazing_angle: float = knob(math.radians(70.0), "a predicted surface seen more obliquely "
                                                     "than this returns nothing (rad)",
-                             limits=(0.01, math.pi / 2))
+                             limits=(0.01, math.pi))
     depth_difference: float = knob(0.01, "two predictions differ where their depths differ by "
                                          "more than this (m)")
     visibility_weight: float = knob(0.1, "weight of the best candidate's visible surface "
@@ -465,8 +461,7 @@ class FitSettings:
     #: the pieces of a batch side by side; the numbers do not depend on it
     threads: int = knob(2, "threads one click may use (1: the calling thread alone)")
     #: the paper baseline (``method: paper``) has three knobs of its own, beside ``method``
-    paper_restarts: int = knob(25, "paper baseline: random restarts per template",
-                               limits=(1, 250))
+    paper_restarts: int = knob(25, "paper baseline: random restarts per template", limits=(1, 250))
     paper_iterations: int = knob(100, "paper baseline: ICP iterations per restart")
     paper_samples: int = knob(500, "paper baseline: template samples", limits=(1, 2000))
     crop: CropSettings = _group(CropSettings)
