@@ -19,9 +19,10 @@ needs_data = pytest.mark.skipif(DATA is None or rd.osd_dir(DATA) is None, reason
 
 #: measured: 11 of the 12 held-out clicks (4 scenes x seeds 0-2) ranked first and within
 #: 5 mm / 5 deg (learn44 seed 0 lands 146 deg off; the bench's clutter row runs all three seeds).
-#: The suite runs seeds 1 and 2 (8 clicks; all 8 found): one may go on another machine's BLAS
-HELD_OUT_FOUND = 7
-SEEDS = (1, 2)
+#: The suite runs seed 1 (4 clicks, one per held-out scene; all 4 found -- seed 2's 4 too, and
+#: the bench reads all 12): one may go on another machine's BLAS
+HELD_OUT_FOUND = 3
+SEEDS = (1,)
 
 
 @pytest.fixture(scope="module")
