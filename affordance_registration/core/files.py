@@ -88,7 +88,7 @@ def _target(path: str) -> tuple[str, os.stat_result | None]:
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(21, "is a folder, not a file", final)
     if not stat.S_ISREG(st.st_mode):
-        raise OSError(1, "is not a regular file (a device, FIFO or socket): not replaced", final)
+        raise OSError(1, f"is not a regular file ({not_regular(st.st_mode)}): not replaced", final)
     return final, st
 
 
@@ -152,15 +152,15 @@ def open_regular(path: str, encoding: str | None = None):
         raise
 
 
-def unreadable(path: str) -> str | None:
-    """Why ``path`` cannot be read as a regular file -- "no such file", "is not a regular file
-    (a FIFO)" (a folder, a device, a socket), or the system's reason ("too many levels of
-    symbolic links", "permission denied") -- or None where it can (a symbolic link to a regular
-    file included)."""
+def unreadable(path: str, missing_ok: bool = False) -> str | None:
+    """Why ``path`` cannot be read as a regular file -- "no such file" (None with
+    ``missing_ok``), "is not a regular file (a FIFO)" (a folder, a device, a socket), or the
+    system's reason ("too many levels of symbolic links", "permission denied") -- or None where
+    it can (a symbolic link to a regular file included)."""
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
-        return "no such file"
+        return None if missing_ok else "no such file"
     except (OSError, ValueError) as exc:       # (ValueError: a NUL byte in the path)
         return str(getattr(exc, "strerror", None) or exc).lower()
     kind = not_regular(mode)

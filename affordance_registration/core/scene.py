@@ -298,11 +298,7 @@ def _origin(value) -> np.ndarray | None:
             return None
         raise SceneError(f"sensor origin must be 3 finite numbers or '{NO_VIEWPOINT}', "
                          f"got {value!r}")
-    origin = finite_vector(value, "sensor origin", SceneError)
-    if np.max(np.abs(origin)) > MAX_ORIGIN:
-        raise SceneError(f"sensor origin {origin.tolist()} lies more than {MAX_ORIGIN:.0e} m "
-                         f"from the frame's origin: not a place a sensor can be")
-    return origin
+    return _point3(value, "sensor origin")
 
 
 def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:

@@ -25,7 +25,7 @@ from std_srvs.srv import Trigger
 
 from ..core.corrections import R_VIEW_SPACENAV, view_from_optical
 from ..core.errors import AffordanceError
-from ..core.files import write_atomically
+from ..core.files import unreadable, write_atomically
 from ..core.templates import TemplateLibrary
 from ..core.transforms import pose_error
 from ..ros.glue.conversions import pointcloud2_to_xyz, xyz_to_pointcloud2
@@ -209,8 +209,9 @@ def start_engine(out_dir: str, log=None, extra_args: dict | None = None) -> Laun
     # (the log is streamed: a FIFO or a device in its place is refused, not opened -- a FIFO
     # with no reader would block here for good)
     log_path = os.path.join(out_dir, "engine.log")
-    if os.path.exists(log_path) and not os.path.isfile(log_path):
-        raise AffordanceError(f"{log_path}: is not a regular file: not replaced")
+    why = unreadable(log_path, missing_ok=True)
+    if why is not None:
+        raise AffordanceError(f"{log_path}: {why}: not replaced")
     log_file = open(log_path, "w")
     launcher = Launcher(parse_launch_file(launch, args), log=log or (lambda m: None),
                         output=log_file)

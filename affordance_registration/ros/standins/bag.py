@@ -23,7 +23,7 @@ from pathlib import PurePath
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ...core.errors import AffordanceError
-from ...core.files import not_regular
+from ...core.files import unreadable
 from ..glue.qos import LATCHED
 
 __all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "check_number",
@@ -81,15 +81,9 @@ def topic_name(name, node_name: str = "affordance_bag", namespace: str = "/") ->
 def _regular_file(path: str) -> None:
     """A BagError naming ``path`` unless it is a regular file (a link is followed): reading a
     FIFO or a device would block or never end."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        return                       # rosbags says what is missing
-    except OSError as exc:
-        raise BagError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    kind = not_regular(mode)
-    if kind is not None:
-        raise BagError(f"{path}: not a regular file ({kind}), cannot be read as part of a bag")
+    why = unreadable(path, missing_ok=True)      # (missing: rosbags says what is)
+    if why is not None:
+        raise BagError(f"{path}: {why}, cannot be read as part of a bag")
 
 
 def _check_bag_files(path: str) -> None:
