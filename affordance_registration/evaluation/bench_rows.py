@@ -456,7 +456,7 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
     library (the taskboard templates, a box and a cylinder): the panel clicks fitted with it
     (what the primitives change there); mOSD's real Kinect scans (the verdict refusing the
     taskboard templates, the primitives scored against the labels, tuning and held-out
-    scenes apart); simulated boxes and cylinders, and stacked boxes, with true dimensions (the
+    scenes apart); simulated boxes and cylinders, stacked boxes and mugs, with true dimensions (the
     seeds of the development and others); the Armadillo among real objects, PCL's milk carton."""
     from .rows import clutter_rows, real_capture_cost, real_kinect_rows, simulated_primitive_rows
     full = TemplateLibrary.load()
@@ -471,7 +471,7 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
     log("a real capture's click against a simulated one, alternately ...")
     kinect["cost"] = real_capture_cost(with_primitives, jobs, 10 if quick else 20)
     n = 3 if quick else 10
-    log("simulated boxes and cylinders, stacked boxes, with true dimensions ...")
+    log("simulated boxes and cylinders, stacked boxes, mugs, with true dimensions ...")
     simulated = {"development seeds": simulated_primitive_rows(seeds=range(5000, 5000 + n),
                                                                library=full),
                  "held-out seeds": simulated_primitive_rows(seeds=range(6000, 6000 + n),
@@ -479,9 +479,14 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
                  # (the concave step's rule was developed on seeds 0-11; 100-119 were not
                  # looked at before it was)
                  "stacked, development seeds": simulated_primitive_rows(
-                     seeds=range(0, 3 if quick else 12), library=full, stacked=True),
+                     seeds=range(0, 3 if quick else 12), library=full, scenes="stacked boxes"),
                  "stacked, held-out seeds": simulated_primitive_rows(
-                     seeds=range(100, 103 if quick else 120), library=full, stacked=True)}
+                     seeds=range(100, 103 if quick else 120), library=full, scenes="stacked boxes"),
+                 # (open-topped vessels: developed on 7000-7011, 7100-7119 read once after)
+                 "mugs, development seeds": simulated_primitive_rows(
+                     seeds=range(7000, 7002 if quick else 7012), library=full, scenes="mugs"),
+                 "mugs, held-out seeds": simulated_primitive_rows(
+                     seeds=range(7100, 7102 if quick else 7120), library=full, scenes="mugs")}
     log("known objects in real clutter (the Armadillo among mOSD objects, the milk carton) ...")
     clutter = clutter_rows(seeds=(0,) if quick else (0, 1, 2))
     return {"with_primitives": row, "real_kinect": kinect, "primitives_simulated": simulated,
