@@ -17,7 +17,7 @@ import numpy as np
 from .errors import SceneError
 from .neighbours import KDTree, k_nearest
 from .plane import Plane
-from .segmentation import segments_and_patches
+from .segmentation import joined_insides, segments_and_patches
 from .voxels import _minus
 
 __all__ = ["ClickContext", "RangeImage", "NOISE_NEIGHBOURS", "NOISE_SAMPLES"]
@@ -113,6 +113,8 @@ class ClickContext:
     #: the dominant plane of the crop even where nothing stands off it (``plane`` is then None)
     support: Plane | None = None
     frame: np.ndarray = field(repr=False, default_factory=lambda: np.eye(3))
+    #: an object's inside is joined to it in ``segments`` (:meth:`with_insides`)
+    insides: bool = False
 
     @property
     def has_viewpoint(self) -> bool:
@@ -171,8 +173,25 @@ class ClickContext:
 
     @cached_property
     def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
-        return segments_and_patches(self.cluster, self.sensor_origin, self.voxel,
-                                    self.cluster_tree)
+        labels, patches = segments_and_patches(self.cluster, self.sensor_origin, self.voxel,
+                                               self.cluster_tree)
+        if self.insides and self.plane is not None:
+            clicked = labels[int(np.argmin(self._cluster_to_click))]
+            labels = joined_insides(self.cluster, labels, clicked, self.plane.normal)
+        return labels, patches
+
+    def with_insides(self) -> "ClickContext":
+        """This context with an object's inside and outside one segment
+        (:func:`~.segmentation.joined_insides`: a mug clicked on its inside bottom is the mug),
+        as a primitive measures the clicked object; itself where it is so already."""
+        if self.insides:
+            return self
+        out = copy.copy(self)
+        for name in ("_segmentation", "segments", "patches", "clicked_segment", "clicked_patch",
+                     "clicked_points", "clicked_spread"):
+            out.__dict__.pop(name, None)
+        out.insides = True
+        return out
 
     def with_clicked_part(self, keep: np.ndarray) -> "ClickContext":
         """This context with its clicked segment cut in two: the segment's cluster points not in

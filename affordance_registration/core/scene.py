@@ -42,7 +42,7 @@ from .plane import (
     _flatness,
     _ransac_plane,
 )
-from .segmentation import _connected_to, segment
+from .segmentation import _connected_to, _gap_components, segment
 from .transforms import finite_vector
 from .voxels import _mean_rows, _minus, local_frame, voxel_downsample
 
@@ -237,7 +237,8 @@ class Scene:
                 band = min(max(SUPPORT_SIGMAS * sigma, plane_threshold),
                            SUPPORT_REACH * plane_threshold)
         support = plane
-        if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold:
+        if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold and \
+                _reaches(plane, crop, c, ON_PLANE * plane_threshold, voxel):
             plane = None    # the click is on the plane: it is the object's, not a mount's
         gap = cluster_gap if cluster_gap is not None else 0.025
         if plane is None:
@@ -279,6 +280,29 @@ class Scene:
                            fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
                            frame=frame)
         return ctx
+
+
+#: the plane's surface reaches a click near it where the plane's points joined by steps of at
+#: most this many voxels link the click to at least REACH_SHARE of them; a click nearer the
+#: plane than its own points that is walled off from it (the inside bottom of a mug standing on
+#: the table) is on another surface, the plane still the mount
+REACH_STEP = 1.5
+REACH_SHARE = 0.25
+
+
+def _reaches(plane: Plane, crop: np.ndarray, click: np.ndarray, band: float,
+             voxel: float) -> bool:
+    """Whether the surface of ``plane`` -- the ``crop`` points within ``band`` of it -- reaches
+    ``click`` (the points of it that steps of REACH_STEP voxels join to the click hold at least
+    REACH_SHARE of them)."""
+    on = np.compress(np.abs(plane.distance(crop)) <= band, crop, axis=0)
+    step = REACH_STEP * voxel
+    d = np.linalg.norm(_minus(on, click), axis=1)
+    if len(on) == 0 or float(d.min()) > step:
+        return False
+    labels = _gap_components(on, step)
+    mine = labels == labels[int(np.argmin(d))]
+    return int(mine.sum()) >= REACH_SHARE * len(on)
 
 
 def _point3(value, what: str) -> np.ndarray:

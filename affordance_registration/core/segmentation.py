@@ -11,12 +11,13 @@ import math
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .voxels import _minus
 
-__all__ = ["segment", "segments_and_patches", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
+__all__ = ["segment", "segments_and_patches", "joined_insides", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS",
+           "SEGMENT_SMOOTH_DEG"]
 
 #: the cluster's segments (``ClickContext.segments``) are grown in two steps, as in locally
 #: convex connected patches: smooth patches first -- voxels this many voxel edges apart are
@@ -191,3 +192,54 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
     graph = csr_matrix((np.ones(len(rows)), np.take(cols, order), indptr), shape=(n, n))
     return connected_components(graph, directed=False)[1]
+
+
+#: a segment is the inside of another -- a mug's bottom and inner wall within its rim -- where
+#: at least INSIDE_SHARE of its points, seen along the support's normal, lie within the other's
+#: footprint (the convex hull of its points), the other rises more than INSIDE_RISE (m) above
+#: its top, and the other's points surround it: they lie in at least INSIDE_SECTORS of 8
+#: directions around its centre
+INSIDE_SHARE = 0.9
+INSIDE_RISE = 0.01
+INSIDE_SECTORS = 6
+
+
+def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal: np.ndarray,
+                   ) -> np.ndarray:
+    """``labels`` (N,) of ``points`` (N, 3) with the clicked object's inside joined to it: the
+    segment ``clicked`` is an object's inside (see INSIDE_SHARE) -- the object's segment and
+    every other inside of it take the clicked label -- or the insides of the clicked segment
+    join it. ``normal``: the support's (up). Unchanged where there is no such inside."""
+    up = np.asarray(normal, float)
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    flat = np.stack([points @ e1, points @ np.cross(up, e1)], axis=1)
+    height = points @ up
+    ids = np.unique(labels)
+    if len(ids) < 2:
+        return labels
+    members = {int(k): np.flatnonzero(labels == k) for k in ids}
+    tops = {k: float(np.percentile(height[m], 99)) for k, m in members.items()}
+
+    def inside(k: int, outer: int) -> bool:
+        if k == outer or len(members[outer]) < 4 or tops[outer] < tops[k] + INSIDE_RISE:
+            return False
+        ring = flat[members[outer]]
+        try:
+            hull = Delaunay(ring)
+        except (QhullError, ValueError):
+            return False
+        mine = flat[members[k]]
+        if np.mean(hull.find_simplex(mine) >= 0) < INSIDE_SHARE:
+            return False
+        around = ring - mine.mean(axis=0)
+        sectors = np.unique(np.floor((np.arctan2(around[:, 1], around[:, 0]) + math.pi) /
+                                     (math.pi / 4)).astype(np.int64) % 8)
+        return len(sectors) >= INSIDE_SECTORS
+
+    outer = next((k for k in members if inside(int(clicked), k)), int(clicked))
+    out = np.array(labels)
+    for k in members:
+        if k == outer or k == clicked or inside(k, outer):
+            out[members[k]] = clicked
+    return out

@@ -33,7 +33,7 @@ from ..transforms import make_T
 from .icp import fine_stage
 from .model import ModelCache
 from .results import FitResult
-from .scoring import result
+from .scoring import open_share, result
 from .settings import FitSettings
 
 __all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "past_crop",
@@ -50,6 +50,9 @@ LOW, HIGH = 1.0, 99.0
 EDGE = 99.8
 #: a cylinder's side points: normals within this of perpendicular to the axis (cosine)
 SIDE_COS = 0.5
+#: a primitive the sensor sees into through at least this share of its surface is open (a
+#: mug's top): its pose is not refined at its measured size
+OPEN_SHARE = 0.03
 #: a box's face points: normals within this of the face's (cosine); a face is seen with at
 #: least FACE_POINTS of them
 FACE_COS = 0.8
@@ -112,7 +115,12 @@ def refine_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: Mod
                      settings: FitSettings, res: FitResult) -> FitResult:
     """A measured primitive ``res``, its pose refined at its measured size (a real scan's mixed
     pixels and a lip or a rounded edge leave the measured pose a few millimetres off), where
-    that explains the scan better."""
+    that explains the scan better. An open one (a mug seen into: at least OPEN_SHARE of its
+    surface, :func:`.scoring.open_share`) keeps its measured pose: its closed surface would be
+    pulled onto what is seen inside it."""
+    if open_share(ctx, cache.model(template.sized(res.dimensions)), res.T_scene_model,
+                  settings) >= OPEN_SHARE:
+        return res
     refined = _refined(ctx, template, cache, settings, res.T_scene_model, res.dimensions)
     return refined if refined.likelihood > res.likelihood else res
 
@@ -365,6 +373,8 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
     local, nl = (points - T[:3, 3]) @ R, normals @ R
     z = local[:, 2]
     top = nl[:, 2] > FACE_COS
+    if top.sum() >= FACE_POINTS:    # the highest of the faces up (a mug's inside bottom faces up)
+        top &= z >= np.percentile(z[top], HIGH) - TOP_BAND
     lo_z, hi_z = _bounds(z, top, nl[:, 2] < -FACE_COS)
     if support is not None and up is not None:
         floor = float(-(support.d + support.normal @ T[:3, 3]) / (support.normal @ up))

@@ -244,6 +244,7 @@ class Registrar:
         (a primitive's object running past the crop is measured in a wider one from it)."""
         t0 = time.perf_counter()
         if self.library[template].primitive is not None:
+            ctx = ctx.with_insides()
             with single_threaded_blas():
                 wide, measured, past = self._measured(ctx, scene)
                 res = self._judged(ctx, [fit_primitive(
@@ -374,7 +375,7 @@ class Registrar:
         fits), where none fits boxes stacked that the segments took for one object
         (:func:`.primitives.stacked`), they are measured and judged on the clicked one."""
         t0 = time.perf_counter()
-        ctx, measured, past = self._measured(ctx, scene)     # once for every primitive
+        ctx, measured, past = self._measured(ctx.with_insides(), scene)   # once for them all
         judged = self._primitives_on(ctx, scene, names, measured, refine)
         cut = stacked(ctx, measured) if refine and not any(r.fits for r in judged) else None
         if cut is not None:
@@ -410,7 +411,7 @@ class Registrar:
         past = truncated(ctx, measured)
         if not past or scene is None:
             return ctx, measured, past
-        wide = self.prepare(scene, ctx.click, WIDER * ctx.radius)
+        wide = self.prepare(scene, ctx.click, WIDER * ctx.radius).with_insides()
         again = object_points(wide)
         return (wide, again, truncated(wide, again)) if truncated(ctx, again) else \
             (ctx, measured, False)

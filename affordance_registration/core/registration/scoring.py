@@ -28,12 +28,19 @@ from .settings import FitSettings
 from .visibility import visible
 
 __all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "distinguished",
-           "widening", "explained_share",
+           "widening", "explained_share", "open_share",
            "self_hidden",
            "scores", "result", "results"]
 
 MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
 MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
+#: a return seen through a primitive lies inside it (an open object: a mug's inside) only
+#: this far (m, or three times the scan's noise there) above its base face: the surface it
+#: stands on, seen through a primitive with nothing in it, is not
+BASE_CLEAR = 0.004
+#: ... and only a primitive standing on the support is open (at its top): its z within about
+#: 15 deg of the support's normal (the cosine)
+OPEN_UPRIGHT = 0.966
 #: a candidate whose covered samples lie on the dominant plane around the click for at least this
 #: fraction covers the wall, not an object: those do not count towards its coverage
 PLANE_COVERED = 0.8
@@ -97,6 +104,9 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     batch = Batch.of(models, T[:, :3, :3], T[:, :3, 3])
     dist, vis, exposed = _forward_distances(ctx, batch, settings.scoring.samples, settings,
                                             primitive)
+    open_faces = _seen_into(ctx, models, batch, primitive, settings)
+    vis &= ~open_faces
+    exposed &= ~open_faces
     bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
         settings.verdict.min_coverage_no_viewpoint
     widen = widening(ctx, settings)
@@ -140,6 +150,75 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
                            object_residual=obj_res, noise=ctx.noise, fits=not why,
                            reason=why or None))
     return out
+
+
+def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
+               settings: FitSettings) -> np.ndarray:
+    """(B, S) bool: the samples of the primitives (rows ``primitive`` marks) standing upright
+    on the support (their z within OPEN_UPRIGHT of its normal) through which the sensor saw
+    into the primitive: on its top face, its return there, behind the sample by more than
+    ``scoring.free_space_margin``, lies inside the posed primitive -- the object is open there
+    (a mug's top). Those are neither held against its coverage nor its residual: the primitive is
+    the object's hull. (A return beyond the primitive still is: it saw through the object.)"""
+    P, _ = stack_samples(batch.models, settings.scoring.samples)
+    out = np.zeros(P.shape[:2], bool)
+    image = ctx.range_image
+    if image is None or ctx.support is None or not primitive.any():
+        return out
+    for k in np.flatnonzero(primitive):
+        R, t = batch.R[k], batch.t[k]
+        if R[:, 2] @ ctx.support.normal < OPEN_UPRIGHT:     # (its normal faces the sensor)
+            continue
+        height = models[k].template.dimensions.get("z", models[k].template.dimensions.get(
+            "length"))
+        D = P[k] @ R.T + t - ctx.sensor_origin
+        obs, depth = image.lookup_offsets(D)
+        behind = (obs > depth + settings.scoring.free_space_margin) & \
+            (P[k][:, 2] >= height - 1e-6)           # (NaN: False)
+        if not behind.any():
+            continue
+        back = (ctx.sensor_origin + D[behind] * (obs[behind] / depth[behind])[:, None] - t) @ R
+        into = np.zeros(len(D), bool)
+        into[np.flatnonzero(behind)] = _inside(models[k].template, back,
+                                               max(BASE_CLEAR, 3.0 * ctx.noise))
+        # an opening within a rim: the top's samples seen into lie inward of those that are
+        # not (a stepped top -- a housing's shoulder round a button -- is the other way round)
+        if not into.any():
+            continue
+        top = (P[k][:, 2] >= height - 1e-6) & (obs == obs)
+        rim = _outwards(models[k].template, P[k][top & ~into])
+        if len(rim) and np.median(_outwards(models[k].template, P[k][into])) >= np.median(rim):
+            continue
+        out[k] = into
+    return out
+
+
+def _outwards(template, q: np.ndarray) -> np.ndarray:
+    """How far out on its top face each of ``q`` (N, 3, the primitive's frame) lies: 0 at the
+    centre, 1 at the edge."""
+    dims = template.dimensions
+    if template.primitive == "box":
+        return np.maximum(np.abs(q[:, 0]) / dims["x"], np.abs(q[:, 1]) / dims["y"]) * 2.0
+    return np.hypot(q[:, 0], q[:, 1]) / dims["radius"]
+
+
+def open_share(ctx: ClickContext, model: Model, T: np.ndarray, settings: FitSettings) -> float:
+    """The share of the primitive ``model``'s samples, posed by ``T``, through which the
+    sensor saw into it (:func:`_seen_into`): how open the object is (a mug seen from above)."""
+    batch = Batch.of([model], T[None, :3, :3], T[None, :3, 3])
+    return float(_seen_into(ctx, [model], batch, np.array([True]), settings).mean())
+
+
+def _inside(template, q: np.ndarray, clear: float) -> np.ndarray:
+    """Whether the points ``q`` (N, 3, in the primitive's frame) lie inside the primitive
+    ``template`` at its dimensions, more than ``clear`` (m) above its base face (what it
+    stands on, seen through an empty primitive, is not its inside)."""
+    dims = template.dimensions
+    if template.primitive == "box":
+        return (np.abs(q[:, 0]) <= dims["x"] / 2) & (np.abs(q[:, 1]) <= dims["y"] / 2) & \
+            (q[:, 2] > clear) & (q[:, 2] <= dims["z"])
+    return (np.hypot(q[:, 0], q[:, 1]) <= dims["radius"]) & (q[:, 2] > clear) & \
+        (q[:, 2] <= dims["length"])
 
 
 def widening(ctx: ClickContext, settings: FitSettings) -> float:
