@@ -1,7 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Open-topped vessels -- mugs with and without a handle (``simulate_mugs``, development seeds
-7000-7011; the bench's mug rows report 7100-7119 too) -- fitted as the cylinder of their outer
+7000-7039; the bench's mug rows report held-out seeds too) -- fitted as the cylinder of their outer
 radius and length, as the label rule scores a real mug. Clicked in the middle of what the
 sensor sees of one, the click lands on its inside bottom, a few millimetres above the table."""
 import math
@@ -22,8 +22,10 @@ from affordance_registration.evaluation.rows import (
 
 #: (seed, mug) development clicks that came back as a refused taskboard template (7000:1,
 #: 7009:0: the click was taken for one on the table, the table for the object), as a box 10 mm
-#: tall (7007:1) or as a cylinder posed 7 mm off (7000:1 again, later)
-HARD = [(7000, 1), (7009, 0), (7007, 1), (7003, 1)]
+#: tall (7007:1) or as a cylinder posed 7 mm off (7000:1 again, later); of the second
+#: development set (7012-7039), clicks on the far inside wall, up to the rim (7027:0, 7038:0:
+#: a taskboard template, a box 20 mm wide) and on an inside bottom among walls in pieces (7016:1)
+HARD = [(7000, 1), (7009, 0), (7007, 1), (7003, 1), (7027, 0), (7038, 0), (7016, 1)]
 
 
 @pytest.fixture(scope="module")

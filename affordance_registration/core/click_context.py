@@ -177,7 +177,8 @@ class ClickContext:
                                                self.cluster_tree)
         if self.insides and self.plane is not None:
             clicked = labels[int(np.argmin(self._cluster_to_click))]
-            labels = joined_insides(self.cluster, labels, clicked, self.plane.normal)
+            labels = joined_insides(self.cluster, labels, clicked, self.plane.normal,
+                                    self.frame[:, 0], self.sensor_origin)
         return labels, patches
 
     def with_insides(self) -> "ClickContext":

@@ -194,52 +194,143 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-#: a segment is the inside of another -- a mug's bottom and inner wall within its rim -- where
-#: at least INSIDE_SHARE of its points, seen along the support's normal, lie within the other's
-#: footprint (the convex hull of its points), the other rises more than INSIDE_RISE (m) above
-#: its top, and the other's points surround it: they lie in at least INSIDE_SECTORS of 8
-#: directions around its centre
+#: a segment is an object's inside -- a mug's bottom within its walls -- where the cluster's
+#: points near it (horizontally within twice its own reach and INSIDE_REACH m) that rise more
+#: than INSIDE_RISE (m) above its top hold at least INSIDE_SHARE of its points within their
+#: footprint (the convex hull, seen along the support's normal) and surround it: they lie in
+#: at least INSIDE_SECTORS of 8 directions around its centre -- or the points of one segment
+#: (at any reach) do so.
 INSIDE_SHARE = 0.9
 INSIDE_RISE = 0.01
+INSIDE_REACH = 0.02
 INSIDE_SECTORS = 6
+#: ... the segments with at least half their points within the circle those lie on (grown by
+#: half WALL_OUT) are its object's
+#: a vessel's far inside wall: up to WALL_MAX (m) in radius, at least 80% of its points within
+#: WALL_FIT (m) of the circle, their median FAR_SIDE radii past the centre away from the
+#: sensor; its object's points lie within WALL_OUT (m) outside that circle
+WALL_MAX = 0.15
+WALL_FIT = 0.004
+FAR_SIDE = 0.3
+WALL_OUT = 0.012
+#: ... and the segments with points within RIM_REACH (m) of the wall's top are its rim's
+RIM_REACH = 0.012
+RIM_STEPS = 4       #: (segments joined to the rim in turn, at most this many times)
 
 
 def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal: np.ndarray,
-                   ) -> np.ndarray:
-    """``labels`` (N,) of ``points`` (N, 3) with the clicked object's inside joined to it: the
-    segment ``clicked`` is an object's inside (see INSIDE_SHARE) -- the object's segment and
-    every other inside of it take the clicked label -- or the insides of the clicked segment
-    join it. ``normal``: the support's (up). Unchanged where there is no such inside."""
+                   x_hint: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+    """``labels`` (N,) of ``points`` (N, 3) with an inside joined to its object: where the
+    segment ``clicked`` is an inside (see INSIDE_SHARE), it and the segments around it take
+    the clicked label; else the segments inside the clicked one join it. ``normal``: the
+    support's (up); ``x_hint``: a direction attached to the scan (the directions around are
+    counted from it: the same answer in every frame); ``origin``: the sensor's (where the
+    clicked segment is a vessel's far inside wall, up to its rim: :func:`_within_far_wall`).
+    Unchanged where there is no such inside."""
     up = np.asarray(normal, float)
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 = np.asarray(x_hint, float) - (np.asarray(x_hint, float) @ up) * up
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    flat = np.stack([points @ e1, points @ np.cross(up, e1)], axis=1)
+    def flat_of(p):
+        return np.stack([p @ e1, p @ np.cross(up, e1)], axis=1)
+    flat = flat_of(points)
     height = points @ up
-    ids = np.unique(labels)
-    if len(ids) < 2:
+    if len(np.unique(labels)) < 2:
         return labels
-    members = {int(k): np.flatnonzero(labels == k) for k in ids}
-    tops = {k: float(np.percentile(height[m], 99)) for k, m in members.items()}
 
-    def inside(k: int, outer: int) -> bool:
-        if k == outer or len(members[outer]) < 4 or tops[outer] < tops[k] + INSIDE_RISE:
-            return False
-        ring = flat[members[outer]]
+    def around(k: int, others: np.ndarray, reach: float | None = None):
+        """(whether segment ``k`` is an inside of the points ``others`` (bool mask) near it --
+        within ``reach`` of its centre, by default twice its own and INSIDE_REACH -- the mask of
+        the points rising round it)."""
+        mine = labels == k
+        centre = flat[mine].mean(axis=0)
+        if reach is None:
+            reach = 2.0 * float(np.percentile(np.linalg.norm(flat[mine] - centre, axis=1),
+                                              95)) + INSIDE_REACH
+        ring = (np.linalg.norm(flat - centre, axis=1) <= reach) & others & \
+            (height > np.percentile(height[mine], 99) + INSIDE_RISE)
+        if ring.sum() < 4:
+            return False, ring
         try:
-            hull = Delaunay(ring)
+            hull = Delaunay(flat[ring])
         except (QhullError, ValueError):
-            return False
-        mine = flat[members[k]]
-        if np.mean(hull.find_simplex(mine) >= 0) < INSIDE_SHARE:
-            return False
-        around = ring - mine.mean(axis=0)
-        sectors = np.unique(np.floor((np.arctan2(around[:, 1], around[:, 0]) + math.pi) /
+            return False, ring
+        if np.mean(hull.find_simplex(flat[mine]) >= 0) < INSIDE_SHARE:
+            return False, ring
+        off = flat[ring] - centre
+        sectors = np.unique(np.floor((np.arctan2(off[:, 1], off[:, 0]) + math.pi) /
                                      (math.pi / 4)).astype(np.int64) % 8)
-        return len(sectors) >= INSIDE_SECTORS
+        return len(sectors) >= INSIDE_SECTORS, ring
 
-    outer = next((k for k in members if inside(int(clicked), k)), int(clicked))
+    ids, counts = np.unique(labels, return_counts=True)
     out = np.array(labels)
-    for k in members:
-        if k == outer or k == clicked or inside(k, outer):
-            out[members[k]] = clicked
+    # an inside of one segment (the walls one segment), or of those rising round it
+    rings = [around(clicked, labels == k, np.inf) for k in ids if k != clicked]
+    rings.append(around(clicked, labels != clicked))
+    ring = np.zeros(len(labels), bool)
+    for inside, r in rings:
+        if inside:
+            ring |= r
+    within = np.zeros(len(labels), bool)
+    if ring.sum() >= 3:             # (the rim's circle)
+        centre, r = _circle_2d(flat[ring])
+        if 0.0 < r <= WALL_MAX:
+            within = np.linalg.norm(flat - centre, axis=1) <= r + WALL_OUT / 2
+    rim_of = None
+    if origin is not None:
+        far = _within_far_wall(flat, height, labels == clicked,
+                               flat_of(np.asarray(origin, float)[None])[0])
+        if far.any():           # (and what meets the wall at its top: the rim, piece by piece)
+            within |= far
+            rim_of = np.array([clicked])
+            for _ in range(RIM_STEPS):
+                mine = np.isin(labels, rim_of)
+                top = mine & (height >= np.percentile(height[mine], 99) - INSIDE_RISE)
+                d, _ = cKDTree(points[top]).query(points, distance_upper_bound=RIM_REACH)
+                grown = np.union1d(rim_of, labels[np.isfinite(d)])
+                if len(grown) == len(rim_of):
+                    break
+                rim_of = grown
+    if within.any():
+        held = np.bincount(labels[within], minlength=int(ids.max()) + 1)[ids]
+        for k, n, h in zip(ids, counts, held):
+            if 2 * h >= n or (rim_of is not None and k in rim_of):
+                out[labels == k] = clicked
+        return out
+    for k in ids:                   # the clicked one's insides
+        if k != clicked and around(int(k), labels == clicked, np.inf)[0]:
+            out[labels == k] = clicked
     return out
+
+
+def _within_far_wall(flat: np.ndarray, height: np.ndarray, mine: np.ndarray,
+                     sensor: np.ndarray) -> np.ndarray:
+    """The points (mask) horizontally within a vessel whose far inside wall the segment
+    ``mine`` is: its points above its lowest (``flat``: seen along the support's normal,
+    ``height`` along it) lie on a circle (the algebraic fit, its points within WALL_FIT of it)
+    on the side of its centre away from the ``sensor`` (``flat`` too) -- a can's side, seen
+    from outside, lies on the near side -- the circle then grown by WALL_OUT. None such: all
+    False."""
+    none = np.zeros(len(flat), bool)
+    wall = mine & (height > np.percentile(height[mine], 5) + INSIDE_RISE)
+    if wall.sum() < 10:
+        return none
+    uv = flat[wall]
+    centre, r = _circle_2d(uv)
+    off = uv - centre
+    dist = np.linalg.norm(off, axis=1)
+    if not 0.0 < r <= WALL_MAX or np.mean(np.abs(dist - r) <= WALL_FIT) < 0.8:
+        return none
+    away = centre - sensor
+    away /= max(float(np.linalg.norm(away)), 1e-9)
+    if float(np.median(off @ away)) < FAR_SIDE * r:
+        return none
+    return np.linalg.norm(flat - centre, axis=1) <= r + WALL_OUT
+
+
+def _circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float]:
+    """The algebraic (Kasa) circle through 2-D points ``uv`` (N, 2): (centre (2,), radius)."""
+    sol = np.linalg.lstsq(np.column_stack([2 * uv, np.ones(len(uv))]), (uv ** 2).sum(axis=1),
+                          rcond=None)[0]
+    return sol[:2], math.sqrt(max(float(sol[2] + sol[:2] @ sol[:2]), 0.0))
