@@ -189,19 +189,27 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
                                              sections=64)
             offset = make_T(None, [0, 0, dims["length"] / 2])
             radius, kind = dims["radius"], "cylinder"
-        for _ in range(500):
-            p = rng.uniform([-0.35, -0.2], [0.35, 0.2])
-            if all(np.linalg.norm(p - q) > radius + r + 0.03 for q, r in placed):
-                break
-        else:
+        T_table_model = _place(rng, placed, radius, (0.35, 0.2))
+        if T_table_model is None:
             continue
-        placed.append((p, radius))
-        T_table_model = make_T(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)),
-                               [p[0], p[1], 0.0])
         objects.append({"kind": kind, "dimensions": {k: float(v) for k, v in dims.items()},
                         "T_table_model": T_table_model})
         meshes.append((mesh, T_table_model @ offset))
     return _rendered(rng, cam, objects, meshes)
+
+
+def _place(rng, placed: list, radius: float, half) -> np.ndarray | None:
+    """T_table_model of an object whose footprint reaches ``radius`` (m) from its centre: the
+    centre within +-``half`` (x, y) of the table's, at least 3 cm clear of those ``placed``
+    ((centre, radius) each; it is added), a random yaw. None: no room in 500 tries."""
+    for _ in range(500):
+        p = rng.uniform([-half[0], -half[1]], [half[0], half[1]])
+        if all(np.linalg.norm(p - q) > radius + r + 0.03 for q, r in placed):
+            break
+    else:
+        return None
+    placed.append((p, radius))
+    return make_T(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)), [p[0], p[1], 0.0])
 
 
 def _rendered(rng, cam, objects: list, meshes: list):
@@ -302,15 +310,9 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
             handle = {"reach": rng.uniform(0.015, 0.03), "bar": rng.uniform(0.007, 0.012),
                       "low": low, "high": low + rng.uniform(0.4, 0.6) * length}
         footprint = radius + (handle["reach"] if handle else 0.0)
-        for _ in range(500):
-            p = rng.uniform([-0.3, -0.15], [0.3, 0.15])
-            if all(np.linalg.norm(p - q) > footprint + r + 0.03 for q, r in placed):
-                break
-        else:
+        T_table_model = _place(rng, placed, footprint, (0.3, 0.15))
+        if T_table_model is None:
             continue
-        placed.append((p, footprint))
-        T_table_model = make_T(axis_angle_matrix([0, 0, 1], rng.uniform(0, 2 * math.pi)),
-                               [p[0], p[1], 0.0])
         objects.append({"kind": "cylinder", "dimensions": {"radius": float(radius),
                                                           "length": float(length)},
                         "handle": handle is not None, "T_table_model": T_table_model})
