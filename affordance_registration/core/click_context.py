@@ -187,11 +187,17 @@ class ClickContext:
         as a primitive measures the clicked object; itself where it is so already."""
         if self.insides:
             return self
-        out = copy.copy(self)
-        for name in ("_segmentation", "segments", "patches", "clicked_segment", "clicked_patch",
-                     "clicked_points", "clicked_spread"):
-            out.__dict__.pop(name, None)
+        out = self._segmented_again()
+        out.__dict__.pop("_segmentation", None)
         out.insides = True
+        return out
+
+    def _segmented_again(self) -> "ClickContext":
+        """A copy of this context sharing everything but what depends on the segments."""
+        out = copy.copy(self)
+        for name in ("segments", "patches", "clicked_segment", "clicked_patch", "clicked_points",
+                     "clicked_spread"):
+            out.__dict__.pop(name, None)
         return out
 
     def with_clicked_part(self, keep: np.ndarray) -> "ClickContext":
@@ -201,10 +207,7 @@ class ClickContext:
         shared; what depends on the segments is computed again."""
         labels = np.array(self.segments)
         labels[(labels == self.clicked_segment) & ~np.asarray(keep, bool)] = labels.max() + 1
-        out = copy.copy(self)
-        for name in ("segments", "patches", "clicked_segment", "clicked_patch", "clicked_points",
-                     "clicked_spread"):
-            out.__dict__.pop(name, None)
+        out = self._segmented_again()
         out.__dict__["_segmentation"] = (labels, self.patches)
         return out
 

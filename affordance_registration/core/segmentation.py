@@ -204,11 +204,11 @@ INSIDE_SHARE = 0.9
 INSIDE_RISE = 0.01
 INSIDE_REACH = 0.02
 INSIDE_SECTORS = 6
-#: ... the segments with at least half their points within the circle those lie on (grown by
-#: half WALL_OUT) are its object's
-#: a vessel's far inside wall: up to WALL_MAX (m) in radius, at least 80% of its points within
-#: WALL_FIT (m) of the circle, their median FAR_SIDE radii past the centre away from the
-#: sensor; its object's points lie within WALL_OUT (m) outside that circle
+#: Its object: the segments with at least half their points within the circle those rising
+#: points lie on, grown by half WALL_OUT. Or a vessel's far inside wall, up to its rim: up to
+#: WALL_MAX (m) in radius, at least 80% of its points within WALL_FIT (m) of the circle, their
+#: median FAR_SIDE radii past the centre away from the sensor; its object's points lie within
+#: WALL_OUT (m) outside that circle
 WALL_MAX = 0.15
 WALL_FIT = 0.004
 FAR_SIDE = 0.3
@@ -232,9 +232,8 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
     if np.linalg.norm(e1) < 1e-6:
         e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    def flat_of(p):
-        return np.stack([p @ e1, p @ np.cross(up, e1)], axis=1)
-    flat = flat_of(points)
+    plane_axes = np.stack([e1, np.cross(up, e1)], axis=1)      # (3, 2): seen along ``up``
+    flat = points @ plane_axes
     height = points @ up
     if len(np.unique(labels)) < 2:
         return labels
@@ -280,7 +279,7 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
     rim_of = None
     if origin is not None:
         far = _within_far_wall(flat, height, labels == clicked,
-                               flat_of(np.asarray(origin, float)[None])[0])
+                               np.asarray(origin, float) @ plane_axes)
         if far.any():           # (and what meets the wall at its top: the rim, piece by piece)
             within |= far
             rim_of = np.array([clicked])

@@ -173,8 +173,8 @@ def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
             "length"))
         D = P[k] @ R.T + t - ctx.sensor_origin
         obs, depth = image.lookup_offsets(D)
-        behind = (obs > depth + settings.scoring.free_space_margin) & \
-            (P[k][:, 2] >= height - 1e-6)           # (NaN: False)
+        on_top = P[k][:, 2] >= height - 1e-6
+        behind = (obs > depth + settings.scoring.free_space_margin) & on_top   # (NaN: False)
         if not behind.any():
             continue
         back = (ctx.sensor_origin + D[behind] * (obs[behind] / depth[behind])[:, None] - t) @ R
@@ -185,8 +185,7 @@ def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
         # not (a stepped top -- a housing's shoulder round a button -- is the other way round)
         if not into.any():
             continue
-        top = (P[k][:, 2] >= height - 1e-6) & (obs == obs)
-        rim = _outwards(models[k].template, P[k][top & ~into])
+        rim = _outwards(models[k].template, P[k][on_top & (obs == obs) & ~into])
         if len(rim) and np.median(_outwards(models[k].template, P[k][into])) >= np.median(rim):
             continue
         out[k] = into
