@@ -227,6 +227,9 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
     counted from it: the same answer in every frame); ``origin``: the sensor's (where the
     clicked segment is a vessel's far inside wall, up to its rim: :func:`_within_far_wall`).
     Unchanged where there is no such inside."""
+    ids, counts = np.unique(labels, return_counts=True)
+    if len(ids) < 2:
+        return labels
     up = np.asarray(normal, float)
     e1 = np.asarray(x_hint, float) - (np.asarray(x_hint, float) @ up) * up
     if np.linalg.norm(e1) < 1e-6:
@@ -235,8 +238,6 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
     plane_axes = np.stack([e1, np.cross(up, e1)], axis=1)      # (3, 2): seen along ``up``
     flat = points @ plane_axes
     height = points @ up
-    if len(np.unique(labels)) < 2:
-        return labels
 
     def around(k: int, others: np.ndarray, reach: float | None = None):
         """(whether segment ``k`` is an inside of the points ``others`` (bool mask) near it --
@@ -262,7 +263,6 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
                                      (math.pi / 4)).astype(np.int64) % 8)
         return len(sectors) >= INSIDE_SECTORS, ring
 
-    ids, counts = np.unique(labels, return_counts=True)
     out = np.array(labels)
     # an inside of one segment (the walls one segment), or of those rising round it
     rings = [around(clicked, labels == k, np.inf) for k in ids if k != clicked]

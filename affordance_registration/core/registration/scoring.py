@@ -160,11 +160,11 @@ def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
     ``scoring.free_space_margin``, lies inside the posed primitive -- the object is open there
     (a mug's top). Those are neither held against its coverage nor its residual: the primitive is
     the object's hull. (A return beyond the primitive still is: it saw through the object.)"""
-    P, _ = stack_samples(batch.models, settings.scoring.samples)
-    out = np.zeros(P.shape[:2], bool)
     image = ctx.range_image
     if image is None or ctx.support is None or not primitive.any():
-        return out
+        return np.zeros((len(primitive), settings.scoring.samples), bool)
+    P, _ = stack_samples(batch.models, settings.scoring.samples)
+    out = np.zeros(P.shape[:2], bool)
     for k in np.flatnonzero(primitive):
         R, t = batch.R[k], batch.t[k]
         if R[:, 2] @ ctx.support.normal < OPEN_UPRIGHT:     # (its normal faces the sensor)
