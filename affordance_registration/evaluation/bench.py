@@ -233,7 +233,8 @@ def _real_capture_lines(result: dict) -> list:
                      f"({name}, {a['clicks']} "
                      f"clicks): kind right {_pct(a['kind_right'])}, dimensions within 5 mm "
                      f"{_pct(a['dims_within_5mm'])}, pose within 5 mm / 5 deg "
-                     f"{_pct(a['pose_ok'])}, median {a['median_s']:.2f} s")
+                     f"{_pct(a['pose_ok'])}, wrong and accepted {_pct(a.get('wrong_accepted'))}, "
+                     f"median {a['median_s']:.2f} s")
     c = result.get("clutter") or {}
     if c.get("armadillo"):
         a = c["armadillo"]

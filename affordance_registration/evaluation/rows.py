@@ -343,19 +343,24 @@ def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
 
 def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), library=None,
                              n_objects: int = 3, min_visible: int = 500,
-                             scenes: str = "boxes and cylinders") -> dict:
+                             scenes: str = "boxes and cylinders", faults=None) -> dict:
     """"Primitives on simulated boxes and cylinders": each object of the
     ``scenes`` of ``seeds`` ("boxes and cylinders": :func:`simulate_primitives`; "stacked
     boxes": the two boxes of :func:`simulate_stack`; "mugs": :func:`simulate_mugs`) with at
     least ``min_visible`` points,
     clicked in its middle. Per kind and overall: ``clicks``, ``kind_right`` (the best
     candidate is that primitive), ``dims_within_5mm`` (every dimension), ``pose_ok`` (within
-    5 mm / 5 deg, :func:`primitive_pose_error`), ``median_s``; the rates None where the
-    registrar reports no primitives. ``scenes`` names them."""
+    5 mm / 5 deg, :func:`primitive_pose_error`), ``wrong_accepted`` (the best candidate fits
+    and is not the right primitive of the right size and pose), ``median_s``; the rates None
+    where the registrar reports no primitives. ``scenes`` names them; ``faults``: a
+    :class:`.simulation.FaultModel` the scenes are seen with (None: noise alone)."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
-    simulate = {"boxes and cylinders": lambda seed: simulate_primitives(seed, n_objects),
-                "stacked boxes": simulate_stack, "mugs": simulate_mugs}[scenes]
+    from .simulation import DepthCamera
+    cam = None if faults is None else DepthCamera(_mosd_camera(), faults=faults)
+    simulate = {"boxes and cylinders": lambda seed: simulate_primitives(seed, n_objects, cam),
+                "stacked boxes": lambda seed: simulate_stack(seed, cam),
+                "mugs": lambda seed: simulate_mugs(seed, camera=cam)}[scenes]
     registrar = (registrar_factory or Registrar)(library if library is not None else _bundled())
     recs = []
     for seed in seeds:
@@ -369,7 +374,7 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
                 best = registrar.fit(scene, obj["click"]).candidates[0]
             except AffordanceError:
                 recs.append({"kind": obj["kind"], "primitive": None, "dims": None,
-                             "pose": None, "time_s": time.perf_counter() - t0})
+                             "pose": None, "wrong": False, "time_s": time.perf_counter() - t0})
                 continue
             dt = time.perf_counter() - t0
             primitive = getattr(best, "primitive", None)
@@ -384,7 +389,8 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
                                                 obj["T_scene_model"], obj["dimensions"])
                 pose_ok = e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG
             recs.append({"kind": obj["kind"], "primitive": primitive, "dims": dims_ok,
-                         "pose": pose_ok, "time_s": dt})
+                         "pose": pose_ok, "wrong": bool(best.fits) and not (
+                             primitive == obj["kind"] and dims_ok and pose_ok), "time_s": dt})
 
     def summary(rows):
         any_primitive = any(r["primitive"] is not None for r in rows)
@@ -394,6 +400,7 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
                 "dims_within_5mm": _share([bool(r["dims"]) for r in rows]) if any_primitive
                 else None,
                 "pose_ok": _share([bool(r["pose"]) for r in rows]) if any_primitive else None,
+                "wrong_accepted": _share([r["wrong"] for r in rows]),
                 "median_s": _median([r["time_s"] for r in rows])}
     return {"scenes": scenes,
             "all": summary(recs), "box": summary([r for r in recs if r["kind"] == "box"]),
