@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 
 from affordance_registration.core.registration import Registrar
+from affordance_registration.core.registration.primitives import object_points, stacked
 from affordance_registration.core.registration.scoring import judge, open_share, result
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.transforms import invert
 from affordance_registration.evaluation.rows import (
     DIM_TOL,
+    _mosd_camera,
     primitive_pose_error,
     simulate_mugs,
     simulate_primitives,
 )
+from affordance_registration.evaluation.simulation import DepthCamera, FaultModel
 
 #: (seed, mug) development clicks that came back as a refused taskboard template (7000:1,
 #: 7009:0: the click was taken for one on the table, the table for the object), as a box 10 mm
@@ -111,3 +114,26 @@ def test_a_stepped_top_is_not_an_opening(registrar, library):
     assert obj.template == "emergency_stop"
     best = registrar.fit(scene, obj.click).candidates[0]
     assert best.template == "emergency_stop" and best.fits is True, best.reason
+
+
+#: development mugs seen by a faulty sensor (:class:`FaultModel`): "fly" its flying pixels on
+#: depth edges alone, "all" every fault at its defaults. Their inside bottom and rim were two
+#: levels to the stack cut, which measured the inside as a box 10 mm tall (7018:1) or the mug
+#: as a cylinder 20 mm long (7018:0), and accepted it
+FLAKY = {"fly": FaultModel(distortion=0.0, dark_patches=0, noise_scale=1.0, grazing_start_deg=90),
+         "all": FaultModel()}
+
+
+@pytest.mark.parametrize("faults,seed,k", [("fly", 7018, 1), ("all", 7018, 0)])
+def test_a_mug_is_not_cut_as_a_stack_and_nothing_wrong_is_accepted(registrar, faults, seed, k):
+    """Its inside bottom lies within its rim seen from above (a stack's lower top shows round
+    the upper box): no cut; and whatever leads, nothing but the mug's own cylinder fits."""
+    organized, objects = simulate_mugs(seed, camera=DepthCamera(_mosd_camera(),
+                                                                faults=FLAKY[faults]))
+    mug = objects[k]
+    ctx = registrar.prepare(Scene(organized), mug["click"]).with_insides()
+    assert stacked(ctx, object_points(ctx)) is None
+    best = registrar.fit(Scene(organized), mug["click"]).candidates[0]
+    right = best.primitive == "cylinder" and all(
+        abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items())
+    assert best.fits is False or right, (best.template, best.dimensions)

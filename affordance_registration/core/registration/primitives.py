@@ -78,6 +78,10 @@ FLOOR_TRIES = 3
 #: the other's): the object's up-facing points lie at heights more than TOP_BAND apart, each
 #: level holding at least this share of its points (and FACE_POINTS)
 STACK_SHARE = 0.03
+#: ... and not one within another: a lower level with at least this share of its points inside
+#: the outline (seen from above) of the level over it is a vessel's inside bottom within its
+#: rim -- a stack's lower top face shows round the upper box's footprint
+INSIDE_SHARE = 0.5
 #: the clicked object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
 TRUNCATED = 0.95
@@ -218,10 +222,15 @@ def stacked(ctx: ClickContext, measured):
         return None
     sign = 1.0 if float(np.asarray(support.normal) @ up) > 0 else -1.0
     height = sign * support.distance(points)
-    tops = np.sort(height[normals @ up > FACE_COS])
-    groups = np.split(tops, np.flatnonzero(np.diff(tops) > TOP_BAND) + 1) if len(tops) else []
-    levels = [g for g in groups if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))]
-    if len(levels) < 2:
+    facing = normals @ up > FACE_COS
+    order = np.argsort(height[facing], kind="stable")
+    tops, where = height[facing][order], points[facing][order]
+    split = np.flatnonzero(np.diff(tops) > TOP_BAND) + 1
+    big = [(g, at) for g, at in zip(np.split(tops, split), np.split(where, split))
+           if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))] if len(tops) else []
+    levels = [g for g, _ in big]
+    if len(levels) < 2 or any(_within(low, high, up, ctx.frame[:, 0]) >= INSIDE_SHARE
+                              for (_, low), (_, high) in zip(big, big[1:])):
         return None
     cuts = [float(np.percentile(g, EDGE)) for g in levels[:-1]]     # each lower level's top
     k = int(np.searchsorted(cuts, sign * float(support.distance(ctx.click[None])[0])))
@@ -234,6 +243,18 @@ def stacked(ctx: ClickContext, measured):
     on_cluster = sign * support.distance(ctx.cluster)
     cut = ctx.with_clicked_part((on_cluster > lo) & (on_cluster <= hi))
     return cut, (points[part], normals[part], base, up)
+
+
+def _within(points: np.ndarray, outline: np.ndarray, up: np.ndarray, x_hint) -> float:
+    """The share of ``points`` inside the convex outline of ``outline``'s points, both seen
+    along ``up`` (0 where the outline has no area)."""
+    from scipy.spatial import ConvexHull
+    B = np.stack(_basis(np.asarray(up, float), x_hint), axis=1)
+    try:
+        faces = ConvexHull(outline @ B).equations
+    except (ValueError, RuntimeError):      # (collinear points: Qhull's error)
+        return 0.0
+    return float(np.mean(np.all((points @ B) @ faces[:, :2].T + faces[:, 2] <= 0.0, axis=1)))
 
 
 def _floor(ctx: ClickContext, points: np.ndarray):
