@@ -216,7 +216,8 @@ def stacked(ctx: ClickContext, measured):
     the points), the part between the level tops below and above the click -- standing on
     the support or on the level below it. Returns (``ctx`` with its clicked segment cut there
     (:meth:`ClickContext.with_clicked_part`), the part's ``measured`` tuple), or None: one
-    level, no support, or too few points in the part."""
+    level, no support, a level within the one over it (INSIDE_SHARE: a mug's inside bottom
+    within its rim), or too few points in the part."""
     points, normals, support, up = measured
     if support is None or up is None:
         return None
