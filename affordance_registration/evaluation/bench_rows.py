@@ -482,6 +482,12 @@ def _real_capture_rows(library, jobs, quick: bool, log) -> dict:
                      seeds=range(0, 3 if quick else 12), library=full, scenes="stacked boxes"),
                  "stacked, held-out seeds": simulated_primitive_rows(
                      seeds=range(100, 103 if quick else 120), library=full, scenes="stacked boxes"),
+                 # (a second development set, 200-239, for the wrong and accepted fits; 300-339
+                 # not looked at before the bench read them)
+                 "stacked, second development seeds": simulated_primitive_rows(
+                     seeds=range(200, 203 if quick else 240), library=full, scenes="stacked boxes"),
+                 "stacked, second held-out seeds": simulated_primitive_rows(
+                     seeds=range(300, 303 if quick else 340), library=full, scenes="stacked boxes"),
                  # (open-topped vessels: developed on 7000-7011, 7100-7119 read once, then
                  # on 7012-7039 too; 7200-7239 not looked at before the bench read them)
                  "mugs, development seeds": simulated_primitive_rows(
