@@ -79,8 +79,9 @@ FLOOR_TRIES = 3
 #: level holding at least this share of its points (and FACE_POINTS)
 STACK_SHARE = 0.03
 #: ... and not one within another: a lower level with at least this share of its points inside
-#: the outline (seen from above) of the level over it is a vessel's inside bottom within its
-#: rim -- a stack's lower top face shows round the upper box's footprint
+#: the outline (seen from above) of a level over it is a vessel's inside bottom within its rim
+#: (a handle's arm may lie between them) -- a stack's lower top face shows round the upper
+#: box's footprint
 INSIDE_SHARE = 0.5
 #: the clicked object reaching this fraction of the crop's radius from the click is cut off by
 #: the crop (a wall, a table, an object larger than the library's templates): not measured
@@ -216,7 +217,7 @@ def stacked(ctx: ClickContext, measured):
     the points), the part between the level tops below and above the click -- standing on
     the support or on the level below it. Returns (``ctx`` with its clicked segment cut there
     (:meth:`ClickContext.with_clicked_part`), the part's ``measured`` tuple), or None: one
-    level, no support, a level within the one over it (INSIDE_SHARE: a mug's inside bottom
+    level, no support, a level within one over it (INSIDE_SHARE: a mug's inside bottom
     within its rim), or too few points in the part."""
     points, normals, support, up = measured
     if support is None or up is None:
@@ -231,7 +232,7 @@ def stacked(ctx: ClickContext, measured):
            if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))] if len(tops) else []
     levels = [g for g, _ in big]
     if len(levels) < 2 or any(_within(low, high, up, ctx.frame[:, 0]) >= INSIDE_SHARE
-                              for (_, low), (_, high) in zip(big, big[1:])):
+                              for i, (_, low) in enumerate(big) for _, high in big[i + 1:]):
         return None
     cuts = [float(np.percentile(g, EDGE)) for g in levels[:-1]]     # each lower level's top
     k = int(np.searchsorted(cuts, sign * float(support.distance(ctx.click[None])[0])))

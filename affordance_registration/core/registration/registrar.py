@@ -372,12 +372,13 @@ class Registrar:
         An object that runs past the crop is measured again in a crop WIDER times as
         large (from ``scene``): a box longer than the library's templates is still a box; a
         wall runs past that one too, and is refused. With ``refine`` (no specific template
-        fits), where none fits boxes stacked that the segments took for one object
-        (:func:`.primitives.stacked`), they are measured and judged on the clicked one."""
+        fits), where none fits or a box does, boxes stacked that the segments took for one
+        object (:func:`.primitives.stacked`) are measured and judged on the clicked one."""
         t0 = time.perf_counter()
         ctx, measured, past = self._measured(ctx.with_insides(), scene)   # once for them all
         judged = self._primitives_on(ctx, scene, names, measured, refine)
-        cut = stacked(ctx, measured) if refine and not any(r.fits for r in judged) else None
+        lead = max(judged, key=lambda r: (bool(r.fits), r.likelihood))   # (a box has one top)
+        cut = stacked(ctx, measured) if refine and (not lead.fits or lead.primitive == "box") else None
         if cut is not None:
             on_part = self._primitives_on(cut[0], scene, names, cut[1], refine)
             judged = on_part if any(r.fits for r in on_part) else judged
