@@ -16,8 +16,8 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .voxels import _minus
 
-__all__ = ["segment", "segments_and_patches", "joined_insides", "SEGMENT_REACH", "SEGMENT_NEIGHBOURS",
-           "SEGMENT_SMOOTH_DEG"]
+__all__ = ["segment", "segments_and_patches", "joined_insides", "share_within", "SEGMENT_REACH",
+           "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
 
 #: the cluster's segments (``ClickContext.segments``) are grown in two steps, as in locally
 #: convex connected patches: smooth patches first -- voxels this many voxel edges apart are
@@ -250,13 +250,7 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
                                               95)) + INSIDE_REACH
         ring = (np.linalg.norm(flat - centre, axis=1) <= reach) & others & \
             (height > np.percentile(height[mine], 99) + INSIDE_RISE)
-        if ring.sum() < 4:
-            return False, ring
-        try:
-            hull = Delaunay(flat[ring])
-        except (QhullError, ValueError):
-            return False, ring
-        if np.mean(hull.find_simplex(flat[mine]) >= 0) < INSIDE_SHARE:
+        if ring.sum() < 4 or share_within(flat[mine], flat[ring]) < INSIDE_SHARE:
             return False, ring
         off = flat[ring] - centre
         sectors = np.unique(np.floor((np.arctan2(off[:, 1], off[:, 0]) + math.pi) /
@@ -301,6 +295,16 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
         if k != clicked and around(int(k), labels == clicked, np.inf)[0]:
             out[labels == k] = clicked
     return out
+
+
+def share_within(points: np.ndarray, outline: np.ndarray) -> float:
+    """The share of the 2-D ``points`` (N, 2) inside the convex hull of ``outline`` (M, 2): 0
+    where the outline has no area (fewer than three points off one line)."""
+    try:
+        hull = Delaunay(outline)
+    except (QhullError, ValueError):
+        return 0.0
+    return float(np.mean(hull.find_simplex(points) >= 0))
 
 
 def _within_far_wall(flat: np.ndarray, height: np.ndarray, mine: np.ndarray,

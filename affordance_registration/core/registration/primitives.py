@@ -28,6 +28,7 @@ import numpy as np
 
 from ..neighbours import build_tree, nearest
 from ..scene import ClickContext, _ransac_plane, segment
+from ..segmentation import share_within
 from ..templates import AffordanceTemplate
 from ..transforms import make_T
 from .icp import fine_stage
@@ -249,14 +250,9 @@ def stacked(ctx: ClickContext, measured):
 
 def _within(points: np.ndarray, outline: np.ndarray, up: np.ndarray, x_hint) -> float:
     """The share of ``points`` inside the convex outline of ``outline``'s points, both seen
-    along ``up`` (0 where the outline has no area)."""
-    from scipy.spatial import ConvexHull
+    along ``up`` (:func:`~..segmentation.share_within`)."""
     B = np.stack(_basis(np.asarray(up, float), x_hint), axis=1)
-    try:
-        faces = ConvexHull(outline @ B).equations
-    except (ValueError, RuntimeError):      # (collinear points: Qhull's error)
-        return 0.0
-    return float(np.mean(np.all((points @ B) @ faces[:, :2].T + faces[:, 2] <= 0.0, axis=1)))
+    return share_within(points @ B, outline @ B)
 
 
 def _floor(ctx: ClickContext, points: np.ndarray):
