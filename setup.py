@@ -78,7 +78,8 @@ setup(
     extras_require={
         "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
         # colcon and ament_package: test/test_colcon.py builds a colcon workspace of the package
-        "test": ["pytest==9.2.0", "pytest-xdist==3.8.0", "hypothesis==6.170.17", "playwright==1.65.2",
+        "test": ["pytest==9.2.0", "pytest-xdist==3.8.0", "hypothesis==6.170.17",
+        "playwright==1.65.2",
                  "colcon-common-extensions==0.3.0", "ros-jazzy-ament-package==0.16.4",
                  "ruff==0.17.5"],
         "bench": ["small_gicp==1.0.1"],

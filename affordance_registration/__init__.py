@@ -11,12 +11,19 @@ Each name is imported from ``affordance_registration.core`` when first used, so 
 package root loads neither the fitting stack nor anything of ROS. The ROS glue lives in
 ``affordance_registration.ros``.
 """
+
 from __future__ import annotations
 
 import importlib
 
-__all__ = ["AffordanceEngine", "TemplateLibrary", "Registrar", "FitSettings", "Scene",
-           "AffordanceError"]
+__all__ = [
+    "AffordanceEngine",
+    "TemplateLibrary",
+    "Registrar",
+    "FitSettings",
+    "Scene",
+    "AffordanceError",
+]
 
 _PUBLIC = {
     "AffordanceEngine": ".core.engine",
@@ -33,7 +40,7 @@ def __getattr__(name: str):
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value       # later look-ups skip this function
+    globals()[name] = value  # later look-ups skip this function
     return value
 
 

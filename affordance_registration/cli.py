@@ -3,9 +3,10 @@
 """The ``affordance-registration`` command.
 
 Subcommands: fit, settings, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
-spacemouse, station, when their modules are present). Errors print one line naming the problem and exit
-with status 2; nothing half-written is left behind.
+spacemouse, station, when their modules are present). Errors print one line naming the problem and
+exit with status 2; nothing half-written is left behind.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,6 +44,7 @@ def _seed(text: str) -> int:
 
 def _library(path):
     from .core.templates import TemplateLibrary
+
     return TemplateLibrary.load(path)
 
 
@@ -59,76 +61,107 @@ def _sensor_origin(values):
     except ValueError:
         origin = []
     if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
-        raise AffordanceError(f"--sensor-origin takes X Y Z (3 finite numbers) or 'none', got "
-                              f"{' '.join(values)!r}")
+        raise AffordanceError(
+            f"--sensor-origin takes X Y Z (3 finite numbers) or 'none', got {' '.join(values)!r}"
+        )
     return origin
 
 
 def cmd_fit(args) -> int:
     from .core.registration import FitSettings, Registrar, describe_primitive, no_match, verdict
     from .core.scene import UNITS, Scene
+
     origin = _sensor_origin(args.sensor_origin)
-    unit = UNITS[args.units]            # --point, --sensor-origin and the file: in --units
+    unit = UNITS[args.units]  # --point, --sensor-origin and the file: in --units
     if isinstance(origin, list):
         origin = [v * unit for v in origin]
     lib = _library(args.templates)
     scene = Scene.from_file(args.scene, sensor_origin=origin, scale=unit)
-    given = {"seed": None if args.seed is None else _seed(args.seed), "method": args.method,
-             "mode": args.mode}                    # the flags given override the file
+    given = {
+        "seed": None if args.seed is None else _seed(args.seed),
+        "method": args.method,
+        "mode": args.mode,
+    }  # the flags given override the file
     settings = (FitSettings.load(args.settings) if args.settings else FitSettings()).with_(
-        **{k: v for k, v in given.items() if v is not None})
+        **{k: v for k, v in given.items() if v is not None}
+    )
     registrar = Registrar(lib, settings)
-    registrar.warm_up()   # one-off start-up cost, not part of a click
+    registrar.warm_up()  # one-off start-up cost, not part of a click
     report = registrar.fit(scene, [v * unit for v in args.point])
     best = report.candidates[0]
     refused = no_match(report.candidates)
-    doc = {"point": [round(float(v), 6) for v in report.point],
-           "sensor_origin": None if scene.sensor_origin is None else
-           [round(float(v), 6) for v in scene.sensor_origin],
-           "verdict": verdict(report.candidates), "no_match": refused,
-           "reason": best.reason, "noise": round(float(best.noise), 9),
-           "candidates": [c.to_dict() for c in report.candidates],
-           "ambiguity": report.ambiguity.to_dict(),
-           "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()}}
+    doc = {
+        "point": [round(float(v), 6) for v in report.point],
+        "sensor_origin": None
+        if scene.sensor_origin is None
+        else [round(float(v), 6) for v in scene.sensor_origin],
+        "verdict": verdict(report.candidates),
+        "no_match": refused,
+        "reason": best.reason,
+        "noise": round(float(best.noise), 9),
+        "candidates": [c.to_dict() for c in report.candidates],
+        "ambiguity": report.ambiguity.to_dict(),
+        "timing_s": {k: round(v, 6) for k, v in report.timing_s.items()},
+    }
     view = registrar.suggest_view(report, scene=scene) if args.suggest_view else None
     if args.suggest_view:
         doc["suggested_view"] = None if view is None else view.to_dict()
     if args.json:
         from .core.waypoints import waypoints_dict
+
         for entry, c in zip(doc["candidates"][:LEADING], report.candidates):
-            entry["waypoints"] = waypoints_dict(lib, c)     # the leaders': in the scene frame
+            entry["waypoints"] = waypoints_dict(lib, c)  # the leaders': in the scene frame
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "
-          f"{len(report.candidates)} templates fitted in {report.timing_s['total']:.3f} s")
+    print(
+        f"click snapped to ({', '.join(f'{v:.3f}' for v in report.point)}); "
+        f"{len(report.candidates)} templates fitted in {report.timing_s['total']:.3f} s"
+    )
     if not refused:
-        print(f"{best.template} fits: it covers {best.coverage:.0%} of its visible surface and "
-              f"explains {best.explained:.0%} of the clicked object")
+        print(
+            f"{best.template} fits: it covers {best.coverage:.0%} of its visible surface and "
+            f"explains {best.explained:.0%} of the clicked object"
+        )
     else:
         specific = next((c for c in report.candidates if c.primitive is None), None)
-        why = f" (the best template, {specific.template}: {specific.reason})" \
-            if specific is not None and specific.reason else ""
+        why = (
+            f" (the best template, {specific.template}: {specific.reason})"
+            if specific is not None and specific.reason
+            else ""
+        )
         print(f"{verdict(report.candidates)}{why}")
-    print(f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
-          f"{'explained':>9} {'rmse mm':>7}  position (m)")
+    print(
+        f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
+        f"{'explained':>9} {'rmse mm':>7}  position (m)"
+    )
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
-        judged = f"{c.coverage:>8.2f} {c.explained:>9.2f} {c.inlier_rmse * 1000:>7.2f}" \
-            if c.fits is not None else f"{'-':>8} {'-':>9} {'-':>7}"   # set aside: not judged
+        judged = (
+            f"{c.coverage:>8.2f} {c.explained:>9.2f} {c.inlier_rmse * 1000:>7.2f}"
+            if c.fits is not None
+            else f"{'-':>8} {'-':>9} {'-':>7}"
+        )  # set aside: not judged
         size = f"  {describe_primitive(c)}" if c.primitive else ""
-        print(f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
-              f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}")
+        print(
+            f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
+            f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}"
+        )
     print(report.ambiguity.describe())
     if args.suggest_view:
-        print(f"suggested view: {view.describe()}" if view is not None else
-              "suggested view: none (the click is settled, or the scan has no viewpoint)")
+        print(
+            f"suggested view: {view.describe()}"
+            if view is not None
+            else "suggested view: none (the click is settled, or the scan has no viewpoint)"
+        )
     return 0
 
 
 def cmd_settings(args) -> int:
     from .core.registration import FitSettings
+
     if args.node_params or args.markdown:
         from .ros.glue import params
+
         print(params.params_file() if args.node_params else params.fit_table(), end="")
     else:
         print((FitSettings.load(args.file) if args.file else FitSettings()).dump(), end="")
@@ -138,19 +171,27 @@ def cmd_settings(args) -> int:
 # ---------------------------------------------------------------------------- simulate
 def cmd_simulate(args) -> int:
     from .evaluation.simulation import DepthCamera, FaultModel, simulate_taskboard, write_scene
+
     seed = _seed(args.seed)
     lib = _library(args.templates)
     camera = DepthCamera(faults=FaultModel()) if args.faults else None
     sim = simulate_taskboard(lib, seed, layout=args.layout, camera=camera)
     paths = write_scene(sim, args.out)
-    print(f"simulated {args.layout} scene (seed {seed}): {len(sim.points)} points, "
-          f"{len(sim.objects)} objects -> {args.out}")
+    print(
+        f"simulated {args.layout} scene (seed {seed}): {len(sim.points)} points, "
+        f"{len(sim.objects)} objects -> {args.out}"
+    )
     for o in sim.objects:
         p = o.T_scene_model[:3, 3]
-        click = "none visible" if o.click is None else \
-            "click (" + ", ".join(f"{v:.3f}" for v in o.click) + ")"
-        print(f"  {o.template:<22} at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), "
-              f"{o.visible_points} visible points, {click}")
+        click = (
+            "none visible"
+            if o.click is None
+            else "click (" + ", ".join(f"{v:.3f}" for v in o.click) + ")"
+        )
+        print(
+            f"  {o.template:<22} at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), "
+            f"{o.visible_points} visible points, {click}"
+        )
     for name in ("scene.ply", "truth.yaml", "scene_organized.npy"):
         print(f"  wrote {paths[name]}")
     return 0
@@ -159,13 +200,16 @@ def cmd_simulate(args) -> int:
 # ---------------------------------------------------------------------------- bench
 def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
-    log = (lambda *a: print(*a, file=sys.stderr, flush=True))
-    if args.row:                        # one row alone (its own seeds): for its numbers
+
+    log = lambda *a: print(*a, file=sys.stderr, flush=True)
+    if args.row:  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
+
         print("\n".join(format_row(viewpoint_row(log=log))))
         return 0
-    result = run_bench(quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks,
-                       out=args.out, log=log)
+    result = run_bench(
+        quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks, out=args.out, log=log
+    )
     print(format_table(result))
     if result.get("written"):
         print(f"table written to {result['written']} (settings: {result['settings_written']})")
@@ -176,29 +220,43 @@ def cmd_bench(args) -> int:
 def print_session_table(rows, out=print) -> None:
     """The paper-style table, a verdict per row (PASS, or FAIL and why), and a summary line."""
     from .evaluation.simulation import failures
-    out(f"{'true template':<20} {'ranked first':<20} {'changes':>7} {'corrections':>11} "
-        f"{'fit s':>6} {'error':>14}  verdict")
+
+    out(
+        f"{'true template':<20} {'ranked first':<20} {'changes':>7} {'corrections':>11} "
+        f"{'fit s':>6} {'error':>14}  verdict"
+    )
     for r in rows:
-        err = "-" if not math.isfinite(r["error_mm"]) else \
-            f"{r['error_mm']:.1f} mm {r['error_deg']:.1f}°"
+        err = (
+            "-"
+            if not math.isfinite(r["error_mm"])
+            else f"{r['error_mm']:.1f} mm {r['error_deg']:.1f}°"
+        )
         why = r["why"] if "why" in r else "; ".join(failures(r))
         verdict = "PASS" if r["ok"] else f"FAIL ({why})"
-        out(f"{r['template']:<20} {r['ranked_first']:<20} {r['model_changes']:>7} "
-            f"{r['corrections']:>11} {r['fit_s']:>6.2f} {err:>14}  {verdict}")
+        out(
+            f"{r['template']:<20} {r['ranked_first']:<20} {r['model_changes']:>7} "
+            f"{r['corrections']:>11} {r['fit_s']:>6.2f} {err:>14}  {verdict}"
+        )
     n = len(rows)
     ok = sum(r["ok"] for r in rows)
-    first = sum(r['ranked_first'] == r['template'] for r in rows)
-    out(f"{ok}/{n} objects registered within tolerance; {first}/{n} "
+    first = sum(r["ranked_first"] == r["template"] for r in rows)
+    out(
+        f"{ok}/{n} objects registered within tolerance; {first}/{n} "
         f"ranked first; {sum(r['model_changes'] for r in rows) / max(n, 1):.1f} model changes and "
         f"{sum(r['corrections'] for r in rows) / max(n, 1):.1f} corrections per object; mean fit "
-        f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)")
+        f"{sum(r['fit_s'] for r in rows) / max(n, 1):.2f} s (paper: 4.84 s)"
+    )
 
 
 def verdict_line(rows) -> str:
     """'DEMO OK' or 'DEMO FAILED: ' and the failing rows."""
     from .evaluation.simulation import failures
-    failed = [f"{r['template']} ({r['why'] if 'why' in r else '; '.join(failures(r))})"
-              for r in rows if not r["ok"]]
+
+    failed = [
+        f"{r['template']} ({r['why'] if 'why' in r else '; '.join(failures(r))})"
+        for r in rows
+        if not r["ok"]
+    ]
     if not rows:
         return "DEMO FAILED: no object was registered"
     return "DEMO OK" if not failed else "DEMO FAILED: " + "; ".join(failed)
@@ -206,6 +264,7 @@ def verdict_line(rows) -> str:
 
 def _core_demo(args) -> int:
     from .evaluation.core_demo import run_core_demo
+
     seed = _seed(args.seed)
     rows, saved = run_core_demo(_library(args.templates), seed, args.out)
     print(f"simulated taskboard (seed {seed}), core engine without ROS:")
@@ -217,6 +276,7 @@ def _core_demo(args) -> int:
 
 def default_session_dir() -> str:
     from .core.templates import default_models_dir
+
     return os.path.join(os.path.dirname(default_models_dir()), "test", "data", "session")
 
 
@@ -225,11 +285,15 @@ def cmd_demo(args) -> int:
     if args.core:
         return _core_demo(args)
     from .evaluation.session import replay_session
+
     session = args.session or default_session_dir()
     if not os.path.isdir(session):
         raise AffordanceError(f"no recorded session at {session}")
-    print(f"replaying the recorded operator session {session} into a live affordance_engine "
-          f"node (started from launch_configs/affordance_engine.launch.yaml) ...", flush=True)
+    print(
+        f"replaying the recorded operator session {session} into a live affordance_engine "
+        f"node (started from launch_configs/affordance_engine.launch.yaml) ...",
+        flush=True,
+    )
     result = replay_session(session, args.out)
     print_session_table(result["rows"])
     print(f"{result['played']} messages replayed in {result['played_s']:.1f} s; {result['saved']}")
@@ -241,6 +305,7 @@ def cmd_demo(args) -> int:
 def cmd_session(args) -> int:
     """Record a new operator session (simulated scene, live engine, simulated operator)."""
     from .evaluation.session import record_session
+
     print(f"recording a simulated operator session (seed {_seed(args.seed)}) into {args.out} ...")
     result = record_session(args.out, seed=_seed(args.seed))
     print_session_table(result["rows"])
@@ -253,11 +318,13 @@ def cmd_station(args) -> int:
     """The browser operator station (``--demo``: with an engine node and a simulated scan;
     ``--scene FILE``: with an engine node and that scan)."""
     from .ros.station.node import check_port
+
     if args.demo and args.scene:
         raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
     scene = None
-    if args.scene:      # the file is checked here, so a bad one is one line before any node starts
+    if args.scene:  # the file is checked here, so a bad one is one line before any node starts
         from .ros.station.scene import read_scan
+
         scene = os.path.abspath(args.scene)
         _, warning = read_scan(scene, args.units)
         if warning:
@@ -265,21 +332,37 @@ def cmd_station(args) -> int:
     check_port(args.host, args.port)
     if not args.demo and not scene:
         from .ros.station.node import main as station_main
-        return station_main(["--ros-args", "-p", f"host:={args.host}", "-p",
-                             f"port:={args.port}", "-p", f"up:={args.up}"])
+
+        return station_main(
+            [
+                "--ros-args",
+                "-p",
+                f"host:={args.host}",
+                "-p",
+                f"port:={args.port}",
+                "-p",
+                f"up:={args.up}",
+            ]
+        )
     import signal
     import threading
     import urllib.request
 
     from .ros.standins.launcher import Launcher, package_share, parse_launch_file
-    if args.demo:               # (checked before --out is made: a refusal leaves no folder)
+
+    if args.demo:  # (checked before --out is made: a refusal leaves no folder)
         from .evaluation.simulated_scan import check_first_view
+
         check_first_view(args.first_view, _library(None))
         _seed(args.seed)
     os.makedirs(args.out, exist_ok=True)
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
-    given = {"host": args.host, "port": str(args.port), "registrations_file": registrations,
-             "up": args.up}
+    given = {
+        "host": args.host,
+        "port": str(args.port),
+        "registrations_file": registrations,
+        "up": args.up,
+    }
     if scene:
         launch_name, log_name = "station_scene.launch.yaml", "station_scene.log"
         given.update(scene=scene, units=args.units)
@@ -288,13 +371,13 @@ def cmd_station(args) -> int:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
         given.update(seed=str(_seed(args.seed)), first_view=args.first_view)
         what = f"an engine node and a simulated taskboard scan (seed {_seed(args.seed)})"
-    launch = os.path.join(package_share("affordance_registration"), "launch_configs",
-                          launch_name)
+    launch = os.path.join(package_share("affordance_registration"), "launch_configs", launch_name)
     nodes = parse_launch_file(launch, given)
     log_path = os.path.join(args.out, log_name)
     # the station's access secret, handed to it through its environment (not its command line,
     # which every local user can read), and shown in the URL printed below
     from .ros.station.access import SECRET_ENV, new_secret
+
     secret = os.environ.get(SECRET_ENV) or new_secret()
     os.environ[SECRET_ENV] = secret
     stop = threading.Event()
@@ -316,17 +399,22 @@ def cmd_station(args) -> int:
             except OSError:
                 if time.monotonic() > deadline:
                     launcher.stop()
-                    raise AffordanceError(f"the station did not come up on {url}; see "
-                                          f"{log_path}") from None
+                    raise AffordanceError(
+                        f"the station did not come up on {url}; see {log_path}"
+                    ) from None
                 time.sleep(0.3)
-        print(f"operator station: {url}\n  {what} are running; Save writes "
-              f"{registrations}; node logs in {log_path}; Ctrl-C stops everything", flush=True)
+        print(
+            f"operator station: {url}\n  {what} are running; Save writes "
+            f"{registrations}; node logs in {log_path}; Ctrl-C stops everything",
+            flush=True,
+        )
         return launcher.wait(stop.is_set)
 
 
 # ---------------------------------------------------------------------------- bag
 def cmd_bag(args) -> int:
     from .ros.standins.bag import RATE_LIMITS, BagError, bag_info, check_number, topic_name
+
     if args.bag_command == "info":
         info = bag_info(args.bag)
         print(f"bag {info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
@@ -349,35 +437,55 @@ def cmd_bag(args) -> int:
     import threading
 
     from .ros.standins.spin import background_node
+
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with background_node("affordance_bag") as node:
         if args.bag_command == "record":
             from .ros.standins.bag import Recorder
+
             recorder = Recorder(node, args.out, args.topics)
             try:
                 t0 = time.monotonic()
-                while not stop.is_set() and recorder.error is None and (
-                        args.duration is None or time.monotonic() - t0 < args.duration):
+                while (
+                    not stop.is_set()
+                    and recorder.error is None
+                    and (args.duration is None or time.monotonic() - t0 < args.duration)
+                ):
                     time.sleep(0.05)
             except BaseException:
                 recorder.abort()
                 raise
             counts = recorder.close()
             if recorder.error is not None:
-                raise BagError(f"{recorder.error}; recording stopped" + (
-                    f", the {sum(counts.values())} messages recorded before are in {args.out}"
-                    if recorder.kept else f", {args.out} removed"))
+                raise BagError(
+                    f"{recorder.error}; recording stopped"
+                    + (
+                        f", the {sum(counts.values())} messages recorded before are in {args.out}"
+                        if recorder.kept
+                        else f", {args.out} removed"
+                    )
+                )
             print(f"recorded {sum(counts.values())} messages into {args.out}: {counts}")
         else:
             from .ros.standins.bag import Player, StatusPacer
-            pace = StatusPacer(node, args.status_topic, args.pace_timeout) if args.paced \
-                else None
-            player = Player(node, args.bag, rate=args.rate, start_offset=args.start_offset,
-                            topics=args.topics or None, loop=args.loop, pace=pace)
-            if args.wait_for_subscribers and not player.wait_for_subscribers(
-                    args.wait_for_subscribers, stop) and not stop.is_set():
+
+            pace = StatusPacer(node, args.status_topic, args.pace_timeout) if args.paced else None
+            player = Player(
+                node,
+                args.bag,
+                rate=args.rate,
+                start_offset=args.start_offset,
+                topics=args.topics or None,
+                loop=args.loop,
+                pace=pace,
+            )
+            if (
+                args.wait_for_subscribers
+                and not player.wait_for_subscribers(args.wait_for_subscribers, stop)
+                and not stop.is_set()
+            ):
                 print("not every topic has a subscriber; playing anyway", file=sys.stderr)
             n = player.play(stop)
             print(f"played {n} messages from {args.bag}")
@@ -387,6 +495,7 @@ def cmd_bag(args) -> int:
 # ---------------------------------------------------------------------------- launch
 def cmd_launch(args) -> int:
     from .ros.standins.launcher import LaunchError, package_share, run_launch_file
+
     arguments = {}
     for item in args.arguments:
         if ":=" not in item:
@@ -395,14 +504,16 @@ def cmd_launch(args) -> int:
         arguments[name] = value
     profile = args.fastdds_profile
     if args.shm and not profile:
-        profile = os.path.join(package_share("affordance_registration"), "launch_configs",
-                               "fastdds_shm.xml")
+        profile = os.path.join(
+            package_share("affordance_registration"), "launch_configs", "fastdds_shm.xml"
+        )
     return run_launch_file(args.file, arguments, profile)
 
 
 # ---------------------------------------------------------------------------- spacemouse
 def cmd_spacemouse(args) -> int:
     from .ros.devices.spacemouse import list_devices
+
     try:
         lines = list_devices()
     except ImportError:
@@ -417,6 +528,7 @@ def cmd_spacemouse(args) -> int:
 # ---------------------------------------------------------------------------- models
 def cmd_generate_models(args) -> int:
     from .evaluation.taskboard import write_library
+
     for path in write_library(args.out):
         print(f"wrote {path}")
     return 0
@@ -425,83 +537,149 @@ def cmd_generate_models(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="affordance-registration",
-        description="Click-to-fit affordance template registration (ROS 2).")
+        description="Click-to-fit affordance template registration (ROS 2).",
+    )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = sub.add_parser("fit", help="fit every template around a point of a scanned scene")
-    p.add_argument("--scene", required=True,
-                   help="scene file: PLY, PCD or organized .npy (in --units)")
-    p.add_argument("--point", required=True, nargs=3, type=float, metavar=("X", "Y", "Z"),
-                   help="the click: a point on the object, in the scene's frame and --units "
-                        "(snapped to the nearest scanned point within 3 cm)")
-    p.add_argument("--units", choices=("m", "cm", "mm"), default="m",
-                   help="units of the scene file, --point and --sensor-origin (default m); "
-                        "the output is in metres")
-    p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--settings", metavar="FILE", help="fitting settings (YAML, as the settings "
-                   "command prints; knobs left out: defaults); --seed, --method, --mode override")
-    p.add_argument("--seed", help="seed of the random restarts (default 0; the same seed gives "
-                                  "the same fit)")
-    p.add_argument("--method", choices=("default", "paper"), default=None,
-                   help="default (default): this package's fitter; paper: the paper's method "
-                        "implemented literally (slow; the bench's baseline)")
-    p.add_argument("--mode", choices=("auto", "mounted", "free"), default=None,
-                   help="auto (default): mounting-plane prior, resting poses and random "
-                        "restarts; mounted: the plane prior only; free: no mounting prior")
-    p.add_argument("--sensor-origin", nargs="+", default=None, metavar="X_Y_Z|none",
-                   help="where the scan was taken from, in the scene's frame (--units); 'none' for a "
-                        "cloud with no single viewpoint (an accumulated map: no visibility "
-                        "terms); default: a PCD's VIEWPOINT, else the frame's origin")
+    p.add_argument(
+        "--scene", required=True, help="scene file: PLY, PCD or organized .npy (in --units)"
+    )
+    p.add_argument(
+        "--point",
+        required=True,
+        nargs=3,
+        type=float,
+        metavar=("X", "Y", "Z"),
+        help="the click: a point on the object, in the scene's frame and --units "
+        "(snapped to the nearest scanned point within 3 cm)",
+    )
+    p.add_argument(
+        "--units",
+        choices=("m", "cm", "mm"),
+        default="m",
+        help="units of the scene file, --point and --sensor-origin (default m); "
+        "the output is in metres",
+    )
+    p.add_argument(
+        "--templates", default=None, help="template directory (default: package models)"
+    )
+    p.add_argument(
+        "--settings",
+        metavar="FILE",
+        help="fitting settings (YAML, as the settings "
+        "command prints; knobs left out: defaults); --seed, --method, --mode override",
+    )
+    p.add_argument(
+        "--seed", help="seed of the random restarts (default 0; the same seed gives the same fit)"
+    )
+    p.add_argument(
+        "--method",
+        choices=("default", "paper"),
+        default=None,
+        help="default (default): this package's fitter; paper: the paper's method "
+        "implemented literally (slow; the bench's baseline)",
+    )
+    p.add_argument(
+        "--mode",
+        choices=("auto", "mounted", "free"),
+        default=None,
+        help="auto (default): mounting-plane prior, resting poses and random "
+        "restarts; mounted: the plane prior only; free: no mounting prior",
+    )
+    p.add_argument(
+        "--sensor-origin",
+        nargs="+",
+        default=None,
+        metavar="X_Y_Z|none",
+        help="where the scan was taken from, in the scene's frame (--units); 'none' for a "
+        "cloud with no single viewpoint (an accumulated map: no visibility "
+        "terms); default: a PCD's VIEWPOINT, else the frame's origin",
+    )
     p.add_argument("--json", action="store_true", help="print the ranked candidates as JSON")
-    p.add_argument("--suggest-view", action="store_true",
-                   help="for an unsettled click, where the sensor should look from to settle "
-                        "it (an optical-frame pose in the scene's frame; bounds: fit.viewpoint.*)")
+    p.add_argument(
+        "--suggest-view",
+        action="store_true",
+        help="for an unsettled click, where the sensor should look from to settle "
+        "it (an optical-frame pose in the scene's frame; bounds: fit.viewpoint.*)",
+    )
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("settings", help="print the fitting settings (YAML): defaults or a file's")
     p.add_argument("file", nargs="?", help="a settings file to check and print in full")
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--node-params", action="store_true",
-                       help="the node's parameter file instead")
+    which.add_argument(
+        "--node-params", action="store_true", help="the node's parameter file instead"
+    )
     which.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
-    p.add_argument("--out", type=path_arg, required=True, help="output folder (scene.ply, truth.yaml, ...)")
+    p.add_argument(
+        "--out", type=path_arg, required=True, help="output folder (scene.ply, truth.yaml, ...)"
+    )
     p.add_argument("--seed", default="0", help="the simulated scene (default 0)")
-    p.add_argument("--layout", choices=("panel", "table"), default="panel",
-                   help="panel (default): objects mounted on a wall panel; table: lying on a "
-                        "table in resting poses")
-    p.add_argument("--templates", default=None, help="template directory (default: package models)")
-    p.add_argument("--faults", action="store_true",
-                   help="what real depth cameras do: flying pixels on depth edges, a smooth "
-                        "depth distortion, dropouts on dark patches and at grazing angles, more "
-                        "range noise (core.simulation.FaultModel's defaults)")
+    p.add_argument(
+        "--layout",
+        choices=("panel", "table"),
+        default="panel",
+        help="panel (default): objects mounted on a wall panel; table: lying on a "
+        "table in resting poses",
+    )
+    p.add_argument(
+        "--templates", default=None, help="template directory (default: package models)"
+    )
+    p.add_argument(
+        "--faults",
+        action="store_true",
+        help="what real depth cameras do: flying pixels on depth edges, a smooth "
+        "depth distortion, dropouts on dark patches and at grazing angles, more "
+        "range noise (core.simulation.FaultModel's defaults)",
+    )
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("bench", help="speed and accuracy against baselines, in one run")
     p.add_argument("--quick", action="store_true", help="4 scenes, paper method on 5 clicks")
     p.add_argument("--scenes", type=int, default=None, help="panel scenes (default 20)")
-    p.add_argument("--paper-clicks", type=int, default=None,
-                   help="clicks for the slow paper baseline (default 25; 0 = all)")
-    p.add_argument("--out", type=path_arg, default="bench_output/bench.json", help="JSON output path")
+    p.add_argument(
+        "--paper-clicks",
+        type=int,
+        default=None,
+        help="clicks for the slow paper baseline (default 25; 0 = all)",
+    )
+    p.add_argument(
+        "--out", type=path_arg, default="bench_output/bench.json", help="JSON output path"
+    )
     p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("demo", help="the main job: replay the bundled operator session into a "
-                                    "live engine node, print the results, write demo_output/")
+    p = sub.add_parser(
+        "demo",
+        help="the main job: replay the bundled operator session into a "
+        "live engine node, print the results, write demo_output/",
+    )
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
-    p.add_argument("--out", type=path_arg, default="demo_output",
-                   help="output folder (default demo_output)")
-    p.add_argument("--core", action="store_true",
-                   help="no ROS: a simulated operator on the core engine in this process")
+    p.add_argument(
+        "--out", type=path_arg, default="demo_output", help="output folder (default demo_output)"
+    )
+    p.add_argument(
+        "--core",
+        action="store_true",
+        help="no ROS: a simulated operator on the core engine in this process",
+    )
     p.add_argument("--seed", default="7", help="with --core: the simulated scene (default 7)")
-    p.add_argument("--templates", default=None,
-                   help="with --core: template directory (default: package models)")
+    p.add_argument(
+        "--templates",
+        default=None,
+        help="with --core: template directory (default: package models)",
+    )
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("session", help="record a simulated operator session (scene, engine node, "
-                                       "operator over ROS) as a rosbag2 bag")
+    p = sub.add_parser(
+        "session",
+        help="record a simulated operator session (scene, engine node, "
+        "operator over ROS) as a rosbag2 bag",
+    )
     p.add_argument("--out", type=path_arg, required=True, help="folder for the bag and truth.yaml")
     p.add_argument("--seed", default="7", help="the simulated scene (default 7)")
     p.set_defaults(func=cmd_session)
@@ -512,29 +690,57 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_station_and_tool_parsers(sub) -> None:
     """The ``station``, ``bag``, ``launch``, ``spacemouse`` and ``generate-models`` commands."""
-    p = sub.add_parser("station", help="the browser operator station (viser), a client of the "
-                                       "engine node; --demo: with an engine and a simulated scan")
-    p.add_argument("--demo", action="store_true",
-                   help="also start an engine node and a simulated taskboard scan")
-    p.add_argument("--scene", default=None, metavar="FILE",
-                   help="also start an engine node and publish this PLY, PCD or .npy scan: "
-                        "look at it, click, correct, accept and save (no sensor needed)")
-    p.add_argument("--units", choices=("m", "cm", "mm"), default="m",
-                   help="with --scene: units of the file (default m)")
-    p.add_argument("--up", default="auto", choices=("auto", "+x", "-x", "+y", "-y", "+z", "-z"),
-                   help="the scan's up axis on the page (default auto: -y for an optical "
-                        "frame, else +z; a leading '-' needs the form --up=-y)")
+    p = sub.add_parser(
+        "station",
+        help="the browser operator station (viser), a client of the "
+        "engine node; --demo: with an engine and a simulated scan",
+    )
+    p.add_argument(
+        "--demo",
+        action="store_true",
+        help="also start an engine node and a simulated taskboard scan",
+    )
+    p.add_argument(
+        "--scene",
+        default=None,
+        metavar="FILE",
+        help="also start an engine node and publish this PLY, PCD or .npy scan: "
+        "look at it, click, correct, accept and save (no sensor needed)",
+    )
+    p.add_argument(
+        "--units",
+        choices=("m", "cm", "mm"),
+        default="m",
+        help="with --scene: units of the file (default m)",
+    )
+    p.add_argument(
+        "--up",
+        default="auto",
+        choices=("auto", "+x", "-x", "+y", "-y", "+z", "-z"),
+        help="the scan's up axis on the page (default auto: -y for an optical "
+        "frame, else +z; a leading '-' needs the form --up=-y)",
+    )
     p.add_argument("--port", type=int, default=8080, help="TCP port of the page (default 8080)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address the page is served on (default 127.0.0.1: this machine "
-                        "only; 0.0.0.0 serves every interface)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address the page is served on (default 127.0.0.1: this machine "
+        "only; 0.0.0.0 serves every interface)",
+    )
     p.add_argument("--seed", default="7", help="with --demo: the simulated scene (default 7)")
-    p.add_argument("--first-view", default="camera", metavar="KIND:TEMPLATE",
-                   help="with --demo: where the sensor starts: camera (default) or a hard view "
-                        "of one object, e.g. edge-on:quarter_turn_valve (try Move sensor here)")
-    p.add_argument("--out", type=path_arg, default="station_output",
-                   help="with --demo or --scene: registrations file and node logs (default "
-                        "station_output)")
+    p.add_argument(
+        "--first-view",
+        default="camera",
+        metavar="KIND:TEMPLATE",
+        help="with --demo: where the sensor starts: camera (default) or a hard view "
+        "of one object, e.g. edge-on:quarter_turn_valve (try Move sensor here)",
+    )
+    p.add_argument(
+        "--out",
+        type=path_arg,
+        default="station_output",
+        help="with --demo or --scene: registrations file and node logs (default station_output)",
+    )
     p.set_defaults(func=cmd_station)
 
     add_bag_parser(sub, cmd_bag)
@@ -543,14 +749,21 @@ def _add_station_and_tool_parsers(sub) -> None:
     p.add_argument("file", help="a *.launch.yaml file")
     p.add_argument("arguments", nargs="*", help="launch arguments NAME:=VALUE")
     profile = p.add_mutually_exclusive_group()
-    profile.add_argument("--shm", action="store_true",
-                         help="use the package's Fast DDS profile (shared memory, localhost)")
+    profile.add_argument(
+        "--shm",
+        action="store_true",
+        help="use the package's Fast DDS profile (shared memory, localhost)",
+    )
     profile.add_argument("--fastdds-profile", default=None, help="a Fast DDS XML profile to use")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("spacemouse", help="SpaceMouse devices")
-    p.add_argument("--list", action="store_true", required=True,
-                   help="print the attached 3Dconnexion 6-DoF devices")
+    p.add_argument(
+        "--list",
+        action="store_true",
+        required=True,
+        help="print the attached 3Dconnexion 6-DoF devices",
+    )
     p.set_defaults(func=cmd_spacemouse)
 
     p = sub.add_parser("generate-models", help="regenerate the taskboard templates (STL + YAML)")
@@ -561,11 +774,11 @@ def _add_station_and_tool_parsers(sub) -> None:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if sys.stdout is None:            # (started with stdout closed: nothing could be said)
+    if sys.stdout is None:  # (started with stdout closed: nothing could be said)
         return _fail("standard output is closed: nothing done")
     try:
         code = args.func(args)
-        sys.stdout.flush()            # (stdout on a full disk: said here, not at exit)
+        sys.stdout.flush()  # (stdout on a full disk: said here, not at exit)
         return code
     except AffordanceError as exc:
         return _fail(str(exc))
@@ -573,16 +786,18 @@ def main(argv=None) -> int:
         return 130
     except MemoryError:
         return _fail("out of memory")
-    except OSError as exc:            # a path that cannot be read or written, a full disk
+    except OSError as exc:  # a path that cannot be read or written, a full disk
         quiet_stdout()
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         return _fail(f"{where}{exc.strerror or exc}")
-    except Exception as exc:          # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
+    except Exception as exc:  # a bug: still one line (AFFORDANCE_DEBUG=1 shows where)
         if os.environ.get("AFFORDANCE_DEBUG"):
             raise
         text = str(exc).splitlines()[0] if str(exc) else ""
-        return _fail(f"internal error: {exc.__class__.__name__}: {text} (please report it; "
-                     f"AFFORDANCE_DEBUG=1 shows the traceback)")
+        return _fail(
+            f"internal error: {exc.__class__.__name__}: {text} (please report it; "
+            f"AFFORDANCE_DEBUG=1 shows the traceback)"
+        )
 
 
 if __name__ == "__main__":

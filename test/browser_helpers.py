@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """A real browser for the station's tests: Debian's chromium (headless, software WebGL) driven by
 Playwright, with a fresh profile each time. Playwright's own browser download is not used."""
+
 from __future__ import annotations
 
 import contextlib
@@ -35,11 +36,13 @@ def free_port() -> int:
 def browser_page(url: str, timeout_s: float = 120.0):
     """A page of a fresh headless chromium at ``url``, once the station's panel is there."""
     from playwright.sync_api import sync_playwright
+
     profile = tempfile.mkdtemp(prefix="ar_chromium_")
     try:
         with sync_playwright() as p:
             ctx = p.chromium.launch_persistent_context(
-                profile, executable_path=CHROMIUM, headless=True, args=ARGS, viewport=VIEWPORT)
+                profile, executable_path=CHROMIUM, headless=True, args=ARGS, viewport=VIEWPORT
+            )
             try:
                 page = ctx.new_page()
                 page.set_default_timeout(timeout_s * 1000)
@@ -47,7 +50,9 @@ def browser_page(url: str, timeout_s: float = 120.0):
                 try:
                     yield page
                 except BaseException:
-                    shot = os.path.join(tempfile.gettempdir(), f"ar_station_failure_{os.getpid()}.png")
+                    shot = os.path.join(
+                        tempfile.gettempdir(), f"ar_station_failure_{os.getpid()}.png"
+                    )
                     with contextlib.suppress(Exception):
                         page.screenshot(path=shot)
                         sys.stderr.write(f"the page at the failure: {shot}\n")
@@ -106,8 +111,14 @@ def station_argv(port: int, **params) -> list[str]:
 
 
 def scan_argv(seed: int = 7, **params) -> list[str]:
-    argv = [sys.executable, "-m", "affordance_registration.evaluation.simulated_scan", "--ros-args",
-            "-p", f"seed:={seed}"]
+    argv = [
+        sys.executable,
+        "-m",
+        "affordance_registration.evaluation.simulated_scan",
+        "--ros-args",
+        "-p",
+        f"seed:={seed}",
+    ]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
     return argv
@@ -137,4 +148,5 @@ def settled_view(client, topic: str = "/view_pose", timeout_s: float = 90.0):
         n = len(hist)
         time.sleep(1.0)
         return hist[-1] if len(client.history[topic]) == n else None
+
     return wait_until(settled, timeout_s, "the page's camera at the sensor")

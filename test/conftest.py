@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Shared fixtures. Every test process gets its own ROS domain and log folder, and ROS discovery
 stays on this machine (set before anything can import rclpy)."""
+
 import os
 import sys
 import tempfile
@@ -18,7 +19,7 @@ os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
 
 import pytest  # noqa: E402
 
-try:      # a clear line, not a traceback, where the package's dependencies are missing
+try:  # a clear line, not a traceback, where the package's dependencies are missing
     import numpy  # noqa: E402,F401
     import scipy  # noqa: E402,F401
     import trimesh  # noqa: E402,F401
@@ -29,7 +30,8 @@ except ImportError as exc:
         f"the tests need the package's Python dependencies ({exc}); install them into the "
         f"Python that runs the tests ({sys.executable}): pip install -r requirements.txt "
         f"-e '.[test]' (in a checkout `make setup` does that; for `colcon test`, into the "
-        f"Python colcon runs with)") from None
+        f"Python colcon runs with)"
+    ) from None
 
 from affordance_registration.core.templates import TemplateLibrary  # noqa: E402
 
@@ -45,6 +47,7 @@ def data_dir():
     """The shared real data folder (../shared/data or $AFFORDANCE_SHARED_DATA) holding the mOSD
     scenes; the test skips with one line without it."""
     from affordance_registration.evaluation import realdata as rd
+
     folder = rd.shared_data_dir()
     if folder is None or rd.osd_dir(folder) is None:
         pytest.skip(rd.SKIP_REASON)
@@ -59,6 +62,7 @@ def library():
 @pytest.fixture(scope="session")
 def panel_scene(library):
     from affordance_registration.evaluation.simulation import simulate_taskboard
+
     return simulate_taskboard(library, 7)
 
 
@@ -67,6 +71,7 @@ def ros_context():
     """rclpy in the test process (one context for the session)."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
+
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     yield
     rclpy.shutdown()
@@ -78,13 +83,18 @@ def processes(tmp_path):
     stopped at its end (SIGINT first: a node killed outright stays in the DDS graph until its
     lease expires, and later tests would see it)."""
     from ros_helpers import NodeProcess
+
     started = []
 
     def start(argv_or_process, name=None):
-        proc = argv_or_process if isinstance(argv_or_process, NodeProcess) else \
-            NodeProcess(argv_or_process, tmp_path / f"{name}.log")
+        proc = (
+            argv_or_process
+            if isinstance(argv_or_process, NodeProcess)
+            else NodeProcess(argv_or_process, tmp_path / f"{name}.log")
+        )
         started.append(proc)
         return proc
+
     yield start
     for proc in started:
         proc.interrupt(timeout=10)

@@ -6,6 +6,7 @@ operator input stays in order behind a slow fit. Started as its own process by t
 
     python test/slow_engine_node.py SECONDS --ros-args -p name:=value ...
 """
+
 from __future__ import annotations
 
 import sys
@@ -27,7 +28,7 @@ class SlowEngine(AffordanceEngine):
 
 def main() -> int:
     SlowEngine.delay = float(sys.argv.pop(1))
-    engine_node.AffordanceEngine = SlowEngine      # the node builds its engine from this name
+    engine_node.AffordanceEngine = SlowEngine  # the node builds its engine from this name
     return engine_node.main()
 
 

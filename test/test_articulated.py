@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Articulated and scaled templates: joint values, named states and scale estimated with the pose
 on simulated depth scans with ground truth."""
+
 import math
 
 import numpy as np
@@ -11,7 +12,11 @@ from affordance_registration.core.registration import FitSettings, Registrar
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary
 from affordance_registration.core.transforms import pose_error
-from affordance_registration.evaluation.simulation import DepthCamera, NoiseModel, simulate_taskboard
+from affordance_registration.evaluation.simulation import (
+    DepthCamera,
+    NoiseModel,
+    simulate_taskboard,
+)
 
 DEG5 = math.radians(5.0)
 
@@ -38,13 +43,17 @@ def test_joint_values_recovered_on_exact_and_noisy_scans(library, registrar, noi
     valve open: each comes back first, with its joint value within 5 deg / 2 mm, the right
     state and its position within 5 mm."""
     camera = DepthCamera(noise=None if noisy else NoiseModel(a=0.0, b=0.0, c=0.0))
-    chosen = {"ball_valve": {"lever": 1.35}, "quarter_turn_valve": {"handle": 0.5},
-              "emergency_stop": {"button": 0.008}, "gate_valve": {"stem": 0.03}}
+    chosen = {
+        "ball_valve": {"lever": 1.35},
+        "quarter_turn_valve": {"handle": 0.5},
+        "emergency_stop": {"button": 0.008},
+        "gate_valve": {"stem": 0.03},
+    }
     sim = simulate_taskboard(library, 3101, articulated=True, camera=camera, joints=chosen)
     for name, values in chosen.items():
         obj, best = _fit(registrar, sim, name)
         assert best.template == name
-        (jname, q_true), = values.items()
+        ((jname, q_true),) = values.items()
         joint = library[name].joints[0]
         tol = DEG5 if joint.type == "revolute" else 0.002
         assert abs(best.joints[jname] - q_true) <= tol, (name, best.joints, q_true)
@@ -54,20 +63,22 @@ def test_joint_values_recovered_on_exact_and_noisy_scans(library, registrar, noi
 
 
 def test_half_open_valve_is_reported_between_its_states(library, registrar):
-    sim = simulate_taskboard(library, 3102, articulated=True,
-                             joints={"ball_valve": {"lever": math.pi / 4}})
+    sim = simulate_taskboard(
+        library, 3102, articulated=True, joints={"ball_valve": {"lever": math.pi / 4}}
+    )
     _, best = _fit(registrar, sim, "ball_valve")
     q = best.joints["lever"]
     assert abs(q - math.pi / 4) <= DEG5
     open_q, closed_q = (library["ball_valve"].states[s]["lever"] for s in ("open", "closed"))
     assert open_q + math.radians(30) < q < closed_q - math.radians(30)
-    assert best.state in ("open", "closed")    # the nearest named state is still given
+    assert best.state in ("open", "closed")  # the nearest named state is still given
 
 
 @pytest.mark.parametrize("scale", [0.85, 1.18])
 def test_scale_recovered_within_3_percent(library, scale):
     """A grab handle allowed to come in sizes (scale: [0.8, 1.25], as the bench's variant)."""
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = sized_library(library)
     assert sized["grab_handle"].scale_range == (0.8, 1.25)
     sim = simulate_taskboard(sized, 3103, articulated=True, scales={"grab_handle": scale})
@@ -78,38 +89,41 @@ def test_scale_recovered_within_3_percent(library, scale):
 
 
 def test_rigid_settings_claim_no_joint_values(library):
-    sim = simulate_taskboard(library, 3101, articulated=True,
-                             joints={"ball_valve": {"lever": 1.35}})
+    sim = simulate_taskboard(
+        library, 3101, articulated=True, joints={"ball_valve": {"lever": 1.35}}
+    )
     _, best = _fit(Registrar(library, FitSettings(articulated=False)), sim, "ball_valve")
     assert best.joints == {} and best.state is None and best.scale == 1.0
 
 
 def test_refit_holds_a_joint_value_set_by_the_operator(library, registrar):
-    sim = simulate_taskboard(library, 3102, articulated=True,
-                             joints={"ball_valve": {"lever": math.pi / 4}})
+    sim = simulate_taskboard(
+        library, 3102, articulated=True, joints={"ball_valve": {"lever": math.pi / 4}}
+    )
     obj = next(o for o in sim.objects if o.template == "ball_valve")
     ctx = registrar.prepare(Scene(sim.organized), obj.click)
     held = registrar.refit(ctx, "ball_valve", obj.T_scene_model, {"lever": 1.0}, hold_joint=True)
     assert held.joints == {"lever": 1.0}
     kept = registrar.refit(ctx, "ball_valve", obj.T_scene_model, {"lever": 1.0})
-    assert kept.joints == {"lever": 1.0}           # a refit of the pose keeps a given joint
-    free = registrar.refit(ctx, "ball_valve", obj.T_scene_model, {"lever": 1.0},
-                           hold_joint=False)
+    assert kept.joints == {"lever": 1.0}  # a refit of the pose keeps a given joint
+    free = registrar.refit(ctx, "ball_valve", obj.T_scene_model, {"lever": 1.0}, hold_joint=False)
     assert abs(free.joints["lever"] - math.pi / 4) < abs(1.0 - math.pi / 4)
 
 
-@pytest.mark.parametrize("name,q", [("ball_valve", 0.7), ("gate_valve", 0.012),
-                                    ("emergency_stop", 0.005)])
+@pytest.mark.parametrize(
+    "name,q", [("ball_valve", 0.7), ("gate_valve", 0.012), ("emergency_stop", 0.005)]
+)
 def test_joint_frame_round_trip(library, name, q):
     tpl = library[name]
     for scale in (1.0, 1.2):
         T = tpl.joint_frame(q, scale)
-        assert np.allclose(T[:3, 0], tpl.joints[0].axis)       # x along the joint axis
+        assert np.allclose(T[:3, 0], tpl.joints[0].axis)  # x along the joint axis
         assert tpl.joint_value_from_frame(T, scale) == pytest.approx(q, abs=1e-9)
     # beyond the limits, clamped
     j = tpl.joints[0]
-    assert tpl.joint_value_from_frame(tpl.joint_frame(j.upper + 0.5 * (j.upper - j.lower))) \
-        == pytest.approx(j.upper)
+    assert tpl.joint_value_from_frame(
+        tpl.joint_frame(j.upper + 0.5 * (j.upper - j.lower))
+    ) == pytest.approx(j.upper)
 
 
 def test_engine_joint_nudge_refits_and_undoes_in_one_step(library, tmp_path):
@@ -120,8 +134,9 @@ def test_engine_joint_nudge_refits_and_undoes_in_one_step(library, tmp_path):
     from affordance_registration.core.engine import AffordanceEngine, load_registrations
     from affordance_registration.core.errors import EngineStateError
 
-    sim = simulate_taskboard(library, 3102, articulated=True,
-                             joints={"ball_valve": {"lever": math.pi / 4}})
+    sim = simulate_taskboard(
+        library, 3102, articulated=True, joints={"ball_valve": {"lever": math.pi / 4}}
+    )
     obj = next(o for o in sim.objects if o.template == "ball_valve")
     engine = AffordanceEngine(library)
     engine.set_scene(sim.organized, frame_id="cam")
@@ -137,14 +152,14 @@ def test_engine_joint_nudge_refits_and_undoes_in_one_step(library, tmp_path):
     assert engine.active_object().corrections == 1
     assert shown.state == library["ball_valve"].nearest_state(shown.joints)
     dt, _ = pose_error(shown.T_scene_model, obj.T_scene_model, None)
-    assert dt <= 0.01                           # the refit kept the valve where it is
+    assert dt <= 0.01  # the refit kept the valve where it is
     engine.correct_joint(steps=1)
     assert engine.active_object().shown.joints["lever"] == pytest.approx(q0 + math.radians(10.0))
     engine.undo()
     assert engine.active_object().shown.joints["lever"] == pytest.approx(q0 + math.radians(5.0))
     engine.undo()
     assert engine.state is before
-    engine.correct_joint(value=99.0, refit=False)            # clamped to the limits
+    engine.correct_joint(value=99.0, refit=False)  # clamped to the limits
     assert engine.active_object().shown.joints["lever"] == pytest.approx(math.pi / 2)
     assert engine.active_object().shown.state == "closed"
     engine.accept()
@@ -169,13 +184,19 @@ def test_objects_in_their_named_states_and_nominal_size_are_reported_there(libra
     rigid accuracy. (The plug valve's body also fits a quarter turn off with its handle turned
     back; the winner's sweep about its axis tries the named states too. Its scale: below.)"""
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = sized_library(library)
-    chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},
-              "gate_valve": {"stem": 0.0}, "emergency_stop": {"button": 0.0}}
+    chosen = {
+        "ball_valve": {"lever": 0.0},
+        "quarter_turn_valve": {"handle": 0.0},
+        "gate_valve": {"stem": 0.0},
+        "emergency_stop": {"button": 0.0},
+    }
     # on this scene the free fit puts the plug valve's handle 1.7 deg off its stop (with the
     # whole valve turned to match); the preference for its named state puts it back
-    sim = simulate_taskboard(sized, 3105, articulated=True, joints=chosen,
-                             scales={"grab_handle": 1.0})
+    sim = simulate_taskboard(
+        sized, 3105, articulated=True, joints=chosen, scales={"grab_handle": 1.0}
+    )
     registrar = Registrar(sized)
     for obj in sim.objects:
         _, best = _fit(registrar, sim, obj.template)
@@ -191,13 +212,20 @@ def test_a_nominal_size_handle_is_reported_at_scale_one(library):
     """A grab handle of nominal size (scene 3105) is reported at scale 1. The free fit lands
     at 0.966, 3.5 mm off, with a lower residual than scale 1 at the truth: samples the sensor
     sees at grazing angles (it returns nothing from ~70-85 deg) count against the larger
-    size. Occam's razor judges scale 1 with those samples unseen (``articulation.scale_grazing_angle``)."""
+    size. Occam's razor judges scale 1 with those samples unseen
+    (``articulation.scale_grazing_angle``)."""
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = sized_library(library)
-    chosen = {"ball_valve": {"lever": 0.0}, "quarter_turn_valve": {"handle": 0.0},
-              "gate_valve": {"stem": 0.0}, "emergency_stop": {"button": 0.0}}
-    sim = simulate_taskboard(sized, 3105, articulated=True, joints=chosen,
-                             scales={"grab_handle": 1.0})
+    chosen = {
+        "ball_valve": {"lever": 0.0},
+        "quarter_turn_valve": {"handle": 0.0},
+        "gate_valve": {"stem": 0.0},
+        "emergency_stop": {"button": 0.0},
+    }
+    sim = simulate_taskboard(
+        sized, 3105, articulated=True, joints=chosen, scales={"grab_handle": 1.0}
+    )
     handle = next(o for o in sim.objects if o.template == "grab_handle")
     assert handle.scale == 1.0
     assert _fit(Registrar(sized), sim, "grab_handle")[1].scale == pytest.approx(1.0)
@@ -208,6 +236,7 @@ def test_a_mounted_object_keeps_touching_its_panel(library):
     sight unless the handle stays on the panel it is mounted on (the fit's contact with the
     plane under the click). Without that contact this fit came out 3.7% too big."""
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = sized_library(library)
     sim = simulate_taskboard(sized, 502, articulated=True)
     obj, best = _fit(Registrar(sized), sim, "grab_handle")
@@ -232,6 +261,7 @@ def test_a_much_bigger_handle_is_found_from_hypotheses_at_the_range_ends(library
     off, turned 25 deg), from which no scale step recovers; hypotheses at the ends of the
     scale range from the start find it."""
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = sized_library(library)
     sim = simulate_taskboard(sized, 522, articulated=True)
     obj, best = _fit(Registrar(sized), sim, "grab_handle")

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """rosbag2 bags (record / play / info) and the replay of the bundled operator session into a live
 engine node -- the regression test of a real recorded bag."""
+
 import math
 import os
 import shutil
@@ -19,7 +20,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from affordance_registration.ros.standins import bag as bag_module
-from affordance_registration.ros.standins.bag import BagError, Player, Recorder, StatusPacer, bag_info
+from affordance_registration.ros.standins.bag import (
+    BagError,
+    Player,
+    Recorder,
+    StatusPacer,
+    bag_info,
+)
 
 SESSION = os.path.join(os.path.dirname(__file__), "data", "session")
 
@@ -27,12 +34,15 @@ SESSION = os.path.join(os.path.dirname(__file__), "data", "session")
 @pytest.fixture
 def node(ros_context):
     import rclpy
+
     n = rclpy.create_node("bag_tester")
     ex = SingleThreadedExecutor()
     ex.add_node(n)
     stop = threading.Event()
-    t = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.02)
-                                         for _ in iter(stop.is_set, True)], daemon=True)
+    t = threading.Thread(
+        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)],
+        daemon=True,
+    )
     t.start()
     yield n
     stop.set()
@@ -50,15 +60,19 @@ def _wait(pred, timeout=60.0):
 
 
 def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    latched = QoSProfile(
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
     pub_a = node.create_publisher(String, "/bagtest/a", 10)
     pub_l = node.create_publisher(String, "/bagtest/latched", latched)
     out = str(tmp_path / "bag")
     rec = Recorder(node, out, ["/bagtest/a", "/bagtest/latched"])
     assert _wait(lambda: len(rec.connections) == 2)
-    assert _wait(lambda: pub_a.get_subscription_count() >= 1 and
-                 pub_l.get_subscription_count() >= 1)
+    assert _wait(
+        lambda: pub_a.get_subscription_count() >= 1 and pub_l.get_subscription_count() >= 1
+    )
     pub_l.publish(String(data="config"))
     for k in range(5):
         pub_a.publish(String(data=f"m{k}"))
@@ -72,21 +86,26 @@ def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
 
     info = bag_info(out)
     counts = {t["topic"]: (t["type"], t["count"]) for t in info["topics"]}
-    assert counts == {"/bagtest/a": ("std_msgs/msg/String", 5),
-                      "/bagtest/latched": ("std_msgs/msg/String", 1)}
-    assert 0.35 < info["duration_s"] < 6.0         # published 0.1 s apart (a loaded machine
+    assert counts == {
+        "/bagtest/a": ("std_msgs/msg/String", 5),
+        "/bagtest/latched": ("std_msgs/msg/String", 1),
+    }
+    assert 0.35 < info["duration_s"] < 6.0  # published 0.1 s apart (a loaded machine
     #                                                 may stamp them later, never earlier)
     meta = yaml.safe_load(open(os.path.join(out, "metadata.yaml")))["rosbag2_bagfile_information"]
     assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
-    topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
+    topics = {
+        t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]
+    }
     assert topics["/bagtest/a"]["type_description_hash"].startswith("RIHS01_")
     assert topics["/bagtest/latched"]["offered_qos_profiles"][0]["durability"] == "transient_local"
 
     # play at half the speed; the latched topic stays latched for a late subscriber
     player = Player(node, out, rate=0.5)
     got, stamps = [], []
-    node.create_subscription(String, "/bagtest/a", lambda m: (got.append(m.data),
-                                                              stamps.append(time.monotonic())), 10)
+    node.create_subscription(
+        String, "/bagtest/a", lambda m: (got.append(m.data), stamps.append(time.monotonic())), 10
+    )
     assert _wait(lambda: player.publishers["/bagtest/a"].get_subscription_count() >= 1)
     t0 = time.monotonic()
     assert player.play() == 6
@@ -97,6 +116,7 @@ def test_record_info_play_keeps_timing_and_latching(node, tmp_path):
     # later -- the first one late makes the span between them shorter -- so no arrival is held
     # to an upper bound but a loose one)
     from rosbags.rosbag2 import Reader
+
     with Reader(out) as reader:
         start = min(stamp for _, stamp, _ in reader.messages())
         conns = [c for c in reader.connections if c.topic == "/bagtest/a"]
@@ -122,6 +142,7 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
         bag_info(str(broken))
         # some truncations only show when the messages are read
         from affordance_registration.ros.standins.bag import read_messages
+
         for topic in ("/points", "/clicked_point", "/affordance_engine/status"):
             list(read_messages(str(broken), topic))
     garbage = tmp_path / "garbage"
@@ -131,8 +152,12 @@ def test_truncated_and_corrupt_bags_give_clear_errors(tmp_path):
         bag_info(str(garbage))
     with pytest.raises(BagError, match="no such bag"):
         bag_info(str(tmp_path / "missing"))
-    out = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "bag", "info",
-                          str(garbage)], capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "affordance_registration.cli", "bag", "info", str(garbage)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and "garbage" in out.stderr
 
@@ -141,9 +166,15 @@ def _cli(*argv_lists, timeout=60):
     """Run ``affordance-registration ARGV`` for each argv at once; (exit code, stdout, stderr)
     of each, the exit code None for one still running after ``timeout`` s (then killed: a
     regression that hangs fails instead of hanging the suite)."""
-    procs = [subprocess.Popen([sys.executable, "-m", "affordance_registration.cli", *argv],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for argv in argv_lists]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "affordance_registration.cli", *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for argv in argv_lists
+    ]
     deadline, results = time.monotonic() + timeout, []
     for proc in procs:
         try:
@@ -190,14 +221,17 @@ def test_a_fifo_or_device_in_a_bag_is_refused_not_read(tmp_path):
     (folder / "metadata.yaml").mkdir()
     fifo_file = tmp_path / "fifo.mcap"
     os.mkfifo(fifo_file)
-    cases = [(fifo_meta, fifo_meta / "metadata.yaml", "FIFO"),
-             (fifo_mcap, fifo_mcap / "bag.mcap", "FIFO"),
-             (device, device / "bag.mcap", "device"),
-             (folder, folder / "metadata.yaml", "folder"),
-             (fifo_file, fifo_file, "FIFO")]
+    cases = [
+        (fifo_meta, fifo_meta / "metadata.yaml", "FIFO"),
+        (fifo_mcap, fifo_mcap / "bag.mcap", "FIFO"),
+        (device, device / "bag.mcap", "device"),
+        (folder, folder / "metadata.yaml", "folder"),
+        (fifo_file, fifo_file, "FIFO"),
+    ]
     commands = ("info", "play")
-    results = iter(_cli(*[["bag", command, str(bag)] for bag, _, _ in cases
-                          for command in commands]))
+    results = iter(
+        _cli(*[["bag", command, str(bag)] for bag, _, _ in cases for command in commands])
+    )
     for bag, path, kind in cases:
         for command in commands:
             result = next(results)
@@ -208,9 +242,13 @@ def test_a_fifo_or_device_in_a_bag_is_refused_not_read(tmp_path):
 
 
 #: the numeric options of `bag record` / `bag play`, and whether 0 is refused too
-NUMBERS = [("record", "--duration", True), ("play", "--rate", True),
-           ("play", "--start-offset", False), ("play", "--wait-for-subscribers", False),
-           ("play", "--pace-timeout", True)]
+NUMBERS = [
+    ("record", "--duration", True),
+    ("play", "--rate", True),
+    ("play", "--start-offset", False),
+    ("play", "--wait-for-subscribers", False),
+    ("play", "--pace-timeout", True),
+]
 
 
 def _bag_argv(command, option, value, out):
@@ -219,24 +257,32 @@ def _bag_argv(command, option, value, out):
     return ["bag", "play", os.path.join(SESSION, "bag"), "--paced", option, value]
 
 
-@settings(max_examples=8, deadline=None, phases=(Phase.explicit, Phase.reuse, Phase.generate),
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(which=st.sampled_from(NUMBERS),
-       value=st.one_of(st.sampled_from([math.nan, math.inf, -math.inf]),
-                       st.floats(max_value=-1e-6, allow_nan=False, allow_infinity=False),
-                       st.just(0.0)))
-@example(which=NUMBERS[4], value=math.nan)          # it waited for ever
-@example(which=NUMBERS[2], value=math.nan)          # it blamed the bag
-@example(which=NUMBERS[0], value=-1.0)              # it was accepted
-@example(which=NUMBERS[3], value=math.nan)          # it was accepted
+@settings(
+    max_examples=8,
+    deadline=None,
+    phases=(Phase.explicit, Phase.reuse, Phase.generate),
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(
+    which=st.sampled_from(NUMBERS),
+    value=st.one_of(
+        st.sampled_from([math.nan, math.inf, -math.inf]),
+        st.floats(max_value=-1e-6, allow_nan=False, allow_infinity=False),
+        st.just(0.0),
+    ),
+)
+@example(which=NUMBERS[4], value=math.nan)  # it waited for ever
+@example(which=NUMBERS[2], value=math.nan)  # it blamed the bag
+@example(which=NUMBERS[0], value=-1.0)  # it was accepted
+@example(which=NUMBERS[3], value=math.nan)  # it was accepted
 def test_bad_numeric_options_give_one_line(tmp_path, which, value):
     """nan, inf or a negative number (or 0 where 0 makes no sense) for any numeric option of
     `bag record` / `bag play`: one line naming the option, exit 2, nothing created."""
     command, option, positive = which
     if value == 0 and not positive:
-        return                          # 0 s into the bag, no wait: fine
+        return  # 0 s into the bag, no wait: fine
     out = tmp_path / f"rec_{option.strip('-')}_{value}"
-    result, = _cli(_bag_argv(command, option, repr(value), out))
+    (result,) = _cli(_bag_argv(command, option, repr(value), out))
     assert result[0] is not None, f"{option} {value!r}: still running after 60 s"
     _one_line_error(result, option)
     assert not out.exists()
@@ -244,7 +290,7 @@ def test_bad_numeric_options_give_one_line(tmp_path, which, value):
 
 def test_a_start_offset_past_the_end_says_so(tmp_path):
     """An offset past the end of a healthy bag names the offset, not the bag as corrupt."""
-    result, = _cli(["bag", "play", os.path.join(SESSION, "bag"), "--start-offset", "1e300"])
+    (result,) = _cli(["bag", "play", os.path.join(SESSION, "bag"), "--start-offset", "1e300"])
     line = _one_line_error(result, "past the end")
     assert "corrupt" not in line and "truncated" not in line
 
@@ -253,11 +299,11 @@ def test_a_bad_topic_name_is_refused_before_any_file(node, tmp_path):
     """`bag record` with a name that breaks the ROS 2 topic name rules: one line saying so,
     exit 2, and neither the bag folder nor any file of it made."""
     out = tmp_path / "nb"
-    results = _cli(["bag", "record", str(out), "bad topic!!", "--duration", "1"],
-                   ["bag", "record", str(tmp_path / "nb2" / "deeper"), "/fine", "a//b",
-                    "--duration", "1"],
-                   ["bag", "play", os.path.join(SESSION, "bag"), "--paced",
-                    "--status-topic", "not ok"])
+    results = _cli(
+        ["bag", "record", str(out), "bad topic!!", "--duration", "1"],
+        ["bag", "record", str(tmp_path / "nb2" / "deeper"), "/fine", "a//b", "--duration", "1"],
+        ["bag", "play", os.path.join(SESSION, "bag"), "--paced", "--status-topic", "not ok"],
+    )
     _one_line_error(results[0], "'bad topic!!'", "topic name")
     _one_line_error(results[1], "'a//b'", "topic name")
     _one_line_error(results[2], "'not ok'", "topic name")
@@ -280,6 +326,7 @@ def test_a_failed_recording_leaves_no_partial_bag(node, tmp_path, monkeypatch):
 
     def broken():
         raise OSError(28, "No space left on device")
+
     with monkeypatch.context() as m:
         m.setattr(bag_module, "_typestore", broken)
         with pytest.raises(OSError):
@@ -293,6 +340,7 @@ def test_a_failed_recording_leaves_no_partial_bag(node, tmp_path, monkeypatch):
 
     def full(*args):
         raise OSError(28, "No space left on device")
+
     monkeypatch.setattr(rec.writer, "write", full)
     pub.publish(String(data="lost"))
     assert _wait(lambda: rec.error is not None)
@@ -305,6 +353,7 @@ def test_a_failed_recording_leaves_no_partial_bag(node, tmp_path, monkeypatch):
     # the timer's failure is kept in .error (not raised in the node's spin thread); with nothing
     # recorded yet there is no bag, else the bag keeps what was recorded before
     from rosbags.typesys import Stores, get_typestore
+
     rec = Recorder(node, str(out), ["/bagtest/odd"])
     rec.typestore = get_typestore(Stores.EMPTY)
     pub = node.create_publisher(String, "/bagtest/odd", 10)
@@ -362,10 +411,15 @@ def test_bundled_session_replays_into_a_live_node(ros_context, tmp_path, library
     registered objects match the truth and what the node reported when the session was
     recorded."""
     from affordance_registration.evaluation.session import replay_session
+
     info = bag_info(os.path.join(SESSION, "bag"))
-    assert {t["topic"] for t in info["topics"]} >= {"/points", "/clicked_point",
-                                                    "/spacenav/joy", "/spacenav/twist",
-                                                    "/affordance_engine/status"}
+    assert {t["topic"] for t in info["topics"]} >= {
+        "/points",
+        "/clicked_point",
+        "/spacenav/joy",
+        "/spacenav/twist",
+        "/affordance_engine/status",
+    }
     assert os.path.getsize(os.path.join(SESSION, "bag", "bag.mcap")) < 8e6
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     try:
@@ -402,18 +456,26 @@ def test_demo_verdict_names_what_failed(library):
     from affordance_registration.evaluation.session import compare_with_recording, session_rows
     from affordance_registration.evaluation.simulation import CameraIntrinsics, load_truth
     from affordance_registration.ros.standins.bag import read_messages
+
     truth = load_truth(os.path.join(SESSION, "truth.yaml"))
-    recorded = [json.loads(m.data) for m in
-                read_messages(os.path.join(SESSION, "bag"), "/affordance_engine/status")][-1]
-    good = compare_with_recording(session_rows(recorded, truth, library),
-                                  recorded["registered"], recorded["registered"], library)
+    recorded = [
+        json.loads(m.data)
+        for m in read_messages(os.path.join(SESSION, "bag"), "/affordance_engine/status")
+    ][-1]
+    good = compare_with_recording(
+        session_rows(recorded, truth, library),
+        recorded["registered"],
+        recorded["registered"],
+        library,
+    )
     assert [r["ok"] for r in good] == [True] * 5 and verdict_line(good) == "DEMO OK"
     live = json.loads(json.dumps(recorded))
-    live["registered"][2]["pose"][0][3] += 0.007                  # 7 mm off along x
+    live["registered"][2]["pose"][0][3] += 0.007  # 7 mm off along x
     moved = live["registered"][2]["template"]
-    live["registered"] = live["registered"][:4]                     # the last one missing
-    rows = compare_with_recording(session_rows(live, truth, library), recorded["registered"],
-                                  live["registered"], library)
+    live["registered"] = live["registered"][:4]  # the last one missing
+    rows = compare_with_recording(
+        session_rows(live, truth, library), recorded["registered"], live["registered"], library
+    )
     assert [r["ok"] for r in rows] == [True, True, False, True, False]
     assert "mm > 5 mm" in rows[2]["why"] and "from the recorded registration" in rows[2]["why"]
     assert rows[4]["why"] == "not registered in the replay"
@@ -422,8 +484,12 @@ def test_demo_verdict_names_what_failed(library):
     assert lines[3].endswith(f"FAIL ({rows[2]['why']})") and lines[1].endswith("PASS")
     last = verdict_line(rows)
     assert last.startswith("DEMO FAILED: ") and moved in last and rows[4]["template"] in last
-    picture = render_verdict(np.zeros((0, 3)), [
-        {**r, "ok": v["ok"], "why": v["why"]} for r, v in zip(live["registered"], rows)],
-        [], library, CameraIntrinsics(**truth["intrinsics"]))
+    picture = render_verdict(
+        np.zeros((0, 3)),
+        [{**r, "ok": v["ok"], "why": v["why"]} for r, v in zip(live["registered"], rows)],
+        [],
+        library,
+        CameraIntrinsics(**truth["intrinsics"]),
+    )
     colours = {tuple(c) for c in picture.reshape(-1, 3)}
     assert FAIL_COLOUR in colours and PASS_COLOUR in colours

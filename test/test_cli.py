@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The command line, run as a user would: separate processes, exit codes, one-line errors."""
+
 import json
 import math
 import subprocess
@@ -14,8 +15,12 @@ from affordance_registration.core.transforms import pose_error
 
 
 def run(*args, check=False):
-    out = subprocess.run([sys.executable, "-m", "affordance_registration.cli", *args],
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-m", "affordance_registration.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if check:
         assert out.returncode == 0, out.stderr
     return out
@@ -24,15 +29,20 @@ def run(*args, check=False):
 def run_all(*commands):
     """Independent CLI commands (argument lists) run at the same time, each its own process;
     their results in order (mostly each one's start-up: the second core takes half)."""
-    procs = [subprocess.Popen([sys.executable, "-m", "affordance_registration.cli", *args],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for args in commands]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "affordance_registration.cli", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for args in commands
+    ]
     results = []
     try:
         for proc in procs:
             stdout, stderr = proc.communicate(timeout=300)
-            results.append(subprocess.CompletedProcess(proc.args, proc.returncode, stdout,
-                                                       stderr))
+            results.append(subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr))
     finally:
         for proc in procs:
             if proc.poll() is None:
@@ -56,20 +66,39 @@ def test_simulate_then_fit_json_contract(scene11, library):
     truth = yaml.safe_load((out / "truth.yaml").read_text())
     obj = truth["objects"][0]
     fit = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]))
-    res, table = run_all((*fit, "--json"), fit)        # the JSON and the readable table
+    res, table = run_all((*fit, "--json"), fit)  # the JSON and the readable table
     assert res.returncode == 0 and table.returncode == 0, res.stderr + table.stderr
     doc = json.loads(res.stdout)
-    assert set(doc) == {"point", "sensor_origin", "verdict", "no_match", "reason", "noise",
-                        "candidates", "ambiguity", "timing_s"}
+    assert set(doc) == {
+        "point",
+        "sensor_origin",
+        "verdict",
+        "no_match",
+        "reason",
+        "noise",
+        "candidates",
+        "ambiguity",
+        "timing_s",
+    }
     assert doc["ambiguity"]["settled"] is True and doc["ambiguity"]["kinds"] == []
     assert len(doc["point"]) == 3 and doc["sensor_origin"] == [0.0, 0.0, 0.0]
     assert doc["verdict"] == "fits" and doc["no_match"] is False
     ranks = [c["rank"] for c in doc["candidates"]]
     assert ranks == sorted(ranks) and ranks[0] == 1
     for c in doc["candidates"]:
-        assert {"rank", "template", "likelihood", "residual", "pose", "coverage", "inlier_rmse",
-                "fits", "converged", "prefiltered"} <= set(c)
-        assert c["prefiltered"] is False        # five templates: the prefilter does not act
+        assert {
+            "rank",
+            "template",
+            "likelihood",
+            "residual",
+            "pose",
+            "coverage",
+            "inlier_rmse",
+            "fits",
+            "converged",
+            "prefiltered",
+        } <= set(c)
+        assert c["prefiltered"] is False  # five templates: the prefilter does not act
         assert np.asarray(c["pose"]).shape == (4, 4)
     best = doc["candidates"][0]
     assert best["template"] == obj["template"]
@@ -79,17 +108,23 @@ def test_simulate_then_fit_json_contract(scene11, library):
     tpl = library[best["template"]]
     assert [w["name"] for w in best["waypoints"]] == [w.name for w in tpl.waypoints]
     for w, declared in zip(best["waypoints"], tpl.waypoints):
-        if declared.part is None:      # a fixed waypoint: the pose times the declared one
-            assert np.allclose(w["pose"], np.asarray(best["pose"]) @ declared.T_parent_ee,
-                               atol=1e-6)
-        assert np.linalg.norm(np.asarray(w["position"]) - np.asarray(best["pose"])[:3, 3]) \
+        if declared.part is None:  # a fixed waypoint: the pose times the declared one
+            assert np.allclose(
+                w["pose"], np.asarray(best["pose"]) @ declared.T_parent_ee, atol=1e-6
+            )
+        assert (
+            np.linalg.norm(np.asarray(w["position"]) - np.asarray(best["pose"])[:3, 3])
             < tpl.diameter
-    dt, dr = pose_error(np.asarray(best["pose"]), np.asarray(obj["T_scene_model"]),
-                        library[obj["template"]].symmetry)
+        )
+    dt, dr = pose_error(
+        np.asarray(best["pose"]),
+        np.asarray(obj["T_scene_model"]),
+        library[obj["template"]].symmetry,
+    )
     assert dt < 0.005 and dr < math.radians(5)
     # the readable table names the templates in rank order
     lines = table.stdout.splitlines()
-    assert lines[1].startswith(f"{obj['template']} fits")          # the verdict, then the table
+    assert lines[1].startswith(f"{obj['template']} fits")  # the verdict, then the table
     assert lines[2].split()[:2] == ["rank", "template"] and lines[3].split()[1] == obj["template"]
 
 
@@ -111,7 +146,8 @@ def test_simulate_bad_input_leaves_no_output(tmp_path):
         ("simulate", "--out", str(tmp_path / "a"), "--seed", "minus one"),
         ("simulate", "--out", str(tmp_path / "b"), "--seed", "-4"),
         ("simulate", "--out", str(blocker / "out"), "--seed", "1"),
-        ("simulate", "--out", str(tmp_path / "c"), "--templates", str(broken)))
+        ("simulate", "--out", str(tmp_path / "c"), "--templates", str(broken)),
+    )
     # one rule, one wording, for words and for numbers out of range
     for res, out in ((words, "a"), (negative, "b")):
         line = _one_line_error(res)
@@ -124,12 +160,18 @@ def test_simulate_bad_input_leaves_no_output(tmp_path):
 
 
 def test_fit_bad_input(tmp_path):
-    line = _one_line_error(run("fit", "--scene", str(tmp_path / "missing.ply"), "--point", "0", "0", "1"))
+    line = _one_line_error(
+        run("fit", "--scene", str(tmp_path / "missing.ply"), "--point", "0", "0", "1")
+    )
     assert "missing.ply" in line
-    (tmp_path / "empty.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\n"
-                                        "property float x\nproperty float y\nproperty float z\n"
-                                        "end_header\n")
-    line = _one_line_error(run("fit", "--scene", str(tmp_path / "empty.ply"), "--point", "0", "0", "1"))
+    (tmp_path / "empty.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 0\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        "end_header\n"
+    )
+    line = _one_line_error(
+        run("fit", "--scene", str(tmp_path / "empty.ply"), "--point", "0", "0", "1")
+    )
     assert "no points" in line
 
 
@@ -140,6 +182,7 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, li
     import shutil
 
     from affordance_registration.core.templates import default_models_dir
+
     models = default_models_dir()
     lib = tmp_path / "templates"
     shutil.copytree(f"{models}/meshes", lib / "meshes")
@@ -147,12 +190,20 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, li
         with open(f"{models}/{name}.yaml", encoding="utf-8") as f:
             doc = yaml.safe_load(f)
         for label, scale in (("", 1.0), ("_small", 0.75), ("_large", 1.4)):
-            (lib / f"{name}{label}.yaml").write_text(yaml.safe_dump(
-                dict(doc, name=f"{name}{label}", mesh_scale=scale)))
+            (lib / f"{name}{label}.yaml").write_text(
+                yaml.safe_dump(dict(doc, name=f"{name}{label}", mesh_scale=scale))
+            )
     out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
-    args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, obj["click"]),
-            "--templates", str(lib))
+    args = (
+        "fit",
+        "--scene",
+        str(out / "scene.ply"),
+        "--point",
+        *map(str, obj["click"]),
+        "--templates",
+        str(lib),
+    )
     as_json, as_table = run_all((*args, "--json"), args)
     assert as_json.returncode == 0 and as_table.returncode == 0, as_json.stderr + as_table.stderr
     cands = json.loads(as_json.stdout)["candidates"]
@@ -160,8 +211,11 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, li
     aside = [c for c in cands if c["prefiltered"]]
     assert aside and all(c["fits"] is None and c["coverage"] == 0 for c in aside)
     assert all(isinstance(c["fits"], bool) for c in cands if not c["prefiltered"])
-    rows = {line.split()[1]: line.split() for line in as_table.stdout.splitlines()
-            if line.split()[:1] and line.split()[0].isdigit()}
+    rows = {
+        line.split()[1]: line.split()
+        for line in as_table.stdout.splitlines()
+        if line.split()[:1] and line.split()[0].isdigit()
+    }
     assert len(rows) == 15
     for c in cands:
         assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
@@ -172,30 +226,38 @@ def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):
     the whole of what a partial file gives; ``fit --settings`` fits with them (a 2 mm snap
     distance refuses a click 1 cm off the surface) and a bad file is one line, exit 2."""
     from affordance_registration.core.registration import FitSettings
+
     res = run("settings", check=True)
     assert yaml.safe_load(res.stdout) == FitSettings().to_dict()
     partial = tmp_path / "fit.yaml"
     partial.write_text("crop:\n  snap_distance: 0.002\nseed: 4\n")
     res = run("settings", str(partial), check=True)
-    assert FitSettings.from_dict(yaml.safe_load(res.stdout)) == \
-        FitSettings(seed=4).with_(**{"crop.snap_distance": 0.002})
+    assert FitSettings.from_dict(yaml.safe_load(res.stdout)) == FitSettings(seed=4).with_(
+        **{"crop.snap_distance": 0.002}
+    )
     out, _ = scene11
     obj = yaml.safe_load((out / "truth.yaml").read_text())["objects"][0]
     off = list(obj["click"])
     off[2] -= 0.01
     args = ("fit", "--scene", str(out / "scene.ply"), "--point", *map(str, off))
-    bad = (("crop:\n  snap: 1\n", "unknown setting crop.snap"),
-           ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
-           ("[1, 2\n", "not valid YAML (line 2)"))
+    bad = (
+        ("crop:\n  snap: 1\n", "unknown setting crop.snap"),
+        ("mode: sideways\n", "mode must be one of: auto, mounted, free"),
+        ("[1, 2\n", "not valid YAML (line 2)"),
+    )
     for k, (text, _) in enumerate(bad):
         (tmp_path / f"bad{k}.yaml").write_text(text)
     snapped, default, *refused = run_all(
-        (*args, "--settings", str(partial)), (*args, "--json"),
-        *((*args, "--settings", str(tmp_path / f"bad{k}.yaml")) for k in range(len(bad))))
+        (*args, "--settings", str(partial)),
+        (*args, "--json"),
+        *((*args, "--settings", str(tmp_path / f"bad{k}.yaml")) for k in range(len(bad))),
+    )
     line = _one_line_error(snapped)
     assert "limit 0.2 cm" in line and res.returncode == 0
-    assert default.returncode == 0, default.stderr              # the default 3 cm snaps it
+    assert default.returncode == 0, default.stderr  # the default 3 cm snaps it
     for (_, words), res in zip(bad, refused):
         assert res.returncode == 2 and words in _one_line_error(res), res.stderr
     res = run("settings", str(tmp_path / "nowhere.yaml"))
-    assert res.returncode == 2 and "nowhere.yaml: cannot read: No such file" in _one_line_error(res)
+    assert res.returncode == 2 and "nowhere.yaml: cannot read: No such file" in _one_line_error(
+        res
+    )

@@ -6,6 +6,7 @@ the bundled templates, clicked where it stands touching real objects on the held
 posed within 5 mm / 5 deg; the global (feature-matching) hypotheses behind it are deterministic.
 Real data from ``../shared/data`` or ``$AFFORDANCE_SHARED_DATA``; skipped in one line where
 absent."""
+
 import os
 
 import numpy as np
@@ -30,6 +31,7 @@ def armadillo(tmp_path_factory):
     from affordance_registration.core.registration import Registrar
     from affordance_registration.core.templates import TemplateLibrary, load_template
     from affordance_registration.evaluation.clutter import armadillo_template
+
     try:
         yml = armadillo_template(str(tmp_path_factory.mktemp("armadillo")))
     except AffordanceError as exc:
@@ -42,6 +44,7 @@ def armadillo(tmp_path_factory):
 @needs_data
 def test_armadillo_found_in_held_out_clutter(armadillo):
     from affordance_registration.evaluation.rows import _armadillo_row
+
     yml, tpl, registrar = armadillo
     scenes = rd.osd_scene_paths(held_out=True)
     assert len(scenes) == len(rd.HELD_OUT)
@@ -60,13 +63,14 @@ def test_global_hypotheses_are_deterministic_and_reach_the_pose(armadillo):
     from affordance_registration.core.scene import Scene
     from affordance_registration.core.transforms import make_T, pose_error
     from affordance_registration.evaluation.clutter import armadillo_clutter
+
     yml, tpl, registrar = armadillo
     case = armadillo_clutter(yml, os.path.join(rd.osd_dir(), "learn0.pcd"), 1)
     scene = Scene(case.points.reshape(-1, 3), sensor_origin=case.sensor_origin)
     ctx = registrar.prepare(scene, case.click)
     model = registrar._model(tpl.name)
     first = global_alignments(ctx, model)
-    o3d.utility.random.seed(12345)           # whatever the caller seeded Open3D with
+    o3d.utility.random.seed(12345)  # whatever the caller seeded Open3D with
     again = global_alignments(ctx, model)
     assert len(first) == len(GLOBAL_RUNS) == len(again)
     for (R1, t1), (R2, t2) in zip(first, again):
@@ -84,8 +88,7 @@ JOINED = (("learn4", 0, 3), ("learn8", 0, 2), ("learn41", 0, 3))
 
 @needs_data
 @pytest.mark.parametrize("scene,seed,touched", JOINED)
-def test_a_known_object_joined_to_the_box_it_touches_is_accepted(armadillo, scene, seed,
-                                                                  touched):
+def test_a_known_object_joined_to_the_box_it_touches_is_accepted(armadillo, scene, seed, touched):
     """The clicked segment holds the Armadillo and the real object it touches; the statue,
     right within 5 mm / 5 deg, lies on none of the other object's smooth patches, which are
     a neighbour, not a part it leaves unexplained: it explains the object and is accepted
@@ -96,6 +99,7 @@ def test_a_known_object_joined_to_the_box_it_touches_is_accepted(armadillo, scen
     from affordance_registration.core.scene import Scene
     from affordance_registration.core.transforms import pose_error
     from affordance_registration.evaluation.clutter import armadillo_clutter
+
     yml, tpl, registrar = armadillo
     case = armadillo_clutter(yml, os.path.join(rd.osd_dir(), f"{scene}.pcd"), seed)
     assert touched in case.touches
@@ -113,5 +117,6 @@ def test_a_known_object_joined_to_the_box_it_touches_is_accepted(armadillo, scen
     assert best.fits is True and best.explained >= 0.8, best.reason
     click, _ = rd.click_in_middle(case.points, ids == touched)
     there = registrar.fit(scene_, click).candidates
-    assert not any(c.template == tpl.name and c.fits for c in there), \
-        [(c.template, c.fits, c.explained) for c in there[:3]]
+    assert not any(c.template == tpl.name and c.fits for c in there), [
+        (c.template, c.fits, c.explained) for c in there[:3]
+    ]

@@ -10,6 +10,7 @@ The workspace is a copy of this checkout in a temporary folder; the builds take 
 idle machine. ``colcon test`` is checked to discover and run the package's tests through pytest
 on one quick test file, and to collect the whole suite when given no file (running all of it
 inside it would repeat ``make test``)."""
+
 from __future__ import annotations
 
 import os
@@ -28,19 +29,39 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = "affordance_registration"
 VENV_BIN = Path(sys.executable).parent
 #: what a developer's checkout holds that is not the package's source
-IGNORE = shutil.ignore_patterns(".venv", ".git", "__pycache__", "*.egg-info", ".pytest_cache",
-                                ".hypothesis", "demo_output", "bench_output", "station_output",
-                                "build", "install", "log")
-SCRIPTS = ("affordance-registration", "affordance_engine", "affordance_spacemouse",
-           "affordance_station", "affordance_simulated_scan", "affordance_file_scan")
+IGNORE = shutil.ignore_patterns(
+    ".venv",
+    ".git",
+    "__pycache__",
+    "*.egg-info",
+    ".pytest_cache",
+    ".hypothesis",
+    "demo_output",
+    "bench_output",
+    "station_output",
+    "build",
+    "install",
+    "log",
+)
+SCRIPTS = (
+    "affordance-registration",
+    "affordance_engine",
+    "affordance_spacemouse",
+    "affordance_station",
+    "affordance_simulated_scan",
+    "affordance_file_scan",
+)
 
 pytestmark = pytest.mark.colcon
 
 
 def _env() -> dict:
     """This process's environment without a sourced workspace, the venv's tools first."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH")
+    }
     env["PATH"] = f"{VENV_BIN}{os.pathsep}{env.get('PATH', '')}"
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
@@ -61,14 +82,25 @@ class Workspace:
         return ["sh", "-c", f'. "{self.install}/local_setup.sh" && exec "$@"', "sh", *argv]
 
     def run(self, argv, timeout=300, **kw) -> subprocess.CompletedProcess:
-        return subprocess.run(self.sourced([str(a) for a in argv]), capture_output=True,
-                              text=True, timeout=timeout, env=_env(), cwd=kw.get("cwd", "/"))
+        return subprocess.run(
+            self.sourced([str(a) for a in argv]),
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            env=_env(),
+            cwd=kw.get("cwd", "/"),
+        )
 
     def start(self, argv, log: Path) -> subprocess.Popen:
         handle = open(log, "w")
-        return subprocess.Popen(self.sourced([str(a) for a in argv]), stdout=handle,
-                                stderr=subprocess.STDOUT, env=_env(), cwd="/",
-                                start_new_session=True)
+        return subprocess.Popen(
+            self.sourced([str(a) for a in argv]),
+            stdout=handle,
+            stderr=subprocess.STDOUT,
+            env=_env(),
+            cwd="/",
+            start_new_session=True,
+        )
 
 
 def _colcon_argv(*args, log_base="log") -> list[str]:
@@ -76,13 +108,15 @@ def _colcon_argv(*args, log_base="log") -> list[str]:
 
 
 def _colcon(root: Path, *args) -> subprocess.CompletedProcess:
-    return subprocess.run(_colcon_argv(*args), cwd=root, capture_output=True, text=True,
-                          env=_env(), timeout=600)
+    return subprocess.run(
+        _colcon_argv(*args), cwd=root, capture_output=True, text=True, env=_env(), timeout=600
+    )
 
 
 def _started(argv, cwd) -> subprocess.Popen:
-    return subprocess.Popen(argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=_env())
+    return subprocess.Popen(
+        argv, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env()
+    )
 
 
 def _finished(proc: subprocess.Popen, timeout: float) -> subprocess.CompletedProcess:
@@ -106,14 +140,30 @@ def workspaces(tmp_path_factory):
     try:
         for kind, extra in kinds:
             ws = Workspace(root, kind)
-            builds[kind] = (ws, extra, _started(_colcon_argv(
-                "build", "--build-base", ws.build.name, "--install-base", ws.install.name,
-                "--event-handlers", "console_direct+", *extra, log_base=f"log_{kind}"), root))
+            builds[kind] = (
+                ws,
+                extra,
+                _started(
+                    _colcon_argv(
+                        "build",
+                        "--build-base",
+                        ws.build.name,
+                        "--install-base",
+                        ws.install.name,
+                        "--event-handlers",
+                        "console_direct+",
+                        *extra,
+                        log_base=f"log_{kind}",
+                    ),
+                    root,
+                ),
+            )
         built = {}
         for kind, (ws, extra, proc) in builds.items():
             out = _finished(proc, 600)
-            assert out.returncode == 0, f"colcon build {' '.join(extra)}:\n{out.stdout[-3000:]}" \
-                                        f"{out.stderr[-3000:]}"
+            assert out.returncode == 0, (
+                f"colcon build {' '.join(extra)}:\n{out.stdout[-3000:]}{out.stderr[-3000:]}"
+            )
             # setuptools says nothing about options it does not know (tests_require was one)
             assert "Unknown distribution option" not in out.stdout + out.stderr
             built[kind] = ws
@@ -139,6 +189,7 @@ def _stop(proc: subprocess.Popen) -> int | None:
 
 def _wait_log(log: Path, proc: subprocess.Popen, text: str, timeout: float) -> str:
     import time
+
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         got = log.read_text()
@@ -169,8 +220,9 @@ def test_every_console_script_is_installed_for_ros2_run(workspaces, kind):
     out = ws.run([ws.lib / "affordance-registration", "--help"])
     assert out.returncode == 0 and "station" in out.stdout, out.stderr
     # the installed code runs, not this checkout's
-    where = ws.run([VENV_BIN / "python", "-c", "import affordance_registration as a; "
-                    "print(a.__file__)"])
+    where = ws.run(
+        [VENV_BIN / "python", "-c", "import affordance_registration as a; print(a.__file__)"]
+    )
     assert where.stdout.startswith(str(ws.root)), where.stdout + where.stderr
 
 
@@ -184,25 +236,39 @@ def test_installed_nodes_start_and_talk(workspaces, kind, tmp_path):
     ws = workspaces[kind]
     port = free_port()
     procs = {}
-    logs = {name: tmp_path / f"{name}.log" for name in ("engine", "scan", "station",
-                                                        "spacemouse")}
+    logs = {name: tmp_path / f"{name}.log" for name in ("engine", "scan", "station", "spacemouse")}
     library = [] if kind == "plain" else ["-p", f"templates_dir:={ws.share / 'models'}"]
     try:
-        procs["engine"] = ws.start([ws.lib / "affordance_engine", "--ros-args", *library, "-p",
-                                    f"registrations_file:={tmp_path / 'r.yaml'}"],
-                                   logs["engine"])
-        procs["scan"] = ws.start([ws.lib / "affordance_simulated_scan", "--ros-args", "-p",
-                                  "seed:=3"], logs["scan"])
-        if kind == "plain":        # no device here: it says it is looking for one, and waits
+        procs["engine"] = ws.start(
+            [
+                ws.lib / "affordance_engine",
+                "--ros-args",
+                *library,
+                "-p",
+                f"registrations_file:={tmp_path / 'r.yaml'}",
+            ],
+            logs["engine"],
+        )
+        procs["scan"] = ws.start(
+            [ws.lib / "affordance_simulated_scan", "--ros-args", "-p", "seed:=3"], logs["scan"]
+        )
+        if kind == "plain":  # no device here: it says it is looking for one, and waits
             procs["spacemouse"] = ws.start([ws.lib / "affordance_spacemouse"], logs["spacemouse"])
             _wait_log(logs["spacemouse"], procs["spacemouse"], "looking for a SpaceMouse", 120)
         if kind == "symlink":
-            procs["station"] = ws.start([ws.lib / "affordance_station", "--ros-args", "-p",
-                                         f"port:={port}"], logs["station"])
-            _wait_log(logs["station"], procs["station"],
-                      f"operator station on http://127.0.0.1:{port}", 120)
-        _wait_log(logs["engine"], procs["engine"], "ready: 7 templates (ball_valve, box, cylinder, ",
-                  120)
+            procs["station"] = ws.start(
+                [ws.lib / "affordance_station", "--ros-args", "-p", f"port:={port}"],
+                logs["station"],
+            )
+            _wait_log(
+                logs["station"],
+                procs["station"],
+                f"operator station on http://127.0.0.1:{port}",
+                120,
+            )
+        _wait_log(
+            logs["engine"], procs["engine"], "ready: 7 templates (ball_valve, box, cylinder, ", 120
+        )
         _wait_log(logs["scan"], procs["scan"], "simulated panel scan (seed 3)", 120)
         # the engine logs the scan's cloud when it arrives: the nodes talk over DDS
         _wait_log(logs["engine"], procs["engine"], "cloud: ", 120)
@@ -216,10 +282,12 @@ def test_demo_runs_from_the_symlink_install(workspaces, tmp_path):
     with the package (share/affordance_registration/test/data/session)."""
     ws = workspaces["symlink"]
     assert (ws.share / "test" / "data" / "session" / "bag" / "metadata.yaml").exists()
-    out = ws.run([ws.lib / "affordance-registration", "demo", "--out", tmp_path / "demo"],
-                 timeout=400)
-    assert out.returncode == 0 and out.stdout.strip().endswith("DEMO OK"), \
+    out = ws.run(
+        [ws.lib / "affordance-registration", "demo", "--out", tmp_path / "demo"], timeout=400
+    )
+    assert out.returncode == 0 and out.stdout.strip().endswith("DEMO OK"), (
         out.stdout[-2000:] + out.stderr[-2000:]
+    )
     assert (tmp_path / "demo" / "registrations.yaml").is_file()
 
 
@@ -227,14 +295,26 @@ def test_colcon_test_runs_the_package_tests(workspaces):
     """``colcon test`` finds pytest for the package and runs the test files it is given; the
     results land in pytest.xml for ``colcon test-result``."""
     ws = workspaces["plain"]
-    out = _colcon(ws.root, "test", "--build-base", ws.build.name, "--install-base",
-                  ws.install.name, "--event-handlers", "console_direct+", "--pytest-args",
-                  "test/test_files.py")
+    out = _colcon(
+        ws.root,
+        "test",
+        "--build-base",
+        ws.build.name,
+        "--install-base",
+        ws.install.name,
+        "--event-handlers",
+        "console_direct+",
+        "--pytest-args",
+        "test/test_files.py",
+    )
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     report = ET.parse(ws.build / PKG / "pytest.xml").getroot()
     suite = report if report.tag == "testsuite" else report.find("testsuite")
-    assert int(suite.get("tests")) >= 1 and int(suite.get("failures")) == 0 and \
-        int(suite.get("errors")) == 0
+    assert (
+        int(suite.get("tests")) >= 1
+        and int(suite.get("failures")) == 0
+        and int(suite.get("errors")) == 0
+    )
     result = _colcon(ws.root, "test-result", "--test-result-base", ws.build.name)
     assert result.returncode == 0, result.stdout + result.stderr
 
@@ -245,12 +325,24 @@ def test_colcon_test_collects_the_whole_suite(workspaces):
     repeat ``make test``)."""
     ws = workspaces["plain"]
     # the source tree's collection runs while the workspace's does (each is mostly imports)
-    here = _started([sys.executable, "-m", "pytest", "--collect-only", "-q",
-                     "-p", "no:cacheprovider", "test"], ROOT)
+    here = _started(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", "test"],
+        ROOT,
+    )
     try:
-        out = _colcon(ws.root, "test", "--build-base", ws.build.name, "--install-base",
-                      ws.install.name, "--event-handlers", "console_direct+", "--pytest-args",
-                      "--collect-only", "-q")
+        out = _colcon(
+            ws.root,
+            "test",
+            "--build-base",
+            ws.build.name,
+            "--install-base",
+            ws.install.name,
+            "--event-handlers",
+            "console_direct+",
+            "--pytest-args",
+            "--collect-only",
+            "-q",
+        )
     finally:
         here = _finished(here, 300)
     counted = [re.search(r"(\d+) tests? collected", o) for o in (out.stdout, here.stdout)]

@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Message conversions, without rclpy.init: PointCloud2 layouts, poses, frame graphs."""
+
 import math
 import struct
 
@@ -23,9 +24,18 @@ from affordance_registration.ros.glue.frames import FrameError, FrameGraph, Stat
 def _pack(points, layout, point_step, big_endian=False, row_pad=0, width=None):
     """Build a PointCloud2 the slow, obvious way (struct per point) as an independent reference.
     ``layout``: list of (name, offset, datatype, value_fn)."""
-    fmt_char = {PointField.FLOAT32: "f", PointField.FLOAT64: "d", PointField.UINT8: "B",
-                PointField.UINT32: "I"}
-    size = {PointField.FLOAT32: 4, PointField.FLOAT64: 8, PointField.UINT8: 1, PointField.UINT32: 4}
+    fmt_char = {
+        PointField.FLOAT32: "f",
+        PointField.FLOAT64: "d",
+        PointField.UINT8: "B",
+        PointField.UINT32: "I",
+    }
+    size = {
+        PointField.FLOAT32: 4,
+        PointField.FLOAT64: 8,
+        PointField.UINT8: 1,
+        PointField.UINT32: 4,
+    }
     order = ">" if big_endian else "<"
     n = len(points)
     width = width or n
@@ -39,8 +49,9 @@ def _pack(points, layout, point_step, big_endian=False, row_pad=0, width=None):
             struct.pack_into(order + fmt_char[dtype], data, base + offset, fn(p, i))
     msg = PointCloud2()
     msg.height, msg.width = height, width
-    msg.fields = [PointField(name=name, offset=off, datatype=dt, count=1)
-                  for name, off, dt, _ in layout]
+    msg.fields = [
+        PointField(name=name, offset=off, datatype=dt, count=1) for name, off, dt, _ in layout
+    ]
     msg.is_bigendian = big_endian
     msg.point_step, msg.row_step = point_step, row_step
     msg.data = bytes(data)
@@ -48,7 +59,7 @@ def _pack(points, layout, point_step, big_endian=False, row_pad=0, width=None):
     return msg
 
 
-XYZ = lambda k: (lambda p, i: float(p[k]))   # noqa: E731
+XYZ = lambda k: lambda p, i: float(p[k])  # noqa: E731
 
 
 @pytest.mark.parametrize("big_endian", [False, True])
@@ -59,11 +70,13 @@ def test_any_layout_with_float_xyz(big_endian, dtype):
     pts[5] = np.nan
     w = 8 if dtype == PointField.FLOAT64 else 4
     # z before x, an intensity and an rgb field in between, padding at the end of points and rows
-    layout = [("rgb", 0, PointField.UINT32, lambda p, i: i),
-              ("z", 4, dtype, XYZ(2)),
-              ("intensity", 4 + w, PointField.FLOAT32, lambda p, i: 0.5),
-              ("x", 8 + w, dtype, XYZ(0)),
-              ("y", 8 + 2 * w, dtype, XYZ(1))]
+    layout = [
+        ("rgb", 0, PointField.UINT32, lambda p, i: i),
+        ("z", 4, dtype, XYZ(2)),
+        ("intensity", 4 + w, PointField.FLOAT32, lambda p, i: 0.5),
+        ("x", 8 + w, dtype, XYZ(0)),
+        ("y", 8 + 2 * w, dtype, XYZ(1)),
+    ]
     msg = _pack(pts, layout, point_step=8 + 3 * w + 5, big_endian=big_endian, row_pad=7, width=6)
     out, shape = pointcloud2_to_xyz(msg)
     assert shape == (4, 6)
@@ -96,8 +109,10 @@ def test_malformed_clouds_raise_clear_errors():
     with pytest.raises(ConversionError, match="no z field"):
         pointcloud2_to_xyz(no_z)
     ints = xyz_to_pointcloud2(np.zeros((4, 3)), "cam")
-    ints.fields = [PointField(name=n, offset=4 * i, datatype=PointField.INT32, count=1)
-                   for i, n in enumerate("xyz")]
+    ints.fields = [
+        PointField(name=n, offset=4 * i, datatype=PointField.INT32, count=1)
+        for i, n in enumerate("xyz")
+    ]
     with pytest.raises(ConversionError, match="FLOAT32"):
         pointcloud2_to_xyz(ints)
     narrow = xyz_to_pointcloud2(np.zeros((4, 3)), "cam")
@@ -122,9 +137,10 @@ def test_pose_round_trip_and_bad_poses():
 
 
 def test_static_frames_follow_chains_both_ways():
-    frames = StaticFrames(["map cam 1 0 0 0 0 0 1",
-                           "cam tool 0 0 0.5 0 0 0.7071068 0.7071068", ""])
-    T = frames.lookup("map", "tool")          # T_map_tool
+    frames = StaticFrames(
+        ["map cam 1 0 0 0 0 0 1", "cam tool 0 0 0.5 0 0 0.7071068 0.7071068", ""]
+    )
+    T = frames.lookup("map", "tool")  # T_map_tool
     assert np.allclose(T[:3, 3], [1, 0, 0.5])
     assert np.allclose(T[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-6)
     assert np.allclose(frames.lookup("tool", "map") @ T, np.eye(4), atol=1e-9)
@@ -135,10 +151,10 @@ def test_static_frames_follow_chains_both_ways():
 def test_frame_graph_keeps_one_parent_per_child_and_merges():
     tf = FrameGraph()
     tf.set("map", "cam", make_T(np.eye(3), [1.0, 0.0, 0.0]))
-    tf.set("/map", "/cam", make_T(np.eye(3), [2.0, 0.0, 0.0]))     # the newer transform wins
+    tf.set("/map", "/cam", make_T(np.eye(3), [2.0, 0.0, 0.0]))  # the newer transform wins
     assert len(tf) == 1 and np.allclose(tf.lookup("map", "cam")[:3, 3], [2, 0, 0])
     param = StaticFrames(["map cam 5 0 0 0 0 0 1", "cam tool 0 0 1 0 0 0 1"])
-    both = param.merged(tf)                                         # TF wins over the parameter
+    both = param.merged(tf)  # TF wins over the parameter
     assert np.allclose(both.lookup("map", "tool")[:3, 3], [2, 0, 1])
     assert np.allclose(both.lookup("tool", "map")[:3, 3], [-2, 0, -1])
     with pytest.raises(FrameError):

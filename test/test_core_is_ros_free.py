@@ -3,18 +3,29 @@
 """The layers stay apart, checked in fresh interpreters: core/ and the ROS-free evaluation
 modules never import ROS, and no product module (core/, ros/, the CLI's product commands) imports
 the evaluation package."""
+
 import subprocess
 import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "affordance_registration"
 #: the evaluation modules that are ROS nodes or drive them (the simulated sensor, the recorded
-#: operator session, the bench's latencies over ROS); every other evaluation module is ROS-free like core
-EVALUATION_ROS = ("affordance_registration.evaluation.session",
-                  "affordance_registration.evaluation.simulated_scan",
-                  "affordance_registration.evaluation.ros_latency")
-ROS_MODULES = ("rclpy", "sensor_msgs", "geometry_msgs", "visualization_msgs", "std_msgs",
-               "std_srvs", "viser")
+#: operator session, the bench's latencies over ROS); every other evaluation module is ROS-free
+#: like core
+EVALUATION_ROS = (
+    "affordance_registration.evaluation.session",
+    "affordance_registration.evaluation.simulated_scan",
+    "affordance_registration.evaluation.ros_latency",
+)
+ROS_MODULES = (
+    "rclpy",
+    "sensor_msgs",
+    "geometry_msgs",
+    "visualization_msgs",
+    "std_msgs",
+    "std_srvs",
+    "viser",
+)
 
 
 def _loaded_after_importing(packages: list[str], skip: tuple[str, ...] = ()) -> set[str]:
@@ -32,16 +43,18 @@ def _loaded_after_importing(packages: list[str], skip: tuple[str, ...] = ()) -> 
 
 
 def test_importing_core_and_evaluation_loads_no_ros():
-    loaded = _loaded_after_importing(["affordance_registration.core",
-                                      "affordance_registration.evaluation"], EVALUATION_ROS)
+    loaded = _loaded_after_importing(
+        ["affordance_registration.core", "affordance_registration.evaluation"], EVALUATION_ROS
+    )
     bad = sorted(m for m in loaded if m.split(".")[0] in ROS_MODULES)
     assert bad == [], f"core or evaluation pulled in ROS modules: {bad[:10]}"
 
 
 def test_no_product_module_imports_the_evaluation_package():
-    loaded = _loaded_after_importing(["affordance_registration.core",
-                                      "affordance_registration.ros"])
-    assert "rclpy" in loaded                        # the ROS modules really were imported
+    loaded = _loaded_after_importing(
+        ["affordance_registration.core", "affordance_registration.ros"]
+    )
+    assert "rclpy" in loaded  # the ROS modules really were imported
     bad = sorted(m for m in loaded if m.startswith("affordance_registration.evaluation"))
     assert bad == [], f"a product module imports the evaluation package: {bad}"
 

@@ -5,6 +5,7 @@
 test_depend or exec_depend for the tests) or named in its pip-only comment, and in setup.py (a
 pinned requirement, or a dependency of one, as installed in this environment). Every XML file
 of the package is well-formed."""
+
 from __future__ import annotations
 
 import ast
@@ -18,29 +19,63 @@ ROOT = Path(__file__).resolve().parents[1]
 #: this package, and the test folder's own modules (helpers, tests importing each other)
 LOCAL = {"affordance_registration"} | {p.stem for p in (ROOT / "test").glob("*.py")}
 #: import name -> its rosdep key (ROS packages: the package name itself)
-ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-          "trimesh": "python3-trimesh-pip", "open3d": "python3-open3d-pip",
-          "hid": "python3-hidapi", "rosbags": "python3-rosbags-pip", "PIL": "python3-pil",
-          "pytest": "python3-pytest", "hypothesis": "python3-hypothesis"}
-ROS_PACKAGES = {"rclpy", "rcl_interfaces", "ament_index_python", "sensor_msgs",
-                "geometry_msgs", "visualization_msgs", "std_msgs", "std_srvs", "tf2_msgs",
-                "builtin_interfaces"}
+ROSDEP = {
+    "numpy": "python3-numpy",
+    "scipy": "python3-scipy",
+    "yaml": "python3-yaml",
+    "trimesh": "python3-trimesh-pip",
+    "open3d": "python3-open3d-pip",
+    "hid": "python3-hidapi",
+    "rosbags": "python3-rosbags-pip",
+    "PIL": "python3-pil",
+    "pytest": "python3-pytest",
+    "hypothesis": "python3-hypothesis",
+}
+ROS_PACKAGES = {
+    "rclpy",
+    "rcl_interfaces",
+    "ament_index_python",
+    "sensor_msgs",
+    "geometry_msgs",
+    "visualization_msgs",
+    "std_msgs",
+    "std_srvs",
+    "tf2_msgs",
+    "builtin_interfaces",
+}
 #: imported, no rosdep key: named in package.xml's pip-only comments
-PIP_ONLY = {"viser", "pykdtree", "threadpoolctl", "playwright", "small_gicp", "colcon_core",
-            "ament_package", "websockets", "msgspec"}
-#: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS install
-#: has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry
-VENV_BUILD_ONLY = {"rosidl_adapter", "rosidl_cli", "rosidl_generator_c", "rosidl_generator_py",
-                   "rosidl_generator_type_description", "rosidl_typesupport_c",
-                   "rosidl_typesupport_fastrtps_c", "rosidl_typesupport_introspection_c"}
+PIP_ONLY = {
+    "viser",
+    "pykdtree",
+    "threadpoolctl",
+    "playwright",
+    "small_gicp",
+    "colcon_core",
+    "ament_package",
+    "websockets",
+    "msgspec",
+}
+#: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS
+#: install has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry
+VENV_BUILD_ONLY = {
+    "rosidl_adapter",
+    "rosidl_cli",
+    "rosidl_generator_c",
+    "rosidl_generator_py",
+    "rosidl_generator_type_description",
+    "rosidl_typesupport_c",
+    "rosidl_typesupport_fastrtps_c",
+    "rosidl_typesupport_introspection_c",
+}
 #: declared, not imported, and why
-NOT_IMPORTED = {"rmw_fastrtps_cpp": "the RMW implementation the launch files and the Fast DDS "
-                                    "profile select",
-                "libusb-1.0": "a system library open3d's wheel links against",
-                "builtin_interfaces": "the stamps of every message; a dependency of the tf2_msgs "
-                                      "the venv build makes"}
+NOT_IMPORTED = {
+    "rmw_fastrtps_cpp": "the RMW implementation the launch files and the Fast DDS profile select",
+    "libusb-1.0": "a system library open3d's wheel links against",
+    "builtin_interfaces": "the stamps of every message; a dependency of the tf2_msgs "
+    "the venv build makes",
+}
 #: imported when present, else done without: module -> its rosdep key
-OPTIONAL = {"tf2_ros": "tf2_ros_py"}     # ros/glue/tf.py: tf2_ros' buffer, else /tf read directly
+OPTIONAL = {"tf2_ros": "tf2_ros_py"}  # ros/glue/tf.py: tf2_ros' buffer, else /tf read directly
 
 
 def _imports(folder: Path) -> dict[str, set[str]]:
@@ -91,22 +126,27 @@ class Requirement:
         """Platform markers count as met (the closure may grow, never shrink); an
         ``extra == 'x'`` marker only for a requested extra."""
         want = re.findall(r"extra\s*==\s*['\"]([^'\"]+)['\"]", self.marker)
-        return not want or any(canonicalize_name(w) in {canonicalize_name(e) for e in extras}
-                               for w in want)
+        return not want or any(
+            canonicalize_name(w) in {canonicalize_name(e) for e in extras} for w in want
+        )
 
 
 def _setup_requirements() -> list[Requirement]:
     tree = ast.parse((ROOT / "setup.py").read_text())
     reqs: list[str] = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.Assign) and isinstance(node.value, ast.List) and \
-                any(getattr(t, "id", "").endswith("_REQUIRES") for t in node.targets):
+        if (
+            isinstance(node, ast.Assign)
+            and isinstance(node.value, ast.List)
+            and any(getattr(t, "id", "").endswith("_REQUIRES") for t in node.targets)
+        ):
             reqs += ast.literal_eval(node.value)
         if isinstance(node, ast.keyword) and node.arg == "extras_require":
             for value in node.value.values:
                 if isinstance(value, ast.List):
-                    reqs += [ast.literal_eval(v) for v in value.elts
-                             if isinstance(v, ast.Constant)]
+                    reqs += [
+                        ast.literal_eval(v) for v in value.elts if isinstance(v, ast.Constant)
+                    ]
     return [Requirement(r) for r in reqs]
 
 
@@ -133,22 +173,29 @@ def test_every_import_is_declared_in_package_xml():
     run_deps = deps.get("exec_depend", set()) | deps.get("depend", set())
     test_deps = run_deps | deps.get("test_depend", set())
     problems = []
-    for folder, declared, kind in ((ROOT / PACKAGE_DIR, run_deps, "exec_depend"),
-                                   (ROOT / "test", test_deps, "test_depend")):
+    for folder, declared, kind in (
+        (ROOT / PACKAGE_DIR, run_deps, "exec_depend"),
+        (ROOT / "test", test_deps, "test_depend"),
+    ):
         for module, files in sorted(_imports(folder).items()):
             if module in VENV_BUILD_ONLY:
-                if any(f != "affordance_registration/ros/standins/interfaces/build.py" for f in files):
+                if any(
+                    f != "affordance_registration/ros/standins/interfaces/build.py" for f in files
+                ):
                     problems.append(f"{module}: imported outside interfaces/build.py: {files}")
                 continue
             if module in PIP_ONLY:
-                if module.replace("_core", "").replace("_", "") not in \
-                        pip_text.replace("-", "").replace("_", ""):
+                if module.replace("_core", "").replace("_", "") not in pip_text.replace(
+                    "-", ""
+                ).replace("_", ""):
                     problems.append(f"{module} is pip-only but package.xml does not say so")
                 continue
             key = module if module in ROS_PACKAGES else ROSDEP.get(module, OPTIONAL.get(module))
             if key is None:
-                problems.append(f"{module} (imported by {sorted(files)[0]}) has no rosdep key "
-                                f"in this test: declare it in package.xml and here")
+                problems.append(
+                    f"{module} (imported by {sorted(files)[0]}) has no rosdep key "
+                    f"in this test: declare it in package.xml and here"
+                )
             elif key not in declared:
                 problems.append(f"{module}: package.xml lacks <{kind}>{key}</{kind}>")
     assert not problems, "\n".join(problems)
@@ -179,21 +226,26 @@ def test_every_import_is_installed_by_setup_py():
             continue
         names = {canonicalize_name(d) for d in dists.get(module, [])}
         if not names:
-            if module == "small_gicp" and "small-gicp" in named:   # the optional bench extra
+            if module == "small_gicp" and "small-gicp" in named:  # the optional bench extra
                 continue
             problems.append(f"{module}: not installed here and not named in setup.py")
         elif not names & closure:
-            problems.append(f"{module} ({', '.join(sorted(names))}) does not come with any "
-                            f"setup.py requirement")
+            problems.append(
+                f"{module} ({', '.join(sorted(names))}) does not come with any "
+                f"setup.py requirement"
+            )
     assert not problems, "\n".join(problems)
 
 
 def test_every_xml_file_is_well_formed():
-    files = [p for p in ROOT.rglob("*.xml") if not ({".venv", ".git", "build", "install", "log"}
-                                                     & set(p.relative_to(ROOT).parts))]
+    files = [
+        p
+        for p in ROOT.rglob("*.xml")
+        if not ({".venv", ".git", "build", "install", "log"} & set(p.relative_to(ROOT).parts))
+    ]
     assert ROOT / "package.xml" in files and ROOT / "launch_configs" / "fastdds_shm.xml" in files
     for path in files:
-        ET.parse(path)       # raises ParseError (naming the line) when it is not well-formed
+        ET.parse(path)  # raises ParseError (naming the line) when it is not well-formed
 
 
 PACKAGE_DIR = "affordance_registration"

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """No registration is lost: real engine processes killed with SIGKILL, SIGINT and SIGTERM and
 started again on the same registrations file, a real client here (topics and services)."""
+
 import os
 import re
 import signal
@@ -38,7 +39,7 @@ class Engine:
         self.client = Client(f"durability_{name}")
         self.client.subscribe(String, f"{NS}/status", LATCHED)
         self.points = self.client.node.create_publisher(PointCloud2, "/points", 1)
-        self.registered = None              # the registrations the last accept counted
+        self.registered = None  # the registrations the last accept counted
         self.clicks = self.client.node.create_publisher(PointStamped, "/clicked_point", 10)
 
     def status(self):
@@ -51,8 +52,9 @@ class Engine:
         self.client.wait_for_subscribers(self.points, timeout=30)
         self.client.wait_for_subscribers(self.clicks, timeout=30)
         self.points.publish(xyz_to_pointcloud2(sim.organized, FRAME))
-        self.client.wait_for(lambda: (self.status() or {}).get("node", {}).get("cloud"), 30,
-                             "the cloud")
+        self.client.wait_for(
+            lambda: (self.status() or {}).get("node", {}).get("cloud"), 30, "the cloud"
+        )
 
     def register(self, obj):
         """Click ``obj`` and accept it; returns the accept's reply."""
@@ -69,8 +71,11 @@ class Engine:
         if self.registered is not None:
             assert count == self.registered + 1, (count, self.registered)
         self.registered = count
-        self.client.wait_for(lambda: len(self.status()["registered"]) == count, 30,
-                             f"{count} registrations in the status")
+        self.client.wait_for(
+            lambda: len(self.status()["registered"]) == count,
+            30,
+            f"{count} registrations in the status",
+        )
         return res
 
     def close(self):
@@ -88,6 +93,7 @@ def engines(ros_context, tmp_path):
         e = Engine(tmp_path, name, params)
         started.append(e)
         return e
+
     yield start
     for e in started:
         e.close()
@@ -111,8 +117,11 @@ def test_kill_9_right_after_three_accepts_loses_none(engines, sim):
     assert "saved to" in res.message
     assert _templates(load_registrations(str(first.file))) == sorted(accepted)
     second = engines("second")
-    st = second.client.wait_for(lambda: (second.status() or {}).get("registered") and
-                                second.status(), 60, "the resumed registrations")
+    st = second.client.wait_for(
+        lambda: (second.status() or {}).get("registered") and second.status(),
+        60,
+        "the resumed registrations",
+    )
     assert _templates(st["registered"]) == sorted(accepted)
     assert "resumed 3 registration(s)" in second.proc.output()
 
@@ -124,22 +133,34 @@ def test_a_stop_with_an_unsaved_accept_keeps_it(engines, sim, sig):
     first.cloud(sim)
     obj = sim.objects[2]
     first.register(obj)
-    assert not first.file.exists()          # autosave off: nothing written yet
+    assert not first.file.exists()  # autosave off: nothing written yet
     first.proc.proc.send_signal(sig)
     assert first.proc.proc.wait(timeout=30) == 0
     assert _templates(load_registrations(str(first.file))) == [obj.template]
     second = engines("second")
-    st = second.client.wait_for(lambda: (second.status() or {}).get("registered") and
-                                second.status(), 60, "the resumed registration")
+    st = second.client.wait_for(
+        lambda: (second.status() or {}).get("registered") and second.status(),
+        60,
+        "the resumed registration",
+    )
     assert _templates(st["registered"]) == [obj.template]
 
 
 def _five(library, path):
-    names = list(library.specific())        # (a primitive would need its dimensions)
-    regs = [Registration(id=i + 1, template=names[i % len(names)],
-                         T_scene_model=np.eye(4) + np.pad([[0, 0, 0, 0.1 * i]], ((0, 3), (0, 0))),
-                         likelihood=1.0, probability=0.5, residual=0.001,
-                         click=np.array([0.1 * i, 0, 1.0]), frame_id=FRAME) for i in range(5)]
+    names = list(library.specific())  # (a primitive would need its dimensions)
+    regs = [
+        Registration(
+            id=i + 1,
+            template=names[i % len(names)],
+            T_scene_model=np.eye(4) + np.pad([[0, 0, 0, 0.1 * i]], ((0, 3), (0, 0))),
+            likelihood=1.0,
+            probability=0.5,
+            residual=0.001,
+            click=np.array([0.1 * i, 0, 1.0]),
+            frame_id=FRAME,
+        )
+        for i in range(5)
+    ]
     RegistrationStore(str(path)).write(regs, FRAME)
     return path.read_bytes()
 
@@ -147,8 +168,11 @@ def _five(library, path):
 def test_a_restart_then_accept_and_save_keeps_the_earlier_five(engines, sim, library, tmp_path):
     before = _five(library, tmp_path / "registrations.yaml")
     engine = engines("resumed")
-    st = engine.client.wait_for(lambda: len((engine.status() or {}).get("registered", [])) == 5
-                                and engine.status(), 60, "the five resumed registrations")
+    st = engine.client.wait_for(
+        lambda: len((engine.status() or {}).get("registered", [])) == 5 and engine.status(),
+        60,
+        "the five resumed registrations",
+    )
     assert [r["id"] for r in st["registered"]] == [1, 2, 3, 4, 5]
     engine.cloud(sim)
     res = engine.register(sim.objects[0])
@@ -158,12 +182,12 @@ def test_a_restart_then_accept_and_save_keeps_the_earlier_five(engines, sim, lib
     assert open(backup, "rb").read() == before
     save = engine.client.call(Trigger, f"{NS}/save", timeout=30)
     assert save.success and "saved 6 registration(s)" in save.message
-    assert "kept as" not in save.message     # it replaced only what it wrote itself
+    assert "kept as" not in save.message  # it replaced only what it wrote itself
     regs = load_registrations(str(engine.file))
     assert len(regs) == 6 and [r.id for r in regs] == [1, 2, 3, 4, 5, 6]
     # undo cannot take the resumed ones away: it reverts the accept, then has nothing left
-    assert engine.client.call(Trigger, f"{NS}/undo").success       # the accept
-    assert engine.client.call(Trigger, f"{NS}/undo").success       # the click
+    assert engine.client.call(Trigger, f"{NS}/undo").success  # the accept
+    assert engine.client.call(Trigger, f"{NS}/undo").success  # the click
     assert not engine.client.call(Trigger, f"{NS}/undo").success
     assert len(load_registrations(str(engine.file))) == 5
 
@@ -173,7 +197,7 @@ def test_a_fresh_session_keeps_the_old_file_as_a_backup(engines, sim, library, t
     engine = engines("fresh", {"resume": "false"})
     st = engine.started()
     assert st["registered"] == []
-    assert (tmp_path / "registrations.yaml").read_bytes() == before   # untouched until written
+    assert (tmp_path / "registrations.yaml").read_bytes() == before  # untouched until written
     engine.cloud(sim)
     res = engine.register(sim.objects[2])
     backup = res.message.rsplit("kept as ", 1)[1].rstrip(")")
@@ -199,8 +223,8 @@ def test_the_store_backs_up_only_what_it_did_not_write(tmp_path, library):
     path = tmp_path / "r.yaml"
     store = RegistrationStore(str(path))
     assert store.write((), "f") == (str(path), None)
-    assert store.write((), "f")[1] is None             # its own file: no backup
-    path.write_text(yaml.safe_dump({"format": "x"}))   # someone else wrote it meanwhile
+    assert store.write((), "f")[1] is None  # its own file: no backup
+    path.write_text(yaml.safe_dump({"format": "x"}))  # someone else wrote it meanwhile
     _, backup = store.write((), "f")
     assert backup and yaml.safe_load(open(backup)) == {"format": "x"}
     assert len(load_registrations(str(path))) == 0

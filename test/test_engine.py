@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The engine: clicks, cycling, view-frame corrections, refit, accept, undo, save/load, threads."""
+
 import math
 import threading
 
@@ -26,7 +27,7 @@ def engine_and_scene(library, panel_scene):
 @pytest.fixture
 def engine(engine_and_scene):
     engine, _ = engine_and_scene
-    while True:                      # back to an empty state for every test
+    while True:  # back to an empty state for every test
         try:
             engine.undo()
         except EngineStateError:
@@ -44,11 +45,13 @@ def test_view_frame_mapping():
     assert np.allclose(step[:3, 3], [0, -0.05, 0])
     T_obj = make_T(t=[0.3, 0.2, 0.0])
     moved = apply_twist(T_obj, [0, 0, 0], [0, 0, math.pi / 2], 1.0, T_view, centre_model=[0, 0, 0])
-    assert np.allclose(moved[:3, 3], [0.3, 0.2, 0.0])          # turned in place
+    assert np.allclose(moved[:3, 3], [0.3, 0.2, 0.0])  # turned in place
     assert np.allclose(moved[:3, :3] @ [1, 0, 0], [0, 1, 0])
     # the default view looks through the sensor: screen right = optical +x, up = optical -y
     V = view_from_optical(np.eye(4))
-    assert np.allclose(V[:3, :3] @ [1, 0, 0], [1, 0, 0]) and np.allclose(V[:3, :3] @ [0, 1, 0], [0, -1, 0])
+    assert np.allclose(V[:3, :3] @ [1, 0, 0], [1, 0, 0]) and np.allclose(
+        V[:3, :3] @ [0, 1, 0], [0, -1, 0]
+    )
     with pytest.raises(AffordanceError):
         twist_step([np.nan, 0, 0], [0, 0, 0], 0.1, T_view, [0, 0, 0])
 
@@ -70,11 +73,14 @@ def test_click_cycle_correct_refit_accept_undo(engine, engine_and_scene, library
     for _ in range(10):
         engine.correct_twist([0.04, 0, 0], [0, 0, 0], 0.05)
     T1 = engine.active_object().shown.T_scene_model
-    assert np.allclose(T1[:3, 3] - T0[:3, 3], [0.02, 0, 0], atol=1e-9)   # view right = optical +x
+    assert np.allclose(T1[:3, 3] - T0[:3, 3], [0.02, 0, 0], atol=1e-9)  # view right = optical +x
     assert engine.active_object().corrections == 1
     msg = engine.refit()
-    dt, dr = pose_error(engine.active_object().shown.T_scene_model, obj.T_scene_model,
-                        library[obj.template].symmetry)
+    dt, dr = pose_error(
+        engine.active_object().shown.T_scene_model,
+        obj.T_scene_model,
+        library[obj.template].symmetry,
+    )
     assert dt < 0.005 and dr < math.radians(5), msg
     # undo steps back exactly: refit, the twist burst, previous, next
     engine.undo()
@@ -104,8 +110,13 @@ def test_click_near_an_object_selects_it(engine, engine_and_scene):
 
 
 def test_actions_at_the_wrong_moment_say_why(engine, library):
-    for action in (engine.next_model, engine.previous_model, engine.refit, engine.accept,
-                   engine.discard):
+    for action in (
+        engine.next_model,
+        engine.previous_model,
+        engine.refit,
+        engine.accept,
+        engine.discard,
+    ):
         with pytest.raises(EngineStateError, match="no object selected"):
             action()
     with pytest.raises(EngineStateError, match="nothing to undo"):
@@ -133,7 +144,7 @@ def test_save_and_load_round_trip(engine, engine_and_scene, tmp_path, library):
     for a, b in zip(regs, engine.state.registered):
         assert np.allclose(a.T_scene_model, b.T_scene_model, atol=1e-8)
         assert a.frame_id == "cam"
-    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]   # no temp files
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]  # no temp files
     # written with libyaml's emitter: the very text PyYAML's own safe dumper writes
     text = path.read_text(encoding="utf-8")
     assert text == yaml.safe_dump(yaml.safe_load(text), sort_keys=False)
@@ -141,11 +152,17 @@ def test_save_and_load_round_trip(engine, engine_and_scene, tmp_path, library):
     other.load(str(path))
     assert len(other.state.registered) == 2
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump({"format": "affordance_registration/registrations/1",
-                                   "registrations": [{"template": "nope", "pose": np.eye(4).tolist()}]}))
+    bad.write_text(
+        yaml.safe_dump(
+            {
+                "format": "affordance_registration/registrations/1",
+                "registrations": [{"template": "nope", "pose": np.eye(4).tolist()}],
+            }
+        )
+    )
     with pytest.raises(AffordanceError, match="unknown template 'nope'"):
         other.load(str(bad))
-    assert len(other.state.registered) == 2      # a failed load changes nothing
+    assert len(other.state.registered) == 2  # a failed load changes nothing
 
 
 def test_save_is_atomic_when_writing_fails(engine, tmp_path, monkeypatch):
@@ -156,6 +173,7 @@ def test_save_is_atomic_when_writing_fails(engine, tmp_path, monkeypatch):
 
     def broken_dump(*a, **k):
         raise OSError(28, "No space left on device")
+
     monkeypatch.setattr(store.yaml, "dump", broken_dump)
     with pytest.raises(AffordanceError, match="cannot save"):
         engine.save(str(path))
@@ -173,7 +191,7 @@ def test_threads_do_not_corrupt_the_state(engine, engine_and_scene):
                 try:
                     (engine.next_model if k % 2 else engine.previous_model)()
                     done.append(k)
-                except EngineStateError as exc:   # refused, not lost: a conflicting change
+                except EngineStateError as exc:  # refused, not lost: a conflicting change
                     assert "changed meanwhile" in str(exc)
                 engine.correct_twist([0.01, 0, 0], [0, 0, 0.1], 0.01)
         except Exception as exc:  # anything else is a bug
@@ -209,8 +227,9 @@ def test_one_rigid_check_for_corrections_and_saved_poses(seed, shear):
     assert not is_rigid(np.where(np.eye(4, dtype=bool), np.nan, T)) and not is_rigid(T[:3])
 
 
-def test_a_correction_or_a_saved_pose_that_is_not_rigid_is_refused(engine, engine_and_scene,
-                                                                    library, tmp_path):
+def test_a_correction_or_a_saved_pose_that_is_not_rigid_is_refused(
+    engine, engine_and_scene, library, tmp_path
+):
     _, sim = engine_and_scene
     engine.click(sim.objects[2].click)
     T0 = engine.active_object().shown.T_scene_model
@@ -219,14 +238,26 @@ def test_a_correction_or_a_saved_pose_that_is_not_rigid_is_refused(engine, engin
     with pytest.raises(AffordanceError, match="rigid"):
         engine.correct_pose(T)
     path = tmp_path / "scaled.yaml"
-    path.write_text(yaml.safe_dump({"format": "affordance_registration/registrations/1",
-                                    "registrations": [{"template": sim.objects[2].template,
-                                                       "pose": T.tolist()}]}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "format": "affordance_registration/registrations/1",
+                "registrations": [{"template": sim.objects[2].template, "pose": T.tolist()}],
+            }
+        )
+    )
     with pytest.raises(AffordanceError, match="not a rigid 4x4"):
         load_registrations(str(path), library)
-    path.write_text(yaml.safe_dump({"format": "affordance_registration/registrations/1",
-                                    "registrations": [{"template": sim.objects[2].template,
-                                                       "pose": np.round(T0, 6).tolist()}]}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "format": "affordance_registration/registrations/1",
+                "registrations": [
+                    {"template": sim.objects[2].template, "pose": np.round(T0, 6).tolist()}
+                ],
+            }
+        )
+    )
     assert len(load_registrations(str(path), library)) == 1
 
 
@@ -236,22 +267,32 @@ def test_a_registrations_file_that_is_not_one_is_refused_in_one_line(library, tm
     loaded."""
     import os
     import threading
+
     fmt = "format: affordance_registration/registrations/1\n"
     entry = "  - template: ball_valve\n    pose: " + str(np.eye(4).tolist()) + "\n"
-    files = {"twice.yaml": fmt + "format: x\nregistrations: []\n",
-             "likelihood.yaml": fmt + "registrations:\n" + entry + "    likelihood: high\n",
-             "joints.yaml": fmt + "registrations:\n" + entry + "    joints: [1, 2]\n",
-             "click.yaml": fmt + "registrations:\n" + entry + "    click: [1, 2]\n",
-             "state.yaml": fmt + "registrations:\n" + entry + "    state: [open]\n",
-             "id.yaml": fmt + "registrations:\n" + entry + "    id: 1e999\n",
-             "list.yaml": fmt + "registrations: {a: 1}\n",
-             "entry.yaml": fmt + "registrations:\n  - [1, 2]\n",
-             "bytes.yaml": fmt.encode() + b"frame_id: \xff\n"}
-    expected = {"twice.yaml": "the key 'format' is written twice", "likelihood.yaml": "wrong kind",
-                "joints.yaml": "wrong kind", "click.yaml": "'click' must be three numbers",
-                "state.yaml": "'state' must be text", "id.yaml": "wrong kind",
-                "list.yaml": "'registrations' must be a list", "entry.yaml": "must be a mapping",
-                "bytes.yaml": "not UTF-8", "fifo.yaml": "not a regular file (a FIFO)"}
+    files = {
+        "twice.yaml": fmt + "format: x\nregistrations: []\n",
+        "likelihood.yaml": fmt + "registrations:\n" + entry + "    likelihood: high\n",
+        "joints.yaml": fmt + "registrations:\n" + entry + "    joints: [1, 2]\n",
+        "click.yaml": fmt + "registrations:\n" + entry + "    click: [1, 2]\n",
+        "state.yaml": fmt + "registrations:\n" + entry + "    state: [open]\n",
+        "id.yaml": fmt + "registrations:\n" + entry + "    id: 1e999\n",
+        "list.yaml": fmt + "registrations: {a: 1}\n",
+        "entry.yaml": fmt + "registrations:\n  - [1, 2]\n",
+        "bytes.yaml": fmt.encode() + b"frame_id: \xff\n",
+    }
+    expected = {
+        "twice.yaml": "the key 'format' is written twice",
+        "likelihood.yaml": "wrong kind",
+        "joints.yaml": "wrong kind",
+        "click.yaml": "'click' must be three numbers",
+        "state.yaml": "'state' must be text",
+        "id.yaml": "wrong kind",
+        "list.yaml": "'registrations' must be a list",
+        "entry.yaml": "must be a mapping",
+        "bytes.yaml": "not UTF-8",
+        "fifo.yaml": "not a regular file (a FIFO)",
+    }
     for name, text in files.items():
         (tmp_path / name).write_bytes(text if isinstance(text, bytes) else text.encode())
     os.mkfifo(tmp_path / "fifo.yaml")

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The affordance_engine node end to end: a real node in its own process, a client node here,
 real topics and services (own ROS_DOMAIN_ID, discovery on localhost only)."""
+
 import contextlib
 import math
 import time
@@ -30,14 +31,18 @@ TOL_M, TOL_RAD = 0.005, math.radians(5)
 def session(ros_context, tmp_path_factory, library):
     tmp = tmp_path_factory.mktemp("engine_node")
     with engine_session(
-            tmp, {"static_transforms": f"['{FRAME} rviz_frame 0.1 0 0 0 0 0 1']",
-                  "refit_idle_s": 0.4}, "engine_node_tester",
-            {"points": (PointCloud2, "/points", 1),
-             "click": (PointStamped, "/clicked_point", 10),
-             "twist": (Twist, "/spacenav/twist", 10),
-             "joy": (Joy, "/spacenav/joy", 10)},
-            [(PoseStamped, f"{NS}/fit", 10, True), (PoseArray, f"{NS}/registered", LATCHED, False)],
-            sim=simulate_taskboard(library, 7)) as s:
+        tmp,
+        {"static_transforms": f"['{FRAME} rviz_frame 0.1 0 0 0 0 0 1']", "refit_idle_s": 0.4},
+        "engine_node_tester",
+        {
+            "points": (PointCloud2, "/points", 1),
+            "click": (PointStamped, "/clicked_point", 10),
+            "twist": (Twist, "/spacenav/twist", 10),
+            "joy": (Joy, "/spacenav/joy", 10),
+        },
+        [(PoseStamped, f"{NS}/fit", 10, True), (PoseArray, f"{NS}/registered", LATCHED, False)],
+        sim=simulate_taskboard(library, 7),
+    ) as s:
         yield s
 
 
@@ -46,8 +51,11 @@ def status(s):
 
 
 def wait_error(s, text, timeout=60):
-    return s["client"].wait_for(lambda: text in (status(s) or {}).get("node", {}).get("last_error", ""),
-                                timeout, f"error containing {text!r}")
+    return s["client"].wait_for(
+        lambda: text in (status(s) or {}).get("node", {}).get("last_error", ""),
+        timeout,
+        f"error containing {text!r}",
+    )
 
 
 def click(s, point, frame=FRAME):
@@ -64,6 +72,7 @@ def trigger(s, name):
 def settled_fit(s, shown_index):
     """The ~/fit pose once status and ~/fit show candidate ``shown_index`` of the active object
     (both are published together, rate-limited)."""
+
     def match():
         st = status(s)
         active = [o for o in st["objects"] if o["active"]][0]
@@ -72,6 +81,7 @@ def settled_fit(s, shown_index):
         shown = np.asarray(active["candidates"][active["shown"]]["pose"])
         fit = pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose)
         return np.allclose(fit, shown, atol=1e-6) and fit
+
     s["client"].wait_for(lambda: match() is not False, what="~/fit to match the status")
     return pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose)
 
@@ -114,18 +124,28 @@ def test_clicks_rank_the_right_template_first(session, library):
     time.sleep(0.3)
     for k, obj in enumerate(sim.objects[:3], start=1):
         click(s, obj.click)
-        st = s["client"].wait_for(lambda: len(status(s)["objects"]) == k and status(s), 30,
-                                  "a fitted object")
+        st = s["client"].wait_for(
+            lambda: len(status(s)["objects"]) == k and status(s), 30, "a fitted object"
+        )
         ranked = st["objects"][-1]["candidates"]
         assert ranked[0]["template"] == obj.template
         fit = s["client"].wait_for(lambda: s["client"].latest[f"{NS}/fit"], what="~/fit")
-        s["client"].wait_for(lambda: pose_error(pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose),
-                                                obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
-                             what="~/fit at the fitted pose")
+        s["client"].wait_for(
+            lambda: (
+                pose_error(
+                    pose_to_matrix(s["client"].latest[f"{NS}/fit"].pose),
+                    obj.T_scene_model,
+                    library[obj.template].symmetry,
+                )[0]
+                < TOL_M
+            ),
+            what="~/fit at the fitted pose",
+        )
         fit = s["client"].latest[f"{NS}/fit"]
         assert fit.header.frame_id == FRAME
-        dt, dr = pose_error(pose_to_matrix(fit.pose), obj.T_scene_model,
-                            library[obj.template].symmetry)
+        dt, dr = pose_error(
+            pose_to_matrix(fit.pose), obj.T_scene_model, library[obj.template].symmetry
+        )
         assert dt < TOL_M and dr < TOL_RAD
 
 
@@ -139,8 +159,10 @@ def test_cycling_models(session):
     joy = Joy()
     joy.buttons = [1, 0]
     s["pubs"]["joy"].publish(joy)
-    s["client"].wait_for(lambda: [o for o in status(s)["objects"] if o["active"]][0]["shown"] == 1,
-                         what="the joy press")
+    s["client"].wait_for(
+        lambda: [o for o in status(s)["objects"] if o["active"]][0]["shown"] == 1,
+        what="the joy press",
+    )
     joy.buttons = [0, 0]
     s["pubs"]["joy"].publish(joy)
     assert trigger(s, "previous_model").success
@@ -153,27 +175,45 @@ def test_twist_burst_moves_in_the_view_frame_then_refits(session, library):
     before = settled_fit(s, shown_index=0)
     client.history[f"{NS}/fit"] = []
     twist = Twist()
-    twist.linear.y = -0.5       # spacenav axes: cap pushed right -> 5 cm/s right on the screen
+    twist.linear.y = -0.5  # spacenav axes: cap pushed right -> 5 cm/s right on the screen
     t0 = time.monotonic()
-    while time.monotonic() - t0 < 0.3:      # a 0.3 s push: about 1.5 cm
+    while time.monotonic() - t0 < 0.3:  # a 0.3 s push: about 1.5 cm
         s["pubs"]["twist"].publish(twist)
         time.sleep(1 / 30)
-    s["pubs"]["twist"].publish(Twist())     # released
-    client.wait_for(lambda: max(
-        (pose_to_matrix(m.pose)[0, 3] - before[0, 3] for m in client.history[f"{NS}/fit"]),
-        default=0) > 0.004, what="the fit to move right")
-    displaced = max(client.history[f"{NS}/fit"],
-                    key=lambda m: pose_to_matrix(m.pose)[0, 3])
+    s["pubs"]["twist"].publish(Twist())  # released
+    client.wait_for(
+        lambda: (
+            max(
+                (pose_to_matrix(m.pose)[0, 3] - before[0, 3] for m in client.history[f"{NS}/fit"]),
+                default=0,
+            )
+            > 0.004
+        ),
+        what="the fit to move right",
+    )
+    displaced = max(client.history[f"{NS}/fit"], key=lambda m: pose_to_matrix(m.pose)[0, 3])
     d = pose_to_matrix(displaced.pose)[:3, 3] - before[:3, 3]
     # along the view's right (the optical +x of the default view), not up or towards the viewer
     # (how far depends on how evenly the messages arrive; the refit reaches back 5 cm)
     assert 0.004 < d[0] < 0.04 and abs(d[1]) < 0.15 * d[0] and abs(d[2]) < 0.15 * d[0], d
     # twists stopped: the node refits after refit_idle_s and lands back on the object
-    client.wait_for(lambda: pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose),
-                                       obj.T_scene_model, library[obj.template].symmetry)[0] < TOL_M,
-                    timeout=60, what="the refit to land on the object")
-    dt, dr = pose_error(pose_to_matrix(client.latest[f"{NS}/fit"].pose), obj.T_scene_model,
-                        library[obj.template].symmetry)
+    client.wait_for(
+        lambda: (
+            pose_error(
+                pose_to_matrix(client.latest[f"{NS}/fit"].pose),
+                obj.T_scene_model,
+                library[obj.template].symmetry,
+            )[0]
+            < TOL_M
+        ),
+        timeout=60,
+        what="the refit to land on the object",
+    )
+    dt, dr = pose_error(
+        pose_to_matrix(client.latest[f"{NS}/fit"].pose),
+        obj.T_scene_model,
+        library[obj.template].symmetry,
+    )
     assert dt < TOL_M and dr < TOL_RAD
 
 
@@ -190,14 +230,16 @@ def test_accept_registers_and_save_writes_a_file(session):
     s = session
     res = trigger(s, "accept")
     assert res.success and "accepted" in res.message
-    s["client"].wait_for(lambda: len(s["client"].latest[f"{NS}/registered"].poses) == 1,
-                         what="~/registered")
+    s["client"].wait_for(
+        lambda: len(s["client"].latest[f"{NS}/registered"].poses) == 1, what="~/registered"
+    )
     res = trigger(s, "save")
     assert res.success
     doc = yaml.safe_load((s["tmp"] / "registrations.yaml").read_text())
     assert len(doc["registrations"]) == 1
     assert doc["registrations"][0]["template"] == s["sim"].objects[2].template
     from affordance_registration.core.engine import load_registrations
+
     assert len(load_registrations(str(s["tmp"] / "registrations.yaml"))) == 1
 
 
@@ -210,8 +252,11 @@ def test_click_frames(session):
     # rviz_frame is 0.1 m along x of the cloud frame (static_transforms parameter)
     n = len(status(s)["objects"])
     click(s, np.asarray(obj.click) - [0.1, 0.0, 0.0], frame="rviz_frame")
-    st = s["client"].wait_for(lambda: len(status(s)["objects"]) == n + 1 and status(s), 30,
-                              "the fit of a click in rviz_frame")
+    st = s["client"].wait_for(
+        lambda: len(status(s)["objects"]) == n + 1 and status(s),
+        30,
+        "the fit of a click in rviz_frame",
+    )
     assert st["objects"][-1]["candidates"][0]["template"] == obj.template
 
 
@@ -220,25 +265,31 @@ def test_accept_right_after_a_twist_takes_the_refitted_pose(session, library):
     first, so the registration is the refitted pose, not the pushed-off one (and the refit
     does not land on whatever is selected next)."""
     s = session
-    obj = s["sim"].objects[3]                  # fitted and selected by test_click_frames
+    obj = s["sim"].objects[3]  # fitted and selected by test_click_frames
     client = s["client"]
-    n = len(client.wait_for(lambda: client.latest.get(f"{NS}/registered"),
-                            what="the latched ~/registered").poses)
+    n = len(
+        client.wait_for(
+            lambda: client.latest.get(f"{NS}/registered"), what="the latched ~/registered"
+        ).poses
+    )
     twist = Twist()
-    twist.linear.y = -0.5                      # about 1.5 cm to the right over 0.3 s
+    twist.linear.y = -0.5  # about 1.5 cm to the right over 0.3 s
     t0 = time.monotonic()
     while time.monotonic() - t0 < 0.3:
         s["pubs"]["twist"].publish(twist)
         time.sleep(1 / 30)
     s["pubs"]["twist"].publish(Twist())
-    time.sleep(0.1)                            # well within refit_idle_s (0.4 s)
+    time.sleep(0.1)  # well within refit_idle_s (0.4 s)
     res = trigger(s, "accept")
     assert res.success and obj.template in res.message, res.message
-    client.wait_for(lambda: len(client.latest[f"{NS}/registered"].poses) == n + 1,
-                    what="~/registered")
+    client.wait_for(
+        lambda: len(client.latest[f"{NS}/registered"].poses) == n + 1, what="~/registered"
+    )
     # the status topic is published on its own (rate-limited): wait for the one with it too
-    st = client.wait_for(lambda: len(status(s)["registered"]) == n + 1 and status(s),
-                         what="the status with the new registration")
+    st = client.wait_for(
+        lambda: len(status(s)["registered"]) == n + 1 and status(s),
+        what="the status with the new registration",
+    )
     reg = st["registered"][-1]
     dt, dr = pose_error(np.asarray(reg["pose"]), obj.T_scene_model, library[obj.template].symmetry)
     assert reg["template"] == obj.template and dt < TOL_M and dr < TOL_RAD, (dt, dr)
@@ -252,22 +303,28 @@ def test_parameters_are_validated(session):
         req = SetParameters.Request(parameters=[p])
         return s["client"].call(SetParameters, f"{NS}/set_parameters", req).results[0]
 
-    bad = set_param("refit_idle_s", ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                   double_value=-1.0))
+    bad = set_param(
+        "refit_idle_s", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0)
+    )
     assert not bad.successful and "refit_idle_s" in bad.reason
-    bad = set_param("fit.mode", ParameterValue(type=ParameterType.PARAMETER_STRING,
-                                               string_value="sideways"))
+    bad = set_param(
+        "fit.mode", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="sideways")
+    )
     assert not bad.successful and "fit.mode" in bad.reason
-    bad = set_param("fit.coarse.samples", ParameterValue(type=ParameterType.PARAMETER_INTEGER,
-                                                         integer_value=0))
+    bad = set_param(
+        "fit.coarse.samples", ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=0)
+    )
     assert not bad.successful and "fit.coarse.samples must be an integer >= 1" in bad.reason
-    bad = set_param("templates_dir", ParameterValue(type=ParameterType.PARAMETER_STRING,
-                                                    string_value="/nonexistent"))
+    bad = set_param(
+        "templates_dir",
+        ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="/nonexistent"),
+    )
     assert not bad.successful
-    good = set_param("linear_gain", ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                   double_value=0.2))
+    good = set_param(
+        "linear_gain", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.2)
+    )
     assert good.successful
-    assert trigger(s, "next_model").success          # still serving
+    assert trigger(s, "next_model").success  # still serving
 
 
 def test_joint_state_in_status_markers_and_joint_steps(session, library):
@@ -275,19 +332,24 @@ def test_joint_state_in_status_markers_and_joint_steps(session, library):
     moving part is drawn at the estimated angle in ~/markers, ~/joint_plus steps the lever by
     joint_step_deg and refits, and a Joy axis mapped by parameter steps it back."""
     from visualization_msgs.msg import MarkerArray
+
     s = session
     client = s["client"]
     client.subscribe(MarkerArray, f"{NS}/markers", LATCHED)
     q_true = math.pi / 4
-    sim = simulate_taskboard(library, 3102, articulated=True,
-                             joints={"ball_valve": {"lever": q_true}})
+    sim = simulate_taskboard(
+        library, 3102, articulated=True, joints={"ball_valve": {"lever": q_true}}
+    )
     obj = next(o for o in sim.objects if o.template == "ball_valve")
     s["pubs"]["points"].publish(cloud_msg(sim.organized))
     time.sleep(0.5)
     n_before = len(status(s)["objects"])
     click(s, obj.click)
-    st = client.wait_for(lambda: len(status(s)["objects"]) == n_before + 1 and status(s), 30,
-                         "the lever valve fitted")
+    st = client.wait_for(
+        lambda: len(status(s)["objects"]) == n_before + 1 and status(s),
+        30,
+        "the lever valve fitted",
+    )
     shown = [o for o in st["objects"] if o["active"]][0]["candidates"][0]
     assert shown["template"] == "ball_valve"
     assert abs(shown["joints"]["lever"] - q_true) <= math.radians(5)
@@ -303,44 +365,83 @@ def test_joint_state_in_status_markers_and_joint_steps(session, library):
         from scipy.spatial import cKDTree
 
         from affordance_registration.ros.station.state import apply_markers
+
         drawn = apply_markers({}, ma)
         part = [d for (ns, _), d in drawn.items() if ns == "candidate_moving_part"][-1]
         body = [d for (ns, _), d in drawn.items() if ns == "candidate"][-1]
-        T_part = np.linalg.inv(body.T) @ part.T                     # in the candidate's frame
+        T_part = np.linalg.inv(body.T) @ part.T  # in the candidate's frame
         pts = part.vertices.astype(float) @ T_part[:3, :3].T + T_part[:3, 3]
         expected = np.asarray(tpl.moving_mesh_at(q).triangles).reshape(-1, 3)
-        return pts.shape == expected.shape and \
-            cKDTree(expected).query(pts)[0].max() < 1e-4 and \
-            cKDTree(pts).query(expected)[0].max() < 1e-4
-    client.wait_for(lambda: moving_part_at(shown["joints"]["lever"]), what="the moving part marker")
+        return (
+            pts.shape == expected.shape
+            and cKDTree(expected).query(pts)[0].max() < 1e-4
+            and cKDTree(pts).query(expected)[0].max() < 1e-4
+        )
+
+    client.wait_for(
+        lambda: moving_part_at(shown["joints"]["lever"]), what="the moving part marker"
+    )
     res = trigger(s, "joint_plus")
     assert res.success and "lever" in res.message, res.message
     q1 = shown["joints"]["lever"] + math.radians(5.0)
-    client.wait_for(lambda: abs([o for o in status(s)["objects"] if o["active"]][0]
-                                ["candidates"][0]["joints"]["lever"] - q1) < 1e-5,
-                    what="the stepped joint in the status")
+    client.wait_for(
+        lambda: (
+            abs(
+                [o for o in status(s)["objects"] if o["active"]][0]["candidates"][0]["joints"][
+                    "lever"
+                ]
+                - q1
+            )
+            < 1e-5
+        ),
+        what="the stepped joint in the status",
+    )
     client.wait_for(lambda: moving_part_at(q1), what="the moving part at the stepped angle")
     # a Joy axis mapped to the joint: one step per push, in the push's direction
-    setp = client.call(SetParameters, f"{NS}/set_parameters", SetParameters.Request(parameters=[
-        Parameter(name="joint_axis", value=ParameterValue(type=ParameterType.PARAMETER_INTEGER,
-                                                          integer_value=5))]))
+    setp = client.call(
+        SetParameters,
+        f"{NS}/set_parameters",
+        SetParameters.Request(
+            parameters=[
+                Parameter(
+                    name="joint_axis",
+                    value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=5),
+                )
+            ]
+        ),
+    )
     assert setp.results[0].successful
     joy = Joy()
     for value in (0.0, -0.9, -0.95, 0.0):
         joy.axes = [0.0] * 5 + [value]
         s["pubs"]["joy"].publish(joy)
         time.sleep(0.1)
-    client.wait_for(lambda: abs([o for o in status(s)["objects"] if o["active"]][0]
-                                ["candidates"][0]["joints"]["lever"] - (q1 - math.radians(5))) < 1e-5,
-                    what="one step back from the axis push")
+    client.wait_for(
+        lambda: (
+            abs(
+                [o for o in status(s)["objects"] if o["active"]][0]["candidates"][0]["joints"][
+                    "lever"
+                ]
+                - (q1 - math.radians(5))
+            )
+            < 1e-5
+        ),
+        what="one step back from the axis push",
+    )
     res = trigger(s, "discard")
     assert res.success
     # a template without a joint refuses with a reason
     handle = next(o for o in sim.objects if o.template == "grab_handle")
     click(s, handle.click)
-    client.wait_for(lambda: [o for o in status(s)["objects"] if o["active"]] and
-                    [o for o in status(s)["objects"] if o["active"]][0]["candidates"][0]
-                    ["template"] == "grab_handle", 30, "the grab handle")
+    client.wait_for(
+        lambda: (
+            [o for o in status(s)["objects"] if o["active"]]
+            and [o for o in status(s)["objects"] if o["active"]][0]["candidates"][0]["template"]
+            == "grab_handle"
+        ),
+        30,
+        "the grab handle",
+    )
     res = trigger(s, "joint_minus")
     assert not res.success and "no joint" in res.message
 
@@ -350,6 +451,7 @@ def test_markers_are_sent_when_what_they_draw_changes(session, library):
     while its fit runs) sends no markers message; the fit that adds the object does, and it
     draws the object."""
     from visualization_msgs.msg import MarkerArray
+
     s = session
     client = s["client"]
     topic = f"{NS}/markers"
@@ -363,20 +465,27 @@ def test_markers_are_sent_when_what_they_draw_changes(session, library):
     known = {o["id"] for o in st["objects"]}
     # (an object farthest from the open ones: a click near one selects it instead of fitting)
     clicked = np.array([o["click"] for o in st["objects"]]).reshape(-1, 3)
-    obj = max((o for o in sim.objects if o.click is not None),
-              key=lambda o: np.min(np.linalg.norm(clicked - o.click, axis=1), initial=np.inf))
+    obj = max(
+        (o for o in sim.objects if o.click is not None),
+        key=lambda o: np.min(np.linalg.norm(clicked - o.click, axis=1), initial=np.inf),
+    )
     n0 = len(client.history[topic])
-    assert trigger(s, "save").success         # the status changes (the file's count), not the state
+    assert trigger(s, "save").success  # the status changes (the file's count), not the state
     click(s, obj.click)
-    new = client.wait_for(lambda: {o["id"] for o in status(s)["objects"]} - known, 60,
-                          "the clicked object fitted")
-    client.wait_for(lambda: any(m.ns == "candidate" and m.id in new
-                                for m in client.history[topic][-1].markers), 60,
-                    "the markers drawing it")
+    new = client.wait_for(
+        lambda: {o["id"] for o in status(s)["objects"]} - known, 60, "the clicked object fitted"
+    )
+    client.wait_for(
+        lambda: any(
+            m.ns == "candidate" and m.id in new for m in client.history[topic][-1].markers
+        ),
+        60,
+        "the markers drawing it",
+    )
     since = client.history[topic][n0:]
-    assert since and all(any(m.ns == "candidate" and m.id in new for m in ma.markers)
-                         for ma in since), [sorted({m.id for m in ma.markers if m.ns == "candidate"})
-                                            for ma in since]
+    assert since and all(
+        any(m.ns == "candidate" and m.id in new for m in ma.markers) for ma in since
+    ), [sorted({m.id for m in ma.markers if m.ns == "candidate"}) for ma in since]
 
 
 def test_sigint_stops_the_node_quickly(session):
@@ -393,14 +502,19 @@ def test_a_new_template_library_redraws_the_registrations(ros_context, tmp_path,
     from visualization_msgs.msg import MarkerArray
 
     from affordance_registration.core.templates import default_models_dir
+
     topic = f"{NS}/markers"
     copy = tmp_path / "models_copy"
     shutil.copytree(default_models_dir(), copy)
     sim = simulate_taskboard(library, 7)
-    with engine_session(tmp_path, {}, "library_redraw_tester",
-                        {"points": (PointCloud2, "/points", 1),
-                         "click": (PointStamped, "/clicked_point", 10)},
-                        [(MarkerArray, topic, LATCHED, True)], sim=sim) as s:
+    with engine_session(
+        tmp_path,
+        {},
+        "library_redraw_tester",
+        {"points": (PointCloud2, "/points", 1), "click": (PointStamped, "/clicked_point", 10)},
+        [(MarkerArray, topic, LATCHED, True)],
+        sim=sim,
+    ) as s:
         client = s["client"]
         s["pubs"]["points"].publish(cloud_msg(sim.organized))
         client.wait_for_cloud()
@@ -410,16 +524,30 @@ def test_a_new_template_library_redraws_the_registrations(ros_context, tmp_path,
 
         def registered_meshes():
             ma = client.latest.get(topic)
-            return {m.mesh_resource for m in (ma.markers if ma else [])
-                    if m.ns.startswith("registered") and m.mesh_resource}
+            return {
+                m.mesh_resource
+                for m in (ma.markers if ma else [])
+                if m.ns.startswith("registered") and m.mesh_resource
+            }
+
         before = client.wait_for(registered_meshes, 60, "the registration drawn")
         assert not any(str(copy) in uri for uri in before)
-        req = SetParameters.Request(parameters=[Parameter(
-            name="templates_dir", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
-                                                       string_value=str(copy)))])
+        req = SetParameters.Request(
+            parameters=[
+                Parameter(
+                    name="templates_dir",
+                    value=ParameterValue(
+                        type=ParameterType.PARAMETER_STRING, string_value=str(copy)
+                    ),
+                )
+            ]
+        )
         assert client.call(SetParameters, f"{NS}/set_parameters", req).results[0].successful
-        after = client.wait_for(lambda: {u for u in registered_meshes() if str(copy) in u}, 60,
-                                "the registration drawn from the new library")
+        after = client.wait_for(
+            lambda: {u for u in registered_meshes() if str(copy) in u},
+            60,
+            "the registration drawn from the new library",
+        )
         assert len(after) == len(before)
 
 
@@ -432,10 +560,12 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
     client = Client("slow_fit_tester")
     try:
         client.subscribe(String, f"{NS}/status", LATCHED)
-        pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
-                "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
-                "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
-                "joy": client.node.create_publisher(Joy, "/spacenav/joy", 10)}
+        pubs = {
+            "points": client.node.create_publisher(PointCloud2, "/points", 1),
+            "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
+            "twist": client.node.create_publisher(Twist, "/spacenav/twist", 10),
+            "joy": client.node.create_publisher(Joy, "/spacenav/joy", 10),
+        }
         s = {"client": client, "pubs": pubs}
         for pub in pubs.values():
             client.wait_for_subscribers(pub, timeout=30)
@@ -446,26 +576,32 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         client.wait_for(lambda: (status(s) or {}).get("node", {}).get("cloud"), 30, "the cloud")
         obj = sim.objects[2]
         click(s, obj.click)
-        client.wait_for(lambda: "fitting a click" in (status(s)["node"]["busy"] or ""), 30,
-                        "the fit to start")
+        client.wait_for(
+            lambda: "fitting a click" in (status(s)["node"]["busy"] or ""), 30, "the fit to start"
+        )
         twist = Twist()
-        twist.linear.y = -0.5                      # 5 cm/s to the right on the screen, 0.3 s
+        twist.linear.y = -0.5  # 5 cm/s to the right on the screen, 0.3 s
         for _ in range(10):
             pubs["twist"].publish(twist)
             time.sleep(1 / 30)
         pubs["twist"].publish(Twist())
         future = next_model.call_async(Trigger.Request())
-        client.wait_for(lambda: status(s)["node"]["queued"] >= 12, 30,
-                        f"the queued inputs {status(s)['node']}")
+        client.wait_for(
+            lambda: status(s)["node"]["queued"] >= 12, 30, f"the queued inputs {status(s)['node']}"
+        )
         joy = Joy()
-        joy.buttons = [0, 1]                       # button 1: accept
+        joy.buttons = [0, 1]  # button 1: accept
         pubs["joy"].publish(joy)
-        assert status(s)["objects"] == [] and status(s)["node"]["busy"], \
+        assert status(s)["objects"] == [] and status(s)["node"]["busy"], (
             "the inputs were sent while the fit was still running"
+        )
         client.wait_for(future.done, 60, "the next_model answer")
         # (the status of the accept may come out before the node is idle again)
-        st = client.wait_for(lambda: len(status(s)["registered"]) == 1 and
-                             status(s)["node"]["idle"] and status(s), 60, "the accept")
+        st = client.wait_for(
+            lambda: len(status(s)["registered"]) == 1 and status(s)["node"]["idle"] and status(s),
+            60,
+            "the accept",
+        )
         assert future.result().success and "rank 2/" in future.result().message
         reg = st["registered"][0]
         assert reg["ranked_first"] == obj.template and reg["model_changes"] == 1
@@ -492,8 +628,10 @@ def _engine_with(tmp_path, params: dict, name: str, cloud: PointCloud2):
     client = Client(name)
     try:
         client.subscribe(String, f"{NS}/status", LATCHED)
-        pubs = {"points": client.node.create_publisher(PointCloud2, "/points", 1),
-                "click": client.node.create_publisher(PointStamped, "/clicked_point", 10)}
+        pubs = {
+            "points": client.node.create_publisher(PointCloud2, "/points", 1),
+            "click": client.node.create_publisher(PointStamped, "/clicked_point", 10),
+        }
         s = {"client": client, "pubs": pubs}
         for pub in pubs.values():
             client.wait_for_subscribers(pub, timeout=30)
@@ -511,6 +649,7 @@ def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, libra
     """refit_on_new_cloud (default on): the same scene published again 1 cm to the side moves
     the open object's fit with it."""
     from affordance_registration.core.transforms import make_T
+
     sim = simulate_taskboard(library, 7)
     obj = sim.objects[1]
     with _engine_with(tmp_path, {}, "follow_tester", cloud_msg(sim.organized)) as s:
@@ -525,6 +664,7 @@ def test_a_new_cloud_moves_the_selected_objects_fit(ros_context, tmp_path, libra
             st = status(s)
             T = np.asarray(st["objects"][0]["candidates"][0]["pose"])
             return pose_error(T, moved, library[obj.template].symmetry)[0] < TOL_M
+
         client.wait_for(followed, 30, "the fit to follow the new cloud")
         assert "followed the new cloud" in status(s)["node"]["last_message"]
 
@@ -535,26 +675,35 @@ def test_a_cloud_in_base_link_with_a_sensor_frame(ros_context, tmp_path, library
     carries the verdict (coverage, inlier_rmse, fits)."""
     from affordance_registration.core.transforms import make_T, matrix_to_quat_xyzw
     from affordance_registration.ros.glue.frames import R_BODY_OPTICAL
+
     # the camera 1.1 m up, looking along base_link's x (REP-103)
     T_base_camera = make_T(R_BODY_OPTICAL, [0.3, -0.2, 1.1])
     q = matrix_to_quat_xyzw(T_base_camera[:3, :3])
-    entry = (f"base_link {FRAME} " + " ".join(f"{v:.12f}" for v in T_base_camera[:3, 3]) + " "
-             + " ".join(f"{v:.12f}" for v in q))
+    entry = (
+        f"base_link {FRAME} "
+        + " ".join(f"{v:.12f}" for v in T_base_camera[:3, 3])
+        + " "
+        + " ".join(f"{v:.12f}" for v in q)
+    )
     sim = simulate_taskboard(library, 7)
     obj = max(sim.objects, key=lambda o: o.visible_points)
     pts = sim.points @ T_base_camera[:3, :3].T + T_base_camera[:3, 3]
     params = {"static_transforms": f"['{entry}']", "sensor_frame": FRAME}
     with _engine_with(tmp_path, params, "base_link_tester", cloud_msg(pts, "base_link")) as s:
         click(s, T_base_camera[:3, :3] @ obj.click + T_base_camera[:3, 3], "base_link")
-        s["client"].wait_for(lambda: status(s)["objects"] and status(s)["node"]["idle"], 60,
-                             "the fit")
+        s["client"].wait_for(
+            lambda: status(s)["objects"] and status(s)["node"]["idle"], 60, "the fit"
+        )
         st = status(s)
         best = st["objects"][0]["candidates"][0]
         assert st["frame_id"] == "base_link" and best["template"] == obj.template
         assert best["fits"] is True and best["coverage"] >= 0.5 and best["inlier_rmse"] > 0
         assert st["objects"][0]["verdict"] == "fits" and not st["objects"][0]["no_match"]
-        dt, dr = pose_error(np.asarray(best["pose"]), T_base_camera @ obj.T_scene_model,
-                            library[obj.template].symmetry)
+        dt, dr = pose_error(
+            np.asarray(best["pose"]),
+            T_base_camera @ obj.T_scene_model,
+            library[obj.template].symmetry,
+        )
         assert dt < TOL_M and dr < TOL_RAD
 
 
@@ -563,15 +712,24 @@ def test_sensor_frame_unknown_or_none(ros_context, tmp_path, library):
     fitted without a viewpoint."""
     sim = simulate_taskboard(library, 7)
     obj = max(sim.objects, key=lambda o: o.visible_points)
-    with _engine_with(tmp_path, {"sensor_frame": "nowhere_frame"}, "sensor_frame_tester",
-                      cloud_msg(sim.organized)) as s:
+    with _engine_with(
+        tmp_path,
+        {"sensor_frame": "nowhere_frame"},
+        "sensor_frame_tester",
+        cloud_msg(sim.organized),
+    ) as s:
         click(s, obj.click)
         wait_error(s, "the sensor frame 'nowhere_frame' has no known transform")
         req = SetParameters.Request()
-        req.parameters = [Parameter(name="sensor_frame", value=ParameterValue(
-            type=ParameterType.PARAMETER_STRING, string_value="none"))]
+        req.parameters = [
+            Parameter(
+                name="sensor_frame",
+                value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="none"),
+            )
+        ]
         assert s["client"].call(SetParameters, f"{NS}/set_parameters", req).results[0].successful
         click(s, obj.click)
-        s["client"].wait_for(lambda: status(s)["objects"] and status(s)["node"]["idle"], 60,
-                             "the fit")
+        s["client"].wait_for(
+            lambda: status(s)["objects"] and status(s)["node"]["idle"], 60, "the fit"
+        )
         assert status(s)["objects"][0]["candidates"][0]["template"] == obj.template

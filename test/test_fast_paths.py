@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The fitter's hand-rolled fast paths give the digits of the slower, general code they replace
 (the golden fits depend on it): checked against that code on random input."""
+
 from __future__ import annotations
 
 import math
@@ -14,15 +15,19 @@ from scipy.spatial.transform import Rotation
 from affordance_registration.core.transforms import axis_angle_matrix, matrix_to_quat_xyzw
 
 _axis = st.lists(st.floats(-1e3, 1e3), min_size=3, max_size=3).filter(
-    lambda a: math.fsum(x * x for x in a) > 1e-12)
+    lambda a: math.fsum(x * x for x in a) > 1e-12
+)
 _angle = st.one_of(st.floats(-10.0, 10.0), st.floats(-2e-3, 2e-3))
 
 
 def _scipy_axis_angle(axis, angle):
     axis = np.asarray(axis, dtype=float)
     angle = np.asarray(angle, dtype=float)
-    unit = axis / np.linalg.norm(axis) if axis.ndim == 1 else \
-        axis / np.sqrt([a @ a for a in axis])[:, None]
+    unit = (
+        axis / np.linalg.norm(axis)
+        if axis.ndim == 1
+        else axis / np.sqrt([a @ a for a in axis])[:, None]
+    )
     return Rotation.from_rotvec(unit * angle[..., None]).as_matrix()
 
 
@@ -31,14 +36,18 @@ def _scipy_axis_angle(axis, angle):
 def test_axis_angle_matrix_has_scipys_digits(axes, angles):
     angle = angles.draw(st.lists(_angle, min_size=len(axes), max_size=len(axes)))
     for a, q in ((axes, angle), (axes[0], angle[0]), (axes[0], angle)):
-        got, want = axis_angle_matrix(a, q if np.ndim(q) == 0 else np.array(q)), \
-            _scipy_axis_angle(a, q)
+        got, want = (
+            axis_angle_matrix(a, q if np.ndim(q) == 0 else np.array(q)),
+            _scipy_axis_angle(a, q),
+        )
         assert got.shape == want.shape
         assert np.array_equal(got, want)
 
 
 @settings(max_examples=400, deadline=None)
-@given(axis=_axis, angle=st.one_of(st.floats(-10.0, 10.0), st.sampled_from([0.0, math.pi, -math.pi])))
+@given(
+    axis=_axis, angle=st.one_of(st.floats(-10.0, 10.0), st.sampled_from([0.0, math.pi, -math.pi]))
+)
 def test_matrix_to_quaternion_has_scipys_digits(axis, angle):
     R = _scipy_axis_angle(axis, angle)
     want = Rotation.from_matrix(R).as_quat()
@@ -99,7 +108,7 @@ def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
     P, N = stack_samples(models, 128)
     R = random_rotations(len(models), rng)
     t = ctx.click + rng.normal(scale=0.05, size=(len(models), 3))
-    t[-1] = ctx.click + 2.0 * ctx.frame[:, 0]           # off the range image: no returns
+    t[-1] = ctx.click + 2.0 * ctx.frame[:, 0]  # off the range image: no returns
     X = P @ np.swapaxes(R, 1, 2) + t[:, None]
     Nw = N @ np.swapaxes(R, 1, 2)
     cos_in, front, obs, z, want = _reference_visible(ctx, X, Nw, s)
@@ -118,7 +127,7 @@ def test_visibility_matches_the_formulas_it_replaced(clicked, seed, grazing):
     got_obs, got_z = ctx.range_image.lookup(X)
     assert np.array_equal(got_z, z)
     assert np.array_equal(got_obs, obs, equal_nan=True)
-    assert np.isnan(obs).any() and np.isfinite(obs).any()      # both cases exercised
+    assert np.isnan(obs).any() and np.isfinite(obs).any()  # both cases exercised
 
 
 def test_stacked_samples_are_each_models_own(clicked):
@@ -146,14 +155,26 @@ def _reference_distances(models, local, upper):
 
 
 @settings(max_examples=60, deadline=None)
-@given(picks=st.lists(st.tuples(st.integers(0, 4), st.sampled_from([0.0, -0.4, 0.3, 0.7]),
-                                st.sampled_from([1.0, 0.9, 1.15]), st.booleans()),
-                      min_size=1, max_size=12),
-       k=st.integers(1, 40), upper=st.sampled_from([np.inf, 0.01, 0.05]), seed=st.integers(0, 99))
+@given(
+    picks=st.lists(
+        st.tuples(
+            st.integers(0, 4),
+            st.sampled_from([0.0, -0.4, 0.3, 0.7]),
+            st.sampled_from([1.0, 0.9, 1.15]),
+            st.booleans(),
+        ),
+        min_size=1,
+        max_size=12,
+    ),
+    k=st.integers(1, 40),
+    upper=st.sampled_from([np.inf, 0.01, 0.05]),
+    seed=st.integers(0, 99),
+)
 def test_surface_distances_of_a_batch_are_each_models_own(clicked, picks, k, upper, seed):
     """One query per template and scale gives the distances each model's own query gives --
     models repeated (shared by hypotheses) or not, joints at zero or turned, any scale."""
     from affordance_registration.core.registration.model import surface_distances
+
     registrar, ctx = clicked
     tpls = list(registrar.library.values())
     made = {}
@@ -163,8 +184,9 @@ def test_surface_distances_of_a_batch_are_each_models_own(clicked, picks, k, upp
         key = (i, q, g)
         m = made.get(key) if shared else None
         if m is None:
-            m = registrar.models.model(tpl, q if tpl.joint is not None else 0.0, g,
-                                       articulated=True)
+            m = registrar.models.model(
+                tpl, q if tpl.joint is not None else 0.0, g, articulated=True
+            )
             made[key] = m
         models.append(m)
     rng = np.random.default_rng(seed)
@@ -175,10 +197,16 @@ def test_surface_distances_of_a_batch_are_each_models_own(clicked, picks, k, upp
 
 # -- normals: the closed-form smallest eigenvector against LAPACK's --
 
+
 @settings(max_examples=200, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), spreads=st.lists(
-    st.sampled_from([0.0, 1e-9, 1e-6, 1e-4, 1e-3, 1e-2, 1.0, 1e3]), min_size=3, max_size=3),
-    n=st.integers(1, 16), turned=st.booleans())
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    spreads=st.lists(
+        st.sampled_from([0.0, 1e-9, 1e-6, 1e-4, 1e-3, 1e-2, 1.0, 1e3]), min_size=3, max_size=3
+    ),
+    n=st.integers(1, 16),
+    turned=st.booleans(),
+)
 def test_least_spread_is_lapacks_smallest_eigenvector(seed, spreads, n, turned):
     """Neighbourhoods of every shape -- a plane, a line, a blob, one point repeated, scales
     from nanometres to kilometres, along the axes or turned anyhow: the closed-form vector is
@@ -186,6 +214,7 @@ def test_least_spread_is_lapacks_smallest_eigenvector(seed, spreads, n, turned):
     eigenvalue), along LAPACK's within 1e-9 rad wherever the two smallest eigenvalues are
     apart."""
     from affordance_registration.core.neighbours import CLOSE_EIGENVALUES, least_spread
+
     rng = np.random.default_rng(seed)
     turn = Rotation.random(random_state=seed).as_matrix() if turned else np.eye(3)
     pts = rng.normal(size=(8, n, 3)) * np.asarray(spreads) @ turn.T + rng.normal(size=3) * 10

@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Saved files are written atomically: all or nothing, no temporary files left behind."""
+
 import os
 
 import pytest
@@ -26,13 +27,19 @@ def test_read_yaml_refuses_a_key_twice_but_lets_a_merged_key_be_overridden(tmp_p
     key ``<<`` brings keys that the mapping may override, as YAML intends."""
     from affordance_registration.core.errors import AffordanceError
     from affordance_registration.core.files import read_yaml
+
     path = tmp_path / "a.yaml"
     path.write_text("base: &b {x: 1, y: 2}\nuse:\n  <<: *b\n  y: 3\n")
-    assert read_yaml(str(path), AffordanceError) == {"base": {"x": 1, "y": 2},
-                                                     "use": {"x": 1, "y": 3}}
+    assert read_yaml(str(path), AffordanceError) == {
+        "base": {"x": 1, "y": 2},
+        "use": {"x": 1, "y": 3},
+    }
     path.write_text("use:\n  y: 1\n  z: 2\n  y: 3\n")
-    with pytest.raises(AffordanceError, match=r"a.yaml: not valid YAML \(line 4\): the key 'y' is "
-                                              r"written twice$"):
+    with pytest.raises(
+        AffordanceError,
+        match=r"a.yaml: not valid YAML \(line 4\): the key 'y' is "
+        r"written twice$",
+    ):
         read_yaml(str(path), AffordanceError)
     path.write_text("")
     assert read_yaml(str(path), AffordanceError) is None

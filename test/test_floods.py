@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Floods are bounded: a real engine process flooded with clicks and huge strings over real topics
 keeps answering the operator's service calls, with bounded memory and a bounded status."""
+
 import os
 import threading
 import time
@@ -26,15 +27,23 @@ def flooded(ros_context, tmp_path_factory, library):
     tmp = tmp_path_factory.mktemp("floods")
     # every fit takes at least 1 s (the engine node with a slow fitter): clicks at 10 Hz pile
     # up behind it
-    with engine_session(tmp, {}, "flood_tester",
-                        {"points": (PointCloud2, "/points", 1),
-                         "click": (PointStamped, "/clicked_point", 200),
-                         "select": (String, f"{NS}/select_model", 10),
-                         "cloud_bad": (PointCloud2, "/points", 1)},
-                        slow_fit_s=1.0, sim=simulate_taskboard(library, 7)) as s:
+    with engine_session(
+        tmp,
+        {},
+        "flood_tester",
+        {
+            "points": (PointCloud2, "/points", 1),
+            "click": (PointStamped, "/clicked_point", 200),
+            "select": (String, f"{NS}/select_model", 10),
+            "cloud_bad": (PointCloud2, "/points", 1),
+        },
+        slow_fit_s=1.0,
+        sim=simulate_taskboard(library, 7),
+    ) as s:
         s["pubs"]["points"].publish(xyz_to_pointcloud2(s["sim"].organized, FRAME))
-        s["client"].wait_for(lambda: (s["client"].status() or {}).get("node", {}).get("cloud"),
-                             30, "the cloud")
+        s["client"].wait_for(
+            lambda: (s["client"].status() or {}).get("node", {}).get("cloud"), 30, "the cloud"
+        )
         yield s
 
 
@@ -54,7 +63,7 @@ def test_a_click_flood_leaves_a_service_call_answered_and_memory_bounded(flooded
     peak = {"queued": 0, "rss": 0.0}
 
     def flood():
-        for k in range(150):              # 150 clicks in 15 s from one client
+        for k in range(150):  # 150 clicks in 15 s from one client
             if stop.is_set():
                 return
             s["pubs"]["click"].publish(_click(objs[k % 5]))
@@ -63,6 +72,7 @@ def test_a_click_flood_leaves_a_service_call_answered_and_memory_bounded(flooded
             peak["queued"] = max(peak["queued"], st.get("node", {}).get("queued", 0))
             peak["rss"] = max(peak["rss"], rss_mb(pid))
             time.sleep(0.1)
+
     thread = threading.Thread(target=flood)
     thread.start()
     try:
@@ -78,17 +88,20 @@ def test_a_click_flood_leaves_a_service_call_answered_and_memory_bounded(flooded
     finally:
         thread.join()
         stop.set()
+
     def finished():
         st = client.status() or {}
         node = st.get("node", {})
         return node.get("idle") and node["handled"].get("/clicked_point") == 150 and st
-    st = client.wait_for(finished, 120, f"the engine to finish the flood "
-                                        f"({(client.status() or {}).get('node')})")
+
+    st = client.wait_for(
+        finished, 120, f"the engine to finish the flood ({(client.status() or {}).get('node')})"
+    )
     assert peak["rss"] < 1024 and rss_mb(pid) < 1024
     assert peak["queued"] <= 4, peak
     handled = st["node"]["handled"]["/clicked_point"]
-    assert handled == 150                 # every click accounted for: fitted or superseded
-    assert len(st["objects"]) < 40        # most were superseded before their fit started
+    assert handled == 150  # every click accounted for: fitted or superseded
+    assert len(st["objects"]) < 40  # most were superseded before their fit started
     assert "superseded by a newer click" in s["proc"].output()
 
 
@@ -96,15 +109,22 @@ def test_huge_names_are_refused_and_the_status_stays_small(flooded):
     s = flooded
     client = s["client"]
     s["pubs"]["select"].publish(String(data="x" * (10 * 1024 * 1024)))
-    client.wait_for(lambda: "select model refused" in
-                    client.status()["node"]["last_error"], 60, "the refusal")
+    client.wait_for(
+        lambda: "select model refused" in client.status()["node"]["last_error"], 60, "the refusal"
+    )
     s["pubs"]["click"].publish(_click(s["sim"].objects[0], frame="f" * (10 * 1024 * 1024)))
-    client.wait_for(lambda: "click refused: its frame id" in
-                    client.status()["node"]["last_error"], 60, "the click's refusal")
+    client.wait_for(
+        lambda: "click refused: its frame id" in client.status()["node"]["last_error"],
+        60,
+        "the click's refusal",
+    )
     bad = xyz_to_pointcloud2(s["sim"].organized[:10, :10], "c" * (1024 * 1024))
     s["pubs"]["points"].publish(bad)
-    client.wait_for(lambda: "dropped a PointCloud2" in client.status()["node"]["last_error"],
-                    60, "the cloud's refusal")
+    client.wait_for(
+        lambda: "dropped a PointCloud2" in client.status()["node"]["last_error"],
+        60,
+        "the cloud's refusal",
+    )
     # a name the engine does not know, of a size it takes: echoed bounded
     s["pubs"]["select"].publish(String(data="y" * 250))
     time.sleep(0.5)
@@ -112,7 +132,7 @@ def test_huge_names_are_refused_and_the_status_stays_small(flooded):
     assert len(msg.data) < 100_000
     time.sleep(1.0)
     assert os.path.getsize(s["proc"].log_path) < 1_000_000
-    assert client.call(Trigger, f"{NS}/refit", timeout=30).message     # still answering
+    assert client.call(Trigger, f"{NS}/refit", timeout=30).message  # still answering
 
 
 class _Engine:
@@ -123,16 +143,23 @@ class _Engine:
 def test_clicks_supersede_only_clicks_nothing_depends_on():
     stream = OperatorStream(_Engine())
     stream.click([0, 0, 1], source="a")
-    stream.click([0, 0, 2], source="a")          # two quick clicks: both kept
+    stream.click([0, 0, 2], source="a")  # two quick clicks: both kept
     stream.view([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], source="v")
-    stream.click([0, 0, 3], source="a")          # supersedes the second (only a view between)
-    stream.click([0, 0, 4], source="b")          # another source: kept
+    stream.click([0, 0, 3], source="a")  # supersedes the second (only a view between)
+    stream.click([0, 0, 4], source="b")  # another source: kept
     stream.click([0, 0, 5], source="b")
     stream.action("accept", source="s")
-    stream.click([0, 0, 6], source="b")          # the accept belongs to b's click 5: kept
-    kinds = [(i.kind, i.source, float(i.point[2]) if i.kind == "click" else None)
-             for i in stream._queue]
-    assert kinds == [("click", "a", 1.0), ("view", "v", None), ("click", "a", 3.0),
-                     ("click", "b", 4.0), ("click", "b", 5.0), ("action", "s", None),
-                     ("click", "b", 6.0)]
+    stream.click([0, 0, 6], source="b")  # the accept belongs to b's click 5: kept
+    kinds = [
+        (i.kind, i.source, float(i.point[2]) if i.kind == "click" else None) for i in stream._queue
+    ]
+    assert kinds == [
+        ("click", "a", 1.0),
+        ("view", "v", None),
+        ("click", "a", 3.0),
+        ("click", "b", 4.0),
+        ("click", "b", 5.0),
+        ("action", "s", None),
+        ("click", "b", 6.0),
+    ]
     assert stream.status()["handled"] == {"a": 1}

@@ -16,6 +16,7 @@ the comparison is at 1e-9; elsewhere (a CI machine with another CPU rounds sums 
 is at a tolerance that still catches a real change: the same template ranked first, its pose
 within 0.1 mm / 0.01 deg and its joints and scale within 1e-4, every residual within 1%.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -38,19 +39,36 @@ def _fingerprint(hashes: dict) -> dict:
     import scipy
     import trimesh
     from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
-    simd = {"features": sorted(k for k, v in __cpu_features__.items() if v),
-            "dispatch": sorted(__cpu_dispatch__)}
-    return {"numpy": np.__version__, "scipy": scipy.__version__, "open3d": open3d.__version__,
-            "trimesh": trimesh.__version__, "machine": platform.machine(), "simd": simd,
-            "scenes": hashes}
+
+    simd = {
+        "features": sorted(k for k, v in __cpu_features__.items() if v),
+        "dispatch": sorted(__cpu_dispatch__),
+    }
+    return {
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "open3d": open3d.__version__,
+        "trimesh": trimesh.__version__,
+        "machine": platform.machine(),
+        "simd": simd,
+        "scenes": hashes,
+    }
 
 
 def _candidate(c) -> dict:
-    return {"template": c.template, "pose": np.asarray(c.T_scene_model)[:3].tolist(),
-            "residual": c.residual, "likelihood": c.likelihood, "probability": c.probability,
-            "inlier_fraction": c.inlier_fraction, "iterations": c.iterations,
-            "joints": {k: float(v) for k, v in c.joints.items()}, "scale": c.scale,
-            "state": c.state, "converged": c.converged}
+    return {
+        "template": c.template,
+        "pose": np.asarray(c.T_scene_model)[:3].tolist(),
+        "residual": c.residual,
+        "likelihood": c.likelihood,
+        "probability": c.probability,
+        "inlier_fraction": c.inlier_fraction,
+        "iterations": c.iterations,
+        "joints": {k: float(v) for k, v in c.joints.items()},
+        "scale": c.scale,
+        "state": c.state,
+        "converged": c.converged,
+    }
 
 
 def run_cases() -> tuple[dict, dict]:
@@ -61,37 +79,51 @@ def run_cases() -> tuple[dict, dict]:
     from affordance_registration.core.transforms import axis_angle_matrix, make_T
     from affordance_registration.evaluation.simulation import simulate_taskboard, sized_library
 
-    library = TemplateLibrary.load().specific()   # the taskboard library (no primitives)
+    library = TemplateLibrary.load().specific()  # the taskboard library (no primitives)
     sized = sized_library(library)
     default = Registrar(library)
-    registrars = {"default": default, "sized": Registrar(sized),
-                  "rigid": Registrar(library, FitSettings(articulated=False)),
-                  "paper": Registrar(library, FitSettings(method="paper", paper_restarts=3,
-                                                          paper_iterations=20))}
-    scenes = {"panel_1000": (library, dict(seed=1000)), "panel_1001": (library, dict(seed=1001)),
-              "table_2000": (library, dict(seed=2000, layout="table")),
-              "table_2001": (library, dict(seed=2001, layout="table")),
-              "articulated_3000": (library, dict(seed=3000, articulated=True)),
-              "sized_3001": (sized, dict(seed=3001, articulated=True)),
-              "panel_1002": (library, dict(seed=1002))}
+    registrars = {
+        "default": default,
+        "sized": Registrar(sized),
+        "rigid": Registrar(library, FitSettings(articulated=False)),
+        "paper": Registrar(
+            library, FitSettings(method="paper", paper_restarts=3, paper_iterations=20)
+        ),
+    }
+    scenes = {
+        "panel_1000": (library, dict(seed=1000)),
+        "panel_1001": (library, dict(seed=1001)),
+        "table_2000": (library, dict(seed=2000, layout="table")),
+        "table_2001": (library, dict(seed=2001, layout="table")),
+        "articulated_3000": (library, dict(seed=3000, articulated=True)),
+        "sized_3001": (sized, dict(seed=3001, articulated=True)),
+        "panel_1002": (library, dict(seed=1002)),
+    }
     sims, hashes = {}, {}
     for key, (lib, kw) in scenes.items():
         sim = simulate_taskboard(lib, **kw)
         sims[key] = (sim, Scene(sim.organized))
         hashes[key] = hashlib.sha256(np.ascontiguousarray(sim.organized).tobytes()).hexdigest()
     # (scene, registrar, at most this many clicks)
-    plan = [("panel_1000", "default", 5), ("panel_1001", "default", 5),
-            ("table_2000", "default", 5), ("table_2001", "default", 3),
-            ("articulated_3000", "default", 5), ("sized_3001", "sized", 5),
-            ("panel_1002", "rigid", 3), ("panel_1002", "paper", 1)]
+    plan = [
+        ("panel_1000", "default", 5),
+        ("panel_1001", "default", 5),
+        ("table_2000", "default", 5),
+        ("table_2001", "default", 3),
+        ("articulated_3000", "default", 5),
+        ("sized_3001", "sized", 5),
+        ("panel_1002", "rigid", 3),
+        ("panel_1002", "paper", 1),
+    ]
     out = {}
     for scene_key, reg_key, limit in plan:
         sim, scene = sims[scene_key]
         objs = [o for o in sim.objects if o.visible_points >= MIN_VISIBLE][:limit]
         for obj in objs:
             rep = registrars[reg_key].fit(scene, obj.click)
-            out[f"fit {scene_key} {reg_key} {obj.template}"] = [_candidate(c)
-                                                               for c in rep.candidates]
+            out[f"fit {scene_key} {reg_key} {obj.template}"] = [
+                _candidate(c) for c in rep.candidates
+            ]
     # refits after a correction (1.5 cm, 8 deg), as the bench makes them; articulated ones
     # with the joint kept, held and estimated again
     rng = np.random.default_rng(5)
@@ -122,11 +154,13 @@ def _pose_gap(a, b) -> tuple[float, float]:
 
 def _exact_gaps(w: dict, h: dict) -> dict:
     """The differences of one candidate beyond 1e-9 (relative for residual and likelihood)."""
-    gaps = {"pose": float(np.max(np.abs(np.subtract(w["pose"], h["pose"])))),
-            "joints/scale": _joint_gap(w, h),
-            "inlier_fraction": abs(w["inlier_fraction"] - h["inlier_fraction"]),
-            "iterations": abs(w["iterations"] - h["iterations"]),
-            "converged": float(w.get("converged") != h.get("converged"))}
+    gaps = {
+        "pose": float(np.max(np.abs(np.subtract(w["pose"], h["pose"])))),
+        "joints/scale": _joint_gap(w, h),
+        "inlier_fraction": abs(w["inlier_fraction"] - h["inlier_fraction"]),
+        "iterations": abs(w["iterations"] - h["iterations"]),
+        "converged": float(w.get("converged") != h.get("converged")),
+    }
     for k in ("residual", "likelihood", "probability"):
         gaps[k] = abs(w[k] - h[k]) / max(abs(w[k]), 1e-12)
     return {k: v for k, v in gaps.items() if not v <= EXACT}
@@ -135,8 +169,10 @@ def _exact_gaps(w: dict, h: dict) -> dict:
 def _joint_gap(w: dict, h: dict) -> float:
     if w["state"] != h["state"] or sorted(w["joints"]) != sorted(h["joints"]):
         return math.inf
-    return max([abs(w["joints"][k] - h["joints"][k]) for k in w["joints"]]
-               + [abs(w["scale"] - h["scale"])])
+    return max(
+        [abs(w["joints"][k] - h["joints"][k]) for k in w["joints"]]
+        + [abs(w["scale"] - h["scale"])]
+    )
 
 
 def _loose_gaps(w: dict, h: dict, winner: bool) -> dict:
@@ -157,8 +193,12 @@ def _compare(expected: dict, got: dict, exact: bool) -> list[str]:
         have = got.get(case)
         names_w = [c["template"] for c in want]
         names_h = [c["template"] for c in have or []]
-        if exact and names_h != names_w or not exact and (
-                sorted(names_h) != sorted(names_w) or names_h[:1] != names_w[:1]):
+        if (
+            exact
+            and names_h != names_w
+            or not exact
+            and (sorted(names_h) != sorted(names_w) or names_h[:1] != names_w[:1])
+        ):
             errors.append(f"{case}: ranked {names_h}, recorded {names_w}")
             continue
         by_name = {c["template"]: c for c in have}
@@ -181,13 +221,17 @@ def test_fits_match_the_golden_record():
         how = "this machine matches the recording's (numbers compared at 1e-9)"
     else:
         diff = sorted(k for k in here if here[k] != doc["fingerprint"].get(k))
-        how = (f"this machine differs from the recording's in {diff}: compared at a tolerance "
-               f"instead of 1e-9 -- the same winner, its pose within 0.1 mm / 0.01 deg, "
-               f"every residual within 1%")
+        how = (
+            f"this machine differs from the recording's in {diff}: compared at a tolerance "
+            f"instead of 1e-9 -- the same winner, its pose within 0.1 mm / 0.01 deg, "
+            f"every residual within 1%"
+        )
     changed = len({e.split(" / ")[0].split(":")[0] for e in errors})
-    assert not errors, (f"{changed} of {len(doc['cases'])} golden fits changed ({how}); "
-                        f"an intended change regenerates test/data/golden_fits.json "
-                        f"(python test/test_golden_fits.py --record):\n" + "\n".join(errors[:20]))
+    assert not errors, (
+        f"{changed} of {len(doc['cases'])} golden fits changed ({how}); "
+        f"an intended change regenerates test/data/golden_fits.json "
+        f"(python test/test_golden_fits.py --record):\n" + "\n".join(errors[:20])
+    )
     assert len(got) == len(doc["cases"]) >= 30
 
 
@@ -195,9 +239,14 @@ def record() -> None:
     cases, hashes = run_cases()
     doc = {"fingerprint": _fingerprint(hashes), "cases": cases}
     lines = [f"{json.dumps(k)}: {json.dumps(v)}" for k, v in cases.items()]
-    with open(FIXTURE, "w", encoding="utf-8") as handle:   # one case a line: readable diffs
-        handle.write('{"fingerprint": ' + json.dumps(doc["fingerprint"]) + ',\n"cases": {\n'
-                     + ",\n".join(lines) + "\n}}\n")
+    with open(FIXTURE, "w", encoding="utf-8") as handle:  # one case a line: readable diffs
+        handle.write(
+            '{"fingerprint": '
+            + json.dumps(doc["fingerprint"])
+            + ',\n"cases": {\n'
+            + ",\n".join(lines)
+            + "\n}}\n"
+        )
     print(f"recorded {len(cases)} cases into {FIXTURE}")
 
 

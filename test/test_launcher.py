@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The YAML launch-file runner: parsing, substitutions, and starting/stopping real nodes."""
+
 import os
 import sys
 import time
@@ -21,19 +22,22 @@ from affordance_registration.ros.standins.launcher import (
     parse_launch_file,
 )
 
-LAUNCH = os.path.join(package_share("affordance_registration"), "launch_configs",
-                      "affordance_engine.launch.yaml")
+LAUNCH = os.path.join(
+    package_share("affordance_registration"), "launch_configs", "affordance_engine.launch.yaml"
+)
 
 
 def test_package_launch_file_parses_with_arguments():
     (node,) = parse_launch_file(LAUNCH, {"points": "/camera/depth/points"})
     cmd = node.command()
     assert os.path.basename(cmd[0]) == "affordance_engine"
-    assert cmd[cmd.index("--ros-args") + 1:][:2] == ["-r", "__node:=affordance_engine"]
+    assert cmd[cmd.index("--ros-args") + 1 :][:2] == ["-r", "__node:=affordance_engine"]
     assert "points:=/camera/depth/points" in cmd
     assert "clicked_point:=clicked_point" in cmd
     params = cmd[cmd.index("--params-file") + 1]
-    assert params.endswith("launch_configs/affordance_engine.params.yaml") and os.path.isfile(params)
+    assert params.endswith("launch_configs/affordance_engine.params.yaml") and os.path.isfile(
+        params
+    )
 
 
 def test_substitutions_and_errors(tmp_path, monkeypatch):
@@ -49,7 +53,8 @@ def test_substitutions_and_errors(tmp_path, monkeypatch):
         "    param:\n"
         "    - {name: linear_gain, value: $(var gain)}\n"
         "    - {name: fit.mode, value: $(env AR_UNSET_VAR free)}\n"
-        "    args: --foo\n")
+        "    args: --foo\n"
+    )
     (node,) = parse_launch_file(str(f), {"gain": "0.7"})
     cmd = node.command()
     assert "__ns:=/station_1" in cmd and "linear_gain:=0.7" in cmd and "fit.mode:=free" in cmd
@@ -66,8 +71,10 @@ def test_substitutions_and_errors(tmp_path, monkeypatch):
     with pytest.raises(LaunchError, match="cannot read"):
         parse_launch_file(str(tmp_path / "missing.yaml"))
     # a node's key written twice: PyYAML kept the last one silently
-    bad.write_text("launch:\n- node:\n    pkg: affordance_registration\n"
-                   "    exec: affordance_engine\n    exec: affordance_spacemouse\n")
+    bad.write_text(
+        "launch:\n- node:\n    pkg: affordance_registration\n"
+        "    exec: affordance_engine\n    exec: affordance_spacemouse\n"
+    )
     with pytest.raises(LaunchError, match=r"\(line 5\): the key 'exec' is written twice"):
         parse_launch_file(str(bad))
 
@@ -87,9 +94,19 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
     that start the engine from the launch file without arguments -- the demo, the session
     replay -- start it with the empty settings file.)"""
     (tmp_path / "fit.yaml").write_text("coarse:\n  samples: 32\n")
-    proc = NodeProcess([sys.executable, "-m", "affordance_registration.cli", "launch", LAUNCH,
-                        "points:=/test_launch/cloud", f"settings_file:={tmp_path / 'fit.yaml'}",
-                        "--shm"], tmp_path / "launch.log")
+    proc = NodeProcess(
+        [
+            sys.executable,
+            "-m",
+            "affordance_registration.cli",
+            "launch",
+            LAUNCH,
+            "points:=/test_launch/cloud",
+            f"settings_file:={tmp_path / 'fit.yaml'}",
+            "--shm",
+        ],
+        tmp_path / "launch.log",
+    )
     client = Client("launch_tester")
     try:
         client.subscribe(String, "/affordance_engine/status", LATCHED)
@@ -101,7 +118,7 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
         pub.publish(xyz_to_pointcloud2(np.random.default_rng(0).uniform(0, 1, (100, 3)), "cam"))
         client.wait_for_cloud(what="the cloud on the remapped topic")
         code, _ = proc.interrupt(timeout=30)
-        assert code == 0, proc.output()            # ended on SIGINT: no SIGTERM, no SIGKILL
+        assert code == 0, proc.output()  # ended on SIGINT: no SIGTERM, no SIGKILL
         assert "shutting down" in proc.output()
         assert "ended with" not in proc.output()
     finally:
@@ -120,20 +137,27 @@ def test_stop_escalates_and_names_the_node_that_did_not_end_cleanly(tmp_path, mo
     second after the grace, says so, and returns 1; the first ends unremarked."""
     ready = tmp_path / "ready"
     ready.mkdir()
-    common = ("signal.signal(signal.SIGINT, {})\n"
-              f"pathlib.Path({str(ready)!r}, sys.argv[0].rsplit('/', 1)[-1]).touch()\n"
-              "while True: time.sleep(0.05)\n")
+    common = (
+        "signal.signal(signal.SIGINT, {})\n"
+        f"pathlib.Path({str(ready)!r}, sys.argv[0].rsplit('/', 1)[-1]).touch()\n"
+        "while True: time.sleep(0.05)\n"
+    )
     _script(tmp_path, "polite_node_x", common.format("lambda *a: sys.exit(0)"))
     _script(tmp_path, "stubborn_node_x", common.format("signal.SIG_IGN"))
     monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
     lines = []
-    launcher = Launcher([NodeAction("p", "polite_node_x", name="polite"),
-                         NodeAction("p", "stubborn_node_x", name="stubborn")],
-                        grace=0.5, log=lines.append)
+    launcher = Launcher(
+        [
+            NodeAction("p", "polite_node_x", name="polite"),
+            NodeAction("p", "stubborn_node_x", name="stubborn"),
+        ],
+        grace=0.5,
+        log=lines.append,
+    )
     launcher.start()
     try:
         deadline = time.monotonic() + 60
-        while len(list(ready.iterdir())) < 2:           # both have their SIGINT handler set
+        while len(list(ready.iterdir())) < 2:  # both have their SIGINT handler set
             assert time.monotonic() < deadline and all(p.poll() is None for p in launcher.procs)
             time.sleep(0.05)
         assert launcher.stop() == 1

@@ -4,6 +4,7 @@
 afresh: the engine's status entries, the ~/markers of the registrations and their TF frames
 come out the same with the memo as without, whatever changed around them; the memo holds only
 the records of its last call."""
+
 import gc
 import weakref
 from dataclasses import dataclass, field
@@ -33,9 +34,9 @@ def test_a_value_is_made_once_per_record_and_context():
     a, b = _Record(1), _Record(2)
     assert memo.values([a, b], 10) == [10, 20]
     assert memo.values([b, a], 10) == [20, 10]
-    assert made == [(1, 10), (2, 10)]                    # nothing made again
-    assert memo.values([a], 3) == [3] and made[-1] == (1, 3)   # another context: made again
-    twin = _Record(1)                    # equal, but another record: made for itself
+    assert made == [(1, 10), (2, 10)]  # nothing made again
+    assert memo.values([a], 3) == [3] and made[-1] == (1, 3)  # another context: made again
+    twin = _Record(1)  # equal, but another record: made for itself
     assert memo.values([a, twin], 3) == [3, 3] and made[-1] == (1, 3) and len(made) == 4
 
 
@@ -47,19 +48,33 @@ def test_the_memo_holds_only_the_records_of_its_last_call():
     assert memo.values([kept]) == [3]
     del dropped
     gc.collect()
-    assert gone() is None                # the memo did not keep it alive
+    assert gone() is None  # the memo did not keep it alive
 
 
 def _registrations(library) -> tuple:
     """Registrations of every kind the markers draw: waypoints, a joint, a primitive at its
     size, a scaled template, a template the library does not hold."""
+
     def reg(i, template, **kw):
         T = make_T(axis_angle_matrix([1, 2, 0.5], 0.3 * i), [0.1 * i, -0.05 * i, 0.9])
-        return Registration(id=i, template=template, T_scene_model=T, likelihood=1.0,
-                            probability=0.9, residual=0.001, click=T[:3, 3], **kw)
-    return (reg(1, "grab_handle"), reg(2, "ball_valve", joints={"lever": 0.4}, state="open"),
-            reg(3, "box", primitive="box", dimensions={"x": 0.2, "y": 0.1, "z": 0.05}),
-            reg(4, "gate_valve", scale=1.1), reg(5, "not_in_this_library"))
+        return Registration(
+            id=i,
+            template=template,
+            T_scene_model=T,
+            likelihood=1.0,
+            probability=0.9,
+            residual=0.001,
+            click=T[:3, 3],
+            **kw,
+        )
+
+    return (
+        reg(1, "grab_handle"),
+        reg(2, "ball_valve", joints={"lever": 0.4}, state="open"),
+        reg(3, "box", primitive="box", dimensions={"x": 0.2, "y": 0.1, "z": 0.05}),
+        reg(4, "gate_valve", scale=1.1),
+        reg(5, "not_in_this_library"),
+    )
 
 
 def _read_back(arr) -> MarkerArray:
@@ -72,22 +87,30 @@ def _read_back(arr) -> MarkerArray:
 def test_registered_markers_from_the_memo_are_those_made_afresh(library, frame):
     regs = _registrations(library)
     memo = registered_markers_memo()
-    views = [(Time(sec=1), np.array([0.0, -1.0, 0.0])),
-             (Time(sec=2, nanosec=5), np.array([0.0, 0.0, 1.0]))]
-    states = [EngineState(registered=regs), EngineState(registered=regs[1:]),
-              EngineState(registered=regs[::-1])]
-    for state in states:                 # registrations dropped, reordered; stamps, views
+    views = [
+        (Time(sec=1), np.array([0.0, -1.0, 0.0])),
+        (Time(sec=2, nanosec=5), np.array([0.0, 0.0, 1.0])),
+    ]
+    states = [
+        EngineState(registered=regs),
+        EngineState(registered=regs[1:]),
+        EngineState(registered=regs[::-1]),
+    ]
+    for state in states:  # registrations dropped, reordered; stamps, views
         for stamp, up in views:
             fresh = state_markers(state, library, frame, stamp, up)
             memoised = state_markers(state, library, frame, stamp, up, memo)
             assert _read_back(memoised) == _read_back(fresh)
-            assert all(m.header.stamp == stamp and m.header.frame_id == frame
-                       for m in memoised.markers[1:])       # (after the DELETEALL)
-    assert len(fresh.markers) > 1 + 2 * len(regs)        # meshes, labels, grippers drawn
+            assert all(
+                m.header.stamp == stamp and m.header.frame_id == frame
+                for m in memoised.markers[1:]
+            )  # (after the DELETEALL)
+    assert len(fresh.markers) > 1 + 2 * len(regs)  # meshes, labels, grippers drawn
 
 
 def test_status_entries_are_made_once_and_a_caller_cannot_change_them(library, panel_scene):
     from affordance_registration.core.engine import AffordanceEngine
+
     engine = AffordanceEngine(library)
     engine.set_scene(panel_scene.organized, frame_id="cam")
     for obj in panel_scene.objects[:2]:

@@ -4,6 +4,7 @@
 7000-7039; the bench's mug rows report held-out seeds too) -- fitted as the cylinder of their outer
 radius and length, as the label rule scores a real mug. Clicked in the middle of what the
 sensor sees of one, the click lands on its inside bottom, a few millimetres above the table."""
+
 import math
 
 import numpy as np
@@ -46,10 +47,13 @@ def test_a_mug_clicked_inside_is_a_cylinder_of_its_size(registrar, seed, k):
     mug = objects[k]
     best = registrar.fit(Scene(organized), mug["click"]).candidates[0]
     assert best.primitive == "cylinder" and best.fits is True, (best.template, best.reason)
-    assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items()), \
-        (best.dimensions, mug["dimensions"])
-    dt, dr = primitive_pose_error("cylinder", best.T_scene_model, mug["T_scene_model"],
-                                  mug["dimensions"])
+    assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items()), (
+        best.dimensions,
+        mug["dimensions"],
+    )
+    dt, dr = primitive_pose_error(
+        "cylinder", best.T_scene_model, mug["T_scene_model"], mug["dimensions"]
+    )
     assert dt <= 0.005 and dr <= math.radians(5), (dt, math.degrees(dr))
 
 
@@ -71,7 +75,7 @@ def test_the_click_inside_a_mug_is_not_on_the_table(registrar):
     assert click[2] < 0.015 and math.hypot(click[0], click[1]) < mug["dimensions"]["radius"]
     assert q[:, 2].max() > mug["dimensions"]["length"] - 0.01
     outside = np.hypot(q[:, 0], q[:, 1]) > mug["dimensions"]["radius"] - 0.002
-    assert outside.mean() > 0.2 and q[:, 2].min() > -0.004      # its outside, not the table
+    assert outside.mean() > 0.2 and q[:, 2].min() > -0.004  # its outside, not the table
 
 
 def test_a_mug_seen_into_is_open_and_its_cylinder_fits_where_a_wider_one_does_not(registrar):
@@ -82,12 +86,19 @@ def test_a_mug_seen_into_is_open_and_its_cylinder_fits_where_a_wider_one_does_no
     mug = objects[1]
     ctx = registrar.prepare(Scene(organized), mug["click"]).with_insides()
     cyl, dims, T = registrar.library["cylinder"], mug["dimensions"], mug["T_scene_model"]
-    models = [registrar.models.model(cyl.sized({"radius": dims["radius"] + extra,
-                                                "length": dims["length"]}))
-              for extra in (0.0, 0.025)]
+    models = [
+        registrar.models.model(
+            cyl.sized({"radius": dims["radius"] + extra, "length": dims["length"]})
+        )
+        for extra in (0.0, 0.025)
+    ]
     assert open_share(ctx, models[0], T, registrar.settings) >= 0.03
-    judged = judge(ctx, models, [result(ctx, m, T[:3, :3], T[:3, 3], registrar.settings)
-                                 for m in models], registrar.settings)
+    judged = judge(
+        ctx,
+        models,
+        [result(ctx, m, T[:3, :3], T[:3, 3], registrar.settings) for m in models],
+        registrar.settings,
+    )
     assert judged[0].fits is True, judged[0].reason
     assert judged[1].fits is False
 
@@ -109,8 +120,9 @@ def test_a_stepped_top_is_not_an_opening(registrar, library):
     of the covered one. The e-stop is accepted (were the ring an opening, the cylinder would
     fit, and the e-stop, its button the only part a cylinder lacks, be refused as no more than
     one)."""
-    from affordance_registration.evaluation.bench_rows import _jobs
-    scene, obj = _jobs(library.specific(), [2004], layout="table")[1]
+    from affordance_registration.evaluation.bench_rows import simulated_jobs
+
+    scene, obj = simulated_jobs(library.specific(), [2004], layout="table")[1]
     assert obj.template == "emergency_stop"
     best = registrar.fit(scene, obj.click).candidates[0]
     assert best.template == "emergency_stop" and best.fits is True, best.reason
@@ -120,20 +132,24 @@ def test_a_stepped_top_is_not_an_opening(registrar, library):
 #: depth edges alone, "all" every fault at its defaults. Their inside bottom and rim were two
 #: levels to the stack cut, which measured the inside as a box 10 mm tall (7018:1) or the mug
 #: as a cylinder 20 mm long (7018:0), and accepted it
-FLAKY = {"fly": FaultModel(distortion=0.0, dark_patches=0, noise_scale=1.0, grazing_start_deg=90),
-         "all": FaultModel()}
+FLAKY = {
+    "fly": FaultModel(distortion=0.0, dark_patches=0, noise_scale=1.0, grazing_start_deg=90),
+    "all": FaultModel(),
+}
 
 
 @pytest.mark.parametrize("faults,seed,k", [("fly", 7018, 1), ("all", 7018, 0)])
 def test_a_mug_is_not_cut_as_a_stack_and_nothing_wrong_is_accepted(registrar, faults, seed, k):
     """Its inside bottom lies within its rim seen from above (a stack's lower top shows round
     the upper box): no cut; and whatever leads, nothing but the mug's own cylinder fits."""
-    organized, objects = simulate_mugs(seed, camera=DepthCamera(_mosd_camera(),
-                                                                faults=FLAKY[faults]))
+    organized, objects = simulate_mugs(
+        seed, camera=DepthCamera(_mosd_camera(), faults=FLAKY[faults])
+    )
     mug = objects[k]
     ctx = registrar.prepare(Scene(organized), mug["click"]).with_insides()
     assert stacked(ctx, object_points(ctx)) is None
     best = registrar.fit(Scene(organized), mug["click"]).candidates[0]
     right = best.primitive == "cylinder" and all(
-        abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items())
+        abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items()
+    )
     assert best.fits is False or right, (best.template, best.dimensions)

@@ -3,6 +3,7 @@
 """The KD-tree every nearest-neighbour query goes through (pykdtree): the same neighbours and
 distances as scipy's cKDTree (an independent reference), and queries that stay on one OpenMP
 thread without changing the user's OpenMP settings."""
+
 import os
 import subprocess
 import sys
@@ -12,12 +13,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from affordance_registration.core.neighbours import build_tree, k_nearest, nearest, pairs_within, tree_points
+from affordance_registration.core.neighbours import (
+    build_tree,
+    k_nearest,
+    nearest,
+    pairs_within,
+    tree_points,
+)
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 400), m=st.integers(0, 300),
-       upper=st.sampled_from([np.inf, 0.05, 0.2, 1e-9]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 400),
+    m=st.integers(0, 300),
+    upper=st.sampled_from([np.inf, 0.05, 0.2, 1e-9]),
+)
 def test_nearest_matches_scipy(seed, n, m, upper):
     rng = np.random.default_rng(seed)
     data = rng.normal(size=(n, 3))
@@ -30,8 +41,9 @@ def test_nearest_matches_scipy(seed, n, m, upper):
     assert np.array_equal(np.isfinite(d), found)
     assert np.allclose(d[found], d_ref[found], rtol=0, atol=1e-12)
     # the same point, or one exactly as near (a tie)
-    assert np.allclose(np.linalg.norm(data[i[found]] - queries[found], axis=1), d_ref[found],
-                       rtol=0, atol=1e-12)
+    assert np.allclose(
+        np.linalg.norm(data[i[found]] - queries[found], axis=1), d_ref[found], rtol=0, atol=1e-12
+    )
     assert i.shape == (m,) and (i >= 0).all() and (i < n).all()
 
 
@@ -76,10 +88,11 @@ def test_queries_run_on_one_openmp_thread_and_leave_the_setting_alone():
     module's queries (from the main thread and from another one) start none, and the
     calling thread's OpenMP setting is what it was."""
     env = dict(os.environ, OMP_NUM_THREADS="4")
-    out = subprocess.run([sys.executable, "-c", _THREADS], capture_output=True, text=True,
-                         env=env, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-c", _THREADS], capture_output=True, text=True, env=env, timeout=120
+    )
     assert out.returncode == 0, out.stderr
     before, after, unpinned, settings_before, settings_after = out.stdout.strip().split("|")
     assert settings_before == settings_after and "4" in settings_before
     assert int(after) == int(before)
-    assert int(unpinned) > int(before)       # the control: the check can fail
+    assert int(unpinned) > int(before)  # the control: the check can fail

@@ -5,6 +5,7 @@ inputs queued while a (slow) fit runs are handled in arrival order, twists are i
 their own time stamps, the idle refit waits for the twists to stop, a refit still waiting runs
 before anything that leaves the object, Joy buttons act on edges and the joint axis has
 hysteresis. No ROS."""
+
 import math
 
 import numpy as np
@@ -65,13 +66,17 @@ class Stream:
 
     def __init__(self, library, sim, slow_fit_s=0.0, **settings):
         self.clock = SimClock()
-        self.engine = SlowEngine(library, self.clock, slow_fit_s) if slow_fit_s else \
-            AffordanceEngine(library)
+        self.engine = (
+            SlowEngine(library, self.clock, slow_fit_s)
+            if slow_fit_s
+            else AffordanceEngine(library)
+        )
         self.engine.set_scene(sim.organized, frame_id=FRAME)
         self.host = Recorder(self.engine)
         self.reports = self.host.reports
-        self.stream = OperatorStream(self.engine, OperatorSettings(**settings), self.clock,
-                                     self.clock.sleep, host=self.host)
+        self.stream = OperatorStream(
+            self.engine, OperatorSettings(**settings), self.clock, self.clock.sleep, host=self.host
+        )
 
     def shown(self):
         obj = self.engine.active_object()
@@ -85,8 +90,9 @@ def scene(library):
 
 def view_twist(view_linear, view_angular=(0.0, 0.0, 0.0)):
     """spacenav/twist axes of a view-frame push (unit gains)."""
-    return R_VIEW_SPACENAV.T @ np.asarray(view_linear, float), \
-        R_VIEW_SPACENAV.T @ np.asarray(view_angular, float)
+    return R_VIEW_SPACENAV.T @ np.asarray(view_linear, float), R_VIEW_SPACENAV.T @ np.asarray(
+        view_angular, float
+    )
 
 
 def test_an_action_during_a_slow_fit_acts_on_that_clicks_object(library, scene):
@@ -103,15 +109,17 @@ def test_an_action_during_a_slow_fit_acts_on_that_clicks_object(library, scene):
     t0 = s.clock()
     assert s.stream.status()["queued"] == 5
     assert s.stream.process_pending() == 5
-    assert s.clock() - t0 == pytest.approx(10.0)          # two slow fits
+    assert s.clock() - t0 == pytest.approx(10.0)  # two slow fits
     regs = s.engine.state.registered
     assert [r.template for r in regs] == [a.template, regs[1].template]
-    assert regs[1].ranked_first == b.template              # B's fit, shown at rank 2, accepted
+    assert regs[1].ranked_first == b.template  # B's fit, shown at rank 2, accepted
     assert regs[1].template != b.template and regs[1].model_changes == 1
     assert all(ok for ok, _ in replies) and len(replies) == 3
-    assert s.stream.status()["idle"] and s.stream.status()["handled"] == {"click": 2,
-                                                                           "accept": 2,
-                                                                           "next_model": 1}
+    assert s.stream.status()["idle"] and s.stream.status()["handled"] == {
+        "click": 2,
+        "accept": 2,
+        "next_model": 1,
+    }
 
 
 def test_a_twist_burst_during_a_fit_moves_the_object_that_fit_produces(library, scene):
@@ -119,7 +127,7 @@ def test_a_twist_burst_during_a_fit_moves_the_object_that_fit_produces(library, 
     exactly v * (their stamped duration + one device frame), then the idle refit lands B back
     on the object."""
     a, b = scene.objects[0], scene.objects[2]
-    alone = Stream(library, scene)                        # B's fit without any twist
+    alone = Stream(library, scene)  # B's fit without any twist
     alone.stream.click(b.click)
     alone.stream.process_pending()
     T_b = alone.shown().T_scene_model
@@ -128,10 +136,10 @@ def test_a_twist_burst_during_a_fit_moves_the_object_that_fit_produces(library, 
     s.stream.process_pending()
     T_a = s.shown().T_scene_model.copy()
     s.stream.click(b.click)
-    lin, ang = view_twist([0.5, 0.0, 0.0])                # 5 cm/s to the right on the screen
-    for k in range(10):                                   # 30 Hz for 0.3 s
+    lin, ang = view_twist([0.5, 0.0, 0.0])  # 5 cm/s to the right on the screen
+    for k in range(10):  # 30 Hz for 0.3 s
         s.stream.twist(lin, ang, stamp=50.0 + k / 30)
-    s.stream.twist([0, 0, 0], [0, 0, 0], stamp=50.0 + 10 / 30)   # released
+    s.stream.twist([0, 0, 0], [0, 0, 0], stamp=50.0 + 10 / 30)  # released
     s.stream.process_pending()
     moved = s.engine.active_object()
     assert moved.shown.template == b.template and moved.corrections == 1
@@ -173,7 +181,7 @@ def test_accept_right_after_a_push_registers_the_refitted_pose(library, scene):
     assert kinds == ["click", "refit", "accept"]
     s.clock.t += 5.0
     s.stream.process_pending()
-    assert [k for k, ok, _ in s.reports if ok] == kinds   # no refit of whatever is next
+    assert [k for k, ok, _ in s.reports if ok] == kinds  # no refit of whatever is next
 
 
 def test_undo_after_a_push_needs_no_refit(library, scene):
@@ -207,10 +215,10 @@ def _burst(s, delays, handle_early=False):
         s.clock.t += delay
         s.stream.twist([0.2, -0.1, 0.3], [0.0, 0.4, 0.1], stamp=7.0 + k / 30)
         if handle_early and delay > 0.25:
-            s.stream.process_pending()                    # some handled at once, some later
+            s.stream.process_pending()  # some handled at once, some later
     s.stream.process_pending()
     motion = s.shown().T_scene_model @ np.linalg.inv(T0)
-    s.stream.action("undo")                               # one burst = one correction
+    s.stream.action("undo")  # one burst = one correction
     s.stream.process_pending()
     assert np.array_equal(s.shown().T_scene_model, T0)
     return motion
@@ -224,7 +232,7 @@ def test_a_burst_moves_the_same_however_late_it_is_handled(fitted, delays):
     reference = _burst(fitted, [0.0] * 12)
     motion = _burst(fitted, delays, handle_early=True)
     assert np.allclose(motion, reference, atol=1e-12)
-    assert np.linalg.norm(reference[:3, 3]) > 0.01        # it did move
+    assert np.linalg.norm(reference[:3, 3]) > 0.01  # it did move
 
 
 def test_joy_buttons_act_on_press_edges(library, scene):
@@ -234,14 +242,15 @@ def test_joy_buttons_act_on_press_edges(library, scene):
         s.stream.joy(buttons, [0.0] * 6)
     s.stream.process_pending()
     obj = s.engine.active_object()
-    assert obj.model_changes == 3 and obj.active == 1     # next, next, previous
+    assert obj.model_changes == 3 and obj.active == 1  # next, next, previous
 
 
 def test_joint_axis_steps_once_per_push_with_hysteresis(library):
     """Axis 5 past 0.5 steps the lever once; values that hover around the threshold do not step
     again until the axis came back below half of it."""
-    sim = simulate_taskboard(library, 3102, articulated=True,
-                             joints={"ball_valve": {"lever": math.pi / 4}})
+    sim = simulate_taskboard(
+        library, 3102, articulated=True, joints={"ball_valve": {"lever": math.pi / 4}}
+    )
     obj = next(o for o in sim.objects if o.template == "ball_valve")
     s = Stream(library, sim, joint_axis=5, joint_axis_threshold=0.5)
     s.stream.click(obj.click)
@@ -263,8 +272,9 @@ def test_wrong_inputs_are_answered_and_reported(library, scene):
     s.stream.twist([float("nan"), 0, 0], [0, 0, 0])
     s.stream.action("accept", reply=lambda ok, m: replies.append((ok, m)))
     s.stream.action("fly_away", reply=lambda ok, m: replies.append((ok, m)))
-    s.stream.action("select_model", "no_such_template",
-                    reply=lambda ok, m: replies.append((ok, m)))
+    s.stream.action(
+        "select_model", "no_such_template", reply=lambda ok, m: replies.append((ok, m))
+    )
     s.stream.click([0.0, 0.0, 50.0], reply=lambda ok, m: replies.append((ok, m)))
     assert s.stream.process_pending() == 6
     assert [ok for ok, _ in replies] == [False] * 4
@@ -277,8 +287,10 @@ def test_wrong_inputs_are_answered_and_reported(library, scene):
     s.stream.click(scene.objects[0].click)
     answers = []
     for k in range(200):
-        s.stream.action("next_model" if k % 2 == 0 else "previous_model",
-                        reply=lambda ok, m, k=k: answers.append((k, ok)))
+        s.stream.action(
+            "next_model" if k % 2 == 0 else "previous_model",
+            reply=lambda ok, m, k=k: answers.append((k, ok)),
+        )
     s.stream.process_pending()
     assert [k for k, _ in answers] == list(range(200)) and all(ok for _, ok in answers)
     with pytest.raises(AffordanceError, match="twist_frame"):
@@ -303,6 +315,7 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     """A new cloud (the scene moved 2 cm) refits the selected object from its current pose --
     not an undo step, at most twice a second, and not while the operator is pushing it."""
     from affordance_registration.core.transforms import make_T
+
     s = Stream(library, scene)
     obj = scene.objects[2]
     s.stream.click(obj.click)
@@ -311,7 +324,7 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     shift = np.array([0.02, -0.01, 0.0])
     s.engine.set_scene(scene.organized + shift.astype(np.float32), frame_id=FRAME)
     s.stream.new_cloud()
-    s.stream.new_cloud()                                  # one waits in the queue at most
+    s.stream.new_cloud()  # one waits in the queue at most
     assert s.stream.status()["queued"] == 1
     s.stream.process_pending()
     moved = make_T(t=shift) @ obj.T_scene_model
@@ -329,9 +342,8 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     s.stream.twist(*view_twist([0.1, 0, 0]), stamp=1.0)
     s.stream.new_cloud()
     s.stream.process_pending()
-    assert s.stream.status()["pending_refit"]             # not followed: the push's refit will
+    assert s.stream.status()["pending_refit"]  # not followed: the push's refit will
     s.clock.t += 1.0
-    s.stream.process_pending()                            # the idle refit, on the new cloud
-    dt, dr = pose_error(s.shown().T_scene_model, obj.T_scene_model,
-                        library[obj.template].symmetry)
+    s.stream.process_pending()  # the idle refit, on the new cloud
+    dt, dr = pose_error(s.shown().T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
     assert dt < TOL_M and dr < TOL_RAD, (dt, dr)

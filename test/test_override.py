@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Accepting a candidate the verdict refuses is an operator override, and the registration says
 so (core engine, saved file, reloaded); a right fit is accepted plainly."""
+
 import numpy as np
 import yaml
 

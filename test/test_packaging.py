@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """What an integrator relies on: the package-root imports, requirements.txt equal to setup.py's
 pins, package.xml, and the RViz config the README points at."""
+
 import ast
 import subprocess
 import sys
@@ -17,8 +18,9 @@ def _setup_list(name: str) -> list[str]:
     """A list literal assigned at the top of setup.py (read, not executed)."""
     tree = ast.parse((ROOT / "setup.py").read_text())
     for node in tree.body:
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == name
-                                                for t in node.targets):
+        if isinstance(node, ast.Assign) and any(
+            getattr(t, "id", None) == name for t in node.targets
+        ):
             return ast.literal_eval(node.value)
     raise AssertionError(f"setup.py has no {name}")
 
@@ -49,6 +51,7 @@ def test_package_root_exports_the_public_api_without_loading_ros():
 
 def test_unknown_root_attribute_is_an_attribute_error():
     import affordance_registration
+
     try:
         affordance_registration.NoSuchThing
     except AttributeError as exc:
@@ -90,7 +93,7 @@ def test_rviz_config_names_the_operator_displays():
     assert displays["rviz_default_plugins/PointCloud2"]["Topic"]["Value"] == "/points"
     markers = displays["rviz_default_plugins/MarkerArray"]["Topic"]
     assert markers["Value"] == "/affordance_engine/markers"
-    assert markers["Durability Policy"] == "Transient Local"     # the node publishes latched
+    assert markers["Durability Policy"] == "Transient Local"  # the node publishes latched
     interactive = displays["rviz_default_plugins/InteractiveMarkers"]
     assert interactive["Interactive Markers Namespace"] == "/affordance_correction"
     assert displays["rviz_default_plugins/TF"]["Enabled"] is True

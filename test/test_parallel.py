@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Both cores for one click: the pieces of a batch side by side give the same fits as one
 thread, and the pool passes errors on and never waits on itself."""
+
 import os
 import subprocess
 import sys
@@ -18,13 +19,19 @@ from affordance_registration.evaluation.simulation import simulate_taskboard, si
 
 def _same(a, b) -> bool:
     return [c.template for c in a] == [c.template for c in b] and all(
-        np.array_equal(x.T_scene_model, y.T_scene_model) and x.residual == y.residual
-        and x.joints == y.joints and x.scale == y.scale and x.iterations == y.iterations
-        and x.converged == y.converged for x, y in zip(a, b))
+        np.array_equal(x.T_scene_model, y.T_scene_model)
+        and x.residual == y.residual
+        and x.joints == y.joints
+        and x.scale == y.scale
+        and x.iterations == y.iterations
+        and x.converged == y.converged
+        for x, y in zip(a, b)
+    )
 
 
-@pytest.mark.parametrize("seed, kw", [(11, {}), (3007, {"articulated": True}),
-                                      (2003, {"layout": "table"})])
+@pytest.mark.parametrize(
+    "seed, kw", [(11, {}), (3007, {"articulated": True}), (2003, {"layout": "table"})]
+)
 def test_fits_do_not_depend_on_the_thread_count(library, seed, kw):
     lib = sized_library(library)
     sim = simulate_taskboard(lib, seed, **kw)
@@ -56,15 +63,18 @@ def test_pool_runs_every_task_and_raises_a_failed_ones_error():
 
 def test_a_task_on_the_pool_runs_its_own_pieces_itself():
     """Nested pieces never wait for the pool (which could be busy with their parents)."""
+
     def parent(i):
-        inner = parallel.run([lambda j=j: (threading.current_thread().name, i, j)
-                              for j in range(3)], threads=2)
+        inner = parallel.run(
+            [lambda j=j: (threading.current_thread().name, i, j) for j in range(3)], threads=2
+        )
         return inner
 
     out = parallel.run([lambda i=i: parent(i) for i in range(4)], threads=2)
-    assert [[(i, j) for _, i, j in part] for part in out] == \
-        [[(i, j) for j in range(3)] for i in range(4)]
-    for part in out[1:]:          # ran on the pool: each nested piece on the same thread
+    assert [[(i, j) for _, i, j in part] for part in out] == [
+        [(i, j) for j in range(3)] for i in range(4)
+    ]
+    for part in out[1:]:  # ran on the pool: each nested piece on the same thread
         assert len({name for name, _, _ in part}) == 1
 
 
@@ -74,7 +84,6 @@ def test_parts_and_thread_setting():
     assert np.array_equal(np.concatenate(parallel.parts(77, 3, 10)), np.arange(77))
     with pytest.raises(RegistrationError, match="threads"):
         FitSettings(threads=0).validate()
-
 
 
 _BLAS = """
@@ -122,7 +131,8 @@ def test_blas_runs_on_one_thread_while_any_fit_runs_and_is_put_back_after():
     thread until the last of concurrent blocks leaves, then has the user's count again -- also
     after a real fit and after a fit that failed."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
-    out = subprocess.run([sys.executable, "-c", _BLAS], capture_output=True, text=True,
-                         env=env, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", _BLAS], capture_output=True, text=True, env=env, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[[2], [1], [1], [2], [2], [2]]"

@@ -4,6 +4,7 @@
 explains the clicked object: loading, fitting on simulated scans with true dimensions, ranking
 against specific templates, the engine's dimension corrections, save and reload, ``fit --json``.
 The real-data cases (mOSD, PCL's milk carton) are in test_real_verdict.py."""
+
 import json
 import math
 import subprocess
@@ -20,7 +21,11 @@ from affordance_registration.core.errors import AffordanceError, EngineStateErro
 from affordance_registration.core.registration import Registrar, no_match, verdict
 from affordance_registration.core.scene import Scene
 from affordance_registration.core.templates import TemplateLibrary, load_template
-from affordance_registration.evaluation.rows import DIM_TOL, primitive_pose_error, simulate_primitives
+from affordance_registration.evaluation.rows import (
+    DIM_TOL,
+    primitive_pose_error,
+    simulate_primitives,
+)
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
 
@@ -61,22 +66,42 @@ def test_a_sized_primitive_has_that_size_in_its_frame(library):
     assert np.isclose(lo[2], 0.0) and np.isclose(hi[2], 0.12)
     assert np.isclose(np.abs(can.mesh.vertices[:, :2]).max(), 0.04, atol=1e-3)
     # clipped to the ranges
-    assert library["cylinder"].sized({"radius": 5.0, "length": 0.1}).dimensions["radius"] == \
-        library["cylinder"].dimension_ranges["radius"][1]
+    assert (
+        library["cylinder"].sized({"radius": 5.0, "length": 0.1}).dimensions["radius"]
+        == library["cylinder"].dimension_ranges["radius"][1]
+    )
 
 
-@pytest.mark.parametrize("doc, key", [
-    ({"primitive": "sphere", "radius": [0.1, 0.2]}, "primitive"),
-    ({"primitive": "box"}, "size"),
-    ({"primitive": "box", "size": {"x": [0.1, 0.2], "y": [0.1, 0.2]}}, "size"),
-    ({"primitive": "box", "size": {"x": [0.3, 0.2], "y": [0.1, 0.2], "z": [0.1, 0.2]}}, "size.x"),
-    ({"primitive": "cylinder", "radius": [0.01, 0.1]}, "length"),
-    ({"primitive": "cylinder", "radius": "wide", "length": [0.1, 0.2]}, "radius"),
-    ({"primitive": "cylinder", "radius": [0.01, 0.1], "length": [0.1, float("nan")]}, "length"),
-    ({"primitive": "box", "size": {"x": [0.1, 0.2], "y": [0.1, 0.2], "z": [0.1, 0.2]},
-      "mesh": "a.stl"}, "mesh"),
-    ({"primitive": "cylinder", "radius": [0.01, 0.1], "length": [0.1, 0.2], "size": {}}, "size"),
-])
+@pytest.mark.parametrize(
+    "doc, key",
+    [
+        ({"primitive": "sphere", "radius": [0.1, 0.2]}, "primitive"),
+        ({"primitive": "box"}, "size"),
+        ({"primitive": "box", "size": {"x": [0.1, 0.2], "y": [0.1, 0.2]}}, "size"),
+        (
+            {"primitive": "box", "size": {"x": [0.3, 0.2], "y": [0.1, 0.2], "z": [0.1, 0.2]}},
+            "size.x",
+        ),
+        ({"primitive": "cylinder", "radius": [0.01, 0.1]}, "length"),
+        ({"primitive": "cylinder", "radius": "wide", "length": [0.1, 0.2]}, "radius"),
+        (
+            {"primitive": "cylinder", "radius": [0.01, 0.1], "length": [0.1, float("nan")]},
+            "length",
+        ),
+        (
+            {
+                "primitive": "box",
+                "size": {"x": [0.1, 0.2], "y": [0.1, 0.2], "z": [0.1, 0.2]},
+                "mesh": "a.stl",
+            },
+            "mesh",
+        ),
+        (
+            {"primitive": "cylinder", "radius": [0.01, 0.1], "length": [0.1, 0.2], "size": {}},
+            "size",
+        ),
+    ],
+)
 def test_a_broken_primitive_file_is_one_line_naming_the_key(tmp_path, doc, key):
     path = tmp_path / "p.yaml"
     path.write_text(yaml.safe_dump({"name": "p", **doc}))
@@ -86,8 +111,9 @@ def test_a_broken_primitive_file_is_one_line_naming_the_key(tmp_path, doc, key):
     assert "\n" not in msg and str(path) in msg and f"key '{key}'" in msg
 
 
-def test_boxes_and_cylinders_are_measured_with_their_true_dimensions(registrar, primitive_clicks,
-                                                                     library):
+def test_boxes_and_cylinders_are_measured_with_their_true_dimensions(
+    registrar, primitive_clicks, library
+):
     """Every simulated box and cylinder (the default library: five specific templates, a box
     and a cylinder) is shown as its primitive, its dimensions within 5 mm and its pose within
     5 mm / 5 deg on most clicks, and 'no template fits here; fitted as ...' is the verdict."""
@@ -100,17 +126,24 @@ def test_boxes_and_cylinders_are_measured_with_their_true_dimensions(registrar, 
         right += 1
         assert no_match(rep.candidates)
         if best.fits:
-            assert verdict(rep.candidates).startswith("no template fits here; fitted as a "
-                                                      f"{obj['kind']}")
-        dims_ok += all(abs(best.dimensions[k] - v) <= DIM_TOL
-                       for k, v in obj["dimensions"].items())
-        dt, dr = primitive_pose_error(obj["kind"], best.T_scene_model, obj["T_scene_model"],
-                                      obj["dimensions"])
+            assert verdict(rep.candidates).startswith(
+                f"no template fits here; fitted as a {obj['kind']}"
+            )
+        dims_ok += all(
+            abs(best.dimensions[k] - v) <= DIM_TOL for k, v in obj["dimensions"].items()
+        )
+        dt, dr = primitive_pose_error(
+            obj["kind"], best.T_scene_model, obj["T_scene_model"], obj["dimensions"]
+        )
         pose_ok += dt <= 0.005 and math.degrees(dr) <= 5.0
     n = len(primitive_clicks)
     assert n >= 8
-    assert right >= 0.8 * n and dims_ok >= 0.6 * n and pose_ok >= 0.8 * n, \
-        (n, right, dims_ok, pose_ok)
+    assert right >= 0.8 * n and dims_ok >= 0.6 * n and pose_ok >= 0.8 * n, (
+        n,
+        right,
+        dims_ok,
+        pose_ok,
+    )
 
 
 def test_a_specific_template_that_fits_outranks_the_primitives(registrar, panel_scene):
@@ -121,7 +154,7 @@ def test_a_specific_template_that_fits_outranks_the_primitives(registrar, panel_
         best = rep.candidates[0]
         assert best.template == obj.template and best.fits and best.primitive is None
         kinds = [c.primitive is not None for c in rep.candidates if not c.prefiltered]
-        assert kinds == sorted(kinds)            # every specific template before a primitive
+        assert kinds == sorted(kinds)  # every specific template before a primitive
         assert verdict(rep.candidates) == "fits" and not no_match(rep.candidates)
 
 
@@ -135,25 +168,37 @@ def test_a_box_measured_from_part_of_its_segment_is_refused(registrar):
     organized, objects = simulate_primitives(5009)
     obj = objects[0]
     assert obj["kind"] == "box" and abs(obj["dimensions"]["y"] - 0.155) < 0.001
-    box = next(c for c in registrar.fit(Scene(organized), obj["click"]).candidates
-               if c.primitive == "box")
-    assert box.dimensions["y"] < obj["dimensions"]["y"] - 0.03      # (the premise)
+    box = next(
+        c for c in registrar.fit(Scene(organized), obj["click"]).candidates if c.primitive == "box"
+    )
+    assert box.dimensions["y"] < obj["dimensions"]["y"] - 0.03  # (the premise)
     assert box.fits is False and box.explained < 0.8 and "explains" in box.reason
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.lists(st.tuples(st.booleans(), st.booleans(), st.floats(1.0, 1000.0)),
-                min_size=1, max_size=8))
+@given(
+    st.lists(
+        st.tuples(st.booleans(), st.booleans(), st.floats(1.0, 1000.0)), min_size=1, max_size=8
+    )
+)
 def test_who_leads_when_nothing_specific_fits(rows):
     """The ranking's rule (README, "Objects outside the library"): a specific template that
     fits leads; else a primitive that fits; where nothing fits, the specific templates stay
     first as the best guess (the right object refused at its right pose, its segment joined
     to a neighbour, is shown rather than a box around both); within a group, by likelihood."""
     from affordance_registration.core.registration.results import FitResult, rank
-    results = [FitResult(template=f"{'box' if prim else 't'}{i}", T_scene_model=np.eye(4),
-                         residual=1.0 / lik, likelihood=lik, fits=fits,
-                         primitive="box" if prim else None)
-               for i, (prim, fits, lik) in enumerate(rows)]
+
+    results = [
+        FitResult(
+            template=f"{'box' if prim else 't'}{i}",
+            T_scene_model=np.eye(4),
+            residual=1.0 / lik,
+            likelihood=lik,
+            fits=fits,
+            primitive="box" if prim else None,
+        )
+        for i, (prim, fits, lik) in enumerate(rows)
+    ]
     ranked = rank(results)
     assert sorted(r.template for r in ranked) == sorted(r.template for r in results)
     assert [r.rank for r in ranked] == list(range(1, len(rows) + 1))
@@ -183,7 +228,9 @@ def test_an_emergency_stop_shows_what_sets_it_apart_from_a_box(registrar, seed):
     for obj in stops:
         best = registrar.fit(Scene(sim.organized), obj.click).candidates[0]
         assert best.template == "emergency_stop" and best.fits is True, best.reason
-        assert best.distinct is not None and best.distinct >= registrar.settings.verdict.min_distinct
+        assert (
+            best.distinct is not None and best.distinct >= registrar.settings.verdict.min_distinct
+        )
 
 
 def test_a_template_that_explains_less_of_the_object_than_a_box_is_no_fit(registrar):
@@ -193,6 +240,7 @@ def test_a_template_that_explains_less_of_the_object_than_a_box_is_no_fit(regist
     longer edges unexplained where the box primitive explains all of it -- the e-stop does not
     fit, says so, and the box is shown, fitting, within 5 mm of the box's dimensions."""
     from affordance_registration.evaluation.rows import simulate_stack
+
     organized, objects = simulate_stack(4)
     obj = objects[1]
     rep = registrar.fit(Scene(organized), obj["click"])
@@ -203,8 +251,9 @@ def test_a_template_that_explains_less_of_the_object_than_a_box_is_no_fit(regist
     assert stop.explained < box.explained - margin and "a box explains" in stop.reason
     best = rep.candidates[0]
     assert best.primitive == "box" and best.fits is True
-    assert all(abs(best.dimensions[a] - v) <= DIM_TOL
-               for a, v in obj["dimensions"].items()), best.dimensions
+    assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in obj["dimensions"].items()), (
+        best.dimensions
+    )
 
 
 def test_a_refit_keeps_the_clicks_verdict_against_the_primitives(library, panel_scene):
@@ -213,6 +262,7 @@ def test_a_refit_keeps_the_clicks_verdict_against_the_primitives(library, panel_
     read "fits" before, the refit judged it alone. A right taskboard fit refitted stays
     accepted."""
     from affordance_registration.evaluation.rows import simulate_stack
+
     organized, objects = simulate_stack(4)
     engine = AffordanceEngine(library)
     engine.set_scene(organized, frame_id="cam")
@@ -242,27 +292,36 @@ def _table_scene(boxes, poles, seed=0, meshes=(), elevation=30.0):
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import TABLE, _look_at, _mosd_camera
     from affordance_registration.evaluation.simulation import DepthCamera
+
     extra = list(meshes)
     meshes = [(trimesh.creation.box(extents=TABLE), make_T(None, [0, 0, -TABLE[2] / 2]))]
-    meshes += [(trimesh.creation.box(extents=ext), make_T(None, [px, py, ext[2] / 2]))
-               for ext, (px, py) in boxes]
-    meshes += [(trimesh.creation.cylinder(radius=r, height=h, sections=48),
-                make_T(None, [px, py, h / 2])) for r, h, (px, py) in poles]
+    meshes += [
+        (trimesh.creation.box(extents=ext), make_T(None, [px, py, ext[2] / 2]))
+        for ext, (px, py) in boxes
+    ]
+    meshes += [
+        (trimesh.creation.cylinder(radius=r, height=h, sections=48), make_T(None, [px, py, h / 2]))
+        for r, h, (px, py) in poles
+    ]
     meshes += extra
     e = math.radians(elevation)
     T_cam_table = invert(_look_at(np.array([0.0, -math.cos(e), math.sin(e)]), np.zeros(3)))
-    return DepthCamera(_mosd_camera()).render([(m, T_cam_table @ T) for m, T in meshes],
-                                              np.random.default_rng(seed))
+    return DepthCamera(_mosd_camera()).render(
+        [(m, T_cam_table @ T) for m, T in meshes], np.random.default_rng(seed)
+    )
 
 
 def _gable_carton(x: float, y: float, body: float, ridge: float):
     """A milk carton's shape: an x by y by ``body`` box under a gable roof whose ridge (along
     x, ``ridge`` m above the base) runs over the middle of the top."""
     import trimesh
-    corners = [(sx * x / 2, sy * y / 2, z) for z in (0.0, body) for sx in (-1, 1)
-               for sy in (-1, 1)]
-    return trimesh.convex.convex_hull(np.array(corners + [(-x / 2, 0.0, ridge),
-                                                          (x / 2, 0.0, ridge)]))
+
+    corners = [
+        (sx * x / 2, sy * y / 2, z) for z in (0.0, body) for sx in (-1, 1) for sy in (-1, 1)
+    ]
+    return trimesh.convex.convex_hull(
+        np.array(corners + [(-x / 2, 0.0, ridge), (x / 2, 0.0, ridge)])
+    )
 
 
 @pytest.mark.parametrize("yaw", [45.0, 70.0])
@@ -273,8 +332,11 @@ def test_a_gable_top_carton_is_measured_to_its_body(registrar, yaw):
     made it half as deep and refused); it fits, its height between the eaves and the ridge."""
     from affordance_registration.core.transforms import axis_angle_matrix, make_T
     from affordance_registration.evaluation.realdata import click_in_middle
-    carton = (_gable_carton(0.095, 0.095, 0.20, 0.245),
-              make_T(axis_angle_matrix([0, 0, 1], math.radians(yaw)), [0.0, 0.0, 0.0]))
+
+    carton = (
+        _gable_carton(0.095, 0.095, 0.20, 0.245),
+        make_T(axis_angle_matrix([0, 0, 1], math.radians(yaw)), [0.0, 0.0, 0.0]),
+    )
     organized, labels = _table_scene([], [], meshes=[carton], elevation=50.0)
     click = np.asarray(click_in_middle(organized, labels == 1)[0], float)
     rep = registrar.fit(Scene(organized), click)
@@ -289,8 +351,10 @@ def _split_box(side: str):
     """A 0.26 m box behind a pole that splits it in two, clicked in the middle of its ``side``
     ("left" or "right") piece: (organized, click (3,))."""
     from affordance_registration.evaluation.realdata import click_in_middle
-    organized, labels = _table_scene([((0.26, 0.06, 0.08), (0.0, 0.0))],
-                                     [(0.03, 0.30, (0.0, -0.14))])
+
+    organized, labels = _table_scene(
+        [((0.26, 0.06, 0.08), (0.0, 0.0))], [(0.03, 0.30, (0.0, -0.14))]
+    )
     box = labels == 1
     cols = np.nonzero(box.any(axis=0))[0]
     column = np.arange(box.shape[1])[None, :]
@@ -315,12 +379,14 @@ def test_the_split_box_measures_the_same_in_any_frame(registrar, split_box, seed
     same dimensions (the pieces, the line between them and what hides it do not depend on the
     scan's axes)."""
     from affordance_registration.core.transforms import make_T, random_rotations
+
     organized, click, dims = split_box
     rng = np.random.default_rng(seed)
     T = make_T(random_rotations(1, rng)[0], rng.uniform(-3.0, 3.0, 3))
     pts = organized.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
-    moved = registrar.fit(Scene(pts, sensor_origin=T[:3, 3]), T[:3, :3] @ click + T[:3, 3],
-                          templates=["box"]).candidates[0]
+    moved = registrar.fit(
+        Scene(pts, sensor_origin=T[:3, 3]), T[:3, :3] @ click + T[:3, 3], templates=["box"]
+    ).candidates[0]
     for key, value in dims.items():
         assert abs(moved.dimensions[key] - value) <= 1e-4, (key, moved.dimensions, dims)
 
@@ -338,11 +404,14 @@ def test_two_boxes_with_the_table_seen_between_them_stay_two(registrar):
     """Two 0.10 m boxes 4 cm apart with nothing in front: the table shows between them, so a
     click on one measures that one alone."""
     from affordance_registration.evaluation.realdata import click_in_middle
-    organized, labels = _table_scene([((0.10, 0.06, 0.08), (-0.07, 0.0)),
-                                      ((0.10, 0.06, 0.08), (0.07, 0.0))], [])
+
+    organized, labels = _table_scene(
+        [((0.10, 0.06, 0.08), (-0.07, 0.0)), ((0.10, 0.06, 0.08), (0.07, 0.0))], []
+    )
     for label in (1, 2):
-        best = registrar.fit(Scene(organized), click_in_middle(organized, labels == label)[0],
-                             templates=["box"]).candidates[0]
+        best = registrar.fit(
+            Scene(organized), click_in_middle(organized, labels == label)[0], templates=["box"]
+        ).candidates[0]
         assert abs(best.dimensions["x"] - 0.10) <= DIM_TOL, best.dimensions
 
 
@@ -351,12 +420,16 @@ def test_the_verdict_refuses_what_does_not_explain_the_object(registrar, panel_s
     the object: refused with the reason; the same fit of the right template is accepted."""
     obj = next(o for o in panel_scene.objects if o.template == "gate_valve")
     rep = Registrar(TemplateLibrary([library["emergency_stop"]])).fit(
-        Scene(panel_scene.organized), obj.click)
+        Scene(panel_scene.organized), obj.click
+    )
     wrong = rep.candidates[0]
     assert wrong.fits is False and wrong.reason and "explains" in wrong.reason
     assert wrong.explained < 0.8
-    right = Registrar(TemplateLibrary([library["gate_valve"]])).fit(
-        Scene(panel_scene.organized), obj.click).candidates[0]
+    right = (
+        Registrar(TemplateLibrary([library["gate_valve"]]))
+        .fit(Scene(panel_scene.organized), obj.click)
+        .candidates[0]
+    )
     assert right.fits and right.reason is None and right.explained >= 0.8
 
 
@@ -369,8 +442,9 @@ def test_the_noise_estimate_follows_the_scan(library):
     clean = reg.prepare(Scene(sim.organized), obj.click).noise
     rng = np.random.default_rng(0)
     rays = sim.organized / np.maximum(np.linalg.norm(sim.organized, axis=-1, keepdims=True), 1e-9)
-    noisy_pts = sim.organized + rays * rng.normal(scale=0.004, size=sim.organized.shape[:-1] +
-                                                  (1,))
+    noisy_pts = sim.organized + rays * rng.normal(
+        scale=0.004, size=sim.organized.shape[:-1] + (1,)
+    )
     noisy = reg.prepare(Scene(noisy_pts), obj.click).noise
     assert 0.0003 < clean < 0.003
     assert noisy > 1.5 * clean
@@ -387,21 +461,25 @@ def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library, gap)
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import _look_at
     from affordance_registration.evaluation.simulation import DepthCamera
+
     table = trimesh.creation.box(extents=(1.0, 1.0, 0.02))
     # a camera 0.9 m from the pair, 50 deg above the table, looking at them
     T_cam_table = invert(_look_at(np.array([0.05, -0.58, 0.69]), np.array([0.05, 0.0, 0.05])))
-    meshes = [(table, T_cam_table @ make_T(None, [0, 0, -0.01])),
-              (a.mesh, T_cam_table @ make_T(None, [0.0, 0.0, 0.0])),
-              (b.mesh, T_cam_table @ make_T(None, [0.06 + 0.04 + gap, 0.0, 0.0]))]
+    meshes = [
+        (table, T_cam_table @ make_T(None, [0, 0, -0.01])),
+        (a.mesh, T_cam_table @ make_T(None, [0.0, 0.0, 0.0])),
+        (b.mesh, T_cam_table @ make_T(None, [0.06 + 0.04 + gap, 0.0, 0.0])),
+    ]
     organized, labels = DepthCamera().render(meshes, np.random.default_rng(1))
     scene = Scene(organized)
     click = organized[labels == 1][len(organized[labels == 1]) // 2]
     ctx = Registrar(library.specific()).prepare(scene, click)
     from scipy.spatial import cKDTree
+
     pts = organized[labels > 0]
     _, idx = cKDTree(pts).query(ctx.cluster)
     owner = labels[labels > 0][idx]
-    assert set(np.unique(owner)) == {1, 2}          # both objects are in the cluster
+    assert set(np.unique(owner)) == {1, 2}  # both objects are in the cluster
     seg = ctx.segments
     for k in (1, 2):
         mine = owner == k
@@ -417,8 +495,16 @@ def test_segments_keep_a_convex_object_whole_and_cut_touching_ones(library, gap)
 #: boxes of seeds 2 and 11 are those whose crop's dominant plane is the lower box's side face
 #: in front of them; seed 11's was measured 15 mm too long from the lower box's top face
 #: points next to it, which face up too)
-STACKED = [(2, 0, True), (2, 1, True), (3, 1, True), (6, 0, True), (6, 1, True),
-           (8, 0, True), (8, 1, True), (11, 1, True)]
+STACKED = [
+    (2, 0, True),
+    (2, 1, True),
+    (3, 1, True),
+    (6, 0, True),
+    (6, 1, True),
+    (8, 0, True),
+    (8, 1, True),
+    (11, 1, True),
+]
 
 
 @pytest.mark.parametrize("seed,k,measured", STACKED)
@@ -433,16 +519,18 @@ def test_segments_cut_a_box_standing_on_another(library, seed, k, measured):
     bench's stacked rows report the seeds not looked at."""
     from affordance_registration.evaluation.realdata import box_distance
     from affordance_registration.evaluation.rows import simulate_stack
+
     organized, objects = simulate_stack(seed)
     scene = Scene(organized)
     reg = Registrar(library)
     obj = objects[k]
     ctx = reg.prepare(scene, obj["click"])
-    d = np.stack([box_distance(ctx.cluster, o["T_scene_model"], o["dimensions"])
-                  for o in objects], axis=1)
+    d = np.stack(
+        [box_distance(ctx.cluster, o["T_scene_model"], o["dimensions"]) for o in objects], axis=1
+    )
     on = d.min(axis=1) <= 0.006
     owner = np.where(on, d.argmin(axis=1), -1)
-    assert set(np.unique(owner[on])) == {0, 1}          # both boxes are in the cluster
+    assert set(np.unique(owner[on])) == {0, 1}  # both boxes are in the cluster
     clicked = ctx.segments == ctx.clicked_segment
     assert (owner[clicked] == k).mean() > 0.9
     assert (clicked[owner == k]).mean() > 0.8
@@ -451,8 +539,9 @@ def test_segments_cut_a_box_standing_on_another(library, seed, k, measured):
     tilt = math.degrees(math.acos(abs(best.T_scene_model[:3, 2] @ obj["T_scene_model"][:3, 2])))
     assert tilt <= 5.0, tilt
     if measured:
-        assert all(abs(best.dimensions[a] - v) <= DIM_TOL
-                   for a, v in obj["dimensions"].items()), best.dimensions
+        assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in obj["dimensions"].items()), (
+            best.dimensions
+        )
 
 
 def test_engine_dimension_corrections_undo_save_and_reload(library, primitive_clicks, tmp_path):
@@ -473,7 +562,8 @@ def test_engine_dimension_corrections_undo_save_and_reload(library, primitive_cl
     assert engine.active_object().shown.dimensions == after
     engine.correct_dimension("length", steps=2)
     assert engine.active_object().shown.dimensions["length"] == pytest.approx(
-        after["length"] + 2 * engine.dimension_step_m, abs=1e-4)
+        after["length"] + 2 * engine.dimension_step_m, abs=1e-4
+    )
     engine.undo()
     assert engine.active_object().shown.dimensions == after
     with pytest.raises(AffordanceError, match="radius, length"):
@@ -482,15 +572,17 @@ def test_engine_dimension_corrections_undo_save_and_reload(library, primitive_cl
         engine.correct_dimension("radius", value=float("nan"))
     status = engine.status()["objects"][0]
     assert status["verdict"].startswith("no template fits here")
-    assert status["candidates"][0]["dimensions"]["radius"] == pytest.approx(after["radius"],
-                                                                            abs=1e-5)
+    assert status["candidates"][0]["dimensions"]["radius"] == pytest.approx(
+        after["radius"], abs=1e-5
+    )
     engine.accept()
     path = engine.save(str(tmp_path / "regs.yaml")).split(" to ")[-1]
     reg = load_registrations(path, library)[0]
     assert reg.primitive == "cylinder" and reg.dimensions == pytest.approx(after, abs=1e-5)
     doc = yaml.safe_load(open(path))
-    assert doc["registrations"][0]["dimensions"]["radius"] == pytest.approx(after["radius"],
-                                                                            abs=1e-5)
+    assert doc["registrations"][0]["dimensions"]["radius"] == pytest.approx(
+        after["radius"], abs=1e-5
+    )
     # a file whose primitive lacks its dimensions is refused in one line
     doc["registrations"][0].pop("dimensions")
     bad = tmp_path / "bad.yaml"
@@ -507,15 +599,28 @@ def test_a_specific_template_has_no_dimensions_to_correct(library, panel_scene):
         engine.correct_dimension("x", value=0.1)
 
 
-def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path,
-                                                                        primitive_clicks):
+def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path, primitive_clicks):
     scene, obj = next((s, o) for s, o in primitive_clicks if o["kind"] == "box")
     from affordance_registration.evaluation.simulation import ply_bytes
+
     path = tmp_path / "boxes.ply"
     path.write_bytes(ply_bytes(scene.points))
-    out = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "fit",
-                          "--scene", str(path), "--point", *map(str, obj["click"]), "--json"],
-                         capture_output=True, text=True, timeout=600)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "affordance_registration.cli",
+            "fit",
+            "--scene",
+            str(path),
+            "--point",
+            *map(str, obj["click"]),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     best = doc["candidates"][0]
@@ -525,9 +630,21 @@ def test_fit_json_carries_the_primitive_its_dimensions_and_the_verdict(tmp_path,
         assert {"explained", "noise", "reason", "primitive", "dimensions", "fits"} <= set(c)
         if c["primitive"] is None:
             assert c["dimensions"] is None
-    table = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "fit",
-                            "--scene", str(path), "--point", *map(str, obj["click"])],
-                           capture_output=True, text=True, timeout=600)
+    table = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "affordance_registration.cli",
+            "fit",
+            "--scene",
+            str(path),
+            "--point",
+            *map(str, obj["click"]),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert table.returncode == 0 and "fitted as a box" in table.stdout
 
 
@@ -539,13 +656,15 @@ def _long_box_on_table(library, dims):
     from affordance_registration.core.transforms import invert, make_T
     from affordance_registration.evaluation.rows import _look_at
     from affordance_registration.evaluation.simulation import DepthCamera
+
     box = trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"]))
-    box.apply_translation([0, 0, dims["z"] / 2])            # the primitive's frame: base centre
+    box.apply_translation([0, 0, dims["z"] / 2])  # the primitive's frame: base centre
     table = trimesh.creation.box(extents=(2.5, 1.5, 0.02))
     T_cam_table = invert(_look_at(np.array([0.0, -0.7, 0.8]), np.array([0.0, 0.0, 0.04])))
     organized, labels = DepthCamera().render(
         [(table, T_cam_table @ make_T(None, [0, 0, -0.01])), (box, T_cam_table)],
-        np.random.default_rng(1))
+        np.random.default_rng(1),
+    )
     pts = organized[labels == 1]
     return organized, pts[np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1))]
 
@@ -557,7 +676,7 @@ def test_a_box_longer_than_the_crop_is_measured_in_a_wider_one(library):
     dims = {"x": 0.55, "y": 0.10, "z": 0.08}
     organized, click = _long_box_on_table(library, dims)
     rep = Registrar(library).fit(Scene(organized), click)
-    assert rep.context.radius < dims["x"] / 2          # the box runs past the first crop
+    assert rep.context.radius < dims["x"] / 2  # the box runs past the first crop
     best = rep.candidates[0]
     assert best.primitive == "box" and best.fits is True, best.reason
     assert all(abs(best.dimensions[k] - v) <= 0.005 for k, v in dims.items()), best.dimensions
@@ -570,6 +689,7 @@ def test_an_object_past_the_wider_crop_stays_refused_after_a_refit(library):
     (a refit judged the crop's part alone: a 0.6 m box explains it all, and read "fits").
     The 0.55 m box, measured in the wider crop, stays accepted after the engine's refit."""
     from affordance_registration.core.engine import AffordanceEngine
+
     for length, accepted in ((1.2, False), (0.55, True)):
         organized, click = _long_box_on_table(library, {"x": length, "y": 0.10, "z": 0.08})
         engine = AffordanceEngine(library)
@@ -587,6 +707,7 @@ def test_an_object_past_the_wider_crop_stays_refused_after_a_refit(library):
             registrar = Registrar(library)
             rep = registrar.fit(Scene(organized), click)
             fitted = next(c for c in rep.candidates if c.template == "box")
-            again = registrar.refit(rep.context, "box", fitted.T_scene_model,
-                                    dimensions=fitted.dimensions)
+            again = registrar.refit(
+                rep.context, "box", fitted.T_scene_model, dimensions=fitted.dimensions
+            )
             assert again.fits is False and "runs past" in again.reason, again.reason

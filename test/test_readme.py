@@ -3,6 +3,7 @@
 """The README runs as written: its Python snippets execute unchanged, every command and option of
 ``affordance-registration`` has help text and is in the README's command list, and every node
 executable has its section in msg_docs."""
+
 import argparse
 import ast
 import re
@@ -40,8 +41,9 @@ def test_readme_python_snippets_run_as_written(tmp_path):
     assert blocks, "the README has no ```python snippet"
     for i, code in enumerate(blocks):
         ast.parse(code)
-        out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
-                             text=True, timeout=600)
+        out = subprocess.run(
+            [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=600
+        )
         assert out.returncode == 0, f"README snippet {i + 1}:\n{out.stderr[-3000:]}"
     # what the integrator snippet says it does
     saved = (tmp_path / "registrations.yaml").read_text()
@@ -58,7 +60,9 @@ def test_every_cli_option_has_help_text():
             if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)):
                 continue
             if not action.help:
-                missing.append(f"{' '.join(words)} {'/'.join(action.option_strings) or action.dest}")
+                missing.append(
+                    f"{' '.join(words)} {'/'.join(action.option_strings) or action.dest}"
+                )
     assert not missing, f"no help text: {missing}"
 
 
@@ -67,13 +71,13 @@ def test_readme_lists_every_command_and_option():
     missing = []
     for words, sub, _ in _commands(build_parser()):
         if any(isinstance(a, argparse._SubParsersAction) for a in sub._actions):
-            continue                        # 'bag': its own commands are listed
+            continue  # 'bag': its own commands are listed
         line = f"affordance-registration {' '.join(words)}"
         if line not in listed:
             missing.append(line)
             continue
         # the command's lines: from its first mention to the next command
-        block = listed[listed.index(line):]
+        block = listed[listed.index(line) :]
         nxt = block.find("\naffordance-registration ", 1)
         block = block if nxt < 0 else block[:nxt]
         for action in sub._actions:

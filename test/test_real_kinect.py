@@ -5,6 +5,7 @@ scans read with their labels, the labelled objects and their clicks, the analyti
 distances, the label-based score of a primitive fit, and the Armadillo placed in real clutter.
 Real data from ``../shared/data`` or ``$AFFORDANCE_SHARED_DATA``; skipped in one line where
 absent."""
+
 import math
 import os
 
@@ -43,15 +44,21 @@ def test_the_bench_says_when_the_real_rows_were_not_measured(tmp_path, monkeypat
     from affordance_registration.core.templates import TemplateLibrary
     from affordance_registration.evaluation.bench import _real_capture_lines
     from affordance_registration.evaluation.rows import real_kinect_rows
+
     monkeypatch.setenv(rd.DATA_ENV, str(tmp_path))
-    lines = _real_capture_lines({"rows": [], "real_kinect": real_kinect_rows(
-        library=TemplateLibrary.load())})
+    lines = _real_capture_lines(
+        {"rows": [], "real_kinect": real_kinect_rows(library=TemplateLibrary.load())}
+    )
     assert len(lines) == 1 and "not measured" in lines[0] and rd.DATA_ENV in lines[0]
     if DATA is not None and rd.osd_dir(DATA) is not None:
         path = [p for p in rd.osd_scene_paths(DATA) if rd.scene_name(p) == "learn0"]
         monkeypatch.setenv(rd.DATA_ENV, DATA)
-        lines = _real_capture_lines({"rows": [], "real_kinect": real_kinect_rows(
-            library=TemplateLibrary.load(), scenes=path)})
+        lines = _real_capture_lines(
+            {
+                "rows": [],
+                "real_kinect": real_kinect_rows(library=TemplateLibrary.load(), scenes=path),
+            }
+        )
         assert lines and not any("not measured" in line for line in lines)
 
 
@@ -76,6 +83,7 @@ def test_reader_gives_640x480_with_labels(learn0):
     np.testing.assert_array_equal(learn0.viewpoint, [0.0, 0.0, 0.0])
     # the same points as the core reader (which gives x, y, z without labels)
     from affordance_registration.core.pointfiles import read_points
+
     core = read_points(os.path.join(rd.osd_dir(), "learn0.pcd")).points
     np.testing.assert_array_equal(np.isfinite(core).all(axis=1), valid.reshape(-1))
     np.testing.assert_allclose(core[valid.reshape(-1)], learn0.points[valid], atol=1e-6)
@@ -122,11 +130,14 @@ def test_objects_counted_and_clicked_on_their_object():
             assert np.quantile(cols, 0.1) <= c <= np.quantile(cols, 0.9)
         # objects below the threshold are left out, none above it
         flat = ids[cloud.valid]
-        big = {int(k) for k, n in zip(*np.unique(flat[flat > 0], return_counts=True))
-               if n >= rd.MIN_OBJECT_POINTS}
+        big = {
+            int(k)
+            for k, n in zip(*np.unique(flat[flat > 0], return_counts=True))
+            if n >= rd.MIN_OBJECT_POINTS
+        }
         assert big == {o.id for o in objs}
     assert len(counts) == 15
-    assert sum(counts.values()) == 37          # counted on the shared learn scenes
+    assert sum(counts.values()) == 37  # counted on the shared learn scenes
     assert counts["learn33"] == 5 and counts["learn0"] == 2
 
 
@@ -174,22 +185,34 @@ def _cylinder_surface(rng, dims, n):
 
 def test_distances_by_hand():
     dims = {"x": 0.2, "y": 0.1, "z": 0.05}
-    q = np.array([[0, 0, 0.025], [0, 0, 0.15], [0.2, 0, 0.025], [0.2, 0.15, 0.025],
-                  [0.09, 0, 0.025]])
-    np.testing.assert_allclose(rd.box_distance(q, np.eye(4), dims),
-                               [0.025, 0.1, 0.1, math.hypot(0.1, 0.1), 0.01], atol=1e-12)
+    q = np.array(
+        [[0, 0, 0.025], [0, 0, 0.15], [0.2, 0, 0.025], [0.2, 0.15, 0.025], [0.09, 0, 0.025]]
+    )
+    np.testing.assert_allclose(
+        rd.box_distance(q, np.eye(4), dims),
+        [0.025, 0.1, 0.1, math.hypot(0.1, 0.1), 0.01],
+        atol=1e-12,
+    )
     cyl = {"radius": 0.05, "length": 0.2}
     q = np.array([[0, 0, 0.1], [0.1, 0, 0.1], [0, 0, -0.03], [0.08, 0, 0.24], [0.04, 0, 0.1]])
-    np.testing.assert_allclose(rd.cylinder_distance(q, np.eye(4), cyl),
-                               [0.05, 0.05, 0.03, math.hypot(0.03, 0.04), 0.01], atol=1e-12)
+    np.testing.assert_allclose(
+        rd.cylinder_distance(q, np.eye(4), cyl),
+        [0.05, 0.05, 0.03, math.hypot(0.03, 0.04), 0.01],
+        atol=1e-12,
+    )
     with pytest.raises(AffordanceError):
         rd.primitive_distance("sphere", q, np.eye(4), cyl)
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), kind=st.sampled_from(["box", "cylinder"]),
-       a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(0.02, 0.5),
-       offset=st.floats(0.0005, 0.008))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    kind=st.sampled_from(["box", "cylinder"]),
+    a=st.floats(0.02, 0.5),
+    b=st.floats(0.02, 0.5),
+    c=st.floats(0.02, 0.5),
+    offset=st.floats(0.0005, 0.008),
+)
 def test_surface_points_at_zero_and_offsets_along_normals(seed, kind, a, b, c, offset):
     rng = np.random.default_rng(seed)
     T = make_T(random_rotations(1, rng)[0], rng.uniform(-2, 2, 3))
@@ -270,8 +293,9 @@ def test_score_accepts_a_fitted_box_and_rejects_a_shifted_one(learn0):
         taller = rd.score_primitive(learn0, obj, "box", T, {**dims, "z": dims["z"] + 0.03})
         assert not taller.passes and taller.recall < 0.9
         # a cylinder in the box's place explains it worse
-        cyl = rd.score_primitive(learn0, obj, "cylinder", T,
-                                 {"radius": dims["x"] / 2, "length": dims["z"]})
+        cyl = rd.score_primitive(
+            learn0, obj, "cylinder", T, {"radius": dims["x"] / 2, "length": dims["z"]}
+        )
         assert not cyl.passes
 
 
@@ -280,15 +304,14 @@ def test_score_on_synthetic_labelled_cloud():
     rng = np.random.default_rng(0)
     dims = {"x": 0.2, "y": 0.12, "z": 0.1}
     p, _ = _box_surface(rng, dims, 8000)
-    p = p[p[:, 2] > 1e-6]                       # no bottom face: it stands on the table
+    p = p[p[:, 2] > 1e-6]  # no bottom face: it stands on the table
     table = np.column_stack([rng.uniform(-0.4, 0.4, (20000, 2)), np.zeros(20000)])
     table = table[rd.box_distance(table, np.eye(4), dims) > 0.002]
     T = make_T(axis_angle_matrix([1, 0, 0], math.pi / 2), [0, 0, 1.0])
     pts = np.vstack([p, table]) @ T[:3, :3].T + T[:3, 3]
     labels = np.r_[np.full(len(p), 20), np.ones(len(table), int)]
     n = len(pts)
-    cloud = rd.LabelledCloud("synthetic", pts.reshape(1, n, 3), labels.reshape(1, n),
-                             np.zeros(3))
+    cloud = rd.LabelledCloud("synthetic", pts.reshape(1, n, 3), labels.reshape(1, n), np.zeros(3))
     good = rd.score_primitive(cloud, 2, "box", T, dims, noise=0.0)
     assert good.recall == 1.0 and good.precision > 0.9 and good.passes
     turned = T @ make_T(axis_angle_matrix([0, 0, 1], math.radians(20)))
@@ -299,6 +322,7 @@ def test_score_on_synthetic_labelled_cloud():
 @pytest.fixture(scope="module")
 def armadillo_yaml(tmp_path_factory):
     from affordance_registration.evaluation.clutter import armadillo_template
+
     try:
         return armadillo_template(str(tmp_path_factory.mktemp("armadillo")))
     except AffordanceError as exc:
@@ -309,10 +333,11 @@ def armadillo_yaml(tmp_path_factory):
 @pytest.mark.parametrize("base,seed", [("learn0", 0), ("learn20", 1)])
 def test_armadillo_in_real_clutter(armadillo_yaml, base, seed):
     from affordance_registration.evaluation.clutter import _template_points, armadillo_clutter
+
     path = os.path.join(rd.osd_dir(), f"{base}.pcd")
     case = armadillo_clutter(armadillo_yaml, path, seed=seed)
     again = armadillo_clutter(armadillo_yaml, path, seed=seed)
-    np.testing.assert_array_equal(case.T_scene_model, again.T_scene_model)   # by seed
+    np.testing.assert_array_equal(case.T_scene_model, again.T_scene_model)  # by seed
     cloud = rd.read_labelled_pcd(path)
     assert case.points.shape == cloud.points.shape
     arm = case.object_points
@@ -335,6 +360,7 @@ def test_armadillo_in_real_clutter(armadillo_yaml, base, seed):
     assert d_obj.min() < 0.01 and case.touches
     assert abs((posed[body] @ n + off).min()) < 0.002
     from affordance_registration.evaluation.realscans import STATUE_UP
+
     assert T[:3, STATUE_UP] @ n > 0.999
     # the click is on the Armadillo; pixels not taken by it keep the mOSD point or a hole
     assert np.min(np.linalg.norm(arm - case.click, axis=1)) == 0
@@ -350,13 +376,14 @@ def test_milk_carton_case(tmp_path):
     from affordance_registration.core.pointfiles import read_points
     from affordance_registration.core.templates import load_template
     from affordance_registration.evaluation.clutter import milk_carton_case
+
     case = milk_carton_case(str(tmp_path))
     tpl = load_template(case.template)
     assert os.path.dirname(case.template) == str(tmp_path)
     assert len(case.carton) == 13704
     scene = read_points(case.scene).points
     scene = scene[np.isfinite(scene).all(axis=1)]
-    d, _ = cKDTree(scene).query(case.carton)       # a segment of its scene: identity pose
+    d, _ = cKDTree(scene).query(case.carton)  # a segment of its scene: identity pose
     assert d.max() < 1e-6
     assert np.min(np.linalg.norm(case.carton - case.click, axis=1)) == 0
     assert tpl.name == "milk_carton"
@@ -365,6 +392,7 @@ def test_milk_carton_case(tmp_path):
 # ---------------------------------------------------------------------------- simulated rows
 def test_simulated_primitives_lie_on_their_true_surfaces():
     from affordance_registration.evaluation.rows import simulate_primitives
+
     organized, objects = simulate_primitives(5001)
     assert objects and {o["kind"] for o in objects} <= {"box", "cylinder"}
     flat = organized.reshape(-1, 3)
@@ -384,6 +412,7 @@ def test_simulated_primitives_lie_on_their_true_surfaces():
 
 def test_primitive_pose_error_is_symmetry_aware():
     from affordance_registration.evaluation.rows import primitive_pose_error
+
     rng = np.random.default_rng(1)
     T = make_T(random_rotations(1, rng)[0], rng.uniform(-1, 1, 3))
     half = T @ make_T(axis_angle_matrix([0, 0, 1], math.pi))
@@ -405,6 +434,7 @@ def test_real_kinect_rows_with_todays_registrar(library):
     every object clicked once, its record complete, the split reported apart."""
     from affordance_registration.core.registration import Registrar
     from affordance_registration.evaluation.rows import real_kinect_rows
+
     paths = [os.path.join(rd.osd_dir(), f) for f in ("learn0.pcd", "learn32.pcd")]
     made = []
 
@@ -415,8 +445,12 @@ def test_real_kinect_rows_with_todays_registrar(library):
     out = real_kinect_rows(factory, paths, library=library)
     assert len(made) == 1
     recs = out["records"]
-    assert [(r["scene"], r["object"]) for r in recs] == \
-        [("learn0", 2), ("learn0", 3), ("learn32", 2), ("learn32", 3)]
+    assert [(r["scene"], r["object"]) for r in recs] == [
+        ("learn0", 2),
+        ("learn0", 3),
+        ("learn32", 2),
+        ("learn32", 3),
+    ]
     for r in recs:
         assert r["error"] is None and r["template"] in library
         assert isinstance(r["fits"], bool) and r["time_s"] > 0
@@ -425,19 +459,22 @@ def test_real_kinect_rows_with_todays_registrar(library):
     assert out["tuning"]["objects"] == 2 and out["held_out"]["objects"] == 2
     refused = np.mean([r["primitive"] is not None or r["fits"] is not True for r in recs])
     assert out["all"]["refused_by_library"] == pytest.approx(refused)
-    assert out["all"]["called_fits"] == sum(r["fits"] is True and r["primitive"] is None
-                                            for r in recs)
+    assert out["all"]["called_fits"] == sum(
+        r["fits"] is True and r["primitive"] is None for r in recs
+    )
 
 
 def test_evaluation_is_ros_free():
     import subprocess
     import sys
-    code = ("import sys\n"
-            "import affordance_registration.evaluation.realdata, "
-            "affordance_registration.evaluation.clutter, "
-            "affordance_registration.evaluation.rows\n"
-            "print(','.join(m for m in sys.modules if m.split('.')[0] in "
-            "('rclpy', 'sensor_msgs', 'geometry_msgs', 'std_msgs', 'viser')))\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True)
+
+    code = (
+        "import sys\n"
+        "import affordance_registration.evaluation.realdata, "
+        "affordance_registration.evaluation.clutter, "
+        "affordance_registration.evaluation.rows\n"
+        "print(','.join(m for m in sys.modules if m.split('.')[0] in "
+        "('rclpy', 'sensor_msgs', 'geometry_msgs', 'std_msgs', 'viser')))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""

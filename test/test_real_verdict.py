@@ -6,6 +6,7 @@ when absent), and the frame a scanned template's file is in (the Armadillo scans
 
 The figures asserted are what this code reaches (see the bench's rows for them, tuning and
 held-out scenes apart), set so that a regression fails."""
+
 import math
 import tempfile
 
@@ -16,7 +17,11 @@ from hypothesis import strategies as st
 
 from affordance_registration.core.registration import Registrar, no_match
 from affordance_registration.core.scene import Scene
-from affordance_registration.core.templates import AffordanceTemplate, TemplateLibrary, load_template
+from affordance_registration.core.templates import (
+    AffordanceTemplate,
+    TemplateLibrary,
+    load_template,
+)
 from affordance_registration.core.transforms import make_T, pose_error, random_rotations
 from affordance_registration.evaluation import realdata as rd
 from affordance_registration.evaluation.clutter import milk_body_on_box, milk_carton_case
@@ -41,8 +46,11 @@ def test_the_library_refuses_every_real_kinect_object(kinect_records):
     assert len(kinect_records) >= 30
     assert not [r for r in kinect_records if r["error"]]
     refused = [r["primitive"] is not None or r["fits"] is not True for r in kinect_records]
-    assert np.mean(refused) >= 0.95, [(r["scene"], r["object"], r["template"])
-                                      for r, ok in zip(kinect_records, refused) if not ok]
+    assert np.mean(refused) >= 0.95, [
+        (r["scene"], r["object"], r["template"])
+        for r, ok in zip(kinect_records, refused)
+        if not ok
+    ]
     for held in (True, False):
         part = [ok for r, ok in zip(kinect_records, refused) if r["held_out"] == held]
         assert part and np.mean(part) >= 0.9
@@ -59,8 +67,9 @@ def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_di
     cloud = rd.read_labelled_pcd(path[0])
     obj = [o for o in rd.labelled_objects(cloud) if o.id == 3][0]
     registrar = Registrar(library)
-    rep = registrar.fit(Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint),
-                        obj.click)
+    rep = registrar.fit(
+        Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint), obj.click
+    )
     stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
     assert stop.fits is False and stop.reason
     if stop.distinct is None:
@@ -76,8 +85,7 @@ def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_di
 
 
 @pytest.mark.parametrize("scene,object_id", [("learn28", 3), ("learn32", 3)])
-def test_a_real_object_split_by_one_in_front_is_measured_whole(kinect_records, scene,
-                                                               object_id):
+def test_a_real_object_split_by_one_in_front_is_measured_whole(kinect_records, scene, object_id):
     """learn28's box and learn32's tube are each seen on both sides of an object standing in
     front of them: the primitive measured from the clicked piece covers both pieces (the label
     score passes: recall and precision at least 90%)."""
@@ -118,8 +126,9 @@ def test_primitives_explain_the_real_boxes_and_cylinders(kinect_records):
     objects = [r for r in kinect_records if r["object_kind"] in ("box", "cylinder")]
     assert len(objects) >= 30
     passes = [bool(r["score"] and r["score"]["passes"]) for r in objects]
-    assert np.mean(passes) >= 0.85, [(r["scene"], r["object"]) for r, ok in
-                                     zip(objects, passes) if not ok]
+    assert np.mean(passes) >= 0.85, [
+        (r["scene"], r["object"]) for r, ok in zip(objects, passes) if not ok
+    ]
     accepted = [r["primitive"] is not None and r["fits"] is True for r in objects]
     assert np.mean(accepted) >= 0.85, np.mean(accepted)
 
@@ -131,6 +140,7 @@ def touching(data_dir, library):
     the share of the segment's cluster voxels that are the object's, and of the object's
     cluster voxels in the segment."""
     from scipy.spatial import cKDTree
+
     registrar = Registrar(library)
     out = []
     for n in (17, 20, 25, 41):
@@ -176,8 +186,7 @@ def test_the_milk_carton_is_found_in_its_real_scene(data_dir, library, tmp_path)
     assert math.degrees(pose_error(best.T_scene_model, np.eye(4))[1]) <= 2.0
 
 
-def test_the_milk_carton_is_measured_as_a_box_without_its_template(data_dir, library,
-                                                                  tmp_path):
+def test_the_milk_carton_is_measured_as_a_box_without_its_template(data_dir, library, tmp_path):
     """The same click with the default library (no carton template): the box primitive leads
     and fits, measured to the carton's body -- its square footprint, by the carton's own
     points 0.10 m a side, and of the points below its gable roof (0.19 m over the box's base)
@@ -201,9 +210,10 @@ def armadillo():
         view_click,
         write_point_template,
     )
+
     try:
         views = armadillo_views(fetch_or_pcd(default_cache()))
-    except Exception as exc:          # a failed download fails the tests, with the reason
+    except Exception as exc:  # a failed download fails the tests, with the reason
         pytest.fail(f"the real-scan data could not be fetched: {exc}", pytrace=False)
     view = views[0]
     tpl = load_template(write_point_template(views[1:], tempfile.mkdtemp(), "armadillo"))
@@ -213,18 +223,23 @@ def armadillo():
     return tpl, scene, click, T
 
 
-@settings(max_examples=4, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(seed=st.integers(0, 2 ** 31 - 1), far=st.floats(0.0, 2.0))
+@settings(
+    max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(seed=st.integers(0, 2**31 - 1), far=st.floats(0.0, 2.0))
 def test_a_scanned_templates_file_frame_does_not_matter(armadillo, seed, far):
     """The same scanned points in any rigid frame (turned anyhow, their origin up to 2 m
     away): the fit composed back into the first frame is the same pose."""
     tpl, scene, click, T0 = armadillo
     rng = np.random.default_rng(seed)
     B = make_T(random_rotations(1, rng)[0], far * rng.normal(size=3) / math.sqrt(3))
-    moved = AffordanceTemplate(tpl.name, tpl.path, None,
-                               points=tpl.points @ B[:3, :3].T + B[:3, 3],
-                               point_normals=tpl.point_normals @ B[:3, :3].T)
+    moved = AffordanceTemplate(
+        tpl.name,
+        tpl.path,
+        None,
+        points=tpl.points @ B[:3, :3].T + B[:3, 3],
+        point_normals=tpl.point_normals @ B[:3, :3].T,
+    )
     T = Registrar(TemplateLibrary([moved])).fit(scene, click).candidates[0].T_scene_model
     dt, dr = pose_error(T @ B, T0)
     assert dt <= 1e-4 and math.degrees(dr) <= 0.01, (dt, math.degrees(dr))
@@ -234,11 +249,13 @@ def test_the_real_capture_cost_row_fits_real_and_simulated_clicks_alternately(da
     """The bench's row "real Kinect click against a simulated panel click": two pairs, each a
     real mOSD click and a simulated one fitted by the same registrar, their medians and the
     median ratio."""
-    from affordance_registration.evaluation.bench_rows import _jobs
+    from affordance_registration.evaluation.bench_rows import simulated_jobs
     from affordance_registration.evaluation.rows import real_capture_cost
-    jobs = _jobs(library.specific(), [3])
-    out = real_capture_cost(Registrar(library), jobs, clicks=2,
-                            scenes=rd.osd_scene_paths(data_dir)[:1])
+
+    jobs = simulated_jobs(library.specific(), [3])
+    out = real_capture_cost(
+        Registrar(library), jobs, clicks=2, scenes=rd.osd_scene_paths(data_dir)[:1]
+    )
     assert out["pairs"] == 2
     assert out["real_median_s"] > 0 and out["simulated_median_s"] > 0
     assert 0.05 < out["ratio"] < 50
@@ -251,8 +268,13 @@ def test_leaders_that_cannot_fit_are_left_unfinished_with_the_same_verdicts(data
     template's ``fits`` is the same and the primitives' poses and dimensions are equal; some
     refused candidate does keep its medium-resolution result (its residual differs)."""
     from affordance_registration.core.registration import FitSettings
-    every = Registrar(library, FitSettings().with_(**{"finish.explained_margin": 1.0,
-                                                      "articulation.explained_margin": 1.0}))
+
+    every = Registrar(
+        library,
+        FitSettings().with_(
+            **{"finish.explained_margin": 1.0, "articulation.explained_margin": 1.0}
+        ),
+    )
     default = Registrar(library)
     left = 0
     for path in rd.osd_scene_paths(data_dir)[:6]:

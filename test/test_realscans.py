@@ -7,6 +7,7 @@ download fails, these tests fail and say why -- nothing is skipped.
 The .conf convention is checked against the wrong reading; point-cloud templates built from the
 scans; a scan used as its own template comes back within 1 mm / 0.5 deg; the merged scans as a
 template in the taskboard library rank first on the Armadillo clicks they fit."""
+
 import math
 import os
 
@@ -33,7 +34,7 @@ from affordance_registration.evaluation.realscans import (
 def or_pcd():
     try:
         return fetch_or_pcd(default_cache())
-    except Exception as exc:          # a failed download fails the tests, with the reason
+    except Exception as exc:  # a failed download fails the tests, with the reason
         pytest.fail(f"the real-scan data could not be fetched: {exc}", pytrace=False)
 
 
@@ -45,6 +46,7 @@ def views(or_pcd):
 def _overlap_mm(a: np.ndarray, b: np.ndarray) -> float:
     """20th percentile of the distances from ``a``'s points to ``b``'s nearest (mm)."""
     from scipy.spatial import cKDTree
+
     d, _ = cKDTree(b).query(a[::7])
     return float(np.percentile(d, 20)) * 1000
 
@@ -61,7 +63,10 @@ def test_conf_convention_aligns_the_views_and_the_other_reading_does_not(or_pcd,
         R = T[:3, :3] if transpose else T[:3, :3].T
         return view.points @ R.T + T[:3, 3]
 
-    for a, b in (("ArmadilloBack_0", "ArmadilloBack_60"), ("ArmadilloBack_0", "ArmadilloBack_330")):
+    for a, b in (
+        ("ArmadilloBack_0", "ArmadilloBack_60"),
+        ("ArmadilloBack_0", "ArmadilloBack_330"),
+    ):
         right = _overlap_mm(common(by_name[a]), common(by_name[b]))
         wrong = _overlap_mm(common(by_name[a], False), common(by_name[b], False))
         assert right < 1.5 and wrong > 5.0, (a, b, right, wrong)
@@ -81,11 +86,13 @@ def test_point_cloud_templates_read_like_scenes(tmp_path, views):
 @pytest.mark.parametrize("name", GROUND_TRUTH_VIEWS)
 def test_a_scan_as_its_own_template_comes_back_exactly(tmp_path, views, name):
     view = next(v for v in views if v.name == name)
-    yml = write_point_template([view], str(tmp_path), "self",
-                               T_template_common=invert(view.T_common_scan))
+    yml = write_point_template(
+        [view], str(tmp_path), "self", T_template_common=invert(view.T_common_scan)
+    )
     registrar = Registrar(TemplateLibrary([load_template(yml)]))
-    best = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
-                         view_click(view)).candidates[0]
+    best = registrar.fit(
+        Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)
+    ).candidates[0]
     dt, dr = pose_error(best.T_scene_model, np.eye(4))
     assert dt <= 0.001 and dr <= math.radians(0.5), (name, dt, math.degrees(dr))
     assert best.fits
@@ -95,13 +102,17 @@ def test_a_raw_range_scan_is_a_template(tmp_path, or_pcd, views):
     """A raw Cyberware scan as or-pcd ships it (binary big-endian PLY with a range_grid
     element, no faces) loads as a point-cloud template as it is, and is found in itself."""
     import shutil
+
     shutil.copy(os.path.join(or_pcd, "ArmadilloBack_0.ply"), tmp_path / "scan.ply")
     (tmp_path / "scan.yaml").write_text("name: raw_scan\nmesh: scan.ply\n")
     tpl = load_template(str(tmp_path / "scan.yaml"))
     view = next(v for v in views if v.name == "ArmadilloBack_0")
     assert tpl.is_point_template and len(tpl.points) == len(view.points)
-    best = Registrar(TemplateLibrary([tpl])).fit(
-        Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)).candidates[0]
+    best = (
+        Registrar(TemplateLibrary([tpl]))
+        .fit(Scene(view.points, sensor_origin=view.sensor_origin), view_click(view))
+        .candidates[0]
+    )
     dt, dr = pose_error(best.T_scene_model, np.eye(4))
     assert dt <= 0.001 and dr <= math.radians(0.5), (dt, math.degrees(dr))
 
@@ -113,6 +124,7 @@ def _held_by_others(view, views) -> float:
 
     def common(v):
         return v.points @ v.T_common_scan[:3, :3].T + v.T_common_scan[:3, 3]
+
     others = np.vstack([common(v) for v in views if v is not view])
     return float(np.mean(cKDTree(others).query(common(view)[::5])[0] <= 0.002))
 
@@ -127,14 +139,20 @@ def others_fit(views, tmp_path_factory):
     def get(name):
         if name not in made:
             view = next(v for v in views if v.name == name)
-            tpl = load_template(write_point_template([v for v in views if v is not view],
-                                                     str(tmp_path_factory.mktemp(name)),
-                                                     "armadillo"))
+            tpl = load_template(
+                write_point_template(
+                    [v for v in views if v is not view],
+                    str(tmp_path_factory.mktemp(name)),
+                    "armadillo",
+                )
+            )
             registrar = Registrar(TemplateLibrary([tpl]))
-            best = registrar.fit(Scene(view.points, sensor_origin=view.sensor_origin),
-                                 view_click(view)).candidates[0]
+            best = registrar.fit(
+                Scene(view.points, sensor_origin=view.sensor_origin), view_click(view)
+            ).candidates[0]
             made[name] = registrar, best
         return made[name]
+
     return get
 
 
@@ -146,8 +164,11 @@ def test_a_template_of_the_other_views_finds_each_view_it_covers(views, others_f
     covered: the verdict says so)."""
     held = {v.name: _held_by_others(v, views) for v in views}
     covered = [v for v in views if held[v.name] >= 0.4]
-    assert {v.name for v in covered} == {"ArmadilloBack_0", "ArmadilloBack_60",
-                                         "ArmadilloBack_330"}
+    assert {v.name for v in covered} == {
+        "ArmadilloBack_0",
+        "ArmadilloBack_60",
+        "ArmadilloBack_330",
+    }
     for view in covered:
         _, best = others_fit(view.name)
         dt, dr = pose_error(best.T_scene_model, view_truth(view))
@@ -155,8 +176,7 @@ def test_a_template_of_the_other_views_finds_each_view_it_covers(views, others_f
         assert best.fits == (held[view.name] >= 0.7), (view.name, best.coverage)
 
 
-def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path, views,
-                                                                         library):
+def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path, views, library):
     """The four views merged as a template, in the taskboard library: on a click on each view
     -- in the middle of the statue, and low on it (among its lowest 5% of points, its feet and
     legs, where a flat-ish slab of its back once passed for a support plane and cut it down to
@@ -174,7 +194,7 @@ def test_the_statue_beats_the_taskboard_templates_and_the_verdict_holds(tmp_path
             dt, dr = pose_error(best.T_scene_model, view_truth(view))
             assert dt <= 0.005 and dr <= math.radians(5), (view.name, low, dt, math.degrees(dr))
         lone = valve_only.fit(scene, view_click(view)).candidates[0]
-        assert lone.probability < 0.9, view.name         # never 1.00 for a poor fit
+        assert lone.probability < 0.9, view.name  # never 1.00 for a poor fit
 
 
 def test_a_real_scan_moved_rigidly_gives_the_moved_fit(views, others_fit):
@@ -187,7 +207,9 @@ def test_a_real_scan_moved_rigidly_gives_the_moved_fit(views, others_fit):
     for _ in range(2):
         R = random_rotations(1, rng)[0]
         T = make_T(R, rng.uniform(-5, 5, 3))
-        moved = Scene(view.points @ R.T + T[:3, 3], sensor_origin=R @ view.sensor_origin + T[:3, 3])
+        moved = Scene(
+            view.points @ R.T + T[:3, 3], sensor_origin=R @ view.sensor_origin + T[:3, 3]
+        )
         got = registrar.fit(moved, R @ click + T[:3, 3]).candidates[0]
         dt, dr = pose_error(got.T_scene_model, T @ original.T_scene_model)
         assert dt <= 0.001 and dr <= math.radians(1.0), (dt, math.degrees(dr))
@@ -197,6 +219,7 @@ def test_fetch_failure_is_one_clear_error(tmp_path):
     """A cache that cannot be written: one AffordanceError naming it (no traceback from pip or
     the file system)."""
     from affordance_registration.core.errors import AffordanceError
+
     blocked = tmp_path / "file"
     blocked.write_text("not a folder")
     with pytest.raises(AffordanceError, match="cache"):

@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Registration: the closed-form solves, the weighting rule, and fits on simulated scans."""
+
 import math
 
 import numpy as np
@@ -48,7 +49,7 @@ def test_weighted_rigid_fit_recovers_known_transforms(seed, library):
 def test_rigid_fit_never_returns_a_reflection():
     rng = np.random.default_rng(1)
     P = rng.normal(size=(50, 3))
-    Q = P * np.array([1, 1, -1])          # a mirror image: the best rotation, not a reflection
+    Q = P * np.array([1, 1, -1])  # a mirror image: the best rotation, not a reflection
     T = weighted_rigid_fit(P, Q)
     assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
 
@@ -57,7 +58,7 @@ def test_point_to_plane_step_recovers_a_small_motion(library):
     P, N = library["emergency_stop"].samples(600, seed=1)
     R = Rotation.from_rotvec([0.01, -0.02, 0.015]).as_matrix()
     t = np.array([0.003, -0.002, 0.004])
-    X = P @ R.T + t                       # moved copy; pair each with its original + normal
+    X = P @ R.T + t  # moved copy; pair each with its original + normal
     T = np.eye(4)
     for _ in range(5):
         Xi = X @ T[:3, :3].T + T[:3, 3]
@@ -83,8 +84,8 @@ def test_weighting_and_rejection_change_the_answer(library):
     P = tpl.samples(400, seed=1)[0]
     truth = make_T(Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix(), [0.1, -0.05, 0.9])
     Q = P @ truth[:3, :3].T + truth[:3, 3]
-    Q[280:380] += [0.0, 0.015, 0.0]                        # clutter
-    Q[380:] += [0.0, 0.0, 0.3]                             # far outliers
+    Q[280:380] += [0.0, 0.015, 0.0]  # clutter
+    Q[380:] += [0.0, 0.0, 0.3]  # far outliers
     X = P @ truth[:3, :3].T + truth[:3, 3]
     d = np.linalg.norm(X - Q, axis=1)
 
@@ -124,13 +125,13 @@ def test_right_template_first_and_pose_within_tolerance(seed, library, registrar
         for pool in (False, True):
             cands = [c for c in rep.candidates if (c.primitive is not None) == pool]
             total = sum(c.likelihood for c in cands)
-            assert sum(c.probability for c in cands) == \
-                pytest.approx(total / (total + 1.0 / NO_MATCH_RESIDUAL))
+            assert sum(c.probability for c in cands) == pytest.approx(
+                total / (total + 1.0 / NO_MATCH_RESIDUAL)
+            )
         assert best.fits and best.coverage >= registrar.settings.verdict.min_coverage
         specific = [c for c in rep.candidates if c.primitive is None]
-        assert rep.candidates[:len(specific)] == tuple(specific)   # primitives after them
+        assert rep.candidates[: len(specific)] == tuple(specific)  # primitives after them
         assert all(a.likelihood >= b.likelihood for a, b in zip(specific, specific[1:]))
-
 
 
 @pytest.mark.parametrize("viewpoint", [True, False])
@@ -138,6 +139,7 @@ def test_every_candidate_judged_together_gets_the_verdict_it_gets_alone(library,
     """The verdicts of a click's candidates come from one pass over all of them; each must be
     exactly what judging that candidate alone gives (and the winner fits, the rest vary)."""
     from affordance_registration.core.registration.scoring import judge
+
     sim = simulate_taskboard(library, 12)
     scene = Scene(sim.organized, sensor_origin=None if viewpoint else NO_VIEWPOINT)
     reg = Registrar(library)
@@ -145,12 +147,16 @@ def test_every_candidate_judged_together_gets_the_verdict_it_gets_alone(library,
         rep = reg.fit(scene, obj.click)
         models = [reg._model(c.template, c.joints, c.scale, c.dimensions) for c in rep.candidates]
         together = judge(rep.context, models, rep.candidates, reg.settings)
-        alone = [judge(rep.context, [m], [c], reg.settings)[0]
-                 for m, c in zip(models, rep.candidates)]
-        assert [(c.coverage, c.inlier_rmse, c.fits) for c in together] == \
-            [(c.coverage, c.inlier_rmse, c.fits) for c in alone] == \
-            [(c.coverage, c.inlier_rmse, c.fits) for c in rep.candidates]
+        alone = [
+            judge(rep.context, [m], [c], reg.settings)[0] for m, c in zip(models, rep.candidates)
+        ]
+        assert (
+            [(c.coverage, c.inlier_rmse, c.fits) for c in together]
+            == [(c.coverage, c.inlier_rmse, c.fits) for c in alone]
+            == [(c.coverage, c.inlier_rmse, c.fits) for c in rep.candidates]
+        )
         assert together[0].fits and len({c.coverage for c in together}) > 1
+
 
 def test_objects_lying_on_a_table(library, registrar):
     sim = simulate_taskboard(library, 6, layout="table")
@@ -176,13 +182,16 @@ def test_refit_returns_to_the_object_but_not_far_away(library, registrar, panel_
     far = obj.T_scene_model.copy()
     far[:3, 3] += [0.10, 0.0, 0.0]
     res = registrar.refit(ctx, obj.template, far)
-    assert np.linalg.norm(res.T_scene_model[:3, 3] - far[:3, 3]) <= registrar.settings.refit.max_move
+    assert (
+        np.linalg.norm(res.T_scene_model[:3, 3] - far[:3, 3]) <= registrar.settings.refit.max_move
+    )
 
 
 def test_paper_method_runs_as_published(library, panel_scene):
     settings = FitSettings(method="paper", paper_restarts=3, paper_iterations=20)
-    rep = Registrar(library, settings).fit(Scene(panel_scene.organized),
-                                           panel_scene.objects[0].click)
+    rep = Registrar(library, settings).fit(
+        Scene(panel_scene.organized), panel_scene.objects[0].click
+    )
     assert len(rep.candidates) == len(library)
     assert all(c.iterations <= 3 * 20 for c in rep.candidates)
     assert rep.candidates[0].likelihood == pytest.approx(1 / rep.candidates[0].residual)
@@ -204,8 +213,10 @@ def test_clear_errors(library, registrar, tmp_path):
         Registrar(TemplateLibrary([]))
     with pytest.raises(RegistrationError, match="mode"):
         FitSettings(mode="sideways").validate()
-    for name in ("joint_sweep", "scale_sweep"):     # a sweep of no steps has no step size
-        with pytest.raises(RegistrationError, match=f"articulation.{name} must be an integer >= 1"):
+    for name in ("joint_sweep", "scale_sweep"):  # a sweep of no steps has no step size
+        with pytest.raises(
+            RegistrationError, match=f"articulation.{name} must be an integer >= 1"
+        ):
             FitSettings().with_(**{f"articulation.{name}": 0})
     # NaN rows are dropped, the rest is fitted
     pts = np.vstack([scene.points, np.full((100, 3), np.nan)])
@@ -237,6 +248,7 @@ def test_model_cache_is_safe_under_threads(library):
     from concurrent.futures import ThreadPoolExecutor
 
     from affordance_registration.core.registration.model import ModelCache
+
     tpl = library["ball_valve"]
     cache = ModelCache(max_posed=3)
     jobs = [(q, sc, n) for q in (0.0, 0.4, 1.2) for sc in (1.0, 1.15) for n in (64, 96)] * 4
@@ -263,6 +275,7 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
     from affordance_registration.core.transforms import pose_error
     from affordance_registration.evaluation.bench import variant_library
     from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD
+
     big = variant_library(library.specific(), 15)
     assert len(big) == 15 and "ball_valve@s0.75" in big
     scene = Scene(panel_scene.organized)
@@ -272,16 +285,17 @@ def test_library_prefilter_sets_clearly_worse_templates_aside(library, panel_sce
         cands = on.fit(scene, obj.click).candidates
         assert sorted(c.template for c in cands) == sorted(big)
         aside = [c.prefiltered for c in cands]
-        assert aside == sorted(aside)              # the set-aside ones behind the others
-        assert [c.to_dict()["prefiltered"] for c in cands] == aside    # what status / --json say
+        assert aside == sorted(aside)  # the set-aside ones behind the others
+        assert [c.to_dict()["prefiltered"] for c in cands] == aside  # what status / --json say
         # the fitted ones carry the verdict; the coarse poses set aside are not judged
         assert [c.fits is None for c in cands] == aside
         assert all(c.coverage == 0.0 and c.inlier_rmse == 0.0 for c in cands if c.prefiltered)
         assert sum(not a for a in aside) >= FitSettings().prefilter.keep
         decided += any(aside)
         assert cands[0].template == obj.template and not cands[0].prefiltered
-        dt, dr = pose_error(cands[0].T_scene_model, obj.T_scene_model,
-                            library[obj.template].symmetry)
+        dt, dr = pose_error(
+            cands[0].T_scene_model, obj.T_scene_model, library[obj.template].symmetry
+        )
         assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
         plain = off.fit(scene, obj.click).candidates
         assert not any(c.prefiltered for c in plain)
@@ -294,6 +308,7 @@ def test_a_template_set_aside_is_fitted_and_judged_when_shown(library, panel_sce
     pose was the coarse stage's) and it gets its verdict; it stays ranked where it was."""
     from affordance_registration.core.engine import AffordanceEngine
     from affordance_registration.evaluation.bench import variant_library
+
     engine = AffordanceEngine(variant_library(library.specific(), 15))
     engine.set_scene(panel_scene.organized, frame_id="cam")
     obj = panel_scene.objects[0]
@@ -318,7 +333,12 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
     (seed 1015). The leaders -- the winner and the runners-up within ``finish.margin`` -- are
     finished alike (yaw sweep, fine stage) and ranked on that: the true template first, at its
     pose (with the winner alone finished, as before, all three ranked the wrong template first)."""
-    from affordance_registration.evaluation.bench import MIN_VISIBLE, VARIANT_SCALES, variant_library
+    from affordance_registration.evaluation.bench import (
+        MIN_VISIBLE,
+        VARIANT_SCALES,
+        variant_library,
+    )
+
     squeezed = tuple(v for v in VARIANT_SCALES if v[0] in ("y0.7", "z0.7"))
     big = variant_library(library.specific(), 15, squeezed)
     assert "grab_handle@y0.7" in big and "ball_valve@z0.7" in big
@@ -327,8 +347,9 @@ def test_leaders_are_finished_and_ranked_on_the_fine_residual(library):
         obj = [o for o in sim.objects if o.visible_points >= MIN_VISIBLE][k]
         cands = Registrar(lib).fit(Scene(sim.organized), obj.click).candidates
         assert cands[0].template == obj.template, (seed, [c.template for c in cands[:3]])
-        dt, dr = pose_error(cands[0].T_scene_model, obj.T_scene_model,
-                            library[obj.template].symmetry)
+        dt, dr = pose_error(
+            cands[0].T_scene_model, obj.T_scene_model, library[obj.template].symmetry
+        )
         assert dt <= TOL_M and dr <= TOL_RAD, (seed, dt, math.degrees(dr))
         assert len({c.template for c in cands}) == len(lib)
 
@@ -343,8 +364,9 @@ def _ribs_and_wall(seed: int):
     xy = rng.uniform(-0.15, 0.15, size=(8000, 2))
     wave = 0.0025 * np.sin(2 * math.pi * xy[:, 0] / 0.25 + seed)
     wall = np.column_stack([xy, wave + rng.normal(scale=0.002, size=len(xy))])
-    box = np.column_stack([rng.uniform(-0.02, 0.02, size=(1500, 2)),
-                           rng.uniform(0.0, 0.04, size=1500)])
+    box = np.column_stack(
+        [rng.uniform(-0.02, 0.02, size=(1500, 2)), rng.uniform(0.0, 0.04, size=1500)]
+    )
     return ribs, np.vstack([wall, box])
 
 
@@ -373,6 +395,7 @@ def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library,
         best_per_template,
         initial_hypotheses,
     )
+
     reg = Registrar(library)
     ctx = reg.prepare(Scene(panel_scene.organized), panel_scene.objects[0].click)
     variants, _ = reg._variants(list(library))
@@ -391,8 +414,9 @@ def test_each_template_keeps_its_best_restarts_through_the_coarse_stage(library,
     assert np.array_equal(best_per_template(hyps, score, 0), np.arange(len(hyps)))
 
 
-def test_the_fine_stage_stops_close_to_where_it_would_converge_fully(library, panel_scene,
-                                                                      monkeypatch):
+def test_the_fine_stage_stops_close_to_where_it_would_converge_fully(
+    library, panel_scene, monkeypatch
+):
     """The fine stage stops at ``FINE_CONVERGED`` times the other stages' step thresholds: on
     every clicked object, started 3 mm and 2 degrees off the fit, it ends within 0.3 mm and
     0.3 degrees of where steps below the plain thresholds would take it (0.06 mm and 0.18
@@ -401,6 +425,7 @@ def test_the_fine_stage_stops_close_to_where_it_would_converge_fully(library, pa
     thresholds: 0.36 mm off.)"""
     from affordance_registration.core.registration import icp as icp_module
     from affordance_registration.core.transforms import axis_angle_matrix
+
     registrar = Registrar(library)
     s = registrar.settings
     scene = Scene(panel_scene.organized)
@@ -437,6 +462,7 @@ def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypat
     ``prefilter.samples`` finishes this click 2.0% apart, the copy first, outside the tie.)"""
     from affordance_registration.core.registration import registrar as registrar_module
     from affordance_registration.evaluation.bench import MIN_VISIBLE, variant_library
+
     big = variant_library(library.specific(), 40)
     assert "grab_handle@y0.7" in big
     sim = simulate_taskboard(library, 1006)
@@ -452,7 +478,7 @@ def test_a_near_tie_is_decided_on_fully_converged_fine_stages(library, monkeypat
         cands = fitter.fit(scene, obj.click).candidates
         firsts[tie] = [c.template for c in cands[:2]]
         assert sorted(firsts[tie]) == ["grab_handle", "grab_handle@y0.7"]
-        if tie == 1.0:      # stopped early, the two are a coin flip apart
+        if tie == 1.0:  # stopped early, the two are a coin flip apart
             assert cands[1].residual <= 1.001 * cands[0].residual
     assert firsts[near_tie][0] == "grab_handle" and firsts[1.0][0] == "grab_handle@y0.7"
 
@@ -462,6 +488,7 @@ def test_the_held_out_variant_family_is_rigid_stretches_along_random_directions(
     by 20-50% along one direction (volume by that factor, the other two directions kept), not
     along an axis of the template's frame; the same seed, the same family."""
     from affordance_registration.evaluation.bench_rows import stretched_library
+
     base = library.specific()
     big, again = stretched_library(base, 40), stretched_library(base, 40)
     assert len(big) == 40 and list(big) == list(again)
@@ -477,20 +504,38 @@ def test_the_held_out_variant_family_is_rigid_stretches_along_random_directions(
         assert np.allclose(M, M.T, atol=1e-9)
         stretch = w[np.argmax(np.abs(w - 1.0))]
         assert 0.2 - 1e-9 <= abs(stretch - 1.0) <= 0.5 + 1e-9
-        assert np.sum(np.abs(w - 1.0) < 1e-9) == 2              # the other two directions kept
+        assert np.sum(np.abs(w - 1.0) < 1e-9) == 2  # the other two directions kept
         u = V[:, np.argmax(np.abs(w - 1.0))]
-        assert np.max(np.abs(u)) < 1.0 - 1e-3                   # not along a frame axis
+        assert np.max(np.abs(u)) < 1.0 - 1e-3  # not along a frame axis
 
 
 def test_the_bench_prints_the_held_out_family_row():
     """format_table names the held-out family's 40-template row with its ratio to the five."""
     from affordance_registration.evaluation.bench import format_table
-    rows = [{"templates": n, "clicks": 40, "median_s": s, "ratio_to_first": r, "top1": t,
-             "prefilter_decided": d, "prefilter_set_aside_per_click": a, "true_template_set_aside": 0}
-            for n, s, r, t, d, a in ((5, 0.3, 1.0, 1.0, 0.0, 0.0), (40, 0.6, 1.97, 0.925, 1.0, 33.6))]
-    table = format_table({"rows": [], "refit": {"median_s": 0.01, "success": 1.0}, "scenes": 1,
-                          "pose_tolerance": {"m": 0.005, "deg": 5.0}, "machine": {"cpus": 2},
-                          "library_sizes_held_out_family": rows})
+
+    rows = [
+        {
+            "templates": n,
+            "clicks": 40,
+            "median_s": s,
+            "ratio_to_first": r,
+            "top1": t,
+            "prefilter_decided": d,
+            "prefilter_set_aside_per_click": a,
+            "true_template_set_aside": 0,
+        }
+        for n, s, r, t, d, a in ((5, 0.3, 1.0, 1.0, 0.0, 0.0), (40, 0.6, 1.97, 0.925, 1.0, 33.6))
+    ]
+    table = format_table(
+        {
+            "rows": [],
+            "refit": {"median_s": 0.01, "success": 1.0},
+            "scenes": 1,
+            "pose_tolerance": {"m": 0.005, "deg": 5.0},
+            "machine": {"cpus": 2},
+            "library_sizes_held_out_family": rows,
+        }
+    )
     line = next(x for x in table.splitlines() if x.startswith("held-out variant family"))
     assert "library of 40 templates" in line and "= 1.97x the five" in line, line
     assert "true template first 92.5%" in line and "library of 5 " not in table, table
@@ -504,6 +549,7 @@ def test_a_handle_clicked_near_one_end_of_its_bar_is_found(library, registrar):
     out on that side): at least 18 of the 20 within 5 mm / 5 deg (this code: 19; without the
     second start 13)."""
     from affordance_registration.core.transforms import invert
+
     ok = n = 0
     for seed in range(8000, 8010):
         sim = simulate_taskboard(library, seed)
@@ -521,8 +567,9 @@ def test_a_handle_clicked_near_one_end_of_its_bar_is_found(library, registrar):
                 on = np.flatnonzero(bar & (x > 0))
                 click = mine[on[np.argsort(x[on])[int(0.9 * len(on))]]]
                 best = registrar.fit(scene, click).candidates[0]
-                dt, da = pose_error(best.T_scene_model, obj.T_scene_model,
-                                    library["grab_handle"].symmetry)
+                dt, da = pose_error(
+                    best.T_scene_model, obj.T_scene_model, library["grab_handle"].symmetry
+                )
                 n += 1
                 ok += best.template == "grab_handle" and dt <= TOL_M and da <= TOL_RAD
     assert n == 20 and ok >= 18, (ok, n)

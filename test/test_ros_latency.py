@@ -3,6 +3,7 @@
 """The bench's "over ROS" row on the live graph: the engine node in its own process (from the
 launch file), clicks and clouds from this one, the same fits in this process. Measured figures
 are the bench's (no wall-clock bound here); this checks the row measures what it says."""
+
 import math
 
 from affordance_registration.evaluation.ros_latency import measure_node_latency

@@ -5,6 +5,7 @@ the voxel grid grouped through a table of cells, the cluster's components from C
 fine points looked up inside the cluster's box only, the normals' neighbourhood sums, the
 frame's lean and the spread check decided without pow() and SVD, a snap reusing the crop's
 distances. Each reference below is the plain formulation the fast path must match."""
+
 import math
 
 import numpy as np
@@ -34,8 +35,9 @@ def _voxel_reference(points, voxel, origin=None, frame=None):
     dims = keys.max(axis=0) + 1
     flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
     uniq, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(uniq))
-                     for k in range(3)], axis=1)
+    sums = np.stack(
+        [np.bincount(inverse, weights=points[:, k], minlength=len(uniq)) for k in range(3)], axis=1
+    )
     return sums / counts[:, None]
 
 
@@ -46,8 +48,12 @@ def _rotation(rng):
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 3000),
-       spread=st.sampled_from([0.01, 0.3, 5.0]), framed=st.booleans())
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 3000),
+    spread=st.sampled_from([0.01, 0.3, 5.0]),
+    framed=st.booleans(),
+)
 def test_voxel_grid_is_the_sorted_grouping(seed, n, spread, framed):
     # small spreads take the cell table, large ones (more cells than 64 per point) the sort
     rng = np.random.default_rng(seed)
@@ -67,24 +73,37 @@ def test_components_are_scipys(seed, n, m):
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, ref = connected_components(graph, directed=False)
     # the same partition: a one-to-one map between the two labellings
-    assert len(set(zip(labels.tolist(), ref.tolist()))) == len(set(ref.tolist())) \
+    assert (
+        len(set(zip(labels.tolist(), ref.tolist())))
+        == len(set(ref.tolist()))
         == len(set(labels.tolist()))
+    )
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), blobs=st.integers(1, 12), n=st.integers(1, 600),
-       gap=st.sampled_from([0.01, 0.025, 0.06]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    blobs=st.integers(1, 12),
+    n=st.integers(1, 600),
+    gap=st.sampled_from([0.01, 0.025, 0.06]),
+)
 def test_gap_components_are_those_of_every_pair_within_the_gap(seed, blobs, n, gap):
     # clumps and specks at about the gap from each other: joined or not by a few steps
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-0.1, 0.1, size=(blobs, 3))
     pts = centres[rng.integers(0, blobs, n)] + rng.normal(size=(n, 3)) * 0.01
-    labels = segmentation._gap_components(pts, gap)
+    labels = segmentation.gap_components(pts, gap)
     _, ref = connected_components(
-        coo_matrix((np.ones(len(p := pairs_within(pts, gap)), bool), (p[:, 0], p[:, 1])),
-                   shape=(n, n)), directed=False)
-    assert len(set(zip(labels.tolist(), ref.tolist()))) == len(set(ref.tolist())) \
+        coo_matrix(
+            (np.ones(len(p := pairs_within(pts, gap)), bool), (p[:, 0], p[:, 1])), shape=(n, n)
+        ),
+        directed=False,
+    )
+    assert (
+        len(set(zip(labels.tolist(), ref.tolist())))
+        == len(set(ref.tolist()))
         == len(set(labels.tolist()))
+    )
 
 
 def test_components_of_a_graph_too_big_for_the_radix_sort():
@@ -97,21 +116,30 @@ def test_components_of_a_graph_too_big_for_the_radix_sort():
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 300), m=st.integers(0, 2000),
-       distance=st.sampled_from([0.005, 0.05, 0.5]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(1, 300),
+    m=st.integers(0, 2000),
+    distance=st.sampled_from([0.005, 0.05, 0.5]),
+)
 def test_points_within_a_distance_are_the_trees_answer(seed, n, m, distance):
     rng = np.random.default_rng(seed)
     targets = rng.normal(size=(n, 3)) * 0.1
     points = rng.normal(size=(m, 3)) * 0.2
     tree = build_tree(targets)
     d, _ = nearest(tree, points, distance)
-    assert np.array_equal(S._within(points, targets, tree, distance),
-                          points[np.isfinite(d)].reshape(-1, 3))
+    assert np.array_equal(
+        S._within(points, targets, tree, distance), points[np.isfinite(d)].reshape(-1, 3)
+    )
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 800), k=st.sampled_from([3, 12, 30]),
-       scale=st.sampled_from([1e-3, 1.0, 1e3]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(3, 800),
+    k=st.sampled_from([3, 12, 30]),
+    scale=st.sampled_from([1e-3, 1.0, 1e3]),
+)
 def test_normals_are_the_neighbourhoods_plain_pca(seed, n, k, scale):
     rng = np.random.default_rng(seed)
     pts = rng.normal(size=(n, 3)) * scale
@@ -131,7 +159,7 @@ def test_the_mean_of_rows_is_numpys(seed, n):
     # values over twelve orders of magnitude: any other order of the sums shows
     rng = np.random.default_rng(seed)
     pts = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-6, 6, size=(n, 3))
-    assert np.array_equal(S._mean_rows(pts), pts.mean(axis=0))
+    assert np.array_equal(S.mean_rows(pts), pts.mean(axis=0))
 
 
 def _frame_reference(points, click, origin):
@@ -153,17 +181,22 @@ def _frame_reference(points, click, origin):
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), n=st.integers(10, 2000), symmetric=st.booleans(),
-       viewpoint=st.booleans())
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(10, 2000),
+    symmetric=st.booleans(),
+    viewpoint=st.booleans(),
+)
 def test_local_frame_leans_as_the_exact_cubes_do(seed, n, symmetric, viewpoint):
     rng = np.random.default_rng(seed)
     pts = rng.normal(size=(n, 3)) * [0.2, 0.1, 0.01]
-    if symmetric:       # a distribution without lean: the products cannot call it
+    if symmetric:  # a distribution without lean: the products cannot call it
         pts = np.concatenate([pts, -pts])
     pts = pts @ _rotation(rng).T + rng.normal(size=3)
     origin = pts[0] + rng.normal(size=3) if viewpoint else None
-    assert np.array_equal(S.local_frame(pts, pts[0], origin),
-                          _frame_reference(pts, pts[0], origin))
+    assert np.array_equal(
+        S.local_frame(pts, pts[0], origin), _frame_reference(pts, pts[0], origin)
+    )
 
 
 @settings(max_examples=200, deadline=None)
@@ -174,7 +207,7 @@ def test_the_lean_is_the_sign_of_the_exact_cubes(seed, n):
     rng = np.random.default_rng(seed)
     along = rng.normal(size=n)
     along[-1] = -np.cbrt(np.sum(along[:-1] ** 3))
-    assert voxels._leans_forward(along) == (np.sum(along ** 3) >= 0)
+    assert voxels._leans_forward(along) == (np.sum(along**3) >= 0)
     assert voxels._leans_forward(-along * 3.0) == (np.sum((-along * 3.0) ** 3) >= 0)
 
 
@@ -183,8 +216,13 @@ def test_the_lean_is_the_sign_of_the_exact_cubes(seed, n):
 def test_the_spread_check_decides_as_the_svd_does(seed, width):
     rng = np.random.default_rng(seed)
     n = 500
-    crop = np.stack([rng.uniform(-0.2, 0.2, n), rng.uniform(-1, 1, n) * width * math.sqrt(3),
-                     np.zeros(n)], axis=1) @ _rotation(rng).T
+    crop = (
+        np.stack(
+            [rng.uniform(-0.2, 0.2, n), rng.uniform(-1, 1, n) * width * math.sqrt(3), np.zeros(n)],
+            axis=1,
+        )
+        @ _rotation(rng).T
+    )
     spread = np.linalg.svd(crop - crop.mean(axis=0), compute_uv=False) / math.sqrt(n)
     line = spread[1] < 0.5 * 0.005
     if line:
@@ -208,6 +246,7 @@ def test_a_snap_from_the_part_around_the_click_is_the_whole_scenes(panel_scene):
 def test_two_threads_prepare_the_same_click(panel_scene):
     """The fine points' normals in parts side by side: the same context, bit for bit."""
     from affordance_registration.core.registration.parallel import single_threaded_blas
+
     scene = S.Scene(panel_scene.organized)
     for obj in panel_scene.objects[:3]:
         part = scene.around(obj.click, 0.27)

@@ -7,6 +7,7 @@ request on ``sensor_view_request`` with the engine's suggested view moves the si
 there, its new scan and pose reach the engine (the sensor's frame on TF), and the click is
 fitted anew: the right template, within the pose tolerance, settled. Bad requests are refused
 in one log line each and the node keeps running."""
+
 import math
 import sys
 import time
@@ -26,14 +27,18 @@ from affordance_registration.evaluation.simulated_scan import (
     render_organized,
     view_problem,
 )
-from affordance_registration.evaluation.simulation import POSE_TOL_M, POSE_TOL_RAD, simulate_taskboard
+from affordance_registration.evaluation.simulation import (
+    POSE_TOL_M,
+    POSE_TOL_RAD,
+    simulate_taskboard,
+)
 from affordance_registration.evaluation.viewpoints import hard_view, taskboard_meshes
 from affordance_registration.ros.glue.conversions import pose_stamped, transform_to_matrix
 from affordance_registration.ros.glue.tf import STATIC_LISTENER_QOS, load_tf_message
 
 FRAME = "camera_depth_optical_frame"
 SENSOR = "simulated_camera_optical_frame"
-SEED = 7            # the demo's taskboard
+SEED = 7  # the demo's taskboard
 NS = "/affordance_engine"
 
 
@@ -63,19 +68,24 @@ def click_on(client, pub, status, point, within: float = 60.0) -> None:
     msg = PointStamped()
     msg.header.frame_id = FRAME
     msg.point.x, msg.point.y, msg.point.z = map(float, point)
+
     def handled() -> int:
         return int(((status().get("node") or {}).get("handled") or {}).get("/clicked_point", 0))
+
     deadline, tries = time.monotonic() + within, 0
     while time.monotonic() < deadline:
         tries += 1
         before = handled()
         pub.publish(msg)
-        client.wait_for(lambda: handled() > before and status()["node"]["idle"], 120,
-                        "the click to be handled")
+        client.wait_for(
+            lambda: handled() > before and status()["node"]["idle"], 120, "the click to be handled"
+        )
         if status().get("objects"):
             return
-        assert "no transform" in status()["node"]["last_error"] or \
-            "has no known transform" in status()["node"]["last_error"], status()["node"]
+        assert (
+            "no transform" in status()["node"]["last_error"]
+            or "has no known transform" in status()["node"]["last_error"]
+        ), status()["node"]
         time.sleep(0.25)
     raise AssertionError(f"the click was refused {tries} times: {status()['node']}")
 
@@ -88,6 +98,7 @@ def test_view_problem_refuses_poses_inside_behind_and_far_from_the_panel(library
         T = np.eye(4)
         T[:3, 3] = B[:3, :3] @ [x, y, z] + B[:3, 3]
         return T
+
     assert view_problem(B, at(0.1, 0.0, 0.8)) == ""
     assert "inside the panel" in view_problem(B, at(0.0, 0.0, -0.01))
     assert "behind the panel" in view_problem(B, at(0.0, 0.0, -0.5))
@@ -109,9 +120,19 @@ def test_first_view_and_sensor_pose_are_checked(library):
 
 def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, library):
     sim, T_first, click, truth = edge_on_case(library)
-    scan = NodeProcess([sys.executable, "-m", "affordance_registration.evaluation.simulated_scan",
-                        "--ros-args", "-p", f"seed:={SEED}", "-p",
-                        "first_view:=edge-on:quarter_turn_valve"], tmp_path / "scan.log")
+    scan = NodeProcess(
+        [
+            sys.executable,
+            "-m",
+            "affordance_registration.evaluation.simulated_scan",
+            "--ros-args",
+            "-p",
+            f"seed:={SEED}",
+            "-p",
+            "first_view:=edge-on:quarter_turn_valve",
+        ],
+        tmp_path / "scan.log",
+    )
     engine = engine_process(tmp_path, {"sensor_frame": SENSOR})
     client = Client("sensor_move_tester")
     try:
@@ -122,10 +143,15 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         def sensor_pose():
             """The sensor's pose the scan node last published on /tf_static."""
             tf = client.latest.get("/tf_static")
-            t = next((t for t in (tf.transforms if tf else []) if t.child_frame_id == SENSOR),
-                     None)
-            return None if t is None or t.header.frame_id != FRAME else \
-                transform_to_matrix(t.transform)
+            t = next(
+                (t for t in (tf.transforms if tf else []) if t.child_frame_id == SENSOR), None
+            )
+            return (
+                None
+                if t is None or t.header.frame_id != FRAME
+                else transform_to_matrix(t.transform)
+            )
+
         client.wait_for(lambda: sensor_pose() is not None, 90, "the sensor's frame on TF")
         assert np.allclose(sensor_pose(), T_first, atol=1e-6)
         pub_click = client.node.create_publisher(PointStamped, "/clicked_point", 10)
@@ -138,10 +164,12 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         o = status()["objects"][0]
         assert o["ambiguity"]["settled"] is False, o["ambiguity"]
         first = o["candidates"][0]
-        dt, da = pose_error(np.asarray(first["pose"]), truth.T_scene_model,
-                            library[truth.template].symmetry)
-        assert not (first["template"] == truth.template and dt <= POSE_TOL_M and
-                    da <= POSE_TOL_RAD), "the hard first view was fitted right: no test"
+        dt, da = pose_error(
+            np.asarray(first["pose"]), truth.T_scene_model, library[truth.template].symmetry
+        )
+        assert not (
+            first["template"] == truth.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD
+        ), "the hard first view was fitted right: no test"
         T_view = np.asarray(o["suggested_view"]["pose"])
         clouds = len(client.history["/points"])
 
@@ -150,14 +178,16 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         inside[:3, 3] = sim.T_scene_board[:3, 3]
         far = T_view.copy()
         far[:3, 3] = T_view[:3, 3] + 10.0 * (T_view[:3, 3] - sim.T_scene_board[:3, 3])
-        away = T_view @ np.diag([1.0, -1.0, -1.0, 1.0])     # looking away from the board
+        away = T_view @ np.diag([1.0, -1.0, -1.0, 1.0])  # looking away from the board
         nan = pose_stamped(T_view, FRAME)
         nan.pose.position.x = math.nan
-        for bad, line in ((nan, "not moved: pose has NaN"),
-                          (pose_stamped(T_view, "map"), "not moved: the pose is in 'map'"),
-                          (pose_stamped(inside, FRAME), "the panel (0.000 m in front"),
-                          (pose_stamped(far, FRAME), "m from the panel (at most 3.0 m)"),
-                          (pose_stamped(away, FRAME), "would see 0 points of the taskboard")):
+        for bad, line in (
+            (nan, "not moved: pose has NaN"),
+            (pose_stamped(T_view, "map"), "not moved: the pose is in 'map'"),
+            (pose_stamped(inside, FRAME), "the panel (0.000 m in front"),
+            (pose_stamped(far, FRAME), "m from the panel (at most 3.0 m)"),
+            (pose_stamped(away, FRAME), "would see 0 points of the taskboard"),
+        ):
             pub_view.publish(bad)
             assert scan.wait_output(line, 60), scan.output()[-2000:]
         assert scan.proc.poll() is None
@@ -168,16 +198,22 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
         pub_view.publish(pose_stamped(T_view, FRAME))
         client.wait_for(lambda: len(client.history["/points"]) > clouds, 90, "the new cloud")
         assert scan.wait_output("moved the sensor to", 5)
-        assert np.allclose(sensor_pose(), T_view, atol=1e-6)   # where the engine reads it
+        assert np.allclose(sensor_pose(), T_view, atol=1e-6)  # where the engine reads it
 
         def settled():
             objs = status().get("objects") or []
-            return objs and objs[0]["ambiguity"] and objs[0]["ambiguity"]["settled"] and \
-                "fitted again on the new cloud" in status()["node"]["last_message"]
+            return (
+                objs
+                and objs[0]["ambiguity"]
+                and objs[0]["ambiguity"]["settled"]
+                and "fitted again on the new cloud" in status()["node"]["last_message"]
+            )
+
         client.wait_for(settled, 120, "the click to settle on the new cloud")
         best = status()["objects"][0]["candidates"][0]
-        dt, da = pose_error(np.asarray(best["pose"]), truth.T_scene_model,
-                            library[truth.template].symmetry)
+        dt, da = pose_error(
+            np.asarray(best["pose"]), truth.T_scene_model, library[truth.template].symmetry
+        )
         assert best["template"] == truth.template, best["template"]
         assert dt <= POSE_TOL_M and da <= POSE_TOL_RAD, (dt, math.degrees(da))
         assert status()["objects"][0]["suggested_view"] is None
@@ -190,8 +226,11 @@ def test_a_requested_view_rescans_and_the_click_settles(ros_context, tmp_path, l
             pub_view.publish(pose_stamped(T_view, FRAME))
         pub_view.publish(pose_stamped(T_view, "flood_end"))
         assert scan.wait_output("the pose is in 'flood_end'", 60), scan.output()[-2000:]
-        client.wait_for(lambda: scan.output().count("moved the sensor to") > moved, 60,
-                        "the move after the flood")
+        client.wait_for(
+            lambda: scan.output().count("moved the sensor to") > moved,
+            60,
+            "the move after the flood",
+        )
         assert scan.output().count("moved the sensor to") - moved <= 10
         assert scan.proc.poll() is None
     finally:

@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The depth-camera simulator: determinism, geometry, visibility and the noise model."""
+
 import math
 
 import numpy as np
@@ -68,7 +69,7 @@ def test_back_faces_and_hidden_surfaces_give_no_points():
     pts, labels = camera.render([(target, T_target)], rng=None)
     seen = pts[labels == 0]
     assert len(seen) > 100
-    assert np.allclose(seen[:, 2], 0.95, atol=1e-6)         # only the front face (z = 0.95)
+    assert np.allclose(seen[:, 2], 0.95, atol=1e-6)  # only the front face (z = 0.95)
     # a larger box in front hides it completely
     blocker = trimesh.creation.box(extents=[0.3, 0.3, 0.02])
     pts, labels = camera.render([(target, T_target), (blocker, make_T(t=[0, 0, 0.6]))], rng=None)
@@ -87,6 +88,7 @@ def test_noise_statistics_match_the_model():
     assert z.std() == pytest.approx(expected, rel=0.05)
     assert z.mean() == pytest.approx(1.0, abs=2e-4)
     from affordance_registration.core.transforms import axis_angle_matrix
+
     tilted = make_T(axis_angle_matrix([0, 1, 0], math.radians(75)), [0, 0, 1.2])
     _, lab_noisy = camera.render([(wall, tilted)], rng=np.random.default_rng(1))
     _, lab_clean = camera.render([(wall, tilted)], rng=None)
@@ -98,7 +100,7 @@ def test_noise_statistics_match_the_model():
     theta = np.arccos(np.abs(rays @ tilted[:3, 2]))
     lo, hi = math.radians(model.drop_start_deg), math.radians(model.drop_full_deg)
     survive = 1 - np.clip((theta - lo) / (hi - lo), 0, 1)
-    assert survive.mean() < 0.9          # the case exercises dropouts
+    assert survive.mean() < 0.9  # the case exercises dropouts
     kept = (lab_noisy[hit] == 0).mean()
     assert kept == pytest.approx(survive.mean(), abs=0.01)
 
@@ -110,6 +112,7 @@ def test_write_scene_and_truth_round_trip(tmp_path, panel_scene):
     for o, t in zip(panel_scene.objects, truth["objects"]):
         assert np.allclose(o.T_scene_model, t["T_scene_model"], atol=1e-8)
     from affordance_registration.core.scene import load_points
+
     pts, _ = load_points(paths["scene.ply"])
     assert len(pts) == len(panel_scene.points)
     org, shape = load_points(paths["scene_organized.npy"])
@@ -127,6 +130,7 @@ def test_table_layout_rests_objects_on_the_table(library):
 
 def test_bad_arguments(library):
     from affordance_registration.core.errors import AffordanceError
+
     with pytest.raises(AffordanceError, match="seed"):
         simulate_taskboard(library, -1)
     with pytest.raises(AffordanceError, match="layout"):
@@ -140,8 +144,9 @@ def test_articulated_scenes_record_joint_values_and_scales(library):
     assert 0.0 <= lever <= math.pi / 2
     assert by["emergency_stop"].joints["button"] in (0.0, 0.008)
     assert by["emergency_stop"].state in ("pressed", "released")
-    assert all(o.scale == 1.0 for o in s.objects)        # no bundled template has sizes
+    assert all(o.scale == 1.0 for o in s.objects)  # no bundled template has sizes
     from affordance_registration.evaluation.simulation import sized_library
+
     sized = simulate_taskboard(sized_library(library), 4, articulated=True)
     handle = next(o for o in sized.objects if o.template == "grab_handle")
     assert 0.8 <= handle.scale <= 1.25 and handle.scale != 1.0
@@ -166,13 +171,20 @@ def test_depth_camera_fault_model_does_what_its_options_say(library):
     between a depth edge's two sides (label -2); dark patches and grazing angles drop returns."""
     import math
 
-    from affordance_registration.evaluation.simulation import DepthCamera, FaultModel, simulate_taskboard
-    off = dict(flying_pixels=0.0, distortion=0.0, dark_patches=0, grazing_start_deg=90.0,
-               noise_scale=1.0)
+    from affordance_registration.evaluation.simulation import (
+        DepthCamera,
+        FaultModel,
+        simulate_taskboard,
+    )
+
+    off = dict(
+        flying_pixels=0.0, distortion=0.0, dark_patches=0, grazing_start_deg=90.0, noise_scale=1.0
+    )
 
     def render(**kw):
         faults = None if kw.pop("clean", False) else FaultModel(**{**off, **kw})
         return simulate_taskboard(library, 1001, camera=DepthCamera(faults=faults))
+
     clean = render(clean=True)
     z0 = clean.organized[..., 2]
     same = render()
@@ -181,14 +193,16 @@ def test_depth_camera_fault_model_does_what_its_options_say(library):
     warped = render(distortion=0.002).organized[..., 2]
     both = np.isfinite(z0) & np.isfinite(warped)
     dz = (warped - z0)[both]
-    assert 0.0012 < math.sqrt(np.mean(dz ** 2)) < 0.0035
+    assert 0.0012 < math.sqrt(np.mean(dz**2)) < 0.0035
     rows = np.where(both[:-1] & both[1:])
     step = np.abs((warped - z0)[1:][rows] - (warped - z0)[:-1][rows])
-    assert np.median(step) < 1e-4                       # smooth: neighbours move alike
+    assert np.median(step) < 1e-4  # smooth: neighbours move alike
     flying = render(flying_pixels=1.0)
     mixed = flying.labels == -2
     assert mixed.sum() > 100 and np.all(np.isfinite(flying.organized[mixed]))
-    assert np.count_nonzero(np.isfinite(render(dark_patches=8, dark_dropout=1.0)
-                                        .organized[..., 2])) < np.count_nonzero(np.isfinite(z0))
-    assert np.count_nonzero(np.isfinite(render(grazing_start_deg=30.0).organized[..., 2])) < \
-        np.count_nonzero(np.isfinite(z0))
+    assert np.count_nonzero(
+        np.isfinite(render(dark_patches=8, dark_dropout=1.0).organized[..., 2])
+    ) < np.count_nonzero(np.isfinite(z0))
+    assert np.count_nonzero(
+        np.isfinite(render(grazing_start_deg=30.0).organized[..., 2])
+    ) < np.count_nonzero(np.isfinite(z0))

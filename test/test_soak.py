@@ -4,6 +4,7 @@
 by default): a real engine process while clouds stream at 5 Hz, rounds of click, SpaceMouse push,
 cycle, and accept / undo / discard. Every call is answered, memory is flat after the warm-up,
 and no registration is lost (the autosaved file and a restart after kill -9 agree)."""
+
 import os
 import signal
 import threading
@@ -25,8 +26,10 @@ FRAME = "camera_depth_optical_frame"
 NS = "/affordance_engine"
 SOAK_S = float(os.environ.get("AFFORDANCE_SOAK_S", "600"))
 
-pytestmark = pytest.mark.skipif(os.environ.get("AFFORDANCE_LONG_TESTS") != "1",
-                                reason="a long soak: run with AFFORDANCE_LONG_TESTS=1")
+pytestmark = pytest.mark.skipif(
+    os.environ.get("AFFORDANCE_LONG_TESTS") != "1",
+    reason="a long soak: run with AFFORDANCE_LONG_TESTS=1",
+)
 
 
 def test_soak(ros_context, tmp_path, library):
@@ -43,18 +46,19 @@ def test_soak(ros_context, tmp_path, library):
             client.wait_for_subscribers(pub, timeout=60)
         cloud = xyz_to_pointcloud2(sim.organized, FRAME)
 
-        def stream():                       # 5 Hz, the whole soak
+        def stream():  # 5 Hz, the whole soak
             while not stop.is_set():
                 points.publish(cloud)
                 time.sleep(0.2)
+
         streamer = threading.Thread(target=stream, daemon=True)
         streamer.start()
-        status = lambda: client.status(f"{NS}/status") or {}      # noqa: E731
+        status = lambda: client.status(f"{NS}/status") or {}  # noqa: E731
         client.wait_for(lambda: status().get("node", {}).get("cloud"), 60, "the cloud")
         objs = [o for o in sim.objects if o.click is not None and o.visible_points >= 200]
         t0 = time.monotonic()
         calls = answered = rounds = 0
-        expected = 0                       # registrations we were told about
+        expected = 0  # registrations we were told about
         rss = []
         while time.monotonic() - t0 < SOAK_S:
             obj = objs[rounds % len(objs)]
@@ -63,16 +67,22 @@ def test_soak(ros_context, tmp_path, library):
             msg.header.frame_id = FRAME
             msg.point.x, msg.point.y, msg.point.z = map(float, obj.click)
             clicks.publish(msg)
-            client.wait_for(lambda: len(status().get("objects", [])) > n or
-                            status().get("active_id"), 120, "the click's object")
+            client.wait_for(
+                lambda: len(status().get("objects", [])) > n or status().get("active_id"),
+                120,
+                "the click's object",
+            )
             tw = Twist()
             tw.linear.y = -0.3
             for _ in range(8):
                 twists.publish(tw)
                 time.sleep(1 / 30)
             twists.publish(Twist())
-            for name in ("next_model", "previous_model",
-                         ("accept", "undo", "accept", "discard")[rounds % 4]):
+            for name in (
+                "next_model",
+                "previous_model",
+                ("accept", "undo", "accept", "discard")[rounds % 4],
+            ):
                 calls += 1
                 res = client.call(Trigger, f"{NS}/{name}", timeout=120)
                 answered += 1
@@ -82,13 +92,16 @@ def test_soak(ros_context, tmp_path, library):
                     expected -= 1
             rounds += 1
             rss.append((time.monotonic() - t0, rss_mb(proc.proc.pid)))
-        st = client.wait_for(lambda: status().get("node", {}).get("idle") and status(), 120,
-                             "the engine to settle")
+        st = client.wait_for(
+            lambda: status().get("node", {}).get("idle") and status(), 120, "the engine to settle"
+        )
         registered = len(st["registered"])
         warm = [m for t, m in rss if t >= SOAK_S / 3]
-        print(f"soak {SOAK_S:.0f} s: {rounds} rounds, {answered}/{calls} calls answered, "
-              f"{registered} registered (expected {expected}); memory after warm-up "
-              f"{min(warm):.0f}-{max(warm):.0f} MB, peak {max(m for _, m in rss):.0f} MB")
+        print(
+            f"soak {SOAK_S:.0f} s: {rounds} rounds, {answered}/{calls} calls answered, "
+            f"{registered} registered (expected {expected}); memory after warm-up "
+            f"{min(warm):.0f}-{max(warm):.0f} MB, peak {max(m for _, m in rss):.0f} MB"
+        )
         assert answered == calls and rounds >= 10
         assert registered == expected
         assert max(warm) - min(warm) < 150, "memory grows after the warm-up"

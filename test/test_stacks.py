@@ -5,6 +5,7 @@ seeds 1, 3 and 9, development seeds): the segments cannot part them (flush faces
 to them), so the clicked segment holds both. Where no primitive explains it, the primitives are
 measured and judged on the clicked box alone, cut at the top of the lower one's top face
 (``primitives.stacked``). The bench's stacked rows report the held-out seeds."""
+
 import math
 
 import numpy as np
@@ -34,8 +35,9 @@ def registrar(library):
 
 
 def _owner(points, objects, within=0.006):
-    d = np.stack([box_distance(points, o["T_scene_model"], o["dimensions"]) for o in objects],
-                 axis=1)
+    d = np.stack(
+        [box_distance(points, o["T_scene_model"], o["dimensions"]) for o in objects], axis=1
+    )
     return np.where(d.min(axis=1) <= within, d.argmin(axis=1), -1)
 
 
@@ -50,10 +52,12 @@ def test_a_box_of_a_flush_stack_is_measured_alone_and_accepted(registrar, seed, 
     obj = objects[k]
     best = registrar.fit(Scene(organized), obj["click"]).candidates[0]
     assert best.primitive == "box" and best.fits is True, (best.template, best.reason)
-    assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in obj["dimensions"].items()), \
+    assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in obj["dimensions"].items()), (
         best.dimensions
-    dt, dr = primitive_pose_error("box", best.T_scene_model, obj["T_scene_model"],
-                                  obj["dimensions"])
+    )
+    dt, dr = primitive_pose_error(
+        "box", best.T_scene_model, obj["T_scene_model"], obj["dimensions"]
+    )
     assert dt <= 0.005 and dr <= math.radians(5), (dt, math.degrees(dr))
 
 
@@ -66,7 +70,7 @@ def test_the_cut_splits_the_clicked_segment_at_the_lower_top(registrar, seed, k)
     ctx = registrar.prepare(Scene(organized), objects[k]["click"])
     owner = _owner(ctx.cluster, objects)
     was = ctx.segments == ctx.clicked_segment
-    assert (owner[was] == 1 - k).mean() > 0.3          # the segment held both boxes
+    assert (owner[was] == 1 - k).mean() > 0.3  # the segment held both boxes
     cut, (points, _, support, _) = stacked(ctx, object_points(ctx))
     part = cut.segments == cut.clicked_segment
     assert (owner[part] == k).mean() > 0.95 and part[owner == k].mean() > 0.9

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The station without a browser and without rclpy.init: ray -> cloud point snapping, the browser
 camera -> view_pose conversion, display thinning and colours, and the message/status helpers."""
+
 import math
 import socket
 
@@ -47,7 +48,7 @@ def _grid(n=200, spacing=0.005, z=1.0):
 # ------------------------------------------------------------------ ray -> nearest cloud point
 def test_a_click_on_an_object_picks_the_object_not_the_wall_behind_it():
     wall = _grid(z=1.0)
-    box = _grid(n=20, spacing=0.004, z=0.8) + [0.1, 0.05, 0.0]     # 8 cm patch, 20 cm in front
+    box = _grid(n=20, spacing=0.004, z=0.8) + [0.1, 0.05, 0.0]  # 8 cm patch, 20 cm in front
     pts = np.vstack([wall, box])
     origin = np.zeros(3)
     i = display.snap_ray(pts, origin, box[210] - origin)
@@ -59,9 +60,9 @@ def test_a_click_on_an_object_picks_the_object_not_the_wall_behind_it():
 
 
 def test_a_click_into_the_void_picks_nothing():
-    pts = _grid(n=50)                    # 25 cm patch at 1 m
-    assert display.snap_ray(pts, np.zeros(3), [1.0, 0.0, 1.0]) is None      # 45 deg off
-    assert display.snap_ray(pts, np.zeros(3), [0.0, 0.0, -1.0]) is None     # behind the camera
+    pts = _grid(n=50)  # 25 cm patch at 1 m
+    assert display.snap_ray(pts, np.zeros(3), [1.0, 0.0, 1.0]) is None  # 45 deg off
+    assert display.snap_ray(pts, np.zeros(3), [0.0, 0.0, -1.0]) is None  # behind the camera
     assert display.snap_ray(np.zeros((0, 3)), np.zeros(3), [0.0, 0.0, 1.0]) is None
     with pytest.raises(AffordanceError):
         display.snap_ray(pts, np.zeros(3), [0.0, 0.0, 0.0])
@@ -70,8 +71,13 @@ def test_a_click_into_the_void_picks_nothing():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.floats(-0.4, 0.4), st.floats(-0.4, 0.4), st.floats(-0.5, 0.5), st.floats(-0.5, 0.5),
-       st.floats(0.2, 1.5))
+@given(
+    st.floats(-0.4, 0.4),
+    st.floats(-0.4, 0.4),
+    st.floats(-0.5, 0.5),
+    st.floats(-0.5, 0.5),
+    st.floats(0.2, 1.5),
+)
 def test_snapping_lands_next_to_where_the_ray_meets_the_surface(x, y, ox, oy, oz):
     """A plane of points 5 mm apart seen from anywhere in front of it, up to 60 degrees off its
     normal: the snapped point is a neighbour of the ray's intersection with the plane (at grazing
@@ -114,10 +120,13 @@ def test_viser_camera_is_the_optical_frame_of_the_view():
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-1, 1), min_size=3, max_size=3),
-       st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(
-           lambda q: np.linalg.norm(q) > 0.1),
-       st.floats(20, 100), st.floats(0, 1100), st.floats(0, 700))
+@given(
+    st.lists(st.floats(-1, 1), min_size=3, max_size=3),
+    st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    st.floats(20, 100),
+    st.floats(0, 1100),
+    st.floats(0, 700),
+)
 def test_a_pixel_ray_projects_back_onto_its_pixel(position, quat, fov_deg, u, v):
     q = np.asarray(quat) / np.linalg.norm(quat)
     T = display.optical_pose(q, position)
@@ -132,7 +141,7 @@ def test_the_first_view_stands_at_the_sensor_or_above_a_map():
     position, target = display.initial_view(cloud, [0, -1, 0])
     np.testing.assert_allclose(position, 0.0)
     assert abs(target[2] - 1.0) < 1e-9
-    room = np.random.default_rng(0).uniform(-3, 3, (5000, 3))           # origin inside
+    room = np.random.default_rng(0).uniform(-3, 3, (5000, 3))  # origin inside
     position, target = display.initial_view(room, [0, 0, 1])
     assert position[2] > target[2] + 1.0
 
@@ -151,14 +160,18 @@ def test_the_first_view_of_a_sensor_cloud_frames_it(fov_deg, distance, half_widt
     off_axis = np.arctan2(np.linalg.norm(rel[:, :2], axis=1), rel[:, 2])
     inside = np.mean(off_axis <= 0.5 * fov + 1e-9)
     assert inside >= 0.99 - 1e-9
-    if position[2] < -1e-9:       # it stepped back: not more than to get 99% in
+    if position[2] < -1e-9:  # it stepped back: not more than to get 99% in
         assert np.mean(off_axis <= 0.5 * fov * 0.97) < 0.99
 
 
 # ------------------------------------------------------------------ display thinning, colours
 @settings(max_examples=40, deadline=None)
-@given(st.integers(1, 30000), st.integers(1000, 20000), st.integers(0, 1000),
-       st.none() | st.floats(1e-5, 10.0))
+@given(
+    st.integers(1, 30000),
+    st.integers(1000, 20000),
+    st.integers(0, 1000),
+    st.none() | st.floats(1e-5, 10.0),
+)
 def test_thinning_keeps_at_most_the_budget_and_only_cloud_points(n, budget, seed, start):
     """Whatever voxel edge it starts from (the station passes the previous cloud's)."""
     pts = np.random.default_rng(seed).normal(size=(n, 3)) * [1.0, 0.5, 0.01]
@@ -170,11 +183,11 @@ def test_thinning_keeps_at_most_the_budget_and_only_cloud_points(n, budget, seed
 
 
 def test_a_cloud_over_the_budget_is_thinned_evenly_not_dropped():
-    pts = _grid(n=600, spacing=0.002)                    # 360k points on a 1.2 m square
+    pts = _grid(n=600, spacing=0.002)  # 360k points on a 1.2 m square
     keep = display.thin(pts, 50000).indices
     assert 0.5 * 50000 <= len(keep) <= 50000
     cells = {tuple(c) for c in np.floor(pts[keep, :2] / 0.05).astype(int)}
-    assert len(cells) == 24 * 24                         # every 5 cm cell keeps points
+    assert len(cells) == 24 * 24  # every 5 cm cell keeps points
     with pytest.raises(AffordanceError):
         display.thin(pts, 0)
 
@@ -183,22 +196,31 @@ def test_scalar_colors_run_from_near_to_far():
     c = display.scalar_colors(np.array([0.5, 0.75, 1.0, 1.25, 1.5, np.nan]))
     assert c.dtype == np.uint8 and c.shape == (6, 3)
     brightness = c[:5].astype(int).sum(axis=1)
-    assert np.all(np.diff(brightness) > 0)                 # near dark, far light
+    assert np.all(np.diff(brightness) > 0)  # near dark, far light
     assert tuple(c[5]) == (128, 128, 128)
 
 
 def test_meshes_are_drawn_just_outside_their_surface():
     import trimesh
+
     box = trimesh.creation.box(extents=(0.2, 0.1, 0.05))
-    soup = box.vertices[box.faces].reshape(-1, 3)            # as a TRIANGLE_LIST marker has it
+    soup = box.vertices[box.faces].reshape(-1, 3)  # as a TRIANGLE_LIST marker has it
     v, f = display.offset_surface(soup, np.arange(len(soup)).reshape(-1, 3), 0.003)
     shell = trimesh.Trimesh(v, f)
-    assert len(v) == 8 and shell.is_watertight               # welded, then moved out
+    assert len(v) == 8 and shell.is_watertight  # welded, then moved out
     # every corner moved outwards, 3 mm along its normal
     assert np.all(np.linalg.norm(v, axis=1) > np.linalg.norm(box.vertices, axis=1).max())
-    np.testing.assert_allclose(np.linalg.norm(v - box.vertices[np.argmin(
-        np.linalg.norm(v[:, None] - box.vertices[None], axis=2), axis=1)], axis=1), 0.003,
-        atol=1e-6)
+    np.testing.assert_allclose(
+        np.linalg.norm(
+            v
+            - box.vertices[
+                np.argmin(np.linalg.norm(v[:, None] - box.vertices[None], axis=2), axis=1)
+            ],
+            axis=1,
+        ),
+        0.003,
+        atol=1e-6,
+    )
 
 
 def test_pointcloud2_field_reads_intensity_in_any_layout():
@@ -207,16 +229,32 @@ def test_pointcloud2_field_reads_intensity_in_any_layout():
     inten = np.arange(6, dtype=np.uint16) * 1000
     for big in (False, True):
         e = ">" if big else "<"
-        rec = np.zeros(6, dtype=[("x", e + "f4"), ("y", e + "f4"), ("z", e + "f4"),
-                                 ("pad", "u1", 2), ("intensity", e + "u2"), ("pad2", "u1", 4)])
+        rec = np.zeros(
+            6,
+            dtype=[
+                ("x", e + "f4"),
+                ("y", e + "f4"),
+                ("z", e + "f4"),
+                ("pad", "u1", 2),
+                ("intensity", e + "u2"),
+                ("pad2", "u1", 4),
+            ],
+        )
         rec["x"], rec["y"], rec["z"], rec["intensity"] = xyz[:, 0], xyz[:, 1], xyz[:, 2], inten
-        msg = PointCloud2(height=2, width=3, point_step=rec.itemsize,
-                          row_step=3 * rec.itemsize + 4, is_bigendian=big)
-        msg.fields = [PointField(name=n, offset=rec.dtype.fields[n][1], datatype=t, count=1)
-                      for n, t in (("x", 7), ("y", 7), ("z", 7), ("intensity", 4))]
+        msg = PointCloud2(
+            height=2,
+            width=3,
+            point_step=rec.itemsize,
+            row_step=3 * rec.itemsize + 4,
+            is_bigendian=big,
+        )
+        msg.fields = [
+            PointField(name=n, offset=rec.dtype.fields[n][1], datatype=t, count=1)
+            for n, t in (("x", 7), ("y", 7), ("z", 7), ("intensity", 4))
+        ]
         rows = rec.tobytes()
         step = 3 * rec.itemsize
-        msg.data = b"".join(rows[r * step:(r + 1) * step] + b"\0" * 4 for r in range(2))
+        msg.data = b"".join(rows[r * step : (r + 1) * step] + b"\0" * 4 for r in range(2))
         pts, _ = pointcloud2_to_xyz(msg)
         np.testing.assert_allclose(pts, xyz)
         np.testing.assert_array_equal(pointcloud2_field(msg, "intensity"), inten)
@@ -230,20 +268,30 @@ def _mesh_marker(ns, mid, x):
     m.pose.position.x, m.pose.orientation.w = x, 1.0
     m.scale.x = m.scale.y = m.scale.z = 1.0
     m.color = ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.8)
-    m.points = [Point(x=0.0, y=0.0, z=0.0), Point(x=0.1, y=0.0, z=0.0),
-                Point(x=0.0, y=0.2, z=0.0), Point(x=9.0, y=9.0, z=9.0)]   # a stray 4th point
+    m.points = [
+        Point(x=0.0, y=0.0, z=0.0),
+        Point(x=0.1, y=0.0, z=0.0),
+        Point(x=0.0, y=0.2, z=0.0),
+        Point(x=9.0, y=9.0, z=9.0),
+    ]  # a stray 4th point
     return m
 
 
 def test_markers_become_drawings_and_deleteall_clears():
-    text = Marker(ns="candidate_label", id=1, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD,
-                  text="ball_valve")
+    text = Marker(
+        ns="candidate_label",
+        id=1,
+        type=Marker.TEXT_VIEW_FACING,
+        action=Marker.ADD,
+        text="ball_valve",
+    )
     text.pose.position.y = 0.3
     sphere = Marker(ns="click", id=1, type=Marker.SPHERE, action=Marker.ADD)
     sphere.scale.x = 0.012
     arrow = Marker(ns="other", id=1, type=Marker.ARROW, action=Marker.ADD)
-    d = apply_markers({}, MarkerArray(markers=[_mesh_marker("candidate", 1, 0.5), text, sphere,
-                                               arrow]))
+    d = apply_markers(
+        {}, MarkerArray(markers=[_mesh_marker("candidate", 1, 0.5), text, sphere, arrow])
+    )
     assert set(d) == {("candidate", 1), ("candidate_label", 1), ("click", 1)}
     mesh = d[("candidate", 1)]
     assert isinstance(mesh, MeshDrawing) and mesh.faces.shape == (1, 3)
@@ -252,27 +300,58 @@ def test_markers_become_drawings_and_deleteall_clears():
     assert isinstance(d[("candidate_label", 1)], TextDrawing)
     assert isinstance(d[("click", 1)], SphereDrawing) and d[("click", 1)].radius == 0.006
     moved = apply_markers(d, MarkerArray(markers=[_mesh_marker("candidate", 1, 0.7)]))
-    assert moved[("candidate", 1)].digest == mesh.digest        # same geometry, new pose
-    deleted = apply_markers(d, MarkerArray(markers=[Marker(ns="click", id=1,
-                                                           action=Marker.DELETE)]))
+    assert moved[("candidate", 1)].digest == mesh.digest  # same geometry, new pose
+    deleted = apply_markers(
+        d, MarkerArray(markers=[Marker(ns="click", id=1, action=Marker.DELETE)])
+    )
     assert ("click", 1) not in deleted and ("candidate", 1) in deleted
-    cleared = apply_markers(d, MarkerArray(markers=[Marker(action=Marker.DELETEALL),
-                                                    _mesh_marker("registered", 2, 0.0)]))
+    cleared = apply_markers(
+        d,
+        MarkerArray(markers=[Marker(action=Marker.DELETEALL), _mesh_marker("registered", 2, 0.0)]),
+    )
     assert set(cleared) == {("registered", 2)}
 
 
 STATUS = {
-    "frame_id": "cam", "active_id": 3,
-    "objects": [{"id": 3, "active": True, "shown": 1, "corrections": 0, "no_match": False,
-                 "verdict": "fits", "candidates": [
-                     {"rank": 1, "template": "gate_valve", "probability": 0.45, "fits": True,
-                      "state": "closed"},
-                     {"rank": 2, "template": "ball_valve", "probability": 0.15, "fits": False,
-                      "state": None}]}],
-    "registered": [], "counts": {"objects": 1, "registered": 0, "undo": 2},
+    "frame_id": "cam",
+    "active_id": 3,
+    "objects": [
+        {
+            "id": 3,
+            "active": True,
+            "shown": 1,
+            "corrections": 0,
+            "no_match": False,
+            "verdict": "fits",
+            "candidates": [
+                {
+                    "rank": 1,
+                    "template": "gate_valve",
+                    "probability": 0.45,
+                    "fits": True,
+                    "state": "closed",
+                },
+                {
+                    "rank": 2,
+                    "template": "ball_valve",
+                    "probability": 0.15,
+                    "fits": False,
+                    "state": None,
+                },
+            ],
+        }
+    ],
+    "registered": [],
+    "counts": {"objects": 1, "registered": 0, "undo": 2},
     "timing_s": {"total": 0.21},
-    "node": {"busy": None, "queued": 0, "idle": True, "last_message": "object 3: ...",
-             "last_error": "click refused"}}
+    "node": {
+        "busy": None,
+        "queued": 0,
+        "idle": True,
+        "last_message": "object 3: ...",
+        "last_error": "click refused",
+    },
+}
 
 
 def test_labels_and_the_status_panel():
@@ -281,28 +360,47 @@ def test_labels_and_the_status_panel():
     first = dict(obj, shown=0)
     assert candidate_label(first) == "#3 gate_valve (closed) — rank 1/2 — fits, 3.0x the next"
     refused = dict(first, no_match=True, verdict="no template fits here")
-    assert candidate_label(refused) == \
-        "#3 no template fits here — best guess gate_valve (closed) — rank 1/2"
+    assert (
+        candidate_label(refused)
+        == "#3 no template fits here — best guess gate_valve (closed) — rank 1/2"
+    )
     assert candidate_label(None) == ""
     assert [t for _, t in candidate_options(obj)] == ["gate_valve", "ball_valve"]
-    assert [t for t, _ in candidate_options(obj)] == ["1. gate_valve (fits)",
-                                                      "2. ball_valve (does not fit)"]
+    assert [t for t, _ in candidate_options(obj)] == [
+        "1. gate_valve (fits)",
+        "2. ball_valve (does not fit)",
+    ]
     md = status_markdown(STATUS, True, "/affordance_engine", "10 points", "next_model: ok")
-    for text in ("/affordance_engine — idle", "rank 2/2", "1 open, 0 registered",
-                 "0.21 s", "click refused", "10 points", "next_model: ok", "refused"):
+    for text in (
+        "/affordance_engine — idle",
+        "rank 2/2",
+        "1 open, 0 registered",
+        "0.21 s",
+        "click refused",
+        "10 points",
+        "next_model: ok",
+        "refused",
+    ):
         assert text in md
     assert "Fitting" not in md
-    md = status_markdown(dict(STATUS, objects=[first]), True, "/affordance_engine", "", "",
-                         fitting="clicked (0.1, 0.2, 0.3)", stale_error=True)
+    md = status_markdown(
+        dict(STATUS, objects=[first]),
+        True,
+        "/affordance_engine",
+        "",
+        "",
+        fitting="clicked (0.1, 0.2, 0.3)",
+        stale_error=True,
+    )
     assert "**Fitting**: clicked (0.1, 0.2, 0.3)" in md
-    assert "click refused" not in md and "refused" not in md     # a fit, and a stale error
+    assert "click refused" not in md and "refused" not in md  # a fit, and a stale error
     down = status_markdown(STATUS, False, "/affordance_engine", "10 points", "")
     assert down.startswith("**Engine not running**")
 
 
 @given(st.floats(0.0, 1e4), st.floats(0.0, 600.0), st.floats(0.0, 600.0))
 def test_the_fitting_marker_waits_its_delay_and_goes_with_the_click(sent_at, waited, delay):
-    assume(abs(waited - delay) > 1e-6)        # (sent_at + waited - sent_at is rounded)
+    assume(abs(waited - delay) > 1e-6)  # (sent_at + waited - sent_at is rounded)
     point = np.array([0.1, 0.2, 0.3])
     drawn = fitting_marker(point, sent_at, sent_at + waited, delay)
     # drawn (the very same point: the station redraws only when it changes) exactly when the
@@ -316,17 +414,25 @@ def test_gizmo_feedback_is_an_interactive_marker_client():
     T = np.eye(4)
     T[:3, 3] = [0.1, 0.2, 0.3]
     fb = feedback_message(InteractiveMarkerFeedback.MOUSE_UP, T, "cam", "station_1")
-    assert (fb.marker_name, fb.client_id, fb.header.frame_id) == ("affordance_fit", "station_1",
-                                                                   "cam")
+    assert (fb.marker_name, fb.client_id, fb.header.frame_id) == (
+        "affordance_fit",
+        "station_1",
+        "cam",
+    )
     np.testing.assert_allclose(pose_to_matrix(fb.pose), T)
 
 
 def test_parameters_and_port_are_checked():
     good = {name: default for name, (default, _) in PARAMETERS.items()}
     assert check_parameters(good) == ""
-    for name, bad in (("up", "sideways"), ("display_points", 10), ("fov_deg", 170.0),
-                      ("engine", "affordance_engine"), ("color_by", "rgb"),
-                      ("fitting_marker_delay", -0.1)):
+    for name, bad in (
+        ("up", "sideways"),
+        ("display_points", 10),
+        ("fov_deg", 170.0),
+        ("engine", "affordance_engine"),
+        ("color_by", "rgb"),
+        ("fitting_marker_delay", -0.1),
+    ):
         assert name in check_parameters(dict(good, **{name: bad}))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

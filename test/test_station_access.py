@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The station admits its operator only: a real station process, real websocket clients and a
 real headless Chromium; the share tunnel and outbound connections in a network namespace."""
+
 import os
 import shutil
 import subprocess
@@ -32,7 +33,12 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.http11 import Request
 from websockets.sync.client import connect
 
-from affordance_registration.ros.station.access import MAX_FRAME_BYTES, StationAccess, _Bucket, new_secret
+from affordance_registration.ros.station.access import (
+    MAX_FRAME_BYTES,
+    StationAccess,
+    _Bucket,
+    new_secret,
+)
 
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 
@@ -53,16 +59,18 @@ def station(tmp_path_factory):
 
 def _get(url, headers=None):
     try:
-        with urllib.request.urlopen(urllib.request.Request(url, headers=headers or {}),
-                                    timeout=30) as res:
+        with urllib.request.urlopen(
+            urllib.request.Request(url, headers=headers or {}), timeout=30
+        ) as res:
             return res.status, dict(res.headers), res.read()
     except urllib.error.HTTPError as exc:
         return exc.code, dict(exc.headers), exc.read()
 
 
 def _ws(port, query="", **kwargs):
-    return connect(f"ws://127.0.0.1:{port}/{query}", subprotocols=[SUBPROTOCOL],
-                   open_timeout=30, **kwargs)
+    return connect(
+        f"ws://127.0.0.1:{port}/{query}", subprotocols=[SUBPROTOCOL], open_timeout=30, **kwargs
+    )
 
 
 def _first_message(ws):
@@ -86,15 +94,21 @@ def test_the_page_needs_the_secret(station):
 
 def test_a_websocket_without_the_secret_or_from_another_origin_is_refused(station):
     port = station["port"]
-    for query, kwargs in (("", {}), ("?token=not-the-secret-at-all", {}),
-                          (f"?token={STATION_SECRET}", {"origin": "http://127.0.0.1:9"}),
-                          (f"?token={STATION_SECRET}", {"origin": "null"})):
+    for query, kwargs in (
+        ("", {}),
+        ("?token=not-the-secret-at-all", {}),
+        (f"?token={STATION_SECRET}", {"origin": "http://127.0.0.1:9"}),
+        (f"?token={STATION_SECRET}", {"origin": "null"}),
+    ):
         with pytest.raises(InvalidStatus) as info:
             _ws(port, query, **kwargs)
         assert info.value.response.status_code == 403, (query, kwargs)
     # the operator's own page: same origin, the cookie; a script: the token
-    with _ws(port, additional_headers={"Cookie": f"affordance_station_{port}={STATION_SECRET}"},
-             origin=f"http://127.0.0.1:{port}") as ws:
+    with _ws(
+        port,
+        additional_headers={"Cookie": f"affordance_station_{port}={STATION_SECRET}"},
+        origin=f"http://127.0.0.1:{port}",
+    ) as ws:
         assert _first_message(ws)
     with _ws(port, f"?token={STATION_SECRET}") as ws:
         assert _first_message(ws)
@@ -149,6 +163,7 @@ def test_a_page_of_another_origin_in_the_operators_browser_cannot_use_the_statio
     missing = chromium_missing()
     assert not missing, missing
     from playwright.sync_api import sync_playwright
+
     port = station["port"]
     _Foreign.station_port = port
     foreign = ThreadingHTTPServer(("127.0.0.1", 0), _Foreign)
@@ -160,12 +175,13 @@ def test_a_page_of_another_origin_in_the_operators_browser_cannot_use_the_statio
                 ctx = browser.new_context()
                 page = ctx.new_page()
                 page.set_default_timeout(120_000)
-                open_station(page, station_url(port))       # the operator, cookie in the jar
+                open_station(page, station_url(port))  # the operator, cookie in the jar
                 assert any(c["name"] == f"affordance_station_{port}" for c in ctx.cookies())
                 evil = ctx.new_page()
                 evil.goto(f"http://127.0.0.1:{foreign.server_address[1]}/")
-                evil.wait_for_function("document.getElementById('out').textContent !== "
-                                       "'pending'", timeout=60_000)
+                evil.wait_for_function(
+                    "document.getElementById('out').textContent !== 'pending'", timeout=60_000
+                )
                 assert evil.inner_text("#out").startswith("refused")
                 # and a page without the secret never gets the station's panel
                 fresh = browser.new_context().new_page()
@@ -178,7 +194,7 @@ def test_a_page_of_another_origin_in_the_operators_browser_cannot_use_the_statio
 
 
 # ---------------------------------------------------------------------------- outbound
-OBSERVER = '''
+OBSERVER = """
 import json, os, sys
 _log = os.environ["AR_OUTBOUND_LOG"]
 def _hook(event, args):
@@ -196,9 +212,9 @@ def _hook(event, args):
     with open(_log, "a") as f:
         f.write(json.dumps([event, host]) + "\\n")
 sys.addaudithook(_hook)
-'''
+"""
 
-CLIENT = '''
+CLIENT = """
 import json, sys, time, msgspec, urllib.request
 from websockets.sync.client import connect
 port, secret, subprotocol = sys.argv[1], sys.argv[2], sys.argv[3]
@@ -216,12 +232,14 @@ ws.send(msgspec.msgpack.encode({"type": "ShareUrlDisconnect"}))
 time.sleep(0.5)
 ws.close()
 print("CLIENT DONE")
-'''
+"""
 
 
 def _netns_ok() -> bool:
-    return shutil.which("unshare") is not None and subprocess.run(
-        ["unshare", "-rn", "true"], capture_output=True).returncode == 0
+    return (
+        shutil.which("unshare") is not None
+        and subprocess.run(["unshare", "-rn", "true"], capture_output=True).returncode == 0
+    )
 
 
 def test_a_share_url_request_makes_no_outbound_connection_in_a_network_namespace(tmp_path):
@@ -231,16 +249,27 @@ def test_a_share_url_request_makes_no_outbound_connection_in_a_network_namespace
     log = tmp_path / "outbound.jsonl"
     port = free_port()
     station = " ".join(station_argv(port))
-    script = (f"ip link set lo up && ({station} > {tmp_path}/station.log 2>&1 & echo $! > "
-              f"{tmp_path}/pid) && for i in $(seq 600); do grep -q 'operator station on' "
-              f"{tmp_path}/station.log && break; sleep 0.2; done && "
-              f"{sys.executable} {tmp_path}/client.py {port} {STATION_SECRET} {SUBPROTOCOL}; "
-              f"kill -INT $(cat {tmp_path}/pid); sleep 3; "
-              f"kill -9 $(cat {tmp_path}/pid) 2>/dev/null; true")
-    env = ros_env({"PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-                   "AR_OUTBOUND_LOG": str(log)})
-    out = subprocess.run(["unshare", "-rn", "bash", "-c", script], capture_output=True,
-                         text=True, timeout=600, env=env)
+    script = (
+        f"ip link set lo up && ({station} > {tmp_path}/station.log 2>&1 & echo $! > "
+        f"{tmp_path}/pid) && for i in $(seq 600); do grep -q 'operator station on' "
+        f"{tmp_path}/station.log && break; sleep 0.2; done && "
+        f"{sys.executable} {tmp_path}/client.py {port} {STATION_SECRET} {SUBPROTOCOL}; "
+        f"kill -INT $(cat {tmp_path}/pid); sleep 3; "
+        f"kill -9 $(cat {tmp_path}/pid) 2>/dev/null; true"
+    )
+    env = ros_env(
+        {
+            "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+            "AR_OUTBOUND_LOG": str(log),
+        }
+    )
+    out = subprocess.run(
+        ["unshare", "-rn", "bash", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     station_log = (tmp_path / "station.log").read_text()
     assert "CLIENT DONE" in out.stdout, out.stdout + out.stderr + station_log
     assert "public share URL: refused" in station_log, station_log
@@ -268,10 +297,13 @@ def test_outbound_connections_are_impossible_once_forbidden(tmp_path):
         socket.create_connection(server.getsockname(), 5).close()
         print("loopback ok", len(seen))
     """)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
-    assert out.stdout.split("\n")[:4] == ["resolve refused", "connect refused", "udp refused",
-                                           "loopback ok 3"], out.stdout + out.stderr
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split("\n")[:4] == [
+        "resolve refused",
+        "connect refused",
+        "udp refused",
+        "loopback ok 3",
+    ], out.stdout + out.stderr
 
 
 # ---------------------------------------------------------------------------- pure checks
@@ -296,17 +328,20 @@ def test_the_checks_on_requests():
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.text(min_size=1, max_size=40).filter(lambda t: t != "s" * 20 and "&" not in t
-                                                and "#" not in t))
+@given(
+    st.text(min_size=1, max_size=40).filter(
+        lambda t: t != "s" * 20 and "&" not in t and "#" not in t
+    )
+)
 def test_any_other_secret_is_refused(token):
     access = StationAccess("s" * 20, "127.0.0.1", 8080)
     from urllib.parse import quote
+
     assert access.problem(_request("/?token=" + quote(token), Host="127.0.0.1:8080")) is not None
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.lists(st.tuples(st.floats(0, 0.05), st.integers(0, 50_000)), min_size=1,
-                max_size=400))
+@given(st.lists(st.tuples(st.floats(0, 0.05), st.integers(0, 50_000)), min_size=1, max_size=400))
 def test_the_pacing_never_admits_more_than_the_rate_and_the_burst(arrivals):
     """Simulated time: each message is admitted after the wait the bucket asks for; by any time
     t, at most 2 s worth of messages and bytes more than rate * t have been admitted."""

@@ -3,6 +3,7 @@
 """The browser operator station end to end, in a real browser: the engine node, a simulated scan
 and the station run as separate processes; headless chromium (software WebGL) driven by
 Playwright clicks, drags and presses buttons on the page like an operator."""
+
 import math
 import re
 
@@ -37,16 +38,23 @@ from affordance_registration.ros.station.page import gizmo_scale
 from affordance_registration.ros.station.state import active_object, apply_markers
 
 FRAME = "camera_depth_optical_frame"
-FOV_DEG = 60.0           # the station's default fov_deg
-MARKERS_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+FOV_DEG = 60.0  # the station's default fov_deg
+MARKERS_QOS = QoSProfile(
+    depth=10,
+    history=HistoryPolicy.KEEP_LAST,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 
 def _within(T, truth, library) -> tuple[bool, str]:
-    dt, dr = pose_error(np.asarray(T, dtype=float), truth.T_scene_model,
-                        library[truth.template].symmetry)
-    return dt <= POSE_TOL_M and dr <= POSE_TOL_RAD, f"{dt * 1000:.1f} mm, {math.degrees(dr):.1f} deg"
+    dt, dr = pose_error(
+        np.asarray(T, dtype=float), truth.T_scene_model, library[truth.template].symmetry
+    )
+    return (
+        dt <= POSE_TOL_M and dr <= POSE_TOL_RAD,
+        f"{dt * 1000:.1f} mm, {math.degrees(dr):.1f} deg",
+    )
 
 
 def _shown(status):
@@ -69,15 +77,17 @@ def _last_drawn(station) -> str:
     return (re.findall(r"drawn: object 1 as (.*)", station.output()) or [""])[-1]
 
 
-def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_context,
-                                            processes):
+def test_operator_station_in_a_real_browser(
+    tmp_path, library, panel_scene, ros_context, processes
+):
     missing = chromium_missing()
     assert not missing, missing
     port = free_port()
     processes(scan_argv(seed=panel_scene.seed), "scan")
     # the "fitting…" marker drawn at once (by default only a fit slower than 0.5 s gets it)
-    station = processes(station_argv(port, display_points=60000, fitting_marker_delay=0.0),
-                        "station")
+    station = processes(
+        station_argv(port, display_points=60000, fitting_marker_delay=0.0), "station"
+    )
     client = Client("station_browser_test")
     client.subscribe(PoseStamped, "/view_pose", keep=True)
     client.subscribe(String, "/affordance_engine/status", LATCHED)
@@ -103,8 +113,11 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             late = Client("station_browser_late")
             try:
                 late.subscribe(PoseStamped, "/view_pose")
-                got = late.wait_for(lambda: late.latest.get("/view_pose"), 60,
-                                    "the view for a subscriber that joined late")
+                got = late.wait_for(
+                    lambda: late.latest.get("/view_pose"),
+                    60,
+                    "the view for a subscriber that joined late",
+                )
                 assert np.allclose(pose_to_matrix(got.pose), T_view, atol=1e-6)
             finally:
                 late.close()
@@ -117,14 +130,23 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             page.mouse.click(*xy)
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
             # the page shows the status the station heard: this client hears it on its own
-            c = client.wait_for(lambda: (_shown(client.status()) or {}).get("rank") == 1 and
-                                client.status()["node"]["idle"] and _shown(client.status()),
-                                60, "the fit in this client's status")
+            c = client.wait_for(
+                lambda: (
+                    (_shown(client.status()) or {}).get("rank") == 1
+                    and client.status()["node"]["idle"]
+                    and _shown(client.status())
+                ),
+                60,
+                "the fit in this client's status",
+            )
             ok, err = _within(c["pose"], truth, library)
             assert c["template"] == truth.template and ok, err
             # the marker at the click went up with the click and down with its fit
-            wait_until(lambda: "fitting marker cleared" in station.output(), 60,
-                       "the fitting marker cleared")
+            wait_until(
+                lambda: "fitting marker cleared" in station.output(),
+                60,
+                "the fitting marker cleared",
+            )
             log = station.output()
             assert log.index("fitting marker shown") < log.index("fitting marker cleared")
 
@@ -135,33 +157,54 @@ def test_operator_station_in_a_real_browser(tmp_path, library, panel_scene, ros_
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
             # a candidate picked by name in the dropdown (~/select_model), and back
             for rank in (3, 1):
-                page.locator("input[value^='1. '], input[value^='2. '], "
-                             "input[value^='3. ']").first.click()
+                page.locator(
+                    "input[value^='1. '], input[value^='2. '], input[value^='3. ']"
+                ).first.click()
                 page.get_by_role("option", name=re.compile(rf"^{rank}\. ")).click()
                 wait_text(page, rf"Shown: #1 \w+.*rank {rank}/\d+")
             wait_text(page, rf"Shown: #1 {truth.template}\b.*rank 1/\d+")
-            client.wait_for(lambda: _shown(client.status())["rank"] == 1 and
-                            client.status()["node"]["idle"], 60, "the first candidate again")
+            client.wait_for(
+                lambda: _shown(client.status())["rank"] == 1 and client.status()["node"]["idle"],
+                60,
+                "the first candidate again",
+            )
             # the status comes before the markers: wait until this client has the markers of
             # that candidate and the page has drawn them (the station logs what it draws)
             # before grabbing its gizmo
             pose = np.asarray(_shown(client.status())["pose"])
             fit = client.wait_for(lambda: _drawn_fit(client, pose), 60, "the markers of the fit")
-            wait_until(lambda: _last_drawn(station).startswith(truth.template) and
-                       "rank 1/" in _last_drawn(station), 90, "the page drawing the fit")
+            wait_until(
+                lambda: (
+                    _last_drawn(station).startswith(truth.template)
+                    and "rank 1/" in _last_drawn(station)
+                ),
+                90,
+                "the page drawing the fit",
+            )
             T = fit.T
             scale = gizmo_scale(fit.vertices)
             grab, goal = T @ [0.9 * scale, 0, 0, 1], T @ [0.9 * scale + 0.02, 0, 0, 1]
             box = canvas_box(page)
             n_markers = len(client.history["/affordance_engine/markers"])
-            drag(page, pixel(T_view, FOV_DEG, box, grab[:3]), pixel(T_view, FOV_DEG, box, goal[:3]))
+            drag(
+                page, pixel(T_view, FOV_DEG, box, grab[:3]), pixel(T_view, FOV_DEG, box, goal[:3])
+            )
             status = client.wait_for(
-                lambda: (active_object(client.status()) or {}).get("corrections", 0) >= 1 and
-                ": refit" in client.status()["node"]["last_message"] and
-                client.status()["node"]["idle"] and client.status(), 90, "the refit after the drag")
-            moved = [np.linalg.norm(d.T[:3, 3] - T[:3, 3])
-                     for msg in client.history["/affordance_engine/markers"][n_markers:]
-                     for (ns, mid), d in apply_markers({}, msg).items() if ns == "candidate"]
+                lambda: (
+                    (active_object(client.status()) or {}).get("corrections", 0) >= 1
+                    and ": refit" in client.status()["node"]["last_message"]
+                    and client.status()["node"]["idle"]
+                    and client.status()
+                ),
+                90,
+                "the refit after the drag",
+            )
+            moved = [
+                np.linalg.norm(d.T[:3, 3] - T[:3, 3])
+                for msg in client.history["/affordance_engine/markers"][n_markers:]
+                for (ns, mid), d in apply_markers({}, msg).items()
+                if ns == "candidate"
+            ]
             assert max(moved) >= 0.01, f"the drag moved the fit at most {max(moved) * 1000:.1f} mm"
             c = _shown(status)
             ok, err = _within(c["pose"], truth, library)

@@ -3,6 +3,7 @@
 """`affordance-registration station --demo` as a newcomer runs it (no browser needed): it prints
 the URL once the page is served by a station talking to a live engine and a simulated scan, and
 Ctrl-C stops every node. A taken port is one line and exit status 2."""
+
 import signal
 import socket
 import subprocess
@@ -18,10 +19,24 @@ from std_msgs.msg import String
 
 def test_station_demo_serves_the_page_and_stops_on_ctrl_c(tmp_path, ros_context):
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "affordance_registration.cli", "station",
-                             "--demo", "--port", str(port), "--out", str(tmp_path / "out")],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=ros_env(), start_new_session=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "affordance_registration.cli",
+            "station",
+            "--demo",
+            "--port",
+            str(port),
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ros_env(),
+        start_new_session=True,
+    )
     client = Client("station_demo_test")
     client.subscribe(String, "/affordance_engine/status", LATCHED)
     try:
@@ -30,12 +45,16 @@ def test_station_demo_serves_the_page_and_stops_on_ctrl_c(tmp_path, ros_context)
         assert url.startswith(f"http://127.0.0.1:{port}/?token=") and len(url) > 60, first
         with urllib.request.urlopen(url, timeout=30) as page:
             assert page.status == 200 and b"<html" in page.read().lower()
-        with pytest.raises(urllib.error.HTTPError, match="403"):     # no secret, no page
+        with pytest.raises(urllib.error.HTTPError, match="403"):  # no secret, no page
             urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30)
         # the engine has the simulated scan: a newcomer can click at once
-        st = client.wait_for(lambda: (((client.status() or {}).get("node") or {})
-                                      .get("cloud") or {}).get("received"), 120,
-                             "the engine to receive the simulated scan")
+        st = client.wait_for(
+            lambda: (((client.status() or {}).get("node") or {}).get("cloud") or {}).get(
+                "received"
+            ),
+            120,
+            "the engine to receive the simulated scan",
+        )
         assert st >= 1
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=30) == 0, proc.stdout.read()
@@ -54,8 +73,12 @@ def test_station_on_a_taken_port_is_one_line_and_exit_2():
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        out = subprocess.run([sys.executable, "-m", "affordance_registration.cli", "station",
-                              "--port", str(port)], capture_output=True, text=True,
-                             timeout=120, env=ros_env())
+        out = subprocess.run(
+            [sys.executable, "-m", "affordance_registration.cli", "station", "--port", str(port)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env=ros_env(),
+        )
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.count("\n") == 1 and "cannot serve the page" in out.stderr, out.stderr

@@ -5,6 +5,7 @@ browser station on a PLY scan in millimetres with an engine of its own (no other
 by the test), and an operator in a real browser (headless chromium) clicks an object, accepts
 and saves it -- in metres, on the truth. Also ``fit --units`` and the units hint of a click
 error on the command line."""
+
 import math
 import re
 import subprocess
@@ -49,27 +50,30 @@ def mm_scan(tmp_path, panel_scene):
 
 
 def _cli(*args, timeout=300):
-    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout)
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 
 
-def test_fit_units_mm_fits_a_millimetre_scan_like_the_metre_one(mm_scan, panel_scene, tmp_path,
-                                                                 library):
+def test_fit_units_mm_fits_a_millimetre_scan_like_the_metre_one(
+    mm_scan, panel_scene, tmp_path, library
+):
     path, obj = mm_scan
     metres = tmp_path / "scan_m.ply"
     metres.write_bytes(ply_bytes(panel_scene.points))
     import json
+
     got = {}
     for name, scene, unit in (("mm", path, 1000.0), ("m", metres, 1.0)):
-        out = _cli("fit", "--scene", scene, "--point", *(obj.click * unit), "--units", name,
-                   "--json")
+        out = _cli(
+            "fit", "--scene", scene, "--point", *(obj.click * unit), "--units", name, "--json"
+        )
         assert out.returncode == 0, out.stderr
         got[name] = json.loads(out.stdout)
     for doc in got.values():
         best = doc["candidates"][0]
         assert best["template"] == obj.template
-        dt, dr = pose_error(np.array(best["pose"]).reshape(4, 4), obj.T_scene_model,
-                            library[obj.template].symmetry)
+        dt, dr = pose_error(
+            np.array(best["pose"]).reshape(4, 4), obj.T_scene_model, library[obj.template].symmetry
+        )
         assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD
     # the output is in metres either way
     assert np.allclose(got["mm"]["point"], got["m"]["point"], atol=1e-6)
@@ -96,25 +100,41 @@ def test_a_click_error_on_a_metre_scan_says_nothing_of_units(tmp_path, panel_sce
 def test_station_scene_refuses_a_bad_file_in_one_line(tmp_path):
     bad = tmp_path / "broken.ply"
     bad.write_text("ply\nformat ascii 1.0\nelement vertex 5\nend_header\n1 2\n")
-    for args in (["--scene", bad], ["--scene", tmp_path / "missing.pcd"],
-                 ["--scene", bad, "--demo"]):
-        out = _cli("station", *args, "--port", free_port(), "--out", tmp_path / "out",
-                   timeout=120)
+    for args in (
+        ["--scene", bad],
+        ["--scene", tmp_path / "missing.pcd"],
+        ["--scene", bad, "--demo"],
+    ):
+        out = _cli("station", *args, "--port", free_port(), "--out", tmp_path / "out", timeout=120)
         lines = out.stderr.strip().splitlines()
         assert out.returncode == 2 and len(lines) == 1 and "error" in lines[0], out.stderr
     assert not (tmp_path / "out").exists()
 
 
-def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, library, panel_scene,
-                                                       ros_context):
+def test_station_on_a_millimetre_ply_in_a_real_browser(
+    tmp_path, mm_scan, library, panel_scene, ros_context
+):
     missing = chromium_missing()
     assert not missing, missing
     path, obj = mm_scan
     port = free_port()
     out_dir = tmp_path / "out"
-    station = NodeProcess([*CLI, "station", "--scene", str(path), "--units", "mm", "--up=-y",
-                           "--port", str(port), "--out", str(out_dir)],
-                          tmp_path / "station.log")
+    station = NodeProcess(
+        [
+            *CLI,
+            "station",
+            "--scene",
+            str(path),
+            "--units",
+            "mm",
+            "--up=-y",
+            "--port",
+            str(port),
+            "--out",
+            str(out_dir),
+        ],
+        tmp_path / "station.log",
+    )
     client = Client("station_scene_test")
     try:
         client.subscribe(PoseStamped, "/view_pose", keep=True)
@@ -131,19 +151,22 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             T_view = pose_to_matrix(view.pose)
             # the panel says "Fitting" while the engine works on the click (seen by the page)
             page.evaluate(SAW_FITTING)
-            xy = pixel(T_view, 60.0, canvas_box(page), obj.click)     # metres on the page
+            xy = pixel(T_view, 60.0, canvas_box(page), obj.click)  # metres on the page
             assert on_canvas(page, xy), f"the object's pixel {xy} is not on the 3D view"
             page.mouse.click(*xy)
             wait_text(page, rf"Shown: #1 {obj.template}\b.*rank 1/\d+ — fits, \d+\.\dx the next")
             assert page.evaluate("window.__sawFitting === true")
-            node_log = out_dir / "station_scene.log"       # every node's output
+            node_log = out_dir / "station_scene.log"  # every node's output
             # the "fitting…" marker only for a fit slower than fitting_marker_delay (0.5 s):
             # whether this one was depends on the machine's load; drawn, it went again
             log = node_log.read_text()
             assert log.count("fitting marker shown") <= 1
             if "fitting marker shown" in log:
-                wait_until(lambda: "fitting marker cleared" in node_log.read_text(), 60,
-                           "the fitting marker cleared")
+                wait_until(
+                    lambda: "fitting marker cleared" in node_log.read_text(),
+                    60,
+                    "the fitting marker cleared",
+                )
             assert "Fitting:" not in page.locator("body").inner_text()
             page.get_by_role("button", name="Accept", exact=True).click()
             wait_text(page, r"Objects: 0 open, 1 registered")
@@ -156,8 +179,11 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
             page.mouse.click(*xy)
             wait_text(page, r"Shown: #2 no template fits here — best guess \w+.* — rank 1/\d+")
             wait_text(page, r"Verdict: the shown candidate is refused")
-            wait_until(lambda: "drawn as refused outlines: objects [2]" in node_log.read_text(),
-                       60, "the refused candidate drawn as an outline")
+            wait_until(
+                lambda: "drawn as refused outlines: objects [2]" in node_log.read_text(),
+                60,
+                "the refused candidate drawn as an outline",
+            )
             page.get_by_role("button", name="Accept", exact=True).click()
             wait_text(page, r"accept: ok — accepted \w+ as object 2 as an operator override")
             page.get_by_role("button", name="Save", exact=True).click()
@@ -165,10 +191,14 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(tmp_path, mm_scan, librar
         saved = yaml.safe_load((out_dir / "registrations.yaml").read_text())["registrations"]
         assert [r["template"] for r in saved][0] == obj.template
         assert [r["override"] for r in saved] == [False, True]
-        dt, dr = pose_error(np.asarray(saved[0]["pose"], dtype=float), obj.T_scene_model,
-                            library[obj.template].symmetry)
-        assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD, \
+        dt, dr = pose_error(
+            np.asarray(saved[0]["pose"], dtype=float),
+            obj.T_scene_model,
+            library[obj.template].symmetry,
+        )
+        assert dt <= POSE_TOL_M and dr <= POSE_TOL_RAD, (
             f"{dt * 1000:.1f} mm, {math.degrees(dr):.1f} deg"
+        )
     finally:
         client.close()
         code, _ = station.interrupt(timeout=60)

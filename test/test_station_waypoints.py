@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The station's waypoints toggle and path display in a real browser: the engine node, a
 simulated scan and the station as separate processes, headless chromium driven by Playwright."""
+
 from browser_helpers import (
     browser_page,
     canvas_box,
@@ -23,11 +24,12 @@ from std_msgs.msg import String
 from affordance_registration.ros.glue.conversions import pose_to_matrix
 
 FRAME = "camera_depth_optical_frame"
-FOV_DEG = 60.0           # the station's default fov_deg
+FOV_DEG = 60.0  # the station's default fov_deg
 
 
-def test_station_toggles_waypoints_and_draws_the_path_to_a_state(tmp_path, library, panel_scene,
-                                                                 ros_context, processes):
+def test_station_toggles_waypoints_and_draws_the_path_to_a_state(
+    tmp_path, library, panel_scene, ros_context, processes
+):
     missing = chromium_missing()
     assert not missing, missing
     port = free_port()
@@ -38,8 +40,7 @@ def test_station_toggles_waypoints_and_draws_the_path_to_a_state(tmp_path, libra
     client.subscribe(PoseStamped, "/view_pose", keep=True)
     client.subscribe(String, "/affordance_engine/status", LATCHED)
     client.subscribe(PoseArray, "/affordance_engine/path", LATCHED, keep=True)
-    moving = [o for o in panel_scene.objects
-              if any(w.part for w in library[o.template].waypoints)]
+    moving = [o for o in panel_scene.objects if any(w.part for w in library[o.template].waypoints)]
     truth = max(moving, key=lambda o: o.visible_points)
     try:
         assert station.wait_output("operator station on", 90), station.output()
@@ -62,19 +63,27 @@ def test_station_toggles_waypoints_and_draws_the_path_to_a_state(tmp_path, libra
             wait_text(page, r"waypoints shown \(1 drawn\)")
 
             # the path to the state farthest from the shown one, as the engine answers it
-            shown = client.wait_for(lambda: [o for o in client.status()["objects"]
-                                             if o["active"]][0], 30, "the open object")
-            state = next(s for s in library[truth.template].states
-                         if s != shown["candidates"][shown["shown"]]["state"])
+            shown = client.wait_for(
+                lambda: [o for o in client.status()["objects"] if o["active"]][0],
+                30,
+                "the open object",
+            )
+            state = next(
+                s
+                for s in library[truth.template].states
+                if s != shown["candidates"][shown["shown"]]["state"]
+            )
             # viser labels its fields beside them, not as their accessible names
             field = page.get_by_text("Path to state", exact=True).locator(
-                "xpath=following::input[1]")
+                "xpath=following::input[1]"
+            )
             field.fill(state)
             field.press("Enter")
             page.get_by_role("button", name="Show path", exact=True).click()
             wait_text(page, rf"path drawn: \d+ poses in '{FRAME}'")
-            answer = client.wait_for(lambda: client.history.get("/affordance_engine/path"), 30,
-                                     "the engine's path")[-1]
+            answer = client.wait_for(
+                lambda: client.history.get("/affordance_engine/path"), 30, "the engine's path"
+            )[-1]
             assert answer.header.frame_id == FRAME and len(answer.poses) >= 3
             assert f"path drawn: {len(answer.poses)} poses" in station.output()
 

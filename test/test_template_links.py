@@ -4,6 +4,7 @@
 or inside the folder of the YAML's real file (a ``colcon build --symlink-install`` share folder
 links every file on its own); anything resolving elsewhere stays refused unless the template
 says ``allow_external_files: true``."""
+
 import shutil
 from pathlib import Path
 
@@ -50,8 +51,9 @@ def test_a_link_inside_the_folder_to_a_file_inside_it_is_followed(tmp_path):
     src = _src(tmp_path)
     (src / "meshes" / "alias.stl").symlink_to(src / "meshes" / "ball_valve.stl")
     text = (src / "ball_valve.yaml").read_text()
-    (src / "ball_valve.yaml").write_text(text.replace("mesh: meshes/ball_valve.stl",
-                                                      "mesh: meshes/alias.stl"))
+    (src / "ball_valve.yaml").write_text(
+        text.replace("mesh: meshes/ball_valve.stl", "mesh: meshes/alias.stl")
+    )
     assert "ball_valve" in TemplateLibrary.load(str(src))
 
 

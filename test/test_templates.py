@@ -1,6 +1,8 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""Template files: loading, validation errors that name file and key, samples, diameter, symmetry."""
+"""Template files: loading, validation errors that name file and key, samples, diameter,
+symmetry."""
+
 import math
 import os
 import shutil
@@ -56,7 +58,7 @@ def test_samples_lie_on_the_surface_and_are_cached(library):
     for tpl in library.values():
         pts, nrm = tpl.samples(500, seed=3)
         assert pts.shape == (500, 3) and nrm.shape == (500, 3)
-        d = mesh_distance(tpl.mesh, pts)   # float32 inside Open3D
+        d = mesh_distance(tpl.mesh, pts)  # float32 inside Open3D
         assert np.median(d) < 1e-6 and d.max() < 2e-4
         assert np.allclose(np.linalg.norm(nrm, axis=1), 1.0)
         # normals point outwards: a step along them leaves the solid
@@ -70,7 +72,7 @@ def test_samples_lie_on_the_surface_and_are_cached(library):
 def test_diameter_matches_the_mesh(library):
     for tpl in library.values():
         v = tpl.mesh.vertices
-        brute = np.sqrt(((v[:, None] - v[None]) ** 2).sum(-1)).max()   # all vertex pairs
+        brute = np.sqrt(((v[:, None] - v[None]) ** 2).sum(-1)).max()  # all vertex pairs
         assert tpl.diameter == pytest.approx(brute, rel=1e-9)
 
 
@@ -95,10 +97,14 @@ def test_symmetry_rotations_map_the_mesh_onto_itself(library):
 def test_symmetry_residual_angle():
     from affordance_registration.core.templates import Symmetry
     from affordance_registration.core.transforms import axis_angle_matrix
+
     four = Symmetry(axis=(0.0, 0.0, 1.0), order=4)
-    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.pi / 2)) == pytest.approx(0, abs=1e-7)
-    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.radians(50))) == \
-        pytest.approx(math.radians(40), abs=1e-7)
+    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.pi / 2)) == pytest.approx(
+        0, abs=1e-7
+    )
+    assert four.residual_angle(axis_angle_matrix([0, 0, 1], math.radians(50))) == pytest.approx(
+        math.radians(40), abs=1e-7
+    )
     cont = Symmetry(axis=(0.0, 0.0, 1.0), continuous=True)
     assert cont.residual_angle(axis_angle_matrix([0, 0, 1], 1.234)) == pytest.approx(0, abs=1e-7)
     tilt = axis_angle_matrix([1, 0, 0], 0.2) @ axis_angle_matrix([0, 0, 1], 2.0)
@@ -128,26 +134,97 @@ def _write(tmp_path, doc, name="t.yaml", mesh=True):
     return str(path)
 
 
-@pytest.mark.parametrize("doc,key", [
-    ({"mesh": "box.stl"}, "name"),
-    ({"name": "x"}, "mesh"),
-    ({"name": "x", "mesh": "missing.stl"}, "mesh"),
-    ({"name": "x", "mesh": "box.stl", "mesh_scale": -1}, "mesh_scale"),
-    ({"name": "x", "mesh": "box.stl", "mesh_scale": "big"}, "mesh_scale"),
-    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "kind": "helical"}}, "symmetry"),
-    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "order": 0}}, "symmetry.order"),
-    ({"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 0], "order": 2}}, "symmetry.axis"),
-    ({"name": "x", "mesh": "box.stl", "colour": "red"}, "colour"),
-    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
-      "lower": 1.0, "upper": 0.0, "moving_mesh": "box.stl"}]}, "joints[0].lower/upper"),
-    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
-      "lower": 0.0, "upper": 1.0}]}, "joints[0].moving_mesh"),
-    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "screw", "axis": [0, 0, 1],
-      "lower": 0.0, "upper": 1.0, "moving_mesh": "box.stl"}]}, "joints[0].type"),
-    ({"name": "x", "mesh": "box.stl", "joints": [{"name": "j", "type": "revolute", "axis": [0, 0, 1],
-      "lower": 0.0, "upper": 1.0, "moving_mesh": "box.stl"}], "states": {"open": {"k": 0}}},
-     "states.open.k"),
-])
+@pytest.mark.parametrize(
+    "doc,key",
+    [
+        ({"mesh": "box.stl"}, "name"),
+        ({"name": "x"}, "mesh"),
+        ({"name": "x", "mesh": "missing.stl"}, "mesh"),
+        ({"name": "x", "mesh": "box.stl", "mesh_scale": -1}, "mesh_scale"),
+        ({"name": "x", "mesh": "box.stl", "mesh_scale": "big"}, "mesh_scale"),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "kind": "helical"}},
+            "symmetry",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 1], "order": 0}},
+            "symmetry.order",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 0], "order": 2}},
+            "symmetry.axis",
+        ),
+        ({"name": "x", "mesh": "box.stl", "colour": "red"}, "colour"),
+        (
+            {
+                "name": "x",
+                "mesh": "box.stl",
+                "joints": [
+                    {
+                        "name": "j",
+                        "type": "revolute",
+                        "axis": [0, 0, 1],
+                        "lower": 1.0,
+                        "upper": 0.0,
+                        "moving_mesh": "box.stl",
+                    }
+                ],
+            },
+            "joints[0].lower/upper",
+        ),
+        (
+            {
+                "name": "x",
+                "mesh": "box.stl",
+                "joints": [
+                    {
+                        "name": "j",
+                        "type": "revolute",
+                        "axis": [0, 0, 1],
+                        "lower": 0.0,
+                        "upper": 1.0,
+                    }
+                ],
+            },
+            "joints[0].moving_mesh",
+        ),
+        (
+            {
+                "name": "x",
+                "mesh": "box.stl",
+                "joints": [
+                    {
+                        "name": "j",
+                        "type": "screw",
+                        "axis": [0, 0, 1],
+                        "lower": 0.0,
+                        "upper": 1.0,
+                        "moving_mesh": "box.stl",
+                    }
+                ],
+            },
+            "joints[0].type",
+        ),
+        (
+            {
+                "name": "x",
+                "mesh": "box.stl",
+                "joints": [
+                    {
+                        "name": "j",
+                        "type": "revolute",
+                        "axis": [0, 0, 1],
+                        "lower": 0.0,
+                        "upper": 1.0,
+                        "moving_mesh": "box.stl",
+                    }
+                ],
+                "states": {"open": {"k": 0}},
+            },
+            "states.open.k",
+        ),
+    ],
+)
 def test_bad_template_files_name_the_file_and_key(tmp_path, doc, key):
     path = _write(tmp_path, doc)
     with pytest.raises(TemplateError) as err:
@@ -161,14 +238,32 @@ def test_a_prismatic_joints_states_are_in_the_mesh_units_of_its_limits(tmp_path)
     limits, origin and named states are all in those units, and all come out in metres; a
     state past the limits is refused with the limits in the file's units."""
     trimesh.creation.box(extents=[80, 80, 50]).export(tmp_path / "box_mm.stl")
-    doc = {"name": "stop_mm", "mesh": "box_mm.stl", "mesh_scale": 0.001,
-           "base_mesh": "box_mm.stl",
-           "joints": [{"name": "button", "type": "prismatic", "axis": [0, 0, -1],
-                       "origin": [0, 0, 68], "lower": 0.0, "upper": 8.0,
-                       "moving_mesh": "box_mm.stl"},
-                      {"name": "turn", "type": "revolute", "axis": [0, 0, 1],
-                       "lower": 0.0, "upper": 1.5, "moving_mesh": "box_mm.stl"}],
-           "states": {"pressed": {"button": 8.0, "turn": 1.5}, "half": {"button": 4}}}
+    doc = {
+        "name": "stop_mm",
+        "mesh": "box_mm.stl",
+        "mesh_scale": 0.001,
+        "base_mesh": "box_mm.stl",
+        "joints": [
+            {
+                "name": "button",
+                "type": "prismatic",
+                "axis": [0, 0, -1],
+                "origin": [0, 0, 68],
+                "lower": 0.0,
+                "upper": 8.0,
+                "moving_mesh": "box_mm.stl",
+            },
+            {
+                "name": "turn",
+                "type": "revolute",
+                "axis": [0, 0, 1],
+                "lower": 0.0,
+                "upper": 1.5,
+                "moving_mesh": "box_mm.stl",
+            },
+        ],
+        "states": {"pressed": {"button": 8.0, "turn": 1.5}, "half": {"button": 4}},
+    }
     tpl = load_template(_write(tmp_path, doc, mesh=False))
     button = next(j for j in tpl.joints if j.name == "button")
     assert button.upper == pytest.approx(0.008) and button.origin[2] == pytest.approx(0.068)
@@ -180,7 +275,9 @@ def test_a_prismatic_joints_states_are_in_the_mesh_units_of_its_limits(tmp_path)
 
 
 def test_a_mesh_that_does_not_load(tmp_path):
-    (tmp_path / "broken.stl").write_bytes(b"solid x\nfacet normal 0 0 1\n outer loop\n vertex 1 nan")
+    (tmp_path / "broken.stl").write_bytes(
+        b"solid x\nfacet normal 0 0 1\n outer loop\n vertex 1 nan"
+    )
     path = _write(tmp_path, {"name": "x", "mesh": "broken.stl"}, mesh=False)
     with pytest.raises(TemplateError, match=r"key 'mesh'"):
         load_template(path)
@@ -192,8 +289,11 @@ def test_yaml_that_does_not_parse(tmp_path):
         load_template(path)
     # a key written twice (PyYAML kept the last one silently)
     path = _write(tmp_path, "name: a\nmesh: box.stl\nname: b\n", name="twice.yaml")
-    with pytest.raises(TemplateError, match=r"twice.yaml: not valid YAML \(line 3\): the key "
-                                            r"'name' is written twice"):
+    with pytest.raises(
+        TemplateError,
+        match=r"twice.yaml: not valid YAML \(line 3\): the key "
+        r"'name' is written twice",
+    ):
         load_template(path)
 
 
@@ -213,13 +313,14 @@ def _pcd_bytes(points: np.ndarray, normals=None, ascii: bool = False) -> bytes:
     fields = "x y z" + (" normal_x normal_y normal_z" if normals is not None else "")
     cols = points if normals is None else np.hstack([points, normals])
     k = cols.shape[1]
-    header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {' '.join(['4'] * k)}\n"
-              f"TYPE {' '.join(['F'] * k)}\nCOUNT {' '.join(['1'] * k)}\nWIDTH {len(cols)}\n"
-              f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(cols)}\n"
-              f"DATA {'ascii' if ascii else 'binary'}\n").encode()
+    header = (
+        f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {' '.join(['4'] * k)}\n"
+        f"TYPE {' '.join(['F'] * k)}\nCOUNT {' '.join(['1'] * k)}\nWIDTH {len(cols)}\n"
+        f"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(cols)}\n"
+        f"DATA {'ascii' if ascii else 'binary'}\n"
+    ).encode()
     if ascii:
-        return header + "".join(" ".join(f"{v:.7g}" for v in row) + "\n"
-                                for row in cols).encode()
+        return header + "".join(" ".join(f"{v:.7g}" for v in row) + "\n" for row in cols).encode()
     return header + cols.astype("<f4").tobytes()
 
 
@@ -232,6 +333,7 @@ def test_point_cloud_template(tmp_path, library, kind):
     from affordance_registration.core.scene import Scene
     from affordance_registration.core.transforms import pose_error
     from affordance_registration.evaluation.simulation import ply_bytes, simulate_taskboard
+
     pts, true_normals = library["emergency_stop"].samples(3000, seed=9)
     if kind == "ply":
         (tmp_path / "scan.ply").write_bytes(ply_bytes(pts))
@@ -244,13 +346,13 @@ def test_point_cloud_template(tmp_path, library, kind):
     assert tpl.is_point_template
     s, n = tpl.samples(400)
     d, idx = cKDTree(pts).query(s)
-    assert d.max() < 1e-6      # float32 round trip
+    assert d.max() < 1e-6  # float32 round trip
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
     agree = np.einsum("ij,ij->i", n, true_normals[idx])
     if kind == "pcd_binary_normals":
-        assert agree.min() > 0.999                       # the file's own normals
+        assert agree.min() > 0.999  # the file's own normals
     else:
-        assert np.median(agree) > 0.9                    # estimated, outward (mostly right)
+        assert np.median(agree) > 0.9  # estimated, outward (mostly right)
     assert tpl.diameter == pytest.approx(library["emergency_stop"].diameter, rel=0.05)
     sim = simulate_taskboard(library, 1001)
     obj = next(o for o in sim.objects if o.template == "emergency_stop")
@@ -269,6 +371,7 @@ def test_scale_converts_mesh_units(tmp_path):
 
 def test_generator_reproduces_the_committed_library(tmp_path, library):
     from affordance_registration.evaluation.taskboard import write_library
+
     write_library(str(tmp_path))
     fresh = TemplateLibrary.load(str(tmp_path))
     assert set(fresh) == set(library)
@@ -324,8 +427,22 @@ def test_scale_range_key(tmp_path, library):
 
 def test_joints_need_the_fixed_part(tmp_path):
     trimesh.creation.box(extents=[0.02, 0.02, 0.02]).export(tmp_path / "knob.stl")
-    path = _write(tmp_path, {"name": "x", "mesh": "box.stl", "joints": [
-        {"name": "j", "type": "revolute", "axis": [0, 0, 1], "lower": 0.0, "upper": 1.0,
-         "moving_mesh": "knob.stl"}]})
+    path = _write(
+        tmp_path,
+        {
+            "name": "x",
+            "mesh": "box.stl",
+            "joints": [
+                {
+                    "name": "j",
+                    "type": "revolute",
+                    "axis": [0, 0, 1],
+                    "lower": 0.0,
+                    "upper": 1.0,
+                    "moving_mesh": "knob.stl",
+                }
+            ],
+        },
+    )
     with pytest.raises(TemplateError, match=r"key 'base_mesh'"):
         load_template(path)

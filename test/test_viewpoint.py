@@ -4,6 +4,7 @@
 and why, and where the sensor should look from when it is not -- on simulated taskboards and
 on a constructed case (a symmetric handwheel seen edge-on), re-scanned by the simulator from the
 suggested view. No ROS."""
+
 import json
 import math
 import subprocess
@@ -43,7 +44,7 @@ from affordance_registration.evaluation.simulation import (
 )
 from affordance_registration.evaluation.viewpoints import scan, taskboard_meshes
 
-EDGE_ON = 84.0        #: deg off the panel normal: the gate valve's handwheel seen edge-on
+EDGE_ON = 84.0  #: deg off the panel normal: the gate valve's handwheel seen edge-on
 
 
 @pytest.fixture(scope="module")
@@ -108,12 +109,12 @@ def test_a_symmetric_handwheel_seen_edge_on_gets_a_view_of_its_face(board, defau
     assert to_target @ -normal >= math.sin(s.min_elevation) * np.linalg.norm(to_target) - 1e-9
     # the wheel's front face -- of the true object (the samples facing out of the panel) --
     # is predicted out of sight from the first view and in sight from the suggested one
-    truth = Hypothesis(obj.template, obj.T_scene_model, 0.0,
-                       default.models.model(library[obj.template]))
+    truth = Hypothesis(
+        obj.template, obj.T_scene_model, 0.0, default.models.model(library[obj.template])
+    )
     P, N = truth.model.samples(s.samples)
     front = N[:, 2] > 0.7
-    seen = predict_views(report.context, [truth], np.stack([T_first, T]),
-                         default.settings)[2][0]
+    seen = predict_views(report.context, [truth], np.stack([T_first, T]), default.settings)[2][0]
     assert seen[0][front].mean() < 0.1, seen[0][front].mean()
     assert seen[1][front].mean() > 0.4, seen[1][front].mean()
     # re-scanned from there, the fit is right and settled
@@ -166,12 +167,14 @@ def test_a_flat_plate_seen_face_on_is_weakly_held():
     itself only by its 4 mm edges -- weakly."""
     plate = trimesh.creation.box(extents=(0.2, 0.2, 0.004))
     plate.apply_translation([0, 0, 0.002])
-    lib = TemplateLibrary([AffordanceTemplate("plate", "plate.yaml", plate,
-                                              symmetry=Symmetry((0, 0, 1), 4))])
+    lib = TemplateLibrary(
+        [AffordanceTemplate("plate", "plate.yaml", plate, symmetry=Symmetry((0, 0, 1), 4))]
+    )
     panel = panel_mesh()
-    T_cam = make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.8])     # looking straight down
-    pts, labels, origin = scan([(panel, np.eye(4)), (plate, np.eye(4))], T_cam,
-                               np.random.default_rng(3))
+    T_cam = make_T(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.8])  # looking straight down
+    pts, labels, origin = scan(
+        [(panel, np.eye(4)), (plate, np.eye(4))], T_cam, np.random.default_rng(3)
+    )
     report = Registrar(lib).fit(Scene(pts, sensor_origin=origin), [0.03, 0.02, 0.004])
     amb = report.ambiguity
     assert amb.weakest is not None and amb.weakest < FitSettings().viewpoint.weak_ratio
@@ -182,9 +185,18 @@ def test_a_flat_plate_seen_face_on_is_weakly_held():
 def test_fit_json_reports_the_ambiguity_and_the_suggested_view(tmp_path, board, library):
     write_scene(board, str(tmp_path))
     obj = next(o for o in board.objects if o.template == "grab_handle")
-    cmd = [sys.executable, "-m", "affordance_registration.cli", "fit", "--scene",
-           str(tmp_path / "scene.ply"), "--point", *map(str, obj.click), "--json",
-           "--suggest-view"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "affordance_registration.cli",
+        "fit",
+        "--scene",
+        str(tmp_path / "scene.ply"),
+        "--point",
+        *map(str, obj.click),
+        "--json",
+        "--suggest-view",
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
@@ -197,10 +209,11 @@ def test_fit_json_reports_the_ambiguity_and_the_suggested_view(tmp_path, board, 
         v = doc["suggested_view"]
         assert len(v["position"]) == 3 and len(v["orientation_xyzw"]) == 4
         assert 0.5 - 1e-6 <= v["distance"] <= 1.5 + 1e-6
-    text = subprocess.run(cmd[:-2] + ["--suggest-view"], capture_output=True, text=True,
-                          timeout=600)
+    text = subprocess.run(
+        cmd[:-2] + ["--suggest-view"], capture_output=True, text=True, timeout=600
+    )
     assert text.returncode == 0 and "suggested view:" in text.stdout
-    assert ("settled" in text.stdout.splitlines()[-2])
+    assert "settled" in text.stdout.splitlines()[-2]
 
 
 @settings(max_examples=60, deadline=None)
@@ -209,6 +222,7 @@ def test_the_predicted_views_3x3_nearest_is_scipys_minimum_filter(views, n, fill
     """Filtered over each view's box around its bins only, the z-buffer's 3 x 3 nearest is
     bit for bit scipy's filter of the whole image (empty views, bins on the border, full ones)."""
     from scipy.ndimage import minimum_filter
+
     rng = np.random.default_rng(seed)
     img = np.full((views, n, n), np.inf, np.float32)
     some = rng.random(img.shape) < fill * rng.random((views, 1, 1))
@@ -231,7 +245,7 @@ def test_an_optical_pose_looks_at_its_target_and_is_a_rotation(v):
     assert np.allclose(R[:, 2], (target - origin) / np.linalg.norm(target - origin), atol=1e-9)
     assert np.allclose(T[:3, 3], origin)
     y = down - R[:, 2] * (down @ R[:, 2])
-    if np.linalg.norm(y) > 1e-3:                       # y as near "down" as the view allows
+    if np.linalg.norm(y) > 1e-3:  # y as near "down" as the view allows
         assert R[:, 1] @ y > 0
 
 
@@ -253,6 +267,7 @@ def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(boa
     from that view, set as the new scene, is followed by fitting the untouched click anew --
     settled and right."""
     from affordance_registration.core.engine import AffordanceEngine
+
     k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
     obj = board.objects[k]
     meshes = taskboard_meshes(board, library)
@@ -282,24 +297,29 @@ def test_a_rigidly_moved_scene_gets_the_rigidly_moved_suggestion(board, default,
     rigidly (points, click, sensor pose) gets the same view, moved."""
     k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
     T_first = _edge_on(board, k)
-    pts, labels, origin = scan(taskboard_meshes(board, library), T_first,
-                               np.random.default_rng(1))
+    pts, labels, origin = scan(taskboard_meshes(board, library), T_first, np.random.default_rng(1))
     mine = pts[labels == k + 1]
-    click = mine[int(np.argmin(np.linalg.norm(mine - board.objects[k].T_scene_model[:3, 3],
-                                              axis=1)))]
+    click = mine[
+        int(np.argmin(np.linalg.norm(mine - board.objects[k].T_scene_model[:3, 3], axis=1)))
+    ]
     M = make_T(axis_angle_matrix([0.3, -0.2, 1.9], 1.9), [2.0, -1.0, 0.5])
 
     def suggestion(P, c, o, T):
         scene = Scene(P, sensor_origin=o)
         return default.suggest_view(default.fit(scene, c), T, scene)
+
     here = suggestion(pts, click, origin, T_first)
-    there = suggestion(pts @ M[:3, :3].T + M[:3, 3], M[:3, :3] @ click + M[:3, 3],
-                       M[:3, :3] @ origin + M[:3, 3], M @ T_first)
+    there = suggestion(
+        pts @ M[:3, :3].T + M[:3, 3],
+        M[:3, :3] @ click + M[:3, 3],
+        M[:3, :3] @ origin + M[:3, 3],
+        M @ T_first,
+    )
     assert here is not None and there is not None
     assert np.allclose(M @ here.T_scene_optical, there.T_scene_optical, atol=1e-6)
 
 
-SLAB = (0.12, 0.12, 0.04)      #: the constructed case's slab (m): square, 4-fold symmetric
+SLAB = (0.12, 0.12, 0.04)  #: the constructed case's slab (m): square, 4-fold symmetric
 KNOB_RADIUS, KNOB_LENGTH = 0.015, 0.03
 
 
@@ -324,12 +344,16 @@ def test_two_templates_differing_only_on_a_hidden_face_get_a_view_of_that_face()
     template posed with its knob where the scan shows nothing to contradict it scores worse);
     every unsettled seed must get a view of the knob, and at least three must be unsettled."""
     slab, knob = _slab_and_knob()
-    lib = TemplateLibrary([
-        AffordanceTemplate("slab", "slab.yaml", slab, symmetry=Symmetry((0, 0, 1), 4)),
-        AffordanceTemplate("knobbed_slab", "knobbed_slab.yaml",
-                           trimesh.util.concatenate([slab, knob]))])
+    lib = TemplateLibrary(
+        [
+            AffordanceTemplate("slab", "slab.yaml", slab, symmetry=Symmetry((0, 0, 1), 4)),
+            AffordanceTemplate(
+                "knobbed_slab", "knobbed_slab.yaml", trimesh.util.concatenate([slab, knob])
+            ),
+        ]
+    )
     panel = panel_mesh()
-    meshes = [(panel, np.eye(4)), (slab, np.eye(4)), (knob, np.eye(4))]   # labels 0, 1, 2
+    meshes = [(panel, np.eye(4)), (slab, np.eye(4)), (knob, np.eye(4))]  # labels 0, 1, 2
     registrar = Registrar(lib)
     s = registrar.settings.viewpoint
     target = np.array([0.0, 0.0, SLAB[2] / 2])
@@ -361,8 +385,10 @@ def test_two_templates_differing_only_on_a_hidden_face_get_a_view_of_that_face()
         # refitted on the new scan (clicked again nearest the first click), the knobbed slab
         # -- the object -- ranks first
         again = p2[l2 == 1]
-        re = registrar.fit(Scene(p2, sensor_origin=o2),
-                           again[int(np.argmin(np.linalg.norm(again - click, axis=1)))])
+        re = registrar.fit(
+            Scene(p2, sensor_origin=o2),
+            again[int(np.argmin(np.linalg.norm(again - click, axis=1)))],
+        )
         assert re.candidates[0].template == "knobbed_slab", (seed, re.ambiguity.describe())
     assert unsettled >= 3, unsettled
 
@@ -383,8 +409,9 @@ def test_a_sensor_centimetres_from_the_object_gets_coarser_views_not_gigabytes(b
     near ones need images 800 bins across): the images keep to the budget, and the far view
     still sees what it saw alone."""
     obj = board.objects[0]
-    hyp = Hypothesis(obj.template, obj.T_scene_model, 0.0,
-                     default.models.model(default.library[obj.template]))
+    hyp = Hypothesis(
+        obj.template, obj.T_scene_model, 0.0, default.models.model(default.library[obj.template])
+    )
     report = default.fit(Scene(board.organized), obj.click)
     target = obj.T_scene_model[:3, 3]
     out = report.context.sensor_origin - target
@@ -392,9 +419,8 @@ def test_a_sensor_centimetres_from_the_object_gets_coarser_views_not_gigabytes(b
     far = optical_pose(target + 0.9 * out, target, np.array([0.0, 0.0, -1.0]))
     near = optical_pose(target + 0.03 * out, target, np.array([0.0, 0.0, -1.0]))
     alone = predict_views(report.context, [hyp], far[None], default.settings)
-    both = predict_views(report.context, [hyp], np.stack([far] + [near] * 100),
-                         default.settings)
+    both = predict_views(report.context, [hyp], np.stack([far] + [near] * 100), default.settings)
     assert both[0].shape[1] * both[0].shape[2] * both[0].shape[3] <= VIEW_BINS
-    assert both[5] > alone[5]                          # coarser bins
+    assert both[5] > alone[5]  # coarser bins
     seen_alone, seen_both = alone[2][0, 0].mean(), both[2][0, 0].mean()
     assert seen_alone > 0.2 and abs(seen_both - seen_alone) < 0.15, (seen_alone, seen_both)

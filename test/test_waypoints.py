@@ -3,6 +3,7 @@
 """End-effector waypoints and paths along a joint: where they land on simulated scans fitted at
 the estimated joint value, the geometry of the paths, and template files that declare them
 wrongly."""
+
 import math
 
 import numpy as np
@@ -35,21 +36,33 @@ def library():
 
 def _fit(template, T, q=None, scale=1.0, dimensions=None):
     joints = {} if q is None else {template.joints[0].name: q}
-    return FitResult(template.name, T, 0.001, 1000.0, joints=joints, scale=scale,
-                     dimensions=dict(dimensions or {}), primitive=template.primitive)
+    return FitResult(
+        template.name,
+        T,
+        0.001,
+        1000.0,
+        joints=joints,
+        scale=scale,
+        dimensions=dict(dimensions or {}),
+        primitive=template.primitive,
+    )
 
 
 def _nearest(mesh, point):
     """(distance, outward unit normal of the nearest face) from ``point`` to ``mesh``'s
     surface (Open3D's closest-point query, independent of the code under test)."""
     import open3d as o3d
+
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+    )
     hit = scene.compute_closest_points(o3d.core.Tensor(np.asarray([point], dtype=np.float32)))
     closest = hit["points"].numpy()[0].astype(float)
     return float(np.linalg.norm(closest - point)), mesh.face_normals[
-        int(hit["primitive_ids"].numpy()[0])]
+        int(hit["primitive_ids"].numpy()[0])
+    ]
 
 
 def _random_pose(rng):
@@ -59,16 +72,21 @@ def _random_pose(rng):
 
 # ---------------------------------------------------------------------------- the bundled library
 def test_every_bundled_template_carries_its_waypoints(library):
-    expected = {"ball_valve": {"lever_grasp"}, "quarter_turn_valve": {"handle_grasp"},
-                "gate_valve": {"rim_grasp"}, "emergency_stop": {"push"},
-                "grab_handle": {"bar_grasp", "bar_pull"}, "box": {"top_grasp"},
-                "cylinder": {"side_grasp"}}
+    expected = {
+        "ball_valve": {"lever_grasp"},
+        "quarter_turn_valve": {"handle_grasp"},
+        "gate_valve": {"rim_grasp"},
+        "emergency_stop": {"push"},
+        "grab_handle": {"bar_grasp", "bar_pull"},
+        "box": {"top_grasp"},
+        "cylinder": {"side_grasp"},
+    }
     assert set(library) == set(expected)
     for name, names in expected.items():
         tpl = library[name]
         assert {w.name for w in tpl.waypoints} == names
         for w in tpl.waypoints:
-            assert w.name in tpl.description, (name, w.name)     # documented there
+            assert w.name in tpl.description, (name, w.name)  # documented there
             assert w.end_effector == "gripper"
     for name in ("ball_valve", "quarter_turn_valve", "gate_valve", "emergency_stop"):
         assert library[name].waypoints[0].part == library[name].joints[0].name
@@ -95,13 +113,12 @@ def test_primitive_grasps_follow_the_fitted_size(library):
     T = make_T(axis_angle_matrix([0, 0, 1], 0.3), [0.5, -0.2, 0.1])
     (top,) = waypoint_poses(box, _fit(box, T, dimensions={"x": 0.3, "y": 0.2, "z": 0.12}))
     assert np.allclose(top.T[:3, 3], T[:3, :3] @ [0, 0, 0.12] + T[:3, 3])
-    assert np.allclose(top.approach, -T[:3, 2])                  # down onto the top face
+    assert np.allclose(top.approach, -T[:3, 2])  # down onto the top face
     assert np.allclose(top.T_pre[:3, 3], top.T[:3, 3] + 0.1 * T[:3, 2])
-    (side,) = waypoint_poses(cyl, _fit(cyl, np.eye(4), dimensions={"radius": 0.04,
-                                                                   "length": 0.2}))
+    (side,) = waypoint_poses(cyl, _fit(cyl, np.eye(4), dimensions={"radius": 0.04, "length": 0.2}))
     assert np.allclose(side.T[:3, 3], [0.04, 0, 0.1])
-    assert np.allclose(side.approach, [-1, 0, 0])                 # towards the axis
-    assert np.allclose(side.T[:3, 2], [-1, 0, 0], atol=1e-6)               # the gripper's z: the approach
+    assert np.allclose(side.approach, [-1, 0, 0])  # towards the axis
+    assert np.allclose(side.T[:3, 2], [-1, 0, 0], atol=1e-6)  # the gripper's z: the approach
 
 
 # ---------------------------------------------------------------------------- simulated scans
@@ -129,19 +146,23 @@ def test_lever_grasp_lands_on_the_lever_at_the_estimated_joint_value(library, se
             path = trajectory(tpl, best, state)
             at_state = _fit(tpl, best.T_scene_model, values[tpl.joints[0].name])
             (end,) = waypoint_poses(tpl, at_state)
-            assert np.allclose(path.poses[-2], end.T, atol=1e-9)       # last before retreat
-            assert np.allclose(path.poses[-1], end.T_pre, atol=1e-9)   # the retreat
-            assert np.allclose(path.poses[1], wp.T, atol=1e-9)         # starts at the grasp
-            assert np.allclose(path.poses[0], wp.T_pre, atol=1e-9)     # after the approach
+            assert np.allclose(path.poses[-2], end.T, atol=1e-9)  # last before retreat
+            assert np.allclose(path.poses[-1], end.T_pre, atol=1e-9)  # the retreat
+            assert np.allclose(path.poses[1], wp.T, atol=1e-9)  # starts at the grasp
+            assert np.allclose(path.poses[0], wp.T_pre, atol=1e-9)  # after the approach
 
 
 # ---------------------------------------------------------------------------- path geometry
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(seed=st.integers(0, 2**31), name=st.sampled_from(["ball_valve", "quarter_turn_valve",
-                                                         "gate_valve", "emergency_stop"]),
-       frac=st.floats(0, 1), scale=st.floats(0.8, 1.25))
-def test_every_path_pose_is_on_the_circle_or_line_of_the_joint(library, seed, name, frac,
-                                                                scale):
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    seed=st.integers(0, 2**31),
+    name=st.sampled_from(["ball_valve", "quarter_turn_valve", "gate_valve", "emergency_stop"]),
+    frac=st.floats(0, 1),
+    scale=st.floats(0.8, 1.25),
+)
+def test_every_path_pose_is_on_the_circle_or_line_of_the_joint(library, seed, name, frac, scale):
     """From any pose, joint value and scale, to every state: the path's poses lie on the circle
     about the joint axis (revolute), the line along it (prismatic) or the helix about it (a
     prismatic part with a pitch: the gate valve's wheel, 4 mm a turn), in the joint's sense,
@@ -164,8 +185,13 @@ def test_every_path_pose_is_on_the_circle_or_line_of_the_joint(library, seed, na
         steps = np.abs(np.diff(qs))
         pitch = tpl.waypoints[0].pitch
         limit = PATH_STEP_RAD if j.type == "revolute" else PATH_STEP_M
-        turn = (lambda q: q - q0) if j.type == "revolute" else \
-            (lambda q: 0.0) if pitch is None else (lambda q: 2 * math.pi * (q - q0) / pitch)
+        turn = (
+            (lambda q: q - q0)
+            if j.type == "revolute"
+            else (lambda q: 0.0)
+            if pitch is None
+            else (lambda q: 2 * math.pi * (q - q0) / pitch)
+        )
         assert np.all(steps <= limit + 1e-12) and (len(steps) == 0 or np.ptp(steps) < 1e-9)
         assert np.all(np.abs(np.diff([turn(q) for q in qs])) <= PATH_STEP_RAD + 1e-9)
         offset0 = start.T[:3, 3] - origin
@@ -186,9 +212,9 @@ def test_path_requests_that_cannot_be_answered_say_why_in_one_line(library):
     valve, handle = library["ball_valve"], library["grab_handle"]
     fit = _fit(valve, np.eye(4), 0.2)
     for tpl, fitted, state, waypoint, words in [
-            (valve, fit, "ajar", None, "no state 'ajar'"),
-            (valve, fit, "closed", "nope", "no waypoint 'nope'"),
-            (handle, _fit(handle, np.eye(4)), "open", None, "no state"),
+        (valve, fit, "ajar", None, "no state 'ajar'"),
+        (valve, fit, "closed", "nope", "no waypoint 'nope'"),
+        (handle, _fit(handle, np.eye(4)), "open", None, "no state"),
     ]:
         with pytest.raises(AffordanceError) as info:
             trajectory(tpl, fitted, state, waypoint)
@@ -203,9 +229,19 @@ def _template(tmp_path, waypoints, joints=True, states=None, extra=None, joint_t
     trimesh.creation.box(extents=[0.1, 0.1, 0.05]).export(tmp_path / "box.stl")
     doc = {"name": "t", "mesh": "box.stl", "waypoints": waypoints}
     if joints:
-        doc.update(base_mesh="box.stl", joints=[{"name": "lever", "type": joint_type,
-                                                 "axis": [0, 0, 1], "lower": 0, "upper": 1.5,
-                                                 "moving_mesh": "box.stl"}])
+        doc.update(
+            base_mesh="box.stl",
+            joints=[
+                {
+                    "name": "lever",
+                    "type": joint_type,
+                    "axis": [0, 0, 1],
+                    "lower": 0,
+                    "upper": 1.5,
+                    "moving_mesh": "box.stl",
+                }
+            ],
+        )
     if states is not None:
         doc["states"] = states
     doc.update(extra or {})
@@ -217,29 +253,38 @@ def _template(tmp_path, waypoints, joints=True, states=None, extra=None, joint_t
 GOOD = {"name": "g", "end_effector": "gripper", "position": [0, 0, 0.05]}
 
 
-@pytest.mark.parametrize("waypoints,key,words", [
-    ([dict(GOOD, part="wheel")], "waypoints.g.part", "no joint (moving part) named 'wheel'"),
-    ([dict(GOOD, quaternion=[0, 0, 0, 2])], "waypoints.g.quaternion", "not a unit quaternion"),
-    ([dict(GOOD, quaternion=[0, 0, 1])], "waypoints.g.quaternion", "4 finite numbers"),
-    ([dict(GOOD, rpy=[0, 0, 0], quaternion=[0, 0, 0, 1])], "waypoints.g.rpy", "not both"),
-    ([dict(GOOD, rpy=[0, "x", 0])], "waypoints.g.rpy", "expected 3 numbers"),
-    ([{"name": "g", "end_effector": "gripper"}], "waypoints.g.position", "missing"),
-    ([dict(GOOD, end_effector="")], "waypoints.g.end_effector", "expected a name"),
-    ([dict(GOOD, name="pre_g")], "waypoints[0].name", "pre_"),
-    ([dict(GOOD, name="a/b")], "waypoints[0].name", "expected a name"),
-    ([GOOD, GOOD], "waypoints[1].name", "duplicate waypoint name 'g'"),
-    ([dict(GOOD, tool="x")], "waypoints[0].tool", "unknown key"),
-    ([dict(GOOD, approach={"direction": [0, 0, 0], "distance": 0.1})],
-     "waypoints.g.approach.direction", "must not be zero"),
-    ([dict(GOOD, approach={"direction": [0, 0, 1], "distance": -1})],
-     "waypoints.g.approach.distance", "positive"),
-    ([dict(GOOD, approach={"direction": [0, 0, 1]})], "waypoints.g.approach", "distance"),
-    ([dict(GOOD, position=[1e6, 0, 0])], "waypoints.g.position", "100 m"),
-    ([dict(GOOD, part="lever", pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
-    ([dict(GOOD, pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
-    ([dict(GOOD, name=f"w{i}") for i in range(33)], "waypoints", "at most 32"),
-    ({"g": GOOD}, "waypoints", "a list"),
-])
+@pytest.mark.parametrize(
+    "waypoints,key,words",
+    [
+        ([dict(GOOD, part="wheel")], "waypoints.g.part", "no joint (moving part) named 'wheel'"),
+        ([dict(GOOD, quaternion=[0, 0, 0, 2])], "waypoints.g.quaternion", "not a unit quaternion"),
+        ([dict(GOOD, quaternion=[0, 0, 1])], "waypoints.g.quaternion", "4 finite numbers"),
+        ([dict(GOOD, rpy=[0, 0, 0], quaternion=[0, 0, 0, 1])], "waypoints.g.rpy", "not both"),
+        ([dict(GOOD, rpy=[0, "x", 0])], "waypoints.g.rpy", "expected 3 numbers"),
+        ([{"name": "g", "end_effector": "gripper"}], "waypoints.g.position", "missing"),
+        ([dict(GOOD, end_effector="")], "waypoints.g.end_effector", "expected a name"),
+        ([dict(GOOD, name="pre_g")], "waypoints[0].name", "pre_"),
+        ([dict(GOOD, name="a/b")], "waypoints[0].name", "expected a name"),
+        ([GOOD, GOOD], "waypoints[1].name", "duplicate waypoint name 'g'"),
+        ([dict(GOOD, tool="x")], "waypoints[0].tool", "unknown key"),
+        (
+            [dict(GOOD, approach={"direction": [0, 0, 0], "distance": 0.1})],
+            "waypoints.g.approach.direction",
+            "must not be zero",
+        ),
+        (
+            [dict(GOOD, approach={"direction": [0, 0, 1], "distance": -1})],
+            "waypoints.g.approach.distance",
+            "positive",
+        ),
+        ([dict(GOOD, approach={"direction": [0, 0, 1]})], "waypoints.g.approach", "distance"),
+        ([dict(GOOD, position=[1e6, 0, 0])], "waypoints.g.position", "100 m"),
+        ([dict(GOOD, part="lever", pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
+        ([dict(GOOD, pitch=0.004)], "waypoints.g.pitch", "prismatic part"),
+        ([dict(GOOD, name=f"w{i}") for i in range(33)], "waypoints", "at most 32"),
+        ({"g": GOOD}, "waypoints", "a list"),
+    ],
+)
 def test_a_bad_waypoint_is_one_line_naming_file_and_key(tmp_path, waypoints, key, words):
     path = _template(tmp_path, waypoints)
     with pytest.raises(TemplateError) as info:
@@ -254,8 +299,11 @@ def test_a_state_with_no_joint_and_a_part_without_joints_are_refused(tmp_path):
     with pytest.raises(TemplateError, match=r"key 'states.open': names no joint value"):
         load_template(path)
     path = _template(tmp_path, [dict(GOOD, part="lever")], joints=False)
-    with pytest.raises(TemplateError, match=r"key 'waypoints.g.part': 'lever': the template "
-                                            r"has no moving parts"):
+    with pytest.raises(
+        TemplateError,
+        match=r"key 'waypoints.g.part': 'lever': the template "
+        r"has no moving parts",
+    ):
         load_template(path)
 
 
@@ -275,21 +323,34 @@ def test_quaternions_are_taken_only_when_unit(tmp_path_factory, q):
 
 def test_a_screw_pitch_is_a_length_per_turn_in_file_units(tmp_path):
     for pitch in (0, -0.000001, "fine", True):
-        path = _template(tmp_path, [dict(GOOD, part="lever", pitch=pitch)],
-                         joint_type="prismatic")
+        path = _template(tmp_path, [dict(GOOD, part="lever", pitch=pitch)], joint_type="prismatic")
         with pytest.raises(TemplateError, match=r"key 'waypoints.g.pitch': expected a non-zero"):
             load_template(path)
-    path = _template(tmp_path, [dict(GOOD, part="lever", pitch=-4)], joint_type="prismatic",
-                     extra={"mesh_scale": 0.001})
-    assert load_template(path).waypoints[0].pitch == pytest.approx(-0.004)   # a left-hand screw
+    path = _template(
+        tmp_path,
+        [dict(GOOD, part="lever", pitch=-4)],
+        joint_type="prismatic",
+        extra={"mesh_scale": 0.001},
+    )
+    assert load_template(path).waypoints[0].pitch == pytest.approx(-0.004)  # a left-hand screw
 
 
 def test_file_units_and_rpy_are_read_as_documented(tmp_path):
     """Positions and approach distances in the file's units (mesh_scale: 0.001 -> mm), roll
     pitch yaw about the fixed x, y, z axes."""
-    path = _template(tmp_path, [dict(GOOD, position=[10, 20, 30], rpy=[0, 0, math.pi / 2],
-                                     approach={"direction": [0, 0, -2], "distance": 50})],
-                     joints=False, extra={"mesh_scale": 0.001})
+    path = _template(
+        tmp_path,
+        [
+            dict(
+                GOOD,
+                position=[10, 20, 30],
+                rpy=[0, 0, math.pi / 2],
+                approach={"direction": [0, 0, -2], "distance": 50},
+            )
+        ],
+        joints=False,
+        extra={"mesh_scale": 0.001},
+    )
     (wp,) = load_template(path).waypoints
     assert np.allclose(wp.T_parent_ee[:3, 3], [0.01, 0.02, 0.03])
     assert np.allclose(wp.T_parent_ee[:3, 0], [0, 1, 0], atol=1e-12)
@@ -303,6 +364,7 @@ def test_engine_status_path_and_saved_file_carry_the_waypoints(library, tmp_path
     object id; an unknown object or state is one line."""
     from affordance_registration.core.engine import AffordanceEngine, load_registrations
     from affordance_registration.core.errors import EngineStateError
+
     sim = simulate_taskboard(library, 2904, articulated=True, templates=["ball_valve"])
     engine = AffordanceEngine(library)
     engine.set_scene(sim.organized, frame_id="cam")
@@ -317,13 +379,16 @@ def test_engine_status_path_and_saved_file_carry_the_waypoints(library, tmp_path
     assert np.allclose(status["waypoints"][0]["pre_pose"], expected.T_pre, atol=1e-8)
     path = trajectory(library["ball_valve"], reg, "closed")
     assert np.array_equal(engine.trajectory(reg.id, "closed").poses, path.poses)
-    for object_id, state, words in [(99, "closed", "no object 99"),
-                                    (reg.id, "ajar", "no state 'ajar'")]:
+    for object_id, state, words in [
+        (99, "closed", "no object 99"),
+        (reg.id, "ajar", "no state 'ajar'"),
+    ]:
         with pytest.raises(AffordanceError) as info:
             engine.trajectory(object_id, state)
         assert words in str(info.value) and "\n" not in str(info.value)
-    assert isinstance(pytest.raises(EngineStateError, engine.trajectory, 99, "open").value,
-                      EngineStateError)
+    assert isinstance(
+        pytest.raises(EngineStateError, engine.trajectory, 99, "open").value, EngineStateError
+    )
     saved = tmp_path / "registrations.yaml"
     engine.save(str(saved))
     (entry,) = yaml.safe_load(saved.read_text())["registrations"]
@@ -340,23 +405,32 @@ def test_markers_draw_each_waypoint_as_a_gripper(library):
     waypoint, 20 mm either side along its y, its approach a line from the pre_ pose."""
     from affordance_registration.core.tracked import EngineState, Registration
     from affordance_registration.ros.glue.markers import state_markers
+
     tpl = library["grab_handle"]
     T = make_T(axis_angle_matrix([1, 0, 0], 0.4), [0.2, 0.1, 0.9])
-    reg = Registration(id=3, template="grab_handle", T_scene_model=T, likelihood=1.0,
-                       probability=1.0, residual=0.001, click=T[:3, 3])
+    reg = Registration(
+        id=3,
+        template="grab_handle",
+        T_scene_model=T,
+        likelihood=1.0,
+        probability=1.0,
+        residual=0.001,
+        click=T[:3, 3],
+    )
     arr = state_markers(EngineState(registered=(reg,)), library, "cam", None, np.array([0, 1, 0]))
     (m,) = [m for m in arr.markers if m.ns == "registered_waypoints"]
     assert m.id == 3 and m.header.frame_id == "cam" and len(m.points) == len(m.colors)
     pts = np.array([(p.x, p.y, p.z) for p in m.points])
     grasp, pull = waypoint_poses(tpl, reg)
     for wp in (grasp, pull):
-        for side in (-1, 1):          # a finger tip at the waypoint, either side along its y
+        for side in (-1, 1):  # a finger tip at the waypoint, either side along its y
             tip = wp.T[:3, 3] + side * 0.02 * wp.T[:3, 1]
             assert np.min(np.linalg.norm(pts - tip, axis=1)) < 1e-6
-    assert np.min(np.linalg.norm(pts - grasp.T_pre[:3, 3], axis=1)) < 1e-6   # the approach
-    assert len(pts) == 2 * 10 + 2          # 5 segments a gripper, one approach (bar_pull none)
+    assert np.min(np.linalg.norm(pts - grasp.T_pre[:3, 3], axis=1)) < 1e-6  # the approach
+    assert len(pts) == 2 * 10 + 2  # 5 segments a gripper, one approach (bar_pull none)
     # the station draws the same lines, in the marker's frame, with their colours
     from affordance_registration.ros.station.state import LineDrawing, apply_markers
+
     drawn = apply_markers({}, arr)[("registered_waypoints", 3)]
     assert isinstance(drawn, LineDrawing) and drawn.segments.shape == (len(pts) // 2, 2, 3)
     assert np.allclose(drawn.segments.reshape(-1, 3), pts, atol=1e-6)
@@ -367,12 +441,13 @@ def test_markers_draw_each_waypoint_as_a_gripper(library):
 
 @settings(max_examples=200, deadline=None)
 @given(text=st.text(max_size=300))
-@example(text="\u00b2 closed")          # a digit to str.isdigit, not to int()
+@example(text="\u00b2 closed")  # a digit to str.isdigit, not to int()
 @example(text="12 closed lever_grasp")
 def test_a_path_request_line_is_read_or_refused_in_one_line(text):
     """Any text on ~/path_request: read as 'ID STATE [WAYPOINT]' or refused with one line
     saying what the line should be -- never another exception."""
     from affordance_registration.ros.glue.paths import parse_path_request
+
     try:
         object_id, state, waypoint = parse_path_request(text)
     except AffordanceError as exc:

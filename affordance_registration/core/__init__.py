@@ -4,6 +4,7 @@
 
 Nothing under ``affordance_registration.core`` imports rclpy or any ROS message package.
 """
+
 from .errors import AffordanceError, RegistrationError, SceneError, TemplateError
 
 __all__ = ["AffordanceError", "RegistrationError", "SceneError", "TemplateError"]

@@ -11,6 +11,7 @@ origin at the centre of one end face, +z along its axis.
 Templates are made by :func:`~affordance_registration.core.template_files.load_template` from
 their YAML files; :class:`~affordance_registration.core.templates.TemplateLibrary` holds them.
 """
+
 from __future__ import annotations
 
 import math
@@ -79,13 +80,25 @@ class AffordanceTemplate:
     same arrays for the same arguments.
     """
 
-    def __init__(self, name: str, path: str, mesh: trimesh.Trimesh | None,
-                 points: np.ndarray | None = None, point_normals: np.ndarray | None = None,
-                 mesh_scale: float = 1.0, symmetry: Symmetry | None = None,
-                 joints: tuple = (), states: Mapping | None = None, description: str = "",
-                 base_mesh: trimesh.Trimesh | None = None, scale_range: tuple | None = None,
-                 primitive: str | None = None, dimension_ranges: Mapping | None = None,
-                 dimensions: Mapping | None = None, waypoints: tuple = ()):
+    def __init__(
+        self,
+        name: str,
+        path: str,
+        mesh: trimesh.Trimesh | None,
+        points: np.ndarray | None = None,
+        point_normals: np.ndarray | None = None,
+        mesh_scale: float = 1.0,
+        symmetry: Symmetry | None = None,
+        joints: tuple = (),
+        states: Mapping | None = None,
+        description: str = "",
+        base_mesh: trimesh.Trimesh | None = None,
+        scale_range: tuple | None = None,
+        primitive: str | None = None,
+        dimension_ranges: Mapping | None = None,
+        dimensions: Mapping | None = None,
+        waypoints: tuple = (),
+    ):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
         self.name = name
@@ -125,8 +138,10 @@ class AffordanceTemplate:
 
     def clip_dimensions(self, dimensions: Mapping) -> dict:
         """A primitive's ``dimensions`` (name -> m) within its ranges (a box's x >= y kept)."""
-        out = {k: float(np.clip(float(dimensions[k]), *self.dimension_ranges[k]))
-               for k in PRIMITIVES[self.primitive]}
+        out = {
+            k: float(np.clip(float(dimensions[k]), *self.dimension_ranges[k]))
+            for k in PRIMITIVES[self.primitive]
+        }
         return out
 
     def sized(self, dimensions: Mapping) -> "AffordanceTemplate":
@@ -137,11 +152,18 @@ class AffordanceTemplate:
         key = ("sized",) + tuple(dims.values())
 
         def build():
-            return AffordanceTemplate(self.name, self.path, primitive_mesh(self.primitive, dims),
-                                      symmetry=self.symmetry, description=self.description,
-                                      primitive=self.primitive,
-                                      dimension_ranges=self.dimension_ranges, dimensions=dims,
-                                      waypoints=self.waypoints)
+            return AffordanceTemplate(
+                self.name,
+                self.path,
+                primitive_mesh(self.primitive, dims),
+                symmetry=self.symmetry,
+                description=self.description,
+                primitive=self.primitive,
+                dimension_ranges=self.dimension_ranges,
+                dimensions=dims,
+                waypoints=self.waypoints,
+            )
+
         return self._cached_mesh(key, build)
 
     @property
@@ -216,14 +238,25 @@ class AffordanceTemplate:
         -- what a ``scale: [min, max]`` key in its YAML gives -- or rigid (None)."""
         if scale_range is not None:
             try:
-                scale_range = _scale_range(scale_range)
+                scale_range = parse_scale_range(scale_range)
             except ValueError as exc:
                 raise TemplateError(f"{self.path}: scale range {exc}") from None
-        copy = AffordanceTemplate(self.name, self.path, self.mesh, self.points,
-                                  self.point_normals, self.mesh_scale, self.symmetry,
-                                  self.joints, self.states, self.description, self.base_mesh,
-                                  scale_range, waypoints=self.waypoints)
-        copy.mesh_files = dict(self.mesh_files)      # the same geometry, the same files
+        copy = AffordanceTemplate(
+            self.name,
+            self.path,
+            self.mesh,
+            self.points,
+            self.point_normals,
+            self.mesh_scale,
+            self.symmetry,
+            self.joints,
+            self.states,
+            self.description,
+            self.base_mesh,
+            scale_range,
+            waypoints=self.waypoints,
+        )
+        copy.mesh_files = dict(self.mesh_files)  # the same geometry, the same files
         return copy
 
     @property
@@ -311,6 +344,7 @@ class AffordanceTemplate:
 
     def mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh:
         """The template's mesh with the moving part at ``q``, scaled by ``scale`` (cached)."""
+
         def build():
             if self.joint is not None and q:
                 mesh = trimesh.util.concatenate([self.base_mesh, self.moving_mesh_at(q)])
@@ -319,6 +353,7 @@ class AffordanceTemplate:
             if scale != 1.0:
                 mesh.apply_scale(scale)
             return mesh
+
         return self._cached_mesh(("mesh", round(float(q), 5), round(float(scale), 5)), build)
 
     def moving_mesh_at(self, q: float = 0.0, scale: float = 1.0) -> trimesh.Trimesh | None:
@@ -332,6 +367,7 @@ class AffordanceTemplate:
             if scale != 1.0:
                 moving.apply_scale(scale)
             return moving
+
         return self._cached_mesh(("moving", round(float(q), 5), round(float(scale), 5)), build)
 
     def joint_frame(self, q: float = 0.0, scale: float = 1.0) -> np.ndarray:
@@ -368,15 +404,16 @@ class AffordanceTemplate:
 MAX_SCALE = 1e6
 
 
-def _scale_range(value) -> tuple:
+def parse_scale_range(value) -> tuple:
     """(min, max) from a ``scale`` value; ValueError saying what is wrong."""
     try:
-        if isinstance(value, (str, bytes)):         # ("19" is not [1, 9])
+        if isinstance(value, (str, bytes)):  # ("19" is not [1, 9])
             raise TypeError
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"expected [min, max], got {value!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and 1 / MAX_SCALE <= lo < hi <= MAX_SCALE):
-        raise ValueError(f"expected {1 / MAX_SCALE:g} <= min < max <= {MAX_SCALE:g}, got "
-                         f"{value!r}")
+        raise ValueError(
+            f"expected {1 / MAX_SCALE:g} <= min < max <= {MAX_SCALE:g}, got {value!r}"
+        )
     return lo, hi

@@ -6,6 +6,7 @@ cropped and voxelized points, the cluster around the click, its full-resolution 
 their normals, the support plane, the frame attached to the scan, and the range image the
 visibility terms look up (:class:`RangeImage`).
 """
+
 from __future__ import annotations
 
 import copy
@@ -18,7 +19,7 @@ from .errors import SceneError
 from .neighbours import KDTree, k_nearest
 from .plane import Plane
 from .segmentation import joined_insides, segments_and_patches
-from .voxels import _minus
+from .voxels import minus_point
 
 __all__ = ["ClickContext", "RangeImage", "NOISE_NEIGHBOURS", "NOISE_SAMPLES"]
 
@@ -39,15 +40,14 @@ class RangeImage:
     sensor saw nothing in that bin.
     """
 
-    def __init__(self, points: np.ndarray, origin: np.ndarray, bin_size: float,
-                 frame: np.ndarray):
+    def __init__(self, points: np.ndarray, origin: np.ndarray, bin_size: float, frame: np.ndarray):
         self.origin = np.asarray(origin, dtype=float)
         self.frame = np.asarray(frame, dtype=float)
         self.bin = float(bin_size)
-        rel = _minus(points, self.origin) @ self.frame
+        rel = minus_point(points, self.origin) @ self.frame
         z = rel[:, 2]
         keep = z > 1e-3
-        if not keep.all():          # (only where the sensor is inside the crop)
+        if not keep.all():  # (only where the sensor is inside the crop)
             rel, z = rel[keep], z[keep]
         if len(z) == 0:
             raise SceneError("no scanned point near the click lies in front of the sensor origin")
@@ -74,7 +74,7 @@ class RangeImage:
         iv = np.floor((rel[..., 1] / zs - self.v0) / self.bin).astype(np.int64)
         # a negative bin wraps to a huge unsigned one: one comparison per axis
         inside = (iu.view(np.uint64) < self.nu) & (iv.view(np.uint64) < self.nv) & (z > 1e-3)
-        flat = np.where(inside, iu * self.nv + iv, self.nu * self.nv)     # outside: the NaN
+        flat = np.where(inside, iu * self.nv + iv, self.nu * self.nv)  # outside: the NaN
         return self._depth_or_nan[flat], z
 
     @cached_property
@@ -120,13 +120,14 @@ class ClickContext:
     def has_viewpoint(self) -> bool:
         return self.sensor_origin is not None
 
-    def cluster_mean_near(self, point: np.ndarray, radius: float,
-                          min_points: int = 1) -> np.ndarray | None:
+    def cluster_mean_near(
+        self, point: np.ndarray, radius: float, min_points: int = 1
+    ) -> np.ndarray | None:
         """Mean (3,) of the cluster points within ``radius`` (m) of ``point`` (3,), or None when
         fewer than ``min_points`` are."""
         point = np.asarray(point, dtype=float)
-        if np.array_equal(point, self.click):       # (asked once per template: the same
-            dist = self._cluster_to_click              # distances each time)
+        if np.array_equal(point, self.click):  # (asked once per template: the same
+            dist = self._cluster_to_click  # distances each time)
         else:
             dist = np.linalg.norm(self.cluster - point, axis=1)
         near = dist <= radius
@@ -150,8 +151,9 @@ class ClickContext:
         if len(P) < NOISE_NEIGHBOURS:
             return 0.0
         idx = np.linspace(0, len(P) - 1, min(NOISE_SAMPLES, len(P))).astype(np.int64)
-        nb = np.take(P, k_nearest(self.fine_tree, np.take(P, idx, axis=0), NOISE_NEIGHBOURS),
-                     axis=0)
+        nb = np.take(
+            P, k_nearest(self.fine_tree, np.take(P, idx, axis=0), NOISE_NEIGHBOURS), axis=0
+        )
         nb = nb - nb.mean(axis=1, keepdims=True)
         lam = np.linalg.eigvalsh(np.swapaxes(nb, 1, 2) @ nb / NOISE_NEIGHBOURS)[:, 0]
         return float(np.median(np.sqrt(np.maximum(lam, 0.0))))
@@ -173,12 +175,19 @@ class ClickContext:
 
     @cached_property
     def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
-        labels, patches = segments_and_patches(self.cluster, self.sensor_origin, self.voxel,
-                                               self.cluster_tree)
+        labels, patches = segments_and_patches(
+            self.cluster, self.sensor_origin, self.voxel, self.cluster_tree
+        )
         if self.insides and self.plane is not None:
             clicked = labels[int(np.argmin(self._cluster_to_click))]
-            labels = joined_insides(self.cluster, labels, clicked, self.plane.normal,
-                                    self.frame[:, 0], self.sensor_origin)
+            labels = joined_insides(
+                self.cluster,
+                labels,
+                clicked,
+                self.plane.normal,
+                self.frame[:, 0],
+                self.sensor_origin,
+            )
         return labels, patches
 
     def with_insides(self) -> "ClickContext":
@@ -195,8 +204,14 @@ class ClickContext:
     def _segmented_again(self) -> "ClickContext":
         """A copy of this context sharing everything but what depends on the segments."""
         out = copy.copy(self)
-        for name in ("segments", "patches", "clicked_segment", "clicked_patch", "clicked_points",
-                     "clicked_spread"):
+        for name in (
+            "segments",
+            "patches",
+            "clicked_segment",
+            "clicked_patch",
+            "clicked_points",
+            "clicked_spread",
+        ):
             out.__dict__.pop(name, None)
         return out
 

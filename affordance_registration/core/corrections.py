@@ -7,6 +7,7 @@ viewer. A SpaceMouse push to the right therefore moves the object to the right o
 whatever the camera's pose in the scene. Rotations turn the object about its own centre (not about
 the scene origin or the template's base), so a twist never flings a distant object around.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,15 +15,15 @@ import numpy as np
 from .errors import AffordanceError
 from .transforms import axis_angle_matrix, finite_vector, make_T
 
-__all__ = ["view_from_optical", "twist_step", "apply_twist", "OPTICAL_TO_VIEW",
-           "R_VIEW_SPACENAV"]
+__all__ = ["view_from_optical", "twist_step", "apply_twist", "OPTICAL_TO_VIEW", "R_VIEW_SPACENAV"]
 
 #: Rotation from the screen view frame (x right, y up, z to the viewer) to a camera optical frame
 #: (x right, y down, z forward): R_optical_view.
 OPTICAL_TO_VIEW = np.diag([1.0, -1.0, -1.0])
 
-#: Rotation from the spacenav device axes of ``spacenav/twist`` (x away from the user, y left, z up)
-#: to the view axes: push right -> right on the screen, push away -> into the screen, lift -> up.
+#: Rotation from the spacenav device axes of ``spacenav/twist`` (x away from the user, y left, z
+#: up) to the view axes: push right -> right on the screen, push away -> into the screen, lift ->
+#: up.
 R_VIEW_SPACENAV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
 
 
@@ -55,8 +56,9 @@ def twist_step(linear, angular, dt: float, T_scene_view: np.ndarray, centre) -> 
     return make_T(R, c - R @ c + v_s * dt)
 
 
-def apply_twist(T_scene_model: np.ndarray, linear, angular, dt: float,
-                T_scene_view: np.ndarray, centre_model) -> np.ndarray:
+def apply_twist(
+    T_scene_model: np.ndarray, linear, angular, dt: float, T_scene_view: np.ndarray, centre_model
+) -> np.ndarray:
     """``T_scene_model`` moved by a view-frame twist about the model point ``centre_model``."""
     T = np.asarray(T_scene_model, dtype=float)
     centre = T[:3, :3] @ np.asarray(centre_model, dtype=float) + T[:3, 3]

@@ -10,6 +10,7 @@ Camera convention: a view's camera is an **optical** frame -- x right on the scr
 into the screen (OpenCV, and the ``view_pose`` the engine node takes). ``T_world_optical`` maps
 camera coordinates to the world (the cloud's frame).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,13 +21,24 @@ import numpy as np
 from .errors import AffordanceError
 from .transforms import finite_vector, make_T
 
-__all__ = ["thin", "Thinned", "scalar_colors", "offset_surface", "snap_ray", "optical_pose", "look_at_pose",
-           "project", "pixel_ray", "initial_view"]
+__all__ = [
+    "thin",
+    "Thinned",
+    "scalar_colors",
+    "offset_surface",
+    "snap_ray",
+    "optical_pose",
+    "look_at_pose",
+    "project",
+    "pixel_ray",
+    "initial_view",
+]
 
 #: colour map of :func:`scalar_colors`: near/low (dark slate) -> far/high (light sand), muted so
 #: that the fitted meshes (green..red, orange, blue) stand out against the cloud
-_STOPS = np.array([[55, 62, 78], [95, 105, 120], [145, 150, 155], [190, 185, 170],
-                   [230, 222, 200]], dtype=float)
+_STOPS = np.array(
+    [[55, 62, 78], [95, 105, 120], [145, 150, 155], [190, 185, 170], [230, 222, 200]], dtype=float
+)
 
 
 def _voxel_keys(offsets: np.ndarray, voxel: float) -> np.ndarray:
@@ -57,8 +69,9 @@ class Thinned:
     voxel: float
 
 
-def thin(points: np.ndarray, budget: int, iterations: int = 6,
-         start_voxel: float | None = None) -> Thinned:
+def thin(
+    points: np.ndarray, budget: int, iterations: int = 6, start_voxel: float | None = None
+) -> Thinned:
     """At most ``budget`` points of ``points`` (N, 3) for display: one point of the cloud per
     occupied voxel, the voxel edge chosen so that M is close to (not above) the budget. A cloud
     within the budget is returned whole; a cloud is never dropped, only thinned.
@@ -82,12 +95,12 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
     pts = pts.astype(np.float32, copy=False)
     offsets = pts - pts.min(axis=0)
     extent = np.sort(offsets.max(axis=0))[::-1].astype(float)
-    floor = extent[0] / 2e6             # at most 2e6 cells a side: the keys fit in int64
+    floor = extent[0] / 2e6  # at most 2e6 cells a side: the keys fit in int64
     estimate = max(math.sqrt(max(extent[0] * extent[1], 1e-12) / budget), 1e-6, floor)
     hinted = start_voxel is not None and math.isfinite(start_voxel) and start_voxel > 0
     voxel = max(float(start_voxel), floor) if hinted else estimate
-    best = None                                   # (indices, voxel) of the fullest set in budget
-    fewest = None                                 # the smallest set over the budget
+    best = None  # (indices, voxel) of the fullest set in budget
+    fewest = None  # the smallest set over the budget
     for attempt in range(iterations):
         idx = _one_per_voxel(_voxel_keys(offsets, voxel))
         count = len(idx)
@@ -98,23 +111,24 @@ def thin(points: np.ndarray, budget: int, iterations: int = 6,
         if budget * 0.7 <= count <= budget:
             break
         if attempt == 0 and hinted and not budget / 4 <= count <= 2 * budget:
-            voxel = estimate            # a different cloud: the hint says little
+            voxel = estimate  # a different cloud: the hint says little
             continue
-        voxel = max(voxel * math.sqrt(count / budget) * (1.04 if count > budget else 0.98),
-                    floor)
+        voxel = max(voxel * math.sqrt(count / budget) * (1.04 if count > budget else 0.98), floor)
     idx, voxel = best if best is not None else fewest
     if len(idx) > budget:
         idx = np.sort(idx)[np.linspace(0, len(idx) - 1, budget).astype(np.int64)]
     return Thinned(np.sort(idx), voxel)
 
 
-def offset_surface(vertices: np.ndarray, faces: np.ndarray,
-                   margin: float) -> tuple[np.ndarray, np.ndarray]:
+def offset_surface(
+    vertices: np.ndarray, faces: np.ndarray, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
     """A mesh's surface moved ``margin`` (m) outwards along its vertex normals: drawn on the
     surface it was fitted to, it shows in front of that surface's points instead of hiding
     among them. ``vertices`` (V, 3), ``faces`` (F, 3) (a triangle soup is welded first); returns
     (vertices (V', 3) float32, faces (F', 3) uint32)."""
     import trimesh
+
     mesh = trimesh.Trimesh(np.asarray(vertices, dtype=float), np.asarray(faces), process=True)
     if len(mesh.faces) == 0:
         return np.asarray(vertices, dtype=np.float32), np.asarray(faces, dtype=np.uint32)
@@ -127,7 +141,7 @@ def scalar_colors(values: np.ndarray, low: float = 2.0, high: float = 98.0) -> n
     percentile range mapped onto a dark -> light scale (brightness grows with the value).
     Non-finite values are mid grey."""
     v = np.asarray(values, dtype=float).reshape(-1)
-    out = np.full((len(v), 3), 128, dtype=np.uint8)   # mid grey: no value
+    out = np.full((len(v), 3), 128, dtype=np.uint8)  # mid grey: no value
     finite = np.isfinite(v)
     if not finite.any():
         return out
@@ -139,15 +153,20 @@ def scalar_colors(values: np.ndarray, low: float = 2.0, high: float = 98.0) -> n
     return out
 
 
-def snap_ray(points: np.ndarray, origin, direction, cone_rad: float = math.radians(0.5),
-             max_rad: float = math.radians(3.0)) -> int | None:
+def snap_ray(
+    points: np.ndarray,
+    origin,
+    direction,
+    cone_rad: float = math.radians(0.5),
+    max_rad: float = math.radians(3.0),
+) -> int | None:
     """The cloud point a click ray picks: index into ``points`` (N, 3), or None when no point lies
     within ``max_rad`` of the ray (a click into the void).
 
     Points within ``cone_rad`` of the ray (at least 1.5x the closest point's angle) are the
     candidates; the nearest candidate along the ray is the surface the operator sees, and of the
-    candidates no more than 3 cone radii behind it, the one closest to the ray is picked. So a click
-    on an object picks the object, not the wall behind it, however the points are spaced.
+    candidates no more than 3 cone radii behind it, the one closest to the ray is picked. So a
+    click on an object picks the object, not the wall behind it, however the points are spaced.
     ``origin`` (3,) and ``direction`` (3,) are in the points' frame; angles in radians.
     """
     o = finite_vector(origin, "ray origin", AffordanceError)
@@ -185,9 +204,13 @@ def optical_pose(wxyz, position) -> np.ndarray:
     if abs(n - 1.0) > 0.01:
         raise AffordanceError(f"camera orientation is not a unit quaternion (norm {n:.3f})")
     w, x, y, z = w / n, x / n, y / n, z / n
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     return make_T(R, finite_vector(position, "camera position", AffordanceError))
 
 
@@ -213,8 +236,9 @@ def _focal(fov_y: float, height: float) -> float:
     return 0.5 * height / math.tan(0.5 * fov_y)
 
 
-def project(T_world_optical: np.ndarray, fov_y: float, width: float, height: float,
-            points: np.ndarray) -> np.ndarray:
+def project(
+    T_world_optical: np.ndarray, fov_y: float, width: float, height: float, points: np.ndarray
+) -> np.ndarray:
     """Pixel coordinates (N, 2) (u right, v down, origin at the top-left corner) of world points
     (N, 3) in a pinhole view of vertical field of view ``fov_y`` (rad) and ``width`` x ``height``
     pixels (square pixels). Points behind the camera get NaN."""
@@ -222,14 +246,16 @@ def project(T_world_optical: np.ndarray, fov_y: float, width: float, height: flo
     p = (np.atleast_2d(np.asarray(points, dtype=float)) - T[:3, 3]) @ T[:3, :3]
     f = _focal(fov_y, height)
     with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.column_stack([f * p[:, 0] / p[:, 2] + 0.5 * width,
-                              f * p[:, 1] / p[:, 2] + 0.5 * height])
+        uv = np.column_stack(
+            [f * p[:, 0] / p[:, 2] + 0.5 * width, f * p[:, 1] / p[:, 2] + 0.5 * height]
+        )
     uv[p[:, 2] <= 0] = np.nan
     return uv
 
 
-def pixel_ray(T_world_optical: np.ndarray, fov_y: float, width: float, height: float,
-              uv) -> tuple[np.ndarray, np.ndarray]:
+def pixel_ray(
+    T_world_optical: np.ndarray, fov_y: float, width: float, height: float, uv
+) -> tuple[np.ndarray, np.ndarray]:
     """The world ray (origin (3,), unit direction (3,)) through pixel ``uv`` of the view (the
     inverse of :func:`project`)."""
     T = np.asarray(T_world_optical, dtype=float)
@@ -239,8 +265,9 @@ def pixel_ray(T_world_optical: np.ndarray, fov_y: float, width: float, height: f
     return T[:3, 3].copy(), d / np.linalg.norm(d)
 
 
-def initial_view(points: np.ndarray, up, fov: float | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def initial_view(
+    points: np.ndarray, up, fov: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Where a first view of a cloud stands and looks: (camera position (3,), look-at point (3,)).
 
     A cloud seen from its frame's origin (a sensor frame: the origin lies outside the cloud's
@@ -260,7 +287,7 @@ def initial_view(points: np.ndarray, up, fov: float | None = None
         if fov is None or np.linalg.norm(target) < 1e-9:
             return np.zeros(3), target
         d = target / np.linalg.norm(target)
-        depth = pts @ d                                  # along the view
+        depth = pts @ d  # along the view
         lateral = np.linalg.norm(pts - np.outer(depth, d), axis=1)
         back = float(np.percentile(lateral / math.tan(0.5 * fov) - depth, 99))
         return -max(back, 0.0) * d, target

@@ -8,6 +8,7 @@ undo restores the previous state exactly, and every action swaps the whole state
 engine is safe to call from several threads. Fitting runs outside the lock; only its result is
 committed under it. The registrations file's format is read and written in ``persistence.py``.
 """
+
 from __future__ import annotations
 
 import math
@@ -28,8 +29,15 @@ from .tracked import EngineState, Registration, TrackedObject
 from .transforms import finite_transform, is_rigid
 from .waypoints import Trajectory, trajectory, waypoints_dict
 
-__all__ = ["AffordanceEngine", "TrackedObject", "Registration", "EngineState",
-           "load_registrations", "save_registrations", "REGISTRATIONS_FORMAT"]
+__all__ = [
+    "AffordanceEngine",
+    "TrackedObject",
+    "Registration",
+    "EngineState",
+    "load_registrations",
+    "save_registrations",
+    "REGISTRATIONS_FORMAT",
+]
 
 
 class AffordanceEngine:
@@ -41,18 +49,25 @@ class AffordanceEngine:
     from an object's centre selects that object instead of starting a new one.
     """
 
-    def __init__(self, library: TemplateLibrary, settings: FitSettings | None = None,
-                 select_radius: float = 0.4, undo_depth: int = 200,
-                 joint_step_rad: float = math.radians(5.0), joint_step_m: float = 0.002,
-                 reach_m: float = 1.0, dimension_step_m: float = 0.005):
-        self.reach_m = float(reach_m)       #: corrections keep an object this close to its click
+    def __init__(
+        self,
+        library: TemplateLibrary,
+        settings: FitSettings | None = None,
+        select_radius: float = 0.4,
+        undo_depth: int = 200,
+        joint_step_rad: float = math.radians(5.0),
+        joint_step_m: float = 0.002,
+        reach_m: float = 1.0,
+        dimension_step_m: float = 0.005,
+    ):
+        self.reach_m = float(reach_m)  #: corrections keep an object this close to its click
         self.registrar = Registrar(library, settings)
         self.registrar.warm_up()
         self.library = library
         self.select_radius = float(select_radius)
         self.undo_depth = int(undo_depth)
-        self.joint_step_rad = float(joint_step_rad)    #: one joint nudge, revolute (rad)
-        self.joint_step_m = float(joint_step_m)        #: one joint nudge, prismatic (m)
+        self.joint_step_rad = float(joint_step_rad)  #: one joint nudge, revolute (rad)
+        self.joint_step_m = float(joint_step_m)  #: one joint nudge, prismatic (m)
         self.dimension_step_m = float(dimension_step_m)  #: one nudge of a primitive's size (m)
         self._lock = threading.RLock()
         self._state = EngineState()
@@ -64,12 +79,15 @@ class AffordanceEngine:
         self._T_scene_optical: np.ndarray | None = None
         self._last_action = ""
         self._last_timing: dict = {}
-        self._entries = PerRecord(lambda r, lib: dict(r.to_dict(), waypoints=waypoints_dict(lib, r)))
+        self._entries = PerRecord(
+            lambda r, lib: dict(r.to_dict(), waypoints=waypoints_dict(lib, r))
+        )
         #: the drag in progress: (object id, candidate index, pose and corrections before it)
         self._drag_start: tuple | None = None
 
-    def configure(self, settings: FitSettings | None = None,
-                  library: TemplateLibrary | None = None) -> None:
+    def configure(
+        self, settings: FitSettings | None = None, library: TemplateLibrary | None = None
+    ) -> None:
         """Use new fitting settings and/or a new template library from the next fit on.
         Registrations are kept; a new library is refused while objects of interest are open
         (their candidates refer to the old templates)."""
@@ -78,8 +96,9 @@ class AffordanceEngine:
         registrar.warm_up()
         with self._lock:
             if library is not self.library and self._state.objects:
-                raise EngineStateError("accept or discard the open objects before changing the "
-                                       "template library")
+                raise EngineStateError(
+                    "accept or discard the open objects before changing the template library"
+                )
             self.registrar, self.library = registrar, library
 
     # ------------------------------------------------------------------ state access
@@ -109,7 +128,7 @@ class AffordanceEngine:
         """Swap in a new state, remembering the old one for undo (call with the lock held)."""
         if not (coalesce and self._last_action == action and self._undo):
             self._undo.append((self._state, action))
-            del self._undo[:-self.undo_depth]
+            del self._undo[: -self.undo_depth]
         self._state = new_state
         self._last_action = action
 
@@ -124,8 +143,13 @@ class AffordanceEngine:
         return obj
 
     # ------------------------------------------------------------------ inputs
-    def set_scene(self, points, frame_id: str = "", sensor_origin=None,
-                  T_scene_optical: np.ndarray | None = None) -> int:
+    def set_scene(
+        self,
+        points,
+        frame_id: str = "",
+        sensor_origin=None,
+        T_scene_optical: np.ndarray | None = None,
+    ) -> int:
         """Replace the scene (the latest cloud). Returns the number of points the cloud has,
         holes included (counting the finite ones would cost a pass over the cloud that a click
         does not need). Existing objects keep their crops until they are refitted, which
@@ -136,8 +160,11 @@ class AffordanceEngine:
         sensor's pose as an optical frame (x right, y down, z forward) in the scene frame, for
         the default view of twists; None: an optical frame with the scene frame's axes at the
         sensor origin (a cloud in its camera's optical frame)."""
-        scene = points if isinstance(points, Scene) else Scene(points, sensor_origin=sensor_origin,
-                                                               frame_id=frame_id)
+        scene = (
+            points
+            if isinstance(points, Scene)
+            else Scene(points, sensor_origin=sensor_origin, frame_id=frame_id)
+        )
         if T_scene_optical is not None:
             T_scene_optical = finite_transform(T_scene_optical, "the sensor pose")
         with self._lock:
@@ -156,18 +183,25 @@ class AffordanceEngine:
 
         def obj_in_new(o: TrackedObject) -> TrackedObject:
             cands = tuple(replace(c, T_scene_model=T @ c.T_scene_model) for c in o.candidates)
-            return replace(o, candidates=cands, click=T[:3, :3] @ o.click + T[:3, 3],
-                           context=None)
+            return replace(o, candidates=cands, click=T[:3, :3] @ o.click + T[:3, 3], context=None)
 
         def reg_in_new(r: Registration) -> Registration:
             if r.frame_id and r.frame_id.lstrip("/") == new_frame.lstrip("/"):
-                return r                    # already in the new frame
-            return replace(r, T_scene_model=T @ r.T_scene_model,
-                           click=T[:3, :3] @ r.click + T[:3, 3], frame_id=new_frame)
+                return r  # already in the new frame
+            return replace(
+                r,
+                T_scene_model=T @ r.T_scene_model,
+                click=T[:3, :3] @ r.click + T[:3, 3],
+                frame_id=new_frame,
+            )
 
         def state_in_new(st: EngineState) -> EngineState:
-            return replace(st, objects=tuple(obj_in_new(o) for o in st.objects),
-                           registered=tuple(reg_in_new(r) for r in st.registered))
+            return replace(
+                st,
+                objects=tuple(obj_in_new(o) for o in st.objects),
+                registered=tuple(reg_in_new(r) for r in st.registered),
+            )
+
         with self._lock:
             old = self._frame_id
             self._state = state_in_new(self._state)
@@ -179,8 +213,10 @@ class AffordanceEngine:
                 self._T_scene_view = T @ self._T_scene_view
             self._frame_id = new_frame
             n, m = len(self._state.objects), len(self._state.registered)
-        return (f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new_frame)}': "
-                f"{n} open object(s) and {m} registration(s) re-expressed in it through TF")
+        return (
+            f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new_frame)}': "
+            f"{n} open object(s) and {m} registration(s) re-expressed in it through TF"
+        )
 
     def close_open_objects(self, why: str) -> str:
         """Close every open object (they cannot be carried over: ``why``), and forget the undo
@@ -191,8 +227,11 @@ class AffordanceEngine:
             self._undo.clear()
             self._drag_start = None
             self._last_action = "close"
-        closed = f"open object(s) {', '.join(map(str, ids))} closed" if ids else \
-            "no open object to close"
+        closed = (
+            f"open object(s) {', '.join(map(str, ids))} closed"
+            if ids
+            else "no open object to close"
+        )
         return f"{why}: {closed}; registrations keep their own frame_id"
 
     def set_view(self, T_scene_view: np.ndarray | None) -> None:
@@ -232,15 +271,28 @@ class AffordanceEngine:
                     if obj.id != self._state.active_id:
                         self._commit(replace(self._state, active_id=obj.id), "select")
                     return f"selected object {obj.id}: {obj.describe()}"
-        report, view = self._fit(scene, p)          # outside the lock: fitting takes time
+        report, view = self._fit(scene, p)  # outside the lock: fitting takes time
         with self._lock:
-            obj = TrackedObject(id=self._state.next_id, click=report.point,
-                                candidates=report.candidates, refined=frozenset({0}),
-                                context=report.context, scene_version=version,
-                                fit_s=report.timing_s["total"], ambiguity=report.ambiguity,
-                                suggested_view=view)
-            self._commit(replace(self._state, objects=self._state.objects + (obj,),
-                                 active_id=obj.id, next_id=obj.id + 1), "click")
+            obj = TrackedObject(
+                id=self._state.next_id,
+                click=report.point,
+                candidates=report.candidates,
+                refined=frozenset({0}),
+                context=report.context,
+                scene_version=version,
+                fit_s=report.timing_s["total"],
+                ambiguity=report.ambiguity,
+                suggested_view=view,
+            )
+            self._commit(
+                replace(
+                    self._state,
+                    objects=self._state.objects + (obj,),
+                    active_id=obj.id,
+                    next_id=obj.id + 1,
+                ),
+                "click",
+            )
             self._last_timing = dict(report.timing_s)
             return f"object {obj.id}: {obj.describe()} ({report.timing_s['total']:.2f} s)"
 
@@ -267,11 +319,17 @@ class AffordanceEngine:
         ctx, candidates, refined = obj.context, obj.candidates, obj.refined
         if active not in refined and ctx is not None:
             cand = candidates[active]
-            with self._lock:        # the object's own cloud: a primitive's crop may widen
+            with self._lock:  # the object's own cloud: a primitive's crop may widen
                 scene = self._scene if obj.scene_version == self._scene_version else None
-            better = self.registrar.refit(ctx, cand.template, cand.T_scene_model, cand.joints,
-                                          cand.scale, dimensions=cand.dimensions or None,
-                                          scene=scene)
+            better = self.registrar.refit(
+                ctx,
+                cand.template,
+                cand.T_scene_model,
+                cand.joints,
+                cand.scale,
+                dimensions=cand.dimensions or None,
+                scene=scene,
+            )
             if better.likelihood >= cand.likelihood or cand.prefiltered:
                 cand = replace(better, rank=cand.rank, probability=cand.probability)
             candidates = obj.with_candidate(active, cand).candidates
@@ -280,8 +338,13 @@ class AffordanceEngine:
             current = self._find(obj.id)
             if current is None or current.active != obj.active:
                 raise EngineStateError("the object changed meanwhile; try again")
-            new = replace(current, active=active, candidates=candidates, refined=refined,
-                          model_changes=current.model_changes + 1)
+            new = replace(
+                current,
+                active=active,
+                candidates=candidates,
+                refined=refined,
+                model_changes=current.model_changes + 1,
+            )
             self._commit(self._replace_object(new), "cycle")
             return f"object {new.id}: {new.describe()}"
 
@@ -291,8 +354,10 @@ class AffordanceEngine:
             obj = self._require_active()
             names = [c.template for c in obj.candidates]
             if template not in names:
-                raise EngineStateError(f"object {obj.id} has no candidate '{bounded(template)}' "
-                                       f"(candidates: {', '.join(names)})")
+                raise EngineStateError(
+                    f"object {obj.id} has no candidate '{bounded(template)}' "
+                    f"(candidates: {', '.join(names)})"
+                )
             index = names.index(template)
             if index == obj.active:
                 return f"object {obj.id}: {obj.describe()} (already shown)"
@@ -328,8 +393,7 @@ class AffordanceEngine:
             first = not (drag and self._last_action == "drag")
             new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
             if drag and (first or self._drag_start is None or self._drag_start[0] != obj.id):
-                self._drag_start = (obj.id, obj.active, obj.shown.T_scene_model,
-                                    obj.corrections)
+                self._drag_start = (obj.id, obj.active, obj.shown.T_scene_model, obj.corrections)
             self._commit(self._replace_object(new), "drag" if drag else "pose", coalesce=drag)
             return f"object {obj.id}: {obj.shown.template} placed"
 
@@ -351,11 +415,14 @@ class AffordanceEngine:
             if obj is None or index >= len(obj.candidates):
                 raise EngineStateError(f"the dragged object {obj_id} is gone: nothing to cancel")
             cand = replace(obj.candidates[index], T_scene_model=T_before)
-            self._commit(self._replace_object(obj.with_candidate(index, cand,
-                                                                 corrections=corrections)),
-                         "cancel drag")
-            return (f"object {obj_id}: the unfinished drag was cancelled; "
-                    f"{cand.template} is back where the drag started")
+            self._commit(
+                self._replace_object(obj.with_candidate(index, cand, corrections=corrections)),
+                "cancel drag",
+            )
+            return (
+                f"object {obj_id}: the unfinished drag was cancelled; "
+                f"{cand.template} is back where the drag started"
+            )
 
     def _with_pose(self, obj: TrackedObject, T: np.ndarray, corrections: int) -> TrackedObject:
         """``obj`` with its shown candidate at ``T`` -- refused when that is not a finite rigid
@@ -366,12 +433,15 @@ class AffordanceEngine:
         tpl = self._geometry(obj.shown)
         away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
         if away > self.reach_m:
-            raise AffordanceError(f"the correction would put {obj.shown.template} {away:.3g} m "
-                                  f"from where it was clicked (at most {self.reach_m:g} m)")
+            raise AffordanceError(
+                f"the correction would put {obj.shown.template} {away:.3g} m "
+                f"from where it was clicked (at most {self.reach_m:g} m)"
+            )
         return obj.with_shown(replace(obj.shown, T_scene_model=T), corrections=corrections)
 
-    def correct_joint(self, steps: float | None = None, value: float | None = None,
-                      refit: bool = True) -> str:
+    def correct_joint(
+        self, steps: float | None = None, value: float | None = None, refit: bool = True
+    ) -> str:
         """Nudge the shown candidate's joint by ``steps`` joint steps (``joint_step_rad`` for a
         revolute joint, ``joint_step_m`` for a prismatic one) or set it to ``value`` (rad or m),
         clamped to its limits; then, with ``refit``, refit the pose with the joint held where
@@ -404,8 +474,9 @@ class AffordanceEngine:
             msg += "; " + self.refit(hold_joint=True, coalesce=True)
         return msg
 
-    def correct_dimension(self, name: str, value: float | None = None,
-                          steps: float | None = None, refit: bool = True) -> str:
+    def correct_dimension(
+        self, name: str, value: float | None = None, steps: float | None = None, refit: bool = True
+    ) -> str:
         """Set the shown primitive's dimension ``name`` (a box's "x", "y", "z", a cylinder's
         "radius", "length") to ``value`` (m) or change it by ``steps`` of ``dimension_step_m``,
         clipped to the template's range; then, with ``refit``, refit the pose with the
@@ -415,11 +486,14 @@ class AffordanceEngine:
             obj = self._require_active()
             tpl = self.library[obj.shown.template]
             if tpl.primitive is None:
-                raise EngineStateError(f"{tpl.name} is not a primitive: it has no dimensions "
-                                       f"to set")
+                raise EngineStateError(
+                    f"{tpl.name} is not a primitive: it has no dimensions to set"
+                )
             if name not in tpl.dimension_ranges:
-                raise AffordanceError(f"a {tpl.primitive} has the dimensions "
-                                      f"{', '.join(tpl.dimension_ranges)}, not {name!r}")
+                raise AffordanceError(
+                    f"a {tpl.primitive} has the dimensions "
+                    f"{', '.join(tpl.dimension_ranges)}, not {name!r}"
+                )
             dims = dict(obj.shown.dimensions or tpl.dimensions)
             if value is not None:
                 new_value = float(value)
@@ -431,8 +505,9 @@ class AffordanceEngine:
                 raise AffordanceError(f"a dimension must be a finite number, got {value!r}")
             dims[name] = new_value
             dims = tpl.clip_dimensions(dims)
-            new = obj.with_shown(replace(obj.shown, dimensions=dims),
-                                 corrections=obj.corrections + 1)
+            new = obj.with_shown(
+                replace(obj.shown, dimensions=dims), corrections=obj.corrections + 1
+            )
             self._commit(self._replace_object(new), "dimension")
         msg = f"object {obj.id}: {tpl.name} {name} {dims[name] * 1000:.1f} mm"
         if refit:
@@ -442,8 +517,11 @@ class AffordanceEngine:
     def _geometry(self, candidate: FitResult):
         """The template a candidate is drawn and placed with (a primitive at its size)."""
         tpl = self.library[candidate.template]
-        return tpl.sized(candidate.dimensions) if tpl.primitive is not None and \
-            candidate.dimensions else tpl
+        return (
+            tpl.sized(candidate.dimensions)
+            if tpl.primitive is not None and candidate.dimensions
+            else tpl
+        )
 
     def refit(self, hold_joint: bool | None = None, coalesce: bool = False) -> str:
         """Refit the shown candidate locally from its current (possibly corrected) pose, joint
@@ -465,29 +543,45 @@ class AffordanceEngine:
             raise EngineStateError("no point cloud to refit against")
         t0 = time.perf_counter()
         shown = obj.shown
-        res = self.registrar.refit(ctx, shown.template, shown.T_scene_model, shown.joints,
-                                   shown.scale, hold_joint=hold_joint,
-                                   dimensions=shown.dimensions or None, scene=scene)
-        if hold_joint and shown.joints:       # the operator's value, whatever the settings
+        res = self.registrar.refit(
+            ctx,
+            shown.template,
+            shown.T_scene_model,
+            shown.joints,
+            shown.scale,
+            hold_joint=hold_joint,
+            dimensions=shown.dimensions or None,
+            scene=scene,
+        )
+        if hold_joint and shown.joints:  # the operator's value, whatever the settings
             res = replace(res, joints=dict(shown.joints), state=shown.state)
         with self._lock:
             current = self._find(obj.id)
-            if current is None or current.shown.template != obj.shown.template or \
-                    not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model) or \
-                    current.shown.joints != shown.joints or \
-                    current.shown.dimensions != shown.dimensions:
+            if (
+                current is None
+                or current.shown.template != obj.shown.template
+                or not np.array_equal(current.shown.T_scene_model, obj.shown.T_scene_model)
+                or current.shown.joints != shown.joints
+                or current.shown.dimensions != shown.dimensions
+            ):
                 raise EngineStateError("the object changed during the refit; refit again")
             cand = replace(res, rank=current.shown.rank, probability=current.shown.probability)
-            new = current.with_shown(cand, context=ctx, scene_version=version,
-                                     refined=current.refined | {current.active})
-            if coalesce:        # the refit belongs to the correction just made: one undo step
+            new = current.with_shown(
+                cand,
+                context=ctx,
+                scene_version=version,
+                refined=current.refined | {current.active},
+            )
+            if coalesce:  # the refit belongs to the correction just made: one undo step
                 self._state = self._replace_object(new)
             else:
                 self._commit(self._replace_object(new), "refit")
             self._last_timing = {"refit": time.perf_counter() - t0}
             moved = np.linalg.norm(res.T_scene_model[:3, 3] - obj.shown.T_scene_model[:3, 3])
-            return (f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
-                    f"likelihood {cand.likelihood:.0f})")
+            return (
+                f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
+                f"likelihood {cand.likelihood:.0f})"
+            )
 
     def follow_scene(self) -> str | None:
         """Refit the selected object on the latest scene if it was fitted on an older one (a
@@ -500,15 +594,26 @@ class AffordanceEngine:
             if obj is None or self._scene is None or obj.scene_version == self._scene_version:
                 return None
             scene, version = self._scene, self._scene_version
-        if obj.ambiguity is not None and not obj.ambiguity.settled and not obj.corrections \
-                and not obj.model_changes:     # untouched and unsettled: the click fitted anew
+        if (
+            obj.ambiguity is not None
+            and not obj.ambiguity.settled
+            and not obj.corrections
+            and not obj.model_changes
+        ):  # untouched and unsettled: the click fitted anew
             report, view = self._fit(scene, obj.click)
             with self._lock:
                 if self._find(obj.id) is not obj:
                     raise EngineStateError("the object changed during the refit; refit again")
-                new = replace(obj, candidates=report.candidates, active=0, context=report.context,
-                              refined=frozenset({0}), scene_version=version,
-                              ambiguity=report.ambiguity, suggested_view=view)
+                new = replace(
+                    obj,
+                    candidates=report.candidates,
+                    active=0,
+                    context=report.context,
+                    refined=frozenset({0}),
+                    scene_version=version,
+                    ambiguity=report.ambiguity,
+                    suggested_view=view,
+                )
                 self._state = self._replace_object(new)
                 self._last_timing = dict(report.timing_s)
                 return f"object {obj.id}: fitted again on the new cloud: {new.describe()}"
@@ -520,22 +625,38 @@ class AffordanceEngine:
             obj = self._require_active()
             reg = Registration.of(obj, self._frame_id)
             objects = tuple(o for o in self._state.objects if o.id != obj.id)
-            self._commit(replace(self._state, objects=objects, registered=self._state.registered
-                                 + (reg,), active_id=objects[-1].id if objects else None),
-                         "accept")
-            why = "" if not reg.override else f" as an operator override ({NO_MATCH})" \
-                if obj.no_match and not obj.shown_is_the_answer else \
-                " as an operator override (it does not fit)"
-            return (f"accepted {reg.template} as object {obj.id}{why} "
-                    f"({len(self._state.registered)} registered)")
+            self._commit(
+                replace(
+                    self._state,
+                    objects=objects,
+                    registered=self._state.registered + (reg,),
+                    active_id=objects[-1].id if objects else None,
+                ),
+                "accept",
+            )
+            why = (
+                ""
+                if not reg.override
+                else f" as an operator override ({NO_MATCH})"
+                if obj.no_match and not obj.shown_is_the_answer
+                else " as an operator override (it does not fit)"
+            )
+            return (
+                f"accepted {reg.template} as object {obj.id}{why} "
+                f"({len(self._state.registered)} registered)"
+            )
 
     def discard(self) -> str:
         """Drop the selected object of interest."""
         with self._lock:
             obj = self._require_active()
             objects = tuple(o for o in self._state.objects if o.id != obj.id)
-            self._commit(replace(self._state, objects=objects,
-                                 active_id=objects[-1].id if objects else None), "discard")
+            self._commit(
+                replace(
+                    self._state, objects=objects, active_id=objects[-1].id if objects else None
+                ),
+                "discard",
+            )
             return f"discarded object {obj.id} ({obj.shown.template})"
 
     def undo(self) -> str:
@@ -588,10 +709,18 @@ class AffordanceEngine:
         registration is immutable: its entry is made once (``self._entries``) and copied."""
         with self._lock:
             st, lib = self._state, self.library
-            return {"frame_id": self._frame_id, "active_id": st.active_id,
-                    "objects": [dict(o.to_dict(st.active_id),
-                                     waypoints=waypoints_dict(lib, o.shown)) for o in st.objects],
-                    "registered": [dict(e) for e in self._entries.values(st.registered, lib)],
-                    "counts": {"objects": len(st.objects), "registered": len(st.registered),
-                               "undo": len(self._undo)},
-                    "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()}}
+            return {
+                "frame_id": self._frame_id,
+                "active_id": st.active_id,
+                "objects": [
+                    dict(o.to_dict(st.active_id), waypoints=waypoints_dict(lib, o.shown))
+                    for o in st.objects
+                ],
+                "registered": [dict(e) for e in self._entries.values(st.registered, lib)],
+                "counts": {
+                    "objects": len(st.objects),
+                    "registered": len(st.registered),
+                    "undo": len(self._undo),
+                },
+                "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()},
+            }

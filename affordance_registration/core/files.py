@@ -17,6 +17,7 @@ it unreadable into one line: a missing file, not UTF-8, not YAML, nested too dee
 PyYAML cannot convert, too large, or a key written twice in one mapping (PyYAML would keep the
 last one silently; a settings, template or launch file with a key twice is a mistake).
 """
+
 from __future__ import annotations
 
 import errno
@@ -44,7 +45,7 @@ def _umask() -> int:
                     return int(line.split()[1], 8)
     except (OSError, ValueError):
         pass
-    with _UMASK_LOCK:                   # os.umask can only be read by setting it
+    with _UMASK_LOCK:  # os.umask can only be read by setting it
         mask = os.umask(0o022)
         os.umask(mask)
     return mask
@@ -55,7 +56,7 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:        # someone else's process: alive
+    except PermissionError:  # someone else's process: alive
         return True
     return True
 
@@ -100,12 +101,15 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
     absolute paths written, in the order given."""
     staged: list[tuple[str, str]] = []
     mode_new = 0o666 & ~_umask()
-    targets: dict[str, tuple] = {}   # final path -> (the path given, its stat)
-    for path in files:               # every target checked before anything is written
+    targets: dict[str, tuple] = {}  # final path -> (the path given, its stat)
+    for path in files:  # every target checked before anything is written
         final, st = _target(path)
         if final in targets:
-            raise OSError(errno.EINVAL, f"{path} and {targets[final][0]} are one file (a "
-                                        f"symbolic link): neither written", path)
+            raise OSError(
+                errno.EINVAL,
+                f"{path} and {targets[final][0]} are one file (a symbolic link): neither written",
+                path,
+            )
         targets[final] = (path, st)
     try:
         for (final, (_, st)), content in zip(targets.items(), files.values()):
@@ -123,7 +127,7 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
                     os.fchown(handle.fileno(), st.st_uid, st.st_gid)
                 os.fsync(handle.fileno())
         for tmp, final in staged:
-            _target(final)          # still a regular file (or absent) right before the rename
+            _target(final)  # still a regular file (or absent) right before the rename
             os.replace(tmp, final)
     except BaseException:
         for tmp, _ in staged:
@@ -161,7 +165,7 @@ def unreadable(path: str, missing_ok: bool = False) -> str | None:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
         return None if missing_ok else "no such file"
-    except (OSError, ValueError) as exc:       # (ValueError: a NUL byte in the path)
+    except (OSError, ValueError) as exc:  # (ValueError: a NUL byte in the path)
         return str(getattr(exc, "strerror", None) or exc).lower()
     kind = not_regular(mode)
     return None if kind is None else f"is not a regular file ({kind})"
@@ -172,9 +176,17 @@ def not_regular(mode: int) -> str | None:
     "a folder", "a FIFO", "a device", "a socket" -- else None."""
     if stat.S_ISREG(mode):
         return None
-    return "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else \
-        "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
-        "a socket" if stat.S_ISSOCK(mode) else "not a file"
+    return (
+        "a folder"
+        if stat.S_ISDIR(mode)
+        else "a FIFO"
+        if stat.S_ISFIFO(mode)
+        else "a device"
+        if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+        else "a socket"
+        if stat.S_ISSOCK(mode)
+        else "not a file"
+    )
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
@@ -191,16 +203,22 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 try:
                     twice = key in seen
                     seen.add(key)
-                except TypeError:                 # unhashable: PyYAML says so itself
+                except TypeError:  # unhashable: PyYAML says so itself
                     continue
                 if twice:
                     raise yaml.constructor.ConstructorError(
-                        None, None, f"the key {key!r} is written twice", key_node.start_mark)
+                        None, None, f"the key {key!r} is written twice", key_node.start_mark
+                    )
         return super().construct_mapping(node, deep)
 
 
-def read_yaml(path: str, error: type[Exception], label: str | None = None,
-              max_bytes: int | None = None, kind: str = "YAML file"):
+def read_yaml(
+    path: str,
+    error: type[Exception],
+    label: str | None = None,
+    max_bytes: int | None = None,
+    kind: str = "YAML file",
+):
     """The YAML document of the regular file ``path`` (None for an empty one). Anything that
     keeps it from being read raises ``error`` with one line starting with ``label`` (default:
     the path): it cannot be read (missing, a folder, a FIFO ...), is larger than ``max_bytes``
@@ -223,5 +241,5 @@ def read_yaml(path: str, error: type[Exception], label: str | None = None,
         raise error(f"{label}: not valid YAML{at}: {str(problem).splitlines()[0][:120]}") from None
     except RecursionError:
         raise error(f"{label}: YAML nested too deeply") from None
-    except ValueError as exc:        # PyYAML's int() of a number of thousands of digits
+    except ValueError as exc:  # PyYAML's int() of a number of thousands of digits
         raise error(f"{label}: not YAML this reads ({str(exc).splitlines()[0][:80]})") from None

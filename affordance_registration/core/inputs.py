@@ -3,6 +3,7 @@
 """The operator's inputs, one small frozen record per kind, and the host the operator stream
 (:mod:`~affordance_registration.core.operator`) talks to: what it needs from the node it runs
 in, as one :class:`OperatorHost` protocol. Pure Python (no ROS)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -10,8 +11,20 @@ from typing import Callable, ClassVar, Protocol
 
 import numpy as np
 
-__all__ = ["Click", "Action", "Twist", "Joy", "View", "Pose", "CancelDrag", "NewCloud",
-           "OperatorInput", "INDEPENDENT", "OperatorHost", "StandaloneHost"]
+__all__ = [
+    "Click",
+    "Action",
+    "Twist",
+    "Joy",
+    "View",
+    "Pose",
+    "CancelDrag",
+    "NewCloud",
+    "OperatorInput",
+    "INDEPENDENT",
+    "OperatorHost",
+    "StandaloneHost",
+]
 
 
 # ============================================================================ inputs
@@ -137,8 +150,9 @@ class OperatorHost(Protocol):
 
     def refresh_scene(self) -> None: ...
 
-    def to_scene_frame(self, point: np.ndarray, frame: str,
-                       stamp: float | None = None) -> np.ndarray: ...
+    def to_scene_frame(
+        self, point: np.ndarray, frame: str, stamp: float | None = None
+    ) -> np.ndarray: ...
 
     def report(self, kind: str, ok: bool, message: str) -> None: ...
 
@@ -160,8 +174,9 @@ class StandaloneHost:
     def refresh_scene(self) -> None:
         pass
 
-    def to_scene_frame(self, point: np.ndarray, frame: str,
-                       stamp: float | None = None) -> np.ndarray:
+    def to_scene_frame(
+        self, point: np.ndarray, frame: str, stamp: float | None = None
+    ) -> np.ndarray:
         return point
 
     def report(self, kind: str, ok: bool, message: str) -> None:

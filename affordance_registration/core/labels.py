@@ -10,6 +10,7 @@ how far it leads: the verdict, and for a fit ranked first its margin over the ru
 ratio of their probabilities (= of their likelihoods), "3.5x the next". A fit ranked lower says
 how it compares with the best instead ("0.30x the best").
 """
+
 from __future__ import annotations
 
 import math
@@ -38,8 +39,9 @@ def margin_text(probabilities, shown: int) -> str:
     return f"{p[shown] / p[0]:.2f}x the best"
 
 
-def standing(no_match: bool, shown: int, probabilities, fits, primitive: bool = False,
-             said: str = "") -> tuple[str, bool]:
+def standing(
+    no_match: bool, shown: int, probabilities, fits, primitive: bool = False, said: str = ""
+) -> tuple[str, bool]:
     """(text, refused) for the shown candidate of an object: ``no_match`` the object's verdict,
     ``shown`` the index of the shown candidate, ``probabilities`` and ``fits`` (True, False or
     None: not judged) of the candidates best first. ``refused``: the candidate is shown against

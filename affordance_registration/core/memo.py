@@ -10,6 +10,7 @@ click. :class:`PerRecord` keeps one value per record, found by the record's iden
 hold numpy arrays and are not hashable) and checked against the record itself, so a new record
 that reuses a freed object's ``id`` is never given the old one's value.
 """
+
 from __future__ import annotations
 
 import threading
@@ -25,7 +26,7 @@ class PerRecord:
 
     def __init__(self, compute: Callable):
         self._compute = compute
-        self._held: dict[int, tuple] = {}          # id(record) -> (record, context, value)
+        self._held: dict[int, tuple] = {}  # id(record) -> (record, context, value)
         self._lock = threading.Lock()
 
     def values(self, records: Iterable, *context: Hashable) -> list:

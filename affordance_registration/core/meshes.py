@@ -6,6 +6,7 @@ points to a mesh's surface, and the facets an object can rest on.
 Pure functions of trimesh meshes (the distances by open3d's raycasting scene); the template
 object and the template file loader call them.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,7 +21,7 @@ __all__ = ["PRIMITIVES", "CYLINDER_SECTIONS", "primitive_mesh", "mesh_distance",
 
 #: the primitive kinds and the dimensions each is fitted with (metres)
 PRIMITIVES = {"box": ("x", "y", "z"), "cylinder": ("radius", "length")}
-CYLINDER_SECTIONS = 48           #: facets around a primitive cylinder's mesh
+CYLINDER_SECTIONS = 48  #: facets around a primitive cylinder's mesh
 
 
 def primitive_mesh(kind: str, dimensions: Mapping) -> trimesh.Trimesh:
@@ -42,9 +43,12 @@ def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = Fals
     """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
     negative inside a watertight mesh."""
     import open3d as o3d
+
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+    )
     query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
     if signed:
         return scene.compute_signed_distance(query).numpy().astype(float)
@@ -54,18 +58,22 @@ def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = Fals
 def _cross3(a, b) -> np.ndarray:
     """``np.cross`` of two 3-vectors, the same float operations without its per-call overhead
     (resting_facets calls it for each of a few thousand hull faces at every start)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]], dtype=float)
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]],
+        dtype=float,
+    )
 
 
 def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
     """(R_rest, area) of every convex-hull facet the object can rest on, largest first."""
     from scipy.spatial import ConvexHull
+
     hull = mesh.convex_hull
     com = np.asarray(mesh.center_mass if mesh.is_watertight else mesh.centroid, dtype=float)
     # trimesh re-hashes a mesh on every cached-property access: read its arrays once
     hull_vertices, hull_faces, area_faces, face_normals = (
-        np.asarray(a) for a in (hull.vertices, hull.faces, hull.area_faces, hull.face_normals))
+        np.asarray(a) for a in (hull.vertices, hull.faces, hull.area_faces, hull.face_normals)
+    )
     in_facet = np.zeros(len(hull_faces), bool)
     groups = []
     for facet, normal in zip(hull.facets, hull.facets_normal):
@@ -86,12 +94,12 @@ def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
         poly = np.stack([verts @ u, verts @ v], axis=1)
         p = np.array([com @ u, com @ v])
         if (p < poly.min(axis=0)).any() or (p > poly.max(axis=0)).any():
-            continue    # outside the facet's bounding box, so outside the facet: no hull needed
+            continue  # outside the facet's bounding box, so outside the facet: no hull needed
         try:
             eq = ConvexHull(poly).equations
-        except Exception:   # degenerate (collinear) facet
+        except Exception:  # degenerate (collinear) facet
             continue
-        if np.any(eq[:, :2] @ p + eq[:, 2] > -1e-4):   # not strictly inside (1e-4 m margin)
+        if np.any(eq[:, :2] @ p + eq[:, 2] > -1e-4):  # not strictly inside (1e-4 m margin)
             continue
         # rotation taking the facet normal to -z
         target = np.array([0.0, 0.0, -1.0])
@@ -105,7 +113,7 @@ def resting_facets(mesh: trimesh.Trimesh) -> list[tuple[np.ndarray, float]]:
     out.sort(key=lambda x: -x[1])
     total = sum(a for _, a, _ in out) or 1.0
     kept = []
-    for R, area, normal in out:   # one pose per resting direction (they differ by a yaw only)
+    for R, area, normal in out:  # one pose per resting direction (they differ by a yaw only)
         if area / total < 0.02:
             continue
         if any(normal @ n > math.cos(math.radians(15)) for _, _, n in kept):

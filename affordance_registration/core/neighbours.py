@@ -15,6 +15,7 @@ thread: the calling thread's OpenMP thread count is set to one for the query and
 after it (through ``threadpoolctl``), leaving ``OMP_NUM_THREADS`` and every other library's
 threads as the user set them. ``query_pairs`` (the crop's segmentation) stays scipy's.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,8 +23,17 @@ from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["KDTree", "build_tree", "tree_points", "nearest", "k_nearest", "pairs_within",
-           "pca_normals", "least_spread", "openmp_threads"]
+__all__ = [
+    "KDTree",
+    "build_tree",
+    "tree_points",
+    "nearest",
+    "k_nearest",
+    "pairs_within",
+    "pca_normals",
+    "least_spread",
+    "openmp_threads",
+]
 
 #: the OpenMP runtimes loaded with pykdtree (its wheel brings a private libgomp)
 _OPENMP = tuple(ThreadpoolController().select(user_api="openmp").lib_controllers)
@@ -67,8 +77,9 @@ def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf, parallel: b
     pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
     if len(pts) == 0:
         return np.empty(0), np.empty(0, dtype=np.intp)
-    d, i = _query(tree, pts, k=1,
-                  distance_upper_bound=float(upper) if np.isfinite(upper) else None)
+    d, i = _query(
+        tree, pts, k=1, distance_upper_bound=float(upper) if np.isfinite(upper) else None
+    )
     return d, np.minimum(i, tree.n - 1).astype(np.intp)
 
 
@@ -85,8 +96,13 @@ def pairs_within(points: np.ndarray, radius: float) -> np.ndarray:
     return cKDTree(points).query_pairs(radius, output_type="ndarray")
 
 
-def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None,
-                at: np.ndarray | None = None, variation: bool = False):
+def pca_normals(
+    points: np.ndarray,
+    k: int,
+    tree: KDTree | None = None,
+    at: np.ndarray | None = None,
+    variation: bool = False,
+):
     """Unit normals (N, 3) of a sampled surface: the direction of least spread of each point's
     ``k`` nearest neighbours (at most all points); the sign is arbitrary. ``tree``: a tree over
     ``points`` when one exists already. ``at`` (M, 3): the normals at these places instead,
@@ -94,15 +110,16 @@ def pca_normals(points: np.ndarray, k: int, tree: KDTree | None = None,
     surface variation (N,), its least spread over its total (0 on a plane, 1/3 at most; large
     on an edge or a corner), as (normals, variation)."""
     k = min(k, len(points))
-    idx = k_nearest(tree if tree is not None else build_tree(points),
-                    points if at is None else at, k)
+    idx = k_nearest(
+        tree if tree is not None else build_tree(points), points if at is None else at, k
+    )
     # the neighbourhoods' means as ``mean(axis=1)`` sums them -- neighbour by neighbour, in
     # order -- but over (k, M, 3) gathered neighbours-first, where each step is one contiguous
     # add; ``np.take`` gathers rows several times faster than fancy indexing
     centre = np.take(points, idx.T, axis=0).sum(axis=0) / k
     nb = np.take(points, idx, axis=0)
-    for j in range(3):      # less the means, column by column (broadcasting over a last axis
-        nb[:, :, j] -= centre[:, j, None]       # of three is several times slower)
+    for j in range(3):  # less the means, column by column (broadcasting over a last axis
+        nb[:, :, j] -= centre[:, j, None]  # of three is several times slower)
     return least_spread(np.swapaxes(nb, 1, 2) @ nb, variation)
 
 
@@ -129,17 +146,19 @@ def least_spread(C: np.ndarray, variation: bool = False):
     phi = np.arccos(np.clip(det / (2 * ps * ps * ps), -1.0, 1.0)) / 3
     lo = q + 2 * p * np.cos(phi + 2 * np.pi / 3)
     hi = q + 2 * p * np.cos(phi)
-    A, B, Z = a - lo, b - lo, c - lo       # the diagonal of C - lo I
-    crosses = ((d * f - e * B, e * d - A * f, A * B - d * d),      # rows 0 x 1,
-               (d * Z - e * f, e * e - A * Z, A * f - d * e),      # 0 x 2,
-               (B * Z - f * f, f * e - d * Z, d * f - B * e))      # 1 x 2
+    A, B, Z = a - lo, b - lo, c - lo  # the diagonal of C - lo I
+    crosses = (
+        (d * f - e * B, e * d - A * f, A * B - d * d),  # rows 0 x 1,
+        (d * Z - e * f, e * e - A * Z, A * f - d * e),  # 0 x 2,
+        (B * Z - f * f, f * e - d * Z, d * f - B * e),
+    )  # 1 x 2
     v, n2 = crosses[0], sum(x * x for x in crosses[0])
     for cand in crosses[1:]:
         m2 = sum(x * x for x in cand)
         larger = m2 > n2
         v, n2 = [np.where(larger, x, y) for x, y in zip(cand, v)], np.where(larger, m2, n2)
     norm = np.sqrt(n2)
-    ok = (3 * q - hi - 2 * lo > CLOSE_EIGENVALUES * hi) & (norm > 0)   # (mid - lo)
+    ok = (3 * q - hi - 2 * lo > CLOSE_EIGENVALUES * hi) & (norm > 0)  # (mid - lo)
     inv = 1.0 / np.where(ok, norm, 1.0)
     out = np.empty((len(C), 3))
     for k in range(3):

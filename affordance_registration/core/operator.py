@@ -30,6 +30,7 @@ talks to the node it runs in through one :class:`OperatorHost`.
 Pure Python with an injectable clock (and sleep): tests drive it in simulated time without ROS.
 The ROS node converts messages into :meth:`OperatorStream.submit` calls and publishes what changed.
 """
+
 from __future__ import annotations
 
 import collections
@@ -57,15 +58,43 @@ from .inputs import (
     View,
 )
 
-__all__ = ["OperatorSettings", "OperatorInput", "OperatorStream", "OperatorHost", "StandaloneHost",
-           "Click", "Action", "Twist", "Joy", "View", "Pose", "CancelDrag", "NewCloud", "ACTIONS",
-           "LEAVING_ACTIONS", "MAX_QUEUED_PER_SOURCE", "CLICK_DEPTH"]
+__all__ = [
+    "OperatorSettings",
+    "OperatorInput",
+    "OperatorStream",
+    "OperatorHost",
+    "StandaloneHost",
+    "Click",
+    "Action",
+    "Twist",
+    "Joy",
+    "View",
+    "Pose",
+    "CancelDrag",
+    "NewCloud",
+    "ACTIONS",
+    "LEAVING_ACTIONS",
+    "MAX_QUEUED_PER_SOURCE",
+    "CLICK_DEPTH",
+]
 
 #: actions the stream accepts (``Action(name)``); ``joint_value``, ``select_model`` and
 #: ``dimension`` carry an argument (the joint value, the template name, a primitive's (dimension
 #: name, value in m or None, steps or None)) in ``argument``
-ACTIONS = ("next_model", "previous_model", "select_model", "accept", "refit", "undo", "discard",
-           "save", "joint_plus", "joint_minus", "joint_value", "dimension")
+ACTIONS = (
+    "next_model",
+    "previous_model",
+    "select_model",
+    "accept",
+    "refit",
+    "undo",
+    "discard",
+    "save",
+    "joint_plus",
+    "joint_minus",
+    "joint_value",
+    "dimension",
+)
 #: inputs that leave the shown object: a refit still waiting for the twists to stop runs first
 LEAVING_ACTIONS = ("click", "next_model", "previous_model", "select_model", "accept", "discard")
 #: actions that make a waiting twist refit moot (they refit themselves, or revert the twists)
@@ -77,27 +106,35 @@ MAX_QUEUED_PER_SOURCE = 500
 CLICK_DEPTH = 2
 
 #: the actions Joy buttons can be mapped to
-BUTTON_ACTIONS = ("next_model", "previous_model", "accept", "refit", "undo", "discard",
-                  "joint_plus", "joint_minus")
+BUTTON_ACTIONS = (
+    "next_model",
+    "previous_model",
+    "accept",
+    "refit",
+    "undo",
+    "discard",
+    "joint_plus",
+    "joint_minus",
+)
 
 
 @dataclass(frozen=True)
 class OperatorSettings:
     """How operator input is interpreted (lengths m, angles rad, times s)."""
 
-    linear_gain: float = 0.1           #: m/s per unit of twist linear
-    angular_gain: float = 0.6          #: rad/s per unit of twist angular
+    linear_gain: float = 0.1  #: m/s per unit of twist linear
+    angular_gain: float = 0.6  #: rad/s per unit of twist angular
     #: axes of the twists: "spacenav" (device axes: x away from the user, y left, z up) or
     #: "view" (x right, y up, z to the viewer)
     twist_frame: str = "spacenav"
-    max_twist_dt: float = 0.1          #: longest time one twist is held
-    first_twist_dt: float = 1.0 / 30   #: the first twist of a burst: one frame of a 30 Hz device
-    max_speed: float = 2.0             #: m/s; a faster twist (after the gain) is refused
-    max_turn_rate: float = 10.0        #: rad/s; likewise
-    refit_idle_s: float = 0.5          #: refit once the twists stopped this long
+    max_twist_dt: float = 0.1  #: longest time one twist is held
+    first_twist_dt: float = 1.0 / 30  #: the first twist of a burst: one frame of a 30 Hz device
+    max_speed: float = 2.0  #: m/s; a faster twist (after the gain) is refused
+    max_turn_rate: float = 10.0  #: rad/s; likewise
+    refit_idle_s: float = 0.5  #: refit once the twists stopped this long
     #: Joy button per action (action name -> button index; -1 or absent: none)
     buttons: tuple = (("next_model", 0), ("accept", 1))
-    joint_axis: int = -1               #: Joy axis stepping the joint (-1: none)
+    joint_axis: int = -1  #: Joy axis stepping the joint (-1: none)
     joint_axis_threshold: float = 0.5  #: how far the axis must be pushed to step
     #: a new cloud refits the selected (not yet accepted) object from its current pose, at most
     #: once every ``follow_period_s``
@@ -106,25 +143,34 @@ class OperatorSettings:
 
     def validate(self) -> "OperatorSettings":
         if self.twist_frame not in ("spacenav", "view"):
-            raise AffordanceError(f"twist_frame must be 'spacenav' or 'view', got "
-                                  f"{self.twist_frame!r}")
+            raise AffordanceError(
+                f"twist_frame must be 'spacenav' or 'view', got {self.twist_frame!r}"
+            )
         for name in ("linear_gain", "angular_gain", "follow_period_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
-        for name in ("max_twist_dt", "first_twist_dt", "refit_idle_s", "joint_axis_threshold",
-                     "max_speed", "max_turn_rate"):
+        for name in (
+            "max_twist_dt",
+            "first_twist_dt",
+            "refit_idle_s",
+            "joint_axis_threshold",
+            "max_speed",
+            "max_turn_rate",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise AffordanceError(f"{name} must be a positive number, got {v!r}")
         for action, _ in self.buttons:
             if action not in BUTTON_ACTIONS:
-                raise AffordanceError(f"no Joy action {action!r} (one of "
-                                      f"{', '.join(BUTTON_ACTIONS)})")
+                raise AffordanceError(
+                    f"no Joy action {action!r} (one of {', '.join(BUTTON_ACTIONS)})"
+                )
         return self
 
     def button_map(self) -> dict:
         return {a: int(b) for a, b in self.buttons if int(b) >= 0}
+
 
 # ============================================================================ the stream
 class OperatorStream:
@@ -136,8 +182,14 @@ class OperatorStream:
     with :meth:`run` (a worker thread) or, in tests, :meth:`process_pending`.
     """
 
-    def __init__(self, engine, settings: OperatorSettings | None = None, clock=time.monotonic,
-                 sleep=time.sleep, host: OperatorHost | None = None):
+    def __init__(
+        self,
+        engine,
+        settings: OperatorSettings | None = None,
+        clock=time.monotonic,
+        sleep=time.sleep,
+        host: OperatorHost | None = None,
+    ):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
@@ -177,58 +229,79 @@ class OperatorStream:
         dropped = []
         with self._cv:
             self._received[item.source] = self._received.get(item.source, 0) + 1
-            waiting_clicks = sum(1 for q in self._queue
-                                 if isinstance(q, Click) and q.source == item.source)
+            waiting_clicks = sum(
+                1 for q in self._queue if isinstance(q, Click) and q.source == item.source
+            )
             if isinstance(item, Click) and waiting_clicks >= CLICK_DEPTH:
                 for i in range(len(self._queue) - 1, -1, -1):
                     old = self._queue[i]
                     if isinstance(old, Click) and old.source == item.source:
-                        del self._queue[i]       # by position: inputs hold arrays (no ==)
-                        dropped.append((old, "superseded by a newer click from the same "
-                                             "source before its fit started"))
+                        del self._queue[i]  # by position: inputs hold arrays (no ==)
+                        dropped.append(
+                            (
+                                old,
+                                "superseded by a newer click from the same "
+                                "source before its fit started",
+                            )
+                        )
                         break
                     if not isinstance(old, INDEPENDENT):
                         break
             waiting = sum(1 for q in self._queue if q.source == item.source)
             if waiting >= MAX_QUEUED_PER_SOURCE:
-                dropped.append((item, f"refused: {waiting} inputs from this source are "
-                                      f"already waiting"))
+                dropped.append(
+                    (item, f"refused: {waiting} inputs from this source are already waiting")
+                )
             else:
                 self._queue.append(replace(item, arrived=self.clock()))
             for old, _ in dropped:
                 self._handled[old.source] = self._handled.get(old.source, 0) + 1
             self._cv.notify_all()
         for old, why in dropped:
-            self.host.report("queue", False, f"{_kind(old).replace('_', ' ')} from "
-                                             f"{old.source or 'an input'} {why}")
+            self.host.report(
+                "queue",
+                False,
+                f"{_kind(old).replace('_', ' ')} from {old.source or 'an input'} {why}",
+            )
             if old.reply is not None:
                 old.reply(False, f"{_kind(old).replace('_', ' ')} {why}")
 
-    def click(self, point, frame: str = "", source: str = "click", reply=None,
-              stamp: float | None = None) -> None:
+    def click(
+        self, point, frame: str = "", source: str = "click", reply=None, stamp: float | None = None
+    ) -> None:
         """A click at ``point`` in ``frame``, made at ``stamp`` (s; the frame is looked up then;
         None: the latest)."""
-        self.submit(Click(np.asarray(point, dtype=float), frame, stamp, source=source,
-                          reply=reply))
+        self.submit(
+            Click(np.asarray(point, dtype=float), frame, stamp, source=source, reply=reply)
+        )
 
     def action(self, name: str, argument=None, source: str = "", reply=None) -> None:
         self.submit(Action(name, argument, source=source or name, reply=reply))
 
     def twist(self, linear, angular, stamp: float | None = None, source: str = "twist") -> None:
-        self.submit(Twist(np.asarray(linear, dtype=float), np.asarray(angular, dtype=float),
-                          stamp, source=source))
+        self.submit(
+            Twist(
+                np.asarray(linear, dtype=float),
+                np.asarray(angular, dtype=float),
+                stamp,
+                source=source,
+            )
+        )
 
     def joy(self, buttons, axes=(), source: str = "joy") -> None:
-        self.submit(Joy(tuple(int(b) for b in buttons), tuple(float(a) for a in axes),
-                        source=source))
+        self.submit(
+            Joy(tuple(int(b) for b in buttons), tuple(float(a) for a in axes), source=source)
+        )
 
     def view(self, T_scene_view, source: str = "view") -> None:
         self.submit(View(np.asarray(T_scene_view, dtype=float), source=source))
 
-    def pose(self, T_scene_model, release: bool = False, source: str = "pose",
-             target: int | None = None) -> None:
-        self.submit(Pose(np.asarray(T_scene_model, dtype=float), bool(release), target,
-                         source=source))
+    def pose(
+        self, T_scene_model, release: bool = False, source: str = "pose", target: int | None = None
+    ) -> None:
+        self.submit(
+            Pose(np.asarray(T_scene_model, dtype=float), bool(release), target, source=source)
+        )
 
     def cancel_drag(self, target: int | None = None, source: str = "pose") -> None:
         """The drag of ``target`` ended without a release (its client went away or silent):
@@ -249,10 +322,14 @@ class OperatorStream:
         ``handled`` inputs per source, ``pending_refit`` (twists moved the object and its refit
         waits for them to stop) and ``idle`` (none of these)."""
         with self._cv:
-            return {"busy": self._busy, "queued": len(self._queue),
-                    "received": dict(self._received), "handled": dict(self._handled),
-                    "pending_refit": self._pending_refit,
-                    "idle": self._busy is None and not self._queue and not self._pending_refit}
+            return {
+                "busy": self._busy,
+                "queued": len(self._queue),
+                "received": dict(self._received),
+                "handled": dict(self._handled),
+                "pending_refit": self._pending_refit,
+                "idle": self._busy is None and not self._queue and not self._pending_refit,
+            }
 
     def idle_refit_due(self) -> float | None:
         """When the waiting twist refit becomes due (clock time), or None."""
@@ -294,10 +371,10 @@ class OperatorStream:
             ok, message = self._handle(item)
         except AffordanceError as exc:
             ok, message = False, str(exc)
-        except Exception as exc:     # a bug must not kill the worker or leave a caller waiting
+        except Exception as exc:  # a bug must not kill the worker or leave a caller waiting
             ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
         if self.engine.state.registered is not registered:
-            try:                     # durable before it is acknowledged
+            try:  # durable before it is acknowledged
                 saved = self.host.persist(False)
                 message = "; ".join(m for m in (message, saved) if m)
             except AffordanceError as exc:
@@ -415,7 +492,7 @@ class OperatorStream:
         if not (np.all(np.isfinite(lin)) and np.all(np.isfinite(ang))):
             raise AffordanceError("ignored a twist with NaN/inf values")
         if not (np.any(lin) or np.any(ang)):
-            return True, ""                     # released: the idle refit takes over
+            return True, ""  # released: the idle refit takes over
         stamp = item.arrived if item.stamp is None else item.stamp
         prev = self._last_twist_stamp
         gap = math.inf if prev is None else stamp - prev
@@ -428,33 +505,38 @@ class OperatorStream:
         lin, ang = lin * s.linear_gain, ang * s.angular_gain
         speed, rate = float(np.linalg.norm(lin)), float(np.linalg.norm(ang))
         if speed > s.max_speed or rate > s.max_turn_rate:
-            raise AffordanceError(f"ignored a twist of {speed:.3g} m/s, {rate:.3g} rad/s (at most "
-                                  f"{s.max_speed:g} m/s, {s.max_turn_rate:g} rad/s)")
+            raise AffordanceError(
+                f"ignored a twist of {speed:.3g} m/s, {rate:.3g} rad/s (at most "
+                f"{s.max_speed:g} m/s, {s.max_turn_rate:g} rad/s)"
+            )
         try:
             self.engine.correct_twist(lin, ang, dt)
         except AffordanceError as exc:
             raise AffordanceError(f"twist ignored: {exc}") from None
         self._pending_refit = True
-        return True, ""   # a burst is reported by its refit, not per message
+        return True, ""  # a burst is reported by its refit, not per message
 
     def _on_joy(self, item: Joy) -> tuple[bool, str]:
         s = self.settings
         buttons, axes = item.buttons, item.axes
         previous = self._buttons + (0,) * max(0, len(buttons) - len(self._buttons))
         self._buttons = buttons
-        pressed = [action for action, b in s.button_map().items()
-                   if b < len(buttons) and buttons[b] and not previous[b]]
+        pressed = [
+            action
+            for action, b in s.button_map().items()
+            if b < len(buttons) and buttons[b] and not previous[b]
+        ]
         a = s.joint_axis
         if 0 <= a < len(axes):
             v = axes[a]
             v = v if math.isfinite(v) else 0.0
             if self._axis_sign and abs(v) < 0.5 * s.joint_axis_threshold:
-                self._axis_sign = 0                           # back near the centre: re-armed
+                self._axis_sign = 0  # back near the centre: re-armed
             elif not self._axis_sign and abs(v) >= s.joint_axis_threshold:
                 self._axis_sign = 1 if v > 0 else -1
                 pressed.append("joint_plus" if v > 0 else "joint_minus")
         results = []
-        for action in pressed:      # each press in order, as if pressed one after the other
+        for action in pressed:  # each press in order, as if pressed one after the other
             try:
                 results.append((True, self._act(action)[1]))
             except AffordanceError as exc:
@@ -468,8 +550,11 @@ class OperatorStream:
         refit will use the new cloud) or it followed one moments ago."""
         s = self.settings
         now = self.clock()
-        if not s.follow_clouds or self._pending_refit or now - self._last_follow < \
-                s.follow_period_s:
+        if (
+            not s.follow_clouds
+            or self._pending_refit
+            or now - self._last_follow < s.follow_period_s
+        ):
             return True, ""
         self.host.refresh_scene()
         message = self.engine.follow_scene()
@@ -483,9 +568,11 @@ class OperatorStream:
             active = self.engine.active_object()
             if active is None or active.id != item.target:
                 now = f"object {active.id} is" if active is not None else "no object is"
-                raise AffordanceError(f"{'release' if item.release else 'drag'} refused: it "
-                                      f"started on object {item.target}, and {now} selected "
-                                      f"now")
+                raise AffordanceError(
+                    f"{'release' if item.release else 'drag'} refused: it "
+                    f"started on object {item.target}, and {now} selected "
+                    f"now"
+                )
         self._settle("pose")
         message = self.engine.correct_pose(item.T_scene_model, drag=True)
         if not item.release:

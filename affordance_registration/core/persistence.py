@@ -16,6 +16,7 @@ Backups: the first time the store replaces a file whose bytes differ from what i
 ``<stem>.<UTC time>.bak<suffix>`` next to it (``registrations.20261201T213000Z.bak.yaml``), and
 the backup's path is named in the reply.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,14 @@ from .tracked import Registration
 from .transforms import is_rigid
 from .waypoints import waypoints_dict
 
-__all__ = ["RegistrationStore", "registrations_document", "backup_path", "save_registrations",
-           "load_registrations", "REGISTRATIONS_FORMAT"]
+__all__ = [
+    "RegistrationStore",
+    "registrations_document",
+    "backup_path",
+    "save_registrations",
+    "load_registrations",
+    "REGISTRATIONS_FORMAT",
+]
 
 REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
 
@@ -55,9 +62,12 @@ def registrations_document(registrations, frame_id: str = "", library=None) -> s
     if library is not None:
         for entry, reg in zip(entries, registrations):
             entry["waypoints"] = waypoints_dict(library, reg)
-    doc = {"format": REGISTRATIONS_FORMAT, "frame_id": frame_id,
-           "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "registrations": entries}
+    doc = {
+        "format": REGISTRATIONS_FORMAT,
+        "frame_id": frame_id,
+        "saved_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "registrations": entries,
+    }
     return yaml.dump(doc, Dumper=SAFE_DUMPER, sort_keys=False)
 
 
@@ -67,14 +77,21 @@ def save_registrations(path: str, registrations, frame_id: str = "", library=Non
     try:
         write_atomically({path: registrations_document(registrations, frame_id, library)})
     except OSError as exc:
-        raise AffordanceError(f"cannot save registrations to {path}: {exc.strerror or exc}") from None
+        raise AffordanceError(
+            f"cannot save registrations to {path}: {exc.strerror or exc}"
+        ) from None
     return os.path.abspath(path)
 
 
 def load_registrations(path: str, library: TemplateLibrary | None = None) -> tuple:
     """Read a registrations file; each entry is checked (template known, pose a rigid 4x4)."""
-    doc = read_yaml(path, AffordanceError, label=f"registrations {path}",
-                    max_bytes=MAX_REGISTRATIONS_BYTES, kind="registrations file")
+    doc = read_yaml(
+        path,
+        AffordanceError,
+        label=f"registrations {path}",
+        max_bytes=MAX_REGISTRATIONS_BYTES,
+        kind="registrations file",
+    )
     if not isinstance(doc, dict) or doc.get("format") != REGISTRATIONS_FORMAT:
         raise AffordanceError(f"{path}: not a registrations file (format {REGISTRATIONS_FORMAT})")
     entries = doc.get("registrations") or []
@@ -88,9 +105,10 @@ def load_registrations(path: str, library: TemplateLibrary | None = None) -> tup
         try:
             out.append(_registration(entry, where, doc, i, library))
         except (TypeError, ValueError, AttributeError, OverflowError):
-            raise AffordanceError(f"{where}: a value of the wrong kind (numbers for id, "
-                                  f"likelihood, scale, joints ...; text for template, state)") \
-                from None
+            raise AffordanceError(
+                f"{where}: a value of the wrong kind (numbers for id, "
+                f"likelihood, scale, joints ...; text for template, state)"
+            ) from None
     return tuple(out)
 
 
@@ -106,27 +124,35 @@ def _registration(entry: dict, where: str, doc: dict, i: int, library) -> Regist
         raise AffordanceError(f"{where}: 'pose' is not a rigid 4x4 transform")
     if library is not None and template not in library:
         raise AffordanceError(f"{where}: unknown template '{template}'")
-    primitive, dims = _primitive_of(entry, where, library[template] if library is not None
-                                    else None)
+    primitive, dims = _primitive_of(
+        entry, where, library[template] if library is not None else None
+    )
     click = np.asarray(entry.get("click", T[:3, 3]), dtype=float)
     if click.shape != (3,):
         raise AffordanceError(f"{where}: 'click' must be three numbers")
     state = entry.get("state")
     if state is not None and not isinstance(state, str):
         raise AffordanceError(f"{where}: 'state' must be text")
-    return Registration(id=int(entry.get("id", i + 1)), template=template, T_scene_model=T,
-                        likelihood=float(entry.get("likelihood", 0.0)),
-                        probability=float(entry.get("probability", 0.0)),
-                        residual=float(entry.get("residual", 0.0)), click=click,
-                        frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
-                        joints={str(k): float(v) for k, v in (entry.get("joints") or {}).items()},
-                        state=state, scale=float(entry.get("scale", 1.0)),
-                        primitive=primitive, dimensions=dims,
-                        ranked_first=str(entry.get("ranked_first", "")),
-                        model_changes=int(entry.get("model_changes", 0)),
-                        corrections=int(entry.get("corrections", 0)),
-                        fit_s=float(entry.get("fit_s", 0.0)),
-                        override=entry.get("override") is True)
+    return Registration(
+        id=int(entry.get("id", i + 1)),
+        template=template,
+        T_scene_model=T,
+        likelihood=float(entry.get("likelihood", 0.0)),
+        probability=float(entry.get("probability", 0.0)),
+        residual=float(entry.get("residual", 0.0)),
+        click=click,
+        frame_id=str(entry.get("frame_id", doc.get("frame_id", ""))),
+        joints={str(k): float(v) for k, v in (entry.get("joints") or {}).items()},
+        state=state,
+        scale=float(entry.get("scale", 1.0)),
+        primitive=primitive,
+        dimensions=dims,
+        ranked_first=str(entry.get("ranked_first", "")),
+        model_changes=int(entry.get("model_changes", 0)),
+        corrections=int(entry.get("corrections", 0)),
+        fit_s=float(entry.get("fit_s", 0.0)),
+        override=entry.get("override") is True,
+    )
 
 
 def _primitive_of(entry: dict, where: str, template) -> tuple:
@@ -137,8 +163,9 @@ def _primitive_of(entry: dict, where: str, template) -> tuple:
         return None, {}
     if not dims:
         if template is not None:
-            raise AffordanceError(f"{where}: the primitive '{template.name}' needs its "
-                                  f"'dimensions'")
+            raise AffordanceError(
+                f"{where}: the primitive '{template.name}' needs its 'dimensions'"
+            )
         return None, {}
     try:
         dims = {str(k): float(v) for k, v in dict(dims).items()}
@@ -149,8 +176,9 @@ def _primitive_of(entry: dict, where: str, template) -> tuple:
     kind = entry.get("primitive") if template is None else template.primitive
     if template is not None:
         if set(dims) != set(template.dimension_ranges):
-            raise AffordanceError(f"{where}: a {kind} has dimensions "
-                                  f"{', '.join(template.dimension_ranges)}")
+            raise AffordanceError(
+                f"{where}: a {kind} has dimensions {', '.join(template.dimension_ranges)}"
+            )
         dims = template.clip_dimensions(dims)
     return (str(kind) if kind else None), dims
 
@@ -189,8 +217,8 @@ class RegistrationStore:
     def __init__(self, path: str):
         self.path = os.path.abspath(os.path.expanduser(path))
         self._lock = threading.Lock()
-        self._written: bytes | None = None     # what this store last wrote there
-        self.count: int | None = None          # registrations in the file as last written
+        self._written: bytes | None = None  # what this store last wrote there
+        self.count: int | None = None  # registrations in the file as last written
         self.last_backup: str | None = None
 
     def resume(self, library=None) -> tuple:
@@ -220,8 +248,9 @@ class RegistrationStore:
             try:
                 write_atomically(files)
             except OSError as exc:
-                raise AffordanceError(f"cannot save registrations to {self.path}: "
-                                      f"{exc.strerror or exc}") from None
+                raise AffordanceError(
+                    f"cannot save registrations to {self.path}: {exc.strerror or exc}"
+                ) from None
             self._written = text
             self.count = len(registrations)
             if backup is not None:

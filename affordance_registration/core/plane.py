@@ -4,6 +4,7 @@
 only where the surface it cuts is flat (not a slab through a curved object), with the band of
 the support's own noisy points that the cluster leaves out.
 """
+
 from __future__ import annotations
 
 import math
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .neighbours import KDTree, pca_normals
-from .voxels import _mean_rows, _minus
+from .voxels import mean_rows, minus_point
 
 __all__ = ["Plane", "ON_PLANE", "FLAT_FRACTION", "FLAT_DEG", "SUPPORT_REACH", "SUPPORT_SIGMAS"]
 
@@ -27,7 +28,7 @@ ON_PLANE = 1.5
 FLAT_FRACTION = 0.7
 FLAT_DEG = 25.0
 FLAT_NEIGHBOURS = 30
-FLAT_SAMPLES = 300       #: points near the plane whose normals are looked at (evenly spread)
+FLAT_SAMPLES = 300  #: points near the plane whose normals are looked at (evenly spread)
 #: the support's own points -- flat, their normals along the plane's -- are looked for this many
 #: plane thresholds from it; their spread sigma (a depth camera's noise) widens the band taken
 #: off the support for the cluster to SUPPORT_SIGMAS sigma, between one and SUPPORT_REACH
@@ -48,9 +49,14 @@ class Plane:
         return points @ self.normal + self.d
 
 
-def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
-                  origin: np.ndarray | None, seed: int,
-                  hypotheses: int = 96) -> Plane | None:
+def ransac_plane(
+    points: np.ndarray,
+    threshold: float,
+    min_fraction: float,
+    origin: np.ndarray | None,
+    seed: int,
+    hypotheses: int = 96,
+) -> Plane | None:
     """Dominant plane by vectorised RANSAC + least-squares refit; None if it holds fewer than
     ``min_fraction`` of the points. Its normal faces the sensor ``origin``; without one, the
     side of the plane holding more of the points off it (the objects on it)."""
@@ -72,12 +78,12 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     counts = np.count_nonzero(np.abs(off, out=off) < threshold, axis=0)
     best = int(np.argmax(counts))
     normal, d = normals[best], ds[best]
-    for _ in range(2):   # least-squares refit on the inliers
+    for _ in range(2):  # least-squares refit on the inliers
         inl = np.compress(np.abs(points @ normal + d) < threshold, points, axis=0)
         if len(inl) < 3:
             return None
-        centre = _mean_rows(inl)
-        _, _, vt = np.linalg.svd(_minus(inl, centre), full_matrices=False)
+        centre = mean_rows(inl)
+        _, _, vt = np.linalg.svd(minus_point(inl, centre), full_matrices=False)
         normal = vt[2]
         d = -normal @ centre
     frac = float(np.mean(np.abs(points @ normal + d) < threshold))
@@ -93,7 +99,7 @@ def _ransac_plane(points: np.ndarray, threshold: float, min_fraction: float,
     return Plane(normal=normal, d=float(d), inlier_fraction=frac)
 
 
-def _along(plane: Plane, points: np.ndarray, crop: np.ndarray, tree: KDTree) -> np.ndarray:
+def runs_along(plane: Plane, points: np.ndarray, crop: np.ndarray, tree: KDTree) -> np.ndarray:
     """Whether the surface at each of ``points`` (N, 3) -- the normal of its FLAT_NEIGHBOURS
     nearest ``crop`` points (``tree``: over them) -- runs along ``plane`` (within FLAT_DEG).
     (N,) bool."""
@@ -103,8 +109,9 @@ def _along(plane: Plane, points: np.ndarray, crop: np.ndarray, tree: KDTree) -> 
     return np.abs(normals @ plane.normal) >= math.cos(math.radians(FLAT_DEG))
 
 
-def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
-              threshold: float) -> tuple[float, float]:
+def flatness(
+    plane: Plane, crop: np.ndarray, tree: KDTree, threshold: float
+) -> tuple[float, float]:
     """How flat the surface under ``plane`` is, from up to FLAT_SAMPLES crop (N, 3) points within
     SUPPORT_REACH thresholds of it (``tree``: over ``crop``): the fraction of those inside the
     ``threshold`` whose local normal is within FLAT_DEG of the plane's, and the spread (robust
@@ -114,7 +121,7 @@ def _flatness(plane: Plane, crop: np.ndarray, tree: KDTree,
     near = np.flatnonzero(np.abs(d) < SUPPORT_REACH * threshold)
     if len(near) > FLAT_SAMPLES:
         near = near[np.linspace(0, len(near) - 1, FLAT_SAMPLES).astype(np.int64)]
-    agree = _along(plane, np.take(crop, near, axis=0), crop, tree)
+    agree = runs_along(plane, np.take(crop, near, axis=0), crop, tree)
     inside = np.abs(d[near]) < threshold
     if not inside.any() or not agree.any():
         return 0.0, 0.0

@@ -7,6 +7,7 @@ is kept (where the scan was taken from).
 
 Formats: PLY and PCD (read by Open3D), organized ``.npy`` arrays (H, W, 3) of numbers.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -25,10 +26,25 @@ MAX_FILE_BYTES = 2_000_000_000
 MAX_POINTS = 10_000_000
 #: the sizes (bytes) a PCD field of each TYPE may have
 _PCD_SIZES = {"F": (4, 8), "I": (1, 2, 4, 8), "U": (1, 2, 4, 8)}
-_HEADER_LIMIT = 65536           # bytes of header read before giving up on finding its end
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
-              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
-              "float": 4, "float32": 4, "double": 8, "float64": 8}
+_HEADER_LIMIT = 65536  # bytes of header read before giving up on finding its end
+_PLY_SIZES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 @dataclass(frozen=True)
@@ -49,7 +65,7 @@ def _fail(path: str, why: str, error=SceneError) -> Exception:
     return error(f"{path}: {why}")
 
 
-def _header_lines(path: str, error) -> tuple[list[str], int]:
+def header_lines(path: str, error) -> tuple[list[str], int]:
     """The text lines of a PLY/PCD header and its length in bytes."""
     with open(path, "rb") as handle:
         head = handle.read(_HEADER_LIMIT)
@@ -66,11 +82,11 @@ def _header_lines(path: str, error) -> tuple[list[str], int]:
 
 
 def _check_ply(path: str, size: int, error) -> dict:
-    lines, header_bytes = _header_lines(path, error)
+    lines, header_bytes = header_lines(path, error)
     if not lines or lines[0] != "ply":
         raise _fail(path, "not a PLY file (no 'ply' magic)", error)
     fmt = ""
-    elements = []              # [name, count, least bytes of one element, properties]
+    elements = []  # [name, count, least bytes of one element, properties]
     for line in lines[1:]:
         words = line.split()
         if words[:1] == ["format"] and len(words) >= 2:
@@ -81,44 +97,63 @@ def _check_ply(path: str, size: int, error) -> dict:
                     raise ValueError
                 count = int(words[2])
             except ValueError:
-                raise _fail(path, f"bad element line {line!r} (element <name> <count>)",
-                            error) from None
+                raise _fail(
+                    path, f"bad element line {line!r} (element <name> <count>)", error
+                ) from None
             if count < 0:
                 raise _fail(path, f"negative element count in {line!r}", error)
             elements.append([words[1], count, 0, 0, []])
         elif words[:1] == ["property"] and elements:
-            kind = words[2] if len(words) >= 5 and words[1] == "list" else \
-                (words[1] if len(words) >= 3 else "")
+            kind = (
+                words[2]
+                if len(words) >= 5 and words[1] == "list"
+                else (words[1] if len(words) >= 3 else "")
+            )
             if kind not in _PLY_SIZES:
                 raise _fail(path, f"unknown property type in {line!r}", error)
-            elements[-1][2] += _PLY_SIZES[kind]    # a list holds at least its length
+            elements[-1][2] += _PLY_SIZES[kind]  # a list holds at least its length
             elements[-1][3] += 1
             elements[-1][4].append(words[-1] if words[1] != "list" else None)
             if words[1] == "list" and elements[-1][0] == "vertex":
-                raise _fail(path, f"a list property on the vertices ({line!r}): not a point "
-                                  f"cloud this reads", error)
+                raise _fail(
+                    path,
+                    f"a list property on the vertices ({line!r}): not a point cloud this reads",
+                    error,
+                )
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise _fail(path, f"unknown PLY format {fmt!r}", error)
     # an ASCII value takes at least two bytes (a digit and a separator)
-    needed = sum(count * (2 * props if fmt == "ascii" else least)
-                 for _, count, least, props, _ in elements)
+    needed = sum(
+        count * (2 * props if fmt == "ascii" else least) for _, count, least, props, _ in elements
+    )
     counts = {name: count for name, count, _, _, _ in elements}
     names = [e[0] for e in elements]
     vertex = elements[names.index("vertex")] if "vertex" in names else None
     if vertex is not None and not all(c in vertex[4] for c in "xyz"):
-        raise _fail(path, f"its vertices have no x, y, z among their properties "
-                          f"({', '.join(map(str, vertex[4]))})", error)
+        raise _fail(
+            path,
+            f"its vertices have no x, y, z among their properties "
+            f"({', '.join(map(str, vertex[4]))})",
+            error,
+        )
     # a binary file of fixed-size elements holds exactly what its header announces
     exact = fmt != "ascii" and all(None not in e[4] for e in elements)
-    return {"points": counts.get("vertex", 0), "faces": counts.get("face", 0) > 0,
-            "needed": needed, "available": size - header_bytes, "ascii": fmt == "ascii",
-            "exact": exact, "rows": sum(counts.values()),
-            "header_bytes": header_bytes, "columns": vertex[4] if vertex else [],
-            "skip": sum(e[1] for e in elements[:names.index("vertex")]) if vertex else 0}
+    return {
+        "points": counts.get("vertex", 0),
+        "faces": counts.get("face", 0) > 0,
+        "needed": needed,
+        "available": size - header_bytes,
+        "ascii": fmt == "ascii",
+        "exact": exact,
+        "rows": sum(counts.values()),
+        "header_bytes": header_bytes,
+        "columns": vertex[4] if vertex else [],
+        "skip": sum(e[1] for e in elements[: names.index("vertex")]) if vertex else 0,
+    }
 
 
 def _check_pcd(path: str, size: int, error) -> dict:
-    lines, header_bytes = _header_lines(path, error)
+    lines, header_bytes = header_lines(path, error)
     fields: dict[str, list[str]] = {}
     for line in lines:
         words = line.split()
@@ -130,8 +165,9 @@ def _check_pcd(path: str, size: int, error) -> dict:
         counts = [int(v) for v in fields.get("COUNT", ["1"] * len(sizes))]
         viewpoint = [float(v) for v in fields["VIEWPOINT"]] if "VIEWPOINT" in fields else None
     except (ValueError, IndexError):
-        raise _fail(path, "malformed PCD header (POINTS, SIZE, COUNT or VIEWPOINT)", error) \
-            from None
+        raise _fail(
+            path, "malformed PCD header (POINTS, SIZE, COUNT or VIEWPOINT)", error
+        ) from None
     if points < 0 or len(sizes) != len(counts) or not sizes or min(counts) < 1:
         raise _fail(path, "malformed PCD header (POINTS, SIZE or COUNT)", error)
     names, types = fields.get("FIELDS", []), [t.upper() for t in fields.get("TYPE", [])]
@@ -139,8 +175,12 @@ def _check_pcd(path: str, size: int, error) -> dict:
         raise _fail(path, "malformed PCD header (FIELDS, SIZE and TYPE differ in length)", error)
     for name, kind, nbytes in zip(names, types, sizes):
         if nbytes not in _PCD_SIZES.get(kind, ()):
-            raise _fail(path, f"field {name!r}: TYPE {kind} SIZE {nbytes} is not a PCD type "
-                              f"(F 4 or 8, I or U 1, 2, 4 or 8)", error)
+            raise _fail(
+                path,
+                f"field {name!r}: TYPE {kind} SIZE {nbytes} is not a PCD type "
+                f"(F 4 or 8, I or U 1, 2, 4 or 8)",
+                error,
+            )
     if not all(c in names for c in "xyz"):
         raise _fail(path, f"no x, y, z among its fields ({', '.join(names)})", error)
     try:
@@ -149,12 +189,14 @@ def _check_pcd(path: str, size: int, error) -> dict:
     except (ValueError, IndexError):
         raise _fail(path, "malformed PCD header (WIDTH or HEIGHT)", error) from None
     if width < 0 or height < 0 or width * height != points:
-        raise _fail(path, f"WIDTH {width} x HEIGHT {height} is not its POINTS {points:,}",
-                    error)
+        raise _fail(path, f"WIDTH {width} x HEIGHT {height} is not its POINTS {points:,}", error)
     data = (fields.get("DATA") or [""])[0].lower()
     point_bytes = sum(s * c for s, c in zip(sizes, counts))
-    needed = {"binary": points * point_bytes, "ascii": points * 2 * len(sizes),
-              "binary_compressed": 8}.get(data)
+    needed = {
+        "binary": points * point_bytes,
+        "ascii": points * 2 * len(sizes),
+        "binary_compressed": 8,
+    }.get(data)
     if needed is None:
         raise _fail(path, f"unknown PCD DATA {data!r}", error)
     if data == "binary_compressed" and size - header_bytes >= 8:
@@ -163,19 +205,31 @@ def _check_pcd(path: str, size: int, error) -> dict:
             handle.seek(header_bytes)
             packed, unpacked = np.frombuffer(handle.read(8), dtype="<u4")
         if int(unpacked) != points * point_bytes:
-            raise _fail(path, f"its compressed data unpacks to {int(unpacked):,} bytes, not the "
-                              f"{points * point_bytes:,} of its {points:,} points (corrupt)",
-                        error)
+            raise _fail(
+                path,
+                f"its compressed data unpacks to {int(unpacked):,} bytes, not the "
+                f"{points * point_bytes:,} of its {points:,} points (corrupt)",
+                error,
+            )
         needed = 8 + int(packed)
     if viewpoint is not None and (len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint))):
         raise _fail(path, "VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz)", error)
     columns = []
     for name, count in zip(fields.get("FIELDS", []), counts):
         columns += [name] + [None] * (count - 1)
-    return {"points": points, "faces": False, "needed": needed,
-            "available": size - header_bytes, "viewpoint": viewpoint,
-            "ascii": data == "ascii", "header_bytes": header_bytes, "columns": columns,
-            "skip": 0, "exact": data == "binary", "rows": points}
+    return {
+        "points": points,
+        "faces": False,
+        "needed": needed,
+        "available": size - header_bytes,
+        "viewpoint": viewpoint,
+        "ascii": data == "ascii",
+        "header_bytes": header_bytes,
+        "columns": columns,
+        "skip": 0,
+        "exact": data == "binary",
+        "rows": points,
+    }
 
 
 def check_header(path: str, error=SceneError) -> dict:
@@ -187,24 +241,39 @@ def check_header(path: str, error=SceneError) -> dict:
     except OSError as exc:
         raise _fail(path, f"cannot read: {exc.strerror}", error) from None
     if size > MAX_FILE_BYTES:
-        raise _fail(path, f"{size / 1e9:.1f} GB is more than the {MAX_FILE_BYTES / 1e9:.0f} GB "
-                          f"this reads", error)
+        raise _fail(
+            path,
+            f"{size / 1e9:.1f} GB is more than the {MAX_FILE_BYTES / 1e9:.0f} GB this reads",
+            error,
+        )
     ext = os.path.splitext(path)[1].lower()
     try:
         info = (_check_ply if ext == ".ply" else _check_pcd)(path, size, error)
     except OSError as exc:
         raise _fail(path, f"cannot read: {exc.strerror}", error) from None
     if info["points"] > MAX_POINTS:
-        raise _fail(path, f"its header claims {info['points']:,} points, more than the "
-                          f"{MAX_POINTS:,} this reads", error)
+        raise _fail(
+            path,
+            f"its header claims {info['points']:,} points, more than the "
+            f"{MAX_POINTS:,} this reads",
+            error,
+        )
     if info["needed"] > info["available"]:
-        raise _fail(path, f"its header claims {info['points']:,} points but the file holds "
-                          f"only {max(info['available'], 0):,} bytes of data (truncated or "
-                          f"corrupt)", error)
+        raise _fail(
+            path,
+            f"its header claims {info['points']:,} points but the file holds "
+            f"only {max(info['available'], 0):,} bytes of data (truncated or "
+            f"corrupt)",
+            error,
+        )
     if info.get("exact") and info["needed"] != info["available"]:
-        raise _fail(path, f"its header claims {info['points']:,} points in "
-                          f"{info['needed']:,} bytes but the file holds {info['available']:,} "
-                          f"bytes of data (the header does not match the data)", error)
+        raise _fail(
+            path,
+            f"its header claims {info['points']:,} points in "
+            f"{info['needed']:,} bytes but the file holds {info['available']:,} "
+            f"bytes of data (the header does not match the data)",
+            error,
+        )
     return info
 
 
@@ -212,6 +281,7 @@ def check_header(path: str, error=SceneError) -> dict:
 def _quiet_open3d():
     """Open3D's own console warnings off while it reads (failures become our errors)."""
     import open3d as o3d
+
     level = o3d.utility.get_verbosity_level()
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     try:
@@ -248,16 +318,28 @@ def read_points(path: str, error=SceneError) -> PointFile:
         if cloud.has_normals():
             normals = np.asarray(cloud.normals, dtype=float)
             length = np.linalg.norm(normals, axis=1)
-            normals = normals / np.maximum(length, 1e-12)[:, None] \
-                if len(normals) == len(pts) and np.all(np.isfinite(normals)) and \
-                np.all(length > 1e-6) else None
+            normals = (
+                normals / np.maximum(length, 1e-12)[:, None]
+                if len(normals) == len(pts)
+                and np.all(np.isfinite(normals))
+                and np.all(length > 1e-6)
+                else None
+            )
     if len(pts) == 0:
         raise _fail(path, "no points could be read (empty or not a point cloud)", error)
     if info["points"] and len(pts) != info["points"]:
-        raise _fail(path, f"only {len(pts):,} of the {info['points']:,} points its header "
-                          f"announces could be read (a value that is not a number?)", error)
-    return PointFile(points=pts, viewpoint=_viewpoint_origin(info.get("viewpoint")),
-                     faces=bool(info["faces"]), normals=normals)
+        raise _fail(
+            path,
+            f"only {len(pts):,} of the {info['points']:,} points its header "
+            f"announces could be read (a value that is not a number?)",
+            error,
+        )
+    return PointFile(
+        points=pts,
+        viewpoint=_viewpoint_origin(info.get("viewpoint")),
+        faces=bool(info["faces"]),
+        normals=normals,
+    )
 
 
 def _read_ascii(path: str, info: dict, error) -> np.ndarray:
@@ -271,13 +353,17 @@ def _read_ascii(path: str, info: dict, error) -> np.ndarray:
         handle.seek(info["header_bytes"])
         text = handle.read().decode("ascii", errors="replace").splitlines()
     held = sum(1 for line in text if line.strip())
-    if held != info["rows"]:          # (an element a line: more rows were dropped unread)
-        raise _fail(path, f"its header announces {info['rows']:,} rows of data but it holds "
-                          f"{held:,} (the header does not match the data)", error)
-    rows = text[info["skip"]:info["skip"] + info["points"]]
+    if held != info["rows"]:  # (an element a line: more rows were dropped unread)
+        raise _fail(
+            path,
+            f"its header announces {info['rows']:,} rows of data but it holds "
+            f"{held:,} (the header does not match the data)",
+            error,
+        )
+    rows = text[info["skip"] : info["skip"] + info["points"]]
     if not rows:
         return np.zeros((0, 3))
-    try:                           # numpy's parser; on failure find the row that broke it
+    try:  # numpy's parser; on failure find the row that broke it
         return np.loadtxt(rows, usecols=use, dtype=float, ndmin=2, comments=None)
     except ValueError:
         pass
@@ -287,8 +373,9 @@ def _read_ascii(path: str, info: dict, error) -> np.ndarray:
         try:
             out[i] = [float(words[k]) for k in use]
         except (ValueError, IndexError):
-            raise _fail(path, f"point {i}: {row.strip()[:60]!r} does not hold x, y, z as "
-                              f"numbers", error) from None
+            raise _fail(
+                path, f"point {i}: {row.strip()[:60]!r} does not hold x, y, z as numbers", error
+            ) from None
     return out
 
 
@@ -296,21 +383,25 @@ def _read_npy(path: str, error) -> PointFile:
     try:
         with open(path, "rb") as handle:
             version = np.lib.format.read_magic(handle)
-            shape, _, dtype = (np.lib.format.read_array_header_1_0(handle) if version == (1, 0)
-                               else np.lib.format.read_array_header_2_0(handle))
-    except Exception as exc:       # numpy raises several types for a broken header
-        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) \
-            from None
+            shape, _, dtype = (
+                np.lib.format.read_array_header_1_0(handle)
+                if version == (1, 0)
+                else np.lib.format.read_array_header_2_0(handle)
+            )
+    except Exception as exc:  # numpy raises several types for a broken header
+        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) from None
     if dtype.kind not in "fiu" or dtype.fields is not None:
         raise _fail(path, f"holds {dtype} values; expected numbers (float or int)", error)
     if len(shape) != 3 or shape[-1] != 3:
         raise _fail(path, f"expected an organized (H, W, 3) array, got {shape}", error)
     if shape[0] * shape[1] > MAX_POINTS:
-        raise _fail(path, f"{shape[0] * shape[1]:,} points is more than the {MAX_POINTS:,} "
-                          f"this reads", error)
+        raise _fail(
+            path,
+            f"{shape[0] * shape[1]:,} points is more than the {MAX_POINTS:,} this reads",
+            error,
+        )
     try:
         arr = np.load(path, allow_pickle=False)
     except Exception as exc:
-        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) \
-            from None
+        raise _fail(path, f"not a readable .npy array ({exc.__class__.__name__})", error) from None
     return PointFile(points=arr.reshape(-1, 3).astype(float), organized=tuple(shape[:2]))

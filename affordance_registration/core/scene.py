@@ -13,16 +13,18 @@ that the scan's noise lifted past its threshold -- and builds a small range imag
 tests (:class:`ClickContext`).
 
 The steps live in modules of their own: the voxel grid and the frame in
-:mod:`~affordance_registration.core.voxels`, the plane in :mod:`~affordance_registration.core.plane`,
-the cluster and its segments in :mod:`~affordance_registration.core.segmentation`, what a click
-gets in :mod:`~affordance_registration.core.click_context`. This module composes them and
-re-exports the names the rest of the package imports from it.
+:mod:`~affordance_registration.core.voxels`, the plane in
+:mod:`~affordance_registration.core.plane`, the cluster and its segments in
+:mod:`~affordance_registration.core.segmentation`, what a click gets in
+:mod:`~affordance_registration.core.click_context`. This module composes them and re-exports the
+names the rest of the package imports from it.
 
 Nothing here assumes an axis: the voxel grid, the range image's bins and every random draw of
 the fit are laid out in a frame attached to the scan around the click (``ClickContext.frame``:
 its z towards the sensor, its x along the main axis of the points), so fitting a rigidly moved
 scene (its points, click and sensor origin) gives the rigidly moved answer.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,19 +40,28 @@ from .plane import (
     SUPPORT_REACH,
     SUPPORT_SIGMAS,
     Plane,
-    _along,
-    _flatness,
-    _ransac_plane,
+    flatness,
+    ransac_plane,
+    runs_along,
 )
-from .segmentation import _connected_to, _gap_components, segment
+from .segmentation import connected_to, gap_components, segment
 from .transforms import finite_vector
-from .voxels import _mean_rows, _minus, local_frame, voxel_downsample
+from .voxels import local_frame, mean_rows, minus_point, voxel_downsample
 
-__all__ = ["Scene", "ClickContext", "Plane", "RangeImage", "voxel_downsample", "load_points",
-           "local_frame", "segment", "NO_VIEWPOINT"]
+__all__ = [
+    "Scene",
+    "ClickContext",
+    "Plane",
+    "RangeImage",
+    "voxel_downsample",
+    "load_points",
+    "local_frame",
+    "segment",
+    "NO_VIEWPOINT",
+]
 
-#: a sensor origin or a click farther than this (m) from its frame's origin is refused: beyond any map
-#: frame (UTM northings are below 1e7 m), and its squared distances would overflow
+#: a sensor origin or a click farther than this (m) from its frame's origin is refused: beyond any
+#: map frame (UTM northings are below 1e7 m), and its squared distances would overflow
 MAX_ORIGIN = 1e9
 #: ``sensor_origin`` of a cloud with no single viewpoint (an accumulated map): fitted without
 #: the visibility terms
@@ -68,6 +79,7 @@ def load_points(path: str) -> tuple[np.ndarray, tuple | None]:
     Returns (points (N, 3) float64 possibly with NaN rows, organized shape or None); see
     :func:`~affordance_registration.core.pointfiles.read_points` for the checks."""
     from .pointfiles import read_points
+
     f = read_points(path)
     return f.points, f.organized
 
@@ -102,13 +114,19 @@ class Scene:
         self._raw = pts
         self._points: np.ndarray | None = None
         self._squared_to: tuple | None = None
-        self._whole: "Scene | None" = None       # the scene a part was cut from (units hint)
+        self._whole: "Scene | None" = None  # the scene a part was cut from (units hint)
         mid = len(pts) // 2
-        if not (np.isfinite(pts[mid:mid + self._FIRST_PROBE]).all(axis=1).any() or
-                any(np.isfinite(pts[i:i + self._PROBE_ROWS]).all(axis=1).any()
-                    for i in _middle_first(len(pts), self._PROBE_ROWS))):
-            raise SceneError("the scene has no finite points" +
-                             (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else ""))
+        if not (
+            np.isfinite(pts[mid : mid + self._FIRST_PROBE]).all(axis=1).any()
+            or any(
+                np.isfinite(pts[i : i + self._PROBE_ROWS]).all(axis=1).any()
+                for i in _middle_first(len(pts), self._PROBE_ROWS)
+            )
+        ):
+            raise SceneError(
+                "the scene has no finite points"
+                + (f" ({len(pts)} NaN/inf points dropped)" if len(pts) else "")
+            )
         self.sensor_origin = _origin(sensor_origin)
         self.frame_id = frame_id
 
@@ -131,6 +149,7 @@ class Scene:
         ``scale``: metres per unit of the file (``UNITS``: 0.001 for a scan in millimetres);
         the points and the file's viewpoint are scaled by it."""
         from .pointfiles import read_points
+
         f = read_points(path)
         if sensor_origin is None and f.viewpoint is not None:
             sensor_origin = np.asarray(f.viewpoint, dtype=float) * scale
@@ -156,7 +175,7 @@ class Scene:
         pts = self._raw if self._points is None else self._points
         x = pts[:, 0]
         idx = np.flatnonzero((x >= c[0] - radius) & (x <= c[0] + radius))  # NaN: outside
-        d = _minus(np.take(pts, idx, axis=0), c)
+        d = minus_point(np.take(pts, idx, axis=0), c)
         d2 = np.einsum("ij,ij->i", d, d)
         inside = d2 <= radius * radius
         near = np.take(pts, np.compress(inside, idx), axis=0)
@@ -184,72 +203,92 @@ class Scene:
         extent = float(np.max(finite.max(axis=0) - finite.min(axis=0)))
         if extent <= MM_LOOKING_EXTENT:
             return ""
-        return (f"; the scan is {extent:.0f} units across, which as metres is larger than a "
-                f"room: if it is in millimetres or centimetres, give its units (--units mm or "
-                f"cm) so that it is scaled to metres")
+        return (
+            f"; the scan is {extent:.0f} units across, which as metres is larger than a "
+            f"room: if it is in millimetres or centimetres, give its units (--units mm or "
+            f"cm) so that it is scaled to metres"
+        )
 
     def snap(self, click, max_distance: float = 0.03) -> np.ndarray:
         """The scene point nearest ``click`` (3,). Farther than ``max_distance`` is an error."""
         c = _point3(click, "click")
         if self._squared_to is not None and np.array_equal(self._squared_to[0], c):
-            d2 = self._squared_to[1]        # a part cut around this very point
+            d2 = self._squared_to[1]  # a part cut around this very point
         else:
-            rel = _minus(self.points, c)
+            rel = minus_point(self.points, c)
             d2 = np.einsum("ij,ij->i", rel, rel)
         i = int(np.argmin(d2))
         dist = math.sqrt(d2[i])
         if dist > max_distance:
-            raise SceneError(f"the click ({c[0]:.3f}, {c[1]:.3f}, {c[2]:.3f}) is {dist * 100:.1f} cm "
-                             f"from the nearest scanned point (limit {max_distance * 100:.1f} cm): "
-                             f"click on the object's surface{self.units_hint()}")
+            raise SceneError(
+                f"the click ({c[0]:.3f}, {c[1]:.3f}, {c[2]:.3f}) is {dist * 100:.1f} cm "
+                f"from the nearest scanned point (limit {max_distance * 100:.1f} cm): "
+                f"click on the object's surface{self.units_hint()}"
+            )
         return self.points[i].copy()
 
-    def prepare_click(self, click, radius: float, voxel: float = 0.005,
-                      plane_threshold: float = 0.006, min_plane_fraction: float = 0.15,
-                      cluster_gap: float | None = None, seed: int = 0,
-                      threads: int = 1, fine_points: int = 0) -> ClickContext:
+    def prepare_click(
+        self,
+        click,
+        radius: float,
+        voxel: float = 0.005,
+        plane_threshold: float = 0.006,
+        min_plane_fraction: float = 0.15,
+        cluster_gap: float | None = None,
+        seed: int = 0,
+        threads: int = 1,
+        fine_points: int = 0,
+    ) -> ClickContext:
         """Crop ``radius`` around the (already snapped) click and prepare the fitting targets.
         ``threads``: the fine points' normals (most of the time) in that many parts side by side
         (the same numbers). ``fine_points``: at most this many full-resolution points (an even
         subset of them in the scan's order; 0: all)."""
         c = _point3(click, "click")
-        rel = _minus(self.points, c)
+        rel = minus_point(self.points, c)
         d2 = np.einsum("ij,ij->i", rel, rel)
         raw = np.compress(d2 <= radius * radius, self.points, axis=0)
         if len(raw) < 10:
-            raise SceneError(f"only {len(raw)} scanned points within {radius:.2f} m of the click"
-                             f"{self.units_hint()}")
+            raise SceneError(
+                f"only {len(raw)} scanned points within {radius:.2f} m of the click"
+                f"{self.units_hint()}"
+            )
         origin = self.sensor_origin
         if origin is not None and np.linalg.norm(origin - c) < 1e-3:
-            raise SceneError("the sensor origin is at the click: the scan cannot have been "
-                             "taken from there (give where the sensor was, or 'none')")
+            raise SceneError(
+                "the sensor origin is at the click: the scan cannot have been "
+                "taken from there (give where the sensor was, or 'none')"
+            )
         frame = local_frame(raw, c, origin)
         crop = voxel_downsample(raw, voxel, c, frame)
         _check_spread(crop, voxel, radius)
         crop_tree = build_tree(crop)
-        plane = _ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
-        band = plane_threshold          # taken off the support plane for the cluster
+        plane = ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
+        band = plane_threshold  # taken off the support plane for the cluster
         if plane is not None:
-            flat, sigma = _flatness(plane, crop, crop_tree, plane_threshold)
+            flat, sigma = flatness(plane, crop, crop_tree, plane_threshold)
             if flat < FLAT_FRACTION:
-                plane = None    # a slab through a curved object: no support under it
+                plane = None  # a slab through a curved object: no support under it
             else:
-                band = min(max(SUPPORT_SIGMAS * sigma, plane_threshold),
-                           SUPPORT_REACH * plane_threshold)
+                band = min(
+                    max(SUPPORT_SIGMAS * sigma, plane_threshold), SUPPORT_REACH * plane_threshold
+                )
         support = plane
-        if plane is not None and abs(plane.distance(c)) <= ON_PLANE * plane_threshold and \
-                _reaches(plane, crop, c, ON_PLANE * plane_threshold, voxel):
-            plane = None    # the click is on the plane: it is the object's, not a mount's
+        if (
+            plane is not None
+            and abs(plane.distance(c)) <= ON_PLANE * plane_threshold
+            and _reaches(plane, crop, c, ON_PLANE * plane_threshold, voxel)
+        ):
+            plane = None  # the click is on the plane: it is the object's, not a mount's
         gap = cluster_gap if cluster_gap is not None else 0.025
         if plane is None:
             keep = np.ones(len(crop), bool)
-        else:       # off the plane, but not the support's own surface lifted by the noise
+        else:  # off the plane, but not the support's own surface lifted by the noise
             off = plane.distance(crop)
             keep = off > plane_threshold
             lifted = np.flatnonzero(keep & (off <= band))
-            keep[lifted] = ~_along(plane, np.take(crop, lifted, axis=0), crop, crop_tree)
-        cluster = _connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
-        if len(cluster) < 10:       # nothing off the plane near the click: fit to the whole crop
+            keep[lifted] = ~runs_along(plane, np.take(crop, lifted, axis=0), crop, crop_tree)
+        cluster = connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
+        if len(cluster) < 10:  # nothing off the plane near the click: fit to the whole crop
             cluster = crop
             plane_for_fine = None
         else:
@@ -257,28 +296,44 @@ class Scene:
         # full-resolution points of the cluster's voxels (final refinement target)
         # (the points on the plane first left out: most of a crop's, and none of them fine)
         cluster_tree = build_tree(cluster)
-        fine = raw if plane_for_fine is None else \
-            np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
+        fine = (
+            raw
+            if plane_for_fine is None
+            else np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
+        )
         fine = _within(fine, cluster, cluster_tree, voxel)
         if len(fine) < 10:
             fine = cluster
-        if 0 < fine_points < len(fine):     # a dense sensor's: the fine stage needs no more
-            fine = np.take(fine, (np.arange(fine_points) * (len(fine) / fine_points))
-                           .astype(np.int64), axis=0)
+        if 0 < fine_points < len(fine):  # a dense sensor's: the fine stage needs no more
+            fine = np.take(
+                fine, (np.arange(fine_points) * (len(fine) / fine_points)).astype(np.int64), axis=0
+            )
         range_image = None
         if origin is not None:
             depth = max(float(np.linalg.norm(c - origin)), 0.2)
             # the image's axis runs from the sensor to the click: the frame's z turned round
-            range_image = RangeImage(raw, origin, bin_size=voxel / depth,
-                                     frame=frame * np.array([1.0, -1.0, -1.0]))
+            range_image = RangeImage(
+                raw, origin, bin_size=voxel / depth, frame=frame * np.array([1.0, -1.0, -1.0])
+            )
         fine_tree = build_tree(fine)
-        ctx = ClickContext(click=c, radius=float(radius), voxel=float(voxel),
-                           sensor_origin=origin, crop=crop, cluster=cluster, fine=fine,
-                           plane=plane_for_fine, plane_threshold=plane_threshold,
-                           range_image=range_image, crop_tree=crop_tree,
-                           cluster_tree=cluster_tree, fine_tree=fine_tree,
-                           fine_normals=_fine_normals(fine, fine_tree, threads), support=support,
-                           frame=frame)
+        ctx = ClickContext(
+            click=c,
+            radius=float(radius),
+            voxel=float(voxel),
+            sensor_origin=origin,
+            crop=crop,
+            cluster=cluster,
+            fine=fine,
+            plane=plane_for_fine,
+            plane_threshold=plane_threshold,
+            range_image=range_image,
+            crop_tree=crop_tree,
+            cluster_tree=cluster_tree,
+            fine_tree=fine_tree,
+            fine_normals=_fine_normals(fine, fine_tree, threads),
+            support=support,
+            frame=frame,
+        )
         return ctx
 
 
@@ -290,17 +345,16 @@ REACH_STEP = 1.5
 REACH_SHARE = 0.25
 
 
-def _reaches(plane: Plane, crop: np.ndarray, click: np.ndarray, band: float,
-             voxel: float) -> bool:
+def _reaches(plane: Plane, crop: np.ndarray, click: np.ndarray, band: float, voxel: float) -> bool:
     """Whether the surface of ``plane`` -- the ``crop`` points within ``band`` of it -- reaches
     ``click`` (the points of it that steps of REACH_STEP voxels join to the click hold at least
     REACH_SHARE of them)."""
     on = np.compress(np.abs(plane.distance(crop)) <= band, crop, axis=0)
     step = REACH_STEP * voxel
-    d = np.linalg.norm(_minus(on, click), axis=1)
+    d = np.linalg.norm(minus_point(on, click), axis=1)
     if len(on) == 0 or float(d.min()) > step:
         return False
-    labels = _gap_components(on, step)
+    labels = gap_components(on, step)
     mine = labels == labels[int(np.argmin(d))]
     return int(mine.sum()) >= REACH_SHARE * len(on)
 
@@ -308,8 +362,10 @@ def _reaches(plane: Plane, crop: np.ndarray, click: np.ndarray, band: float,
 def _point3(value, what: str) -> np.ndarray:
     p = finite_vector(value, what, SceneError)
     if np.max(np.abs(p)) > MAX_ORIGIN:
-        raise SceneError(f"the {what} ({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}) lies more than "
-                         f"{MAX_ORIGIN:.0e} m from the scan's origin")
+        raise SceneError(
+            f"the {what} ({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}) lies more than "
+            f"{MAX_ORIGIN:.0e} m from the scan's origin"
+        )
     return p
 
 
@@ -320,8 +376,9 @@ def _origin(value) -> np.ndarray | None:
     if isinstance(value, str):
         if value.strip().lower() == NO_VIEWPOINT:
             return None
-        raise SceneError(f"sensor origin must be 3 finite numbers or '{NO_VIEWPOINT}', "
-                         f"got {value!r}")
+        raise SceneError(
+            f"sensor origin must be 3 finite numbers or '{NO_VIEWPOINT}', got {value!r}"
+        )
     return _point3(value, "sensor origin")
 
 
@@ -329,9 +386,11 @@ def _check_spread(crop: np.ndarray, voxel: float, radius: float) -> None:
     """Refuse a crop that is no surface at all: a handful of distinct places, or points on one
     line (nothing can be fitted to them)."""
     if len(crop) < 10:
-        raise SceneError(f"the scan around the click holds only {len(crop)} distinct points "
-                         f"(at {voxel * 1000:.0f} mm): nothing to fit")
-    rel = _minus(crop, _mean_rows(crop))
+        raise SceneError(
+            f"the scan around the click holds only {len(crop)} distinct points "
+            f"(at {voxel * 1000:.0f} mm): nothing to fit"
+        )
+    rel = minus_point(crop, mean_rows(crop))
     # the singular values from the eigenvalues of the (3, 3) Gram matrix (an SVD of the crop
     # costs ten times more); within rounding of the limit, from the SVD
     spread = np.sqrt(np.maximum(np.linalg.eigvalsh(rel.T @ rel)[::-1], 0.0) / len(crop))
@@ -350,16 +409,22 @@ def _fine_normals(fine: np.ndarray, tree: KDTree, threads: int) -> np.ndarray:
     contiguous parts on up to ``threads`` threads (KD queries and numpy's batched eigh release
     the GIL): each point's normal is its own neighbourhood's, the same numbers either way."""
     from .registration.parallel import parts, run  # (the fitter imports this module)
+
     pieces = parts(len(fine), threads, MIN_NORMALS_PART)
     if len(pieces) == 1:
         return pca_normals(fine, 12, tree)
-    return np.concatenate(run([lambda idx=idx: pca_normals(fine, 12, tree,
-                                                           at=np.take(fine, idx, axis=0))
-                               for idx in pieces], threads))
+    return np.concatenate(
+        run(
+            [
+                lambda idx=idx: pca_normals(fine, 12, tree, at=np.take(fine, idx, axis=0))
+                for idx in pieces
+            ],
+            threads,
+        )
+    )
 
 
-def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree,
-            distance: float) -> np.ndarray:
+def _within(points: np.ndarray, targets: np.ndarray, tree: KDTree, distance: float) -> np.ndarray:
     """The ``points`` (N, 3) within ``distance`` (m) of any of ``targets`` (M, 3) (``tree``:
     over them), in their order. Only those inside the targets' bounding box widened by the
     distance are looked up in the tree: the others are farther from every target."""

@@ -4,6 +4,7 @@
 most a gap, reaching out from the click across occlusions), and the cluster's segments cut at
 concave edges, where two touching surfaces meet (``ClickContext.segments``).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,10 +15,17 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
-from .voxels import _minus
+from .voxels import minus_point
 
-__all__ = ["segment", "segments_and_patches", "joined_insides", "share_within", "SEGMENT_REACH",
-           "SEGMENT_NEIGHBOURS", "SEGMENT_SMOOTH_DEG"]
+__all__ = [
+    "segment",
+    "segments_and_patches",
+    "joined_insides",
+    "share_within",
+    "SEGMENT_REACH",
+    "SEGMENT_NEIGHBOURS",
+    "SEGMENT_SMOOTH_DEG",
+]
 
 #: the cluster's segments (``ClickContext.segments``) are grown in two steps, as in locally
 #: convex connected patches: smooth patches first -- voxels this many voxel edges apart are
@@ -50,15 +58,17 @@ PLANAR = 0.3
 STEP = 2.0
 
 
-def segment(points: np.ndarray, origin: np.ndarray | None, voxel: float,
-            tree: KDTree | None = None) -> np.ndarray:
+def segment(
+    points: np.ndarray, origin: np.ndarray | None, voxel: float, tree: KDTree | None = None
+) -> np.ndarray:
     """Segment labels (N,) of voxelized ``points`` (N, 3) cut at concave edges (see
     ``ClickContext.segments``); ``tree``: a tree over them when one exists."""
     return segments_and_patches(points, origin, voxel, tree)[0]
 
 
-def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: float,
-                         tree: KDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+def segments_and_patches(
+    points: np.ndarray, origin: np.ndarray | None, voxel: float, tree: KDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The segment labels (N,) of :func:`segment` and the smooth patch labels (N,) they were
     joined from (``ClickContext.patches``), each numbered from 0."""
     P = points
@@ -67,7 +77,7 @@ def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: f
         return np.zeros(N, np.int64), np.zeros(N, np.int64)
     n, variation = pca_normals(P, SEGMENT_NEIGHBOURS, tree, variation=True)
     towards = (origin - P) if origin is not None else (P - P.mean(axis=0))
-    n[np.einsum("ij,ij->i", n, towards) < 0] *= -1      # towards the sensor, or outwards
+    n[np.einsum("ij,ij->i", n, towards) < 0] *= -1  # towards the sensor, or outwards
     patch, core = _smooth_patches(P, n, variation, voxel)
     patch = np.unique(patch, return_inverse=True)[1]
     if not core.any():
@@ -76,12 +86,16 @@ def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: f
     pairs = pairs[patch[pairs[:, 0]] != patch[pairs[:, 1]]]
     if not len(pairs):
         return patch, patch
-    A = np.concatenate([pairs[:, 0], pairs[:, 1]])       # each contact seen from both sides
+    A = np.concatenate([pairs[:, 0], pairs[:, 1]])  # each contact seen from both sides
     B = np.concatenate([pairs[:, 1], pairs[:, 0]])
     sides, group = np.unique(patch[A] * N + patch[B], return_inverse=True)
     voxels = np.bincount(np.unique(group * N + A) // N, minlength=len(sides))
-    at = np.stack([np.bincount(group, weights=P[A, k], minlength=len(sides))
-                   for k in range(3)], axis=1) / np.bincount(group)[:, None]
+    at = (
+        np.stack(
+            [np.bincount(group, weights=P[A, k], minlength=len(sides)) for k in range(3)], axis=1
+        )
+        / np.bincount(group)[:, None]
+    )
     local = cKDTree(P).query_ball_point(at, LOCAL_REACH * voxel)
     mean_n, mean_p = np.zeros((len(sides), 3)), at.copy()
     planar = np.zeros(len(sides), bool)
@@ -92,8 +106,11 @@ def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: f
         if len(idx):
             mean_n[g], mean_p[g] = n[idx].mean(axis=0), P[idx].mean(axis=0)
             u = _unit(mean_n[g])
-            planar[g] = u is not None and len(idx) >= 3 and \
-                float(np.sqrt(np.mean(((P[idx] - mean_p[g]) @ u) ** 2))) <= PLANAR * voxel
+            planar[g] = (
+                u is not None
+                and len(idx) >= 3
+                and float(np.sqrt(np.mean(((P[idx] - mean_p[g]) @ u) ** 2))) <= PLANAR * voxel
+            )
     back = {int(k): g for g, k in enumerate(sides)}
     join = []
     for g, key in enumerate(sides):
@@ -105,12 +122,15 @@ def segments_and_patches(points: np.ndarray, origin: np.ndarray | None, voxel: f
         if ni is None or nj is None:
             continue
         step = mean_p[g] - mean_p[h]
-        in_front = (planar[g] and ni @ -step > STEP * voxel) or \
-            (planar[h] and nj @ step > STEP * voxel)
+        in_front = (planar[g] and ni @ -step > STEP * voxel) or (
+            planar[h] and nj @ step > STEP * voxel
+        )
         convex = (ni - nj) @ step > 0 and not in_front
         # (one surface cut by the noise: nearly parallel, and in one plane)
-        flat = ni @ nj >= math.cos(math.radians(CONCAVE_DEG)) and \
-            max(abs(step @ ni), abs(step @ nj)) <= COPLANAR * voxel
+        flat = (
+            ni @ nj >= math.cos(math.radians(CONCAVE_DEG))
+            and max(abs(step @ ni), abs(step @ nj)) <= COPLANAR * voxel
+        )
         if convex or flat:
             join.append((i, j))
     merged = _components(N, np.array(join, np.int64).reshape(-1, 2))[patch]
@@ -123,9 +143,14 @@ def _smooth_patches(P: np.ndarray, n: np.ndarray, variation: np.ndarray, voxel: 
     pairs = pairs_within(P, SEGMENT_REACH * voxel)
     a, b = pairs[:, 0], pairs[:, 1]
     flat = variation <= EDGE_VARIATION
-    smooth = np.take(flat, a) & np.take(flat, b) & (
-        np.einsum("ij,ij->i", np.take(n, a, axis=0), np.take(n, b, axis=0))
-        >= math.cos(math.radians(SEGMENT_SMOOTH_DEG)))
+    smooth = (
+        np.take(flat, a)
+        & np.take(flat, b)
+        & (
+            np.einsum("ij,ij->i", np.take(n, a, axis=0), np.take(n, b, axis=0))
+            >= math.cos(math.radians(SEGMENT_SMOOTH_DEG))
+        )
+    )
     patch = _components(len(P), pairs[smooth])
     core = flat & (np.bincount(patch)[patch] >= MIN_PATCH)
     if core.any() and not core.all():
@@ -139,18 +164,19 @@ def _unit(v: np.ndarray):
     return v / norm if norm > 1e-9 else None
 
 
-def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float,
-                  reach: float) -> np.ndarray:
+def connected_to(
+    points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: float, reach: float
+) -> np.ndarray:
     """The kept points connected (steps <= ``gap``) to any kept point within ``reach`` of the
     click. (Occlusion splits one object into parts at different depths; reaching out from the
     click gathers them.)"""
     pts = np.compress(keep, points, axis=0)
     if len(pts) == 0:
         return pts
-    seeds = np.linalg.norm(_minus(pts, click), axis=1) <= reach
+    seeds = np.linalg.norm(minus_point(pts, click), axis=1) <= reach
     if not seeds.any():
         return pts[:0]
-    labels = _gap_components(pts, gap)
+    labels = gap_components(pts, gap)
     wanted = np.unique(labels[seeds])
     return np.compress(np.isin(labels, wanted), pts, axis=0)
 
@@ -160,7 +186,7 @@ def _connected_to(points: np.ndarray, keep: np.ndarray, click: np.ndarray, gap: 
 FIRST_GAP = 0.4
 
 
-def _gap_components(points: np.ndarray, gap: float) -> np.ndarray:
+def gap_components(points: np.ndarray, gap: float) -> np.ndarray:
     """Component label (N,) of each of ``points`` (N, 3), joined by steps of at most ``gap``
     (m): the components of the steps within FIRST_GAP of it, joined where points of two of them
     are within the gap -- pairs looked for only among the points outside the largest one and
@@ -171,8 +197,7 @@ def _gap_components(points: np.ndarray, gap: float) -> np.ndarray:
     outside = first != np.argmax(np.bincount(first))
     if not outside.any():
         return first
-    near, _ = nearest(build_tree(np.compress(outside, points, axis=0)), points,
-                      gap * (1 + 1e-6))
+    near, _ = nearest(build_tree(np.compress(outside, points, axis=0)), points, gap * (1 + 1e-6))
     idx = np.flatnonzero(outside | np.isfinite(near))
     pairs = pairs_within(np.take(points, idx, axis=0), gap)
     a, b = first[np.take(idx, pairs[:, 0])], first[np.take(idx, pairs[:, 1])]
@@ -215,11 +240,17 @@ FAR_SIDE = 0.3
 WALL_OUT = 0.012
 #: ... and the segments with points within RIM_REACH (m) of the wall's top are its rim's
 RIM_REACH = 0.012
-RIM_STEPS = 4       #: (segments joined to the rim in turn, at most this many times)
+RIM_STEPS = 4  #: (segments joined to the rim in turn, at most this many times)
 
 
-def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal: np.ndarray,
-                   x_hint: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+def joined_insides(
+    points: np.ndarray,
+    labels: np.ndarray,
+    clicked: int,
+    normal: np.ndarray,
+    x_hint: np.ndarray,
+    origin: np.ndarray | None = None,
+) -> np.ndarray:
     """``labels`` (N,) of ``points`` (N, 3) with an inside joined to its object: where the
     segment ``clicked`` is an inside (see INSIDE_SHARE), it and the segments around it take
     the clicked label; else the segments inside the clicked one join it. ``normal``: the
@@ -235,7 +266,7 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
     if np.linalg.norm(e1) < 1e-6:
         e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    plane_axes = np.stack([e1, np.cross(up, e1)], axis=1)      # (3, 2): seen along ``up``
+    plane_axes = np.stack([e1, np.cross(up, e1)], axis=1)  # (3, 2): seen along ``up``
     flat = points @ plane_axes
     height = points @ up
 
@@ -246,15 +277,22 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
         mine = labels == k
         centre = flat[mine].mean(axis=0)
         if reach is None:
-            reach = 2.0 * float(np.percentile(np.linalg.norm(flat[mine] - centre, axis=1),
-                                              95)) + INSIDE_REACH
-        ring = (np.linalg.norm(flat - centre, axis=1) <= reach) & others & \
-            (height > np.percentile(height[mine], 99) + INSIDE_RISE)
+            reach = (
+                2.0 * float(np.percentile(np.linalg.norm(flat[mine] - centre, axis=1), 95))
+                + INSIDE_REACH
+            )
+        ring = (
+            (np.linalg.norm(flat - centre, axis=1) <= reach)
+            & others
+            & (height > np.percentile(height[mine], 99) + INSIDE_RISE)
+        )
         if ring.sum() < 4 or share_within(flat[mine], flat[ring]) < INSIDE_SHARE:
             return False, ring
         off = flat[ring] - centre
-        sectors = np.unique(np.floor((np.arctan2(off[:, 1], off[:, 0]) + math.pi) /
-                                     (math.pi / 4)).astype(np.int64) % 8)
+        sectors = np.unique(
+            np.floor((np.arctan2(off[:, 1], off[:, 0]) + math.pi) / (math.pi / 4)).astype(np.int64)
+            % 8
+        )
         return len(sectors) >= INSIDE_SECTORS, ring
 
     out = np.array(labels)
@@ -266,15 +304,16 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
         if inside:
             ring |= r
     within = np.zeros(len(labels), bool)
-    if ring.sum() >= 3:             # (the rim's circle)
+    if ring.sum() >= 3:  # (the rim's circle)
         centre, r = _circle_2d(flat[ring])
         if 0.0 < r <= WALL_MAX:
             within = np.linalg.norm(flat - centre, axis=1) <= r + WALL_OUT / 2
     rim_of = None
     if origin is not None:
-        far = _within_far_wall(flat, height, labels == clicked,
-                               np.asarray(origin, float) @ plane_axes)
-        if far.any():           # (and what meets the wall at its top: the rim, piece by piece)
+        far = _within_far_wall(
+            flat, height, labels == clicked, np.asarray(origin, float) @ plane_axes
+        )
+        if far.any():  # (and what meets the wall at its top: the rim, piece by piece)
             within |= far
             rim_of = np.array([clicked])
             for _ in range(RIM_STEPS):
@@ -291,7 +330,7 @@ def joined_insides(points: np.ndarray, labels: np.ndarray, clicked: int, normal:
             if 2 * h >= n or (rim_of is not None and k in rim_of):
                 out[labels == k] = clicked
         return out
-    for k in ids:                   # the clicked one's insides
+    for k in ids:  # the clicked one's insides
         if k != clicked and around(int(k), labels == clicked, np.inf)[0]:
             out[labels == k] = clicked
     return out
@@ -307,8 +346,9 @@ def share_within(points: np.ndarray, outline: np.ndarray) -> float:
     return float(np.mean(hull.find_simplex(points) >= 0))
 
 
-def _within_far_wall(flat: np.ndarray, height: np.ndarray, mine: np.ndarray,
-                     sensor: np.ndarray) -> np.ndarray:
+def _within_far_wall(
+    flat: np.ndarray, height: np.ndarray, mine: np.ndarray, sensor: np.ndarray
+) -> np.ndarray:
     """The points (mask) horizontally within a vessel whose far inside wall the segment
     ``mine`` is: its points above its lowest (``flat``: seen along the support's normal,
     ``height`` along it) lie on a circle (the algebraic fit, its points within WALL_FIT of it)
@@ -334,6 +374,7 @@ def _within_far_wall(flat: np.ndarray, height: np.ndarray, mine: np.ndarray,
 
 def _circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float]:
     """The algebraic (Kasa) circle through 2-D points ``uv`` (N, 2): (centre (2,), radius)."""
-    sol = np.linalg.lstsq(np.column_stack([2 * uv, np.ones(len(uv))]), (uv ** 2).sum(axis=1),
-                          rcond=None)[0]
+    sol = np.linalg.lstsq(
+        np.column_stack([2 * uv, np.ones(len(uv))]), (uv**2).sum(axis=1), rcond=None
+    )[0]
     return sol[:2], math.sqrt(max(float(sol[2] + sol[:2] @ sol[:2]), 0.0))

@@ -40,6 +40,7 @@ pipe, a can), its dimensions fitted with its pose from the click::
 The frames these lengths are given in are
 :mod:`~affordance_registration.core.affordance_template`'s.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,7 +49,7 @@ import os
 import numpy as np
 import trimesh
 
-from .affordance_template import MAX_SCALE, AffordanceTemplate, Joint, Symmetry, _scale_range
+from .affordance_template import MAX_SCALE, AffordanceTemplate, Joint, Symmetry, parse_scale_range
 from .errors import TemplateError
 from .files import read_yaml, unreadable
 from .meshes import PRIMITIVES, primitive_mesh
@@ -59,15 +60,29 @@ from .waypoints import parse_waypoints
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
 
-_KNOWN_KEYS = {"name", "mesh", "mesh_scale", "symmetry", "joints", "states", "description",
-               "base_mesh", "scale", "allow_external_files", "primitive", "size", "radius",
-               "length", "waypoints"}
-MIN_DIMENSION = 0.002            #: m, the smallest dimension a primitive may be given
+_KNOWN_KEYS = {
+    "name",
+    "mesh",
+    "mesh_scale",
+    "symmetry",
+    "joints",
+    "states",
+    "description",
+    "base_mesh",
+    "scale",
+    "allow_external_files",
+    "primitive",
+    "size",
+    "radius",
+    "length",
+    "waypoints",
+}
+MIN_DIMENSION = 0.002  #: m, the smallest dimension a primitive may be given
 #: bounds on what a template file may ask for, checked before any work is done
 MAX_YAML_BYTES = 1_000_000
-MAX_TEMPLATE_SIZE = 100.0        #: m, largest extent of a (scaled) template
-MAX_SYMMETRY_ORDER = 360         #: beyond this, say ``continuous: true``
-MAX_REVOLUTE = 64 * math.pi      #: rad, joint limits of a revolute joint (32 turns)
+MAX_TEMPLATE_SIZE = 100.0  #: m, largest extent of a (scaled) template
+MAX_SYMMETRY_ORDER = 360  #: beyond this, say ``continuous: true``
+MAX_REVOLUTE = 64 * math.pi  #: rad, joint limits of a revolute joint (32 turns)
 MAX_JOINTS = 16
 _JOINT_KEYS = {"name", "type", "axis", "origin", "lower", "upper", "torque_limit", "moving_mesh"}
 
@@ -77,9 +92,8 @@ def load_template(path: str) -> AffordanceTemplate:
     path = str(path)
     try:
         return _load_template(path)
-    except OverflowError:           # an integer of hundreds of digits, wherever it is
-        raise TemplateError(f"{path}: a number too large for a float (beyond 1.8e308)") \
-            from None
+    except OverflowError:  # an integer of hundreds of digits, wherever it is
+        raise TemplateError(f"{path}: a number too large for a float (beyond 1.8e308)") from None
 
 
 def _load_template(path: str) -> AffordanceTemplate:
@@ -88,7 +102,9 @@ def _load_template(path: str) -> AffordanceTemplate:
         raise TemplateError(f"{path}: expected a mapping with at least 'name' and 'mesh'")
     unknown = set(doc) - _KNOWN_KEYS
     if unknown:
-        raise _fail(path, sorted(unknown)[0], f"unknown key (known: {', '.join(sorted(_KNOWN_KEYS))})")
+        raise _fail(
+            path, sorted(unknown)[0], f"unknown key (known: {', '.join(sorted(_KNOWN_KEYS))})"
+        )
     name = doc.get("name")
     if not isinstance(name, str) or not name.strip():
         raise _fail(path, "name", "missing or empty")
@@ -100,10 +116,17 @@ def _load_template(path: str) -> AffordanceTemplate:
     if "mesh" not in doc:
         raise _fail(path, "mesh", "missing")
     scale = doc.get("mesh_scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) \
-            or not 1 / MAX_SCALE <= scale <= MAX_SCALE:
-        raise _fail(path, "mesh_scale", f"expected a number in [{1 / MAX_SCALE:g}, "
-                                        f"{MAX_SCALE:g}], got {scale!r}")
+    if (
+        isinstance(scale, bool)
+        or not isinstance(scale, (int, float))
+        or not math.isfinite(scale)
+        or not 1 / MAX_SCALE <= scale <= MAX_SCALE
+    ):
+        raise _fail(
+            path,
+            "mesh_scale",
+            f"expected a number in [{1 / MAX_SCALE:g}, {MAX_SCALE:g}], got {scale!r}",
+        )
     external = doc.get("allow_external_files", False)
     if external not in (True, False):
         raise _fail(path, "allow_external_files", f"expected true or false, got {external!r}")
@@ -120,22 +143,35 @@ def _load_template(path: str) -> AffordanceTemplate:
     scale_range = None
     if "scale" in doc:
         try:
-            scale_range = _scale_range(doc["scale"])
+            scale_range = parse_scale_range(doc["scale"])
         except ValueError as exc:
             raise _fail(path, "scale", str(exc)) from None
     if joints and base is None:
         raise _fail(path, "base_mesh", "a template with joints needs the fixed part's mesh")
     waypoints = parse_waypoints(path, doc.get("waypoints"), joints, float(scale))
-    tpl = AffordanceTemplate(name=name.strip(), path=path, mesh=mesh, points=points,
-                             point_normals=normals, mesh_scale=float(scale), symmetry=symmetry,
-                             joints=joints, states=states, description=description,
-                             base_mesh=base, scale_range=scale_range, waypoints=waypoints)
+    tpl = AffordanceTemplate(
+        name=name.strip(),
+        path=path,
+        mesh=mesh,
+        points=points,
+        point_normals=normals,
+        mesh_scale=float(scale),
+        symmetry=symmetry,
+        joints=joints,
+        states=states,
+        description=description,
+        base_mesh=base,
+        scale_range=scale_range,
+        waypoints=waypoints,
+    )
     if mesh is not None and len(joints) <= 1:
         files = {"mesh": doc["mesh"]}
         if joints:
             files.update(base_mesh=doc["base_mesh"], moving_mesh=doc["joints"][0]["moving_mesh"])
-        tpl.mesh_files = {key: os.path.abspath(_geometry_path(path, key, rel, external))
-                          for key, rel in files.items()}
+        tpl.mesh_files = {
+            key: os.path.abspath(_geometry_path(path, key, rel, external))
+            for key, rel in files.items()
+        }
     return tpl
 
 
@@ -145,43 +181,66 @@ def _primitive_template(path: str, doc: dict, name: str, description: str) -> Af
     kind = doc.get("primitive")
     if kind not in PRIMITIVES:
         raise _fail(path, "primitive", f"expected one of {', '.join(PRIMITIVES)}, got {kind!r}")
-    other = sorted(set(doc) & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale",
-                               "symmetry"})
+    other = sorted(
+        set(doc) & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale", "symmetry"}
+    )
     if other:
-        raise _fail(path, other[0], "a primitive template has dimensions, not a mesh, joints "
-                                    "or a scale range")
+        raise _fail(
+            path,
+            other[0],
+            "a primitive template has dimensions, not a mesh, joints or a scale range",
+        )
     given = {"box": ("size",), "cylinder": ("radius", "length")}[kind]
     stray = sorted(set(doc) & {"size", "radius", "length"} - set(given))
     if stray:
-        raise _fail(path, stray[0], f"not a dimension of a {kind} (it has "
-                                    f"{', '.join(given)})")
+        raise _fail(path, stray[0], f"not a dimension of a {kind} (it has {', '.join(given)})")
     if kind == "box":
         size = doc.get("size")
         if not isinstance(size, dict) or set(size) != {"x", "y", "z"}:
-            raise _fail(path, "size", f"expected {{x: [min, max], y: [min, max], z: [min, max]}} "
-                                      f"in metres, got {size!r}")
+            raise _fail(
+                path,
+                "size",
+                f"expected {{x: [min, max], y: [min, max], z: [min, max]}} "
+                f"in metres, got {size!r}",
+            )
         specs = {f"size.{k}": size[k] for k in "xyz"}
     else:
         specs = {k: doc.get(k) for k in ("radius", "length")}
     ranges = {}
     for key, value in specs.items():
         try:
-            if isinstance(value, (str, bytes)):     # ("12" is not [1, 2])
+            if isinstance(value, (str, bytes)):  # ("12" is not [1, 2])
                 raise TypeError
             lo, hi = (float(v) for v in value)
         except (TypeError, ValueError, OverflowError):
             raise _fail(path, key, f"expected [min, max] in metres, got {value!r}") from None
-        if not (math.isfinite(lo) and math.isfinite(hi) and MIN_DIMENSION <= lo <= hi
-                and hi <= MAX_TEMPLATE_SIZE):
-            raise _fail(path, key, f"expected {MIN_DIMENSION} <= min <= max <= "
-                                   f"{MAX_TEMPLATE_SIZE:.0f} (metres), got {value!r}")
+        if not (
+            math.isfinite(lo)
+            and math.isfinite(hi)
+            and MIN_DIMENSION <= lo <= hi
+            and hi <= MAX_TEMPLATE_SIZE
+        ):
+            raise _fail(
+                path,
+                key,
+                f"expected {MIN_DIMENSION} <= min <= max <= "
+                f"{MAX_TEMPLATE_SIZE:.0f} (metres), got {value!r}",
+            )
         ranges[key.split(".")[-1]] = (lo, hi)
     middle = {k: 0.5 * (lo + hi) for k, (lo, hi) in ranges.items()}
     symmetry = Symmetry(order=2) if kind == "box" else Symmetry(continuous=True)
     waypoints = parse_waypoints(path, doc.get("waypoints"), (), 1.0, primitive=kind)
-    return AffordanceTemplate(name, path, primitive_mesh(kind, middle), symmetry=symmetry,
-                              description=description, primitive=kind,
-                              dimension_ranges=ranges, dimensions=middle, waypoints=waypoints)
+    return AffordanceTemplate(
+        name,
+        path,
+        primitive_mesh(kind, middle),
+        symmetry=symmetry,
+        description=description,
+        primitive=kind,
+        dimension_ranges=ranges,
+        dimensions=middle,
+        waypoints=waypoints,
+    )
 
 
 def _fail(path: str, key: str, msg: str) -> TemplateError:
@@ -189,8 +248,9 @@ def _fail(path: str, key: str, msg: str) -> TemplateError:
 
 
 def _vector(path: str, key: str, value, length: int = 3) -> tuple:
-    return tuple(float(v) for v in template_vector(value, key, lambda k, m: _fail(path, k, m),
-                                                   length))
+    return tuple(
+        float(v) for v in template_vector(value, key, lambda k, m: _fail(path, k, m), length)
+    )
 
 
 def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
@@ -209,8 +269,12 @@ def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
         real = os.path.realpath(path)
         roots = {os.path.realpath(folder), os.path.dirname(os.path.realpath(yaml_path))}
         if not any(os.path.commonpath([real, root]) == root for root in roots):
-            raise _fail(yaml_path, key, f"{rel} is outside the template's folder {folder} "
-                                        f"(set 'allow_external_files: true' to allow that)")
+            raise _fail(
+                yaml_path,
+                key,
+                f"{rel} is outside the template's folder {folder} "
+                f"(set 'allow_external_files: true' to allow that)",
+            )
     why = unreadable(path)
     if why is not None:
         raise _fail(yaml_path, key, f"{path}: {why}")
@@ -219,15 +283,14 @@ def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
     return path
 
 
-def _load_geometry(yaml_path: str, key: str, rel: str, scale: float,
-                   allow_external: bool = False):
+def _load_geometry(yaml_path: str, key: str, rel: str, scale: float, allow_external: bool = False):
     """Load a mesh, or a point cloud (a PCD, or a PLY without faces: a scan of the object, read
     like a scene); returns (mesh or None, points or None, normals or None)."""
     path = _geometry_path(yaml_path, key, rel, allow_external)
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".stl", ".obj", ".ply", ".pcd", ".off", ".glb", ".gltf"):
         raise _fail(yaml_path, key, f"unsupported file type '{ext}' (STL, OBJ, PLY, PCD)")
-    fail = (lambda msg: _fail(yaml_path, key, msg))
+    fail = lambda msg: _fail(yaml_path, key, msg)
     if ext in (".ply", ".pcd") and not check_header(path, fail)["faces"]:
         f = read_points(path, fail)
         finite = np.all(np.isfinite(f.points), axis=1)
@@ -260,9 +323,13 @@ def _check_extent(yaml_path: str, key: str, points: np.ndarray) -> None:
         raise _fail(yaml_path, key, "the geometry is not finite (mesh_scale too large?)")
     size = float(np.max(points.max(axis=0) - points.min(axis=0)))
     if size > MAX_TEMPLATE_SIZE:
-        raise _fail(yaml_path, key, f"the geometry is {size:.3g} m across, more than the "
-                                    f"{MAX_TEMPLATE_SIZE:.0f} m a template may be (mesh_scale "
-                                    f"converts its units to metres)")
+        raise _fail(
+            yaml_path,
+            key,
+            f"the geometry is {size:.3g} m across, more than the "
+            f"{MAX_TEMPLATE_SIZE:.0f} m a template may be (mesh_scale "
+            f"converts its units to metres)",
+        )
 
 
 def _estimate_normals(points: np.ndarray) -> np.ndarray:
@@ -277,12 +344,17 @@ def _parse_symmetry(path: str, value) -> Symmetry | None:
     if value is None:
         return None
     if not isinstance(value, dict):
-        raise _fail(path, "symmetry", f"expected a mapping like {{axis: [0,0,1], order: 4}}, "
-                                      f"got {value!r}")
+        raise _fail(
+            path, "symmetry", f"expected a mapping like {{axis: [0,0,1], order: 4}}, got {value!r}"
+        )
     unknown = set(value) - {"axis", "order", "continuous"}
     if unknown:
-        raise _fail(path, "symmetry", f"unknown symmetry form: keys {sorted(unknown)} "
-                                      f"(use axis with order N or continuous: true)")
+        raise _fail(
+            path,
+            "symmetry",
+            f"unknown symmetry form: keys {sorted(unknown)} "
+            f"(use axis with order N or continuous: true)",
+        )
     axis = _vector(path, "symmetry.axis", value.get("axis", [0, 0, 1]))
     if np.linalg.norm(axis) < 1e-9:
         raise _fail(path, "symmetry.axis", "axis must not be zero")
@@ -298,9 +370,13 @@ def _parse_symmetry(path: str, value) -> Symmetry | None:
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise _fail(path, "symmetry.order", f"expected an integer >= 1, got {order!r}")
     if order > MAX_SYMMETRY_ORDER:
-        raise _fail(path, "symmetry.order", f"{order} is more than {MAX_SYMMETRY_ORDER}: for a "
-                                            f"shape that looks the same at every angle use "
-                                            f"'continuous: true'")
+        raise _fail(
+            path,
+            "symmetry.order",
+            f"{order} is more than {MAX_SYMMETRY_ORDER}: for a "
+            f"shape that looks the same at every angle use "
+            f"'continuous: true'",
+        )
     return Symmetry(axis=axis, order=order)
 
 
@@ -339,36 +415,52 @@ def _parse_joints(path: str, value, scale: float, external: bool = False) -> tup
         except (TypeError, ValueError):
             raise _fail(path, f"{key}.lower/upper", "limits must be numbers") from None
         if not (math.isfinite(lower) and math.isfinite(upper)) or lower >= upper:
-            raise _fail(path, f"{key}.lower/upper",
-                        f"limits inverted or empty: lower={lower} must be below upper={upper}")
+            raise _fail(
+                path,
+                f"{key}.lower/upper",
+                f"limits inverted or empty: lower={lower} must be below upper={upper}",
+            )
         reach = MAX_REVOLUTE if jtype == "revolute" else MAX_TEMPLATE_SIZE / scale
         if max(abs(lower), abs(upper)) > reach:
-            raise _fail(path, f"{key}.lower/upper",
-                        f"limits beyond ±{reach:.4g} ({'rad' if jtype == 'revolute' else 'mesh units'}):"
-                        f" lower={lower}, upper={upper}")
+            raise _fail(
+                path,
+                f"{key}.lower/upper",
+                f"limits beyond ±{reach:.4g} ({'rad' if jtype == 'revolute' else 'mesh units'}):"
+                f" lower={lower}, upper={upper}",
+            )
         torque = spec.get("torque_limit")
         if torque is not None:
             try:
                 torque = float(torque)
             except (TypeError, ValueError):
-                raise _fail(path, f"{key}.torque_limit", f"expected a number, got {torque!r}") \
-                    from None
+                raise _fail(
+                    path, f"{key}.torque_limit", f"expected a number, got {torque!r}"
+                ) from None
             if not torque > 0:
                 raise _fail(path, f"{key}.torque_limit", "must be positive")
         if "moving_mesh" not in spec:
             raise _fail(path, f"{key}.moving_mesh", "missing: the moving part's mesh is required")
-        moving, _, _ = _load_geometry(path, f"{key}.moving_mesh", spec["moving_mesh"], scale,
-                                      external)
+        moving, _, _ = _load_geometry(
+            path, f"{key}.moving_mesh", spec["moving_mesh"], scale, external
+        )
         if moving is None:
             raise _fail(path, f"{key}.moving_mesh", "the moving part must be a mesh")
         if jtype == "prismatic":
             lower_o, upper_o = lower * scale, upper * scale
         else:
             lower_o, upper_o = lower, upper
-        joints.append(Joint(name=name, type=jtype,
-                            axis=tuple(float(v) for v in axis / np.linalg.norm(axis)),
-                            origin=tuple(float(v) * scale for v in origin), lower=lower_o,
-                            upper=upper_o, torque_limit=torque, moving_mesh=moving))
+        joints.append(
+            Joint(
+                name=name,
+                type=jtype,
+                axis=tuple(float(v) for v in axis / np.linalg.norm(axis)),
+                origin=tuple(float(v) * scale for v in origin),
+                lower=lower_o,
+                upper=upper_o,
+                torque_limit=torque,
+                moving_mesh=moving,
+            )
+        )
     return tuple(joints)
 
 
@@ -385,8 +477,11 @@ def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
         if not isinstance(values, dict):
             raise _fail(path, f"states.{state}", "expected a mapping of joint name to value")
         if not values:
-            raise _fail(path, f"states.{state}", "names no joint value: a state is joint values "
-                                                 "such as {lever: 1.5708}")
+            raise _fail(
+                path,
+                f"states.{state}",
+                "names no joint value: a state is joint values such as {lever: 1.5708}",
+            )
         states[str(state)] = checked = {}
         for jname, v in values.items():
             if jname not in by_name:
@@ -395,13 +490,17 @@ def _parse_states(path: str, value, joints: tuple, scale: float) -> dict:
             try:
                 v = float(v)
             except (TypeError, ValueError):
-                raise _fail(path, f"states.{state}.{jname}", f"expected a number, got {v!r}") \
-                    from None
+                raise _fail(
+                    path, f"states.{state}.{jname}", f"expected a number, got {v!r}"
+                ) from None
             unit = scale if joint.type == "prismatic" else 1.0
             tol = 1e-6 * max(1.0, abs(joint.upper - joint.lower))
             if not joint.lower - tol <= v * unit <= joint.upper + tol:
-                raise _fail(path, f"states.{state}.{jname}",
-                            f"{v} is outside the joint limits [{joint.lower / unit:.6g}, "
-                            f"{joint.upper / unit:.6g}]")
+                raise _fail(
+                    path,
+                    f"states.{state}.{jname}",
+                    f"{v} is outside the joint limits [{joint.lower / unit:.6g}, "
+                    f"{joint.upper / unit:.6g}]",
+                )
             checked[jname] = v * unit
     return states

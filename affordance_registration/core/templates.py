@@ -8,6 +8,7 @@ format and checks :mod:`~affordance_registration.core.template_files`', the mesh
 use :mod:`~affordance_registration.core.meshes`'; the names the rest of the package imports from
 here are re-exported.
 """
+
 from __future__ import annotations
 
 import os
@@ -18,8 +19,17 @@ from .errors import TemplateError
 from .meshes import PRIMITIVES, mesh_distance, primitive_mesh
 from .template_files import load_template
 
-__all__ = ["Symmetry", "Joint", "AffordanceTemplate", "TemplateLibrary", "default_models_dir",
-           "load_template", "PRIMITIVES", "primitive_mesh", "mesh_distance"]
+__all__ = [
+    "Symmetry",
+    "Joint",
+    "AffordanceTemplate",
+    "TemplateLibrary",
+    "default_models_dir",
+    "load_template",
+    "PRIMITIVES",
+    "primitive_mesh",
+    "mesh_distance",
+]
 
 
 def default_models_dir() -> str:
@@ -29,17 +39,21 @@ def default_models_dir() -> str:
     candidates = [os.path.join(here, "models")]
     try:  # colcon / ament install
         from ament_index_python.packages import get_package_share_directory
-        candidates.append(os.path.join(get_package_share_directory("affordance_registration"),
-                                       "models"))
+
+        candidates.append(
+            os.path.join(get_package_share_directory("affordance_registration"), "models")
+        )
     except Exception:
         pass
     import sys
+
     candidates.append(os.path.join(sys.prefix, "share", "affordance_registration", "models"))
     for c in candidates:
         if os.path.isdir(c) and any(f.endswith(".yaml") for f in os.listdir(c)):
             return c
-    raise TemplateError("the package's models/ directory was not found; pass a templates "
-                        "directory explicitly")
+    raise TemplateError(
+        "the package's models/ directory was not found; pass a templates directory explicitly"
+    )
 
 
 class TemplateLibrary(Mapping):
@@ -49,8 +63,10 @@ class TemplateLibrary(Mapping):
         self._templates: dict[str, AffordanceTemplate] = {}
         for t in templates:
             if t.name in self._templates:
-                raise TemplateError(f"{t.path}: key 'name': duplicate template name '{t.name}' "
-                                    f"(also in {self._templates[t.name].path})")
+                raise TemplateError(
+                    f"{t.path}: key 'name': duplicate template name '{t.name}' "
+                    f"(also in {self._templates[t.name].path})"
+                )
             self._templates[t.name] = t
 
     @classmethod
@@ -59,8 +75,11 @@ class TemplateLibrary(Mapping):
         package's own models. An empty directory is an error."""
         source = default_models_dir() if source is None else str(source)
         if os.path.isdir(source):
-            files = sorted(os.path.join(source, f) for f in os.listdir(source)
-                           if f.endswith((".yaml", ".yml")) and not f.startswith("."))
+            files = sorted(
+                os.path.join(source, f)
+                for f in os.listdir(source)
+                if f.endswith((".yaml", ".yml")) and not f.startswith(".")
+            )
             if not files:
                 raise TemplateError(f"{source}: no template files (*.yaml) in this directory")
         elif os.path.isfile(source):
@@ -73,8 +92,9 @@ class TemplateLibrary(Mapping):
         try:
             return self._templates[name]
         except KeyError:
-            raise KeyError(f"no template named '{name}' (have: {', '.join(self._templates)})") \
-                from None
+            raise KeyError(
+                f"no template named '{name}' (have: {', '.join(self._templates)})"
+            ) from None
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._templates)

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """SE(3) helpers. Transforms are 4x4 float64 arrays named by their frames: ``T_a_b`` maps points
 expressed in frame b into frame a, so ``T_a_c = T_a_b @ T_b_c`` reads right."""
+
 from __future__ import annotations
 
 import math
@@ -12,10 +13,23 @@ from scipy.spatial.transform import Rotation
 from .errors import AffordanceError
 
 __all__ = [
-    "finite_vector", "template_vector", "finite_transform", "make_T", "is_rigid", "RIGID_ATOL", "invert",
-    "transform_points", "rotate", "pose_points",
-    "rotation_angle", "pose_error",
-    "axis_angle_matrix", "random_rotations", "unit_quaternions", "align_z_to", "align_x_to",
+    "finite_vector",
+    "template_vector",
+    "finite_transform",
+    "make_T",
+    "is_rigid",
+    "RIGID_ATOL",
+    "invert",
+    "transform_points",
+    "rotate",
+    "pose_points",
+    "rotation_angle",
+    "pose_error",
+    "axis_angle_matrix",
+    "random_rotations",
+    "unit_quaternions",
+    "align_z_to",
+    "align_x_to",
     "quat_xyzw_to_matrix",
     "matrix_to_quat_xyzw",
 ]
@@ -44,10 +58,15 @@ def template_vector(value, key: str, fail, length: int = 3) -> np.ndarray:
         v = np.asarray(value, dtype=float).reshape(-1)
     except (TypeError, ValueError, OverflowError):
         raise fail(key, f"expected {length} numbers, got {value!r}") from None
-    if v.shape != (length,) or not np.all(np.isfinite(v)) or \
-            np.max(np.abs(v)) > MAX_TEMPLATE_VALUE:
-        raise fail(key, f"expected {length} finite numbers within +-{MAX_TEMPLATE_VALUE:.0e}, "
-                        f"got {value!r}")
+    if (
+        v.shape != (length,)
+        or not np.all(np.isfinite(v))
+        or np.max(np.abs(v)) > MAX_TEMPLATE_VALUE
+    ):
+        raise fail(
+            key,
+            f"expected {length} finite numbers within +-{MAX_TEMPLATE_VALUE:.0e}, got {value!r}",
+        )
     return v
 
 
@@ -69,8 +88,11 @@ RIGID_ATOL = 1e-5
 def is_rigid(T, atol: float = RIGID_ATOL) -> bool:
     """Whether ``T`` is a finite 4x4 rigid transform (orthonormal rotation block)."""
     T = np.asarray(T, dtype=float)
-    return T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and \
-        bool(np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=atol))
+    return (
+        T.shape == (4, 4)
+        and bool(np.all(np.isfinite(T)))
+        and bool(np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=atol))
+    )
 
 
 def make_T(R=None, t=None) -> np.ndarray:
@@ -125,7 +147,7 @@ def axis_angle_matrix(axis, angle) -> np.ndarray:
     angle = np.asarray(angle, dtype=float)
     if axis.ndim == 1:
         unit = axis / np.linalg.norm(axis)
-    else:       # each row's norm as np.linalg.norm gives it for one vector (the same digits)
+    else:  # each row's norm as np.linalg.norm gives it for one vector (the same digits)
         unit = axis / np.sqrt([a @ a for a in axis])[:, None]
     rotvec = unit * angle[..., None]
     if rotvec.ndim == 1:
@@ -154,9 +176,11 @@ def _rotvec_matrix(x: float, y: float, z: float) -> list:
     qx, qy, qz, qw = x * s, y * s, z * s, math.cos(angle / 2)
     x2, y2, z2, w2 = qx * qx, qy * qy, qz * qz, qw * qw
     xy, zw, xz, yw, yz, xw = qx * qy, qz * qw, qx * qz, qy * qw, qy * qz, qx * qw
-    return [[x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
-            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
-            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]]
+    return [
+        [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+        [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+        [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+    ]
 
 
 def random_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -237,7 +261,7 @@ def pose_error(T_est: np.ndarray, T_true: np.ndarray, symmetry=None) -> tuple[fl
     between the origins either way.
     """
     dt = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
-    R_rel = T_true[:3, :3].T @ T_est[:3, :3]   # rotation of est relative to truth, model frame
+    R_rel = T_true[:3, :3].T @ T_est[:3, :3]  # rotation of est relative to truth, model frame
     if symmetry is None:
         return dt, float(rotation_angle(R_rel))
     return dt, float(symmetry.residual_angle(R_rel))

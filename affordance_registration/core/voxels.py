@@ -8,6 +8,7 @@ turns with the data: fitting a rigidly moved scene gives the rigidly moved answe
 give numpy's own numbers (a difference, a mean, a grouping) by a faster route, so that the
 fitting's figures do not depend on which route was taken.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,14 +27,16 @@ def voxel_downsample(points: np.ndarray, voxel: float, origin=None, frame=None) 
         return points.reshape(0, 3)
     # a grid attached to the data has ``origin`` at a voxel's centre (a surface through the
     # origin, the click, would otherwise be split between two layers of voxels)
-    grid = points if frame is None else _minus(points, origin) @ frame + 0.5 * voxel
+    grid = points if frame is None else minus_point(points, origin) @ frame + 0.5 * voxel
     keys = np.floor(grid / voxel).astype(np.int64)
-    cols = [keys[:, k] - keys[:, k].min() for k in range(3)]     # column by column: no
-    dims = [int(col.max()) + 1 for col in cols]                   # (N, 3) reductions
+    cols = [keys[:, k] - keys[:, k].min() for k in range(3)]  # column by column: no
+    dims = [int(col.max()) + 1 for col in cols]  # (N, 3) reductions
     flat = (cols[0] * dims[1] + cols[1]) * dims[2] + cols[2]
     inverse, counts = _group(flat, dims[0] * dims[1] * dims[2])
-    sums = np.stack([np.bincount(inverse, weights=points[:, k], minlength=len(counts))
-                     for k in range(3)], axis=1)
+    sums = np.stack(
+        [np.bincount(inverse, weights=points[:, k], minlength=len(counts)) for k in range(3)],
+        axis=1,
+    )
     return sums / counts[:, None]
 
 
@@ -65,10 +68,10 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
     ``points`` (N, 3) spread least), first column their main axis across it; the signs of the
     axes from the points' third moments along them. Rigidly moving the points, the click and the
     origin turns this frame with them."""
-    rel = _minus(points, _mean_rows(points))
+    rel = minus_point(points, mean_rows(points))
     cov = rel.T @ rel
 
-    def signed(axis):       # the side the points' distribution leans to
+    def signed(axis):  # the side the points' distribution leans to
         return axis if _leans_forward(rel @ axis) else -axis
 
     if origin is not None and np.linalg.norm(origin - click) > 1e-9:
@@ -78,7 +81,7 @@ def local_frame(points: np.ndarray, click: np.ndarray, origin: np.ndarray | None
     across = np.eye(3) - np.outer(z, z)
     x = signed(np.linalg.eigh(across @ cov @ across)[1][:, 2])
     x = x - z * (x @ z)
-    if np.linalg.norm(x) < 1e-9:        # no spread across z at all: any perpendicular
+    if np.linalg.norm(x) < 1e-9:  # no spread across z at all: any perpendicular
         x = align_z_to(z)[:, 0]
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(z, x), z], axis=1)
@@ -93,11 +96,11 @@ def _leans_forward(along: np.ndarray) -> bool:
     cubes = along * along * along
     lean = cubes.sum()
     if abs(lean) <= 1e-9 * np.abs(cubes).sum():
-        lean = np.sum(along ** 3)
+        lean = np.sum(along**3)
     return bool(lean >= 0)
 
 
-def _minus(points: np.ndarray, point: np.ndarray) -> np.ndarray:
+def minus_point(points: np.ndarray, point: np.ndarray) -> np.ndarray:
     """``points - point`` for points (N, 3) and a point (3,), column by column: the same
     numbers, three times faster than broadcasting over a last axis of length three."""
     out = np.empty(points.shape, np.result_type(points, point))
@@ -106,7 +109,7 @@ def _minus(points: np.ndarray, point: np.ndarray) -> np.ndarray:
     return out
 
 
-def _mean_rows(points: np.ndarray) -> np.ndarray:
+def mean_rows(points: np.ndarray) -> np.ndarray:
     """``points.mean(axis=0)`` of points (N, 3), N >= 1: the same numbers -- numpy adds the
     rows one after the other there, as a running sum of each column does -- twice as fast."""
     return np.array([np.add.accumulate(points[:, k])[-1] for k in range(3)]) / len(points)

@@ -36,6 +36,7 @@ joint values from the current one to the state's, at most ``PATH_STEP_RAD`` (rev
 ``PATH_STEP_M`` (prismatic) apart and evenly spaced, and the retreat (the state's waypoint moved
 back along the approach). Pure numpy (no ROS).
 """
+
 from __future__ import annotations
 
 import math
@@ -48,15 +49,25 @@ from scipy.spatial.transform import Rotation
 from .errors import AffordanceError, TemplateError
 from .transforms import axis_angle_matrix, make_T, matrix_to_quat_xyzw, template_vector
 
-__all__ = ["Waypoint", "WaypointPose", "Trajectory", "parse_waypoints", "waypoint_poses",
-           "trajectory", "waypoints_dict", "MAX_WAYPOINTS", "PATH_STEP_RAD", "PATH_STEP_M"]
+__all__ = [
+    "Waypoint",
+    "WaypointPose",
+    "Trajectory",
+    "parse_waypoints",
+    "waypoint_poses",
+    "trajectory",
+    "waypoints_dict",
+    "MAX_WAYPOINTS",
+    "PATH_STEP_RAD",
+    "PATH_STEP_M",
+]
 
 MAX_WAYPOINTS = 32
 MAX_NAME = 64
-PATH_STEP_RAD = math.radians(5.0)   #: rad, the largest joint step between two poses of a path
-PATH_STEP_M = 0.005                 #: m, the same for a prismatic joint
-MAX_PATH_POSES = 5000               #: a path longer than this is refused
-QUATERNION_TOLERANCE = 1e-3         #: how far from 1 a quaternion's norm may be
+PATH_STEP_RAD = math.radians(5.0)  #: rad, the largest joint step between two poses of a path
+PATH_STEP_M = 0.005  #: m, the same for a prismatic joint
+MAX_PATH_POSES = 5000  #: a path longer than this is refused
+QUATERNION_TOLERANCE = 1e-3  #: how far from 1 a quaternion's norm may be
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _KEYS = {"name", "end_effector", "part", "position", "rpy", "quaternion", "approach", "pitch"}
 
@@ -74,7 +85,7 @@ class Waypoint:
     part: str | None = None
     approach: tuple | None = None
     distance: float = 0.0
-    pitch: float | None = None      #: m of a prismatic part's travel per turn (a screw)
+    pitch: float | None = None  #: m of a prismatic part's travel per turn (a screw)
 
 
 @dataclass(frozen=True)
@@ -94,16 +105,21 @@ class WaypointPose:
     def to_dict(self) -> dict:
         def pose(T):
             return None if T is None else [[round(float(v), 9) for v in row] for row in T]
+
         wp = self.waypoint
-        return {"name": wp.name, "end_effector": wp.end_effector, "part": wp.part,
-                "pose": pose(self.T),
-                "position": [round(float(v), 9) for v in self.T[:3, 3]],
-                "orientation_xyzw": [round(float(v), 9)
-                                     for v in matrix_to_quat_xyzw(self.T[:3, :3])],
-                "pre_pose": pose(self.T_pre),
-                "approach": None if self.approach is None else
-                [round(float(v), 9) for v in self.approach],
-                "distance": round(float(wp.distance), 9)}
+        return {
+            "name": wp.name,
+            "end_effector": wp.end_effector,
+            "part": wp.part,
+            "pose": pose(self.T),
+            "position": [round(float(v), 9) for v in self.T[:3, 3]],
+            "orientation_xyzw": [round(float(v), 9) for v in matrix_to_quat_xyzw(self.T[:3, :3])],
+            "pre_pose": pose(self.T_pre),
+            "approach": None
+            if self.approach is None
+            else [round(float(v), 9) for v in self.approach],
+            "distance": round(float(wp.distance), 9),
+        }
 
 
 @dataclass(frozen=True)
@@ -121,12 +137,15 @@ class Trajectory:
 
 
 # ---------------------------------------------------------------------------- the template file
-def parse_waypoints(path: str, value, joints: tuple, scale: float,
-                    primitive: str | None = None) -> tuple:
+def parse_waypoints(
+    path: str, value, joints: tuple, scale: float, primitive: str | None = None
+) -> tuple:
     """The ``waypoints`` key of a template file, checked: a :class:`TemplateError` naming the
     file and the key for the first problem. ``scale``: the file's units to metres."""
+
     def fail(key, msg):
         return TemplateError(f"{path}: key '{key}': {msg}")
+
     if value is None:
         return ()
     if not isinstance(value, list):
@@ -155,8 +174,10 @@ def parse_waypoints(path: str, value, joints: tuple, scale: float,
             if primitive is not None or not by_joint:
                 raise fail(f"{key}.part", f"'{part}': the template has no moving parts")
             if part not in by_joint:
-                raise fail(f"{key}.part", f"no joint (moving part) named {part!r} (joints: "
-                                          f"{', '.join(by_joint)})")
+                raise fail(
+                    f"{key}.part",
+                    f"no joint (moving part) named {part!r} (joints: {', '.join(by_joint)})",
+                )
         if "position" not in spec:
             raise fail(f"{key}.position", "missing")
         unit = 1.0 if primitive is not None else scale
@@ -169,20 +190,39 @@ def parse_waypoints(path: str, value, joints: tuple, scale: float,
         if pitch is not None:
             if part is None or by_joint[part].type != "prismatic":
                 raise fail(f"{key}.pitch", "only a waypoint on a prismatic part has a pitch")
-            if isinstance(pitch, bool) or not isinstance(pitch, (int, float)) or \
-                    not math.isfinite(pitch) or pitch == 0 or abs(pitch) * unit < 1e-5:
-                raise fail(f"{key}.pitch", f"expected a non-zero length per turn (at least "
-                                           f"0.01 mm), got {pitch!r}")
+            if (
+                isinstance(pitch, bool)
+                or not isinstance(pitch, (int, float))
+                or not math.isfinite(pitch)
+                or pitch == 0
+                or abs(pitch) * unit < 1e-5
+            ):
+                raise fail(
+                    f"{key}.pitch",
+                    f"expected a non-zero length per turn (at least 0.01 mm), got {pitch!r}",
+                )
             pitch = float(pitch) * unit
-        out.append(Waypoint(name=name, end_effector=effector, T_parent_ee=make_T(R, position),
-                            part=part, approach=approach, distance=distance, pitch=pitch))
+        out.append(
+            Waypoint(
+                name=name,
+                end_effector=effector,
+                T_parent_ee=make_T(R, position),
+                part=part,
+                approach=approach,
+                distance=distance,
+                pitch=pitch,
+            )
+        )
     return tuple(out)
 
 
 def _name(value, key: str, fail) -> str:
     if not isinstance(value, str) or not _NAME.match(value) or len(value) > MAX_NAME:
-        raise fail(key, f"expected a name of letters, digits and _ (starting with a letter, at "
-                        f"most {MAX_NAME} characters), got {value!r}")
+        raise fail(
+            key,
+            f"expected a name of letters, digits and _ (starting with a letter, at "
+            f"most {MAX_NAME} characters), got {value!r}",
+        )
     return value
 
 
@@ -191,13 +231,14 @@ def _orientation(spec: dict, key: str, fail) -> np.ndarray:
         raise fail(f"{key}.rpy", "give either rpy or quaternion, not both")
     if "rpy" in spec:
         rpy = template_vector(spec["rpy"], f"{key}.rpy", fail)
-        return Rotation.from_euler("xyz", rpy).as_matrix()      # fixed axes: roll, pitch, yaw
+        return Rotation.from_euler("xyz", rpy).as_matrix()  # fixed axes: roll, pitch, yaw
     if "quaternion" in spec:
         q = template_vector(spec["quaternion"], f"{key}.quaternion", fail, 4)
         norm = float(np.linalg.norm(q))
         if abs(norm - 1.0) > QUATERNION_TOLERANCE:
-            raise fail(f"{key}.quaternion", f"not a unit quaternion [x, y, z, w]: its norm is "
-                                            f"{norm:.6g}")
+            raise fail(
+                f"{key}.quaternion", f"not a unit quaternion [x, y, z, w]: its norm is {norm:.6g}"
+            )
         return Rotation.from_quat(q / norm).as_matrix()
     return np.eye(3)
 
@@ -211,8 +252,12 @@ def _approach(value, key: str, fail, unit: float):
     if float(np.linalg.norm(d)) < 1e-9:
         raise fail(f"{key}.direction", "must not be zero")
     distance = value["distance"]
-    if isinstance(distance, bool) or not isinstance(distance, (int, float)) or \
-            not math.isfinite(distance) or distance <= 0:
+    if (
+        isinstance(distance, bool)
+        or not isinstance(distance, (int, float))
+        or not math.isfinite(distance)
+        or distance <= 0
+    ):
         raise fail(f"{key}.distance", f"expected a positive number, got {distance!r}")
     if distance * unit > 10.0:
         raise fail(f"{key}.distance", f"{distance * unit:.3g} m: at most 10 m")
@@ -235,8 +280,15 @@ def _joint_motion(joint, q: float) -> np.ndarray:
     return _turn(joint, q)
 
 
-def _posed(template, wp: Waypoint, T_scene_model: np.ndarray, q: float, scale: float,
-           dimensions: dict, q_ref: float | None = None) -> tuple:
+def _posed(
+    template,
+    wp: Waypoint,
+    T_scene_model: np.ndarray,
+    q: float,
+    scale: float,
+    dimensions: dict,
+    q_ref: float | None = None,
+) -> tuple:
     """(T, T_pre, approach) of ``wp`` with its joint at ``q`` (scene frame). A screw (``pitch``)
     turns from where it is at ``q_ref`` (None: ``q``): the fit does not see it turned."""
     T_local = np.array(wp.T_parent_ee, dtype=float)
@@ -251,7 +303,7 @@ def _posed(template, wp: Waypoint, T_scene_model: np.ndarray, q: float, scale: f
     if wp.part is not None:
         joint = next(j for j in template.joints if j.name == wp.part)
         M = _joint_motion(joint, q)
-        if wp.pitch is not None:        # turned about the axis line (travel keeps the line)
+        if wp.pitch is not None:  # turned about the axis line (travel keeps the line)
             M = _turn(joint, 2 * math.pi * (q - (q if q_ref is None else q_ref)) / wp.pitch) @ M
     T_model = M @ T_local
     T_model[:3, 3] *= scale
@@ -267,8 +319,13 @@ def _posed(template, wp: Waypoint, T_scene_model: np.ndarray, q: float, scale: f
 def _fit_of(fit) -> tuple:
     """(template name, T_scene_model, joints, scale, dimensions) of a FitResult or
     Registration."""
-    return (fit.template, np.asarray(fit.T_scene_model, float), dict(fit.joints or {}),
-            float(fit.scale), dict(fit.dimensions or {}))
+    return (
+        fit.template,
+        np.asarray(fit.T_scene_model, float),
+        dict(fit.joints or {}),
+        float(fit.scale),
+        dict(fit.dimensions or {}),
+    )
 
 
 def waypoint_poses(template, fit) -> tuple:
@@ -297,37 +354,45 @@ def trajectory(template, fit, state: str, waypoint: str | None = None) -> Trajec
     there."""
     states = template.states
     if state not in states:
-        raise AffordanceError(f"{template.name} has no state {state!r} (states: "
-                              f"{', '.join(states) or 'none'})")
+        raise AffordanceError(
+            f"{template.name} has no state {state!r} (states: {', '.join(states) or 'none'})"
+        )
     moving = [w for w in template.waypoints if w.part is not None]
     if waypoint is None:
         if not moving:
-            raise AffordanceError(f"{template.name} has no waypoint on a moving part: no path "
-                                  f"along a joint")
+            raise AffordanceError(
+                f"{template.name} has no waypoint on a moving part: no path along a joint"
+            )
         wp = moving[0]
     else:
         wp = next((w for w in template.waypoints if w.name == waypoint), None)
         if wp is None:
             names = ", ".join(w.name for w in template.waypoints) or "none"
-            raise AffordanceError(f"{template.name} has no waypoint {waypoint!r} (waypoints: "
-                                  f"{names})")
+            raise AffordanceError(
+                f"{template.name} has no waypoint {waypoint!r} (waypoints: {names})"
+            )
         if wp.part is None:
-            raise AffordanceError(f"waypoint {wp.name!r} of {template.name} is fixed to the "
-                                  f"template frame: it has no path along a joint")
+            raise AffordanceError(
+                f"waypoint {wp.name!r} of {template.name} is fixed to the "
+                f"template frame: it has no path along a joint"
+            )
     if wp.part not in states[state]:
-        raise AffordanceError(f"state {state!r} of {template.name} sets no value of joint "
-                              f"{wp.part!r} (waypoint {wp.name!r} moves with it)")
+        raise AffordanceError(
+            f"state {state!r} of {template.name} sets no value of joint "
+            f"{wp.part!r} (waypoint {wp.name!r} moves with it)"
+        )
     joint = next(j for j in template.joints if j.name == wp.part)
     _, T, joints, scale, dims = _fit_of(fit)
     q0 = float(np.clip(joints.get(wp.part, 0.0), joint.lower, joint.upper))
     q1 = float(states[state][wp.part])
     step = PATH_STEP_RAD if joint.type == "revolute" else PATH_STEP_M
-    if wp.pitch is not None:            # a screw: 5 deg of its turn at most, too
+    if wp.pitch is not None:  # a screw: 5 deg of its turn at most, too
         step = min(step, abs(wp.pitch) * PATH_STEP_RAD / (2 * math.pi))
     n = max(1, math.ceil(abs(q1 - q0) / step - 1e-9))
     if n + 3 > MAX_PATH_POSES:
-        raise AffordanceError(f"the path to {state!r} would have {n + 1} poses (at most "
-                              f"{MAX_PATH_POSES})")
+        raise AffordanceError(
+            f"the path to {state!r} would have {n + 1} poses (at most {MAX_PATH_POSES})"
+        )
     qs = np.linspace(q0, q1, n + 1) if q1 != q0 else np.array([q0])
     posed = [_posed(template, wp, T, q, scale, dims, q0) for q in qs]
     poses, values, kinds = [p[0] for p in posed], list(qs), ["path"] * len(qs)
@@ -335,5 +400,11 @@ def trajectory(template, fit, state: str, waypoint: str | None = None) -> Trajec
         poses = [posed[0][1]] + poses + [posed[-1][1]]
         values = [q0] + values + [q1]
         kinds = ["approach"] + kinds + ["retreat"]
-    return Trajectory(waypoint=wp.name, state=state, joint=wp.part, poses=np.stack(poses),
-                      joint_values=np.asarray(values, float), kinds=tuple(kinds))
+    return Trajectory(
+        waypoint=wp.name,
+        state=state,
+        joint=wp.part,
+        poses=np.stack(poses),
+        joint_values=np.asarray(values, float),
+        kinds=tuple(kinds),
+    )

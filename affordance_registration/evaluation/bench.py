@@ -36,6 +36,7 @@ message size, idle engine CPU; and the browser station's click -> label in headl
 (:mod:`.browser_latency`; left out, with its reason, where Playwright or the browser is
 missing).
 """
+
 from __future__ import annotations
 
 import json
@@ -51,113 +52,152 @@ from .bench_rows import (
     LIBRARY_SIZES,
     MIN_VISIBLE,
     VARIANT_SCALES,
-    _any_frame_rows,
-    _articulated_rows,
-    _baseline_fit,
-    _browser_latency_bench,
-    _evaluate,
-    _jobs,
-    _large_cloud_row,
-    _library_rows,
-    _real_capture_rows,
-    _real_scan_rows,
-    _refit_times,
-    _ros_conversion_bench,
-    _ros_latency_bench,
-    _ros_push_refit_bench,
-    _threads_rows,
+    any_frame_rows,
+    articulated_rows,
+    baseline_fit,
+    browser_latency_bench,
+    evaluate_row,
+    large_cloud_row,
+    library_size_rows,
+    real_capture_rows,
+    real_scan_rows,
+    refit_times,
+    ros_conversion_bench,
+    ros_latency_bench,
+    ros_push_refit_bench,
+    simulated_jobs,
     stretched_library,
+    thread_rows,
     variant_library,
 )
 from .realdata import DATA_ENV
 from .simulation import POSE_TOL_M, POSE_TOL_RAD, sized_library
 from .viewpoints import REPORT_SEEDS, TUNING_SEEDS, format_row, viewpoint_row
 
-__all__ = ["run_bench", "format_table", "variant_library", "MIN_VISIBLE", "VARIANT_SCALES",
-           "LIBRARY_SIZES"]
+__all__ = [
+    "run_bench",
+    "format_table",
+    "variant_library",
+    "MIN_VISIBLE",
+    "VARIANT_SCALES",
+    "LIBRARY_SIZES",
+]
 
 
-def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int | None = None,
-              out: str | None = "bench_output/bench.json", log=print) -> dict:
+def run_bench(
+    quick: bool = False,
+    scenes: int | None = None,
+    paper_clicks: int | None = None,
+    out: str | None = "bench_output/bench.json",
+    log=print,
+) -> dict:
     """Run the benchmark; returns (and writes as JSON) the table."""
-    library = TemplateLibrary.load().specific()     # the taskboard templates (primitives: rows of their own)
+    library = (
+        TemplateLibrary.load().specific()
+    )  # the taskboard templates (primitives: rows of their own)
     n_scenes = scenes if scenes is not None else (4 if quick else 20)
     n_paper = paper_clicks if paper_clicks is not None else (5 if quick else 25)
     log(f"simulating {n_scenes} panel and {max(2, n_scenes // 2)} table scenes ...")
-    jobs = _jobs(library, range(1000, 1000 + n_scenes))
-    table_jobs = _jobs(library, range(2000, 2000 + max(2, n_scenes // 2)), layout="table")
+    jobs = simulated_jobs(library, range(1000, 1000 + n_scenes))
+    table_jobs = simulated_jobs(library, range(2000, 2000 + max(2, n_scenes // 2)), layout="table")
     default = Registrar(library)
     paper = Registrar(library, FitSettings(method="paper"))
-    default.fit(jobs[0][0], jobs[0][1].click)   # warm the template caches
+    default.fit(jobs[0][0], jobs[0][1].click)  # warm the template caches
     rows = []
     log("default method ...")
-    rows.append(_evaluate("default", lambda s, c: default.fit(s, c).candidates, jobs, library))
+    rows.append(evaluate_row("default", lambda s, c: default.fit(s, c).candidates, jobs, library))
     log("default method without joint/scale estimation (articulated false) ...")
     rigid = Registrar(library, FitSettings(articulated=False))
-    rows.append(_evaluate("default, rigid only", lambda s, c: rigid.fit(s, c).candidates, jobs,
-                          library))
+    rows.append(
+        evaluate_row("default, rigid only", lambda s, c: rigid.fit(s, c).candidates, jobs, library)
+    )
     log("default method, objects lying on a table (no mounting prior) ...")
-    row = _evaluate("default (table)", lambda s, c: default.fit(s, c).candidates, table_jobs, library)
+    row = evaluate_row(
+        "default (table)", lambda s, c: default.fit(s, c).candidates, table_jobs, library
+    )
     rows.append(row)
     step = max(1, len(jobs) // max(n_paper, 1)) if n_paper else 1
     paper_jobs = jobs[::step][:n_paper] if n_paper else jobs
     log(f"paper method on {len(paper_jobs)} clicks ...")
-    rows.append(_evaluate("paper (literal)", lambda s, c: paper.fit(s, c).candidates, paper_jobs,
-                          library))
+    rows.append(
+        evaluate_row(
+            "paper (literal)", lambda s, c: paper.fit(s, c).candidates, paper_jobs, library
+        )
+    )
     log("Open3D point-to-point ICP ...")
-    rows.append(_evaluate("open3d icp p2p", lambda s, c: _baseline_fit(default, s, c, "open3d"),
-                          jobs, library))
+    rows.append(
+        evaluate_row(
+            "open3d icp p2p", lambda s, c: baseline_fit(default, s, c, "open3d"), jobs, library
+        )
+    )
     try:
         import small_gicp  # noqa: F401  (a bench-only extra)
+
         log("small_gicp GICP ...")
-        rows.append(_evaluate("small_gicp gicp", lambda s, c: _baseline_fit(default, s, c, "gicp"),
-                              jobs, library))
+        rows.append(
+            evaluate_row(
+                "small_gicp gicp", lambda s, c: baseline_fit(default, s, c, "gicp"), jobs, library
+            )
+        )
     except ImportError:
         log("small_gicp is not installed: its row is skipped (pip install small_gicp)")
-    rows += _any_frame_rows(default, jobs, library, rows[0]["outcomes"], n_scenes, log)
+    rows += any_frame_rows(default, jobs, library, rows[0]["outcomes"], n_scenes, log)
     base = rows[0]["median_s"]
     for r in rows:
         r["ratio_to_default"] = r["median_s"] / base
         r.pop("outcomes", None)
-    refit_med, refit_ok = _refit_times(default, jobs, library, np.random.default_rng(5))
+    refit_med, refit_ok = refit_times(default, jobs, library, np.random.default_rng(5))
     log("articulated taskboards (joint values, states, scale) ...")
-    articulated = _articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
+    articulated = articulated_rows(sized_library(library), range(3000, 3000 + max(2, n_scenes)))
     lib_jobs = _spread(jobs, 40)
     log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
-    threads_rows = _threads_rows(library, lib_jobs)
+    threads_rows = thread_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
-    library_rows = _library_rows(library, lib_jobs)
-    held_out = _spread(_jobs(library, range(7000, 7000 + n_scenes)), 40)   # no knob chosen there
-    log(f"libraries of 5 and 40 of a held-out variant family on {len(held_out)} held-out clicks ...")
-    held_out_library_rows = _library_rows(library, held_out, (5, 40), stretched_library)
+    library_rows = library_size_rows(library, lib_jobs)
+    held_out = _spread(
+        simulated_jobs(library, range(7000, 7000 + n_scenes)), 40
+    )  # no knob chosen there
+    n_held = len(held_out)
+    log(f"libraries of 5 and 40 of a held-out variant family on {n_held} held-out clicks ...")
+    held_out_library_rows = library_size_rows(library, held_out, (5, 40), stretched_library)
     log("click -> result on 1M-point organized clouds ...")
-    large = _large_cloud_row(library, range(1000, 1000 + (2 if quick else 4)), log)
+    large = large_cloud_row(library, range(1000, 1000 + (2 if quick else 4)), log)
     log("real range scans (the Armadillo, or-pcd) ...")
-    real = _real_scan_rows(library, log)
-    captures = _real_capture_rows(library, jobs, quick, log)
+    real = real_scan_rows(library, log)
+    captures = real_capture_rows(library, jobs, quick, log)
     log("viewpoint advice on hard first views (tuning and reported seeds) ...")
-    viewpoint = viewpoint_row(library, log, *((TUNING_SEEDS[:2], REPORT_SEEDS[:4]) if quick
-                                              else ()))
-    result = {"scenes": n_scenes, "clicks": len(jobs), "table_clicks": len(table_jobs),
-              "real_scans": real,
-              "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
-              "rows": rows, "refit": {"median_s": refit_med, "success": refit_ok},
-              "articulated": articulated, "library_sizes": library_rows,
-              "library_sizes_held_out_family": held_out_library_rows,
-              "large_cloud": large, "threads": threads_rows, **captures,
-              "viewpoint": {k: {kk: vv for kk, vv in v.items() if kk != "cases"}
-                            for k, v in viewpoint.items()},
-              "machine": {"cpus": os.cpu_count()}}
-    extra = _ros_conversion_bench()
+    viewpoint = viewpoint_row(
+        library, log, *((TUNING_SEEDS[:2], REPORT_SEEDS[:4]) if quick else ())
+    )
+    result = {
+        "scenes": n_scenes,
+        "clicks": len(jobs),
+        "table_clicks": len(table_jobs),
+        "real_scans": real,
+        "pose_tolerance": {"m": POSE_TOL_M, "deg": math.degrees(POSE_TOL_RAD)},
+        "rows": rows,
+        "refit": {"median_s": refit_med, "success": refit_ok},
+        "articulated": articulated,
+        "library_sizes": library_rows,
+        "library_sizes_held_out_family": held_out_library_rows,
+        "large_cloud": large,
+        "threads": threads_rows,
+        **captures,
+        "viewpoint": {
+            k: {kk: vv for kk, vv in v.items() if kk != "cases"} for k, v in viewpoint.items()
+        },
+        "machine": {"cpus": os.cpu_count()},
+    }
+    extra = ros_conversion_bench()
     if extra:
         result["conversions"] = extra
-    pushed = _ros_push_refit_bench(range(1000, 1000 + n_scenes), 5 if quick else 40, log)
+    pushed = ros_push_refit_bench(range(1000, 1000 + n_scenes), 5 if quick else 40, log)
     if pushed:
         result["push_refit_ros"] = pushed
-    latency = _ros_latency_bench(range(1000, 1000 + n_scenes), 5 if quick else 20, log)
+    latency = ros_latency_bench(range(1000, 1000 + n_scenes), 5 if quick else 20, log)
     if latency:
         result["ros_latency"] = latency
-    browser = _browser_latency_bench(range(1000, 1000 + n_scenes), 3 if quick else 10, log)
+    browser = browser_latency_bench(range(1000, 1000 + n_scenes), 3 if quick else 10, log)
     if browser:
         result["browser_latency"] = browser
     if out:
@@ -170,8 +210,12 @@ def run_bench(quick: bool = False, scenes: int | None = None, paper_clicks: int 
 
 
 #: the rows that change knobs of the default settings, and how
-ROW_SETTINGS = {"paper (literal)": "method: paper", "default, rigid only": "articulated: false",
-                "threads": "threads: 1 and 2", "library sizes": "the library, not the settings"}
+ROW_SETTINGS = {
+    "paper (literal)": "method: paper",
+    "default, rigid only": "articulated: false",
+    "threads": "threads: 1 and 2",
+    "library sizes": "the library, not the settings",
+}
 
 
 def write_settings(out: str, settings: FitSettings) -> str:
@@ -179,8 +223,12 @@ def write_settings(out: str, settings: FitSettings) -> str:
     ``bench.settings.yaml``, readable by ``fit --settings``); returns the path."""
     path = os.path.splitext(os.path.abspath(out))[0] + ".settings.yaml"
     rows = "".join(f"#   {row}: {change}\n" for row, change in ROW_SETTINGS.items())
-    write_atomically({path: "# the fitting settings of the bench's default rows; the rows that "
-                            "differ:\n" + rows + settings.dump()})
+    write_atomically(
+        {
+            path: "# the fitting settings of the bench's default rows; the rows that "
+            "differ:\n" + rows + settings.dump()
+        }
+    )
     return path
 
 
@@ -192,22 +240,29 @@ def _refined(r: dict) -> str:
     """The real Kinect line's note on the fits refined on the labels (label_ceiling)."""
     if r.get("refined_pass") is None:
         return ""
-    return f" (the same fits least-squares refined on each object's labelled points: " \
-           f"{_pct(r['refined_pass'])} of {r['refined_objects']})"
+    return (
+        f" (the same fits least-squares refined on each object's labelled points: "
+        f"{_pct(r['refined_pass'])} of {r['refined_objects']})"
+    )
 
 
 def _real_capture_lines(result: dict) -> list:
-    """The table's lines of :func:`_real_capture_rows`."""
+    """The table's lines of :func:`real_capture_rows`."""
     lines = []
-    accepted = [f"{r['method']} {_pct(r.get('right_fits_accepted'))}" for r in result["rows"]
-                if r.get("right_fits_accepted") is not None]
+    accepted = [
+        f"{r['method']} {_pct(r.get('right_fits_accepted'))}"
+        for r in result["rows"]
+        if r.get("right_fits_accepted") is not None
+    ]
     if accepted:
         lines.append("right fits the verdict accepts: " + "; ".join(accepted))
     w = result.get("with_primitives")
     if w:
-        lines.append(f"default library with the box and cylinder primitives, the panel clicks: "
-                     f"top-1 {w['top1']:.1%}, pose ok {w['pose_success']:.1%}, right fits "
-                     f"accepted {_pct(w['right_fits_accepted'])}, median {w['median_s']:.3f} s")
+        lines.append(
+            f"default library with the box and cylinder primitives, the panel clicks: "
+            f"top-1 {w['top1']:.1%}, pose ok {w['pose_success']:.1%}, right fits "
+            f"accepted {_pct(w['right_fits_accepted'])}, median {w['median_s']:.3f} s"
+        )
     k = result.get("real_kinect")
     for part in ("tuning", "held_out"):
         r = (k or {}).get(part)
@@ -218,140 +273,200 @@ def _real_capture_lines(result: dict) -> list:
                 f"primitive recall {_pct(r['primitive_recall'])} / precision "
                 f"{_pct(r['primitive_precision'])} (median), passing both 90% "
                 f"{_pct(r['primitive_pass'])}{_refined(r)}, kind right "
-                f"{_pct(r['kind_right'])}, median {r['median_s']:.2f} s a click")
+                f"{_pct(r['kind_right'])}, median {r['median_s']:.2f} s a click"
+            )
     if k is not None and not any((k.get(p) or {}).get("objects") for p in ("tuning", "held_out")):
-        lines.append(f"real Kinect (mOSD learn): not measured -- no shared mOSD scenes (set "
-                     f"{DATA_ENV} to the shared data folder)")
+        lines.append(
+            f"real Kinect (mOSD learn): not measured -- no shared mOSD scenes (set "
+            f"{DATA_ENV} to the shared data folder)"
+        )
     cost = (k or {}).get("cost")
     if cost:
-        lines.append(f"real Kinect click against a simulated panel click, alternately "
-                     f"({cost['pairs']} pairs, one registrar): {cost['ratio']:.2f}x (median "
-                     f"{cost['real_median_s']:.2f} s against {cost['simulated_median_s']:.2f} s)")
+        lines.append(
+            f"real Kinect click against a simulated panel click, alternately "
+            f"({cost['pairs']} pairs, one registrar): {cost['ratio']:.2f}x (median "
+            f"{cost['real_median_s']:.2f} s against {cost['simulated_median_s']:.2f} s)"
+        )
     for name, r in (result.get("primitives_simulated") or {}).items():
         a = r["all"]
-        lines.append(f"primitives on simulated {r.get('scenes', 'boxes and cylinders')} "
-                     f"({name}, {a['clicks']} "
-                     f"clicks): kind right {_pct(a['kind_right'])}, dimensions within 5 mm "
-                     f"{_pct(a['dims_within_5mm'])}, pose within 5 mm / 5 deg "
-                     f"{_pct(a['pose_ok'])}, wrong and accepted {_pct(a.get('wrong_accepted'))}, "
-                     f"median {a['median_s']:.2f} s")
+        lines.append(
+            f"primitives on simulated {r.get('scenes', 'boxes and cylinders')} "
+            f"({name}, {a['clicks']} "
+            f"clicks): kind right {_pct(a['kind_right'])}, dimensions within 5 mm "
+            f"{_pct(a['dims_within_5mm'])}, pose within 5 mm / 5 deg "
+            f"{_pct(a['pose_ok'])}, wrong and accepted {_pct(a.get('wrong_accepted'))}, "
+            f"median {a['median_s']:.2f} s"
+        )
     c = result.get("clutter") or {}
     if c.get("armadillo"):
         a = c["armadillo"]
-        lines.append(f"clutter (the Armadillo touching real mOSD objects, {a['clicks']} clicks):"
-                     f" ranked first {_pct(a['ranked_first'])}, found within 5 mm / 5 deg "
-                     f"{_pct(a['found'])}, accepted {_pct(a['fits'])}")
+        lines.append(
+            f"clutter (the Armadillo touching real mOSD objects, {a['clicks']} clicks):"
+            f" ranked first {_pct(a['ranked_first'])}, found within 5 mm / 5 deg "
+            f"{_pct(a['found'])}, accepted {_pct(a['fits'])}"
+        )
     if c.get("armadillo_held_out"):
         a = c["armadillo_held_out"]
-        lines.append(f"clutter, held-out scenes ({a['clicks']} clicks): ranked first "
-                     f"{_pct(a['ranked_first'])}, found within 5 mm / 5 deg {_pct(a['found'])}, "
-                     f"accepted {_pct(a['fits'])}")
+        lines.append(
+            f"clutter, held-out scenes ({a['clicks']} clicks): ranked first "
+            f"{_pct(a['ranked_first'])}, found within 5 mm / 5 deg {_pct(a['found'])}, "
+            f"accepted {_pct(a['fits'])}"
+        )
     for key, what in (("armadillo", "clutter"), ("milk", "PCL's milk carton")):
         if c.get(key) is None and c.get(f"{key}_why"):
             lines.append(f"{what}: not measured -- {c[f'{key}_why']}")
     if c.get("milk"):
         m = c["milk"]
-        lines.append(f"PCL's milk carton in its real scene: ranked first {m['ranked_first']}, "
-                     f"{m['error_mm']} mm (at its centroid) / {m['error_deg']} deg, accepted "
-                     f"{m['fits']}")
+        lines.append(
+            f"PCL's milk carton in its real scene: ranked first {m['ranked_first']}, "
+            f"{m['error_mm']} mm (at its centroid) / {m['error_deg']} deg, accepted "
+            f"{m['fits']}"
+        )
         box = m.get("as_box")
         if box:
-            shown = f"a {box['primitive']} " + " x ".join(
-                f"{v:.3f}" for v in box["dimensions"].values()) + " m" \
-                if box["primitive"] else box["template"]
-            body = "" if box["body_on_box"] is None else \
-                f", its body on the box {_pct(box['body_on_box'])}"
-            lines.append(f"PCL's milk carton without its template (the bundled library): "
-                         f"shown as {shown}, accepted {box['fits']}{body}")
+            shown = (
+                f"a {box['primitive']} "
+                + " x ".join(f"{v:.3f}" for v in box["dimensions"].values())
+                + " m"
+                if box["primitive"]
+                else box["template"]
+            )
+            body = (
+                ""
+                if box["body_on_box"] is None
+                else f", its body on the box {_pct(box['body_on_box'])}"
+            )
+            lines.append(
+                f"PCL's milk carton without its template (the bundled library): "
+                f"shown as {shown}, accepted {box['fits']}{body}"
+            )
     return lines
 
 
 def _spread(jobs: list, n: int) -> list:
     """At most ``n`` of ``jobs``, evenly spaced over them (every scene's clicks alike)."""
-    return jobs[::max(1, len(jobs) // n)][:n]
+    return jobs[:: max(1, len(jobs) // n)][:n]
 
 
 def format_table(result: dict) -> str:
-    lines = [f"{'method':<20} {'clicks':>6} {'median s':>9} {'p90 s':>7} {'top-1':>7} "
-             f"{'pose ok':>8} {'x default':>9}"]
+    lines = [
+        f"{'method':<20} {'clicks':>6} {'median s':>9} {'p90 s':>7} {'top-1':>7} "
+        f"{'pose ok':>8} {'x default':>9}"
+    ]
     for r in result["rows"]:
-        lines.append(f"{r['method']:<20} {r['clicks']:>6} {r['median_s']:>9.3f} {r['p90_s']:>7.3f} "
-                     f"{r['top1']:>7.1%} {r['pose_success']:>8.1%} {r['ratio_to_default']:>8.1f}x")
+        lines.append(
+            f"{r['method']:<20} {r['clicks']:>6} {r['median_s']:>9.3f} {r['p90_s']:>7.3f} "
+            f"{r['top1']:>7.1%} {r['pose_success']:>8.1%} {r['ratio_to_default']:>8.1f}x"
+        )
     for r in result["rows"]:
         if "optical_top1" in r:
-            lines.append("frames: " + "; ".join(
-                f"{k} {v['top1']:.1%} / {v['pose_success']:.1%}" for k, v in r["frames"].items())
+            lines.append(
+                "frames: "
+                + "; ".join(
+                    f"{k} {v['top1']:.1%} / {v['pose_success']:.1%}"
+                    for k, v in r["frames"].items()
+                )
                 + f" -- optical on the same clicks {r['optical_top1']:.1%} / "
-                  f"{r['optical_pose_success']:.1%}; {r['errors']} errors")
+                f"{r['optical_pose_success']:.1%}; {r['errors']} errors"
+            )
     real = result.get("real_scans")
     if real:
-        lines.append("real scans (Armadillo, 4 views with ground truth): " + "; ".join(
-            f"{k}: ranked first {v['ranked_first']:.0%}, pose ok {v['pose_success']:.0%}, "
-            f"median {v['median_s']:.2f} s" for k, v in real.items()))
+        lines.append(
+            "real scans (Armadillo, 4 views with ground truth): "
+            + "; ".join(
+                f"{k}: ranked first {v['ranked_first']:.0%}, pose ok {v['pose_success']:.0%}, "
+                f"median {v['median_s']:.2f} s"
+                for k, v in real.items()
+            )
+        )
     lines += _real_capture_lines(result)
     lines += format_row(result.get("viewpoint") or {})
-    lines.append(f"refit after a correction (1.5 cm, 8 deg): median "
-                 f"{result['refit']['median_s']*1000:.1f} ms, "
-                 f"lands within tolerance {result['refit']['success']:.1%}")
+    lines.append(
+        f"refit after a correction (1.5 cm, 8 deg): median "
+        f"{result['refit']['median_s'] * 1000:.1f} ms, "
+        f"lands within tolerance {result['refit']['success']:.1%}"
+    )
     a = result.get("articulated")
     if a:
-        lines.append(f"articulated ({a['clicks']} clicks, top-1 {a['top1']:.1%}): joint within "
-                     f"5 deg / 2 mm {a['joint_within_tol']:.1%} of {a['joints']}, state right "
-                     f"{a['state_right']:.1%}, scale within 3% {a['scale_within_3pct']:.1%} of "
-                     f"{a['scaled']}; median {a['median_s']:.3f} s = {a['time_ratio_to_rigid']:.2f}x "
-                     f"rigid ({a['rigid_median_s']:.3f} s)")
-    for key, what in (("push_refit_ros", "refit after a SpaceMouse push over ROS"),
-                      ("ros_latency", "the engine node over ROS"),
-                      ("browser_latency", "the browser station")):
+        lines.append(
+            f"articulated ({a['clicks']} clicks, top-1 {a['top1']:.1%}): joint within "
+            f"5 deg / 2 mm {a['joint_within_tol']:.1%} of {a['joints']}, state right "
+            f"{a['state_right']:.1%}, scale within 3% {a['scale_within_3pct']:.1%} of "
+            f"{a['scaled']}; median {a['median_s']:.3f} s = {a['time_ratio_to_rigid']:.2f}x "
+            f"rigid ({a['rigid_median_s']:.3f} s)"
+        )
+    for key, what in (
+        ("push_refit_ros", "refit after a SpaceMouse push over ROS"),
+        ("ros_latency", "the engine node over ROS"),
+        ("browser_latency", "the browser station"),
+    ):
         if (result.get(key) or {}).get("left_out"):
             lines.append(f"{what}: left out ({result[key]['left_out']})")
     pushed = result.get("push_refit_ros")
     if pushed and not pushed.get("left_out"):
-        lines.append(f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
-                     f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
-                     f" corrections {pushed['core_success']:.1%}")
+        lines.append(
+            f"refit after a SpaceMouse push over ROS (the same corrections, {pushed['clicks']}"
+            f" clicks): lands {pushed['ros_success']:.1%}; the core's refit from the same"
+            f" corrections {pushed['core_success']:.1%}"
+        )
     lat = result.get("ros_latency")
     if lat and lat["clicks"]:
-        lines.append(f"the engine node over ROS ({lat['clicks']} clicks, each fitted in this process "
-                     f"too): click -> ~/status {lat['click_to_status_over_fit']:.2f}x the in-process "
-                     f"fit (median of ratios); ~/markers {lat['status_to_markers_ms']:.0f} ms after "
-                     f"the status (median); a ~/markers message with "
-                     f"{lat['objects_shown_last']} objects {lat['markers_bytes_last'] / 1000:.0f} kB "
-                     f"(largest {lat['markers_bytes_max'] / 1000:.0f} kB); idle engine "
-                     f"{lat['idle_engine_cores']:.3f} cores")
+        lines.append(
+            f"the engine node over ROS ({lat['clicks']} clicks, each fitted in this process "
+            f"too): click -> ~/status {lat['click_to_status_over_fit']:.2f}x the in-process "
+            f"fit (median of ratios); ~/markers {lat['status_to_markers_ms']:.0f} ms after "
+            f"the status (median); a ~/markers message with "
+            f"{lat['objects_shown_last']} objects {lat['markers_bytes_last'] / 1000:.0f} kB "
+            f"(largest {lat['markers_bytes_max'] / 1000:.0f} kB); idle engine "
+            f"{lat['idle_engine_cores']:.3f} cores"
+        )
     web = result.get("browser_latency")
     if web and web["clicks"]:
-        lines.append(f"the browser station (headless Chromium, {web['clicks']} clicks, display budget "
-                     f"{web['display_points']:,} points): click -> label median "
-                     f"{web['click_to_label_s']:.2f} s (max {web['click_to_label_max_s']:.2f}); the "
-                     f"engine's part (clicked_point -> status) {web['engine_click_to_status_s']:.2f} s")
+        lines.append(
+            f"the browser station (headless Chromium, {web['clicks']} clicks, display budget "
+            f"{web['display_points']:,} points): click -> label median "
+            f"{web['click_to_label_s']:.2f} s (max {web['click_to_label_max_s']:.2f}); the "
+            f"engine's part (clicked_point -> status) {web['engine_click_to_status_s']:.2f} s"
+        )
     for r in result.get("threads", ()):
-        lines.append(f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
-                     f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first")
+        lines.append(
+            f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
+            f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first"
+        )
     for r in result.get("library_sizes", ()):
-        lines.append(f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
-                     f"{r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x, true template first "
-                     f"{r['top1']:.1%}; prefilter decided on {r['prefilter_decided']:.0%} of "
-                     f"clicks, {r['prefilter_set_aside_per_click']:.1f} templates set aside, "
-                     f"the true one on {r['true_template_set_aside']} clicks")
+        lines.append(
+            f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
+            f"{r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x, true template first "
+            f"{r['top1']:.1%}; prefilter decided on {r['prefilter_decided']:.0%} of "
+            f"clicks, {r['prefilter_set_aside_per_click']:.1f} templates set aside, "
+            f"the true one on {r['true_template_set_aside']} clicks"
+        )
     for r in result.get("library_sizes_held_out_family", ())[1:]:
-        lines.append(f"held-out variant family (random-direction stretches): library of "
-                     f"{r['templates']} templates ({r['clicks']} clicks) median {r['median_s']:.3f} s"
-                     f" = {r['ratio_to_first']:.2f}x the five, true template first {r['top1']:.1%}; "
-                     f"prefilter decided on {r['prefilter_decided']:.0%} of clicks, the true one "
-                     f"set aside on {r['true_template_set_aside']}")
+        lines.append(
+            f"held-out variant family (random-direction stretches): library of "
+            f"{r['templates']} templates ({r['clicks']} clicks) median {r['median_s']:.3f} s"
+            f" = {r['ratio_to_first']:.2f}x the five, true template first {r['top1']:.1%}; "
+            f"prefilter decided on {r['prefilter_decided']:.0%} of clicks, the true one "
+            f"set aside on {r['true_template_set_aside']}"
+        )
     large = result.get("large_cloud")
     if large:
-        lines.append(f"click -> result from a {large['points']:,}-point organized cloud "
-                     f"(Scene() + fit, {large['clicks']} clicks): median "
-                     f"{large['click_to_result_s']:.3f} s (Scene() {large['scene_ms']:.1f} ms), "
-                     f"top-1 {large['top1']:.1%}, pose ok {large['pose_success']:.1%}")
+        lines.append(
+            f"click -> result from a {large['points']:,}-point organized cloud "
+            f"(Scene() + fit, {large['clicks']} clicks): median "
+            f"{large['click_to_result_s']:.3f} s (Scene() {large['scene_ms']:.1f} ms), "
+            f"top-1 {large['top1']:.1%}, pose ok {large['pose_success']:.1%}"
+        )
     conv = result.get("conversions")
     if conv:
-        lines.append(f"PointCloud2 -> numpy, {conv['points']:,} organized points: median "
-                     f"{conv['to_numpy_ms']:.1f} ms, then Scene() {conv['scene_ms']:.1f} ms; "
-                     f"numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms")
-    lines.append(f"pose ok = right template first and within {result['pose_tolerance']['m']*1000:.0f} mm "
-                 f"and {result['pose_tolerance']['deg']:.0f} deg (symmetry-aware); "
-                 f"{result['scenes']} panel scenes, {result['machine']['cpus']} CPUs")
+        lines.append(
+            f"PointCloud2 -> numpy, {conv['points']:,} organized points: median "
+            f"{conv['to_numpy_ms']:.1f} ms, then Scene() {conv['scene_ms']:.1f} ms; "
+            f"numpy -> PointCloud2 {conv['from_numpy_ms']:.1f} ms"
+        )
+    lines.append(
+        f"pose ok = right template first and within {result['pose_tolerance']['m'] * 1000:.0f} mm "
+        f"and {result['pose_tolerance']['deg']:.0f} deg (symmetry-aware); "
+        f"{result['scenes']} panel scenes, {result['machine']['cpus']} CPUs"
+    )
     return "\n".join(lines)

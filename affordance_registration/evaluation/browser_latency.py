@@ -18,6 +18,7 @@ Without Playwright or the browser the row is left out with its reason
 (:func:`chromium_missing`). The station's browser tests share this module's launch settings and
 page geometry (test/browser_helpers.py).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -34,14 +35,30 @@ import time
 
 import numpy as np
 
-__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "VIEWPORT", "at_sensor", "chromium_missing",
-           "measure_browser_latency", "on_canvas", "page_pixel", "station_command"]
+__all__ = [
+    "CHROMIUM",
+    "CHROMIUM_ARGS",
+    "VIEWPORT",
+    "at_sensor",
+    "chromium_missing",
+    "measure_browser_latency",
+    "on_canvas",
+    "page_pixel",
+    "station_command",
+]
 
 CHROMIUM = os.environ.get("AFFORDANCE_CHROMIUM", "/usr/bin/chromium")
 #: headless Chromium with software WebGL (no GPU here), nothing fetched from the network
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--use-gl=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 VIEWPORT = {"width": 1100, "height": 700}
 #: the page camera's vertical field of view (deg), as the station draws it
 FOV_DEG = 60.0
@@ -83,8 +100,10 @@ STATION_LOG = "station.log"
 def chromium_missing(chromium: str = CHROMIUM) -> str:
     """'' when a headless Chromium can be driven here, else why not (one line)."""
     if not os.access(chromium, os.X_OK):
-        return (f"{chromium} not found: `make test` installs Debian's chromium (as root), or "
-                f"apt-get install chromium (AFFORDANCE_CHROMIUM names another)")
+        return (
+            f"{chromium} not found: `make test` installs Debian's chromium (as root), or "
+            f"apt-get install chromium (AFFORDANCE_CHROMIUM names another)"
+        )
     try:
         import playwright  # noqa: F401
     except ImportError:
@@ -95,8 +114,16 @@ def chromium_missing(chromium: str = CHROMIUM) -> str:
 def station_command(port: int, secret: str, **params) -> list[str]:
     """The operator station's command line on ``port`` with ``access_secret`` and more ROS
     parameters."""
-    argv = [sys.executable, "-m", "affordance_registration.ros.station.node", "--ros-args",
-            "-p", f"port:={port}", "-p", f"access_secret:={secret}"]
+    argv = [
+        sys.executable,
+        "-m",
+        "affordance_registration.ros.station.node",
+        "--ros-args",
+        "-p",
+        f"port:={port}",
+        "-p",
+        f"access_secret:={secret}",
+    ]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
     return argv
@@ -106,17 +133,28 @@ def page_pixel(T_world_optical, box: dict, point, fov_deg: float = FOV_DEG) -> t
     """Page coordinates of a world point seen through the page's camera (``box``: the canvas's
     bounding box on the page)."""
     from ..core.display import project
-    uv = project(T_world_optical, math.radians(fov_deg), box["width"], box["height"],
-                 np.asarray(point, dtype=float)[None])[0]
+
+    uv = project(
+        T_world_optical,
+        math.radians(fov_deg),
+        box["width"],
+        box["height"],
+        np.asarray(point, dtype=float)[None],
+    )[0]
     return float(box["x"] + uv[0]), float(box["y"] + uv[1])
 
 
 def on_canvas(page, xy: tuple) -> bool:
     """Whether the page point shows the 3D view (not the panel or the edge of the page)."""
-    if not all(math.isfinite(v) for v in xy):        # behind the camera
+    if not all(math.isfinite(v) for v in xy):  # behind the camera
         return False
-    return bool(page.evaluate("([x, y]) => { const e = document.elementFromPoint(x, y); "
-                              "return e !== null && e.tagName === 'CANVAS'; }", list(xy)))
+    return bool(
+        page.evaluate(
+            "([x, y]) => { const e = document.elementFromPoint(x, y); "
+            "return e !== null && e.tagName === 'CANVAS'; }",
+            list(xy),
+        )
+    )
 
 
 def at_sensor(T: np.ndarray) -> bool:
@@ -137,6 +175,7 @@ class _Heard:
         from std_msgs.msg import String
 
         from ..ros.glue.qos import LATCHED
+
         self._cv = threading.Condition()
         self.views: list = []
         self.times: dict = {}
@@ -148,6 +187,7 @@ class _Heard:
 
     def _on_view(self, msg):
         from ..ros.glue.conversions import pose_to_matrix
+
         with self._cv:
             self.views.append((time.monotonic(), pose_to_matrix(msg.pose)))
             self._cv.notify_all()
@@ -182,8 +222,11 @@ class _Heard:
         deadline = time.monotonic() + timeout_s
         with self._cv:
             while True:
-                if self.views and at_sensor(self.views[-1][1]) and \
-                        time.monotonic() - self.views[-1][0] >= 1.0:
+                if (
+                    self.views
+                    and at_sensor(self.views[-1][1])
+                    and time.monotonic() - self.views[-1][0] >= 1.0
+                ):
                     return self.views[-1][1]
                 left = deadline - time.monotonic()
                 if left <= 0:
@@ -198,15 +241,17 @@ def _show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: f
     published before they matched, or one a best-effort reader dropped, never reaches them; a
     sensor's stream would send the next."""
     deadline = time.monotonic() + timeout_s
-    while pub.get_subscription_count() < 2:        # the engine's reader and the station's
+    while pub.get_subscription_count() < 2:  # the engine's reader and the station's
         if time.monotonic() > deadline:
-            raise TimeoutError(f"{pub.get_subscription_count()} of the engine and the station "
-                               f"read the cloud topic after {timeout_s:.0f} s")
+            raise TimeoutError(
+                f"{pub.get_subscription_count()} of the engine and the station "
+                f"read the cloud topic after {timeout_s:.0f} s"
+            )
         time.sleep(0.05)
     while True:
         pub.publish(msg)
         left = deadline - time.monotonic()
-        try:        # (never 0: Playwright's timeout 0 waits for ever)
+        try:  # (never 0: Playwright's timeout 0 waits for ever)
             return _wait_text(page, shown, min(every_s, max(left, 1.0)))
         except TimeoutError:
             if time.monotonic() + 1.0 >= deadline:
@@ -219,13 +264,16 @@ def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
     import re
 
     from playwright.sync_api import TimeoutError as PageTimeout
+
     try:
-        page.get_by_text(re.compile(pattern)).first.wait_for(state="visible",
-                                                             timeout=timeout_s * 1000)
+        page.get_by_text(re.compile(pattern)).first.wait_for(
+            state="visible", timeout=timeout_s * 1000
+        )
     except PageTimeout:
         shown = " | ".join(page.inner_text("body").split("\n"))[:300]
-        raise TimeoutError(f"the page did not show {pattern!r} in {timeout_s:.0f} s; it showed: "
-                           f"{shown}") from None
+        raise TimeoutError(
+            f"the page did not show {pattern!r} in {timeout_s:.0f} s; it showed: {shown}"
+        ) from None
 
 
 def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
@@ -247,8 +295,9 @@ def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
 @contextlib.contextmanager
 def _station(port: int, secret: str, out_dir: str, params: dict):
     log = open(os.path.join(out_dir, STATION_LOG), "w")
-    proc = subprocess.Popen(station_command(port, secret, **params), stdout=log,
-                            stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(
+        station_command(port, secret, **params), stdout=log, stderr=subprocess.STDOUT
+    )
     try:
         yield proc
     finally:
@@ -264,6 +313,7 @@ def _station(port: int, secret: str, out_dir: str, params: dict):
 
 def _wait_listening(port: int, proc, timeout_s: float = 90.0) -> None:
     import socket
+
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -274,8 +324,14 @@ def _wait_listening(port: int, proc, timeout_s: float = 90.0) -> None:
     raise TimeoutError("the station served no page")
 
 
-def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
-                            display_points: int = 60000, chromium: str = CHROMIUM) -> dict | None:
+def measure_browser_latency(
+    seeds,
+    max_clicks: int,
+    out_dir: str,
+    log=print,
+    display_points: int = 60000,
+    chromium: str = CHROMIUM,
+) -> dict | None:
     """Click the objects of the simulated taskboards ``seeds`` (up to ``max_clicks``, each
     object with at least 200 visible points that the page shows) in a headless Chromium at a
     live station, and measure click -> label (module docstring). None where no browser can be
@@ -292,7 +348,7 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
     from ..core.templates import TemplateLibrary
     from ..ros.glue.qos import LATCHED
     from ..ros.standins.spin import background_node
-    from .session import FRAME, NS, _cloud_message, start_engine
+    from .session import FRAME, NS, cloud_message, start_engine
     from .simulation import simulate_taskboard
 
     with socket.socket() as s:
@@ -304,15 +360,21 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
     profile = tempfile.mkdtemp(prefix="ar_chromium_")
     launcher = start_engine(out_dir)
     try:
-        with background_node("affordance_browser_bench") as node, \
-                _station(port, secret, out_dir, {"display_points": display_points}) as station, \
-                sync_playwright() as pw:
+        with (
+            background_node("affordance_browser_bench") as node,
+            _station(port, secret, out_dir, {"display_points": display_points}) as station,
+            sync_playwright() as pw,
+        ):
             heard = _Heard(node, f"{NS}/status")
             pub = node.create_publisher(PointCloud2, "/points", LATCHED)
             _wait_listening(port, station)
             ctx = pw.chromium.launch_persistent_context(
-                profile, executable_path=chromium, headless=True, args=CHROMIUM_ARGS,
-                viewport=VIEWPORT)
+                profile,
+                executable_path=chromium,
+                headless=True,
+                args=CHROMIUM_ARGS,
+                viewport=VIEWPORT,
+            )
             try:
                 page = ctx.new_page()
                 page.set_default_timeout(120_000)
@@ -325,16 +387,24 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
                     sim = simulate_taskboard(library, seed)
                     n_points = int(np.all(np.isfinite(sim.organized.reshape(-1, 3)), axis=1).sum())
                     clouds = heard.clouds
-                    _show_cloud(page, pub, _cloud_message(sim.organized.reshape(-1, 3)),
-                                rf"{n_points:,} points in '{FRAME}'")
+                    _show_cloud(
+                        page,
+                        pub,
+                        cloud_message(sim.organized.reshape(-1, 3)),
+                        rf"{n_points:,} points in '{FRAME}'",
+                    )
                     heard.engine_holds(clouds)
                     T_view = heard.settled_view()
                     box = page.locator("canvas").first.bounding_box()
                     for obj in sim.objects:
-                        if obj.click is None or obj.visible_points < 200 or len(clicks) >= max_clicks:
+                        if (
+                            obj.click is None
+                            or obj.visible_points < 200
+                            or len(clicks) >= max_clicks
+                        ):
                             continue
                         xy = page_pixel(T_view, box, obj.click)
-                        if not on_canvas(page, xy):          # under the panel: not clickable
+                        if not on_canvas(page, xy):  # under the panel: not clickable
                             continue
                         k += 1
                         heard.arm(k)
@@ -353,15 +423,21 @@ def measure_browser_latency(seeds, max_clicks: int, out_dir: str, log=print,
                         if "click" in t and "status" in t:
                             engine.append(t["status"] - t["click"])
                             part = f" (the engine's part {engine[-1]:.2f} s)"
-                        log(f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s"
-                            f"{part}")
+                        log(
+                            f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s"
+                            f"{part}"
+                        )
             finally:
                 ctx.close()
     finally:
         launcher.stop()
         shutil.rmtree(profile, ignore_errors=True)
-    return {"clicks": len(clicks),
-            "click_to_label_s": statistics.median(clicks) if clicks else None,
-            "click_to_label_max_s": max(clicks) if clicks else None,
-            "engine_click_to_status_s": statistics.median(engine) if engine else None,
-            "labels": templates, "true_template_named": right, "display_points": display_points}
+    return {
+        "clicks": len(clicks),
+        "click_to_label_s": statistics.median(clicks) if clicks else None,
+        "click_to_label_max_s": max(clicks) if clicks else None,
+        "engine_click_to_status_s": statistics.median(engine) if engine else None,
+        "labels": templates,
+        "true_template_named": right,
+        "display_points": display_points,
+    }

@@ -16,6 +16,7 @@ mOSD point (or the mOSD pixel is empty); mOSD points behind the Armadillo's silh
 points splatted over ``SPLAT`` pixels) are hidden, as are the Armadillo's own points behind its
 front surface. Every Armadillo point in the scene is a template point moved by the true pose.
 """
+
 from __future__ import annotations
 
 import os
@@ -42,9 +43,19 @@ from .realdata import (
     table_points,
 )
 
-__all__ = ["CONTACT", "BODY_GAP", "SPLAT", "SELF_OCCLUSION", "MIN_VISIBLE", "ClutterScene",
-           "armadillo_template", "armadillo_clutter", "MilkCase", "milk_carton_case",
-           "milk_paths"]
+__all__ = [
+    "CONTACT",
+    "BODY_GAP",
+    "SPLAT",
+    "SELF_OCCLUSION",
+    "MIN_VISIBLE",
+    "ClutterScene",
+    "armadillo_template",
+    "armadillo_clutter",
+    "MilkCase",
+    "milk_carton_case",
+    "milk_paths",
+]
 
 #: the Armadillo stops sliding when a point of it is this close to an object's point (m)
 CONTACT = 0.004
@@ -83,14 +94,16 @@ class ClutterScene:
         return self.points[self.is_object]
 
 
-def armadillo_template(out_dir: str, name: str = "armadillo", views=None,
-                       voxel: float = 0.002) -> str:
+def armadillo_template(
+    out_dir: str, name: str = "armadillo", views=None, voxel: float = 0.002
+) -> str:
     """Write the Armadillo point-cloud template (all ground-truth views merged, the common
     frame, one point per ``voxel`` m) into ``out_dir``; returns its YAML path. ``views``:
     or-pcd's views (fetched with pip by default; :class:`AffordanceError` when pip cannot get
     them). The clutter scene is made of the template's own points: a finer ``voxel`` gives a
     denser Armadillo in it (at 2 mm it has fewer points than the camera's pixels there)."""
     from .realscans import armadillo_views, fetch_or_pcd, write_point_template
+
     views = armadillo_views(fetch_or_pcd()) if views is None else views
     return write_point_template(views, out_dir, name, voxel=voxel)
 
@@ -105,6 +118,7 @@ def _upright(normal: np.ndarray, yaw: float) -> np.ndarray:
     """R_scene_model: the model's up axis (realscans.STATUE_UP) along ``normal``, turned by
     ``yaw`` about it."""
     from .realscans import STATUE_UP
+
     up = np.zeros(3)
     up[STATUE_UP] = 1.0
     n = normal / np.linalg.norm(normal)
@@ -135,8 +149,9 @@ def _render(base_pts, model_pts, intr):
     zbuf = np.full(H * W, np.inf)
     zbuf[win_pix] = z[win_idx]
     # the model's silhouette hides what lies behind it over a small splat
-    splat = minimum_filter(zbuf.reshape(H, W), size=2 * SPLAT + 1, mode="constant",
-                           cval=np.inf).reshape(-1)
+    splat = minimum_filter(
+        zbuf.reshape(H, W), size=2 * SPLAT + 1, mode="constant", cval=np.inf
+    ).reshape(-1)
     visible = z[win_idx] <= splat[win_pix] + SELF_OCCLUSION
     base = base_pts.reshape(-1, 3).copy()
     base_z = np.where(np.isfinite(base[:, 2]), base[:, 2], np.inf)
@@ -150,8 +165,9 @@ def _render(base_pts, model_pts, intr):
     return out.reshape(H, W, 3), is_model.reshape(H, W), int(wins.sum())
 
 
-def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: int = 0,
-                      tries: int = 24) -> ClutterScene:
+def armadillo_clutter(
+    template_yaml: str, base_scene: str | None = None, seed: int = 0, tries: int = 24
+) -> ClutterScene:
     """The Armadillo template (``template_yaml``, e.g. from :func:`armadillo_template`) placed
     in the mOSD scene ``base_scene`` (a path; default the shared ``learn0``) touching a real
     object (see the module docstring). Deterministic by ``seed``; raises
@@ -190,7 +206,7 @@ def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: i
         posed = model[body] @ R.T
         target = objs[int(rng.integers(len(objs)))]
         centre = flat[target.indices].mean(axis=0)
-        centre = centre - normal * (normal @ centre + d)          # onto the plane
+        centre = centre - normal * (normal @ centre + d)  # onto the plane
         angle = rng.uniform(0, 2 * np.pi)
         direction = np.cos(angle) * a + np.sin(angle) * b
         # on the plane: the lowest point 1 mm above it, the centroid over the sliding point
@@ -200,14 +216,14 @@ def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: i
         # object point cannot touch: only the others are queried point by point)
         reach = float(np.sqrt(((posed - mean) ** 2).sum(axis=1).max())) + CONTACT + 1e-6
         T = None
-        for i, step in enumerate(np.arange(0.6, -0.003, -0.003)):   # slide in until contact
+        for i, step in enumerate(np.arange(0.6, -0.003, -0.003)):  # slide in until contact
             t = centre + direction * step - mean
             t = t - normal * (t @ normal) + normal * height
             if tree.query(mean + t, distance_upper_bound=reach)[0] == np.inf:
                 continue
             dist, _ = tree.query(posed + t, distance_upper_bound=CONTACT)
             if np.isfinite(dist).any():
-                T = make_T(R, t) if i > 0 else None      # in contact from the start: inside
+                T = make_T(R, t) if i > 0 else None  # in contact from the start: inside
                 break
         if T is None:
             continue
@@ -227,10 +243,21 @@ def armadillo_clutter(template_yaml: str, base_scene: str | None = None, seed: i
             continue
         labels = np.where(is_model, -1, cloud.labels)
         click, _ = click_in_middle(merged, is_model)
-        return ClutterScene(cloud.name, seed, merged, np.asarray(cloud.viewpoint, float),
-                            click, T, is_model, labels, touches)
-    raise AffordanceError(f"{cloud.name}: no placement of the Armadillo touching an object "
-                          f"with {MIN_VISIBLE} points in view in {tries} tries (seed {seed})")
+        return ClutterScene(
+            cloud.name,
+            seed,
+            merged,
+            np.asarray(cloud.viewpoint, float),
+            click,
+            T,
+            is_model,
+            labels,
+            touches,
+        )
+    raise AffordanceError(
+        f"{cloud.name}: no placement of the Armadillo touching an object "
+        f"with {MIN_VISIBLE} points in view in {tries} tries (seed {seed})"
+    )
 
 
 # ---------------------------------------------------------------------------- the milk carton
@@ -257,8 +284,9 @@ def milk_paths(data_dir: str | None = None) -> tuple[str, str] | None:
     return (scene, carton) if os.path.isfile(scene) and os.path.isfile(carton) else None
 
 
-def milk_carton_case(out_dir: str, data_dir: str | None = None,
-                     name: str = "milk_carton") -> MilkCase:
+def milk_carton_case(
+    out_dir: str, data_dir: str | None = None, name: str = "milk_carton"
+) -> MilkCase:
     """Copy ``milk.pcd`` into ``out_dir`` (a temporary folder: never the project) with a
     point-cloud template YAML ``<name>.yaml`` for it; the click is the carton point nearest
     its centroid (the carton file is unorganized). Raises :class:`AffordanceError` when the
@@ -270,8 +298,11 @@ def milk_carton_case(out_dir: str, data_dir: str | None = None,
     os.makedirs(out_dir, exist_ok=True)
     pcd = os.path.join(out_dir, f"{name}.pcd")
     shutil.copyfile(carton, pcd)
-    doc = {"name": name, "mesh": f"{name}.pcd",
-           "description": "point-cloud template: PCL's milk carton, segmented from its scene"}
+    doc = {
+        "name": name,
+        "mesh": f"{name}.pcd",
+        "description": "point-cloud template: PCL's milk carton, segmented from its scene",
+    }
     yml = os.path.join(out_dir, f"{name}.yaml")
     write_atomically({yml: yaml.safe_dump(doc, sort_keys=False).encode()})
     pts = read_points(pcd).points
@@ -285,17 +316,18 @@ def milk_carton_case(out_dir: str, data_dir: str | None = None,
 MILK_BODY = 0.19
 
 
-def milk_body_on_box(carton: np.ndarray, T_scene_model: np.ndarray, dims,
-                     tolerance: float = 0.006) -> tuple[float, float]:
+def milk_body_on_box(
+    carton: np.ndarray, T_scene_model: np.ndarray, dims, tolerance: float = 0.006
+) -> tuple[float, float]:
     """How well a box (``T_scene_model``, ``dims`` {"x", "y", "z"}: the frame convention of
     :mod:`.realdata`) explains the milk ``carton`` (N, 3): (the share of its points lying
     under ``MILK_BODY`` over the box's base, the share of those within ``tolerance`` m of the
     box's surface)."""
     from .realdata import box_distance
+
     T = np.asarray(T_scene_model, float)
     body = (np.asarray(carton, float) - T[:3, 3]) @ T[:3, 2] < MILK_BODY
     if not body.any():
         return 0.0, 0.0
     on = box_distance(carton[body], T, dims) <= tolerance
     return float(body.mean()), float(on.mean())
-

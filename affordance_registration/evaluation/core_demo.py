@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The demo without ROS (``affordance-registration demo --core``): the simulated operator
 registers every visible object of a simulated taskboard on the core engine directly."""
+
 from __future__ import annotations
 
 import os
@@ -50,7 +51,10 @@ def run_core_demo(library, seed: int, out_dir: str) -> tuple[list, str]:
     engine.set_scene(sim.organized, frame_id="camera_depth_optical_frame")
     operator = SimulatedOperator(library, seed=seed)
     view = view_from_optical(np.eye(4))
-    rows = [operator.register(obj, EngineActions(engine), view) for obj in sim.objects
-            if obj.click is not None and obj.visible_points >= 200]
+    rows = [
+        operator.register(obj, EngineActions(engine), view)
+        for obj in sim.objects
+        if obj.click is not None and obj.visible_points >= 200
+    ]
     os.makedirs(out_dir, exist_ok=True)
     return rows, engine.save(os.path.join(out_dir, "registrations.yaml"))

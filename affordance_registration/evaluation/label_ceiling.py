@@ -16,6 +16,7 @@ refined fit passes) or the rule's on that object (it does not).
 
 This is a measurement with the labels, for the bench and the note: nothing in the product uses
 it, and it tunes nothing."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,8 +48,9 @@ def _posed(T0: np.ndarray, p: np.ndarray) -> np.ndarray:
     return make_T(R @ T0[:3, :3], T0[:3, 3] + p[:3])
 
 
-def label_refined(kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims: dict,
-                  seed: int = 0) -> tuple[np.ndarray, dict]:
+def label_refined(
+    kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims: dict, seed: int = 0
+) -> tuple[np.ndarray, dict]:
     """The primitive ``kind`` ("box" | "cylinder") posed by ``T_scene_model`` at ``dims``,
     its pose and dimensions least-squares fitted to ``points`` (N, 3: the object's labelled
     points; at most :data:`MAX_POINTS` of them, seeded) by their distance to its closed
@@ -66,17 +68,24 @@ def label_refined(kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims
     start = np.r_[np.zeros(6), [float(dims[k]) for k in keys]]
     lower = np.r_[np.full(6, -np.inf), np.full(len(keys), MIN_DIMENSION)]
     start[6:] = np.maximum(start[6:], MIN_DIMENSION)
-    sol = least_squares(residuals, start, loss="soft_l1", f_scale=LOSS_SCALE,
-                        bounds=(lower, np.full(len(start), np.inf)))
+    sol = least_squares(
+        residuals,
+        start,
+        loss="soft_l1",
+        f_scale=LOSS_SCALE,
+        bounds=(lower, np.full(len(start), np.inf)),
+    )
     return _posed(T0, sol.x[:6]), {k: float(v) for k, v in zip(keys, sol.x[6:])}
 
 
-def refined_score(cloud: LabelledCloud, obj: LabelledObject, kind: str,
-                  T_scene_model: np.ndarray, dims: dict) -> PrimitiveScore:
+def refined_score(
+    cloud: LabelledCloud, obj: LabelledObject, kind: str, T_scene_model: np.ndarray, dims: dict
+) -> PrimitiveScore:
     """The label score (:func:`.realdata.score_primitive`) of the fit ``kind`` /
     ``T_scene_model`` / ``dims`` of ``obj`` refined on its labelled points
     (:func:`label_refined`)."""
-    own = cloud.points.reshape(-1, 3)[cloud.valid.reshape(-1) &
-                                      (cloud.object_ids.reshape(-1) == obj.id)]
+    own = cloud.points.reshape(-1, 3)[
+        cloud.valid.reshape(-1) & (cloud.object_ids.reshape(-1) == obj.id)
+    ]
     T, refined = label_refined(kind, own, T_scene_model, dims)
     return score_primitive(cloud, obj, kind, T, refined)

@@ -16,6 +16,7 @@ face, +z up out of the surface it stands on, x along the longer horizontal edge;
 face, +z along its axis; ``{"radius", "length"}``: it spans radius r about the z axis, z in
 [0, length]. Both are posed by ``T_scene_model`` (4x4, model -> scene).
 """
+
 from __future__ import annotations
 
 import os
@@ -27,18 +28,49 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core.errors import AffordanceError, SceneError
-from ..core.pointfiles import _header_lines, check_header
+from ..core.pointfiles import check_header, header_lines
 from .simulation import CameraIntrinsics
 
-__all__ = ["DATA_ENV", "SKIP_REASON", "SCENE_KINDS", "HELD_OUT", "MIN_OBJECT_POINTS",
-           "MIN_TOLERANCE", "NOISE_SIGMAS", "PASS_RECALL", "PASS_PRECISION",
-           "shared_data_dir", "osd_dir", "osd_scene_paths", "scene_name", "scene_kind",
-           "is_held_out", "ALL_OF_KIND", "uniform_kind", "OBJECT_KINDS", "object_kind",
-           "LabelledCloud", "object_ids", "read_labelled_pcd", "Intrinsics",
-           "fit_intrinsics", "LabelledObject", "labelled_objects", "click_in_middle",
-           "table_points", "fit_plane", "box_distance", "cylinder_distance",
-           "primitive_distance", "inside_region", "local_noise", "PrimitiveScore",
-           "score_primitive", "evaluate_scene", "SENSOR_ORIGIN"]
+__all__ = [
+    "DATA_ENV",
+    "SKIP_REASON",
+    "SCENE_KINDS",
+    "HELD_OUT",
+    "MIN_OBJECT_POINTS",
+    "MIN_TOLERANCE",
+    "NOISE_SIGMAS",
+    "PASS_RECALL",
+    "PASS_PRECISION",
+    "shared_data_dir",
+    "osd_dir",
+    "osd_scene_paths",
+    "scene_name",
+    "scene_kind",
+    "is_held_out",
+    "ALL_OF_KIND",
+    "uniform_kind",
+    "OBJECT_KINDS",
+    "object_kind",
+    "LabelledCloud",
+    "object_ids",
+    "read_labelled_pcd",
+    "Intrinsics",
+    "fit_intrinsics",
+    "LabelledObject",
+    "labelled_objects",
+    "click_in_middle",
+    "table_points",
+    "fit_plane",
+    "box_distance",
+    "cylinder_distance",
+    "primitive_distance",
+    "inside_region",
+    "local_noise",
+    "PrimitiveScore",
+    "score_primitive",
+    "evaluate_scene",
+    "SENSOR_ORIGIN",
+]
 
 #: the environment variable that points at the shared real data (a folder holding osd/, pcl/)
 DATA_ENV = "AFFORDANCE_SHARED_DATA"
@@ -211,19 +243,22 @@ def read_labelled_pcd(path: str) -> LabelledCloud:
     if not os.path.isfile(path):
         raise SceneError(f"{path}: no such file")
     info = check_header(path)
-    lines, _ = _header_lines(path, SceneError)
+    lines, _ = header_lines(path, SceneError)
     head = {w[0].upper(): w[1:] for w in (line.split() for line in lines) if w}
     try:
         width, height = int(head["WIDTH"][0]), int(head["HEIGHT"][0])
     except (KeyError, IndexError, ValueError):
         raise SceneError(f"{path}: no WIDTH / HEIGHT in its header") from None
     if "label" not in info["columns"]:
-        raise SceneError(f"{path}: no 'label' field (fields: "
-                         f"{', '.join(c for c in info['columns'] if c)})")
+        raise SceneError(
+            f"{path}: no 'label' field (fields: {', '.join(c for c in info['columns'] if c)})"
+        )
     if width * height != info["points"] or height < 2:
-        raise SceneError(f"{path}: not an organized cloud ({width} x {height}, "
-                         f"{info['points']} points)")
+        raise SceneError(
+            f"{path}: not an organized cloud ({width} x {height}, {info['points']} points)"
+        )
     import open3d as o3d
+
     level = o3d.utility.get_verbosity_level()
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     try:
@@ -238,8 +273,9 @@ def read_labelled_pcd(path: str) -> LabelledCloud:
         raise SceneError(f"{path}: read {len(pts)} points, its header says {width * height}")
     pts[~np.all(np.isfinite(pts), axis=1)] = np.nan
     viewpoint = np.asarray((info.get("viewpoint") or [0.0, 0.0, 0.0])[:3], dtype=float)
-    return LabelledCloud(scene_name(path), pts.reshape(height, width, 3),
-                         labels.reshape(height, width), viewpoint)
+    return LabelledCloud(
+        scene_name(path), pts.reshape(height, width, 3), labels.reshape(height, width), viewpoint
+    )
 
 
 # ---------------------------------------------------------------------------- camera model
@@ -273,8 +309,9 @@ def fit_intrinsics(points: np.ndarray) -> Intrinsics:
         out.append(sol)
         res.append(coord - A @ sol)
     rms = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
-    return Intrinsics(W, H, float(out[0][0]), float(out[1][0]), float(out[0][1]),
-                      float(out[1][1]), rms)
+    return Intrinsics(
+        W, H, float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1]), rms
+    )
 
 
 # ---------------------------------------------------------------------------- objects, clicks
@@ -315,8 +352,9 @@ def click_in_middle(points: np.ndarray, mask: np.ndarray | None = None) -> tuple
     return points[rows[i], cols[i]].astype(float).copy(), (int(rows[i]), int(cols[i]))
 
 
-def labelled_objects(cloud: LabelledCloud,
-                     min_points: int = MIN_OBJECT_POINTS) -> list[LabelledObject]:
+def labelled_objects(
+    cloud: LabelledCloud, min_points: int = MIN_OBJECT_POINTS
+) -> list[LabelledObject]:
     """The objects of ``cloud`` with at least ``min_points`` valid points, by id, each with
     its click (:func:`click_in_middle` on its mask)."""
     ids = cloud.object_ids
@@ -339,8 +377,9 @@ def table_points(cloud: LabelledCloud) -> np.ndarray:
     return cloud.points[ok]
 
 
-def fit_plane(points: np.ndarray, towards=SENSOR_ORIGIN, trim: float = 0.01,
-              rounds: int = 3) -> tuple[np.ndarray, float]:
+def fit_plane(
+    points: np.ndarray, towards=SENSOR_ORIGIN, trim: float = 0.01, rounds: int = 3
+) -> tuple[np.ndarray, float]:
     """A plane through ``points`` (N, 3): least squares, refitted ``rounds`` times on the
     points within ``trim`` m of the last plane. Returns (unit normal (3,) pointing towards
     ``towards``, offset d) with n . p + d = 0 on the plane."""
@@ -362,7 +401,7 @@ def fit_plane(points: np.ndarray, towards=SENSOR_ORIGIN, trim: float = 0.01,
 def _in_model(points: np.ndarray, T_scene_model: np.ndarray) -> np.ndarray:
     T = np.asarray(T_scene_model, float)
     R, t = T[:3, :3], T[:3, 3]
-    return (np.asarray(points, float) - t) @ R        # R^T (p - t), row-wise
+    return (np.asarray(points, float) - t) @ R  # R^T (p - t), row-wise
 
 
 def _box_half(dims) -> np.ndarray:
@@ -387,15 +426,17 @@ def cylinder_distance(points: np.ndarray, T_scene_model: np.ndarray, dims) -> np
     face, +z along the axis): the mantle and both end discs."""
     r, length = float(dims["radius"]), float(dims["length"])
     q = _in_model(points, T_scene_model)
-    d = np.stack([np.hypot(q[:, 0], q[:, 1]) - r, np.abs(q[:, 2] - 0.5 * length) - 0.5 * length],
-                 axis=1)
+    d = np.stack(
+        [np.hypot(q[:, 0], q[:, 1]) - r, np.abs(q[:, 2] - 0.5 * length) - 0.5 * length], axis=1
+    )
     outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
     inside = np.minimum(d.max(axis=1), 0.0)
     return np.abs(outside + inside)
 
 
-def primitive_distance(kind: str, points: np.ndarray, T_scene_model: np.ndarray,
-                       dims) -> np.ndarray:
+def primitive_distance(
+    kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims
+) -> np.ndarray:
     """:func:`box_distance` or :func:`cylinder_distance` by ``kind`` ("box" | "cylinder")."""
     if kind == "box":
         return box_distance(points, T_scene_model, dims)
@@ -404,25 +445,32 @@ def primitive_distance(kind: str, points: np.ndarray, T_scene_model: np.ndarray,
     raise AffordanceError(f"unknown primitive kind {kind!r} (box or cylinder)")
 
 
-def inside_region(kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims,
-                  margin: float) -> np.ndarray:
+def inside_region(
+    kind: str, points: np.ndarray, T_scene_model: np.ndarray, dims, margin: float
+) -> np.ndarray:
     """(N,) bool: ``points`` within the primitive's bounding region grown by ``margin`` m (a
     box: its box; a cylinder: its radius and length, in its frame)."""
     q = _in_model(points, T_scene_model)
     if kind == "box":
         half = _box_half(dims)
-        return (np.abs(q[:, 0]) <= half[0] + margin) & (np.abs(q[:, 1]) <= half[1] + margin) & \
-            (q[:, 2] >= -margin) & (q[:, 2] <= 2 * half[2] + margin)
+        return (
+            (np.abs(q[:, 0]) <= half[0] + margin)
+            & (np.abs(q[:, 1]) <= half[1] + margin)
+            & (q[:, 2] >= -margin)
+            & (q[:, 2] <= 2 * half[2] + margin)
+        )
     if kind == "cylinder":
         r, length = float(dims["radius"]), float(dims["length"])
-        return (np.hypot(q[:, 0], q[:, 1]) <= r + margin) & (q[:, 2] >= -margin) & \
-            (q[:, 2] <= length + margin)
+        return (
+            (np.hypot(q[:, 0], q[:, 1]) <= r + margin)
+            & (q[:, 2] >= -margin)
+            & (q[:, 2] <= length + margin)
+        )
     raise AffordanceError(f"unknown primitive kind {kind!r} (box or cylinder)")
 
 
 # ---------------------------------------------------------------------------- noise
-def local_noise(points: np.ndarray, k: int = 50, max_centres: int = 400,
-                seed: int = 0) -> float:
+def local_noise(points: np.ndarray, k: int = 50, max_centres: int = 400, seed: int = 0) -> float:
     """The scan's noise on a surface (m): the median, over up to ``max_centres`` seeded
     points of ``points`` (N, 3), of the RMS distance of each one's ``k`` nearest neighbours
     (among ``points``) to their least-squares plane (the square root of the smallest
@@ -467,14 +515,24 @@ class PrimitiveScore:
         return self.recall >= PASS_RECALL and self.precision >= PASS_PRECISION
 
     def to_dict(self) -> dict:
-        return {"recall": round(self.recall, 4), "precision": round(self.precision, 4),
-                "tolerance": round(self.tolerance, 6), "noise": round(self.noise, 6),
-                "on_surface": self.on_surface, "passes": self.passes}
+        return {
+            "recall": round(self.recall, 4),
+            "precision": round(self.precision, 4),
+            "tolerance": round(self.tolerance, 6),
+            "noise": round(self.noise, 6),
+            "on_surface": self.on_surface,
+            "passes": self.passes,
+        }
 
 
-def score_primitive(cloud: LabelledCloud, obj: LabelledObject | int, kind: str,
-                    T_scene_model: np.ndarray, dims, noise: float | None = None
-                    ) -> PrimitiveScore:
+def score_primitive(
+    cloud: LabelledCloud,
+    obj: LabelledObject | int,
+    kind: str,
+    T_scene_model: np.ndarray,
+    dims,
+    noise: float | None = None,
+) -> PrimitiveScore:
     """Score a primitive fit (``kind``, ``T_scene_model``, ``dims``) of the object ``obj``
     (a :class:`LabelledObject` or its id) of ``cloud`` against the labels: tolerance
     max(6 mm, 3 x the object's local noise) (``noise`` given, or :func:`local_noise` of its
@@ -507,8 +565,12 @@ def _dims_dict(dims) -> dict | None:
         return None
 
 
-def evaluate_scene(registrar, scene_path: str | LabelledCloud,
-                   min_points: int = MIN_OBJECT_POINTS, refined: bool = False) -> list[dict]:
+def evaluate_scene(
+    registrar,
+    scene_path: str | LabelledCloud,
+    min_points: int = MIN_OBJECT_POINTS,
+    refined: bool = False,
+) -> list[dict]:
     """Click the middle of every labelled object (>= ``min_points``) of an mOSD scene with
     ``registrar`` (a :class:`core.registration.Registrar`) -- the sensor at the origin -- and
     return one record per object:
@@ -523,8 +585,8 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
     the score of that fit refined on the object's labelled points
     (:func:`.label_ceiling.refined_score`) where it is of the object's kind, else None."""
     from ..core.scene import Scene
-    cloud = scene_path if isinstance(scene_path, LabelledCloud) else \
-        read_labelled_pcd(scene_path)
+
+    cloud = scene_path if isinstance(scene_path, LabelledCloud) else read_labelled_pcd(scene_path)
     scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
     try:
         kind, held = scene_kind(cloud.name), is_held_out(cloud.name)
@@ -533,13 +595,25 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
         kind, held, uniform = None, None, None
     records = []
     for obj in labelled_objects(cloud, min_points):
-        rec = {"scene": cloud.name, "kind": kind, "uniform_kind": uniform, "held_out": held,
-               "object": obj.id, "object_kind": object_kind(cloud.name, obj.id) if kind
-               else None,
-               "n_points": obj.n_points, "click": [round(float(v), 6) for v in obj.click],
-               "template": None, "fits": None, "primitive": None, "dimensions": None,
-               "explained": None, "score": None, "refined_score": None, "time_s": None,
-               "error": None}
+        rec = {
+            "scene": cloud.name,
+            "kind": kind,
+            "uniform_kind": uniform,
+            "held_out": held,
+            "object": obj.id,
+            "object_kind": object_kind(cloud.name, obj.id) if kind else None,
+            "n_points": obj.n_points,
+            "click": [round(float(v), 6) for v in obj.click],
+            "template": None,
+            "fits": None,
+            "primitive": None,
+            "dimensions": None,
+            "explained": None,
+            "score": None,
+            "refined_score": None,
+            "time_s": None,
+            "error": None,
+        }
         t0 = time.perf_counter()
         try:
             best = registrar.fit(scene, obj.click).candidates[0]
@@ -551,18 +625,25 @@ def evaluate_scene(registrar, scene_path: str | LabelledCloud,
         rec["time_s"] = time.perf_counter() - t0
         primitive = getattr(best, "primitive", None)
         dims = _dims_dict(getattr(best, "dimensions", None))
-        rec.update(template=best.template, fits=best.fits, primitive=primitive,
-                   dimensions=dims, explained=getattr(best, "explained", None))
+        rec.update(
+            template=best.template,
+            fits=best.fits,
+            primitive=primitive,
+            dimensions=dims,
+            explained=getattr(best, "explained", None),
+        )
         if primitive in ("box", "cylinder") and dims:
             try:
-                rec["score"] = score_primitive(cloud, obj, primitive, best.T_scene_model,
-                                               dims).to_dict()
+                rec["score"] = score_primitive(
+                    cloud, obj, primitive, best.T_scene_model, dims
+                ).to_dict()
                 if refined and primitive == rec["object_kind"]:
                     from .label_ceiling import refined_score
-                    rec["refined_score"] = refined_score(cloud, obj, primitive,
-                                                         best.T_scene_model, dims).to_dict()
+
+                    rec["refined_score"] = refined_score(
+                        cloud, obj, primitive, best.T_scene_model, dims
+                    ).to_dict()
             except (AffordanceError, KeyError, ValueError) as exc:
                 rec["error"] = f"scoring: {exc}"
         records.append(rec)
     return records
-

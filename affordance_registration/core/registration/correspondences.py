@@ -5,6 +5,7 @@ points (forward), scene points paired with the nearest template surface (reverse
 template's lowest samples paired with the plane under the click (contact) -- each pair weighted
 by the paper's rule with a scaled distance, :func:`correspondence_weights`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,12 +19,22 @@ from .model import Batch, Model
 from .settings import CLUSTER, REST_SAMPLES, FitSettings
 from .visibility import visible
 
-__all__ = ["Pairs", "correspondence_weights", "forward_pairs", "reverse_subset", "reverse_pairs",
-           "reverse_rows", "contact_rows", "plane_gap", "in_contact", "stack_samples",
-           "in_sphere"]
+__all__ = [
+    "Pairs",
+    "correspondence_weights",
+    "forward_pairs",
+    "reverse_subset",
+    "reverse_pairs",
+    "reverse_rows",
+    "contact_rows",
+    "plane_gap",
+    "in_contact",
+    "stack_samples",
+    "in_sphere",
+]
 
-PLANE_BAND = 1.5           #: samples within this many plane thresholds pair with the plane
-CONTACT_BAND = 0.002       #: samples this close to the lowest one rest on the plane
+PLANE_BAND = 1.5  #: samples within this many plane thresholds pair with the plane
+CONTACT_BAND = 0.002  #: samples this close to the lowest one rest on the plane
 
 
 def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
@@ -36,13 +47,14 @@ def correspondence_weights(dist, reject, d0: float) -> np.ndarray:
 
 def stack_samples(models, n: int):
     """The ``n`` samples and normals of each model, (B, n, 3) each, model frames."""
-    index: dict = {}                # a batch repeats few distinct models: each sampled once
+    index: dict = {}  # a batch repeats few distinct models: each sampled once
     which = np.array([index.setdefault(id(m), (len(index), m))[0] for m in models])
     distinct = [m for _, m in index.values()]
     if len(distinct) == 1:
         P, N = distinct[0].samples(n)
-        return np.broadcast_to(P, (len(models),) + P.shape).copy(), \
-            np.broadcast_to(N, (len(models),) + N.shape).copy()
+        return np.broadcast_to(P, (len(models),) + P.shape).copy(), np.broadcast_to(
+            N, (len(models),) + N.shape
+        ).copy()
     samples = [m.samples(n) for m in distinct]
     return np.stack([s[0] for s in samples])[which], np.stack([s[1] for s in samples])[which]
 
@@ -53,8 +65,15 @@ def in_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarr
     return np.einsum("ij,ij->i", rel, rel) <= radius * radius
 
 
-def forward_pairs(ctx: ClickContext, target: str, X: np.ndarray, Nw: np.ndarray,
-                  radius: np.ndarray, settings: FitSettings, normals: bool):
+def forward_pairs(
+    ctx: ClickContext,
+    target: str,
+    X: np.ndarray,
+    Nw: np.ndarray,
+    radius: np.ndarray,
+    settings: FitSettings,
+    normals: bool,
+):
     """Correspondences of posed samples X (B, S, 3) with normals Nw: the nearest ``target``
     point (Q), its normal when ``normals`` (Nq, else zeros) and the weight w (B, S) -- zero for
     unseen samples and beyond ``radius`` (B,)."""
@@ -102,8 +121,15 @@ def reverse_subset(ctx: ClickContext, limit: int):
     return pts, normals
 
 
-def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
-                  normals: np.ndarray, radius: float, d0: float):
+def reverse_pairs(
+    model: Model,
+    R: np.ndarray,
+    t: np.ndarray,
+    pts: np.ndarray,
+    normals: np.ndarray,
+    radius: float,
+    d0: float,
+):
     """Scene -> template pairs of one hypothesis (R (3, 3), t (3,)): each of the scene points
     ``pts`` (N, 3, with ``normals``) inside the posed model's bounding sphere paired with its
     nearest template surface sample. Returns (x: that sample in the scene (M, 3), q: the scene
@@ -112,8 +138,14 @@ def reverse_pairs(model: Model, R: np.ndarray, t: np.ndarray, pts: np.ndarray,
     near = in_sphere(pts, R @ model.centroid + t, 0.5 * model.diameter)
     q = pts[near]
     d, local, moving = model.nearest((q - t) @ R, parts=True)
-    return (local @ R.T + t, q, normals[near], correspondence_weights(d, radius, d0), local,
-            moving)
+    return (
+        local @ R.T + t,
+        q,
+        normals[near],
+        correspondence_weights(d, radius, d0),
+        local,
+        moving,
+    )
 
 
 @dataclass(frozen=True)
@@ -133,20 +165,28 @@ class Pairs:
 
     def joined(self, other: "Pairs") -> "Pairs":
         """These rows followed by ``other``'s (hypothesis by hypothesis)."""
+
         def cat(a, b):
             return None if a is None or b is None else np.concatenate([a, b], axis=1)
-        return Pairs(cat(self.X, other.X), cat(self.Q, other.Q), cat(self.N, other.N),
-                     cat(self.w, other.w), cat(self.U, other.U), cat(self.moving, other.moving))
+
+        return Pairs(
+            cat(self.X, other.X),
+            cat(self.Q, other.Q),
+            cat(self.N, other.N),
+            cat(self.w, other.w),
+            cat(self.U, other.U),
+            cat(self.moving, other.moving),
+        )
 
 
 def _padded(rows: list, fill=0.0) -> np.ndarray:
     """Ragged per-hypothesis rows (n_b, ...) stacked into (B, max n_b, ...), padded."""
     if len(rows) == 1:
-        return np.asarray(rows[0])[None]        # one hypothesis: nothing to pad
+        return np.asarray(rows[0])[None]  # one hypothesis: nothing to pad
     width = max(len(r) for r in rows)
     out = np.full((len(rows), width) + rows[0].shape[1:], fill, dtype=rows[0].dtype)
     for b, r in enumerate(rows):
-        out[b, :len(r)] = r
+        out[b, : len(r)] = r
     return out
 
 
@@ -164,8 +204,9 @@ def reverse_rows(ctx: ClickContext, batch: Batch, radius, settings: FitSettings)
     pts, normals = reverse_subset(ctx, settings.fine.reverse_points)
     rows = []
     for b, m in enumerate(batch.models):
-        x, q, n, w, local, moving = reverse_pairs(m, batch.R[b], batch.t[b], pts, normals,
-                                                  radius[b], settings.icp.weight_scale)
+        x, q, n, w, local, moving = reverse_pairs(
+            m, batch.R[b], batch.t[b], pts, normals, radius[b], settings.icp.weight_scale
+        )
         rows.append((x, q, n, w, local / m.scale, moving))
     return _pairs_of(rows)
 
@@ -180,9 +221,16 @@ def contact_rows(ctx: ClickContext, forward: Pairs, radius, settings: FitSetting
         pd = ctx.plane.distance(forward.X[b])
         low = np.flatnonzero(pd <= pd.min() + CONTACT_BAND)
         x = forward.X[b][low]
-        rows.append((x, x - pd[low][:, None] * normal, np.broadcast_to(normal, x.shape),
-                     correspondence_weights(np.abs(pd[low]), radius[b], settings.icp.weight_scale),
-                     forward.U[b][low], forward.moving[b][low]))
+        rows.append(
+            (
+                x,
+                x - pd[low][:, None] * normal,
+                np.broadcast_to(normal, x.shape),
+                correspondence_weights(np.abs(pd[low]), radius[b], settings.icp.weight_scale),
+                forward.U[b][low],
+                forward.moving[b][low],
+            )
+        )
     return _pairs_of(rows)
 
 

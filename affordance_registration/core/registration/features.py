@@ -21,6 +21,7 @@ Cost: about 0.7 s per run on the 4500-6000-point clusters of the Armadillo in cl
 too few runs). (Mesh templates use neither source: the taskboard parts are found by the
 mounting prior, and their results stay as they were.)
 """
+
 from __future__ import annotations
 
 import math
@@ -36,46 +37,50 @@ from .solve import rigid_step
 
 __all__ = ["feature_alignments", "global_alignments"]
 
-FEATURE_RADIUS = 10.0      #: FPFH radius, in voxels
-FEATURE_SAMPLES = 20000    #: template samples the template's descriptors are computed on
-RANSAC_TRIALS = 60000      #: three-point draws
-EDGE_TOLERANCE = 0.1       #: a draw's edges must agree to this fraction (rigid)
-INLIER_VOXELS = 2.0        #: a correspondence within this many voxels is an inlier
-MAX_EVALUATED = 4000       #: rigid draws whose inliers are counted
-MAX_PAIRS = 1500           #: at most this many crop points (evenly spread) get a partner
-CHUNK = 250                #: hypotheses whose inliers are counted at once
+FEATURE_RADIUS = 10.0  #: FPFH radius, in voxels
+FEATURE_SAMPLES = 20000  #: template samples the template's descriptors are computed on
+RANSAC_TRIALS = 60000  #: three-point draws
+EDGE_TOLERANCE = 0.1  #: a draw's edges must agree to this fraction (rigid)
+INLIER_VOXELS = 2.0  #: a correspondence within this many voxels is an inlier
+MAX_EVALUATED = 4000  #: rigid draws whose inliers are counted
+MAX_PAIRS = 1500  #: at most this many crop points (evenly spread) get a partner
+CHUNK = 250  #: hypotheses whose inliers are counted at once
 #: distinct poses returned per template: a template of the Armadillo's other views holds only
 #: half of view 60, and its true pose was among the best 4 on 1 of 6 seeds, the best 16 on 5
 KEEP = 16
 DISTINCT_TURN = math.radians(20.0)
 
-GLOBAL_RADIUS = 5.0        #: FPFH radius of the cluster matching, in voxels
-GLOBAL_RUNS = (1, 2, 3)    #: the seeds of the cluster matching's RANSAC runs (one pose each)
-GLOBAL_ITERATIONS = 100000   #: RANSAC draws per run
-GLOBAL_DISTANCE = 1.5      #: a correspondence within this many voxels is an inlier
-GLOBAL_EDGE = 0.9          #: a draw's edges must agree to this ratio (Open3D's edge check)
+GLOBAL_RADIUS = 5.0  #: FPFH radius of the cluster matching, in voxels
+GLOBAL_RUNS = (1, 2, 3)  #: the seeds of the cluster matching's RANSAC runs (one pose each)
+GLOBAL_ITERATIONS = 100000  #: RANSAC draws per run
+GLOBAL_DISTANCE = 1.5  #: a correspondence within this many voxels is an inlier
+GLOBAL_EDGE = 0.9  #: a draw's edges must agree to this ratio (Open3D's edge check)
 _o3d_lock = threading.Lock()
 
 
 def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
     """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3)."""
     import open3d as o3d
+
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
     feat = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100))
+        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100)
+    )
     return np.asarray(feat.data).T.copy()
 
 
 def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
     """One sample per voxel of the model's surface (model frame), its normals and descriptors
     (``radius`` in voxels); cached with the model."""
+
     def build():
         P, N = model.samples(FEATURE_SAMPLES)
         _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
         first = np.sort(first)
         P, N = P[first], N[first]
         return P, N, _fpfh(P, N, radius * voxel)
+
     key = ("fpfh", model.template, model.q, model.scale, float(voxel))
     return model.cache.posed(key if radius == FEATURE_RADIUS else key + (float(radius),), build)
 
@@ -104,6 +109,7 @@ def global_alignments(ctx: ClickContext, model) -> list:
     if len(ctx.cluster) < 30:
         return []
     import open3d as o3d
+
     reg = o3d.pipelines.registration
     P, N, F = _template_features(model, ctx.voxel, GLOBAL_RADIUS)
     Q = ctx.cluster
@@ -122,8 +128,10 @@ def global_alignments(ctx: ClickContext, model) -> list:
     src, dst = cloud(P, N), cloud(Q, np.zeros_like(Q))
     fs, fd = feature(F), feature(G)
     dist = GLOBAL_DISTANCE * ctx.voxel
-    checks = [reg.CorrespondenceCheckerBasedOnEdgeLength(GLOBAL_EDGE),
-              reg.CorrespondenceCheckerBasedOnDistance(dist)]
+    checks = [
+        reg.CorrespondenceCheckerBasedOnEdgeLength(GLOBAL_EDGE),
+        reg.CorrespondenceCheckerBasedOnDistance(dist),
+    ]
     out = []
     for seed in GLOBAL_RUNS:
         # the generator is Open3D's global one; its "too few mutual matches, all matches
@@ -131,8 +139,17 @@ def global_alignments(ctx: ClickContext, model) -> list:
         with _o3d_lock, o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             o3d.utility.random.seed(int(seed))
             found = reg.registration_ransac_based_on_feature_matching(
-                src, dst, fs, fd, True, dist, reg.TransformationEstimationPointToPoint(False),
-                3, checks, reg.RANSACConvergenceCriteria(GLOBAL_ITERATIONS, 0.999))
+                src,
+                dst,
+                fs,
+                fd,
+                True,
+                dist,
+                reg.TransformationEstimationPointToPoint(False),
+                3,
+                checks,
+                reg.RANSACConvergenceCriteria(GLOBAL_ITERATIONS, 0.999),
+            )
         T = np.asarray(found.transformation, dtype=float)
         if found.fitness > 0 and np.all(np.isfinite(T)):
             out.append((T[:3, :3].copy(), T[:3, 3].copy()))
@@ -156,16 +173,25 @@ def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> li
     X, Q = src[picks], dst[picks]
     ex = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2)
     eq = np.linalg.norm(Q - np.roll(Q, 1, axis=1), axis=2)
-    rigid = np.all(np.abs(ex - eq) <= EDGE_TOLERANCE * np.maximum(eq, 1e-9), axis=1) & \
-        np.all(eq > 2 * ctx.voxel, axis=1)
+    rigid = np.all(np.abs(ex - eq) <= EDGE_TOLERANCE * np.maximum(eq, 1e-9), axis=1) & np.all(
+        eq > 2 * ctx.voxel, axis=1
+    )
     if not rigid.any():
         return []
     keep = np.flatnonzero(rigid)[:MAX_EVALUATED]
     step = rigid_step(X[keep], Q[keep], np.ones((len(keep), 3)))
-    inliers = np.concatenate([
-        np.linalg.norm(np.einsum("bij,nj->bni", step.R[k:k + CHUNK], src)
-                       + step.t[k:k + CHUNK, None, :] - dst, axis=2) <= INLIER_VOXELS * ctx.voxel
-        for k in range(0, len(keep), CHUNK)])
+    inliers = np.concatenate(
+        [
+            np.linalg.norm(
+                np.einsum("bij,nj->bni", step.R[k : k + CHUNK], src)
+                + step.t[k : k + CHUNK, None, :]
+                - dst,
+                axis=2,
+            )
+            <= INLIER_VOXELS * ctx.voxel
+            for k in range(0, len(keep), CHUNK)
+        ]
+    )
     counts = inliers.sum(axis=1)
     out = []
     for k in np.argsort(-counts, kind="stable"):
@@ -174,8 +200,11 @@ def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> li
         inl = inliers[k]
         refined = rigid_step(src[inl][None], dst[inl][None], np.ones((1, int(inl.sum()))))
         R, t = refined.R[0], refined.t[0]
-        if all(rotation_angle(R.T @ R2) > DISTINCT_TURN or
-               np.linalg.norm(R @ model.centroid + t - R2 @ model.centroid - t2) >
-               0.1 * model.diameter for R2, t2 in out):
+        if all(
+            rotation_angle(R.T @ R2) > DISTINCT_TURN
+            or np.linalg.norm(R @ model.centroid + t - R2 @ model.centroid - t2)
+            > 0.1 * model.diameter
+            for R2, t2 in out
+        ):
             out.append((R, t))
     return out

@@ -17,6 +17,7 @@ and the primitive measured on both pieces explains each of them (the registrar's
 pieces come at the scan's full resolution, with normals towards the sensor, as
 :func:`.primitives.object_points` gives the clicked part.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +25,7 @@ import numpy as np
 from ..click_context import RangeImage
 from ..neighbours import build_tree, nearest, pca_normals
 from ..scene import ClickContext
-from ..segmentation import _gap_components
+from ..segmentation import gap_components
 from .model import surface_distances
 from .primitives import MEASURE_POINTS
 from .scoring import widening
@@ -49,8 +50,13 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
     something in front of it (see the module), each as (points (N, 3), normals (N, 3)) at
     the scan's full resolution from ``scene``; [] without a viewpoint, a support, a range
     image or a scene."""
-    if scene is None or ctx.sensor_origin is None or ctx.support is None or \
-            ctx.range_image is None or len(clicked) < 10:
+    if (
+        scene is None
+        or ctx.sensor_origin is None
+        or ctx.support is None
+        or ctx.range_image is None
+        or len(clicked) < 10
+    ):
         return []
     crop = ctx.crop
     off = ctx.support.distance(crop) > ctx.plane_threshold
@@ -58,7 +64,7 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
     rest = crop[off & ~np.isfinite(d)]
     if len(rest) < 10:
         return []
-    labels = _gap_components(rest, PIECE_GAP)
+    labels = gap_components(rest, PIECE_GAP)
     counts = np.bincount(labels)
     tree_a = build_tree(clicked)
     image, pieces = None, []
@@ -72,13 +78,14 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
         line = a + np.linspace(0.0, 1.0, BRIDGE_SAMPLES + 2)[1:-1, None] * (b - a)
         obs, depth = ctx.range_image.lookup(line)
         if np.any(obs > depth + settings.scoring.free_space_margin):
-            continue            # the sensor saw past the line: nothing stands in front there
+            continue  # the sensor saw past the line: nothing stands in front there
         # (what stands in front may lie outside the crop: the whole scan in its cone)
         image = _cone_image(ctx, scene) if image is None else image
         obs, depth = image.lookup(line)
         known = obs == obs
-        if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or \
-                not np.all(obs[known] < depth[known] - settings.verdict.occluder_gap):
+        if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or not np.all(
+            obs[known] < depth[known] - settings.verdict.occluder_gap
+        ):
             continue
         pieces.append(_full_resolution(ctx, scene, piece))
     return [p for p in pieces if len(p[0]) >= 10]
@@ -97,15 +104,16 @@ def _cone_image(ctx: ClickContext, scene) -> RangeImage:
     # (at most 60 degrees off the ray: a sensor inside the crop would see half a sphere)
     cos_cone = max(0.5, float(np.sqrt(max(0.0, 1.0 - min(1.0, ctx.radius / reach) ** 2))))
     inside = (along > 1e-3) & (along >= cos_cone * np.linalg.norm(rel, axis=1))
-    return RangeImage(scene.points[inside], origin, bin_size=ctx.range_image.bin,
-                      frame=ctx.range_image.frame)
+    return RangeImage(
+        scene.points[inside], origin, bin_size=ctx.range_image.bin, frame=ctx.range_image.frame
+    )
 
 
 def _full_resolution(ctx: ClickContext, scene, voxels: np.ndarray):
     """The scan's points within a voxel of ``voxels`` (and of the click's crop), with PCA
     normals turned towards the sensor."""
     pts = scene.points
-    near = np.einsum("ij,ij->i", pts - ctx.click, pts - ctx.click) <= ctx.radius ** 2
+    near = np.einsum("ij,ij->i", pts - ctx.click, pts - ctx.click) <= ctx.radius**2
     pts = pts[near]
     d, _ = nearest(build_tree(voxels), pts, ctx.voxel)
     pts = pts[np.isfinite(d)]
@@ -128,8 +136,9 @@ def joined(measured, parts, limit: int):
     return points, normals, support, up
 
 
-def with_hidden_parts(ctx: ClickContext, scene, measured, fitted: list, fit_on, model_of,
-                      settings: FitSettings) -> list:
+def with_hidden_parts(
+    ctx: ClickContext, scene, measured, fitted: list, fit_on, model_of, settings: FitSettings
+) -> list:
     """``fitted`` (one primitive each, measured on the clicked part: ``measured``), each
     measured again with the pieces of the object something in front splits off
     (:func:`hidden_parts`) where there are any, and kept so when that one explains the clicked
@@ -147,8 +156,14 @@ def with_hidden_parts(ctx: ClickContext, scene, measured, fitted: list, fit_on, 
     for k, alone in enumerate(fitted):
         res = fit_on(both, k)
         model, T = model_of(res), res.T_scene_model
-        shares = [float(np.mean(surface_distances(
-            [model], ((p - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0] <= within))
-            for p in [measured[0]] + [q for q, _ in parts]]
+        shares = [
+            float(
+                np.mean(
+                    surface_distances([model], ((p - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0]
+                    <= within
+                )
+            )
+            for p in [measured[0]] + [q for q, _ in parts]
+        ]
         out.append(res if min(shares) >= v.min_explained else alone)
     return out

@@ -4,6 +4,7 @@
 prefilter after the coarse stage, the distinct best few kept per template, and the winner's
 sweep about its mounting axis.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,22 +21,33 @@ from .model import Batch
 from .results import FitResult, IcpResult
 from .settings import REST_SAMPLES, SAMPLE_SEED, FitSettings
 
-__all__ = ["Hypotheses", "MOUNTED", "RESTING", "RANDOM", "initial_hypotheses", "prefilter",
-           "keep_distinct", "best_per_template", "yaw_sweep_starts", "principal_angle",
-           "symmetric_angle", "shape_axes"]
+__all__ = [
+    "Hypotheses",
+    "MOUNTED",
+    "RESTING",
+    "RANDOM",
+    "initial_hypotheses",
+    "prefilter",
+    "keep_distinct",
+    "best_per_template",
+    "yaw_sweep_starts",
+    "principal_angle",
+    "symmetric_angle",
+    "shape_axes",
+]
 
-RANDOM_OFFSET = 0.15       #: random restarts start up to this fraction of the diameter off
-DISTINCT_DISTANCE = 0.01   #: hypotheses of one template closer than this ...
-DISTINCT_ANGLE = math.radians(10.0)   #: ... and turned less than this count as one
-ELONGATED = 1.44           #: main axis: in-plane spreads at least this far apart (20% in std)
+RANDOM_OFFSET = 0.15  #: random restarts start up to this fraction of the diameter off
+DISTINCT_DISTANCE = 0.01  #: hypotheses of one template closer than this ...
+DISTINCT_ANGLE = math.radians(10.0)  #: ... and turned less than this count as one
+ELONGATED = 1.44  #: main axis: in-plane spreads at least this far apart (20% in std)
 
-MOUNTED, RESTING, RANDOM = 0, 1, 2     #: families of initial hypotheses
+MOUNTED, RESTING, RANDOM = 0, 1, 2  #: families of initial hypotheses
 #: a click off an object's middle: where the clicked segment of the cluster (no larger than
 #: SEGMENT_REACH x a template's radius) has its mean more than CENTRE_SHIFT x the template's
 #: diameter from the centre the click gives, the yaw sweeps start over that mean too
 SEGMENT_REACH = 1.1
 CENTRE_SHIFT = 0.1
-FEATURE_SEED = 4099        #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
+FEATURE_SEED = 4099  #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
 
 
 @dataclass(frozen=True)
@@ -53,24 +65,45 @@ class Hypotheses(Batch):
     def take(self, idx) -> "Hypotheses":
         """The hypotheses at ``idx`` (an index array), in that order."""
         idx = np.asarray(idx, dtype=int)
-        return Hypotheses(tuple(self.models[i] for i in idx), self.R[idx], self.t[idx],
-                          self.index[idx], self.family[idx], self.iterations,
-                          None if self.converged is None else self.converged[idx])
+        return Hypotheses(
+            tuple(self.models[i] for i in idx),
+            self.R[idx],
+            self.t[idx],
+            self.index[idx],
+            self.family[idx],
+            self.iterations,
+            None if self.converged is None else self.converged[idx],
+        )
 
     def after(self, stage: IcpResult) -> "Hypotheses":
         """The same hypotheses as an ICP stage left them."""
-        return Hypotheses(stage.models, stage.R, stage.t, self.index, self.family,
-                          self.iterations + stage.iterations, stage.converged)
+        return Hypotheses(
+            stage.models,
+            stage.R,
+            stage.t,
+            self.index,
+            self.family,
+            self.iterations + stage.iterations,
+            stage.converged,
+        )
 
     def relabelled(self, index_of: np.ndarray) -> "Hypotheses":
         """The same hypotheses with ``index`` mapped through ``index_of`` (e.g. from the
         models they started from to the templates those are of)."""
-        return Hypotheses(self.models, self.R, self.t, np.asarray(index_of)[self.index],
-                          self.family, self.iterations, self.converged)
+        return Hypotheses(
+            self.models,
+            self.R,
+            self.t,
+            np.asarray(index_of)[self.index],
+            self.family,
+            self.iterations,
+            self.converged,
+        )
 
 
-def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
-                       rng: np.random.Generator) -> Hypotheses:
+def initial_hypotheses(
+    ctx: ClickContext, models, settings: FitSettings, rng: np.random.Generator
+) -> Hypotheses:
     """Initial hypotheses for each of ``models`` (anything with ``samples``, ``centroid``,
     ``diameter`` and ``resting_rotations``: a registration model or a template).
 
@@ -78,26 +111,30 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
     modes auto and mounted), resting (each stable facet of the template down on the plane,
     a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
     Without a plane: uniformly random orientations around the cluster (drawn in the frame
-    attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The template's
-    centroid starts over the cluster points within reach of the click (the cluster may have
-    merged with a neighbour) -- and the yaw sweeps also over the clicked segment's middle
+    attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The
+    template's centroid starts over the cluster points within reach of the click (the cluster may
+    have merged with a neighbour) -- and the yaw sweeps also over the clicked segment's middle
     where the click is off it (:func:`_segment_middle`); random ones get an offset of up to
     ``RANDOM_OFFSET`` of the diameter (the paper's restarts use up to the diameter). A
     point-cloud template (a scanned object) also starts from the poses its shape features
     match, in the crop and in the cluster (:mod:`.features`)."""
     up = cluster_axis = None
-    if ctx.plane is not None:     # the plane's frame (turns with the scan) and the cluster's
-        up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])           # main axis in it
+    if ctx.plane is not None:  # the plane's frame (turns with the scan) and the cluster's
+        up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])  # main axis in it
         cluster_axis = principal_angle(ctx.cluster @ up)
     # every template's draws in turn, then the rotations of all of them composed at once
     draws = [_draws(ctx, model, settings, rng, cluster_axis) for model in models]
     yawed = random = None
     if any(len(d.yaws) for d in draws):
-        yawed = up @ _about_z(np.concatenate([d.yaws for d in draws])) @ \
-            np.concatenate([d.bases for d in draws])
-    if any(len(d.quats) for d in draws):   # drawn in the frame attached to the scan
-        random = ctx.frame @ Rotation.from_quat(np.concatenate([d.quats for d in draws])) \
-            .as_matrix()
+        yawed = (
+            up
+            @ _about_z(np.concatenate([d.yaws for d in draws]))
+            @ np.concatenate([d.bases for d in draws])
+        )
+    if any(len(d.quats) for d in draws):  # drawn in the frame attached to the scan
+        random = (
+            ctx.frame @ Rotation.from_quat(np.concatenate([d.quats for d in draws])).as_matrix()
+        )
         shifted = np.concatenate([d.offsets for d in draws]) @ ctx.frame.T
     index, Rs, ts, family = [], [], [], []
     n_yawed = n_random = 0
@@ -106,25 +143,25 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
         if centre is None:
             centre = ctx.click
         k, n = len(d.yaws), len(d.quats)
-        R0 = [yawed[n_yawed:n_yawed + k]] if k else []
+        R0 = [yawed[n_yawed : n_yawed + k]] if k else []
         offsets = [np.zeros((k, 3))]
         if n:
-            R0.append(random[n_random:n_random + n])
-            offsets.append(shifted[n_random:n_random + n])
+            R0.append(random[n_random : n_random + n])
+            offsets.append(shifted[n_random : n_random + n])
         n_yawed, n_random = n_yawed + k, n_random + n
         if d.aligned:
             R0.append(np.stack(d.aligned))
             offsets.append(np.zeros((len(d.aligned), 3)))
         R0 = np.concatenate(R0) if R0 else np.empty((0, 3, 3))
         C = shape_axes(model)
-        if C is not None:           # a scanned object's drawn orientations are of its own axes
-            R0[:k + n] = R0[:k + n] @ C.T
+        if C is not None:  # a scanned object's drawn orientations are of its own axes
+            R0[: k + n] = R0[: k + n] @ C.T
         index.append(np.full(len(R0), i))
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, np.concatenate(offsets)))
         family.append(np.concatenate([d.families, np.full(len(R0) - k, RANDOM)]))
         middle = _segment_middle(ctx, model, centre) if k else None
-        if middle is not None:      # the sweeps again, over the clicked object's middle
+        if middle is not None:  # the sweeps again, over the clicked object's middle
             index.append(np.full(k, i))
             Rs.append(R0[:k])
             ts.append(_starts(ctx, model, R0[:k], middle, np.zeros((k, 3))))
@@ -140,8 +177,13 @@ def initial_hypotheses(ctx: ClickContext, models, settings: FitSettings,
                 ts.append(np.stack([t for _, t in matched]))
                 family.append(np.full(len(matched), RANDOM))
     index = np.concatenate(index)
-    return Hypotheses(tuple(models[i] for i in index), np.concatenate(Rs), np.concatenate(ts),
-                      index, np.concatenate(family))
+    return Hypotheses(
+        tuple(models[i] for i in index),
+        np.concatenate(Rs),
+        np.concatenate(ts),
+        index,
+        np.concatenate(family),
+    )
 
 
 def _segment_middle(ctx: ClickContext, model, centre: np.ndarray) -> np.ndarray | None:
@@ -171,8 +213,13 @@ class _Draws:
     aligned: list
 
 
-def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Generator,
-           cluster_axis: float | None) -> _Draws:
+def _draws(
+    ctx: ClickContext,
+    model,
+    settings: FitSettings,
+    rng: np.random.Generator,
+    cluster_axis: float | None,
+) -> _Draws:
     """One template's initial orientations, drawn from ``rng`` in their order: mounted and
     resting yaw sweeps (with a plane), random rotations and offsets, principal axes (without
     one). ``cluster_axis``: the cluster's main axis in the plane's frame
@@ -189,7 +236,7 @@ def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Gener
         if s.mode in ("auto", "free"):
             for R_rest, tpl_axis in _resting_axes(model, s.hypotheses.resting_poses):
                 if s.mode == "auto" and R_rest[2, 2] > 0.95:
-                    continue   # the mounted orientation, already swept
+                    continue  # the mounted orientation, already swept
                 facet = list(_yaws(s.hypotheses.resting_yaws, rng))
                 # and the two yaws that line the resting template's long axis up with the
                 # cluster's (elongated parts lying on a table)
@@ -199,35 +246,62 @@ def _draws(ctx: ClickContext, model, settings: FitSettings, rng: np.random.Gener
                     yaws.append(np.array(facet))
                     bases.append(np.broadcast_to(R_rest, (len(facet), 3, 3)))
                     families.append(np.full(len(facet), RESTING))
-    n_rand = 0 if s.mode == "mounted" and plane is not None else (
-        s.hypotheses.random_restarts if plane is not None else s.hypotheses.free_restarts)
+    n_rand = (
+        0
+        if s.mode == "mounted" and plane is not None
+        else (s.hypotheses.random_restarts if plane is not None else s.hypotheses.free_restarts)
+    )
     quats, off = np.empty((0, 4)), np.empty((0, 3))
     if n_rand:
         off = rng.normal(size=(n_rand, 3))
-        off *= (RANDOM_OFFSET * model.diameter * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
-                / np.linalg.norm(off, axis=1, keepdims=True))
+        off *= (
+            RANDOM_OFFSET
+            * model.diameter
+            * rng.uniform(size=(n_rand, 1)) ** (1 / 3)
+            / np.linalg.norm(off, axis=1, keepdims=True)
+        )
         quats = unit_quaternions(n_rand, rng)
     aligned = _principal_alignments(ctx.cluster, model) if plane is None else []
-    return _Draws(np.concatenate(yaws) if yaws else np.empty(0),
-                  np.concatenate(bases) if bases else np.empty((0, 3, 3)),
-                  np.concatenate(families) if families else np.empty(0, dtype=int),
-                  quats, off, aligned)
+    return _Draws(
+        np.concatenate(yaws) if yaws else np.empty(0),
+        np.concatenate(bases) if bases else np.empty((0, 3, 3)),
+        np.concatenate(families) if families else np.empty(0, dtype=int),
+        quats,
+        off,
+        aligned,
+    )
 
 
 def _resting_axes(model, max_poses: int) -> list:
     """The model's resting rotations R_rest (3, 3) with the main-axis angle of its samples
     turned by each (:func:`principal_angle`, rad or None): [(R_rest, angle)]; computed once
     per registration model (a template is asked each time)."""
+
     def compute():
         low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
         rests = [R for R, _ in model.resting_rotations(max_poses)]
         angles = [principal_angle(low @ R.T) for R in rests]
-        return (np.array(rests).reshape(-1, 3, 3),
-                np.array([np.nan if a is None else a for a in angles], dtype=float))
+        return (
+            np.array(rests).reshape(-1, 3, 3),
+            np.array([np.nan if a is None else a for a in angles], dtype=float),
+        )
+
     cache = getattr(model, "cache", None)
-    rests, angles = compute() if cache is None else cache.posed(
-        ("resting axes", model.template, model.q, model.scale, model.moving_only,
-         int(max_poses)), compute)
+    rests, angles = (
+        compute()
+        if cache is None
+        else cache.posed(
+            (
+                "resting axes",
+                model.template,
+                model.q,
+                model.scale,
+                model.moving_only,
+                int(max_poses),
+            ),
+            compute,
+        )
+    )
     return [(R, None if math.isnan(a) else float(a)) for R, a in zip(rests, angles)]
 
 
@@ -255,6 +329,7 @@ def shape_axes(model) -> np.ndarray | None:
                 axes[:, k] *= -1
         axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
         return axes
+
     cache = getattr(model, "cache", None)
     return compute() if cache is None else cache.posed(("shape axes", tpl), compute)
 
@@ -294,8 +369,9 @@ def _yaws(n: int, rng: np.random.Generator) -> np.ndarray:
     return (np.arange(n) + rng.uniform()) * 2 * math.pi / n
 
 
-def _starts(ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray,
-            offsets: np.ndarray) -> np.ndarray:
+def _starts(
+    ctx: ClickContext, model, R0: np.ndarray, centre: np.ndarray, offsets: np.ndarray
+) -> np.ndarray:
     """The translations (K, 3) putting the model's centroid over ``centre`` (plus ``offsets``,
     (K, 3)) for rotations R0 (K, 3, 3); with a plane, resting on it (the lowest sample touches
     it)."""
@@ -325,12 +401,17 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
         chosen = [mounted[0]] if len(mounted) and keep > 1 else []
         # where each pose puts the template: its origin, or a scanned object's centroid
         # (its file's origin may lie anywhere)
-        at = hyps.t if not tpl.is_point_template else \
-            hyps.t + hyps.R @ hyps.models[int(idx[0])].centroid
+        at = (
+            hyps.t
+            if not tpl.is_point_template
+            else hyps.t + hyps.R @ hyps.models[int(idx[0])].centroid
+        )
         for j in idx:
-            if all(np.linalg.norm(at[j] - at[k]) > DISTINCT_DISTANCE or
-                   symmetric_angle(tpl, hyps.R[k].T @ hyps.R[j]) > DISTINCT_ANGLE
-                   for k in chosen):
+            if all(
+                np.linalg.norm(at[j] - at[k]) > DISTINCT_DISTANCE
+                or symmetric_angle(tpl, hyps.R[k].T @ hyps.R[j]) > DISTINCT_ANGLE
+                for k in chosen
+            ):
                 chosen.append(j)
             if len(chosen) == keep:
                 break
@@ -376,9 +457,16 @@ def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSe
     for i in np.flatnonzero(out & np.isfinite(best)):
         j = int(np.flatnonzero(hyps.index == i)[np.argmin(scores[hyps.index == i])])
         residual = max(float(scores[j]), 1e-6)
-        aside.append(FitResult(template=names[i], T_scene_model=make_T(hyps.R[j], hyps.t[j]),
-                               residual=residual, likelihood=1.0 / residual,
-                               iterations=hyps.iterations, prefiltered=True))
+        aside.append(
+            FitResult(
+                template=names[i],
+                T_scene_model=make_T(hyps.R[j], hyps.t[j]),
+                residual=residual,
+                likelihood=1.0 / residual,
+                iterations=hyps.iterations,
+                prefiltered=True,
+            )
+        )
     stay = np.flatnonzero(~out[hyps.index])
     return hyps.take(stay), scores[stay], tuple(aside)
 
@@ -389,8 +477,13 @@ def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):
     sym = model.symmetry
     period = 2 * math.pi / (sym.order if sym is not None and not sym.continuous else 1)
     C = shape_axes(model)
-    axis_model = np.asarray(sym.axis) if sym is not None else \
-        np.array([0.0, 0.0, 1.0]) if C is None else C[:, 2]
+    axis_model = (
+        np.asarray(sym.axis)
+        if sym is not None
+        else np.array([0.0, 0.0, 1.0])
+        if C is None
+        else C[:, 2]
+    )
     axis = R @ axis_model
     centre = R @ model.centroid + t
     Rs, ts = [], []

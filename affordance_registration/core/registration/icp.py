@@ -12,13 +12,21 @@ full-resolution cluster (the fine stage) scene points are paired with the templa
 step is point to plane (it does not creep along flat or cylindrical surfaces), with a column per
 extra unknown -- a joint value, a scale -- besides the six of the pose.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from ..scene import ClickContext
 from ..transforms import pose_points, rotate
-from .correspondences import Pairs, contact_rows, forward_pairs, in_contact, reverse_rows, stack_samples
+from .correspondences import (
+    Pairs,
+    contact_rows,
+    forward_pairs,
+    in_contact,
+    reverse_rows,
+    stack_samples,
+)
 from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
@@ -27,13 +35,13 @@ from .solve import plane_step, rigid_step
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
 
-CONVERGED_ROTATION = 2e-4      #: rad: an ICP step turning less than this ...
-CONVERGED_TRANSLATION = 5e-5   #: m: ... and moving less than this has converged
-CONVERGED_EXTRA = 1e-4         #: rad, m or scale: ... and so have joint and scale steps this small
-JOINT_STEP_LIMIT = 1 / 8   #: a Gauss-Newton joint step moves at most this part of the range
-SCALE_STEP_LIMIT = 0.05    #: ... and a scale step at most this much
+CONVERGED_ROTATION = 2e-4  #: rad: an ICP step turning less than this ...
+CONVERGED_TRANSLATION = 5e-5  #: m: ... and moving less than this has converged
+CONVERGED_EXTRA = 1e-4  #: rad, m or scale: ... and so have joint and scale steps this small
+JOINT_STEP_LIMIT = 1 / 8  #: a Gauss-Newton joint step moves at most this part of the range
+SCALE_STEP_LIMIT = 0.05  #: ... and a scale step at most this much
 
-JOINT, SCALE = "joint", "scale"     #: the extra unknowns a stage may fit besides the pose
+JOINT, SCALE = "joint", "scale"  #: the extra unknowns a stage may fit besides the pose
 
 
 def radius_schedule(reject, floor, it: int, iterations: int):
@@ -42,9 +50,17 @@ def radius_schedule(reject, floor, it: int, iterations: int):
     return reject * (floor / reject) ** (it / max(iterations - 1, 1))
 
 
-def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject=None,
-        unknowns: tuple = (), contact: bool = False, span: tuple | None = None,
-        converge: float | None = None) -> IcpResult:
+def icp(
+    ctx: ClickContext,
+    batch: Batch,
+    stage: Stage,
+    settings: FitSettings,
+    reject=None,
+    unknowns: tuple = (),
+    contact: bool = False,
+    span: tuple | None = None,
+    converge: float | None = None,
+) -> IcpResult:
     """Weighted ICP of a batch of hypotheses. ``reject`` (B,) in m overrides the stage's
     reach. ``span`` (first, stop) runs only those of the stage's iterations (its rejection
     radii as in the whole stage), so a stage can be run in two parts. ``unknowns`` (fine stage
@@ -59,18 +75,43 @@ def icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, re
     pieces = parts(len(batch), settings.threads)
     if len(pieces) == 1:
         return _icp(ctx, batch, stage, settings, reject, unknowns, contact, span, converge)
-    done = run([lambda idx=idx: _icp(ctx, batch.take(idx), stage, settings,
-                                     None if reject is None else reject[idx], unknowns, contact,
-                                     span, converge)
-                for idx in pieces], settings.threads)
-    return IcpResult(sum((r.models for r in done), ()), np.concatenate([r.R for r in done]),
-                     np.concatenate([r.t for r in done]), max(r.iterations for r in done),
-                     np.concatenate([r.converged for r in done]))
+    done = run(
+        [
+            lambda idx=idx: _icp(
+                ctx,
+                batch.take(idx),
+                stage,
+                settings,
+                None if reject is None else reject[idx],
+                unknowns,
+                contact,
+                span,
+                converge,
+            )
+            for idx in pieces
+        ],
+        settings.threads,
+    )
+    return IcpResult(
+        sum((r.models for r in done), ()),
+        np.concatenate([r.R for r in done]),
+        np.concatenate([r.t for r in done]),
+        max(r.iterations for r in done),
+        np.concatenate([r.converged for r in done]),
+    )
 
 
-def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, reject,
-         unknowns: tuple, contact: bool, span: tuple | None = None,
-         converge: float | None = None) -> IcpResult:
+def _icp(
+    ctx: ClickContext,
+    batch: Batch,
+    stage: Stage,
+    settings: FitSettings,
+    reject,
+    unknowns: tuple,
+    contact: bool,
+    span: tuple | None = None,
+    converge: float | None = None,
+) -> IcpResult:
     """:func:`icp` of one batch on the calling thread."""
     fine = stage.target == FINE
     posing = _Posing(batch.models, stage.samples, unknowns)
@@ -81,7 +122,7 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
     floor = np.minimum(reject, settings.icp.reject_floor)
     small = converge if converge is not None else FINE_CONVERGED if fine else 1.0
     converged = np.zeros(len(batch), bool)
-    active = np.arange(len(batch))        # the hypotheses still moving
+    active = np.arange(len(batch))  # the hypotheses still moving
     first, stop = span if span is not None else (0, stage.iterations)
     it = first - 1
     for it in range(first, stop):
@@ -91,20 +132,30 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
         Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
         pairs = forward = Pairs(X, Q, Nq, w, U, moving)
         if fine:
-            pairs = pairs.joined(reverse_rows(ctx, Batch(posing.models_at(active), Ra, ta),
-                                              radius, settings))
+            pairs = pairs.joined(
+                reverse_rows(ctx, Batch(posing.models_at(active), Ra, ta), radius, settings)
+            )
         if contact:
             pairs = pairs.joined(contact_rows(ctx, forward, radius, settings))
         if fine:
-            step = plane_step(pairs.X, pairs.Q, pairs.N, pairs.w,
-                              posing.columns(pairs, Ra, active), posing.bounds(active))
+            step = plane_step(
+                pairs.X,
+                pairs.Q,
+                pairs.N,
+                pairs.w,
+                posing.columns(pairs, Ra, active),
+                posing.bounds(active),
+            )
         else:
             step = rigid_step(pairs.X, pairs.Q, pairs.w)
         R[active] = step.R @ Ra
         t[active] = (step.R @ ta[:, :, None])[:, :, 0] + step.t
         extra = posing.advance(step.extra, active)
-        done = (step.rotation < small * CONVERGED_ROTATION) & \
-            (step.motion < small * CONVERGED_TRANSLATION) & (extra < small * CONVERGED_EXTRA)
+        done = (
+            (step.rotation < small * CONVERGED_ROTATION)
+            & (step.motion < small * CONVERGED_TRANSLATION)
+            & (extra < small * CONVERGED_EXTRA)
+        )
         # a converged hypothesis stays where it is (its result does not depend on the others
         # in the batch, so a batch may be split across threads)
         converged[active[done]] = True
@@ -114,20 +165,38 @@ def _icp(ctx: ClickContext, batch: Batch, stage: Stage, settings: FitSettings, r
     return IcpResult(tuple(posing.models), R, t, it + 1 - first, converged)
 
 
-def fine_stage(ctx: ClickContext, model: Model, R, t, stage: Stage, settings: FitSettings,
-               hold_joint: bool = False, hold_scale: bool = False,
-               converge: float | None = None) -> IcpResult:
+def fine_stage(
+    ctx: ClickContext,
+    model: Model,
+    R,
+    t,
+    stage: Stage,
+    settings: FitSettings,
+    hold_joint: bool = False,
+    hold_scale: bool = False,
+    converge: float | None = None,
+) -> IcpResult:
     """One hypothesis alone on the full-resolution target. An articulated model's joint value
     and scale are unknowns besides the pose (``hold_joint`` / ``hold_scale`` keep them as
     given); such a fit resting on the plane under the click keeps resting on it.
     ``converge``: as :func:`icp`'s (None: ``FINE_CONVERGED``)."""
     tpl = model.template
-    unknowns = () if not model.articulated else \
-        ((JOINT,) if tpl.joint is not None and not hold_joint else ()) + \
-        ((SCALE,) if tpl.scale_range is not None and not hold_scale else ())
+    unknowns = (
+        ()
+        if not model.articulated
+        else ((JOINT,) if tpl.joint is not None and not hold_joint else ())
+        + ((SCALE,) if tpl.scale_range is not None and not hold_scale else ())
+    )
     contact = bool(unknowns) and in_contact(ctx, model, R, t, settings)
-    return icp(ctx, Batch.single(model, R, t), stage, settings, unknowns=unknowns,
-               contact=contact, converge=converge)
+    return icp(
+        ctx,
+        Batch.single(model, R, t),
+        stage,
+        settings,
+        unknowns=unknowns,
+        contact=contact,
+        converge=converge,
+    )
 
 
 class _Posing:
@@ -155,8 +224,9 @@ class _Posing:
             P, N = (self.P, self.N) if len(idx) == len(self.P) else (self.P[idx], self.N[idx])
         else:
             models, parts = self.models_at(idx), [self.parts[i] for i in idx]
-            posed = [m.template.pose_parts(P0, N0, mov, m.q)
-                     for m, (P0, N0, mov) in zip(models, parts)]
+            posed = [
+                m.template.pose_parts(P0, N0, mov, m.q) for m, (P0, N0, mov) in zip(models, parts)
+            ]
             U = np.stack([p[0] for p in posed])
             N = np.stack([p[1] for p in posed])
             moving = np.stack([mov for _, _, mov in parts])
@@ -172,8 +242,11 @@ class _Posing:
         for name in self.unknowns:
             if name == JOINT:
                 du = np.stack([self._joint_motion(m, U) for m, U in zip(models, pairs.U)])
-                du = du * pairs.moving[..., None] * \
-                    np.array([m.scale for m in models])[:, None, None]
+                du = (
+                    du
+                    * pairs.moving[..., None]
+                    * np.array([m.scale for m in models])[:, None, None]
+                )
             else:
                 du = pairs.U
             cols.append(np.einsum("bsi,bsi->bs", rotate(R, du), pairs.N))

@@ -4,6 +4,7 @@
 with its joint at zero and scale one -- and the one cache (:class:`ModelCache`, locked) that owns
 the posed samples and the dense surfaces' KD-trees.
 """
+
 from __future__ import annotations
 
 import threading
@@ -18,11 +19,11 @@ from .settings import SAMPLE_SEED
 
 __all__ = ["Model", "ModelCache", "Surface", "Batch", "surface_distances"]
 
-DENSE_SAMPLES = 4096       #: dense surface samples answering "nearest template surface"
+DENSE_SAMPLES = 4096  #: dense surface samples answering "nearest template surface"
 DENSE_SEED = 2
-CENTROID_SAMPLES = 2048    #: samples whose mean is a posed template's centroid
-CENTROID_SEED = 0          #: (those of ``AffordanceTemplate.centroid``)
-MOVING_OVERSAMPLING = 4    #: a moving part alone is picked from this many times the samples
+CENTROID_SAMPLES = 2048  #: samples whose mean is a posed template's centroid
+CENTROID_SEED = 0  #: (those of ``AffordanceTemplate.centroid``)
+MOVING_OVERSAMPLING = 4  #: a moving part alone is picked from this many times the samples
 
 #: surfaces of sized primitives a cache keeps (each fit and correction of one makes a size)
 MAX_SIZED = 64
@@ -48,9 +49,12 @@ class Surface:
 def raycaster(mesh):
     """An Open3D ray-casting scene of a trimesh mesh (its own frame)."""
     import open3d as o3d
+
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
+        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
+    )
     return scene
 
 
@@ -65,8 +69,13 @@ class ModelCache:
         self._posed: OrderedDict = OrderedDict()
         self._max_posed = int(max_posed)
 
-    def model(self, template: AffordanceTemplate, q: float = 0.0, scale: float = 1.0,
-              articulated: bool = False) -> "Model":
+    def model(
+        self,
+        template: AffordanceTemplate,
+        q: float = 0.0,
+        scale: float = 1.0,
+        articulated: bool = False,
+    ) -> "Model":
         """``template`` posed at joint value ``q`` and ``scale``; ``articulated``: the joint
         value and scale are part of the fit (reported with its result)."""
         return Model(template, self, float(q), float(scale), articulated=articulated)
@@ -85,7 +94,7 @@ class ModelCache:
             surface = self._surfaces.setdefault(template, surface)
             if template.primitive is not None:
                 sized = [t for t in self._surfaces if t.primitive is not None]
-                for old in sized[:max(0, len(sized) - MAX_SIZED)]:
+                for old in sized[: max(0, len(sized) - MAX_SIZED)]:
                     del self._surfaces[old]
             return surface
 
@@ -99,7 +108,7 @@ class ModelCache:
                 return hit
         value = compute()
         for array in value if isinstance(value, tuple) else (value,):
-            array.setflags(write=False)        # shared between threads and callers
+            array.setflags(write=False)  # shared between threads and callers
         with self._lock:
             self._posed[key] = value
             while len(self._posed) > self._max_posed:
@@ -121,11 +130,15 @@ class Model:
     moving_only: bool = False
     articulated: bool = False
 
-    def with_values(self, q: float | None = None, scale: float | None = None,
-                    moving_only: bool = False) -> "Model":
-        return replace(self, q=self.q if q is None else float(q),
-                       scale=self.scale if scale is None else float(scale),
-                       moving_only=moving_only)
+    def with_values(
+        self, q: float | None = None, scale: float | None = None, moving_only: bool = False
+    ) -> "Model":
+        return replace(
+            self,
+            q=self.q if q is None else float(q),
+            scale=self.scale if scale is None else float(scale),
+            moving_only=moving_only,
+        )
 
     @property
     def name(self) -> str:
@@ -159,6 +172,7 @@ class Model:
         def compute():
             P, _, moving = self.template.part_samples(CENTROID_SAMPLES, seed=CENTROID_SEED)
             return self.template.pose_parts(P, None, moving, self.q, self.scale)[0].mean(axis=0)
+
         return self.cache.posed(("centroid", self.template, self.q, self.scale), compute)
 
     def samples(self, n: int, seed: int = SAMPLE_SEED) -> tuple[np.ndarray, np.ndarray]:
@@ -234,7 +248,7 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
     same numbers): the models of one template at one scale share one query per tree (the
     joint values of a sweep, the hypotheses of a stage)."""
     out = np.empty(local.shape[:2])
-    same: dict = {}             # the hypotheses of each model, then the models of each key
+    same: dict = {}  # the hypotheses of each model, then the models of each key
     for b, m in enumerate(models):
         same.setdefault(id(m), []).append(b)
     groups: dict = {}

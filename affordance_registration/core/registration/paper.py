@@ -8,6 +8,7 @@ around the click; point-to-point ICP on the whole crop with w = 1 / (1 + d) (d i
 correspondences beyond the diameter rejected, until the weighted residual stops changing or
 ``paper_iterations``; the template's likelihood is the inverse of its best weighted residual.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,7 +27,7 @@ from .solve import kabsch_weighted
 
 __all__ = ["PaperMethod"]
 
-CONVERGED_RESIDUAL = 1e-7     #: m: the paper's ICP stops when its residual changes less
+CONVERGED_RESIDUAL = 1e-7  #: m: the paper's ICP stops when its residual changes less
 
 
 class PaperMethod:
@@ -40,15 +41,16 @@ class PaperMethod:
         rng = np.random.default_rng(self.settings.seed)
         return rank([self._fit_template(ctx, self.library[name], rng) for name in names])
 
-    def _fit_template(self, ctx: ClickContext, tpl: AffordanceTemplate,
-                      rng: np.random.Generator) -> FitResult:
+    def _fit_template(
+        self, ctx: ClickContext, tpl: AffordanceTemplate, rng: np.random.Generator
+    ) -> FitResult:
         s = self.settings
         t_start = time.perf_counter()
         P = tpl.samples(s.paper_samples, seed=SAMPLE_SEED)[0]
         diam = tpl.diameter
         best = None
         total_iters = 0
-        for R0 in ctx.frame @ random_rotations(s.paper_restarts, rng):   # turn with the scan
+        for R0 in ctx.frame @ random_rotations(s.paper_restarts, rng):  # turn with the scan
             off = ctx.frame @ rng.normal(size=3)
             off *= diam * rng.uniform() ** (1 / 3) / np.linalg.norm(off)
             R, t, iters = self._icp(ctx, P, diam, R0, ctx.click + off)
@@ -58,9 +60,15 @@ class PaperMethod:
                 best = (resid, R, t, float(np.mean(d <= diam)))
         resid, R, t, inl = best
         resid = max(resid, 1e-9)
-        return FitResult(template=tpl.name, T_scene_model=make_T(R, t), residual=resid,
-                         likelihood=1.0 / resid, inlier_fraction=inl, iterations=total_iters,
-                         time_s=time.perf_counter() - t_start)
+        return FitResult(
+            template=tpl.name,
+            T_scene_model=make_T(R, t),
+            residual=resid,
+            likelihood=1.0 / resid,
+            inlier_fraction=inl,
+            iterations=total_iters,
+            time_s=time.perf_counter() - t_start,
+        )
 
     def _icp(self, ctx: ClickContext, P, diam: float, R, t):
         """One restart's ICP from (R, t); returns (R, t, iterations)."""

@@ -18,6 +18,7 @@ one thread (:func:`single_threaded_blas`; the fitter's parallelism is its own th
 the count the user set is put back when the last one ends. The numbers are the same either
 way.
 """
+
 from __future__ import annotations
 
 import threading
@@ -38,8 +39,8 @@ _pool: ThreadPoolExecutor | None = None
 _pool_size = 0
 _inside = threading.local()
 _blas_lock = threading.Lock()
-_blas_users = 0                 #: fits running (BLAS is on one thread while any is)
-_blas_before: list = []         #: (library, its thread count) as the user had it
+_blas_users = 0  #: fits running (BLAS is on one thread while any is)
+_blas_before: list = []  #: (library, its thread count) as the user had it
 _blas_libs: list | None = None  #: the BLAS libraries loaded (looked up on the first fit)
 
 
@@ -53,8 +54,9 @@ def _executor(workers: int) -> ThreadPoolExecutor:
     with _lock:
         if _pool is None or _pool_size < workers:
             old = _pool
-            _pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="affordance-fit",
-                                       initializer=_mark_worker)
+            _pool = ThreadPoolExecutor(
+                max_workers=workers, thread_name_prefix="affordance-fit", initializer=_mark_worker
+            )
             _pool_size = workers
             if old is not None:
                 old.shutdown(wait=False)
@@ -73,7 +75,7 @@ def run(tasks, threads: int) -> list:
     try:
         first = tasks[0]()
     finally:
-        rest = [f.exception() for f in futures]    # wait for every piece either way
+        rest = [f.exception() for f in futures]  # wait for every piece either way
     for f, exc in zip(futures, rest):
         if exc is not None:
             raise exc
@@ -83,8 +85,10 @@ def run(tasks, threads: int) -> list:
 def over_batch(fn, batch, threads: int, min_part: int = MIN_PART) -> list:
     """``fn`` of each contiguous part of ``batch`` (anything with ``len`` and ``take(idx)``),
     the parts side by side: the list of their results, in order."""
-    return run([lambda idx=idx: fn(batch.take(idx))
-                for idx in parts(len(batch), threads, min_part)], threads)
+    return run(
+        [lambda idx=idx: fn(batch.take(idx)) for idx in parts(len(batch), threads, min_part)],
+        threads,
+    )
 
 
 def parts(n: int, threads: int, min_part: int = MIN_PART) -> list:

@@ -19,6 +19,7 @@ Without a support the object's principal axes take its place. The best of the wa
 is then refined at its measured size (the fine stage, the pose only); dimensions are clipped to
 the template's ranges, and a primitive is judged (:func:`.scoring.judge`) like any candidate.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,7 +28,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..neighbours import build_tree, nearest
-from ..scene import ClickContext, _ransac_plane, segment
+from ..scene import ClickContext, ransac_plane, segment
 from ..segmentation import share_within
 from ..templates import AffordanceTemplate
 from ..transforms import make_T
@@ -37,8 +38,14 @@ from .results import FitResult
 from .scoring import open_share, result
 from .settings import FitSettings
 
-__all__ = ["fit_primitive", "refine_primitive", "object_points", "truncated", "past_crop",
-           "stacked"]
+__all__ = [
+    "fit_primitive",
+    "refine_primitive",
+    "object_points",
+    "truncated",
+    "past_crop",
+    "stacked",
+]
 
 #: the primitives within this share of the best one's likelihood (as measured) are refined
 REFINE_SHARE = 0.8
@@ -89,10 +96,16 @@ INSIDE_SHARE = 0.5
 TRUNCATED = 0.95
 
 
-def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
-                  settings: FitSettings, dimensions: dict | None = None,
-                  T_init: np.ndarray | None = None, measured=None,
-                  refine: bool = True) -> FitResult:
+def fit_primitive(
+    ctx: ClickContext,
+    template: AffordanceTemplate,
+    cache: ModelCache,
+    settings: FitSettings,
+    dimensions: dict | None = None,
+    T_init: np.ndarray | None = None,
+    measured=None,
+    refine: bool = True,
+) -> FitResult:
     """The primitive ``template`` fitted to the clicked object: pose and dimensions measured
     from the object's points (and, with REFINE_ROUNDS, the pose refined and the dimensions
     measured again in the refined frame). ``dimensions`` (and ``T_init``, the pose to refine
@@ -101,31 +114,43 @@ def fit_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelC
     measured pose as it is (:func:`refine_primitive` refines it later)."""
     points, normals, support, up = measured if measured is not None else object_points(ctx)
     if dimensions is not None:
-        T = _as_pose(T_init) if T_init is not None else \
-            next(_hypotheses(template.primitive, points, normals, up, support, ctx.frame))[0]
+        T = (
+            _as_pose(T_init)
+            if T_init is not None
+            else next(_hypotheses(template.primitive, points, normals, up, support, ctx.frame))[0]
+        )
         return _refined(ctx, template, cache, settings, T, template.clip_dimensions(dimensions))
     best = None
     for T, dims in _hypotheses(template.primitive, points, normals, up, support, ctx.frame):
         for _ in range(REFINE_ROUNDS):
             res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims))
-            T, dims = _measure_in(template.primitive, res.T_scene_model, points, normals, up,
-                                  support)
-        res = _refined(ctx, template, cache, settings, T, template.clip_dimensions(dims),
-                       refine=False)
+            T, dims = _measure_in(
+                template.primitive, res.T_scene_model, points, normals, up, support
+            )
+        res = _refined(
+            ctx, template, cache, settings, T, template.clip_dimensions(dims), refine=False
+        )
         if best is None or res.likelihood > best.likelihood:
             best = res
     return refine_primitive(ctx, template, cache, settings, best) if refine else best
 
 
-def refine_primitive(ctx: ClickContext, template: AffordanceTemplate, cache: ModelCache,
-                     settings: FitSettings, res: FitResult) -> FitResult:
+def refine_primitive(
+    ctx: ClickContext,
+    template: AffordanceTemplate,
+    cache: ModelCache,
+    settings: FitSettings,
+    res: FitResult,
+) -> FitResult:
     """A measured primitive ``res``, its pose refined at its measured size (a real scan's mixed
     pixels and a lip or a rounded edge leave the measured pose a few millimetres off), where
     that explains the scan better. An open one (a mug seen into: at least OPEN_SHARE of its
     surface, :func:`.scoring.open_share`) keeps its measured pose: its closed surface would be
     pulled onto what is seen inside it."""
-    if open_share(ctx, cache.model(template.sized(res.dimensions)), res.T_scene_model,
-                  settings) >= OPEN_SHARE:
+    if (
+        open_share(ctx, cache.model(template.sized(res.dimensions)), res.T_scene_model, settings)
+        >= OPEN_SHARE
+    ):
         return res
     refined = _refined(ctx, template, cache, settings, res.T_scene_model, res.dimensions)
     return refined if refined.likelihood > res.likelihood else res
@@ -145,8 +170,7 @@ def _refined(ctx, template, cache, settings, T, dims, refine: bool = True) -> Fi
 def truncated(ctx: ClickContext, measured) -> bool:
     """Whether the clicked object's points (``measured``: :func:`object_points`) reach the edge
     of the crop."""
-    return float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1))) >= \
-        TRUNCATED * ctx.radius
+    return float(np.max(np.linalg.norm(measured[0] - ctx.click, axis=1))) >= TRUNCATED * ctx.radius
 
 
 def past_crop(ctx: ClickContext, past: bool, judged: list) -> list:
@@ -154,10 +178,13 @@ def past_crop(ctx: ClickContext, past: bool, judged: list) -> list:
     ``ctx`` (:func:`truncated`): a wall, or an object larger than the crop."""
     if not past:
         return judged
-    why = f"the clicked surface runs past the {ctx.radius:.2f} m around the click: " \
+    why = (
+        f"the clicked surface runs past the {ctx.radius:.2f} m around the click: "
         "it cannot be measured"
-    return [replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
-            for r in judged]
+    )
+    return [
+        replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why) for r in judged
+    ]
 
 
 def object_points(ctx: ClickContext):
@@ -175,8 +202,11 @@ def object_points(ctx: ClickContext):
     clicked = ctx.clicked_segment
     thr = ctx.plane_threshold
     up = None
-    if ctx.plane is None and support is not None and \
-            abs(support.distance(ctx.click[None])[0]) <= 2 * thr:
+    if (
+        ctx.plane is None
+        and support is not None
+        and abs(support.distance(ctx.click[None])[0]) <= 2 * thr
+    ):
         # (without a floor, the face is the object's top: +z out of it, the base unseen)
         face, support, up = support, None, np.asarray(support.normal, float)
         floor = _floor(ctx, cluster[np.abs(face.distance(cluster)) > thr])
@@ -188,12 +218,13 @@ def object_points(ctx: ClickContext):
                 clicked = labels[int(np.argmin(np.linalg.norm(cluster - ctx.click, axis=1)))]
                 support, up = floor, None
     elif ctx.sensor_origin is not None and (
-            support is None or support.distance(ctx.click[None])[0] < -2 * thr):
+        support is None or support.distance(ctx.click[None])[0] < -2 * thr
+    ):
         off = labels != clicked
         if support is not None:
             off &= np.abs(support.distance(cluster)) > thr
         floor = _floor(ctx, cluster[off])
-        if floor is not None:       # (none found: a plane in front still gives the axis)
+        if floor is not None:  # (none found: a plane in front still gives the axis)
             support = floor
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
     d, idx = nearest(tree, ctx.fine, ctx.voxel)
@@ -202,10 +233,13 @@ def object_points(ctx: ClickContext):
     if mine.sum() < 10:
         mine[:] = True
     points, normals = ctx.fine[mine], np.array(ctx.fine_normals[mine])
-    towards = (ctx.sensor_origin - points) if ctx.sensor_origin is not None else \
-        (points - points.mean(axis=0))           # outwards without a viewpoint
+    towards = (
+        (ctx.sensor_origin - points)
+        if ctx.sensor_origin is not None
+        else (points - points.mean(axis=0))
+    )  # outwards without a viewpoint
     normals[np.einsum("ij,ij->i", normals, towards) < 0] *= -1
-    if len(points) > MEASURE_POINTS:         # an even subset measures as well
+    if len(points) > MEASURE_POINTS:  # an even subset measures as well
         keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
         points, normals = points[keep], normals[keep]
     return points, normals, support, (_up(support, points) if up is None else up)
@@ -229,20 +263,33 @@ def stacked(ctx: ClickContext, measured):
     order = np.argsort(height[facing], kind="stable")
     tops, where = height[facing][order], points[facing][order]
     split = np.flatnonzero(np.diff(tops) > TOP_BAND) + 1
-    big = [(g, at) for g, at in zip(np.split(tops, split), np.split(where, split))
-           if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))] if len(tops) else []
+    big = (
+        [
+            (g, at)
+            for g, at in zip(np.split(tops, split), np.split(where, split))
+            if len(g) >= max(FACE_POINTS, STACK_SHARE * len(points))
+        ]
+        if len(tops)
+        else []
+    )
     levels = [g for g, _ in big]
-    if len(levels) < 2 or any(_within(low, high, up, ctx.frame[:, 0]) >= INSIDE_SHARE
-                              for i, (_, low) in enumerate(big) for _, high in big[i + 1:]):
+    if len(levels) < 2 or any(
+        _within(low, high, up, ctx.frame[:, 0]) >= INSIDE_SHARE
+        for i, (_, low) in enumerate(big)
+        for _, high in big[i + 1 :]
+    ):
         return None
-    cuts = [float(np.percentile(g, EDGE)) for g in levels[:-1]]     # each lower level's top
+    cuts = [float(np.percentile(g, EDGE)) for g in levels[:-1]]  # each lower level's top
     k = int(np.searchsorted(cuts, sign * float(support.distance(ctx.click[None])[0])))
     lo, hi = (cuts[k - 1] if k else -np.inf), (cuts[k] if k < len(cuts) else np.inf)
     part = (height > lo) & (height <= hi)
     if part.sum() < FACE_POINTS:
         return None
-    base = support if k == 0 else \
-        replace(support, d=float(support.d - sign * np.median(levels[k - 1])))
+    base = (
+        support
+        if k == 0
+        else replace(support, d=float(support.d - sign * np.median(levels[k - 1])))
+    )
     on_cluster = sign * support.distance(ctx.cluster)
     cut = ctx.with_clicked_part((on_cluster > lo) & (on_cluster <= hi))
     return cut, (points[part], normals[part], base, up)
@@ -264,8 +311,13 @@ def _floor(ctx: ClickContext, points: np.ndarray):
     for attempt in range(FLOOR_TRIES):
         if len(left) < 50:
             return None
-        plane = _ransac_plane(left, thr, min(1.0, FLOOR_FRACTION * len(points) / len(left)),
-                              ctx.sensor_origin, attempt)
+        plane = ransac_plane(
+            left,
+            thr,
+            min(1.0, FLOOR_FRACTION * len(points) / len(left)),
+            ctx.sensor_origin,
+            attempt,
+        )
         if plane is None:
             return None
         if plane.distance(ctx.click[None])[0] > 2 * thr:
@@ -274,35 +326,36 @@ def _floor(ctx: ClickContext, points: np.ndarray):
     return None
 
 
-def _hypotheses(kind: str, points: np.ndarray, normals: np.ndarray, up, support,
-                frame: np.ndarray):
+def _hypotheses(
+    kind: str, points: np.ndarray, normals: np.ndarray, up, support, frame: np.ndarray
+):
     """(T_scene_model, dimensions) measured for each way the primitive may stand: a box
     upright on the support, its yaw from its side faces; a cylinder upright (its x along the
     x of ``frame``, the frame attached to the scan around the click: the same fit in every
     scene frame), and lying along the direction its normals leave out."""
-    if up is None:                   # no support: the points' least spread, seen side up
+    if up is None:  # no support: the points' least spread, seen side up
         c = points - points.mean(axis=0)
         up = np.linalg.eigh(c.T @ c)[1][:, 0]
         if up @ normals.mean(axis=0) < 0:
             up = -up
     if kind == "box":
         x = _yaw_axis(points, normals, up, frame[:, 0])
-        yield _measure_in(kind, _frame(x, up, points.mean(axis=0)), points, normals, up,
-                          support)
+        yield _measure_in(kind, _frame(x, up, points.mean(axis=0)), points, normals, up, support)
         return
-    yield _measure_in(kind, _frame(frame[:, 0], up, points.mean(axis=0)), points, normals,
-                      up, support)
+    yield _measure_in(
+        kind, _frame(frame[:, 0], up, points.mean(axis=0)), points, normals, up, support
+    )
     axis = _least_normal_direction(normals)
     axis = axis - (axis @ up) * up
     if np.linalg.norm(axis) > 1e-6:
         axis /= np.linalg.norm(axis)
-        yield _measure_in(kind, _frame(up, axis, points.mean(axis=0)), points, normals, None,
-                          None)
+        yield _measure_in(kind, _frame(up, axis, points.mean(axis=0)), points, normals, None, None)
         # a short, wide one lying (a tin on its side) shows its end face more than its side:
         # its axis is then the across direction the normals favour
         across = np.cross(up, axis)
-        yield _measure_in(kind, _frame(up, across, points.mean(axis=0)), points, normals,
-                          None, None)
+        yield _measure_in(
+            kind, _frame(up, across, points.mean(axis=0)), points, normals, None, None
+        )
 
 
 def _up(support, points: np.ndarray) -> np.ndarray | None:
@@ -354,9 +407,10 @@ def _edge_angles(uv: np.ndarray) -> np.ndarray:
     """Directions (rad, within 90 deg) of the 2-D convex hull's edges: a smallest enclosing
     rectangle has a side along one of them."""
     from scipy.spatial import ConvexHull
+
     try:
         hull = uv[ConvexHull(uv).vertices]
-    except Exception:          # collinear points
+    except Exception:  # collinear points
         return np.array([0.0])
     d = np.roll(hull, -1, axis=0) - hull
     return np.unique(np.round(np.mod(np.arctan2(d[:, 1], d[:, 0]), math.pi / 2), 4))
@@ -392,7 +446,7 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
     local, nl = (points - T[:3, 3]) @ R, normals @ R
     z = local[:, 2]
     top = nl[:, 2] > FACE_COS
-    if top.sum() >= FACE_POINTS:    # the highest of the faces up (a mug's inside bottom faces up)
+    if top.sum() >= FACE_POINTS:  # the highest of the faces up (a mug's inside bottom faces up)
         top &= z >= np.percentile(z[top], HIGH) - TOP_BAND
     lo_z, hi_z = _bounds(z, top, nl[:, 2] < -FACE_COS)
     if support is not None and up is not None:
@@ -411,7 +465,7 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
         size = [hi_x - lo_x, hi_y - lo_y]
         centre = np.array([(lo_x + hi_x) / 2, (lo_y + hi_y) / 2, lo_z])
         axes = R
-        if size[1] > size[0]:                      # x along the longer edge
+        if size[1] > size[0]:  # x along the longer edge
             axes = np.stack([R[:, 1], -R[:, 0], R[:, 2]], axis=1)
             size = size[::-1]
         dims = {"x": float(size[0]), "y": float(size[1]), "z": float(max(hi_z - lo_z, 1e-3))}
@@ -421,17 +475,19 @@ def _measure_in(kind: str, T: np.ndarray, points, normals, up, support):
     c2, r = _circle(local[use, :2])
     lo_xy, hi_xy = local[:, :2].min(axis=0), local[:, :2].max(axis=0)
     if not (np.isfinite(r) and np.all(np.abs(c2 - (lo_xy + hi_xy) / 2) <= hi_xy - lo_xy)):
-        c2, r = (lo_xy + hi_xy) / 2, float(np.max(hi_xy - lo_xy) / 2)   # a failed circle
+        c2, r = (lo_xy + hi_xy) / 2, float(np.max(hi_xy - lo_xy) / 2)  # a failed circle
     centre = np.array([c2[0], c2[1], lo_z])
-    return make_T(R, T[:3, 3] + R @ centre), \
-        {"radius": float(r), "length": float(max(hi_z - lo_z, 1e-3))}
+    return make_T(R, T[:3, 3] + R @ centre), {
+        "radius": float(r),
+        "length": float(max(hi_z - lo_z, 1e-3)),
+    }
 
 
 def _circle(uv: np.ndarray):
     """Centre (2,) and radius of the circle through 2-D points: the algebraic fit, then
     geometric (Gauss-Newton) steps, the points farther than 3 sigma from it left out."""
     A = np.column_stack([2 * uv, np.ones(len(uv))])
-    b = (uv ** 2).sum(axis=1)
+    b = (uv**2).sum(axis=1)
     sol = _least_squares(A, b)
     c = sol[:2]
     r = math.sqrt(max(sol[2] + c @ c, 1e-12))

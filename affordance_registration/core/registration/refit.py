@@ -4,6 +4,7 @@
 short ICP, the best one that stays near the correction refined at full resolution -- and never
 a result farther from the correction than the operator would accept.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,12 +21,13 @@ from .settings import FitSettings
 
 __all__ = ["refit", "refit_starts"]
 
-REFIT_SEED_OFFSET = 7919   #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
-REFIT_TURN = math.radians(4.0)        #: a refit's restarts turn up to this (at least half of it)
+REFIT_SEED_OFFSET = 7919  #: the refit's restarts draw from ``seed + REFIT_SEED_OFFSET``
+REFIT_TURN = math.radians(4.0)  #: a refit's restarts turn up to this (at least half of it)
 
 
-def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings,
-          hold_joint: bool) -> FitResult:
+def refit(
+    ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings, hold_joint: bool
+) -> FitResult:
     """Refine ``model`` locally from ``T_init`` (4x4): medium then fine ICP from
     :func:`refit_starts`. The result never strays farther than ``refit.max_move`` /
     ``refit.max_turn`` from ``T_init``: a refit that would jump back to a pose the operator
@@ -37,12 +39,13 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
     n = len(Ts)
     # reach out as far as a refit may move, so a rough correction is pulled in
     reject = np.full(n, max(s.stages.short.reject * model.diameter, s.refit.max_move))
-    starts = icp(ctx, Batch.of([model] * n, Ts[:, :3, :3], Ts[:, :3, 3]), s.stages.short, s,
-                 reject=reject)
+    starts = icp(
+        ctx, Batch.of([model] * n, Ts[:, :3, :3], Ts[:, :3, 3]), s.stages.short, s, reject=reject
+    )
     R, t = starts.R, starts.t
     fwd, _ = forward_residual(ctx, starts, s.medium.samples, s)
     allowed = _within_reach(T0, R, t, s)
-    if not allowed.any():   # every restart wandered off: start from the correction itself
+    if not allowed.any():  # every restart wandered off: start from the correction itself
         R[0], t[0] = T0[:3, :3], T0[:3, 3]
         allowed[0] = True
     best = int(np.argmin(np.where(allowed, fwd, np.inf)))
@@ -53,8 +56,9 @@ def refit(ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSett
     return result(ctx, fit.models[0], R[best], t[best], s, iterations, starts.converged[best])
 
 
-def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,
-                 settings: FitSettings) -> np.ndarray:
+def refit_starts(
+    ctx: ClickContext, model: Model, T_init: np.ndarray, settings: FitSettings
+) -> np.ndarray:
     """The refit's restarts (K, 4, 4): the correction itself; the correction moved onto the
     cluster points around it (a rough drag is often off by a good part of the object's size;
     along the plane, keeping the height the operator chose); small random turns and shifts
@@ -68,15 +72,18 @@ def refit_starts(ctx: ClickContext, model: Model, T_init: np.ndarray,
     if data is not None:
         snapped = T0.copy()
         snapped[:3, 3] += data - centre
-        if ctx.plane is not None:      # keep the height above the plane the operator chose
+        if ctx.plane is not None:  # keep the height above the plane the operator chose
             snapped[:3, 3] -= ctx.plane.normal * (ctx.plane.normal @ (snapped[:3, 3] - T0[:3, 3]))
         Ts.append(snapped)
     while len(Ts) < s.refit.restarts:
-        axis = ctx.frame @ rng.normal(size=3)       # drawn in the frame attached to the scan
+        axis = ctx.frame @ rng.normal(size=3)  # drawn in the frame attached to the scan
         dR = axis_angle_matrix(axis, REFIT_TURN * rng.uniform(0.5, 1.0))
         R = dR @ T0[:3, :3]
-        t = dR @ (T0[:3, 3] - centre) + centre + \
-            ctx.frame @ rng.normal(scale=s.refit.spread, size=3)
+        t = (
+            dR @ (T0[:3, 3] - centre)
+            + centre
+            + ctx.frame @ rng.normal(scale=s.refit.spread, size=3)
+        )
         Ts.append(make_T(R, t))
     return np.stack(Ts)
 

@@ -44,8 +44,10 @@ one-sided scans (the README's benchmark measures both):
   one for the scale besides the six of the pose. A fit resting on the plane under the click keeps
   resting on it, and a joint value or scale the data cannot tell from a named state or scale 1 is
   reported there, so the extra unknowns cost no rigid accuracy (scale 1 judged with samples at
-  grazing angles beyond ``articulation.scale_grazing_angle`` unseen: they count against the larger size).
+  grazing angles beyond ``articulation.scale_grazing_angle`` unseen: they count against the larger
+  size).
 """
+
 from __future__ import annotations
 
 import threading
@@ -56,7 +58,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import RegistrationError
-from ..plane import _ransac_plane
+from ..plane import ransac_plane
 from ..scene import ClickContext, Scene
 from ..templates import TemplateLibrary
 from ..voxels import voxel_downsample
@@ -92,10 +94,10 @@ from .viewpoint import suggest_view
 
 __all__ = ["Registrar"]
 
-BACKWARD_SUBSAMPLE = 64    #: cluster points in the coarse stage's cluster -> template half
+BACKWARD_SUBSAMPLE = 64  #: cluster points in the coarse stage's cluster -> template half
 #: the click contexts whose primitive fits are kept for their refits' verdicts
 PRIMITIVES_KEPT = 8
-OCCLUDER_VOXEL = 0.01      #: m: the scan beyond the crop hides a suggested view at this grain
+OCCLUDER_VOXEL = 0.01  #: m: the scan beyond the crop hides a suggested view at this grain
 #: a click without a support plane in its crop: the wider scan's dominant plane (holding at least
 #: this share of it) is the surface a suggested view stays in front of
 SUPPORT_FRACTION = 0.2
@@ -130,8 +132,14 @@ class Registrar:
         (they are cached), so the first click costs what every later one does."""
         s = self.settings
         for tpl in self.library.values():
-            for n in {s.coarse.samples, s.medium.samples, s.fine.samples, s.scoring.samples,
-                      s.refit.samples, REST_SAMPLES}:
+            for n in {
+                s.coarse.samples,
+                s.medium.samples,
+                s.fine.samples,
+                s.scoring.samples,
+                s.refit.samples,
+                REST_SAMPLES,
+            }:
                 tpl.samples(n, seed=SAMPLE_SEED)
             tpl.centroid, tpl.diameter
             tpl.resting_rotations(s.hypotheses.resting_poses)
@@ -147,9 +155,17 @@ class Registrar:
         radius = s.crop.factor * self.library.max_diameter if radius is None else radius
         with single_threaded_blas():
             part = scene.around(click, radius + s.crop.snap_distance)
-            snapped = (scene if part is None else part).snap(click, s.crop.snap_distance)  # None: why
-            return part.prepare_click(snapped, radius=radius, voxel=s.crop.voxel, seed=s.seed,
-                                     threads=s.threads, fine_points=s.fine.points)
+            snapped = (scene if part is None else part).snap(
+                click, s.crop.snap_distance
+            )  # None: why
+            return part.prepare_click(
+                snapped,
+                radius=radius,
+                voxel=s.crop.voxel,
+                seed=s.seed,
+                threads=s.threads,
+                fine_points=s.fine.points,
+            )
 
     def fit(self, scene: Scene, click, templates=None) -> FitReport:
         """Fit every template (or the named ones) around ``click`` (3,) in ``scene``.
@@ -168,8 +184,9 @@ class Registrar:
             if self.settings.method == "paper":
                 candidates = self.paper.fit(ctx, specific) if specific else ()
             else:
-                candidates, alternatives = self._fit_default(ctx, specific) if specific \
-                    else ((), ())
+                candidates, alternatives = (
+                    self._fit_default(ctx, specific) if specific else ((), ())
+                )
             t_prim = time.perf_counter()
             if primitives:
                 # (a specific template that fits ranks above them: they are not refined)
@@ -188,30 +205,43 @@ class Registrar:
         timing = {"prepare": t1 - t0, "fit": t2 - t1, "total": t2 - t0, "ambiguity": t3 - t2}
         if primitives:
             timing["primitives"] = t2 - t_prim
-        return FitReport(point=ctx.click, candidates=candidates, timing_s=timing, context=ctx,
-                         alternatives=alternatives, ambiguity=ambiguity)
+        return FitReport(
+            point=ctx.click,
+            candidates=candidates,
+            timing_s=timing,
+            context=ctx,
+            alternatives=alternatives,
+            ambiguity=ambiguity,
+        )
 
     def assess(self, ctx: ClickContext, candidates, alternatives=()) -> Ambiguity:
         """Whether the ranked ``candidates`` of a click settle it (:func:`.ambiguity.assess`;
         nothing about them changes)."""
         s, model_of = self.settings, self._model_of
 
-        def refine(r: FitResult) -> FitResult:       # a second pose, finished as a leader is
-            fit = fine_stage(ctx, model_of(r), r.T_scene_model[:3, :3], r.T_scene_model[:3, 3],
-                             s.stages.fine, s)
+        def refine(r: FitResult) -> FitResult:  # a second pose, finished as a leader is
+            fit = fine_stage(
+                ctx, model_of(r), r.T_scene_model[:3, :3], r.T_scene_model[:3, 3], s.stages.fine, s
+            )
             return result(ctx, fit.models[0], fit.R[0], fit.t[0], s)
+
         with single_threaded_blas():
             return assess(ctx, candidates, alternatives, model_of, s, refine)
 
-    def suggest_view(self, report: FitReport, T_scene_optical: np.ndarray | None = None,
-                     scene: Scene | None = None):
+    def suggest_view(
+        self,
+        report: FitReport,
+        T_scene_optical: np.ndarray | None = None,
+        scene: Scene | None = None,
+    ):
         """Where the sensor should look from to settle an unsettled click
         (:func:`.viewpoint.suggest_view`), or None when it is settled or the scan has no
         viewpoint. ``T_scene_optical``: the sensor's current pose (its roll is kept);
         ``scene``: the whole scan, whose points within ``viewpoint.max_distance`` of the click
         (``OCCLUDER_VOXEL`` apart) may hide the object too (else only the crop's)."""
-        amb = report.ambiguity or self.assess(report.context, report.candidates,
-                                              report.alternatives)
+        amb = report.ambiguity or self.assess(
+            report.context, report.candidates, report.alternatives
+        )
         if amb.settled:
             return None
         ctx = report.context
@@ -219,16 +249,34 @@ class Registrar:
             occluders, support = None, ctx.support
             if scene is not None:
                 near = scene.around(report.point, self.settings.viewpoint.max_distance)
-                occluders = None if near is None else voxel_downsample(   # a grid on the scan
-                    near.points, OCCLUDER_VOXEL, report.point, ctx.frame)
-                if support is None and occluders is not None:   # the wider scan's own plane
-                    support = _ransac_plane(occluders, OCCLUDER_VOXEL, SUPPORT_FRACTION,
-                                            ctx.sensor_origin, self.settings.seed)
+                occluders = (
+                    None
+                    if near is None
+                    else voxel_downsample(  # a grid on the scan
+                        near.points, OCCLUDER_VOXEL, report.point, ctx.frame
+                    )
+                )
+                if support is None and occluders is not None:  # the wider scan's own plane
+                    support = ransac_plane(
+                        occluders,
+                        OCCLUDER_VOXEL,
+                        SUPPORT_FRACTION,
+                        ctx.sensor_origin,
+                        self.settings.seed,
+                    )
             return suggest_view(ctx, amb, self.settings, T_scene_optical, occluders, support)
 
-    def refit(self, ctx: ClickContext, template: str, T_init: np.ndarray,
-              joints: dict | None = None, scale: float = 1.0, hold_joint: bool | None = None,
-              dimensions: dict | None = None, scene: Scene | None = None) -> FitResult:
+    def refit(
+        self,
+        ctx: ClickContext,
+        template: str,
+        T_init: np.ndarray,
+        joints: dict | None = None,
+        scale: float = 1.0,
+        hold_joint: bool | None = None,
+        dimensions: dict | None = None,
+        scene: Scene | None = None,
+    ) -> FitResult:
         """Refine ``template`` locally from ``T_init`` (an operator's correction): a few small
         perturbations, medium then fine ICP. The result never strays farther than
         ``refit.max_move`` / ``refit.max_turn`` from ``T_init``: a refit that would jump back to a
@@ -247,23 +295,50 @@ class Registrar:
             ctx = ctx.with_insides()
             with single_threaded_blas():
                 wide, measured, past = self._measured(ctx, scene)
-                res = self._judged(ctx, [fit_primitive(
-                    ctx, self.library[template], self.models, self.settings, dimensions, T_init,
-                    measured if wide is ctx else None)])[0]
+                res = self._judged(
+                    ctx,
+                    [
+                        fit_primitive(
+                            ctx,
+                            self.library[template],
+                            self.models,
+                            self.settings,
+                            dimensions,
+                            T_init,
+                            measured if wide is ctx else None,
+                        )
+                    ],
+                )[0]
                 cut = stacked(ctx, measured) if wide is ctx and not res.fits else None
-                if cut is not None:         # on a stack: as at the click (_fit_primitives)
-                    alt = self._judged(cut[0], [fit_primitive(
-                        cut[0], self.library[template], self.models, self.settings, dimensions,
-                        T_init, cut[1])])[0]
+                if cut is not None:  # on a stack: as at the click (_fit_primitives)
+                    alt = self._judged(
+                        cut[0],
+                        [
+                            fit_primitive(
+                                cut[0],
+                                self.library[template],
+                                self.models,
+                                self.settings,
+                                dimensions,
+                                T_init,
+                                cut[1],
+                            )
+                        ],
+                    )[0]
                     res = alt if alt.fits else res
                 res = past_crop(wide, past, [res])[0]
             return replace(res, time_s=time.perf_counter() - t0)
         model = self._model(template, joints, scale)
         with single_threaded_blas():
-            res = refit(ctx, model, T_init, self.settings,
-                        hold_joint=bool(joints) if hold_joint is None else hold_joint)
+            res = refit(
+                ctx,
+                model,
+                T_init,
+                self.settings,
+                hold_joint=bool(joints) if hold_joint is None else hold_joint,
+            )
             res = self._judged(ctx, [res])[0]
-            if res.fits:        # as at the click: it must show more than a primitive does
+            if res.fits:  # as at the click: it must show more than a primitive does
                 res = self._distinguished(ctx, [res], self._primitives_for(ctx, scene))[0]
         return replace(res, time_s=time.perf_counter() - t0)
 
@@ -303,8 +378,7 @@ class Registrar:
         #    prefilter keeps: the templates clearly worse than the leaders after the first
         #    coarse iterations leave there, and those clearly worse after the coarse stage (3.)
         #    (and each template's restarts beyond its best ``coarse.keep`` leave there too)
-        split = s.prefilter.iterations if 0 < s.prefilter.keep < len(names) or \
-            s.coarse.keep else 0
+        split = s.prefilter.iterations if 0 < s.prefilter.keep < len(names) or s.coarse.keep else 0
         set_aside = ()
         if 0 < split < s.coarse.iterations:
             # (a library of more than twice what the prefilter keeps takes its first look on
@@ -312,11 +386,18 @@ class Registrar:
             screen = s.prefilter.samples if 0 < 2 * s.prefilter.keep < len(names) else 0
             look = replace(s.stages.coarse, samples=screen) if screen else s.stages.coarse
             hyps = hyps.after(icp(ctx, hyps, look, s, span=(0, split)))
-            score = scores(ctx, hyps, s, look.samples, min(screen, BACKWARD_SUBSAMPLE) if screen
-                           else BACKWARD_SUBSAMPLE)
+            score = scores(
+                ctx,
+                hyps,
+                s,
+                look.samples,
+                min(screen, BACKWARD_SUBSAMPLE) if screen else BACKWARD_SUBSAMPLE,
+            )
             hyps, score, set_aside = prefilter(hyps, score, names, s)
             hyps = hyps.take(best_per_template(hyps, score, s.coarse.keep))
-            hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s, span=(split, s.coarse.iterations)))
+            hyps = hyps.after(
+                icp(ctx, hyps, s.stages.coarse, s, span=(split, s.coarse.iterations))
+            )
         else:
             hyps = hyps.after(icp(ctx, hyps, s.stages.coarse, s))
         score = scores(ctx, hyps, s, s.coarse.samples, BACKWARD_SUBSAMPLE)
@@ -360,25 +441,40 @@ class Registrar:
             return list(candidates)
         best = max(fitting, key=lambda r: r.likelihood)
         tested = [r for r in candidates if r.fits and r.primitive is None]
-        done = dict(zip(map(id, tested), distinguished(
-            ctx, [self._model_of(r) for r in tested], tested, self._model_of(best), best,
-            self.settings)))
+        done = dict(
+            zip(
+                map(id, tested),
+                distinguished(
+                    ctx,
+                    [self._model_of(r) for r in tested],
+                    tested,
+                    self._model_of(best),
+                    best,
+                    self.settings,
+                ),
+            )
+        )
         return [done.get(id(r), r) for r in candidates]
 
-    def _fit_primitives(self, ctx: ClickContext, names: list[str],
-                        scene: Scene | None = None, refine: bool = True) -> list:
+    def _fit_primitives(
+        self, ctx: ClickContext, names: list[str], scene: Scene | None = None, refine: bool = True
+    ) -> list:
         """The primitive templates ``names``, measured and refined (:mod:`.primitives`),
-        judged; with ``refine``, those that may lead refined (:func:`.primitives.refine_primitive`).
-        An object that runs past the crop is measured again in a crop WIDER times as
-        large (from ``scene``): a box longer than the library's templates is still a box; a
-        wall runs past that one too, and is refused. With ``refine`` (no specific template
-        fits), where none fits or a box does, boxes stacked that the segments took for one
+        judged; with ``refine``, those that may lead refined
+        (:func:`.primitives.refine_primitive`). An object that runs past the crop is measured again
+        in a crop WIDER times as large (from ``scene``): a box longer than the library's templates
+        is still a box; a wall runs past that one too, and is refused. With ``refine`` (no specific
+        template fits), where none fits or a box does, boxes stacked that the segments took for one
         object (:func:`.primitives.stacked`) are measured and judged on the clicked one."""
         t0 = time.perf_counter()
-        ctx, measured, past = self._measured(ctx.with_insides(), scene)   # once for them all
+        ctx, measured, past = self._measured(ctx.with_insides(), scene)  # once for them all
         judged = self._primitives_on(ctx, scene, names, measured, refine)
-        lead = max(judged, key=lambda r: (bool(r.fits), r.likelihood))   # (a box has one top)
-        cut = stacked(ctx, measured) if refine and (not lead.fits or lead.primitive == "box") else None
+        lead = max(judged, key=lambda r: (bool(r.fits), r.likelihood))  # (a box has one top)
+        cut = (
+            stacked(ctx, measured)
+            if refine and (not lead.fits or lead.primitive == "box")
+            else None
+        )
         if cut is not None:
             on_part = self._primitives_on(cut[0], scene, names, cut[1], refine)
             judged = on_part if any(r.fits for r in on_part) else judged
@@ -390,18 +486,37 @@ class Registrar:
         tuple) and on it with the pieces something in front splits off
         (:func:`.hidden_parts.with_hidden_parts`), those that may lead refined with ``refine``,
         judged in ``ctx``."""
+
         def fit_on(points, k):
-            return fit_primitive(ctx, self.library[names[k]], self.models, self.settings,
-                                 measured=points, refine=False)
-        fitted = with_hidden_parts(ctx, scene, measured, [fit_on(measured, k) for k in
-                                                          range(len(names))], fit_on,
-                                   self._model_of, self.settings)
+            return fit_primitive(
+                ctx,
+                self.library[names[k]],
+                self.models,
+                self.settings,
+                measured=points,
+                refine=False,
+            )
+
+        fitted = with_hidden_parts(
+            ctx,
+            scene,
+            measured,
+            [fit_on(measured, k) for k in range(len(names))],
+            fit_on,
+            self._model_of,
+            self.settings,
+        )
         # (refining costs an ICP: only the primitives that may lead are refined)
         lead = max(r.likelihood for r in fitted)
-        return self._judged(ctx, [refine_primitive(ctx, self.library[n], self.models,
-                                                   self.settings, r)
-                                  if refine and r.likelihood >= REFINE_SHARE * lead else r
-                                  for n, r in zip(names, fitted)])
+        return self._judged(
+            ctx,
+            [
+                refine_primitive(ctx, self.library[n], self.models, self.settings, r)
+                if refine and r.likelihood >= REFINE_SHARE * lead
+                else r
+                for n, r in zip(names, fitted)
+            ],
+        )
 
     def _measured(self, ctx: ClickContext, scene: Scene | None) -> tuple:
         """(the context, the clicked object's points in it, whether they run past its crop).
@@ -414,8 +529,11 @@ class Registrar:
             return ctx, measured, past
         wide = self.prepare(scene, ctx.click, WIDER * ctx.radius).with_insides()
         again = object_points(wide)
-        return (wide, again, truncated(wide, again)) if truncated(ctx, again) else \
-            (ctx, measured, False)
+        return (
+            (wide, again, truncated(wide, again))
+            if truncated(ctx, again)
+            else (ctx, measured, False)
+        )
 
     def _variants(self, names: list[str]):
         """The models the hypotheses start from -- every template rigid, and with
@@ -424,9 +542,13 @@ class Registrar:
         tpls = [self.library[n] for n in names]
         variants = [(i, self.models.model(tpl)) for i, tpl in enumerate(tpls)]
         if self.settings.articulated:
-            variants += [(i, self.models.model(tpl, 0.0, g, articulated=True))
-                         for i, tpl in enumerate(tpls) if tpl.scale_range is not None
-                         for g in tpl.scale_range if g != 1.0]
+            variants += [
+                (i, self.models.model(tpl, 0.0, g, articulated=True))
+                for i, tpl in enumerate(tpls)
+                if tpl.scale_range is not None
+                for g in tpl.scale_range
+                if g != 1.0
+            ]
         return [m for _, m in variants], np.array([i for i, _ in variants])
 
     def _best_per_template(self, ctx: ClickContext, hyps: Hypotheses) -> tuple:
@@ -452,26 +574,38 @@ class Registrar:
         def estimate(r: FitResult):
             tpl = self.library[r.template]
             start = self.models.model(tpl, tpl.joint_value(r.joints), r.scale, articulated=True)
-            model, R, t, converged = articulate(ctx, start, r.T_scene_model[:3, :3],
-                                                r.T_scene_model[:3, 3], s)
+            model, R, t, converged = articulate(
+                ctx, start, r.T_scene_model[:3, :3], r.T_scene_model[:3, 3], s
+            )
             return model, result(ctx, model, R, t, s, iterations, converged)
 
         # the best first (the others' margin is to its estimate), then the others side by side
         # (and none for a leader that cannot come to fit)
-        leaders = [r for r in ranked[:s.articulation.candidates]
-                   if self.library[r.template].articulated]
+        leaders = [
+            r for r in ranked[: s.articulation.candidates] if self.library[r.template].articulated
+        ]
         for first in (True, False):
-            todo = self._worth(ctx, [r for r in leaders if (r.template == ranked[0].template) == first
-                                     and r.residual <= s.articulation.margin * ranked[0].residual],
-                               {}, s.articulation.explained_margin)[0]
-            for r, (model, res) in zip(todo, run([lambda r=r: estimate(r) for r in todo],
-                                                 s.threads)):
+            todo = self._worth(
+                ctx,
+                [
+                    r
+                    for r in leaders
+                    if (r.template == ranked[0].template) == first
+                    and r.residual <= s.articulation.margin * ranked[0].residual
+                ],
+                {},
+                s.articulation.explained_margin,
+            )[0]
+            for r, (model, res) in zip(
+                todo, run([lambda r=r: estimate(r) for r in todo], s.threads)
+            ):
                 models[r.template] = model
                 ranked = tuple(res if x.template == r.template else x for x in ranked)
         return rank(ranked), models
 
-    def _finish_leaders(self, ctx: ClickContext, ranked: tuple, models: dict,
-                        iterations: int) -> tuple:
+    def _finish_leaders(
+        self, ctx: ClickContext, ranked: tuple, models: dict, iterations: int
+    ) -> tuple:
         """The leading candidates finished (:meth:`_finish`) side by side and ranked
         again: the best and those of the next ``finish_candidates - 1`` fitted on (not set
         aside by the prefilter) whose residual is within ``finish.margin`` of the best's. Two
@@ -483,8 +617,11 @@ class Registrar:
         cannot come to fit (:meth:`_worth`) keeps its medium-resolution result."""
         s = self.settings
         n = 1
-        while n < min(s.finish.candidates, len(ranked)) and not ranked[n].prefiltered and \
-                ranked[n].residual <= s.finish.margin * ranked[0].residual:
+        while (
+            n < min(s.finish.candidates, len(ranked))
+            and not ranked[n].prefiltered
+            and ranked[n].residual <= s.finish.margin * ranked[0].residual
+        ):
             n += 1
         leaders, hopeless = self._worth(ctx, ranked[:n], models, s.finish.explained_margin)
         if not leaders:
@@ -501,8 +638,13 @@ class Registrar:
         best = min(r.residual for r in done)
         tied = [k for k in range(len(done)) if done[k].residual <= NEAR_TIE * best]
         if len(tied) > 1:
-            again = run([lambda k=k: self._finish(ctx, leaders[k], swept[k], iterations, 1.0)
-                         for k in tied], s.threads)
+            again = run(
+                [
+                    lambda k=k: self._finish(ctx, leaders[k], swept[k], iterations, 1.0)
+                    for k in tied
+                ],
+                s.threads,
+            )
             for k, r in zip(tied, again):
                 done[k] = r
         return rank(list(done) + hopeless + list(ranked[n:]))
@@ -517,11 +659,20 @@ class Registrar:
         floor = s.verdict.min_explained - margin
         if ctx.sensor_origin is None or floor <= 0.0:
             return leaders, []
-        share = explained_share(ctx, [models.get(r.template) or self._model(r.template, r.joints,
-                                                                              r.scale)
-                                      for r in leaders], leaders, s, WORTH_POINTS)
-        return ([r for r, e in zip(leaders, share) if e >= floor],
-                [r for r, e in zip(leaders, share) if e < floor])
+        share = explained_share(
+            ctx,
+            [
+                models.get(r.template) or self._model(r.template, r.joints, r.scale)
+                for r in leaders
+            ],
+            leaders,
+            s,
+            WORTH_POINTS,
+        )
+        return (
+            [r for r, e in zip(leaders, share) if e >= floor],
+            [r for r, e in zip(leaders, share) if e < floor],
+        )
 
     def _before_fine(self, ctx: ClickContext, win: FitResult, models: dict) -> tuple:
         """A leader's yaw sweep (and, articulated, its joint once more after it):
@@ -530,28 +681,49 @@ class Registrar:
         model = models.get(win.template)
         if model is None:
             model = self.models.model(self.library[win.template])
-        model, R, t = self._yaw_sweep(ctx, model, win.T_scene_model[:3, :3],
-                                      win.T_scene_model[:3, 3])
-        if model.articulated:       # the joint after the sweep, once more
-            model, R, t, _ = articulate(ctx, model, R, t, s, sweep=False,
-                                        rounds=s.articulation.finish_rounds)
+        model, R, t = self._yaw_sweep(
+            ctx, model, win.T_scene_model[:3, :3], win.T_scene_model[:3, 3]
+        )
+        if model.articulated:  # the joint after the sweep, once more
+            model, R, t, _ = articulate(
+                ctx, model, R, t, s, sweep=False, rounds=s.articulation.finish_rounds
+            )
         return model, R, t
 
-    def _finish(self, ctx: ClickContext, win: FitResult, swept: tuple, iterations: int,
-                converge: float | None = None) -> FitResult:
+    def _finish(
+        self,
+        ctx: ClickContext,
+        win: FitResult,
+        swept: tuple,
+        iterations: int,
+        converge: float | None = None,
+    ) -> FitResult:
         """A leader's fine stage from ``swept`` (:meth:`_before_fine`; joint and scale once
         more, articulated) and Occam's razor for its joint value and scale (``converge``: as
         :func:`.icp.icp`'s); never worse than ``win``."""
         s = self.settings
         model, R, t = swept
         fit = fine_stage(ctx, model, R, t, s.stages.fine, s, converge=converge)
-        final = result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations + fit.iterations,
-                       fit.converged[0])
+        final = result(
+            ctx,
+            fit.models[0],
+            fit.R[0],
+            fit.t[0],
+            s,
+            iterations + fit.iterations,
+            fit.converged[0],
+        )
         if final.likelihood < win.likelihood:
             final = win
         if model.articulated:
-            final = prefer_nominal(ctx, self._model(final.template, final.joints, final.scale),
-                                   final, s, iterations, converge)
+            final = prefer_nominal(
+                ctx,
+                self._model(final.template, final.joints, final.scale),
+                final,
+                s,
+                iterations,
+                converge,
+            )
         return final
 
     def _yaw_sweep(self, ctx: ClickContext, model: Model, R, t):
@@ -566,24 +738,40 @@ class Registrar:
         variants = [model]
         if model.articulated:
             tpl = model.template
-            variants += [model.with_values(q=q) for q in sorted(
-                {float(tpl.joint_value(v)) for v in tpl.states.values()}) if q != model.q]
+            variants += [
+                model.with_values(q=q)
+                for q in sorted({float(tpl.joint_value(v)) for v in tpl.states.values()})
+                if q != model.q
+            ]
         starts = [yaw_sweep_starts(m, R, t, s.finish.yaw_sweep) for m in variants]
         models = [m for m in variants for _ in range(s.finish.yaw_sweep)]
-        swept = icp(ctx, Batch.of(models, np.concatenate([a for a, _ in starts]),
-                                  np.concatenate([b for _, b in starts])), s.stages.short, s)
+        swept = icp(
+            ctx,
+            Batch.of(
+                models,
+                np.concatenate([a for a, _ in starts]),
+                np.concatenate([b for _, b in starts]),
+            ),
+            s.stages.short,
+            s,
+        )
         swept = Batch(swept.models, swept.R, swept.t)
         # ranked on the medium residual; the best few again on the full one
         keep = np.arange(len(swept))
         if 0 < s.finish.yaw_sweep_keep < len(swept):
             cheap = scores(ctx, swept, s, s.medium.samples, s.medium.samples)
-            keep = np.sort(np.argsort(cheap, kind="stable")[:s.finish.yaw_sweep_keep])
+            keep = np.sort(np.argsort(cheap, kind="stable")[: s.finish.yaw_sweep_keep])
         residuals = [r.residual for r in results(ctx, swept.take(keep), s)]
         best = int(keep[int(np.argmin(residuals))])
         return models[best], swept.R[best], swept.t[best]
 
-    def _model(self, template: str, joints: dict | None = None, scale: float = 1.0,
-               dimensions: dict | None = None) -> Model:
+    def _model(
+        self,
+        template: str,
+        joints: dict | None = None,
+        scale: float = 1.0,
+        dimensions: dict | None = None,
+    ) -> Model:
         """The model to fit: with ``settings.articulated``, an articulated template posed at
         ``joints`` (clipped to its limits) and ``scale`` (clipped to its range); else rigid.
         A primitive at ``dimensions`` (clipped to its ranges)."""

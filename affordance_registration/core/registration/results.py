@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """What a fit returns: one :class:`FitResult` per template, ranked into a :class:`FitReport`."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -10,8 +11,17 @@ import numpy as np
 from ..scene import ClickContext
 from .model import Batch
 
-__all__ = ["FitResult", "FitReport", "IcpResult", "rank", "NO_MATCH", "NO_MATCH_RESIDUAL",
-           "no_match", "verdict", "describe_primitive"]
+__all__ = [
+    "FitResult",
+    "FitReport",
+    "IcpResult",
+    "rank",
+    "NO_MATCH",
+    "NO_MATCH_RESIDUAL",
+    "no_match",
+    "verdict",
+    "describe_primitive",
+]
 
 
 #: the residual (m) at which a fit is as likely as "no template fits here": the likelihood of
@@ -30,28 +40,28 @@ class FitResult:
 
     The absolute verdict, whatever the other candidates score: ``coverage`` is the fraction of
     the template surface the sensor could have seen that has scan points within
-    ``FitSettings.verdict.coverage_distance``; ``inlier_rmse`` the RMS distance of those points (m);
-    ``fits`` whether coverage reaches ``FitSettings.verdict.min_coverage`` (None: not judged, as for
-    the literal baseline and the candidates the library prefilter set aside; their coverage and
-    inlier_rmse are then 0)."""
+    ``FitSettings.verdict.coverage_distance``; ``inlier_rmse`` the RMS distance of those points
+    (m); ``fits`` whether coverage reaches ``FitSettings.verdict.min_coverage`` (None: not judged,
+    as for the literal baseline and the candidates the library prefilter set aside; their coverage
+    and inlier_rmse are then 0)."""
 
     template: str
-    T_scene_model: np.ndarray = field(repr=False)   #: 4x4, model -> scene
-    residual: float                                  #: m, two-way capped mean distance
-    likelihood: float                                #: 1 / residual (the ranking field)
+    T_scene_model: np.ndarray = field(repr=False)  #: 4x4, model -> scene
+    residual: float  #: m, two-way capped mean distance
+    likelihood: float  #: 1 / residual (the ranking field)
     probability: float = 0.0
-    inlier_fraction: float = 0.0                     #: visible samples within the cap
+    inlier_fraction: float = 0.0  #: visible samples within the cap
     iterations: int = 0
     time_s: float = 0.0
-    rank: int = 0                                    #: 1 = best
-    joints: dict = field(default_factory=dict)       #: joint name -> value (rad or m)
-    scale: float = 1.0                               #: uniform scale of the template
-    state: str | None = None                         #: the nearest named state
+    rank: int = 0  #: 1 = best
+    joints: dict = field(default_factory=dict)  #: joint name -> value (rad or m)
+    scale: float = 1.0  #: uniform scale of the template
+    state: str | None = None  #: the nearest named state
     #: whether the last ICP stage of this candidate converged before its iteration limit
     #: (None: no ICP ran, e.g. the literal baseline's own loop)
     converged: bool | None = None
     coverage: float = 0.0
-    inlier_rmse: float = 0.0                         #: m
+    inlier_rmse: float = 0.0  #: m
     fits: bool | None = None
     #: set aside by the library prefilter after the coarse stage: pose and residual are that
     #: stage's (fewer samples), and it ranks behind every candidate that was fitted on
@@ -61,8 +71,8 @@ class FitResult:
     #: m, the residual the verdict reads: template -> scene as ranked, and the clicked
     #: object's points (not the touching neighbours of the cluster) -> template
     object_residual: float = 0.0
-    noise: float = 0.0                               #: m, the scan's noise around the click
-    reason: str | None = None                        #: why it does not fit (None: it fits)
+    noise: float = 0.0  #: m, the scan's noise around the click
+    reason: str | None = None  #: why it does not fit (None: it fits)
     #: a primitive template's kind ("box", "cylinder") and fitted dimensions (m: a box's
     #: "x", "y", "z", a cylinder's "radius", "length"); None and {} for a specific template
     primitive: str | None = None
@@ -72,23 +82,34 @@ class FitResult:
     distinct: float | None = None
 
     def to_dict(self) -> dict:
-        return {"rank": self.rank, "template": self.template,
-                "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
-                "scale": round(float(self.scale), 6), "state": self.state,
-                "likelihood": round(self.likelihood, 6), "probability": round(self.probability, 6),
-                "residual": round(self.residual, 9), "inlier_fraction": round(self.inlier_fraction, 4),
-                "coverage": round(float(self.coverage), 4),
-                "inlier_rmse": round(float(self.inlier_rmse), 9),
-                "explained": round(float(self.explained), 4),
-                "object_residual": round(float(self.object_residual), 9),
-                "noise": round(float(self.noise), 9), "fits": self.fits, "reason": self.reason,
-                "primitive": self.primitive,
-                "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
-                if self.primitive else None,
-                "distinct": None if self.distinct is None else round(float(self.distinct), 4),
-                "iterations": self.iterations, "converged": self.converged,
-                "prefiltered": self.prefiltered, "time_s": round(self.time_s, 6),
-                "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model]}
+        return {
+            "rank": self.rank,
+            "template": self.template,
+            "joints": {k: round(float(v), 6) for k, v in self.joints.items()},
+            "scale": round(float(self.scale), 6),
+            "state": self.state,
+            "likelihood": round(self.likelihood, 6),
+            "probability": round(self.probability, 6),
+            "residual": round(self.residual, 9),
+            "inlier_fraction": round(self.inlier_fraction, 4),
+            "coverage": round(float(self.coverage), 4),
+            "inlier_rmse": round(float(self.inlier_rmse), 9),
+            "explained": round(float(self.explained), 4),
+            "object_residual": round(float(self.object_residual), 9),
+            "noise": round(float(self.noise), 9),
+            "fits": self.fits,
+            "reason": self.reason,
+            "primitive": self.primitive,
+            "dimensions": {k: round(float(v), 6) for k, v in self.dimensions.items()}
+            if self.primitive
+            else None,
+            "distinct": None if self.distinct is None else round(float(self.distinct), 4),
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "prefiltered": self.prefiltered,
+            "time_s": round(self.time_s, 6),
+            "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_model],
+        }
 
 
 @dataclass(frozen=True)
@@ -129,25 +150,36 @@ def rank(results, no_match_likelihood: float = 1.0 / NO_MATCH_RESIDUAL) -> tuple
     specific templates come first. Their probabilities are shared among the specific
     templates; a primitive's among the primitives (each with the no-match answer)."""
     results = list(results)
-    fits = {p: any(r.fits and (r.primitive is not None) == p for r in results)
-            for p in (False, True)}
+    fits = {
+        p: any(r.fits and (r.primitive is not None) == p for r in results) for p in (False, True)
+    }
 
     def group(r: FitResult) -> int:
         if r.primitive is None:
             return 0 if fits[False] or not fits[True] else 1
         return 0 if fits[True] and not fits[False] else 1
+
     results.sort(key=lambda r: (r.prefiltered, group(r), -r.likelihood))
-    total = {p: (sum(r.likelihood for r in results if (r.primitive is not None) == p) +
-                 no_match_likelihood) or 1.0 for p in (False, True)}
-    return tuple(replace(r, rank=i, probability=r.likelihood / total[r.primitive is not None])
-                 for i, r in enumerate(results, start=1))
+    total = {
+        p: (
+            sum(r.likelihood for r in results if (r.primitive is not None) == p)
+            + no_match_likelihood
+        )
+        or 1.0
+        for p in (False, True)
+    }
+    return tuple(
+        replace(r, rank=i, probability=r.likelihood / total[r.primitive is not None])
+        for i, r in enumerate(results, start=1)
+    )
 
 
 def no_match(candidates) -> bool:
     """The verdict on a click's ranked ``candidates``: no specific template fits -- the best is
     refused (``fits`` False) or is a primitive."""
-    return bool(candidates) and (candidates[0].fits is False or
-                                 candidates[0].primitive is not None)
+    return bool(candidates) and (
+        candidates[0].fits is False or candidates[0].primitive is not None
+    )
 
 
 def describe_primitive(r: FitResult) -> str:

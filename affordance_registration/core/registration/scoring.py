@@ -7,9 +7,10 @@ likelihood.
 
 And the absolute verdict on a candidate, whatever the others score: its ``coverage`` (the
 fraction of the template surface the sensor could have seen that has scan points within
-``verdict.coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples); below
-``verdict.min_coverage`` no template fits here.
+``verdict.coverage_distance``) and ``inlier_rmse`` (the RMS distance of those covered samples);
+below ``verdict.min_coverage`` no template fits here.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,13 +28,23 @@ from .results import FitResult
 from .settings import FitSettings
 from .visibility import visible
 
-__all__ = ["forward_residual", "backward_residual", "click_penalty", "judge", "distinguished",
-           "widening", "explained_share", "open_share",
-           "self_hidden",
-           "scores", "result", "results"]
+__all__ = [
+    "forward_residual",
+    "backward_residual",
+    "click_penalty",
+    "judge",
+    "distinguished",
+    "widening",
+    "explained_share",
+    "open_share",
+    "self_hidden",
+    "scores",
+    "result",
+    "results",
+]
 
-MIN_VISIBLE_SAMPLES = 3    #: fewer visible samples than this (or ...)
-MIN_VISIBLE_FRACTION = 0.03   #: (... this fraction) and the forward residual is the cap
+MIN_VISIBLE_SAMPLES = 3  #: fewer visible samples than this (or ...)
+MIN_VISIBLE_FRACTION = 0.03  #: (... this fraction) and the forward residual is the cap
 #: a return seen through a primitive lies inside it (an open object: a mug's inside) only
 #: this far (m, or three times the scan's noise there) above its base face: the surface it
 #: stands on, seen through a primitive with nothing in it, is not
@@ -46,8 +57,13 @@ OPEN_UPRIGHT = 0.966
 PLANE_COVERED = 0.8
 
 
-def _forward_distances(ctx: ClickContext, batch: Batch, n: int, settings: FitSettings,
-                       occluded: np.ndarray | None = None):
+def _forward_distances(
+    ctx: ClickContext,
+    batch: Batch,
+    n: int,
+    settings: FitSettings,
+    occluded: np.ndarray | None = None,
+):
     """The capped distances (B, n) from ``n`` posed samples of each hypothesis to the scene
     (free-space violations at the cap), which of the samples the sensor could have seen and
     which face it where it returned something (hidden or not; in the rows ``occluded`` marks,
@@ -68,8 +84,11 @@ def _forward(dist: np.ndarray, vis: np.ndarray, settings: FitSettings):
     """(forward residual, inlier fraction) of :func:`forward_residual` from the distances."""
     cap = settings.scoring.cap
     n_vis = vis.sum(axis=1)
-    fwd = np.where(n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * dist.shape[1]),
-                   (dist * vis).sum(axis=1) / np.maximum(n_vis, 1), cap)
+    fwd = np.where(
+        n_vis >= max(MIN_VISIBLE_SAMPLES, MIN_VISIBLE_FRACTION * dist.shape[1]),
+        (dist * vis).sum(axis=1) / np.maximum(n_vis, 1),
+        cap,
+    )
     inl = ((dist < cap) & vis).sum(axis=1) / np.maximum(n_vis, 1)
     return fwd, inl
 
@@ -87,8 +106,8 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     verdict: ``coverage`` -- of the template's ``scoring.samples`` samples that face the sensor
     where it returned something (hidden behind observed surfaces or not: a template sunk into a
     wall is not covered), not counting those its own parts hide, the fraction the sensor saw
-    with scan points within ``verdict.coverage_distance`` -- not counting those on the dominant plane
-    around the click when they are most of them (at least ``PLANE_COVERED``: a candidate
+    with scan points within ``verdict.coverage_distance`` -- not counting those on the dominant
+    plane around the click when they are most of them (at least ``PLANE_COVERED``: a candidate
     covering a wall explains no object) -- ``inlier_rmse``, the RMS distance (m) of those
     covered samples, and ``fits``: coverage at least ``verdict.min_coverage``. Without a viewpoint
     every sample is exposed, and the bar is ``verdict.min_coverage_no_viewpoint``. The distances of
@@ -102,22 +121,33 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     # it the sensor faces
     primitive = np.array([m.template.primitive is not None for m in models])
     batch = Batch.of(models, T[:, :3, :3], T[:, :3, 3])
-    dist, vis, exposed = _forward_distances(ctx, batch, settings.scoring.samples, settings,
-                                            primitive)
+    dist, vis, exposed = _forward_distances(
+        ctx, batch, settings.scoring.samples, settings, primitive
+    )
     open_faces = _seen_into(ctx, models, batch, primitive, settings)
     vis &= ~open_faces
     exposed &= ~open_faces
-    bar = settings.verdict.min_coverage if ctx.sensor_origin is not None else \
-        settings.verdict.min_coverage_no_viewpoint
+    bar = (
+        settings.verdict.min_coverage
+        if ctx.sensor_origin is not None
+        else settings.verdict.min_coverage_no_viewpoint
+    )
     widen = widening(ctx, settings)
     covered_within = widen * settings.verdict.coverage_distance
-    explained, object_bwd = _explained(ctx, models, T, widen * settings.verdict.explained_distance,
-                                       settings.scoring.cap, settings.verdict.min_explained)
+    explained, object_bwd = _explained(
+        ctx,
+        models,
+        T,
+        widen * settings.verdict.explained_distance,
+        settings.scoring.cap,
+        settings.verdict.min_explained,
+    )
     # the verdict's residual is the object's: template -> scene as ranked, object -> template
     # over the clicked object's points only (touching neighbours in the cluster are not the
     # template's to explain), plus the click penalty
-    object_residual = 0.5 * (_forward(dist, vis, settings)[0] + object_bwd) + \
-        click_penalty(ctx, batch, settings)
+    object_residual = 0.5 * (_forward(dist, vis, settings)[0] + object_bwd) + click_penalty(
+        ctx, batch, settings
+    )
     max_residual = widen * settings.verdict.max_residual
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
@@ -128,7 +158,7 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         if ctx.support is not None:
             on_plane = near & (np.abs(ctx.support.distance(X)) <= ctx.plane_threshold)
             if on_plane.sum() >= PLANE_COVERED * max(int(near.sum()), 1):
-                near &= ~on_plane          # it covers the wall around the click, not an object
+                near &= ~on_plane  # it covers the wall around the click, not an object
         seen = _seen(ctx, model, P, R, t, exposed[k], settings)
         n_exposed, n_near = int(seen.sum()), int((near & seen).sum())
         cov = n_near / n_exposed if n_exposed >= MIN_VISIBLE_SAMPLES else 0.0
@@ -137,23 +167,38 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
         # segments nor the two-way residual's visibility: coverage alone judges there)
         seen_from = ctx.sensor_origin is not None
         obj_res = float(object_residual[k])
-        why = [f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
-               if cov < bar else "",
-               f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
-               f"{settings.verdict.min_explained:.0%})"
-               if seen_from and explained[k] < settings.verdict.min_explained else "",
-               f"its surface and the object run {obj_res * 1e3:.1f} mm apart on average (a "
-               f"fit is within {max_residual * 1e3:.1f} mm)"
-               if seen_from and obj_res > max_residual else ""]
+        why = [
+            f"it covers {cov:.0%} of its visible surface (a fit needs {bar:.0%})"
+            if cov < bar
+            else "",
+            f"it explains {explained[k]:.0%} of the clicked object's points (a fit needs "
+            f"{settings.verdict.min_explained:.0%})"
+            if seen_from and explained[k] < settings.verdict.min_explained
+            else "",
+            f"its surface and the object run {obj_res * 1e3:.1f} mm apart on average (a "
+            f"fit is within {max_residual * 1e3:.1f} mm)"
+            if seen_from and obj_res > max_residual
+            else "",
+        ]
         why = "; ".join(w for w in why if w)
-        out.append(replace(res, coverage=cov, inlier_rmse=rmse, explained=float(explained[k]),
-                           object_residual=obj_res, noise=ctx.noise, fits=not why,
-                           reason=why or None))
+        out.append(
+            replace(
+                res,
+                coverage=cov,
+                inlier_rmse=rmse,
+                explained=float(explained[k]),
+                object_residual=obj_res,
+                noise=ctx.noise,
+                fits=not why,
+                reason=why or None,
+            )
+        )
     return out
 
 
-def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
-               settings: FitSettings) -> np.ndarray:
+def _seen_into(
+    ctx: ClickContext, models, batch: Batch, primitive: np.ndarray, settings: FitSettings
+) -> np.ndarray:
     """(B, S) bool: the samples of the primitives (rows ``primitive`` marks) standing upright
     on the support (their z within OPEN_UPRIGHT of its normal) through which the sensor saw
     into the primitive: on its top face, its return there, behind the sample by more than
@@ -167,20 +212,22 @@ def _seen_into(ctx: ClickContext, models, batch: Batch, primitive: np.ndarray,
     out = np.zeros(P.shape[:2], bool)
     for k in np.flatnonzero(primitive):
         R, t = batch.R[k], batch.t[k]
-        if R[:, 2] @ ctx.support.normal < OPEN_UPRIGHT:     # (its normal faces the sensor)
+        if R[:, 2] @ ctx.support.normal < OPEN_UPRIGHT:  # (its normal faces the sensor)
             continue
-        height = models[k].template.dimensions.get("z", models[k].template.dimensions.get(
-            "length"))
+        height = models[k].template.dimensions.get(
+            "z", models[k].template.dimensions.get("length")
+        )
         D = P[k] @ R.T + t - ctx.sensor_origin
         obs, depth = image.lookup_offsets(D)
         on_top = P[k][:, 2] >= height - 1e-6
-        behind = (obs > depth + settings.scoring.free_space_margin) & on_top   # (NaN: False)
+        behind = (obs > depth + settings.scoring.free_space_margin) & on_top  # (NaN: False)
         if not behind.any():
             continue
         back = (ctx.sensor_origin + D[behind] * (obs[behind] / depth[behind])[:, None] - t) @ R
         into = np.zeros(len(D), bool)
-        into[np.flatnonzero(behind)] = _inside(models[k].template, back,
-                                               max(BASE_CLEAR, 3.0 * ctx.noise))
+        into[np.flatnonzero(behind)] = _inside(
+            models[k].template, back, max(BASE_CLEAR, 3.0 * ctx.noise)
+        )
         # an opening within a rim: the top's samples seen into lie inward of those that are
         # not (a stepped top -- a housing's shoulder round a button -- is the other way round)
         if not into.any():
@@ -214,10 +261,17 @@ def _inside(template, q: np.ndarray, clear: float) -> np.ndarray:
     stands on, seen through an empty primitive, is not its inside)."""
     dims = template.dimensions
     if template.primitive == "box":
-        return (np.abs(q[:, 0]) <= dims["x"] / 2) & (np.abs(q[:, 1]) <= dims["y"] / 2) & \
-            (q[:, 2] > clear) & (q[:, 2] <= dims["z"])
-    return (np.hypot(q[:, 0], q[:, 1]) <= dims["radius"]) & (q[:, 2] > clear) & \
-        (q[:, 2] <= dims["length"])
+        return (
+            (np.abs(q[:, 0]) <= dims["x"] / 2)
+            & (np.abs(q[:, 1]) <= dims["y"] / 2)
+            & (q[:, 2] > clear)
+            & (q[:, 2] <= dims["z"])
+        )
+    return (
+        (np.hypot(q[:, 0], q[:, 1]) <= dims["radius"])
+        & (q[:, 2] > clear)
+        & (q[:, 2] <= dims["length"])
+    )
 
 
 def widening(ctx: ClickContext, settings: FitSettings) -> float:
@@ -226,8 +280,9 @@ def widening(ctx: ClickContext, settings: FitSettings) -> float:
     return max(1.0, ctx.noise / settings.verdict.noise_reference)
 
 
-def explained_share(ctx: ClickContext, models, fits, settings: FitSettings,
-                    points: int | None = None) -> np.ndarray:
+def explained_share(
+    ctx: ClickContext, models, fits, settings: FitSettings, points: int | None = None
+) -> np.ndarray:
     """The share (B,) of the clicked object's points each of ``fits`` (posed ``models``)
     explains, as :func:`judge` counts it (``FitResult.explained``), over an even, fixed
     subsample of at most ``points`` cluster points (None: all of them); all zero without a
@@ -236,21 +291,42 @@ def explained_share(ctx: ClickContext, models, fits, settings: FitSettings,
     if ctx.sensor_origin is None or not fits:
         return np.zeros(len(fits))
     T = np.stack([r.T_scene_model for r in fits])
-    return _explained(ctx, list(models), T,
-                      widening(ctx, settings) * settings.verdict.explained_distance,
-                      settings.scoring.cap, settings.verdict.min_explained, points)[0]
+    return _explained(
+        ctx,
+        list(models),
+        T,
+        widening(ctx, settings) * settings.verdict.explained_distance,
+        settings.scoring.cap,
+        settings.verdict.min_explained,
+        points,
+    )[0]
 
 
-def _seen(ctx: ClickContext, model: Model, P: np.ndarray, R, t, exposed: np.ndarray,
-          settings: FitSettings) -> np.ndarray:
+def _seen(
+    ctx: ClickContext,
+    model: Model,
+    P: np.ndarray,
+    R,
+    t,
+    exposed: np.ndarray,
+    settings: FitSettings,
+) -> np.ndarray:
     """Which of the model's samples ``P`` (S, 3, model frame), posed at (R, t), face the
     sensor where it returned something (``exposed``, (S,) bool) and are not hidden by the
     model's own surface. (S,) bool."""
     seen = exposed.copy()
     rows = np.flatnonzero(seen)
-    if ctx.sensor_origin is not None and len(rows):   # (only the exposed ones matter)
-        seen[rows[self_hidden(model, P[rows], R.T @ (ctx.sensor_origin - t),
-                              settings.scoring.free_space_margin)]] = False
+    if ctx.sensor_origin is not None and len(rows):  # (only the exposed ones matter)
+        seen[
+            rows[
+                self_hidden(
+                    model,
+                    P[rows],
+                    R.T @ (ctx.sensor_origin - t),
+                    settings.scoring.free_space_margin,
+                )
+            ]
+        ] = False
     return seen
 
 
@@ -260,8 +336,14 @@ def _seen(ctx: ClickContext, model: Model, P: np.ndarray, R, t, exposed: np.ndar
 DISTINCT_SHARE = 0.1
 
 
-def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
-                  primitive_fit: FitResult, settings: FitSettings) -> list:
+def distinguished(
+    ctx: ClickContext,
+    models,
+    fits,
+    primitive_model: Model,
+    primitive_fit: FitResult,
+    settings: FitSettings,
+) -> list:
     """Each of ``fits`` (fitting specific candidates, their models in ``models``) tested against
     the primitive that fits the same click (``primitive_fit``, its model ``primitive_model``).
     It must explain the clicked object nearly as well: a share of its points at most
@@ -281,39 +363,62 @@ def distinguished(ctx: ClickContext, models, fits, primitive_model: Model,
     widen = widening(ctx, s)
     Tp = primitive_fit.T_scene_model
     T = np.stack([r.T_scene_model for r in fits])
-    dist, vis, exposed = _forward_distances(ctx, Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
-                                            s.scoring.samples, s, np.zeros(len(fits), bool))
+    dist, vis, exposed = _forward_distances(
+        ctx,
+        Batch.of(models, T[:, :3, :3], T[:, :3, 3]),
+        s.scoring.samples,
+        s,
+        np.zeros(len(fits), bool),
+    )
     kind = primitive_fit.primitive
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
         why = []
-        if res.explained is not None and primitive_fit.explained is not None and \
-                res.explained < primitive_fit.explained - s.verdict.explained_margin:
-            why.append(f"a {kind} explains {primitive_fit.explained:.0%} of the clicked "
-                       f"object's points, it {res.explained:.0%} (a fit explains no more than "
-                       f"{s.verdict.explained_margin:.0%} less than a fitting primitive)")
+        if (
+            res.explained is not None
+            and primitive_fit.explained is not None
+            and res.explained < primitive_fit.explained - s.verdict.explained_margin
+        ):
+            why.append(
+                f"a {kind} explains {primitive_fit.explained:.0%} of the clicked "
+                f"object's points, it {res.explained:.0%} (a fit explains no more than "
+                f"{s.verdict.explained_margin:.0%} less than a fitting primitive)"
+            )
         R, t = T[k, :3, :3], T[k, :3, 3]
         P = model.samples(s.scoring.samples)[0]
         X = P @ R.T + t
         seen = _seen(ctx, model, P, R, t, exposed[k], s)
-        off = surface_distances([primitive_model], ((X - Tp[:3, 3]) @ Tp[:3, :3])[None],
-                                2 * s.verdict.distinct_distance)[0]
+        off = surface_distances(
+            [primitive_model],
+            ((X - Tp[:3, 3]) @ Tp[:3, :3])[None],
+            2 * s.verdict.distinct_distance,
+        )[0]
         distinct = seen & (off > s.verdict.distinct_distance)
         n = int(distinct.sum())
         share = None
         if n and n >= DISTINCT_SHARE * max(int(seen.sum()), 1):
-            share = float((distinct & vis[k] & (dist[k] <= widen * s.verdict.coverage_distance)
-                           ).sum()) / n
+            share = (
+                float((distinct & vis[k] & (dist[k] <= widen * s.verdict.coverage_distance)).sum())
+                / n
+            )
             if share < s.verdict.min_distinct:
-                why.append(f"of its surface that a {kind} does not have, {share:.0%} is seen (a "
-                           f"fit needs {s.verdict.min_distinct:.0%}): here it is no more than a "
-                           f"{kind}")
+                why.append(
+                    f"of its surface that a {kind} does not have, {share:.0%} is seen (a "
+                    f"fit needs {s.verdict.min_distinct:.0%}): here it is no more than a "
+                    f"{kind}"
+                )
         if not why:
             out.append(res if share is None else replace(res, distinct=share))
             continue
         why = "; ".join(why)
-        out.append(replace(res, distinct=share, fits=False,
-                           reason=f"{res.reason}; {why}" if res.reason else why))
+        out.append(
+            replace(
+                res,
+                distinct=share,
+                fits=False,
+                reason=f"{res.reason}; {why}" if res.reason else why,
+            )
+        )
     return out
 
 
@@ -332,8 +437,15 @@ OBJECT_SEGMENT = 0.3
 NEIGHBOUR_PATCH = 0.05
 
 
-def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: float,
-               bar: float, points: int | None = None):
+def _explained(
+    ctx: ClickContext,
+    models,
+    T: np.ndarray,
+    within: float,
+    cap: float,
+    bar: float,
+    points: int | None = None,
+):
     """The share (B,) of the clicked object's cluster points within ``within`` of each posed
     candidate's surface, and their capped mean distance to it (B,, m, capped at ``cap``). The
     object is the clicked segment of the cluster and every segment
@@ -350,7 +462,7 @@ def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: flo
     if points is not None and len(pts) > points:
         pick = (np.arange(points) * (len(pts) / points)).astype(np.int64)
         pts, labels, patches = pts[pick], labels[pick], patches[pick]
-    local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]          # (B, K, 3) model frames
+    local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]  # (B, K, 3) model frames
     dist = np.minimum(surface_distances(list(models), local, max(cap, within * 2)), cap)
     on = dist <= within
     counts = np.maximum(np.bincount(labels, minlength=int(clicked) + 1), 1)
@@ -361,13 +473,15 @@ def _explained(ctx: ClickContext, models, T: np.ndarray, within: float, cap: flo
         part = share >= OBJECT_SEGMENT
         part[clicked] = True
         mine = part[labels]
-        if not mine.any():          # (a subsample without the clicked segment: unknown)
+        if not mine.any():  # (a subsample without the clicked segment: unknown)
             share_on[k], mean_d[k] = 1.0, 0.0
             continue
         share_on[k], mean_d[k] = float(on[k][mine].mean()), float(dist[k][mine].mean())
         if models[k].template.primitive is None and share_on[k] < bar:
-            near = np.bincount(patches, weights=on[k], minlength=len(patch_counts)) / \
-                patch_counts >= NEIGHBOUR_PATCH
+            near = (
+                np.bincount(patches, weights=on[k], minlength=len(patch_counts)) / patch_counts
+                >= NEIGHBOUR_PATCH
+            )
             near[clicked_patch] = True
             own = mine & near[patches]
             if own.any() and on[k][own].mean() >= bar:
@@ -383,6 +497,7 @@ def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) 
     if scene is None:
         return np.zeros(len(P), bool)
     import open3d as o3d
+
     d = P - origin
     length = np.linalg.norm(d, axis=1)
     rays = np.concatenate([np.broadcast_to(origin, P.shape), d / length[:, None]], axis=1)
@@ -390,8 +505,9 @@ def self_hidden(model: Model, P: np.ndarray, origin: np.ndarray, margin: float) 
     return hit < length - margin
 
 
-def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
-                      cluster_points: int | None = None) -> np.ndarray:
+def backward_residual(
+    ctx: ClickContext, batch: Batch, settings: FitSettings, cluster_points: int | None = None
+) -> np.ndarray:
     """Scene cluster -> template: the capped mean distance (B,) from the cluster points to
     each posed model's surface (points no sample explains count as the cap, so a template that
     leaves part of the object unexplained pays for it), on an even, fixed subsample of at most
@@ -400,58 +516,85 @@ def backward_residual(ctx: ClickContext, batch: Batch, settings: FitSettings,
     pts = ctx.cluster
     if cluster_points is not None and len(pts) > cluster_points:
         pts = pts[np.linspace(0, len(pts) - 1, cluster_points).astype(int)]
-    local = (pts[None] - batch.t[:, None, :]) @ batch.R      # (B, K, 3), model frames
+    local = (pts[None] - batch.t[:, None, :]) @ batch.R  # (B, K, 3), model frames
     return np.minimum(surface_distances(batch.models, local, cap), cap).mean(axis=1)
 
 
 def click_penalty(ctx: ClickContext, batch: Batch, settings: FitSettings) -> np.ndarray:
     """The operator clicked on the object: a candidate whose surface passes farther than
-    ``scoring.click_tolerance`` from the (snapped) click pays the excess, up to ``scoring.cap``. (B,)"""
-    local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)   # click in model frames
+    ``scoring.click_tolerance`` from the (snapped) click pays the excess, up to ``scoring.cap``.
+    (B,)"""
+    local = np.einsum("bji,bj->bi", batch.R, ctx.click - batch.t)  # click in model frames
     d = surface_distances(batch.models, local[:, None, :])[:, 0]
     return np.clip(d - settings.scoring.click_tolerance, 0.0, settings.scoring.cap)
 
 
-def scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
-           cluster_points: int) -> np.ndarray:
+def scores(
+    ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int, cluster_points: int
+) -> np.ndarray:
     """The two-way capped residual plus the click penalty of a batch of hypotheses (B,):
     template -> scene on ``samples`` template samples, cluster -> template on an even
     subsample of ``cluster_points`` cluster points. A big batch is scored in parts side by
     side."""
-    return np.concatenate(over_batch(
-        lambda part: _scores(ctx, part, settings, samples, cluster_points), batch,
-        settings.threads))
+    return np.concatenate(
+        over_batch(
+            lambda part: _scores(ctx, part, settings, samples, cluster_points),
+            batch,
+            settings.threads,
+        )
+    )
 
 
-def _scores(ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int,
-            cluster_points: int) -> np.ndarray:
+def _scores(
+    ctx: ClickContext, batch: Batch, settings: FitSettings, samples: int, cluster_points: int
+) -> np.ndarray:
     fwd, _ = forward_residual(ctx, batch, samples, settings)
     bwd = backward_residual(ctx, batch, settings, cluster_points)
     return 0.5 * (fwd + bwd) + click_penalty(ctx, batch, settings)
 
 
-def result(ctx: ClickContext, model: Model, R, t, settings: FitSettings, iterations: int = 0,
-           converged: bool | None = None) -> FitResult:
+def result(
+    ctx: ClickContext,
+    model: Model,
+    R,
+    t,
+    settings: FitSettings,
+    iterations: int = 0,
+    converged: bool | None = None,
+) -> FitResult:
     """The candidate ``model`` at (R, t): its residual (two-way, capped, plus the click
     penalty), likelihood, inlier fraction and, for an articulated model, joints, scale and
     the nearest named state; ``iterations`` and ``converged`` as ICP reported them."""
-    return results(ctx, Batch.single(model, R, t), settings, iterations,
-                   None if converged is None else [converged])[0]
+    return results(
+        ctx,
+        Batch.single(model, R, t),
+        settings,
+        iterations,
+        None if converged is None else [converged],
+    )[0]
 
 
-def results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0,
-            converged=None) -> list:
+def results(
+    ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int = 0, converged=None
+) -> list:
     """:func:`result` of every hypothesis of a batch (scored together; a big batch in parts
     side by side), ``converged`` (B,) or None."""
     conv = None if converged is None else np.asarray(converged, dtype=bool)
-    done = run([lambda idx=idx: _results(ctx, batch.take(idx), settings, iterations,
-                                         None if conv is None else conv[idx])
-                for idx in parts(len(batch), settings.threads)], settings.threads)
+    done = run(
+        [
+            lambda idx=idx: _results(
+                ctx, batch.take(idx), settings, iterations, None if conv is None else conv[idx]
+            )
+            for idx in parts(len(batch), settings.threads)
+        ],
+        settings.threads,
+    )
     return [r for part in done for r in part]
 
 
-def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int,
-             converged) -> list:
+def _results(
+    ctx: ClickContext, batch: Batch, settings: FitSettings, iterations: int, converged
+) -> list:
     fwd, inl = forward_residual(ctx, batch, settings.scoring.samples, settings)
     bwd = backward_residual(ctx, batch, settings)
     click = click_penalty(ctx, batch, settings)
@@ -459,11 +602,18 @@ def _results(ctx: ClickContext, batch: Batch, settings: FitSettings, iterations:
     for k, model in enumerate(batch.models):
         residual = max(0.5 * (float(fwd[k]) + float(bwd[k])) + float(click[k]), 1e-6)
         joints = model.joints
-        out.append(FitResult(
-            template=model.name, T_scene_model=make_T(batch.R[k], batch.t[k]),
-            residual=residual, likelihood=1.0 / residual, inlier_fraction=float(inl[k]),
-            iterations=int(iterations), joints=joints,
-            scale=model.scale if model.articulated else 1.0,
-            state=model.template.nearest_state(joints) if joints else None,
-            converged=None if converged is None else bool(converged[k])))
+        out.append(
+            FitResult(
+                template=model.name,
+                T_scene_model=make_T(batch.R[k], batch.t[k]),
+                residual=residual,
+                likelihood=1.0 / residual,
+                inlier_fraction=float(inl[k]),
+                iterations=int(iterations),
+                joints=joints,
+                scale=model.scale if model.articulated else 1.0,
+                state=model.template.nearest_state(joints) if joints else None,
+                converged=None if converged is None else bool(converged[k]),
+            )
+        )
     return out

@@ -6,6 +6,7 @@ bounded extra unknowns (a joint value, a scale).
 
 Arrays are batched: ``B`` hypotheses of ``S`` pairs each.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,8 +15,16 @@ import numpy as np
 
 from ..transforms import axis_angle_matrix, make_T, rotation_angle
 
-__all__ = ["Step", "rigid_step", "plane_step", "gauss_newton", "kabsch_weighted",
-           "point_to_plane_weighted", "rotations_from_vectors", "weighted_rigid_fit"]
+__all__ = [
+    "Step",
+    "rigid_step",
+    "plane_step",
+    "gauss_newton",
+    "kabsch_weighted",
+    "point_to_plane_weighted",
+    "rotations_from_vectors",
+    "weighted_rigid_fit",
+]
 
 
 @dataclass(frozen=True)
@@ -65,8 +74,14 @@ def rigid_step(X: np.ndarray, Q: np.ndarray, w: np.ndarray) -> Step:
     return Step(R, t, mx, np.zeros((len(X), 0)))
 
 
-def plane_step(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray,
-               extra: np.ndarray | None = None, bounds=None) -> Step:
+def plane_step(
+    X: np.ndarray,
+    Q: np.ndarray,
+    Nq: np.ndarray,
+    w: np.ndarray,
+    extra: np.ndarray | None = None,
+    bounds=None,
+) -> Step:
     """Batched weighted point-to-plane Gauss-Newton step: minimise
     sum w ((R x + t - q) . n + extra . dv)^2, linearised about each hypothesis' weighted
     centroid -- 6 unknowns (the rigid case) plus a column per extra unknown in ``extra``
@@ -96,8 +111,9 @@ def plane_step(X: np.ndarray, Q: np.ndarray, Nq: np.ndarray, w: np.ndarray,
     return Step(R, t, c, xi[:, 6:])
 
 
-def gauss_newton(J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower=None,
-                 upper=None) -> np.ndarray:
+def gauss_newton(
+    J: np.ndarray, r: np.ndarray, w: np.ndarray, values=None, lower=None, upper=None
+) -> np.ndarray:
     """The weighted least-squares step xi (B, n) minimising sum w (J xi - r)^2 per hypothesis,
     J (B, S, n), r and w (B, S). With ``values`` / ``lower`` / ``upper`` ((B, n - 6): where the
     unknowns after the first six are now and their bounds), an unknown at a bound that the step

@@ -8,10 +8,10 @@ about the best candidate's centre, at most ``max_angle`` from the current view, 
 ``distances`` distances in [``min_distance``, ``max_distance``]. From each, and from the current
 pose, the sensor's view is predicted for every hypothesis to tell apart
 (:class:`~.ambiguity.Ambiguity`'s rivals; a weakly held pose's rival is itself moved along its
-weak motion, both ways): a z-buffer of the scan around the click (the occluder: the crop's points off the
-support plane, and the rest of the scan within reach where it is given) and of the hypothesis's
-posed samples that face the sensor within ``grazing_angle`` (:func:`predict_views`). A sample is
-in sight where neither its own surface nor the scan is nearer in its bin by more than a
+weak motion, both ways): a z-buffer of the scan around the click (the occluder: the crop's points
+off the support plane, and the rest of the scan within reach where it is given) and of the
+hypothesis's posed samples that face the sensor within ``grazing_angle`` (:func:`predict_views`). A
+sample is in sight where neither its own surface nor the scan is nearer in its bin by more than a
 tolerance (``depth_difference`` plus two bins' width at its depth).
 
 What a view would tell: the samples of each hypothesis it newly brings into sight (out of sight
@@ -27,6 +27,7 @@ The pose is an optical frame (z forward, x right, y down) in the cloud's frame; 
 follows the current sensor's where that is known, else "down" is into the support plane (or
 along an axis of the frame attached to the scan around the click).
 """
+
 from __future__ import annotations
 
 import math
@@ -75,25 +76,34 @@ class SuggestedView:
 
     def describe(self) -> str:
         p = self.T_scene_optical[:3, 3]
-        return (f"look from ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), {self.distance:.2f} m from the "
-                f"object, turned {math.degrees(self.turn):.0f} deg from the current view: the "
-                f"hypotheses differ on {self.separation:.0%} of what it would see, and "
-                f"{self.visible:.0%} of the best candidate's surface is in sight "
-                f"({self.visible_now:.0%} now)")
+        return (
+            f"look from ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}), {self.distance:.2f} m from the "
+            f"object, turned {math.degrees(self.turn):.0f} deg from the current view: the "
+            f"hypotheses differ on {self.separation:.0%} of what it would see, and "
+            f"{self.visible:.0%} of the best candidate's surface is in sight "
+            f"({self.visible_now:.0%} now)"
+        )
 
     def to_dict(self) -> dict:
         from ..transforms import matrix_to_quat_xyzw
+
         R, p = self.T_scene_optical[:3, :3], self.T_scene_optical[:3, 3]
-        return {"position": [round(float(v), 6) for v in p],
-                "orientation_xyzw": [round(float(v), 6) for v in matrix_to_quat_xyzw(R)],
-                "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_optical],
-                "target": [round(float(v), 6) for v in self.target],
-                "distance": round(self.distance, 4), "turn_deg": round(math.degrees(self.turn), 2),
-                "differing_samples": int(self.differing),
-                "separation": round(self.separation, 4),
-                "visible": round(self.visible, 4), "visible_now": round(self.visible_now, 4),
-                "score": round(self.score, 3), "views_scored": self.views,
-                "time_s": round(self.time_s, 6), "text": self.describe()}
+        return {
+            "position": [round(float(v), 6) for v in p],
+            "orientation_xyzw": [round(float(v), 6) for v in matrix_to_quat_xyzw(R)],
+            "pose": [[round(float(v), 9) for v in row] for row in self.T_scene_optical],
+            "target": [round(float(v), 6) for v in self.target],
+            "distance": round(self.distance, 4),
+            "turn_deg": round(math.degrees(self.turn), 2),
+            "differing_samples": int(self.differing),
+            "separation": round(self.separation, 4),
+            "visible": round(self.visible, 4),
+            "visible_now": round(self.visible_now, 4),
+            "score": round(self.score, 3),
+            "views_scored": self.views,
+            "time_s": round(self.time_s, 6),
+            "text": self.describe(),
+        }
 
 
 def optical_pose(origin: np.ndarray, target: np.ndarray, down: np.ndarray) -> np.ndarray:
@@ -104,8 +114,8 @@ def optical_pose(origin: np.ndarray, target: np.ndarray, down: np.ndarray) -> np
     z = z / np.linalg.norm(z, axis=-1, keepdims=True)
     y = down - z * (z @ down)[..., None]
     other = np.where((np.abs(z[..., :1]) < 0.9), [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    along = np.linalg.norm(y, axis=-1, keepdims=True) < 1e-6   # looking along "down"
-    y = np.where(along, np.cross(z, other), y)                 # (any roll will do)
+    along = np.linalg.norm(y, axis=-1, keepdims=True) < 1e-6  # looking along "down"
+    y = np.where(along, np.cross(z, other), y)  # (any roll will do)
     y = y / np.linalg.norm(y, axis=-1, keepdims=True)
     T = np.zeros(origin.shape[:-1] + (4, 4))
     T[..., :3, 0], T[..., :3, 1], T[..., :3, 2] = np.cross(y, z), y, z
@@ -124,15 +134,17 @@ def _directions(d0: np.ndarray, max_angle: float, n: int, frame: np.ndarray) -> 
     e2 = np.cross(d0, e1)
     k = np.arange(n - 1)
     cos_t = 1.0 - (1.0 - math.cos(max_angle)) * (k + 0.5) / max(n - 1, 1)
-    sin_t = np.sqrt(np.maximum(1.0 - cos_t ** 2, 0.0))
+    sin_t = np.sqrt(np.maximum(1.0 - cos_t**2, 0.0))
     phi = k * GOLDEN
-    dirs = (cos_t[:, None] * d0 + sin_t[:, None] * (np.cos(phi)[:, None] * e1 +
-                                                    np.sin(phi)[:, None] * e2))
+    dirs = cos_t[:, None] * d0 + sin_t[:, None] * (
+        np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+    )
     return np.concatenate([d0[None], dirs])
 
 
-def _weak_rivals(ctx: ClickContext, best: Hypothesis, amb: Ambiguity,
-                 settings: FitSettings) -> list:
+def _weak_rivals(
+    ctx: ClickContext, best: Hypothesis, amb: Ambiguity, settings: FitSettings
+) -> list:
     """The best pose moved both ways along its weak motion (samples moving ``WEAK_STEP``):
     [] when it is not weakly held."""
     if amb.weak_direction is None or best.model is None:
@@ -164,8 +176,13 @@ def _occluders(ctx: ClickContext) -> np.ndarray:
     return ctx.crop[np.abs(ctx.support.distance(ctx.crop)) > ctx.plane_threshold]
 
 
-def predict_views(ctx: ClickContext, hyps, poses: np.ndarray, settings: FitSettings,
-                  occluders: np.ndarray | None = None):
+def predict_views(
+    ctx: ClickContext,
+    hyps,
+    poses: np.ndarray,
+    settings: FitSettings,
+    occluders: np.ndarray | None = None,
+):
     """The predicted views of each hypothesis (:class:`~.ambiguity.Hypothesis`, best first)
     from each sensor pose (V, 4, 4, optical frames): (pred (H, V, n, n) depth, inf where
     nothing; surface (H, V, n, n) bool: the hypothesis's surface shows there; seen (H, V, S)
@@ -190,8 +207,11 @@ def predict_views(ctx: ClickContext, hyps, poses: np.ndarray, settings: FitSetti
 
     def render(part):
         return _render(part, occ, posed, n, b, s)
-    done = run([lambda idx=idx: render(poses[idx]) for idx in parts(len(poses), settings.threads,
-                                                                     8)], settings.threads)
+
+    done = run(
+        [lambda idx=idx: render(poses[idx]) for idx in parts(len(poses), settings.threads, 8)],
+        settings.threads,
+    )
     return tuple(np.concatenate([d[k] for d in done], axis=1) for k in range(5)) + (b,)
 
 
@@ -244,7 +264,7 @@ def _render(poses, occ, posed, n: int, b: float, s):
         flat, z = project(X)
         depths.append(z)
         # facing: -n . (x - o) > cos(grazing) |x - o|
-        dot = (X * Nw).sum(axis=1)[None] - o @ Nw.T          # n . (x - o)
+        dot = (X * Nw).sum(axis=1)[None] - o @ Nw.T  # n . (x - o)
         D = X[None] - o[:, None]
         flat = np.where(-dot > cosg * np.sqrt(np.einsum("vki,vki->vk", D, D)), flat, outside)
         raw, img = zbuffer(flat, z)
@@ -256,8 +276,7 @@ def _render(poses, occ, posed, n: int, b: float, s):
         tol = tolerance(z, b, s)
         seen.append((flat < outside) & (z <= raw[flat] + tol) & ~(occ_flat[flat] < z - tol))
         bins.append(np.where(flat < outside, flat - np.arange(V)[:, None] * n * n, n * n))
-    return np.stack(preds), np.stack(surfaces), np.stack(seen), np.stack(bins), \
-        np.stack(depths)
+    return np.stack(preds), np.stack(surfaces), np.stack(seen), np.stack(bins), np.stack(depths)
 
 
 def nearest_of_3x3(img: np.ndarray) -> np.ndarray:
@@ -271,8 +290,9 @@ def nearest_of_3x3(img: np.ndarray) -> np.ndarray:
         r, c = np.flatnonzero(rows[v]), np.flatnonzero(cols[v])
         r0, r1 = max(r[0] - 1, 0), min(r[-1] + 2, img.shape[1])
         c0, c1 = max(c[0] - 1, 0), min(c[-1] + 2, img.shape[2])
-        out[v, r0:r1, c0:c1] = minimum_filter(img[v, r0:r1, c0:c1], size=3, mode="constant",
-                                              cval=np.inf)
+        out[v, r0:r1, c0:c1] = minimum_filter(
+            img[v, r0:r1, c0:c1], size=3, mode="constant", cval=np.inf
+        )
     return out
 
 
@@ -283,9 +303,14 @@ def tolerance(z: np.ndarray, b: float, s) -> np.ndarray:
     return s.depth_difference + 2.0 * b * z
 
 
-def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
-                 T_scene_optical: np.ndarray | None = None,
-                 occluders: np.ndarray | None = None, support=None) -> SuggestedView | None:
+def suggest_view(
+    ctx: ClickContext,
+    amb: Ambiguity,
+    settings: FitSettings,
+    T_scene_optical: np.ndarray | None = None,
+    occluders: np.ndarray | None = None,
+    support=None,
+) -> SuggestedView | None:
     """The sensor pose within the ``viewpoint`` bounds that best tells the rivals of ``amb``
     apart and shows most of the best candidate (see the module's description), or None
     without a viewpoint or hypotheses. ``occluders`` (N, 3): more of the scan that may hide the
@@ -309,27 +334,29 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
         normal = support.normal * (1.0 if support.normal @ d0 >= 0 else -1.0)
         dirs = dirs[dirs @ normal >= math.sin(s.min_elevation) - 1e-9]
         down = -normal
-    else:                       # an axis of the frame attached to the scan (none of the cloud's)
+    else:  # an axis of the frame attached to the scan (none of the cloud's)
         down = ctx.frame[:, 1]
     if T_scene_optical is not None:
         down = np.asarray(T_scene_optical, float)[:3, 1]
     if not len(dirs):
         return None
     lo, hi = sorted((s.min_distance, s.max_distance))
-    distances = np.linspace(lo, hi, s.distances) if s.distances > 1 else \
-        np.array([0.5 * (lo + hi)])
+    distances = (
+        np.linspace(lo, hi, s.distances) if s.distances > 1 else np.array([0.5 * (lo + hi)])
+    )
     current = optical_pose(origin, target, down)
     around = (target + distances[:, None, None] * dirs[None]).reshape(-1, 3)
     poses = np.concatenate([current[None], optical_pose(around, target, down)])
-    if occluders is not None:            # the scan beyond the crop, the support plane left out
+    if occluders is not None:  # the scan beyond the crop, the support plane left out
         if support is not None:
             occluders = occluders[np.abs(support.distance(occluders)) > 2 * ctx.plane_threshold]
         occluders = np.concatenate([_occluders(ctx), occluders])
     pred, surface, seen, bins, depth, b = predict_views(ctx, hyps, poses, settings, occluders)
-    new = seen & ~seen[:, :1]          # samples in sight from there, out of sight now
+    new = seen & ~seen[:, :1]  # samples in sight from there, out of sight now
     V = len(poses)
-    flat = np.concatenate([pred.reshape(len(hyps), V, -1),
-                           np.full((len(hyps), V, 1), np.inf, pred.dtype)], axis=2)
+    flat = np.concatenate(
+        [pred.reshape(len(hyps), V, -1), np.full((len(hyps), V, 1), np.inf, pred.dtype)], axis=2
+    )
 
     def telling(a: int, c: int) -> np.ndarray:
         """(V,) how many of hypothesis a's newly seen samples hypothesis c's prediction
@@ -338,21 +365,29 @@ def suggest_view(ctx: ClickContext, amb: Ambiguity, settings: FitSettings,
         with np.errstate(invalid="ignore"):
             off = ~(np.abs(other - depth[a]) <= tolerance(depth[a], b, s))
         return (new[a] & off).sum(axis=1)
-    if len(hyps) > 1:       # each rival weighs as likely as it is against the best
+
+    if len(hyps) > 1:  # each rival weighs as likely as it is against the best
         weight = np.array([hyps[0].residual / max(h.residual, 1e-12) for h in hyps[1:]])
         tells = np.array([telling(0, k) + telling(k, 0) for k in range(1, len(hyps))])
         differing = (weight[:, None] * tells).sum(axis=0) / weight.sum()
     else:
         differing = np.zeros(V)
     score = differing + s.visibility_weight * new[0].sum(axis=1)
-    k = 1 + int(np.argmax(score[1:]))           # the current pose itself is no suggestion
+    k = 1 + int(np.argmax(score[1:]))  # the current pose itself is no suggestion
     T = poses[k]
-    turn = float(np.arccos(np.clip((T[:3, 3] - target) @ d0 /
-                                   np.linalg.norm(T[:3, 3] - target), -1.0, 1.0)))
-    return SuggestedView(T_scene_optical=T, target=target,
-                         distance=float(np.linalg.norm(T[:3, 3] - target)), turn=turn,
-                         differing=int(round(float(differing[k]))),
-                         separation=float(differing[k] / max(int(seen[:, k].sum()), 1)),
-                         visible=float(seen[0, k].mean()), visible_now=float(seen[0, 0].mean()),
-                         score=float(score[k]), views=len(poses) - 1,
-                         time_s=time.perf_counter() - t0)
+    turn = float(
+        np.arccos(np.clip((T[:3, 3] - target) @ d0 / np.linalg.norm(T[:3, 3] - target), -1.0, 1.0))
+    )
+    return SuggestedView(
+        T_scene_optical=T,
+        target=target,
+        distance=float(np.linalg.norm(T[:3, 3] - target)),
+        turn=turn,
+        differing=int(round(float(differing[k]))),
+        separation=float(differing[k] / max(int(seen[:, k].sum()), 1)),
+        visible=float(seen[0, k].mean()),
+        visible_now=float(seen[0, 0].mean()),
+        score=float(score[k]),
+        views=len(poses) - 1,
+        time_s=time.perf_counter() - t0,
+    )

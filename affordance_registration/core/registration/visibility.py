@@ -13,6 +13,7 @@ count.
 Without a viewpoint (a cloud with no single sensor origin) there are no visibility terms: every
 sample counts and none violates free space.
 """
+
 from __future__ import annotations
 
 import math
@@ -42,7 +43,7 @@ def _facing(D: np.ndarray, Nw: np.ndarray, grazing_angle: float) -> np.ndarray:
     arithmetic)."""
     c = math.cos(grazing_angle)
     dn = D * Nw
-    dot = dn[..., 0] + dn[..., 1] + dn[..., 2]            # -|D| cos(incidence)
+    dot = dn[..., 0] + dn[..., 1] + dn[..., 2]  # -|D| cos(incidence)
     dd = D * D
     n2 = np.maximum(dd[..., 0] + dd[..., 1] + dd[..., 2], 1e-18)
     if c >= 0.0:
@@ -50,8 +51,14 @@ def _facing(D: np.ndarray, Nw: np.ndarray, grazing_angle: float) -> np.ndarray:
     return (dot < 0.0) | (dot * dot < (c * c) * n2)
 
 
-def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettings,
-            exposed: bool = False, occluded: np.ndarray | None = None):
+def visible(
+    ctx: ClickContext,
+    X: np.ndarray,
+    Nw: np.ndarray,
+    settings: FitSettings,
+    exposed: bool = False,
+    occluded: np.ndarray | None = None,
+):
     """(seen, violated), both (B, S) bool, for posed samples X (B, S, 3) with normals Nw
     (B, S, 3) in the scene frame: seen = facing the sensor with a return that is not in front of
     them; violated = facing it while the sensor saw through where they would be. With
@@ -63,13 +70,14 @@ def visible(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSetti
     if origin is None:
         front = np.ones(X.shape[:-1], bool)
     else:
-        D = X - origin          # the offsets the facing test and the range image share
+        D = X - origin  # the offsets the facing test and the range image share
         front = _facing(D, Nw, settings.scoring.grazing_angle)
     if image is None:
         none = np.zeros_like(front)
         return (front, none, front) if exposed else (front, none)
-    shared = origin is not None and (image.origin is origin or
-                                     np.array_equal(image.origin, origin))
+    shared = origin is not None and (
+        image.origin is origin or np.array_equal(image.origin, origin)
+    )
     obs, depth = image.lookup_offsets(D) if shared else image.lookup(X)
     m = settings.scoring.free_space_margin
     # NaN (no return) compares False: an unknown direction is neither hidden nor violated

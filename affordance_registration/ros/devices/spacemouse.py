@@ -22,6 +22,7 @@ bitfield. Other reports (battery...) and short ones are dropped.
 The parsing here is pure (no ROS); the hidapi calls sit behind :class:`HidBackend`, so a
 :class:`FifoBackend` can feed recorded or scripted reports (tests, demos).
 """
+
 from __future__ import annotations
 
 import json
@@ -34,8 +35,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DEVICES", "SKIP", "DeviceInfo", "parse_report", "AxisState", "to_ros",
-           "HidBackend", "HidapiBackend", "FifoBackend", "find_device", "list_devices", "main"]
+__all__ = [
+    "DEVICES",
+    "SKIP",
+    "DeviceInfo",
+    "parse_report",
+    "AxisState",
+    "to_ros",
+    "HidBackend",
+    "HidapiBackend",
+    "FifoBackend",
+    "find_device",
+    "list_devices",
+    "main",
+]
 
 
 @dataclass(frozen=True)
@@ -62,8 +75,10 @@ DEVICES = {
     (0x256F, 0xC652): DeviceInfo("3Dconnexion Universal Receiver", 15),
 }
 #: 3Dconnexion products that are not 6-DoF mice (CadMouse family, keyboards): never opened.
-SKIP = {(0x256F, pid) for pid in (0xC650, 0xC651, 0xC654, 0xC655, 0xC656, 0xC657, 0xC658,
-                                 0xC664, 0xC665)}
+SKIP = {
+    (0x256F, pid)
+    for pid in (0xC650, 0xC651, 0xC654, 0xC655, 0xC656, 0xC657, 0xC658, 0xC664, 0xC665)
+}
 
 
 def parse_report(data) -> tuple[str, tuple] | None:
@@ -144,6 +159,7 @@ class HidBackend:
 class HidapiBackend(HidBackend):
     def __init__(self):
         import hid  # the hidapi package
+
         self._hid = hid
 
     def enumerate(self) -> list[dict]:
@@ -158,10 +174,10 @@ class HidapiBackend(HidBackend):
 class FifoBackend(HidBackend):
     """Scripted devices for tests and demos: JSON lines on a FIFO (or file) ::
 
-        {"plug": {"path": "fake0", "vendor_id": 9583, "product_id": 50741, "product": "..."}}
-        {"report": [1, 10, 0, 0, 0, 0, 0]}        # to the open device
-        {"unplug": "fake0"}
-        {"plug": {"path": "fake1", ..., "deny": true}}   # opening it: permission denied
+    {"plug": {"path": "fake0", "vendor_id": 9583, "product_id": 50741, "product": "..."}}
+    {"report": [1, 10, 0, 0, 0, 0, 0]}        # to the open device
+    {"unplug": "fake0"}
+    {"plug": {"path": "fake1", ..., "deny": true}}   # opening it: permission denied
     """
 
     def __init__(self, path: str):
@@ -199,8 +215,12 @@ class FifoBackend(HidBackend):
             if "plug" in cmd:
                 d = cmd["plug"]
                 path = str(d["path"])
-                device = {"vendor_id": int(d["vendor_id"]), "product_id": int(d["product_id"]),
-                          "path": path.encode(), "product_string": str(d.get("product", ""))}
+                device = {
+                    "vendor_id": int(d["vendor_id"]),
+                    "product_id": int(d["product_id"]),
+                    "path": path.encode(),
+                    "product_string": str(d.get("product", "")),
+                }
                 self._devices[path] = device
                 self._reports[path] = queue.Queue()
                 if d.get("deny"):
@@ -240,6 +260,7 @@ class FifoBackend(HidBackend):
 
             def close(self):
                 pass
+
         return Handle()
 
 
@@ -251,8 +272,9 @@ def make_backend(spec: str) -> HidBackend:
     return HidapiBackend()
 
 
-def find_device(backend: HidBackend, device_path: str = "", vendor_id: int = 0,
-                product_id: int = 0) -> dict | None:
+def find_device(
+    backend: HidBackend, device_path: str = "", vendor_id: int = 0, product_id: int = 0
+) -> dict | None:
     """The device to open: an explicit path or vendor/product, else the first known SpaceMouse
     (CadMice and keyboards are skipped)."""
     for d in backend.enumerate():
@@ -281,12 +303,13 @@ def list_devices(backend: HidBackend | None = None) -> list[str]:
         if key in SKIP or key not in DEVICES or path in seen:
             continue
         seen.add(path)
-        access = "" if not path.startswith("/dev/") or os.access(path, os.R_OK | os.W_OK) else \
-            "  (no permission: install launch_configs/99-spacemouse.rules)"
+        access = (
+            ""
+            if not path.startswith("/dev/") or os.access(path, os.R_OK | os.W_OK)
+            else "  (no permission: install launch_configs/99-spacemouse.rules)"
+        )
         lines.append(f"{DEVICES[key].name}  {key[0]:04x}:{key[1]:04x}  {path}{access}")
     return lines
-
-
 
 
 def main(args=None) -> int:
@@ -294,6 +317,7 @@ def main(args=None) -> int:
     :mod:`.spacemouse_node` (this module's parsing needs no ROS)."""
     from ..nodes.spacemouse_node import SpaceMouseNode
     from ..standins.spin import run_node
+
     return run_node(SpaceMouseNode, "affordance_spacemouse", args)
 
 

@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """A fixed cloud on a topic for late joiners: the sensors of the station's demo and scan modes."""
+
 from __future__ import annotations
 
 from sensor_msgs.msg import PointCloud2

@@ -6,6 +6,7 @@
 float64 (any offsets, padding, point_step, row_step, organized or not, either endianness) with
 one structured-dtype view of the buffer -- no per-point Python. None of this needs ``rclpy.init``.
 """
+
 from __future__ import annotations
 
 import math
@@ -20,18 +21,49 @@ from ...core.errors import AffordanceError
 from ...core.pointfiles import MAX_POINTS
 from ...core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
-__all__ = ["ConversionError", "source_stamp_s", "header_stamp_s", "parse_dimension",
-           "pointcloud2_layout", "pointcloud2_to_xyz", "pointcloud2_field",
-           "xyz_to_pointcloud2", "pose_to_matrix", "matrix_to_pose", "pose_stamped", "point_stamped",
-           "stamped", "transform_to_matrix", "matrix_to_transform", "mesh_marker",
-           "text_marker", "sphere_marker", "likelihood_color"]
+__all__ = [
+    "ConversionError",
+    "source_stamp_s",
+    "header_stamp_s",
+    "parse_dimension",
+    "pointcloud2_layout",
+    "pointcloud2_to_xyz",
+    "pointcloud2_field",
+    "xyz_to_pointcloud2",
+    "pose_to_matrix",
+    "matrix_to_pose",
+    "pose_stamped",
+    "point_stamped",
+    "stamped",
+    "transform_to_matrix",
+    "matrix_to_transform",
+    "mesh_marker",
+    "text_marker",
+    "sphere_marker",
+    "likelihood_color",
+]
 
 _FLOAT_TYPES = {PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
-_NUMERIC = {PointField.INT8: "i1", PointField.UINT8: "u1", PointField.INT16: "i2",
-            PointField.UINT16: "u2", PointField.INT32: "i4", PointField.UINT32: "u4",
-            PointField.FLOAT32: "f4", PointField.FLOAT64: "f8"}
-_SIZES = {PointField.INT8: 1, PointField.UINT8: 1, PointField.INT16: 2, PointField.UINT16: 2,
-          PointField.INT32: 4, PointField.UINT32: 4, PointField.FLOAT32: 4, PointField.FLOAT64: 8}
+_NUMERIC = {
+    PointField.INT8: "i1",
+    PointField.UINT8: "u1",
+    PointField.INT16: "i2",
+    PointField.UINT16: "u2",
+    PointField.INT32: "i4",
+    PointField.UINT32: "u4",
+    PointField.FLOAT32: "f4",
+    PointField.FLOAT64: "f8",
+}
+_SIZES = {
+    PointField.INT8: 1,
+    PointField.UINT8: 1,
+    PointField.INT16: 2,
+    PointField.UINT16: 2,
+    PointField.INT32: 4,
+    PointField.UINT32: 4,
+    PointField.FLOAT32: 4,
+    PointField.FLOAT64: 8,
+}
 
 
 class ConversionError(AffordanceError):
@@ -46,40 +78,51 @@ def pointcloud2_layout(msg: PointCloud2) -> np.dtype:
     names = [f.name for f in msg.fields]
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
-        raise ConversionError(f"PointCloud2 has more than one field named "
-                              f"{', '.join(repr(n) for n in duplicates)}")
+        raise ConversionError(
+            f"PointCloud2 has more than one field named {', '.join(repr(n) for n in duplicates)}"
+        )
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in ("x", "y", "z") if n not in fields]
     if missing:
-        raise ConversionError(f"PointCloud2 has no {'/'.join(missing)} field "
-                              f"(fields: {', '.join(fields) or 'none'})")
+        raise ConversionError(
+            f"PointCloud2 has no {'/'.join(missing)} field (fields: {', '.join(fields) or 'none'})"
+        )
     h, w, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
     endian = ">" if msg.is_bigendian else "<"
     formats, offsets = [], []
     for n in ("x", "y", "z"):
         f = fields[n]
         if f.datatype not in _FLOAT_TYPES:
-            raise ConversionError(f"PointCloud2 field '{n}' has datatype {f.datatype}; "
-                                  f"only FLOAT32 (7) and FLOAT64 (8) are supported")
+            raise ConversionError(
+                f"PointCloud2 field '{n}' has datatype {f.datatype}; "
+                f"only FLOAT32 (7) and FLOAT64 (8) are supported"
+            )
         if f.count not in (0, 1):
             raise ConversionError(f"PointCloud2 field '{n}' has count {f.count}, expected 1")
         if f.offset + _SIZES[f.datatype] > step:
-            raise ConversionError(f"PointCloud2 field '{n}' (offset {f.offset}) does not fit in "
-                                  f"point_step {step}")
+            raise ConversionError(
+                f"PointCloud2 field '{n}' (offset {f.offset}) does not fit in point_step {step}"
+            )
         formats.append(endian + _FLOAT_TYPES[f.datatype])
         offsets.append(int(f.offset))
     if h * w > MAX_POINTS:
-        raise ConversionError(f"PointCloud2 has {h * w:,} points, more than the {MAX_POINTS:,} "
-                              f"this node takes (downsample it)")
+        raise ConversionError(
+            f"PointCloud2 has {h * w:,} points, more than the {MAX_POINTS:,} "
+            f"this node takes (downsample it)"
+        )
     if h * w and row_step < w * step:
-        raise ConversionError(f"PointCloud2 row_step {row_step} is smaller than width {w} x "
-                              f"point_step {step}")
+        raise ConversionError(
+            f"PointCloud2 row_step {row_step} is smaller than width {w} x point_step {step}"
+        )
     size = len(msg.data)
     if h * w and size != row_step * h:
-        raise ConversionError(f"PointCloud2 data has {size} bytes but the header says "
-                              f"{h} rows x row_step {row_step} = {row_step * h}")
-    return np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets,
-                     "itemsize": step})
+        raise ConversionError(
+            f"PointCloud2 data has {size} bytes but the header says "
+            f"{h} rows x row_step {row_step} = {row_step * h}"
+        )
+    return np.dtype(
+        {"names": ["x", "y", "z"], "formats": formats, "offsets": offsets, "itemsize": step}
+    )
 
 
 def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
@@ -89,9 +132,12 @@ def pointcloud2_to_xyz(msg: PointCloud2) -> tuple[np.ndarray, tuple | None]:
     if h * w == 0:
         return np.zeros((0, 3)), None
     data = msg.data
-    buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else \
-        data.view(np.uint8)
-    rows = buf.reshape(h, row_step)[:, :w * step]
+    buf = (
+        np.frombuffer(data, dtype=np.uint8)
+        if not isinstance(data, np.ndarray)
+        else data.view(np.uint8)
+    )
+    rows = buf.reshape(h, row_step)[:, : w * step]
     if not rows.flags.c_contiguous:
         rows = np.ascontiguousarray(rows)
     rec = rows.reshape(-1).view(dtype)
@@ -111,11 +157,20 @@ def pointcloud2_field(msg: PointCloud2, name: str) -> np.ndarray | None:
     if field.offset + _SIZES[field.datatype] > step or h * w == 0:
         return None if h * w else np.zeros(0)
     endian = ">" if msg.is_bigendian else "<"
-    dtype = np.dtype({"names": [name], "formats": [endian + _NUMERIC[field.datatype]],
-                      "offsets": [int(field.offset)], "itemsize": step})
-    buf = np.frombuffer(msg.data, dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
+    dtype = np.dtype(
+        {
+            "names": [name],
+            "formats": [endian + _NUMERIC[field.datatype]],
+            "offsets": [int(field.offset)],
+            "itemsize": step,
+        }
+    )
+    buf = (
+        np.frombuffer(msg.data, dtype=np.uint8)
+        if not isinstance(msg.data, np.ndarray)
         else msg.data.view(np.uint8)
-    rows = np.ascontiguousarray(buf.reshape(h, row_step)[:, :w * step])
+    )
+    rows = np.ascontiguousarray(buf.reshape(h, row_step)[:, : w * step])
     return rows.reshape(-1).view(dtype)[name].astype(np.float64)
 
 
@@ -136,8 +191,10 @@ def xyz_to_pointcloud2(points: np.ndarray, frame_id: str, stamp=None) -> PointCl
     if stamp is not None:
         msg.header.stamp = stamp
     msg.height, msg.width = h, w
-    msg.fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-                  for i, n in enumerate("xyz")]
+    msg.fields = [
+        PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+        for i, n in enumerate("xyz")
+    ]
     msg.is_bigendian = False
     msg.point_step = 16
     msg.row_step = 16 * w
@@ -203,9 +260,10 @@ def point_stamped(point, frame_id: str, stamp=None) -> PointStamped:
 def likelihood_color(probability: float, alpha: float = 0.85) -> ColorRGBA:
     """Green for a confident candidate, through yellow, to red for an unlikely one."""
     p = float(np.clip(probability, 0.0, 1.0))
-    confidence = np.clip((p - 0.2) / 0.4, 0.0, 1.0)   # 0.2 -> red, 0.6 and above -> green
-    return ColorRGBA(r=float(min(1.0, 2 * (1 - confidence))), g=float(min(1.0, 2 * confidence)),
-                     b=0.1, a=alpha)
+    confidence = np.clip((p - 0.2) / 0.4, 0.0, 1.0)  # 0.2 -> red, 0.6 and above -> green
+    return ColorRGBA(
+        r=float(min(1.0, 2 * (1 - confidence))), g=float(min(1.0, 2 * confidence)), b=0.1, a=alpha
+    )
 
 
 #: id(mesh) -> (mesh, its triangle corners as Points), the most recently made last
@@ -221,13 +279,13 @@ def _triangle_points(mesh) -> list:
         pts = [Point(x=float(a), y=float(b), z=float(c)) for a, b, c in tri]
         hit = (mesh, pts)
         _TRIANGLE_CACHE.pop(key, None)
-        while len(_TRIANGLE_CACHE) >= _TRIANGLE_CACHE_SIZE:      # bounded: the oldest go
+        while len(_TRIANGLE_CACHE) >= _TRIANGLE_CACHE_SIZE:  # bounded: the oldest go
             del _TRIANGLE_CACHE[next(iter(_TRIANGLE_CACHE))]
         _TRIANGLE_CACHE[key] = hit
     return hit[1]
 
 
-def _marker(kind: int, frame_id: str, ns: str, marker_id: int, stamp, position=None) -> Marker:
+def new_marker(kind: int, frame_id: str, ns: str, marker_id: int, stamp, position=None) -> Marker:
     m = Marker()
     m.header.frame_id = frame_id
     if stamp is not None:
@@ -240,10 +298,11 @@ def _marker(kind: int, frame_id: str, ns: str, marker_id: int, stamp, position=N
     return m
 
 
-def mesh_marker(mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int,
-                color: ColorRGBA, stamp=None) -> Marker:
+def mesh_marker(
+    mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int, color: ColorRGBA, stamp=None
+) -> Marker:
     """The mesh as a TRIANGLE_LIST marker posed at T (RViz needs no mesh file)."""
-    m = _marker(Marker.TRIANGLE_LIST, frame_id, ns, marker_id, stamp)
+    m = new_marker(Marker.TRIANGLE_LIST, frame_id, ns, marker_id, stamp)
     m.pose = matrix_to_pose(T)
     m.scale.x = m.scale.y = m.scale.z = 1.0
     m.color = color
@@ -251,18 +310,20 @@ def mesh_marker(mesh, T: np.ndarray, frame_id: str, ns: str, marker_id: int,
     return m
 
 
-def text_marker(text: str, position, frame_id: str, ns: str, marker_id: int, stamp=None,
-                height: float = 0.025) -> Marker:
-    m = _marker(Marker.TEXT_VIEW_FACING, frame_id, ns, marker_id, stamp, position)
+def text_marker(
+    text: str, position, frame_id: str, ns: str, marker_id: int, stamp=None, height: float = 0.025
+) -> Marker:
+    m = new_marker(Marker.TEXT_VIEW_FACING, frame_id, ns, marker_id, stamp, position)
     m.scale.z = height
     m.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
     m.text = text
     return m
 
 
-def sphere_marker(position, frame_id: str, ns: str, marker_id: int, stamp=None,
-                  diameter: float = 0.012) -> Marker:
-    m = _marker(Marker.SPHERE, frame_id, ns, marker_id, stamp, position)
+def sphere_marker(
+    position, frame_id: str, ns: str, marker_id: int, stamp=None, diameter: float = 0.012
+) -> Marker:
+    m = new_marker(Marker.SPHERE, frame_id, ns, marker_id, stamp, position)
     m.scale.x = m.scale.y = m.scale.z = diameter
     m.color = ColorRGBA(r=0.2, g=0.6, b=1.0, a=1.0)
     return m
@@ -287,8 +348,9 @@ def parse_dimension(text: str) -> tuple:
     "radius=0.045", "x+", "x-". AffordanceError (one line) for anything else."""
     text = str(text)
     if len(text) > MAX_DIMENSION_TEXT:
-        raise AffordanceError(f"a message of {len(text)} characters; expected NAME=METRES, "
-                              f"NAME+ or NAME-")
+        raise AffordanceError(
+            f"a message of {len(text)} characters; expected NAME=METRES, NAME+ or NAME-"
+        )
     text = text.strip()
     if text.endswith(("+", "-")) and text[:-1].strip().isidentifier():
         return text[:-1].strip(), None, 1.0 if text.endswith("+") else -1.0
@@ -298,8 +360,9 @@ def parse_dimension(text: str) -> tuple:
     except ValueError:
         metres = math.nan
     if not eq or not name.strip().isidentifier() or not math.isfinite(metres):
-        raise AffordanceError(f"expected NAME=METRES, NAME+ or NAME- (e.g. radius=0.045), got "
-                              f"{text!r}")
+        raise AffordanceError(
+            f"expected NAME=METRES, NAME+ or NAME- (e.g. radius=0.045), got {text!r}"
+        )
     return name.strip(), metres, None
 
 

@@ -7,6 +7,7 @@ A static transform parameter entry is a string ``"parent child x y z qx qy qz qw
 unit quaternion): the pose of ``child`` in ``parent``, as ``ros2 run tf2_ros
 static_transform_publisher`` takes it. Chains are followed in either direction.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -17,9 +18,17 @@ import numpy as np
 from ...core.errors import AffordanceError
 from ...core.transforms import invert, make_T, quat_xyzw_to_matrix
 
-__all__ = ["FrameGraph", "StaticFrames", "TransformBuffer", "TF_CACHE_S", "parse_static_transform",
-           "FrameError",
-           "T_frame_optical", "R_BODY_OPTICAL", "is_body_frame"]
+__all__ = [
+    "FrameGraph",
+    "StaticFrames",
+    "TransformBuffer",
+    "TF_CACHE_S",
+    "parse_static_transform",
+    "FrameError",
+    "T_frame_optical",
+    "R_BODY_OPTICAL",
+    "is_body_frame",
+]
 
 #: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
 #: (x right, y down, z forward): R_body_optical
@@ -40,8 +49,11 @@ def is_body_frame(frame: str) -> bool:
     name = frame.strip().lstrip("/").lower()
     if "optical" in name:
         return False
-    return name in BODY_FRAMES or name.endswith(("_link", "_footprint")) or \
-        any(hint in name for hint in BODY_HINTS)
+    return (
+        name in BODY_FRAMES
+        or name.endswith(("_link", "_footprint"))
+        or any(hint in name for hint in BODY_HINTS)
+    )
 
 
 def T_frame_optical(frame: str) -> np.ndarray:
@@ -59,12 +71,15 @@ class FrameError(AffordanceError):
 def parse_static_transform(text: str) -> tuple[str, str, np.ndarray]:
     parts = str(text).split()
     if len(parts) != 9:
-        raise AffordanceError(f"static transform {text!r}: expected 'parent child x y z qx qy qz qw'")
+        raise AffordanceError(
+            f"static transform {text!r}: expected 'parent child x y z qx qy qz qw'"
+        )
     try:
         values = np.array([float(v) for v in parts[2:]])
     except ValueError:
-        raise AffordanceError(f"static transform {text!r}: x y z qx qy qz qw must be numbers") \
-            from None
+        raise AffordanceError(
+            f"static transform {text!r}: x y z qx qy qz qw must be numbers"
+        ) from None
     if not np.all(np.isfinite(values)):
         raise AffordanceError(f"static transform {text!r}: values must be finite")
     q = values[3:]
@@ -79,7 +94,7 @@ class FrameGraph:
     T_target_source, following chains in either direction."""
 
     def __init__(self):
-        self._parents: dict[str, tuple[str, np.ndarray]] = {}   # child -> (parent, T_parent_child)
+        self._parents: dict[str, tuple[str, np.ndarray]] = {}  # child -> (parent, T_parent_child)
 
     def set(self, parent: str, child: str, T_parent_child: np.ndarray) -> None:
         parent, child = parent.lstrip("/"), child.lstrip("/")
@@ -101,7 +116,7 @@ class FrameGraph:
             return np.eye(4)
         edges: dict[str, list[tuple[str, np.ndarray]]] = {}
         for child, (parent, T) in self._parents.items():
-            edges.setdefault(parent, []).append((child, T))          # T_parent_child
+            edges.setdefault(parent, []).append((child, T))  # T_parent_child
             edges.setdefault(child, []).append((parent, invert(T)))  # T_child_parent
         # breadth-first from the target: T_target_node accumulates along the path
         seen = {target: np.eye(4)}
@@ -115,9 +130,11 @@ class FrameGraph:
                 if nxt == source:
                     return seen[nxt]
                 queue.append(nxt)
-        raise FrameError(f"no transform from frame '{source}' to frame '{target}' "
-                         f"(publish it on /tf or /tf_static, or give it as a static_transforms "
-                         f"parameter)")
+        raise FrameError(
+            f"no transform from frame '{source}' to frame '{target}' "
+            f"(publish it on /tf or /tf_static, or give it as a static_transforms "
+            f"parameter)"
+        )
 
 
 class StaticFrames(FrameGraph):
@@ -126,7 +143,7 @@ class StaticFrames(FrameGraph):
     def __init__(self, entries=()):
         super().__init__()
         for entry in entries:
-            if not str(entry).strip():      # [""] is how an empty string list is often written
+            if not str(entry).strip():  # [""] is how an empty string list is often written
                 continue
             self.set(*parse_static_transform(entry))
 
@@ -154,10 +171,16 @@ class TransformBuffer:
     def __init__(self, cache_s: float = TF_CACHE_S):
         self.cache_s = float(cache_s)
         self._static: dict[str, tuple[str, np.ndarray]] = {}
-        self._dynamic: dict[str, tuple[str, list]] = {}    # child -> (parent, [(stamp, T)])
+        self._dynamic: dict[str, tuple[str, list]] = {}  # child -> (parent, [(stamp, T)])
 
-    def set(self, parent: str, child: str, T_parent_child: np.ndarray, stamp: float = 0.0,
-            static: bool = False) -> None:
+    def set(
+        self,
+        parent: str,
+        child: str,
+        T_parent_child: np.ndarray,
+        stamp: float = 0.0,
+        static: bool = False,
+    ) -> None:
         parent, child = parent.lstrip("/"), child.lstrip("/")
         if not parent or not child or parent == child:
             return
@@ -172,7 +195,7 @@ class TransformBuffer:
         stamps = [s for s, _ in history]
         i = bisect.bisect_left(stamps, stamp)
         if i < len(history) and history[i][0] == stamp:
-            history[i] = (stamp, T)               # the same stamp again: the newer message
+            history[i] = (stamp, T)  # the same stamp again: the newer message
         else:
             history.insert(i, (stamp, T))
         newest = history[-1][0]
@@ -188,7 +211,7 @@ class TransformBuffer:
         for child, (parent, history) in self._dynamic.items():
             try:
                 out.set(parent, child, self._at(child, history, stamp))
-            except FrameError:          # its history does not reach back to ``stamp``
+            except FrameError:  # its history does not reach back to ``stamp``
                 continue
         return out
 
@@ -200,9 +223,11 @@ class TransformBuffer:
         if i == 0:
             if stamp == stamps[0]:
                 return history[0][1]
-            raise FrameError(f"frame '{child}' at {stamp:.3f} s is older than what TF keeps "
-                             f"(transforms from {stamps[0]:.3f} s on; the cache is "
-                             f"{self.cache_s:g} s)")
+            raise FrameError(
+                f"frame '{child}' at {stamp:.3f} s is older than what TF keeps "
+                f"(transforms from {stamps[0]:.3f} s on; the cache is "
+                f"{self.cache_s:g} s)"
+            )
         (s0, T0), (s1, T1) = history[i - 1], history[i]
         return _interpolate(T0, T1, (stamp - s0) / (s1 - s0))
 
@@ -210,6 +235,7 @@ class TransformBuffer:
 def _interpolate(T0: np.ndarray, T1: np.ndarray, f: float) -> np.ndarray:
     """The pose a fraction ``f`` of the way from ``T0`` to ``T1``."""
     from scipy.spatial.transform import Rotation, Slerp
+
     rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))
     T = np.eye(4)
     T[:3, :3] = rot([f]).as_matrix()[0]

@@ -9,6 +9,7 @@ here". Each waypoint is drawn as a small gripper (namespaces ``candidate_waypoin
 with their tips at the waypoint, the palm and a stem back along its -z, its x axis in red, and a
 grey line from the ``pre_`` pose (the approach). For an unsettled object, the frustum of the view
 that would settle it (``suggested_view``)."""
+
 from __future__ import annotations
 
 import math
@@ -22,21 +23,33 @@ from ...core.labels import REFUSED_PREFIX, standing
 from ...core.memo import PerRecord
 from ...core.registration import describe_primitive, verdict
 from ...core.waypoints import waypoint_poses
-from .conversions import _marker, likelihood_color, sphere_marker, text_marker
+from .conversions import likelihood_color, new_marker, sphere_marker, text_marker
 from .mesh_refs import template_markers
 
-__all__ = ["state_markers", "registered_markers_memo", "joint_text", "waypoint_marker",
-           "frustum_marker", "MOVING_COLOR", "REGISTERED_COLOR", "VIEW_COLOR"]
+__all__ = [
+    "state_markers",
+    "registered_markers_memo",
+    "joint_text",
+    "waypoint_marker",
+    "frustum_marker",
+    "MOVING_COLOR",
+    "REGISTERED_COLOR",
+    "VIEW_COLOR",
+]
 
 MOVING_COLOR = ColorRGBA(r=1.0, g=0.35, b=0.1, a=0.9)
-NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)   #: no template fits here
+NO_MATCH_COLOR = ColorRGBA(r=0.55, g=0.55, b=0.55, a=0.6)  #: no template fits here
 REGISTERED_COLOR = ColorRGBA(r=0.3, g=0.5, b=1.0, a=0.9)
 GRIPPER_COLOR = ColorRGBA(r=1.0, g=0.85, b=0.1, a=1.0)
 X_AXIS_COLOR = ColorRGBA(r=1.0, g=0.1, b=0.1, a=1.0)
 APPROACH_COLOR = ColorRGBA(r=0.7, g=0.7, b=0.7, a=0.8)
 #: the gripper drawn at a waypoint, segments in its frame (m): fingers, palm, stem
-GRIPPER_SEGMENTS = (((0, -0.02, -0.03), (0, -0.02, 0)), ((0, 0.02, -0.03), (0, 0.02, 0)),
-                    ((0, -0.02, -0.03), (0, 0.02, -0.03)), ((0, 0, -0.03), (0, 0, -0.06)))
+GRIPPER_SEGMENTS = (
+    ((0, -0.02, -0.03), (0, -0.02, 0)),
+    ((0, 0.02, -0.03), (0, 0.02, 0)),
+    ((0, -0.02, -0.03), (0, 0.02, -0.03)),
+    ((0, 0, -0.03), (0, 0, -0.06)),
+)
 X_AXIS = ((0, 0, -0.03), (0.02, 0, -0.03))
 
 
@@ -48,8 +61,8 @@ def waypoint_marker(library, fit, frame: str, ns: str, marker_id: int, stamp) ->
     poses = waypoint_poses(library[fit.template], fit)
     if not poses:
         return None
-    m = _marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
-    m.scale.x = 0.003                  # line width (m)
+    m = new_marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
+    m.scale.x = 0.003  # line width (m)
     m.color = GRIPPER_COLOR
     for wp in poses:
         segments = [(GRIPPER_COLOR, GRIPPER_SEGMENTS), (X_AXIS_COLOR, (X_AXIS,))]
@@ -66,14 +79,15 @@ def waypoint_marker(library, fit, frame: str, ns: str, marker_id: int, stamp) ->
     return m
 
 
-VIEW_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.2, a=0.9)         #: a suggested view's frustum
+VIEW_COLOR = ColorRGBA(r=1.0, g=0.9, b=0.2, a=0.9)  #: a suggested view's frustum
 #: a suggested view's frustum: this deep (m) and this wide / high per metre of depth (about a
 #: depth camera's 75 x 65 degrees)
 FRUSTUM_DEPTH, FRUSTUM_HALF_X, FRUSTUM_HALF_Y = 0.15, 0.77, 0.64
 
 
-def frustum_marker(T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: int,
-                   stamp) -> Marker:
+def frustum_marker(
+    T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: int, stamp
+) -> Marker:
     """A camera frustum (LINE_LIST) at an optical-frame pose (z forward, x right, y down): the
     four edges from the centre and the far rectangle, and a tick at its top edge (y up)."""
     d, hx, hy = FRUSTUM_DEPTH, FRUSTUM_HALF_X * FRUSTUM_DEPTH, FRUSTUM_HALF_Y * FRUSTUM_DEPTH
@@ -81,7 +95,7 @@ def frustum_marker(T_scene_optical: np.ndarray, frame: str, ns: str, marker_id: 
     segments = [((0, 0, 0), c) for c in corners]
     segments += [(corners[k], corners[(k + 1) % 4]) for k in range(4)]
     segments.append(((0.0, -hy, d), (0.0, -1.4 * hy, d)))
-    m = _marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
+    m = new_marker(Marker.LINE_LIST, frame, ns, marker_id, stamp)
     m.scale.x = 0.005
     m.color = VIEW_COLOR
     R, t = np.asarray(T_scene_optical, float)[:3, :3], np.asarray(T_scene_optical, float)[:3, 3]
@@ -108,8 +122,11 @@ def joint_text(tpl, joints: dict, state, scale: float, size=None) -> str:
     for j in tpl.joints:
         if j.name in joints:
             v = joints[j.name]
-            parts.append(f"{j.name} {math.degrees(v):.0f} deg" if j.type == "revolute"
-                         else f"{j.name} {v * 1000:.1f} mm")
+            parts.append(
+                f"{j.name} {math.degrees(v):.0f} deg"
+                if j.type == "revolute"
+                else f"{j.name} {v * 1000:.1f} mm"
+            )
     if abs(scale - 1.0) > 1e-6:
         parts.append(f"x{scale:.2f}")
     return f" ({', '.join(parts)})" if parts else ""
@@ -118,8 +135,9 @@ def joint_text(tpl, joints: dict, state, scale: float, size=None) -> str:
 def _object_markers(tpl, T, joints, scale, frame, ns, marker_id, colour, stamp) -> list:
     """The template at its joint values and scale (by reference where it has mesh files), and
     its moving part highlighted."""
-    return template_markers(tpl, T, tpl.joint_value(joints), scale, frame, ns, marker_id, colour,
-                            MOVING_COLOR, stamp)
+    return template_markers(
+        tpl, T, tpl.joint_value(joints), scale, frame, ns, marker_id, colour, MOVING_COLOR, stamp
+    )
 
 
 def _registered_markers(reg, library, frame: str) -> tuple | None:
@@ -130,11 +148,22 @@ def _registered_markers(reg, library, frame: str) -> tuple | None:
     if reg.template not in library:
         return None
     tpl = _geometry(library, reg.template, reg.dimensions)
-    return (_object_markers(tpl, reg.T_scene_model, reg.joints, reg.scale, frame, "registered",
-                            reg.id, REGISTERED_COLOR, None),
-            waypoint_marker(library, reg, frame, "registered_waypoints", reg.id, None),
-            f"{reg.template} #{reg.id}{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}",
-            0.5 * tpl.diameter)
+    return (
+        _object_markers(
+            tpl,
+            reg.T_scene_model,
+            reg.joints,
+            reg.scale,
+            frame,
+            "registered",
+            reg.id,
+            REGISTERED_COLOR,
+            None,
+        ),
+        waypoint_marker(library, reg, frame, "registered_waypoints", reg.id, None),
+        f"{reg.template} #{reg.id}{joint_text(tpl, reg.joints, reg.state, reg.scale, reg)}",
+        0.5 * tpl.diameter,
+    )
 
 
 def registered_markers_memo() -> PerRecord:
@@ -143,8 +172,9 @@ def registered_markers_memo() -> PerRecord:
     return PerRecord(_registered_markers)
 
 
-def state_markers(state, library, frame: str, stamp, up: np.ndarray,
-                  memo: PerRecord | None = None) -> MarkerArray:
+def state_markers(
+    state, library, frame: str, stamp, up: np.ndarray, memo: PerRecord | None = None
+) -> MarkerArray:
     """A DELETEALL, then the open objects' shown candidates and the registrations of ``state``
     (an :class:`~affordance_registration.core.engine.EngineState`). ``up`` (3,) is the screen's
     up direction in ``frame`` (labels go below the objects). ``memo``
@@ -159,25 +189,38 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray,
         tpl = _geometry(library, c.template, c.dimensions)
         T = c.T_scene_model
         colour = NO_MATCH_COLOR if obj.no_match else likelihood_color(c.probability)
-        markers.markers += _object_markers(tpl, T, c.joints, c.scale, frame, "candidate", obj.id,
-                                           colour, stamp)
+        markers.markers += _object_markers(
+            tpl, T, c.joints, c.scale, frame, "candidate", obj.id, colour, stamp
+        )
         top = T[:3, :3] @ tpl.centroid + T[:3, 3]
-        said, _ = standing(obj.no_match, obj.active, [r.probability for r in obj.candidates],
-                           [r.fits for r in obj.candidates], c.primitive is not None,
-                           verdict(obj.candidates))
+        said, _ = standing(
+            obj.no_match,
+            obj.active,
+            [r.probability for r in obj.candidates],
+            [r.fits for r in obj.candidates],
+            c.primitive is not None,
+            verdict(obj.candidates),
+        )
         name = f"{c.template}{joint_text(tpl, c.joints, c.state, c.scale, c)}"
         rank = f"rank {obj.active + 1}/{len(obj.candidates)}"
-        label = (f"{said} {name} — {rank}" if said == REFUSED_PREFIX else
-                 f"{name} — {rank} — {said}")
-        markers.markers.append(text_marker(label, top - 0.6 * tpl.diameter * up, frame,
-                                           "candidate_label", obj.id, stamp))
+        label = (
+            f"{said} {name} — {rank}" if said == REFUSED_PREFIX else f"{name} — {rank} — {said}"
+        )
+        markers.markers.append(
+            text_marker(
+                label, top - 0.6 * tpl.diameter * up, frame, "candidate_label", obj.id, stamp
+            )
+        )
         markers.markers.append(sphere_marker(obj.click, frame, "click", obj.id, stamp))
         gripper = waypoint_marker(library, c, frame, "candidate_waypoints", obj.id, stamp)
         if gripper is not None:
             markers.markers.append(gripper)
         if obj.suggested_view is not None:
-            markers.markers.append(frustum_marker(obj.suggested_view.T_scene_optical, frame,
-                                                  "suggested_view", obj.id, stamp))
+            markers.markers.append(
+                frustum_marker(
+                    obj.suggested_view.T_scene_optical, frame, "suggested_view", obj.id, stamp
+                )
+            )
     drawn = (memo or registered_markers_memo()).values(state.registered, library, frame)
     for reg, made in zip(state.registered, drawn):
         if made is None:
@@ -187,8 +230,16 @@ def state_markers(state, library, frame: str, stamp, up: np.ndarray,
             for m in meshes if gripper is None else meshes + [gripper]:
                 m.header.stamp = stamp
         markers.markers += meshes
-        markers.markers.append(text_marker(text, reg.T_scene_model[:3, 3] - below * up, frame,
-                                           "registered_label", reg.id, stamp))
+        markers.markers.append(
+            text_marker(
+                text,
+                reg.T_scene_model[:3, 3] - below * up,
+                frame,
+                "registered_label",
+                reg.id,
+                stamp,
+            )
+        )
         if gripper is not None:
             markers.markers.append(gripper)
     return markers

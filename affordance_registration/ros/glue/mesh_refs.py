@@ -10,6 +10,7 @@ The URI is ``package://affordance_registration/...`` when the file lies in the p
 share folder of a ROS install (the ament index knows it: a colcon install), else
 ``file://`` and the absolute path (a pip install, a checkout, a template folder of your own).
 :func:`referenced_mesh` turns such a marker back into triangles, for the station."""
+
 from __future__ import annotations
 
 import functools
@@ -20,7 +21,7 @@ import numpy as np
 import trimesh
 from visualization_msgs.msg import Marker
 
-from .conversions import ConversionError, _marker, matrix_to_pose, mesh_marker
+from .conversions import ConversionError, matrix_to_pose, mesh_marker, new_marker
 
 __all__ = ["template_markers", "mesh_uri", "referenced_mesh", "PACKAGE"]
 
@@ -34,8 +35,9 @@ def _ament_share() -> str | None:
     """The package's share folder in the ament index (a ROS install), or None."""
     try:
         from ament_index_python.packages import get_package_share_directory
+
         return os.path.abspath(get_package_share_directory(PACKAGE))
-    except Exception:        # not installed with colcon (PackageNotFoundError), no ament index
+    except Exception:  # not installed with colcon (PackageNotFoundError), no ament index
         return None
 
 
@@ -47,9 +49,10 @@ def mesh_uri(path: str) -> str:
     return "file://" + path
 
 
-def _resource(uri: str, T: np.ndarray, size: float, frame: str, ns: str, marker_id: int,
-              colour, stamp) -> Marker:
-    m = _marker(Marker.MESH_RESOURCE, frame, ns, marker_id, stamp)
+def _resource(
+    uri: str, T: np.ndarray, size: float, frame: str, ns: str, marker_id: int, colour, stamp
+) -> Marker:
+    m = new_marker(Marker.MESH_RESOURCE, frame, ns, marker_id, stamp)
     m.pose = matrix_to_pose(T)
     m.scale.x = m.scale.y = m.scale.z = float(size)
     m.color = colour
@@ -57,25 +60,37 @@ def _resource(uri: str, T: np.ndarray, size: float, frame: str, ns: str, marker_
     return m
 
 
-def _primitive(tpl, T: np.ndarray, scale: float, frame: str, ns: str, marker_id: int, colour,
-               stamp) -> Marker:
+def _primitive(
+    tpl, T: np.ndarray, scale: float, frame: str, ns: str, marker_id: int, colour, stamp
+) -> Marker:
     """A box or cylinder as RViz's own shape: centred on its marker pose, so the pose is the
     template's frame (centre of the base / end face) moved half its height along +z."""
     d = {k: float(v) * scale for k, v in tpl.dimensions.items()}
     box = tpl.primitive == "box"
-    m = _marker(Marker.CUBE if box else Marker.CYLINDER, frame, ns, marker_id, stamp)
+    m = new_marker(Marker.CUBE if box else Marker.CYLINDER, frame, ns, marker_id, stamp)
     height = d["z"] if box else d["length"]
     centre = np.eye(4)
     centre[2, 3] = height / 2
     m.pose = matrix_to_pose(T @ centre)
-    m.scale.x, m.scale.y, m.scale.z = (d["x"], d["y"], height) if box else \
-        (2 * d["radius"], 2 * d["radius"], height)
+    m.scale.x, m.scale.y, m.scale.z = (
+        (d["x"], d["y"], height) if box else (2 * d["radius"], 2 * d["radius"], height)
+    )
     m.color = colour
     return m
 
 
-def template_markers(tpl, T: np.ndarray, q: float, scale: float, frame: str, ns: str,
-                     marker_id: int, colour, moving_colour, stamp) -> list:
+def template_markers(
+    tpl,
+    T: np.ndarray,
+    q: float,
+    scale: float,
+    frame: str,
+    ns: str,
+    marker_id: int,
+    colour,
+    moving_colour,
+    stamp,
+) -> list:
     """The markers that draw ``tpl`` posed at ``T`` with its joint at ``q`` and scaled by
     ``scale``: namespace ``ns`` the template (its fixed part, for a jointed one), ``ns +
     "_moving_part"`` its moving part (in ``moving_colour``)."""
@@ -87,16 +102,26 @@ def template_markers(tpl, T: np.ndarray, q: float, scale: float, frame: str, ns:
         return [_resource(mesh_uri(files["mesh"]), T, size, frame, ns, marker_id, colour, stamp)]
     if files and "moving_mesh" in files:
         J = tpl.joint_transform(q).copy()
-        J[:3, 3] *= scale                # the joint's motion, in the scaled template
-        return [_resource(mesh_uri(files["base_mesh"]), T, size, frame, ns, marker_id, colour,
-                          stamp),
-                _resource(mesh_uri(files["moving_mesh"]), T @ J, size, frame,
-                          f"{ns}_moving_part", marker_id, moving_colour, stamp)]
+        J[:3, 3] *= scale  # the joint's motion, in the scaled template
+        return [
+            _resource(mesh_uri(files["base_mesh"]), T, size, frame, ns, marker_id, colour, stamp),
+            _resource(
+                mesh_uri(files["moving_mesh"]),
+                T @ J,
+                size,
+                frame,
+                f"{ns}_moving_part",
+                marker_id,
+                moving_colour,
+                stamp,
+            ),
+        ]
     out = [mesh_marker(tpl.mesh_at(q, scale), T, frame, ns, marker_id, colour, stamp)]
     moving = tpl.moving_mesh_at(q, scale)
-    if moving is not None:    # the moving part where the fit put it
-        out.append(mesh_marker(moving, T, frame, f"{ns}_moving_part", marker_id, moving_colour,
-                               stamp))
+    if moving is not None:  # the moving part where the fit put it
+        out.append(
+            mesh_marker(moving, T, frame, f"{ns}_moving_part", marker_id, moving_colour, stamp)
+        )
     return out
 
 
@@ -107,6 +132,7 @@ def _uri_path(uri: str) -> str:
         path = unquote(parsed.path)
     elif parsed.scheme == "package" and parsed.netloc:
         from ..standins.launcher import package_share
+
         try:
             share = package_share(parsed.netloc)
         except Exception as exc:
@@ -136,8 +162,11 @@ def _load(path: str, mtime: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=2)
 def _unit_shape(kind: int) -> np.ndarray:
-    shape = trimesh.creation.box(extents=(1, 1, 1)) if kind == Marker.CUBE else \
-        trimesh.creation.cylinder(radius=0.5, height=1.0, sections=32)
+    shape = (
+        trimesh.creation.box(extents=(1, 1, 1))
+        if kind == Marker.CUBE
+        else trimesh.creation.cylinder(radius=0.5, height=1.0, sections=32)
+    )
     return np.asarray(shape.vertices, np.float32)[np.asarray(shape.faces)].reshape(-1, 3)
 
 

@@ -13,6 +13,7 @@ A topic pair rather than a service: the pip-only install has no service type tak
 line and answering poses (no nav_msgs, and std_srvs' types carry no arguments); the request is
 answered from the engine's state as it is, in the executor thread (it is a few hundred poses at
 most, no fitting)."""
+
 from __future__ import annotations
 
 from geometry_msgs.msg import PoseArray
@@ -31,12 +32,12 @@ def parse_path_request(text: str) -> tuple:
     """(object id, state, waypoint or None) of a request line; AffordanceError saying what
     the line should be."""
     if len(text) > MAX_REQUEST:
-        raise AffordanceError(f"the request has {len(text):,} characters (at most "
-                              f"{MAX_REQUEST})")
+        raise AffordanceError(f"the request has {len(text):,} characters (at most {MAX_REQUEST})")
     words = text.split()
     if len(words) not in (2, 3) or not (words[0].isascii() and words[0].isdigit()):
-        raise AffordanceError(f"expected 'OBJECT_ID STATE [WAYPOINT]' (e.g. '1 closed'), got "
-                              f"{bounded(text, 80)!r}")
+        raise AffordanceError(
+            f"expected 'OBJECT_ID STATE [WAYPOINT]' (e.g. '1 closed'), got {bounded(text, 80)!r}"
+        )
     return int(words[0]), words[1], (words[2] if len(words) == 3 else None)
 
 
@@ -69,6 +70,10 @@ class PathRequests:
         # a registration keeps the frame it was registered in (the cloud's may have changed)
         frame = getattr(node.engine.state.fit_of(object_id), "frame_id", "") or node.frame()
         self._pub.publish(path_message(path, frame, node.get_clock().now().to_msg()))
-        node.report("path", True, f"path of object {object_id}'s {path.waypoint} to "
-                                  f"{path.state}: {len(path.poses)} poses on ~/path")
+        node.report(
+            "path",
+            True,
+            f"path of object {object_id}'s {path.waypoint} to "
+            f"{path.state}: {len(path.poses)} poses on ~/path",
+        )
         node.changed()

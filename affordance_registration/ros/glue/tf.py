@@ -27,6 +27,7 @@ know.
 Without tf2_msgs (the pip-only install whose ``make setup`` could not build it) there is no TF
 output and lookups use the parameter alone; the node says so once at start and runs.
 """
+
 from __future__ import annotations
 
 import threading
@@ -41,11 +42,17 @@ from .conversions import ConversionError, matrix_to_transform, transform_to_matr
 from .frames import FrameError, FrameGraph, TransformBuffer
 from .qos import INPUT, LATCHED, latched
 
-__all__ = ["CANDIDATE_FRAME", "TfBroadcaster", "TfListener", "registration_frame",
-           "load_tf_message", "waypoint_frames"]
+__all__ = [
+    "CANDIDATE_FRAME",
+    "TfBroadcaster",
+    "TfListener",
+    "registration_frame",
+    "load_tf_message",
+    "waypoint_frames",
+]
 
 CANDIDATE_FRAME = "affordance_candidate"
-CANDIDATE_REPUBLISH_S = 1.0          # the candidate frame stays fresh for /tf listeners
+CANDIDATE_REPUBLISH_S = 1.0  # the candidate frame stays fresh for /tf listeners
 # the QoS of tf2_ros' broadcasters and listeners (tf2_ros/qos.py)
 STATIC_BROADCASTER_QOS = LATCHED
 STATIC_LISTENER_QOS = latched(100)
@@ -94,8 +101,9 @@ def _registration_frames(reg, parent_frame: str, library) -> list:
     if not parent:
         return []
     child = registration_frame(reg.template, reg.id)
-    return [(parent, child, np.asarray(reg.T_scene_model, dtype=float))] + \
-        [(child, name, T) for name, T in waypoint_frames(library, reg, child)]
+    return [(parent, child, np.asarray(reg.T_scene_model, dtype=float))] + [
+        (child, name, T) for name, T in waypoint_frames(library, reg, child)
+    ]
 
 
 class TfBroadcaster:
@@ -107,13 +115,15 @@ class TfBroadcaster:
         TFMessage = load_tf_message()
         self.available = TFMessage is not None
         self._static_key: tuple = ()
-        self._static: dict[str, TransformStamped] = {}    # child -> transform as last sent
-        self._candidate: list = []         # the candidate's transform and its waypoints'
-        self._frames = PerRecord(_registration_frames)      # made once per registration
+        self._static: dict[str, TransformStamped] = {}  # child -> transform as last sent
+        self._candidate: list = []  # the candidate's transform and its waypoints'
+        self._frames = PerRecord(_registration_frames)  # made once per registration
 
         if not self.available:
-            node.get_logger().warning("tf2_msgs is not installed: registrations are not "
-                                      "published on TF (make setup builds it into the venv)")
+            node.get_logger().warning(
+                "tf2_msgs is not installed: registrations are not "
+                "published on TF (make setup builds it into the venv)"
+            )
             return
         self._msg_type = TFMessage
         self._pub_static = node.create_publisher(TFMessage, "/tf_static", STATIC_BROADCASTER_QOS)
@@ -135,8 +145,11 @@ class TfBroadcaster:
         transforms = {}
         for (parent, child, T), k in zip(frames, key):
             kept = self._static.get(child)
-            transforms[child] = kept if kept is not None and previous.get(child) == k else \
-                _transform(parent, child, T, stamp)
+            transforms[child] = (
+                kept
+                if kept is not None and previous.get(child) == k
+                else _transform(parent, child, T, stamp)
+            )
         self._static, self._static_key = transforms, key
         self._pub_static.publish(self._msg_type(transforms=list(transforms.values())))
         return True
@@ -151,10 +164,13 @@ class TfBroadcaster:
         if candidate is None or not parent_frame:
             self._candidate = []
             return
-        self._candidate = [_transform(parent_frame, CANDIDATE_FRAME, candidate.T_scene_model,
-                                      stamp)]
-        self._candidate += [_transform(CANDIDATE_FRAME, name, T, stamp) for name, T in
-                            waypoint_frames(library, candidate, CANDIDATE_FRAME)]
+        self._candidate = [
+            _transform(parent_frame, CANDIDATE_FRAME, candidate.T_scene_model, stamp)
+        ]
+        self._candidate += [
+            _transform(CANDIDATE_FRAME, name, T, stamp)
+            for name, T in waypoint_frames(library, candidate, CANDIDATE_FRAME)
+        ]
         self._pub_dynamic.publish(self._msg_type(transforms=list(self._candidate)))
 
     def _republish_candidate(self) -> None:
@@ -189,42 +205,51 @@ class TfListener:
         if TFMessage is None:
             return
         node.create_subscription(TFMessage, "/tf", self._on_tf, DYNAMIC_QOS)
-        node.create_subscription(TFMessage, "/tf_static",
-                                 lambda msg: self._on_tf(msg, static=True), STATIC_LISTENER_QOS)
+        node.create_subscription(
+            TFMessage, "/tf_static", lambda msg: self._on_tf(msg, static=True), STATIC_LISTENER_QOS
+        )
 
     def _on_tf(self, msg, static: bool = False) -> None:
         for t in msg.transforms:
             try:
                 T = transform_to_matrix(t.transform)
             except ConversionError as exc:
-                if t.child_frame_id not in self._bad_logged:    # once per frame
+                if t.child_frame_id not in self._bad_logged:  # once per frame
                     self._bad_logged.add(t.child_frame_id)
                     self._node.get_logger().warning(
-                        f"ignored the transform of frame '{t.child_frame_id}' on TF: {exc}")
+                        f"ignored the transform of frame '{t.child_frame_id}' on TF: {exc}"
+                    )
                 continue
             stamp = t.header.stamp.sec + t.header.stamp.nanosec * 1e-9
             with self._lock:
                 self._frames.set(t.header.frame_id, t.child_frame_id, T, stamp, static=static)
 
-    def lookup(self, target: str, source: str, fallback: FrameGraph | None = None,
-               stamp: float | None = None) -> np.ndarray:
+    def lookup(
+        self,
+        target: str,
+        source: str,
+        fallback: FrameGraph | None = None,
+        stamp: float | None = None,
+    ) -> np.ndarray:
         """T_target_source at ``stamp`` (s, a message's header stamp; None or 0: the latest)."""
         target, source = target.lstrip("/"), source.lstrip("/")
         if not source or source == target:
             return np.eye(4)
         if self._buffer is not None:
             from rclpy.time import Time
+
             try:
                 at = Time(nanoseconds=int(stamp * 1e9)) if stamp else Time()
                 try:
                     tf = self._buffer.lookup_transform(target, source, at)
-                except Exception:          # past the newest transform: the latest one
+                except Exception:  # past the newest transform: the latest one
                     tf = self._buffer.lookup_transform(target, source, Time())
                 return transform_to_matrix(tf.transform)
             except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
                 if fallback is None:
-                    raise FrameError(f"no transform from frame '{source}' to frame "
-                                     f"'{target}' on TF") from None
+                    raise FrameError(
+                        f"no transform from frame '{source}' to frame '{target}' on TF"
+                    ) from None
                 return fallback.lookup(target, source)
         with self._lock:
             graph = (fallback or FrameGraph()).merged(self._frames.graph(stamp))

@@ -3,6 +3,7 @@
 """Rate-limited log lines: a stream of bad messages gives one line per kind of problem every few
 seconds, not one per message (and not one per distinct text: a storm of client ids or frame
 names counts once)."""
+
 from __future__ import annotations
 
 import math

@@ -13,6 +13,7 @@ blocked), and publishes what changed as soon as it changed (a guard condition wa
 stored on arrival (the latest one) and converted when a fit needs it, so a 1M-point 30 Hz camera
 cannot starve the node.
 """
+
 from __future__ import annotations
 
 import json
@@ -62,8 +63,17 @@ from ..glue.throttle import Throttle
 from ..standins.interactive import CorrectionMarkerServer
 from ..standins.spin import run_node
 
-SERVICES = ("next_model", "previous_model", "refit", "accept", "undo", "discard", "save",
-            "joint_plus", "joint_minus")
+SERVICES = (
+    "next_model",
+    "previous_model",
+    "refit",
+    "accept",
+    "undo",
+    "discard",
+    "save",
+    "joint_plus",
+    "joint_minus",
+)
 #: inputs whose errors repeat with a stream of bad messages: logged as throttled warnings
 STREAMED = ("twist", "joy", "view", "pose", "cloud", "queue", "select_model", "click", "path")
 THROTTLE_S = 2.0
@@ -73,6 +83,7 @@ DRAG_WATCH_S = 0.5
 MAX_NAME = 256
 #: the longest log line / status message the node writes about one input
 MAX_MESSAGE = 2000
+
 
 class EngineNode(Node):
     """The engine node. It is the host of its operator stream (``OperatorHost``: the scene, the
@@ -88,12 +99,12 @@ class EngineNode(Node):
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
         self._store = RegistrationStore(self._p["registrations_file"])
-        self._unsaved = False           # registrations changed and not written (autosave off)
+        self._unsaved = False  # registrations changed and not written (autosave off)
         self._resume()
         self.frames = StaticFrames(self._p["static_transforms"])
         self._tf = self._make_tf()
         self._tf_out = TfBroadcaster(self)
-        self._drawn = registered_markers_memo()     # each registration's markers, made once
+        self._drawn = registered_markers_memo()  # each registration's markers, made once
         #: what ~/markers last drew: (state, library, frame, view up)
         self._markers_of: tuple = (None, None, None, None)
 
@@ -102,10 +113,10 @@ class EngineNode(Node):
         self._cloud_count = 0
         self._converted = 0
         self._cloud_status_at = 0.0
-        self._dropped = ""              # why the latest cloud was refused ("" if it was not)
+        self._dropped = ""  # why the latest cloud was refused ("" if it was not)
         self._dirty = True
         self._last_publish = 0.0
-        self._publish_later = None      # the one-shot timer of a change that came too soon
+        self._publish_later = None  # the one-shot timer of a change that came too soon
         self._publish_guard = self.create_guard_condition(self._on_publish)
         self._last_error = ""
         self._last_message = ""
@@ -114,50 +125,75 @@ class EngineNode(Node):
         self.stream = OperatorStream(self.engine, params.operator_settings(self._p), host=self)
 
         cloud_qos = qos.cloud(self._p["points_reliable"])
-        self._sub_points = self.create_subscription(PointCloud2, "points", self._on_cloud,
-                                                    cloud_qos)
-        self._sub_click = self.create_subscription(PointStamped, "clicked_point", self._on_click,
-                                                   INPUT_QOS)
+        self._sub_points = self.create_subscription(
+            PointCloud2, "points", self._on_cloud, cloud_qos
+        )
+        self._sub_click = self.create_subscription(
+            PointStamped, "clicked_point", self._on_click, INPUT_QOS
+        )
         self._sub_twist = self.create_subscription(
-            TwistStamped if self._p["twist_stamped"] else Twist, "spacenav/twist",
-            self._on_twist, INPUT_QOS)
+            TwistStamped if self._p["twist_stamped"] else Twist,
+            "spacenav/twist",
+            self._on_twist,
+            INPUT_QOS,
+        )
         self._sub_joy = self.create_subscription(Joy, "spacenav/joy", self._on_joy, INPUT_QOS)
-        self._sub_view = self.create_subscription(PoseStamped, "view_pose", self._on_view,
-                                                  INPUT_QOS)
-        self._sub_select = self.create_subscription(String, "~/select_model", self._on_select,
-                                                    INPUT_QOS)
-        self._sub_dimension = self.create_subscription(String, "~/set_dimension",
-                                                       self._on_dimension, INPUT_QOS)
-        self._input_subscriptions = (self._sub_click, self._sub_twist, self._sub_joy,
-                                     self._sub_view, self._sub_select, self._sub_dimension)
+        self._sub_view = self.create_subscription(
+            PoseStamped, "view_pose", self._on_view, INPUT_QOS
+        )
+        self._sub_select = self.create_subscription(
+            String, "~/select_model", self._on_select, INPUT_QOS
+        )
+        self._sub_dimension = self.create_subscription(
+            String, "~/set_dimension", self._on_dimension, INPUT_QOS
+        )
+        self._input_subscriptions = (
+            self._sub_click,
+            self._sub_twist,
+            self._sub_joy,
+            self._sub_view,
+            self._sub_select,
+            self._sub_dimension,
+        )
         self.pub_markers = self.create_publisher(MarkerArray, "~/markers", LATCHED)
         self.pub_fit = self.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = self.create_publisher(PoseArray, "~/registered", LATCHED)
         self.pub_status = self.create_publisher(String, "~/status", LATCHED)
-        self.paths = PathRequests(self)     # ~/path_request -> ~/path
+        self.paths = PathRequests(self)  # ~/path_request -> ~/path
         #: where the sensor should look from to settle the selected object (optical frame)
         self.pub_view = self.create_publisher(PoseStamped, "~/suggested_view", LATCHED)
         # service calls wait for the stream without holding the default callback group: the
         # subscriptions and the publishing timer keep running meanwhile
         services = ReentrantCallbackGroup()
         for action in SERVICES:
-            self.create_service(Trigger, f"~/{action}", self._service(action),
-                                qos_profile=SERVICE_QOS, callback_group=services)
+            self.create_service(
+                Trigger,
+                f"~/{action}",
+                self._service(action),
+                qos_profile=SERVICE_QOS,
+                callback_group=services,
+            )
         self.interactive = CorrectionMarkerServer(
-            self, self._p["interactive_namespace"], self._p["interactive_orientation"],
-            server_id=self.get_fully_qualified_name())
+            self,
+            self._p["interactive_namespace"],
+            self._p["interactive_orientation"],
+            server_id=self.get_fully_qualified_name(),
+        )
         self.interactive.attach(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         # a silent drag is cancelled, not left hanging (a watchdog: publishing does not poll)
         self.create_timer(DRAG_WATCH_S, self.interactive.expire)
         self._name_checks = 0
         self._name_timer = self.create_timer(1.0, self._check_name)
-        self._worker = threading.Thread(target=self.stream.run, args=(self._stop,),
-                                        name="operator-stream", daemon=True)
+        self._worker = threading.Thread(
+            target=self.stream.run, args=(self._stop,), name="operator-stream", daemon=True
+        )
         self._worker.start()
-        self.changed()                  # the first status goes out once the executor spins
-        self.get_logger().info(f"ready: {len(self.library)} templates "
-                               f"({', '.join(self.library)}); waiting for 'points' and clicks")
+        self.changed()  # the first status goes out once the executor spins
+        self.get_logger().info(
+            f"ready: {len(self.library)} templates "
+            f"({', '.join(self.library)}); waiting for 'points' and clicks"
+        )
 
     # ------------------------------------------------------------------ registrations file
     def _resume(self) -> None:
@@ -167,15 +203,19 @@ class EngineNode(Node):
         path = self._store.path
         if not self._p["resume"]:
             if os.path.lexists(path):
-                self.get_logger().info(f"fresh session (resume is off): {path} is kept as a "
-                                       f"backup when it is first replaced")
+                self.get_logger().info(
+                    f"fresh session (resume is off): {path} is kept as a "
+                    f"backup when it is first replaced"
+                )
             return
         try:
             regs = self._store.resume(self.library)
         except AffordanceError as exc:
-            raise AffordanceError(f"cannot resume the session: {exc} (fix or move the file, or "
-                                  f"start a fresh session with resume:=false: the file is then "
-                                  f"kept as a backup)") from None
+            raise AffordanceError(
+                f"cannot resume the session: {exc} (fix or move the file, or "
+                f"start a fresh session with resume:=false: the file is then "
+                f"kept as a backup)"
+            ) from None
         self.engine.resume(regs)
         if regs:
             self.get_logger().info(f"resumed {len(regs)} registration(s) from {path}")
@@ -212,9 +252,10 @@ class EngineNode(Node):
             return self._apply_parameters(new, changed)
         except AffordanceError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        except Exception as exc:     # the caller always gets an answer, with the reason
-            return SetParametersResult(successful=False, reason=f"internal error: "
-                                                                f"{exc.__class__.__name__}: {exc}")
+        except Exception as exc:  # the caller always gets an answer, with the reason
+            return SetParametersResult(
+                successful=False, reason=f"internal error: {exc.__class__.__name__}: {exc}"
+            )
 
     def _apply_parameters(self, new: dict, changed: set) -> SetParametersResult:
         """Use validated new values: a new library or fitting settings rebuild the registrar
@@ -227,12 +268,14 @@ class EngineNode(Node):
             self.library = self.engine.library
         if "static_transforms" in changed:
             self.frames = StaticFrames(new["static_transforms"])
-        if "registrations_file" in changed and new["registrations_file"] != \
-                self._p["registrations_file"]:
+        if (
+            "registrations_file" in changed
+            and new["registrations_file"] != self._p["registrations_file"]
+        ):
             self._store = RegistrationStore(new["registrations_file"])
             self._unsaved = bool(self.engine.state.registered)
         if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
-            self._converted = -1        # the next fit converts the cloud again
+            self._converted = -1  # the next fit converts the cloud again
         self.stream.configure(params.operator_settings(new))
         self._set_joint_steps(new)
         if "interactive_orientation" in changed:
@@ -258,8 +301,9 @@ class EngineNode(Node):
         with self._lock:
             return self._cloud_msg.header.frame_id if self._cloud_msg is not None else ""
 
-    def to_scene_frame(self, point: np.ndarray, frame: str,
-                       stamp: float | None = None) -> np.ndarray:
+    def to_scene_frame(
+        self, point: np.ndarray, frame: str, stamp: float | None = None
+    ) -> np.ndarray:
         """A click given in ``frame`` at ``stamp`` expressed in the scene's frame (stream
         worker)."""
         cloud_frame = self.engine.frame_id
@@ -268,16 +312,20 @@ class EngineNode(Node):
         try:
             T = self._lookup(cloud_frame, frame, stamp)
         except FrameError:
-            raise AffordanceError(f"click refused: it is in frame '{frame}' and no transform to "
-                                  f"the cloud frame '{cloud_frame}' is known") from None
+            raise AffordanceError(
+                f"click refused: it is in frame '{frame}' and no transform to "
+                f"the cloud frame '{cloud_frame}' is known"
+            ) from None
         return T[:3, :3] @ point + T[:3, 3]
 
     # ------------------------------------------------------------------ inputs
     def _on_cloud(self, msg: PointCloud2) -> None:
-        try:                            # the header checked now; the points read when needed
+        try:  # the header checked now; the points read when needed
             if len(msg.header.frame_id) > MAX_NAME:
-                raise ConversionError(f"its frame id has {len(msg.header.frame_id):,} "
-                                      f"characters (at most {MAX_NAME})")
+                raise ConversionError(
+                    f"its frame id has {len(msg.header.frame_id):,} "
+                    f"characters (at most {MAX_NAME})"
+                )
             pointcloud2_layout(msg)
         except ConversionError as exc:
             frame = bounded(msg.header.frame_id, 80)
@@ -290,11 +338,14 @@ class EngineNode(Node):
             self._cloud_msg = msg
             self._cloud_count += 1
         now = time.monotonic()
-        if prev is None or (prev.width, prev.height, prev.header.frame_id) != \
-                (msg.width, msg.height, msg.header.frame_id):
+        if prev is None or (prev.width, prev.height, prev.header.frame_id) != (
+            msg.width,
+            msg.height,
+            msg.header.frame_id,
+        ):
             self.get_logger().info(f"cloud: {msg.width}x{msg.height} in '{msg.header.frame_id}'")
             self.changed()
-        elif now - self._cloud_status_at >= 1.0:     # the status counts clouds at most at 1 Hz
+        elif now - self._cloud_status_at >= 1.0:  # the status counts clouds at most at 1 Hz
             self.changed()
         if self._dirty:
             self._cloud_status_at = now
@@ -306,25 +357,30 @@ class EngineNode(Node):
         with self._lock:
             msg, count = self._cloud_msg, self._cloud_count
         if msg is None:
-            raise EngineStateError(f"no usable point cloud yet on '{self._sub_points.topic_name}'"
-                                   + (f": {self._dropped}" if self._dropped else ""))
+            raise EngineStateError(
+                f"no usable point cloud yet on '{self._sub_points.topic_name}'"
+                + (f": {self._dropped}" if self._dropped else "")
+            )
         if count == self._converted and self.engine.has_scene:
-            return          # (a cloud that was unusable with no scene is tried again: its
-        self._converted = count     # sensor frame may have reached TF since)
+            return  # (a cloud that was unusable with no scene is tried again: its
+        self._converted = count  # sensor frame may have reached TF since)
         try:
             pts, _ = pointcloud2_to_xyz(msg)
             origin, T_optical = self._sensor(msg.header.frame_id, header_stamp_s(msg.header))
             old, new = self.engine.frame_id.lstrip("/"), msg.header.frame_id.lstrip("/")
-            if old and new and old != new:      # only for a cloud that is used
+            if old and new and old != new:  # only for a cloud that is used
                 self._change_frame(old, new, header_stamp_s(msg.header))
-            self.engine.set_scene(pts, frame_id=msg.header.frame_id, sensor_origin=origin,
-                                  T_scene_optical=T_optical)
+            self.engine.set_scene(
+                pts, frame_id=msg.header.frame_id, sensor_origin=origin, T_scene_optical=T_optical
+            )
         except AffordanceError as exc:
             if not self.engine.has_scene:
-                raise AffordanceError(f"the cloud in '{msg.header.frame_id}' is unusable: "
-                                      f"{exc}") from None
-            self._error("cloud", f"the latest cloud is unusable ({exc}); still using the "
-                                 f"previous one")
+                raise AffordanceError(
+                    f"the cloud in '{msg.header.frame_id}' is unusable: {exc}"
+                ) from None
+            self._error(
+                "cloud", f"the latest cloud is unusable ({exc}); still using the previous one"
+            )
 
     def _change_frame(self, old: str, new: str, stamp: float | None) -> None:
         """The cloud's frame changed (stream worker): what the engine holds is re-expressed in
@@ -333,9 +389,13 @@ class EngineNode(Node):
         try:
             T_new_old = self._lookup(new, old, stamp)
         except FrameError:
-            self._error("frame", self.engine.close_open_objects(
-                f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new)}' and no "
-                f"transform between them is known"))
+            self._error(
+                "frame",
+                self.engine.close_open_objects(
+                    f"the cloud's frame changed from '{bounded(old)}' to '{bounded(new)}' and no "
+                    f"transform between them is known"
+                ),
+            )
             return
         self.report("frame", True, self.engine.reexpress(T_new_old, new))
 
@@ -353,20 +413,29 @@ class EngineNode(Node):
         try:
             T_cloud_sensor = self._lookup(cloud_frame, name, stamp)
         except FrameError:
-            raise AffordanceError(f"the sensor frame '{name}' has no known transform to the "
-                                  f"cloud frame '{cloud_frame}' (publish it on TF, or give it "
-                                  f"in static_transforms)") from None
+            raise AffordanceError(
+                f"the sensor frame '{name}' has no known transform to the "
+                f"cloud frame '{cloud_frame}' (publish it on TF, or give it "
+                f"in static_transforms)"
+            ) from None
         return T_cloud_sensor[:3, 3].copy(), T_cloud_sensor @ T_frame_optical(name)
 
     def _on_click(self, msg: PointStamped) -> None:
         if len(msg.header.frame_id) > MAX_NAME:
-            self._error("click", f"click refused: its frame id has "
-                                 f"{len(msg.header.frame_id):,} characters (at most {MAX_NAME})")
+            self._error(
+                "click",
+                f"click refused: its frame id has "
+                f"{len(msg.header.frame_id):,} characters (at most {MAX_NAME})",
+            )
             return
         p = np.array([msg.point.x, msg.point.y, msg.point.z], dtype=float)
-        self.stream.click(p, msg.header.frame_id, source=self._sub_click.topic_name,
-                          stamp=header_stamp_s(msg.header))
-        self.changed()      # the status shows what is queued
+        self.stream.click(
+            p,
+            msg.header.frame_id,
+            source=self._sub_click.topic_name,
+            stamp=header_stamp_s(msg.header),
+        )
+        self.changed()  # the status shows what is queued
 
     def _on_twist(self, msg, info=None) -> None:
         """A Twist (held for the time since the previous one by the publisher's source time
@@ -375,9 +444,12 @@ class EngineNode(Node):
         if isinstance(msg, TwistStamped):
             header_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             stamp, msg = (header_stamp if header_stamp > 0 else stamp), msg.twist
-        self.stream.twist([msg.linear.x, msg.linear.y, msg.linear.z],
-                          [msg.angular.x, msg.angular.y, msg.angular.z], stamp=stamp,
-                          source=self._sub_twist.topic_name)
+        self.stream.twist(
+            [msg.linear.x, msg.linear.y, msg.linear.z],
+            [msg.angular.x, msg.angular.y, msg.angular.z],
+            stamp=stamp,
+            source=self._sub_twist.topic_name,
+        )
         self.changed()
 
     def _on_joy(self, msg: Joy) -> None:
@@ -387,8 +459,14 @@ class EngineNode(Node):
     def _on_view(self, msg: PoseStamped) -> None:
         try:
             T = pose_to_matrix(msg.pose)
-            T = self._lookup(self.frame() or msg.header.frame_id, msg.header.frame_id,
-                             header_stamp_s(msg.header)) @ T
+            T = (
+                self._lookup(
+                    self.frame() or msg.header.frame_id,
+                    msg.header.frame_id,
+                    header_stamp_s(msg.header),
+                )
+                @ T
+            )
         except AffordanceError as exc:
             self._error("view", f"view_pose ignored: {exc}")
             return
@@ -397,8 +475,11 @@ class EngineNode(Node):
 
     def _on_select(self, msg: String) -> None:
         if len(msg.data) > MAX_NAME:
-            self._error("select_model", f"select model refused: the name has "
-                                        f"{len(msg.data):,} characters (at most {MAX_NAME})")
+            self._error(
+                "select_model",
+                f"select model refused: the name has "
+                f"{len(msg.data):,} characters (at most {MAX_NAME})",
+            )
             return
         self.stream.action("select_model", msg.data.strip(), source=self._sub_select.topic_name)
         self.changed()
@@ -417,6 +498,7 @@ class EngineNode(Node):
     def _service(self, action: str):
         """A service answered once the stream has handled its action. rclpy resumes a waiting
         callback only when its executor goes round, so the reply wakes it."""
+
         async def callback(request, response):
             done = Future(executor=self.executor)
             executor = self.executor
@@ -424,10 +506,12 @@ class EngineNode(Node):
             def reply(ok, message):
                 done.set_result((ok, message))
                 executor.wake()
+
             self.stream.action(action, source=f"~/{action}", reply=reply)
             self.changed()
             response.success, response.message = await done
             return response
+
         return callback
 
     def _check_name(self) -> None:
@@ -440,7 +524,8 @@ class EngineNode(Node):
             self.get_logger().warning(
                 f"another node named {self.get_fully_qualified_name()} is running: both serve "
                 f"its services and topics and either may answer; give one another name "
-                f"(--ros-args -r __node:=NAME) or namespace")
+                f"(--ros-args -r __node:=NAME) or namespace"
+            )
         if twins > 1 or self._name_checks >= 10:
             self._name_timer.cancel()
 
@@ -454,8 +539,7 @@ class EngineNode(Node):
     def template(self, name: str):
         return self.library[name]
 
-    def marker_pose(self, T_scene_model: np.ndarray, release: bool,
-                    object_id: int | None) -> None:
+    def marker_pose(self, T_scene_model: np.ndarray, release: bool, object_id: int | None) -> None:
         self.stream.pose(T_scene_model, release, source="marker_feedback", target=object_id)
 
     def marker_action(self, name: str, argument) -> None:
@@ -480,8 +564,9 @@ class EngineNode(Node):
             self._last_message = message
             self.get_logger().info(message)
         else:
-            self._error(kind, f"{kind.replace('_', ' ')}: {message}" if kind in ACTIONS
-                        else message)
+            self._error(
+                kind, f"{kind.replace('_', ' ')}: {message}" if kind in ACTIONS else message
+            )
 
     def _error(self, kind: str, msg: str) -> None:
         """Log an error; for inputs that come in streams (``STREAMED`` kinds), at most one line
@@ -506,7 +591,7 @@ class EngineNode(Node):
         if not self._dirty:
             return
         wait = 1.0 / self._p["publish_rate"] - (time.monotonic() - self._last_publish)
-        if wait > 0:                     # too soon after the last one: once the period is over
+        if wait > 0:  # too soon after the last one: once the period is over
             if self._publish_later is None:
                 self._publish_later = self.create_timer(wait, self._on_publish_later)
             return
@@ -519,6 +604,7 @@ class EngineNode(Node):
         if timer is not None:
             self.destroy_timer(timer)
         self._on_publish()
+
     def status(self) -> dict:
         st = self.engine.status()
         stream = self.stream.status()
@@ -530,36 +616,51 @@ class EngineNode(Node):
             handled.update(stream["handled"])
             handled[self._sub_points.topic_name] = self._cloud_count
             st["node"] = {
-                "busy": stream["busy"], "queued": stream["queued"], "idle": stream["idle"],
-                "pending_refit": stream["pending_refit"], "received": stream["received"],
+                "busy": stream["busy"],
+                "queued": stream["queued"],
+                "idle": stream["idle"],
+                "pending_refit": stream["pending_refit"],
+                "received": stream["received"],
                 "handled": handled,
-                "cloud": None if msg is None else {
-                    "frame_id": msg.header.frame_id, "width": msg.width, "height": msg.height,
-                    "received": self._cloud_count},
-                "last_message": self._last_message, "last_error": self._last_error,
-                "registrations_file": {"path": self._store.path, "saved": self._store.count,
-                                       "unsaved": self._unsaved,
-                                       "backup": self._store.last_backup}}
+                "cloud": None
+                if msg is None
+                else {
+                    "frame_id": msg.header.frame_id,
+                    "width": msg.width,
+                    "height": msg.height,
+                    "received": self._cloud_count,
+                },
+                "last_message": self._last_message,
+                "last_error": self._last_error,
+                "registrations_file": {
+                    "path": self._store.path,
+                    "saved": self._store.count,
+                    "unsaved": self._unsaved,
+                    "backup": self._store.last_backup,
+                },
+            }
         return st
 
     def publish_all(self) -> None:
         frame = self.frame()
         stamp = self.get_clock().now().to_msg()
         state = self.engine.state
-        up = self.engine.view_pose()[:3, 1]        # labels go below the objects on the screen
+        up = self.engine.view_pose()[:3, 1]  # labels go below the objects on the screen
         active = self.engine.active_object()
         if active is not None:
             self.pub_fit.publish(pose_stamped(active.shown.T_scene_model, frame, stamp))
             if active.suggested_view is not None:
-                self.pub_view.publish(pose_stamped(active.suggested_view.T_scene_optical, frame,
-                                                   stamp))
+                self.pub_view.publish(
+                    pose_stamped(active.suggested_view.T_scene_optical, frame, stamp)
+                )
         arr = PoseArray()
         arr.header.frame_id, arr.header.stamp = frame, stamp
         arr.poses = [matrix_to_pose(r.T_scene_model) for r in state.registered]
         self.pub_registered.publish(arr)
         self._tf_out.publish_registrations(state.registered, frame, stamp, self.library)
-        self._tf_out.publish_candidate(None if active is None else active.shown, frame, stamp,
-                                       self.library)
+        self._tf_out.publish_candidate(
+            None if active is None else active.shown, frame, stamp, self.library
+        )
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
@@ -569,15 +670,16 @@ class EngineNode(Node):
         drawn = (state, self.library, frame, tuple(np.round(up, 9)))
         last = self._markers_of
         if last[0] is not state or last[1] is not self.library or last[2:] != drawn[2:]:
-            self.pub_markers.publish(state_markers(state, self.library, frame, stamp, up,
-                                                   self._drawn))
+            self.pub_markers.publish(
+                state_markers(state, self.library, frame, stamp, up, self._drawn)
+            )
             self._markers_of = drawn
         self.interactive.sync()
 
     def shutdown(self) -> None:
         self._stop.set()
         self._worker.join(timeout=1.0)
-        if self._unsaved:               # autosave off: what was accepted is not lost either
+        if self._unsaved:  # autosave off: what was accepted is not lost either
             try:
                 self.get_logger().info(self.persist(True) + " (at shutdown)")
             except AffordanceError as exc:

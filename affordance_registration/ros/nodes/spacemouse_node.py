@@ -1,8 +1,10 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """The ``affordance_spacemouse`` node: a 3Dconnexion device read through a
-:class:`~affordance_registration.ros.devices.spacemouse.HidBackend`, published as ``spacenav/twist`` and
-``spacenav/joy`` exactly as the spacenav driver does (see :mod:`.spacemouse` for the axes)."""
+:class:`~affordance_registration.ros.devices.spacemouse.HidBackend`, published as
+``spacenav/twist`` and ``spacenav/joy`` exactly as the spacenav driver does (see :mod:`.spacemouse`
+for the axes)."""
+
 from __future__ import annotations
 
 import math
@@ -98,8 +100,9 @@ class SpaceMouseNode(Node):
         problem = self._check(new)
         if problem:
             return SetParametersResult(successful=False, reason=problem)
-        if any(prm.name in ("hid_backend", "use_twist_stamped", "publish_rate")
-               for prm in parameters):
+        if any(
+            prm.name in ("hid_backend", "use_twist_stamped", "publish_rate") for prm in parameters
+        ):
             return SetParametersResult(successful=False, reason="read at start only")
         self.p = new
         return SetParametersResult(successful=True)
@@ -114,14 +117,18 @@ class SpaceMouseNode(Node):
         if now < self._next_try:
             return
         self._next_try = now + self.p["retry_interval"]
-        d = find_device(self.backend, self.p["device_path"], self.p["vendor_id"],
-                        self.p["product_id"])
+        d = find_device(
+            self.backend, self.p["device_path"], self.p["vendor_id"], self.p["product_id"]
+        )
         if d is None:
-            self._warn("no SpaceMouse found; retrying (affordance-registration spacemouse "
-                       "--list shows what is attached)")
+            self._warn(
+                "no SpaceMouse found; retrying (affordance-registration spacemouse "
+                "--list shows what is attached)"
+            )
             return
-        path = d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else \
-            str(d["path"])
+        path = (
+            d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else str(d["path"])
+        )
         try:
             self.hid_handle = self.backend.open(d["path"])
         except PermissionError:
@@ -146,7 +153,8 @@ class SpaceMouseNode(Node):
         self.get_logger().error(
             f"permission denied opening {path}: install the udev rule "
             f"launch_configs/99-spacemouse.rules into /etc/udev/rules.d/, run "
-            f"'sudo udevadm control --reload && sudo udevadm trigger', and replug the device")
+            f"'sudo udevadm control --reload && sudo udevadm trigger', and replug the device"
+        )
 
     def _read_all(self) -> bool:
         """Drain pending reports; returns True when the buttons changed."""
@@ -156,8 +164,9 @@ class SpaceMouseNode(Node):
             try:
                 data = self.hid_handle.read(64, 0)
             except (OSError, ValueError) as exc:
-                self.get_logger().warning(f"{self.device[1].name} disconnected ({exc}); "
-                                          f"waiting for it to come back")
+                self.get_logger().warning(
+                    f"{self.device[1].name} disconnected ({exc}); waiting for it to come back"
+                )
                 try:
                     self.hid_handle.close()
                 except Exception:
@@ -177,12 +186,14 @@ class SpaceMouseNode(Node):
             self._connect()
             return
         if self._read_all():
-            self._publish_joy()             # button changes go out at once
+            self._publish_joy()  # button changes go out at once
         if self.hid_handle is None:
             return
         now = time.monotonic()
-        if self.p["zero_when_static"] and now - self.state.last_motion > \
-                self.p["static_timeout_s"]:
+        if (
+            self.p["zero_when_static"]
+            and now - self.state.last_motion > self.p["static_timeout_s"]
+        ):
             self.state.raw[:] = 0.0
         moving = bool(np.any(self.state.raw))
         if moving or self._moving:
@@ -190,8 +201,13 @@ class SpaceMouseNode(Node):
         self._moving = moving
 
     def _values(self):
-        return to_ros(self.state.raw, self.p["full_scale"], self.p["deadband"],
-                      self.p["linear_scale"], self.p["angular_scale"])
+        return to_ros(
+            self.state.raw,
+            self.p["full_scale"],
+            self.p["deadband"],
+            self.p["linear_scale"],
+            self.p["angular_scale"],
+        )
 
     def _publish(self, force_zero: bool = False):
         lin, ang, axes = self._values()
@@ -219,4 +235,3 @@ class SpaceMouseNode(Node):
         joy.axes = [float(v) for v in axes]
         joy.buttons = self.state.buttons
         self.pub_joy.publish(joy)
-

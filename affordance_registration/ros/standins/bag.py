@@ -7,6 +7,7 @@ publishers' offered QoS in metadata.yaml -- what ``ros2 bag info`` / ``ros2 bag 
 Jazzy install read. Messages are recorded and replayed as serialized CDR (no per-message
 conversion), so any message type the typestore knows is supported.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -26,8 +27,17 @@ from ...core.errors import AffordanceError
 from ...core.files import unreadable
 from ..glue.qos import LATCHED
 
-__all__ = ["BagError", "Recorder", "Player", "StatusPacer", "bag_info", "check_number",
-           "message_class", "read_messages", "topic_name"]
+__all__ = [
+    "BagError",
+    "Recorder",
+    "Player",
+    "StatusPacer",
+    "bag_info",
+    "check_number",
+    "message_class",
+    "read_messages",
+    "topic_name",
+]
 
 
 class BagError(AffordanceError):
@@ -47,8 +57,9 @@ def check_number(name: str, value, positive: bool = False, limits=None) -> float
     except (TypeError, ValueError, OverflowError):
         number = math.nan
     if not math.isfinite(number) or number < 0 or (positive and number == 0):
-        raise BagError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, "
-                       f"got {value}")
+        raise BagError(
+            f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value}"
+        )
     if limits is not None and not limits[0] <= number <= limits[1]:
         raise BagError(f"{name} must be in [{limits[0]:g}, {limits[1]:g}], got {value}")
     return number
@@ -62,6 +73,7 @@ def topic_name(name, node_name: str = "affordance_bag", namespace: str = "/") ->
     from rclpy.expand_topic_name import expand_topic_name
     from rclpy.validate_full_topic_name import validate_full_topic_name
     from rclpy.validate_topic_name import validate_topic_name
+
     try:
         if not isinstance(name, str):
             raise ValueError("not a string")
@@ -73,15 +85,16 @@ def topic_name(name, node_name: str = "affordance_bag", namespace: str = "/") ->
         text = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
         # rclpy's texts: "Invalid topic name: <why>:" or "topic name '..' is invalid: <why>, at
         # <C source>:<line>"
-        text = re.sub(r"^Invalid topic name: |:$|^topic name .* is invalid: |, at \S+:\d+$", "",
-                      text)
+        text = re.sub(
+            r"^Invalid topic name: |:$|^topic name .* is invalid: |, at \S+:\d+$", "", text
+        )
         raise BagError(f"{name!r} is not a valid ROS 2 topic name ({text})") from None
 
 
 def _regular_file(path: str) -> None:
     """A BagError naming ``path`` unless it is a regular file (a link is followed): reading a
     FIFO or a device would block or never end."""
-    why = unreadable(path, missing_ok=True)      # (missing: rosbags says what is)
+    why = unreadable(path, missing_ok=True)  # (missing: rosbags says what is)
     if why is not None:
         raise BagError(f"{path}: {why}, cannot be read as part of a bag")
 
@@ -101,13 +114,14 @@ def _check_bag_files(path: str) -> None:
     if not os.path.exists(meta):
         return
     import yaml
+
     try:
         with open(meta, "rb") as handle:
             files = yaml.safe_load(handle)["rosbag2_bagfile_information"]["relative_file_paths"]
-    except Exception:                # rosbags says what is wrong with the metadata
+    except Exception:  # rosbags says what is wrong with the metadata
         return
     for name in files if isinstance(files, list) else ():
-        if isinstance(name, str):     # rosbags reads each by its name in the bag folder
+        if isinstance(name, str):  # rosbags reads each by its name in the bag folder
             _regular_file(os.path.join(path, PurePath(name).name))
 
 
@@ -122,17 +136,32 @@ def message_class(type_name: str):
 
 def _typestore():
     from rosbags.typesys import Stores, get_typestore
+
     return get_typestore(Stores.ROS2_JAZZY)
 
 
 def _to_rosbags_qos(profile: QoSProfile):
-    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
     zero = QosTime(sec=0, nsec=0)
-    return Qos(history=QosHistory(int(profile.history.value)), depth=int(profile.depth),
-               reliability=QosReliability(int(profile.reliability.value)),
-               durability=QosDurability(int(profile.durability.value)), deadline=zero,
-               lifespan=zero, liveliness=QosLiveliness(int(profile.liveliness.value)),
-               liveliness_lease_duration=zero, avoid_ros_namespace_conventions=False)
+    return Qos(
+        history=QosHistory(int(profile.history.value)),
+        depth=int(profile.depth),
+        reliability=QosReliability(int(profile.reliability.value)),
+        durability=QosDurability(int(profile.durability.value)),
+        deadline=zero,
+        lifespan=zero,
+        liveliness=QosLiveliness(int(profile.liveliness.value)),
+        liveliness_lease_duration=zero,
+        avoid_ros_namespace_conventions=False,
+    )
 
 
 def _from_rosbags_qos(qos_list) -> QoSProfile:
@@ -147,8 +176,12 @@ def _from_rosbags_qos(qos_list) -> QoSProfile:
         reliability = ReliabilityPolicy.RELIABLE
     if durability not in (DurabilityPolicy.TRANSIENT_LOCAL, DurabilityPolicy.VOLATILE):
         durability = DurabilityPolicy.VOLATILE
-    return QoSProfile(depth=max(10, int(q.depth or 0)), history=HistoryPolicy.KEEP_LAST,
-                      reliability=reliability, durability=durability)
+    return QoSProfile(
+        depth=max(10, int(q.depth or 0)),
+        history=HistoryPolicy.KEEP_LAST,
+        reliability=reliability,
+        durability=durability,
+    )
 
 
 def _first_missing(path: str) -> str | None:
@@ -174,15 +207,17 @@ class Recorder:
 
     def __init__(self, node, out: str, topics):
         from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+
         self.node = node
-        self.topics = list(dict.fromkeys(
-            topic_name(t, node.get_name(), node.get_namespace()) for t in topics))
+        self.topics = list(
+            dict.fromkeys(topic_name(t, node.get_name(), node.get_namespace()) for t in topics)
+        )
         if not self.topics:
             raise BagError("name at least one topic to record")
         #: one line saying why the recording failed in the background, else None
         self.error: str | None = None
-        self.kept = False                       # close() left a whole bag
-        self._created = _first_missing(out)     # what to remove if the recording fails
+        self.kept = False  # close() left a whole bag
+        self._created = _first_missing(out)  # what to remove if the recording fails
         self._write_failed = False
         self.out = out
         try:
@@ -214,28 +249,38 @@ class Recorder:
                 continue
             type_name = infos[0].topic_type
             reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-            latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
-                          for i in infos)
-            qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
-                             reliability=ReliabilityPolicy.RELIABLE if reliable
-                             else ReliabilityPolicy.BEST_EFFORT,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                             else DurabilityPolicy.VOLATILE)
+            latched = all(
+                i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos
+            )
+            qos = QoSProfile(
+                depth=100,
+                history=HistoryPolicy.KEEP_LAST,
+                reliability=ReliabilityPolicy.RELIABLE
+                if reliable
+                else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if latched
+                else DurabilityPolicy.VOLATILE,
+            )
             cls = message_class(type_name)
             with self._lock:
                 if self._closed:
                     return
                 try:
                     conn = self.writer.add_connection(
-                        topic, type_name, typestore=self.typestore,
-                        offered_qos_profiles=[_to_rosbags_qos(infos[0].qos_profile)])
-                except Exception as exc:     # a type rosbags' typestore does not know
+                        topic,
+                        type_name,
+                        typestore=self.typestore,
+                        offered_qos_profiles=[_to_rosbags_qos(infos[0].qos_profile)],
+                    )
+                except Exception as exc:  # a type rosbags' typestore does not know
                     why = str(exc).splitlines()[0] if str(exc) else ""
-                    raise BagError(f"cannot record {topic} ({type_name}) into {self.out}: "
-                                   f"{exc.__class__.__name__}: {why}") from None
+                    raise BagError(
+                        f"cannot record {topic} ({type_name}) into {self.out}: "
+                        f"{exc.__class__.__name__}: {why}"
+                    ) from None
                 self.connections[topic] = conn
-            self.node.create_subscription(cls, topic, self._writer_for(topic, conn), qos,
-                                          raw=True)
+            self.node.create_subscription(cls, topic, self._writer_for(topic, conn), qos, raw=True)
             self.node.get_logger().info(f"recording {topic} ({type_name})")
 
     def _discover_in_background(self) -> None:
@@ -245,9 +290,12 @@ class Recorder:
             self._discover()
         except Exception as exc:
             if self.error is None:
-                self.error = str(exc) if isinstance(exc, BagError) else \
-                    f"cannot record into {self.out}: {exc.__class__.__name__}: " \
+                self.error = (
+                    str(exc)
+                    if isinstance(exc, BagError)
+                    else f"cannot record into {self.out}: {exc.__class__.__name__}: "
                     f"{str(exc).splitlines()[0] if str(exc) else ''}"
+                )
             if self._timer is not None:
                 self._timer.cancel()
 
@@ -259,13 +307,16 @@ class Recorder:
                     return
                 try:
                     self.writer.write(conn, stamp, data)
-                except Exception as exc:     # a full disk: the bag is broken from here on
+                except Exception as exc:  # a full disk: the bag is broken from here on
                     self._write_failed = True
                     if self.error is None:
-                        self.error = f"writing {self.out} failed ({exc.__class__.__name__}: " \
-                                     f"{str(exc).splitlines()[0] if str(exc) else ''})"
+                        self.error = (
+                            f"writing {self.out} failed ({exc.__class__.__name__}: "
+                            f"{str(exc).splitlines()[0] if str(exc) else ''})"
+                        )
                     return
                 self.counts[topic] += 1
+
         return write
 
     def close(self) -> dict:
@@ -283,9 +334,11 @@ class Recorder:
                 self.writer.close()
             except Exception as exc:
                 self._remove()
-                raise BagError(f"cannot finish bag {self.out} ({exc.__class__.__name__}: "
-                               f"{str(exc).splitlines()[0] if str(exc) else ''}); "
-                               f"it is removed") from None
+                raise BagError(
+                    f"cannot finish bag {self.out} ({exc.__class__.__name__}: "
+                    f"{str(exc).splitlines()[0] if str(exc) else ''}); "
+                    f"it is removed"
+                ) from None
             if self._write_failed or (self.error is not None and not sum(self.counts.values())):
                 self._remove()
             else:
@@ -299,20 +352,24 @@ class Recorder:
             if self._timer is not None:
                 self._timer.cancel()
             try:
-                self.writer.close()          # lets go of the storage file
+                self.writer.close()  # lets go of the storage file
             except Exception:
                 pass
             self.kept = False
             self._remove()
 
     def _remove(self) -> None:
-        if self._created is not None and os.path.isdir(self._created) \
-                and not os.path.islink(self._created):
+        if (
+            self._created is not None
+            and os.path.isdir(self._created)
+            and not os.path.islink(self._created)
+        ):
             shutil.rmtree(self._created, ignore_errors=True)
 
 
 def _open_reader(path: str):
     from rosbags.rosbag2 import Reader
+
     if not os.path.exists(path):
         raise BagError(f"{path}: no such bag")
     _check_bag_files(path)
@@ -320,20 +377,28 @@ def _open_reader(path: str):
         reader = Reader(path)
         reader.open()
         return reader
-    except Exception as exc:   # rosbags raises several types for truncated/corrupt bags
-        raise BagError(f"{path}: not a readable rosbag2 bag ({exc.__class__.__name__}: "
-                       f"{str(exc).splitlines()[0] if str(exc) else 'corrupt'})") from None
+    except Exception as exc:  # rosbags raises several types for truncated/corrupt bags
+        raise BagError(
+            f"{path}: not a readable rosbag2 bag ({exc.__class__.__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else 'corrupt'})"
+        ) from None
 
 
 def bag_info(path: str) -> dict:
     """Topics, types, message counts and duration of a bag."""
     reader = _open_reader(path)
     try:
-        return {"path": path, "duration_s": reader.duration / 1e9,
-                "start_ns": reader.start_time, "end_ns": reader.end_time,
-                "messages": reader.message_count,
-                "topics": [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount}
-                           for c in reader.connections]}
+        return {
+            "path": path,
+            "duration_s": reader.duration / 1e9,
+            "start_ns": reader.start_time,
+            "end_ns": reader.end_time,
+            "messages": reader.message_count,
+            "topics": [
+                {"topic": c.topic, "type": c.msgtype, "count": c.msgcount}
+                for c in reader.connections
+            ],
+        }
     finally:
         reader.close()
 
@@ -341,6 +406,7 @@ def bag_info(path: str) -> dict:
 def read_messages(path: str, topic: str):
     """Yield the messages recorded on ``topic``, decoded into rclpy message objects."""
     from rclpy.serialization import deserialize_message
+
     reader = _open_reader(path)
     try:
         conns = [c for c in reader.connections if c.topic == topic]
@@ -349,8 +415,10 @@ def read_messages(path: str, topic: str):
     except BagError:
         raise
     except Exception as exc:
-        raise BagError(f"{path}: reading {topic} failed ({exc.__class__.__name__}: {exc}); "
-                       f"the bag is truncated or corrupt") from None
+        raise BagError(
+            f"{path}: reading {topic} failed ({exc.__class__.__name__}: {exc}); "
+            f"the bag is truncated or corrupt"
+        ) from None
     finally:
         reader.close()
 
@@ -365,8 +433,9 @@ class StatusPacer:
     listing each of its input topics from the start. Topics the node does not list are not
     waited for."""
 
-    def __init__(self, node, status_topic: str = "/affordance_engine/status",
-                 timeout: float = 60.0):
+    def __init__(
+        self, node, status_topic: str = "/affordance_engine/status", timeout: float = 60.0
+    ):
         self.timeout = check_number("the pace timeout", timeout, positive=True)
         self.status_topic = topic_name(status_topic, node.get_name(), node.get_namespace())
         self._cv = threading.Condition()
@@ -374,6 +443,7 @@ class StatusPacer:
         self._baseline: dict | None = None
         qos = LATCHED
         from std_msgs.msg import String
+
         node.create_subscription(String, self.status_topic, self._on_status, qos)
 
     def _on_status(self, msg) -> None:
@@ -390,10 +460,13 @@ class StatusPacer:
         if st is None or not st.get("idle"):
             return False
         handled = st.get("handled") or {}
-        if self._baseline is None:        # what the node had handled before this replay
+        if self._baseline is None:  # what the node had handled before this replay
             self._baseline = dict(handled)
-        return all(handled[t] - self._baseline.get(t, 0) >= n for t, n in published.items()
-                   if t in handled)
+        return all(
+            handled[t] - self._baseline.get(t, 0) >= n
+            for t, n in published.items()
+            if t in handled
+        )
 
     def wait(self, published: dict, stop: threading.Event) -> None:
         """Block until the node has handled ``published`` (topic -> count since the first
@@ -404,11 +477,13 @@ class StatusPacer:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     st = self._status
-                    raise BagError(f"the node on {self.status_topic} did not finish with the "
-                                   f"messages played so far within {self.timeout:.0f} s "
-                                   f"(played {published}, its status: "
-                                   f"{'none' if st is None else st.get('handled')}, idle "
-                                   f"{None if st is None else st.get('idle')})")
+                    raise BagError(
+                        f"the node on {self.status_topic} did not finish with the "
+                        f"messages played so far within {self.timeout:.0f} s "
+                        f"(played {published}, its status: "
+                        f"{'none' if st is None else st.get('handled')}, idle "
+                        f"{None if st is None else st.get('idle')})"
+                    )
                 self._cv.wait(timeout=min(left, 0.2))
 
 
@@ -421,19 +496,28 @@ class Player:
     whose recorded relative timing is kept. The replay then does not depend on how fast the
     node or the machine is."""
 
-    def __init__(self, node, path: str, rate: float = 1.0, start_offset: float = 0.0,
-                 topics=None, loop: bool = False, pace: "StatusPacer | None" = None,
-                 burst_gap: float = 0.1):
+    def __init__(
+        self,
+        node,
+        path: str,
+        rate: float = 1.0,
+        start_offset: float = 0.0,
+        topics=None,
+        loop: bool = False,
+        pace: "StatusPacer | None" = None,
+        burst_gap: float = 0.1,
+    ):
         rate = check_number("the rate", rate, positive=True, limits=RATE_LIMITS)
         start_offset = check_number("the start offset", start_offset)
         self.node, self.path = node, path
         self.rate, self.start_offset, self.loop = rate, start_offset, loop
         self.pace, self.burst_gap = pace, check_number("the burst gap", burst_gap)
-        self.counts: dict[str, int] = {}         # messages published per topic
+        self.counts: dict[str, int] = {}  # messages published per topic
         reader = _open_reader(path)
         try:
-            self.connections = [c for c in reader.connections
-                                if topics is None or c.topic in topics]
+            self.connections = [
+                c for c in reader.connections if topics is None or c.topic in topics
+            ]
             missing = set(topics or ()) - {c.topic for c in reader.connections}
             if missing:
                 raise BagError(f"{path}: no topic(s) {', '.join(sorted(missing))} in the bag")
@@ -442,14 +526,17 @@ class Player:
         finally:
             reader.close()
         if start_offset > 0 and start_offset >= duration_s:
-            raise BagError(f"the start offset {start_offset:g} s is past the end of {path} "
-                           f"({duration_s:.2f} s long)")
+            raise BagError(
+                f"the start offset {start_offset:g} s is past the end of {path} "
+                f"({duration_s:.2f} s long)"
+            )
         self.publishers = {}
         for c in self.connections:
             if c.topic not in self.publishers:
                 qos = _from_rosbags_qos(getattr(c.ext, "offered_qos_profiles", []))
-                self.publishers[c.topic] = node.create_publisher(message_class(c.msgtype),
-                                                                 c.topic, qos)
+                self.publishers[c.topic] = node.create_publisher(
+                    message_class(c.msgtype), c.topic, qos
+                )
         self.published = 0
 
     def wait_for_subscribers(self, timeout: float, stop: threading.Event | None = None) -> bool:
@@ -473,23 +560,28 @@ class Player:
             except BagError:
                 raise
             except Exception as exc:
-                raise BagError(f"{self.path}: reading failed ({exc.__class__.__name__}: "
-                               f"{exc}); the bag is truncated or corrupt") from None
+                raise BagError(
+                    f"{self.path}: reading failed ({exc.__class__.__name__}: "
+                    f"{exc}); the bag is truncated or corrupt"
+                ) from None
             finally:
                 reader.close()
             if not self.loop or stop.is_set() or self.published == before:
-                return self.published           # (a loop over nothing would never end)
+                return self.published  # (a loop over nothing would never end)
 
     def _play_once(self, reader, stop: threading.Event) -> None:
         t_bag0 = self.start + int(self.start_offset * 1e9)
         t_wall0 = time.monotonic()
-        previous = None                 # (topic, stamp) of the message published before
+        previous = None  # (topic, stamp) of the message published before
         for conn, stamp, data in reader.messages(connections=self.connections):
             if stamp < t_bag0:
                 continue
             if self.pace is not None:
-                in_burst = previous is not None and previous[0] == conn.topic and \
-                    (stamp - previous[1]) / 1e9 <= self.burst_gap
+                in_burst = (
+                    previous is not None
+                    and previous[0] == conn.topic
+                    and (stamp - previous[1]) / 1e9 <= self.burst_gap
+                )
                 if not in_burst:
                     self.pace.wait(self.counts, stop)
                     # the node is ready: this message starts a new time line

@@ -28,6 +28,7 @@ The server knows its host only as a :class:`MarkerHost` (what is shown, and wher
 operator's input; the engine node is one), so it is tested without a node;
 :meth:`CorrectionMarkerServer.attach` wires it to a node's topics and service.
 """
+
 from __future__ import annotations
 
 import math
@@ -54,13 +55,26 @@ from ..glue.mesh_refs import template_markers
 from ..glue.qos import INPUT
 from ..glue.throttle import Throttle
 
-__all__ = ["CorrectionMarkerServer", "MarkerHost", "MARKER_NAME", "JOINT_MARKER_NAME",
-           "MENU", "DRAG_EXPIRY_S", "menu_of"]
+__all__ = [
+    "CorrectionMarkerServer",
+    "MarkerHost",
+    "MARKER_NAME",
+    "JOINT_MARKER_NAME",
+    "MENU",
+    "DRAG_EXPIRY_S",
+    "menu_of",
+]
 
 MARKER_NAME = "affordance_fit"
 JOINT_MARKER_NAME = "affordance_joint"
-MENU = (("next_model", "Next model"), ("previous_model", "Previous model"), ("refit", "Refit"),
-        ("accept", "Accept"), ("undo", "Undo"), ("discard", "Discard"))
+MENU = (
+    ("next_model", "Next model"),
+    ("previous_model", "Previous model"),
+    ("refit", "Refit"),
+    ("accept", "Accept"),
+    ("undo", "Undo"),
+    ("discard", "Discard"),
+)
 KEEP_ALIVE_S = 0.5
 
 
@@ -70,8 +84,10 @@ def menu_of(candidate) -> list:
     entries = [(action, None, title) for action, title in MENU]
     if candidate is not None and candidate.primitive is not None:
         for name in candidate.dimensions:
-            entries += [("dimension", (name, None, 1.0), f"{name} +"),
-                        ("dimension", (name, None, -1.0), f"{name} -")]
+            entries += [
+                ("dimension", (name, None, 1.0), f"{name} +"),
+                ("dimension", (name, None, -1.0), f"{name} -"),
+            ]
     return entries
 
 
@@ -108,8 +124,9 @@ class MarkerHost(Protocol):
 
     def template(self, name: str): ...
 
-    def marker_pose(self, T_scene_model: np.ndarray, release: bool,
-                    object_id: int | None) -> None: ...
+    def marker_pose(
+        self, T_scene_model: np.ndarray, release: bool, object_id: int | None
+    ) -> None: ...
 
     def marker_action(self, name: str, argument) -> None: ...
 
@@ -122,12 +139,19 @@ class CorrectionMarkerServer:
     """The interactive-marker server of the engine node: marker building, sequence numbers, drag
     ownership and feedback handling. ``clock()`` (s) is injectable."""
 
-    def __init__(self, host: MarkerHost, namespace: str = "/affordance_correction",
-                 orientation: str = "object", server_id: str = "affordance_engine",
-                 clock=time.monotonic):
+    def __init__(
+        self,
+        host: MarkerHost,
+        namespace: str = "/affordance_correction",
+        orientation: str = "object",
+        server_id: str = "affordance_engine",
+        clock=time.monotonic,
+    ):
         if not namespace.strip("/") or "/" in namespace.strip("/"):
-            raise AffordanceError(f"interactive marker namespace must be one level like "
-                                  f"/affordance_correction, got {namespace!r}")
+            raise AffordanceError(
+                f"interactive marker namespace must be one level like "
+                f"/affordance_correction, got {namespace!r}"
+            )
         if orientation not in ("object", "view"):
             raise AffordanceError("interactive_orientation must be 'object' or 'view'")
         self.host = host
@@ -136,11 +160,11 @@ class CorrectionMarkerServer:
         self.server_id = f"{server_id}/{int(time.time() * 1e6):x}"
         self.clock = clock
         self.seq_num = 0
-        self._sent: tuple | None = None          # identity of what the clients have
+        self._sent: tuple | None = None  # identity of what the clients have
         self._markers: dict[str, InteractiveMarker] = {}
         #: (client id, last feedback time, object id the drag started on)
         self._drag: tuple[str, float, int | None] | None = None
-        self._cancelled: dict[str, int | None] = {}    # client id -> object of its lost drag
+        self._cancelled: dict[str, int | None] = {}  # client id -> object of its lost drag
         self._warnings = Throttle(WARN_EVERY_S, clock)
         self._publish_fn = None
 
@@ -150,10 +174,12 @@ class CorrectionMarkerServer:
         and the keep-alive timer."""
         pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", INPUT)
         self._publish_fn = pub.publish
-        node.create_subscription(InteractiveMarkerFeedback, f"{self.ns}/feedback",
-                                 self.feedback, INPUT)
-        node.create_service(GetInteractiveMarkers, f"{self.ns}/get_interactive_markers",
-                            self._on_get)
+        node.create_subscription(
+            InteractiveMarkerFeedback, f"{self.ns}/feedback", self.feedback, INPUT
+        )
+        node.create_service(
+            GetInteractiveMarkers, f"{self.ns}/get_interactive_markers", self._on_get
+        )
         node.create_timer(KEEP_ALIVE_S, lambda: pub.publish(self.keep_alive()))
 
     def _on_get(self, request, response):
@@ -166,14 +192,20 @@ class CorrectionMarkerServer:
         return self.seq_num, list(self._markers.values())
 
     def keep_alive(self) -> InteractiveMarkerUpdate:
-        return InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
-                                       type=InteractiveMarkerUpdate.KEEP_ALIVE)
+        return InteractiveMarkerUpdate(
+            server_id=self.server_id, seq_num=self.seq_num, type=InteractiveMarkerUpdate.KEEP_ALIVE
+        )
 
     def _update(self, markers=(), poses=(), erases=()) -> InteractiveMarkerUpdate:
         self.seq_num += 1
-        upd = InteractiveMarkerUpdate(server_id=self.server_id, seq_num=self.seq_num,
-                                      type=InteractiveMarkerUpdate.UPDATE, markers=list(markers),
-                                      poses=list(poses), erases=list(erases))
+        upd = InteractiveMarkerUpdate(
+            server_id=self.server_id,
+            seq_num=self.seq_num,
+            type=InteractiveMarkerUpdate.UPDATE,
+            markers=list(markers),
+            poses=list(poses),
+            erases=list(erases),
+        )
         if self._publish_fn is not None:
             self._publish_fn(upd)
         return upd
@@ -190,10 +222,19 @@ class CorrectionMarkerServer:
             self._markers, self._sent = {}, None
             return self._update(erases=names)
         cand = obj.shown
-        view_R = self.host.view_pose()[:3, :3].round(6).tobytes() \
-            if self.orientation == "view" else b""
-        identity = (obj.id, obj.active, cand.template, frame, self.orientation, view_R,
-                    tuple(sorted(cand.joints.items())), round(cand.scale, 9))
+        view_R = (
+            self.host.view_pose()[:3, :3].round(6).tobytes() if self.orientation == "view" else b""
+        )
+        identity = (
+            obj.id,
+            obj.active,
+            cand.template,
+            frame,
+            self.orientation,
+            view_R,
+            tuple(sorted(cand.joints.items())),
+            round(cand.scale, 9),
+        )
         pose_bytes = np.asarray(cand.T_scene_model).tobytes()
         if self._sent is not None and self._sent[0] == identity:
             if self._sent[1] == pose_bytes:
@@ -211,8 +252,9 @@ class CorrectionMarkerServer:
         if self.host.template(cand.template).joint is not None:
             self._markers[JOINT_MARKER_NAME] = self._build_joint(obj, frame)
         self._sent = (identity, pose_bytes)
-        return self._update(markers=list(self._markers.values()),
-                            erases=sorted(old - set(self._markers)))
+        return self._update(
+            markers=list(self._markers.values()), erases=sorted(old - set(self._markers))
+        )
 
     def _poses(self, cand) -> dict:
         """Pose of each marker for the candidate: the fit at the object, the joint marker at the
@@ -221,7 +263,8 @@ class CorrectionMarkerServer:
         if JOINT_MARKER_NAME in self._markers:
             tpl = self.host.template(cand.template)
             out[JOINT_MARKER_NAME] = matrix_to_pose(
-                cand.T_scene_model @ tpl.joint_frame(tpl.joint_value(cand.joints), cand.scale))
+                cand.T_scene_model @ tpl.joint_frame(tpl.joint_value(cand.joints), cand.scale)
+            )
         return out
 
     def _build_joint(self, obj, frame: str) -> InteractiveMarker:
@@ -235,11 +278,15 @@ class CorrectionMarkerServer:
         im.description = f"{joint.name} ({joint.type})"
         im.pose = matrix_to_pose(cand.T_scene_model @ tpl.joint_frame(q, cand.scale))
         im.scale = float(max(0.05, 0.6 * tpl.diameter * cand.scale))
-        mode = (InteractiveMarkerControl.ROTATE_AXIS if joint.type == "revolute"
-                else InteractiveMarkerControl.MOVE_AXIS)
-        c = InteractiveMarkerControl(name="joint", interaction_mode=mode,
-                                     orientation_mode=InteractiveMarkerControl.INHERIT)
-        c.orientation = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)     # x: the joint axis
+        mode = (
+            InteractiveMarkerControl.ROTATE_AXIS
+            if joint.type == "revolute"
+            else InteractiveMarkerControl.MOVE_AXIS
+        )
+        c = InteractiveMarkerControl(
+            name="joint", interaction_mode=mode, orientation_mode=InteractiveMarkerControl.INHERIT
+        )
+        c.orientation = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)  # x: the joint axis
         im.controls.append(c)
         return im
 
@@ -253,24 +300,38 @@ class CorrectionMarkerServer:
         im.pose = matrix_to_pose(cand.T_scene_model)
         im.scale = float(max(0.1, 1.2 * tpl.diameter))
         self._menu = menu_of(cand)
-        im.menu_entries = [MenuEntry(id=i, parent_id=0, title=title, command="",
-                                     command_type=MenuEntry.FEEDBACK)
-                           for i, (_, _, title) in enumerate(self._menu, start=1)]
-        if cand.primitive is not None and cand.dimensions:     # drawn at its size
+        im.menu_entries = [
+            MenuEntry(id=i, parent_id=0, title=title, command="", command_type=MenuEntry.FEEDBACK)
+            for i, (_, _, title) in enumerate(self._menu, start=1)
+        ]
+        if cand.primitive is not None and cand.dimensions:  # drawn at its size
             tpl = tpl.sized(cand.dimensions)
-        visual = InteractiveMarkerControl(name="mesh", always_visible=True,
-                                          interaction_mode=InteractiveMarkerControl.MENU)
+        visual = InteractiveMarkerControl(
+            name="mesh", always_visible=True, interaction_mode=InteractiveMarkerControl.MENU
+        )
         colour = ColorRGBA(r=0.95, g=0.75, b=0.1, a=0.6)
         # by reference where the template has mesh files (relative to the interactive marker)
-        visual.markers += template_markers(tpl, np.eye(4), tpl.joint_value(cand.joints),
-                                           cand.scale, "", "mesh", 0, colour, colour, None)
+        visual.markers += template_markers(
+            tpl,
+            np.eye(4),
+            tpl.joint_value(cand.joints),
+            cand.scale,
+            "",
+            "mesh",
+            0,
+            colour,
+            colour,
+            None,
+        )
         im.controls.append(visual)
         R_view = self.host.view_pose()[:3, :3] if self.orientation == "view" else None
         for axis, q in AXES.items():
-            for mode, prefix in ((InteractiveMarkerControl.MOVE_AXIS, "move"),
-                                 (InteractiveMarkerControl.ROTATE_AXIS, "rotate")):
+            for mode, prefix in (
+                (InteractiveMarkerControl.MOVE_AXIS, "move"),
+                (InteractiveMarkerControl.ROTATE_AXIS, "rotate"),
+            ):
                 c = InteractiveMarkerControl(name=f"{prefix}_{axis}", interaction_mode=mode)
-                if R_view is not None:      # fixed in the cloud frame, along the view's axes
+                if R_view is not None:  # fixed in the cloud frame, along the view's axes
                     qx, qy, qz, qw = matrix_to_quat_xyzw(R_view @ quat_xyzw_to_matrix(q))
                     c.orientation_mode = InteractiveMarkerControl.FIXED
                 else:
@@ -303,8 +364,11 @@ class CorrectionMarkerServer:
         self._cancelled[drag[0]] = drag[2]
         while len(self._cancelled) > CANCELLED_MEMORY:
             self._cancelled.pop(next(iter(self._cancelled)))
-        self._ignore("silent", f"client '{drag[0]}' fell silent for {DRAG_EXPIRY_S:g} s "
-                               f"mid-drag: the drag is cancelled")
+        self._ignore(
+            "silent",
+            f"client '{drag[0]}' fell silent for {DRAG_EXPIRY_S:g} s "
+            f"mid-drag: the drag is cancelled",
+        )
         self.host.marker_cancel(drag[2])
 
     def _active_id(self) -> int | None:
@@ -322,8 +386,11 @@ class CorrectionMarkerServer:
         if fb.marker_name not in self._markers:
             self._ignore("marker", f"no marker named '{fb.marker_name}'")
             return
-        if owner is not None and fb.client_id != owner and \
-                fb.event_type in (F.POSE_UPDATE, F.MOUSE_UP):
+        if (
+            owner is not None
+            and fb.client_id != owner
+            and fb.event_type in (F.POSE_UPDATE, F.MOUSE_UP)
+        ):
             self._ignore("drag", f"client '{fb.client_id}' while '{owner}' is dragging")
             return
         if fb.event_type == F.MENU_SELECT:
@@ -342,16 +409,20 @@ class CorrectionMarkerServer:
             # the rest of a drag that was cancelled: never applied to what is selected now
             if fb.event_type == F.MOUSE_UP:
                 self._cancelled.pop(fb.client_id, None)
-            self._ignore("cancelled", f"{'release' if fb.event_type == F.MOUSE_UP else 'pose'} "
-                                      f"from client '{fb.client_id}' after its drag was "
-                                      f"cancelled (silent for {DRAG_EXPIRY_S:g} s)")
+            self._ignore(
+                "cancelled",
+                f"{'release' if fb.event_type == F.MOUSE_UP else 'pose'} "
+                f"from client '{fb.client_id}' after its drag was "
+                f"cancelled (silent for {DRAG_EXPIRY_S:g} s)",
+            )
             return
         if fb.event_type not in (F.POSE_UPDATE, F.MOUSE_UP):
             return
         frame = self._markers[fb.marker_name].header.frame_id
         if fb.header.frame_id and fb.header.frame_id.lstrip("/") != frame.lstrip("/"):
-            self._ignore("frame", f"pose in frame '{fb.header.frame_id}', the marker is in "
-                                  f"'{frame}'")
+            self._ignore(
+                "frame", f"pose in frame '{fb.header.frame_id}', the marker is in '{frame}'"
+            )
             return
         try:
             T = pose_to_matrix(fb.pose)
@@ -381,6 +452,7 @@ class CorrectionMarkerServer:
         if tpl.joint is None:
             self._ignore("joint", f"{cand.template} has no joint")
             return
-        q = tpl.joint_value_from_frame(np.linalg.inv(cand.T_scene_model) @ T_scene_frame,
-                                       cand.scale)
+        q = tpl.joint_value_from_frame(
+            np.linalg.inv(cand.T_scene_model) @ T_scene_frame, cand.scale
+        )
         self.host.marker_action("joint_value", q)

@@ -6,6 +6,7 @@ Supported (what the package's own launch files and typical operator stations use
 
     launch:
     - arg: {name: points, default: /camera/depth/points}
+    - arg: {name: params, default: affordance_engine.params.yaml}
     - node:
         pkg: affordance_registration
         exec: affordance_engine
@@ -14,7 +15,7 @@ Supported (what the package's own launch files and typical operator stations use
         output: screen
         args: "--some --extra"
         param:
-        - {from: $(find-pkg-share affordance_registration)/launch_configs/affordance_engine.params.yaml}
+        - from: $(find-pkg-share affordance_registration)/launch_configs/$(var params)
         - {name: refit_idle_s, value: 0.5}
         remap:
         - {from: points, to: $(var points)}
@@ -26,6 +27,7 @@ node: SIGINT first, SIGTERM after ``grace`` seconds (5, as ``ros2 launch``'s sig
 SIGKILL after another ``grace``; a node that did not end cleanly is named with its exit code or
 signal.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -46,7 +48,7 @@ from ...core.files import read_yaml
 __all__ = ["LaunchError", "NodeAction", "parse_launch_file", "Launcher", "package_share"]
 
 PACKAGE = "affordance_registration"
-CLEAN_EXIT = (0, -signal.SIGINT, 130)              # ended on its own, or on our SIGINT
+CLEAN_EXIT = (0, -signal.SIGINT, 130)  # ended on its own, or on our SIGINT
 SIGNALS = {s.value for s in signal.Signals}
 
 
@@ -60,8 +62,8 @@ class NodeAction:
     executable: str
     name: str | None = None
     namespace: str | None = None
-    params: list = field(default_factory=list)        # ("file", path) | ("value", name, value)
-    remaps: list = field(default_factory=list)        # (from, to)
+    params: list = field(default_factory=list)  # ("file", path) | ("value", name, value)
+    remaps: list = field(default_factory=list)  # (from, to)
     args: list = field(default_factory=list)
     output: str = "screen"
 
@@ -91,12 +93,12 @@ def _param_text(value) -> str:
     return str(value) if str(value) != "" else '""'
 
 
-
 def package_share(pkg: str) -> str:
     """The share directory of a package: ament index, else (this package) its source tree or
     ``<prefix>/share/<pkg>``."""
     try:
         from ament_index_python.packages import get_package_share_directory
+
         return get_package_share_directory(pkg)
     except Exception:
         pass
@@ -121,8 +123,10 @@ def find_executable(pkg: str, executable: str) -> str:
         found = shutil.which(executable, path=folder) if folder else shutil.which(executable)
         if found:
             return found
-    raise LaunchError(f"executable '{executable}' of package '{pkg}' not found on PATH or "
-                      f"under lib/{pkg} of AMENT_PREFIX_PATH")
+    raise LaunchError(
+        f"executable '{executable}' of package '{pkg}' not found on PATH or "
+        f"under lib/{pkg} of AMENT_PREFIX_PATH"
+    )
 
 
 #: nesting depth of substitutions inside substitutions ($(find-pkg-share $(var pkg)) is 2)
@@ -145,7 +149,7 @@ def substitute(text, variables: dict, where: str, depth: int = 0):
             out.append(text[i:])
             return "".join(out)
         out.append(text[i:j])
-        k, level = j + 2, 1               # the matching ')'
+        k, level = j + 2, 1  # the matching ')'
         while k < len(text) and level:
             if text.startswith("$(", k):
                 level, k = level + 1, k + 2
@@ -155,9 +159,10 @@ def substitute(text, variables: dict, where: str, depth: int = 0):
         if level:
             raise LaunchError(f"{where}: unclosed substitution in {text!r}")
         if depth >= MAX_SUBSTITUTION_DEPTH:
-            raise LaunchError(f"{where}: substitutions nested deeper than "
-                              f"{MAX_SUBSTITUTION_DEPTH} levels")
-        inner = substitute(text[j + 2:k - 1], variables, where, depth + 1)
+            raise LaunchError(
+                f"{where}: substitutions nested deeper than {MAX_SUBSTITUTION_DEPTH} levels"
+            )
+        inner = substitute(text[j + 2 : k - 1], variables, where, depth + 1)
         out.append(_resolve(inner.split(), variables, where))
         i = k
 
@@ -203,7 +208,7 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
         where = f"{path}: launch[{i}]"
         if not isinstance(entry, dict) or len(entry) != 1:
             raise LaunchError(f"{where}: each entry is one action (arg or node)")
-        (kind, body), = entry.items()
+        ((kind, body),) = entry.items()
         if not isinstance(body, dict):
             raise LaunchError(f"{where}: {kind!r} needs a mapping, got {body!r}"[:300])
         if kind == "arg":
@@ -215,18 +220,23 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
             elif "default" in body:
                 variables[name] = substitute(str(body["default"]), variables, where)
             else:
-                raise LaunchError(f"{where}: launch argument '{name}' has no default; "
-                                  f"give it as {name}:=VALUE")
+                raise LaunchError(
+                    f"{where}: launch argument '{name}' has no default; give it as {name}:=VALUE"
+                )
         elif kind == "node":
             if "pkg" not in body or "exec" not in body:
                 raise LaunchError(f"{where}: node needs 'pkg' and 'exec'")
             for key in ("pkg", "exec", "name", "namespace"):
                 if body.get(key) is not None and not isinstance(body[key], str):
                     raise LaunchError(f"{where}: node '{key}' must be text, got {body[key]!r}")
-            sub = (lambda v: substitute(v, variables, where))
-            node = NodeAction(pkg=sub(body["pkg"]), executable=sub(body["exec"]),
-                              name=sub(body.get("name")), namespace=sub(body.get("namespace")),
-                              output=body.get("output", "screen"))
+            sub = lambda v: substitute(v, variables, where)
+            node = NodeAction(
+                pkg=sub(body["pkg"]),
+                executable=sub(body["exec"]),
+                name=sub(body.get("name")),
+                namespace=sub(body.get("namespace")),
+                output=body.get("output", "screen"),
+            )
             for p in _entries(body, "param", where):
                 if "from" in p:
                     file_path = sub(p["from"])
@@ -255,15 +265,21 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
 class Launcher:
     """Starts the nodes of a launch file and stops them together."""
 
-    def __init__(self, nodes: list[NodeAction], env: dict | None = None, grace: float = 5.0,
-                 log=None, output=None):
+    def __init__(
+        self,
+        nodes: list[NodeAction],
+        env: dict | None = None,
+        grace: float = 5.0,
+        log=None,
+        output=None,
+    ):
         self.nodes = nodes
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
         self.grace = grace
         self.procs: list[subprocess.Popen] = []
         self.log = log or (lambda msg: sys.stderr.write(msg + "\n"))
-        self.output = output      # a file for every node's output (None: as the launch file says)
+        self.output = output  # a file for every node's output (None: as the launch file says)
 
     def start(self) -> None:
         """Start every node: every executable is found first (a missing one starts none);
@@ -276,8 +292,11 @@ class Launcher:
                 out = None if node.output == "screen" else subprocess.DEVNULL
                 if self.output is not None:
                     out = self.output
-                self.procs.append(subprocess.Popen(cmd, env=self.env, stdout=out,
-                                                   stderr=subprocess.STDOUT if out else None))
+                self.procs.append(
+                    subprocess.Popen(
+                        cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT if out else None
+                    )
+                )
         except BaseException:
             self.stop()
             raise
@@ -296,8 +315,11 @@ class Launcher:
         code or signal, and the escalation it needed); returns 0 only if every node ended on
         its own or on SIGINT."""
         sent: dict[int, str] = {}
-        for sig, wait in ((signal.SIGINT, self.grace), (signal.SIGTERM, self.grace),
-                          (signal.SIGKILL, self.grace)):
+        for sig, wait in (
+            (signal.SIGINT, self.grace),
+            (signal.SIGTERM, self.grace),
+            (signal.SIGKILL, self.grace),
+        ):
             alive = [p for p in self.procs if p.poll() is None]
             if not alive:
                 break
@@ -311,11 +333,16 @@ class Launcher:
         codes = [p.wait() for p in self.procs]
         for node, proc, code in zip(self.nodes, self.procs, codes):
             if code not in CLEAN_EXIT or sent.get(proc.pid) not in (None, "SIGINT"):
-                how = (f"signal {signal.Signals(-code).name}" if code < 0 and -code in SIGNALS
-                       else f"exit code {code}")
+                how = (
+                    f"signal {signal.Signals(-code).name}"
+                    if code < 0 and -code in SIGNALS
+                    else f"exit code {code}"
+                )
                 after = f" after {sent[proc.pid]}" if proc.pid in sent else ""
-                self.log(f"[launch] {node.name or node.executable} (pid {proc.pid}) ended with "
-                         f"{how}{after}")
+                self.log(
+                    f"[launch] {node.name or node.executable} (pid {proc.pid}) ended with "
+                    f"{how}{after}"
+                )
         return 0 if all(c in CLEAN_EXIT for c in codes) else 1
 
 
@@ -334,6 +361,7 @@ def run_launch_file(path: str, arguments: dict, fastdds_profile: str | None = No
 
     def on_signal(signum, frame):
         stop["flag"] = True
+
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     launcher.start()

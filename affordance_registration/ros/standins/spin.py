@@ -3,6 +3,7 @@
 """Running rclpy nodes the way these wheels need it: no rclpy signal handlers (a node blocked in
 ``rclpy.spin()`` has been seen to ignore SIGINT), our own SIGINT/SIGTERM handler, and a
 ``spin_once`` loop that logs a failing callback instead of dying."""
+
 from __future__ import annotations
 
 import contextlib
@@ -32,18 +33,19 @@ def run_node(factory, name: str, args=None, shutdown=None) -> int:
     executor = SingleThreadedExecutor()
     try:
         node = factory()
-        executor.add_node(node)        # one executor for the node's life: its futures wake it
+        executor.add_node(node)  # one executor for the node's life: its futures wake it
         while not stop.is_set() and rclpy.ok():
             try:
                 executor.spin_once(timeout_sec=0.1)
-            except Exception as exc:   # a failing callback must not take the node down
+            except Exception as exc:  # a failing callback must not take the node down
                 node.get_logger().error(f"internal error in a callback: {exc!r}")
     except (AffordanceError, ParameterException, ValueError, ImportError) as exc:
         sys.stderr.write(f"{name}: cannot start: {exc}\n")
         code = 2
-    except Exception as exc:         # a bug: one line, not a traceback
-        sys.stderr.write(f"{name}: cannot start: internal error: {exc.__class__.__name__}: "
-                         f"{exc}\n")
+    except Exception as exc:  # a bug: one line, not a traceback
+        sys.stderr.write(
+            f"{name}: cannot start: internal error: {exc.__class__.__name__}: {exc}\n"
+        )
         code = 2
     finally:
         if node is not None:
@@ -71,6 +73,7 @@ def background_node(name: str):
     def spin():
         while not stop.is_set():
             executor.spin_once(timeout_sec=0.05)
+
     thread = threading.Thread(target=spin, name=f"{name}-spin", daemon=True)
     thread.start()
     try:

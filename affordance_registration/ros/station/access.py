@@ -30,6 +30,7 @@ viser is not changed: :func:`guarded` wraps the ``websockets`` server viser star
 ``process_request`` hook and its ``max_size``) while the :class:`viser.ViserServer` is created,
 and refuses to go on if the hook was not reached (a viser that starts its server another way).
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -48,9 +49,18 @@ from urllib.parse import parse_qs, urlsplit
 from ...core.errors import AffordanceError
 from ..glue.throttle import Throttle
 
-__all__ = ["StationAccess", "guarded", "disable_share", "forbid_outbound", "new_secret",
-           "configured_secret", "MAX_FRAME_BYTES", "MAX_MESSAGES_PER_S", "MAX_BYTES_PER_S",
-           "SECRET_ENV"]
+__all__ = [
+    "StationAccess",
+    "guarded",
+    "disable_share",
+    "forbid_outbound",
+    "new_secret",
+    "configured_secret",
+    "MAX_FRAME_BYTES",
+    "MAX_MESSAGES_PER_S",
+    "MAX_BYTES_PER_S",
+    "SECRET_ENV",
+]
 
 #: largest websocket frame a client may send (1 MiB): the page sends clicks, camera poses, GUI
 #: values and gizmo drags, all well under 10 kB; a bigger frame closes that connection (1009)
@@ -81,24 +91,35 @@ class StationAccess:
     """The checks of one station: ``secret``, the address it is bound to (``host``, ``port``)
     and the bounds. ``log(text)`` hears each refusal (throttled by the caller's logger)."""
 
-    def __init__(self, secret: str, host: str, port: int, log=None,
-                 max_frame_bytes: int = MAX_FRAME_BYTES,
-                 max_messages_per_s: float = MAX_MESSAGES_PER_S,
-                 max_bytes_per_s: float = MAX_BYTES_PER_S):
+    def __init__(
+        self,
+        secret: str,
+        host: str,
+        port: int,
+        log=None,
+        max_frame_bytes: int = MAX_FRAME_BYTES,
+        max_messages_per_s: float = MAX_MESSAGES_PER_S,
+        max_bytes_per_s: float = MAX_BYTES_PER_S,
+    ):
         secret = str(secret)
-        if len(secret) < MIN_SECRET or not secret.isprintable() or any(c in secret for c in
-                                                                         " ;,&=?#%\"'"):
-            raise AffordanceError(f"the station's access secret must be at least {MIN_SECRET} "
-                                  f"printable characters without spaces, ; , & = ? # % or quotes")
+        if (
+            len(secret) < MIN_SECRET
+            or not secret.isprintable()
+            or any(c in secret for c in " ;,&=?#%\"'")
+        ):
+            raise AffordanceError(
+                f"the station's access secret must be at least {MIN_SECRET} "
+                f"printable characters without spaces, ; , & = ? # % or quotes"
+            )
         self.secret = secret
         self.host, self.port = host, int(port)
         self.log = log or (lambda text: None)
         self.max_frame_bytes = int(max_frame_bytes)
         self.max_messages_per_s = float(max_messages_per_s)
         self.max_bytes_per_s = float(max_bytes_per_s)
-        self.installed = False              # the websocket server was wrapped
-        self.refused = 0                    # requests refused so far
-        self._refusals = Throttle(1.0)      # a refusal is logged at most once a second
+        self.installed = False  # the websocket server was wrapped
+        self.refused = 0  # requests refused so far
+        self._refusals = Throttle(1.0)  # a refusal is logged at most once a second
 
     # ------------------------------------------------------------------ names
     @property
@@ -158,8 +179,7 @@ class StationAccess:
         token, _ = self._presented(request)
         if token is None:
             return "no access secret"
-        if not hmac.compare_digest(token.encode("utf-8", "replace"),
-                                   self.secret.encode("utf-8")):
+        if not hmac.compare_digest(token.encode("utf-8", "replace"), self.secret.encode("utf-8")):
             return "a wrong access secret"
         return None
 
@@ -167,20 +187,31 @@ class StationAccess:
         """The 403 answer (a line in the log, throttled to one a second)."""
         from websockets.datastructures import Headers
         from websockets.http11 import Response
+
         self.refused += 1
         if self._refusals.due():
             peer = getattr(connection, "remote_address", None)
-            self.log(f"station: refused {_bounded(request.path, 40)!r} from {peer}: {why} "
-                     f"({self.refused} refused so far)")
-        body = (b"403 Forbidden: this operator station needs its access secret. Open the URL "
-                b"the station printed (http://HOST:PORT/?token=...).\n")
-        return Response(http.HTTPStatus.FORBIDDEN, "Forbidden",
-                        Headers({"Content-Type": "text/plain; charset=utf-8",
-                                 "Content-Length": str(len(body))}), body)
+            self.log(
+                f"station: refused {_bounded(request.path, 40)!r} from {peer}: {why} "
+                f"({self.refused} refused so far)"
+            )
+        body = (
+            b"403 Forbidden: this operator station needs its access secret. Open the URL "
+            b"the station printed (http://HOST:PORT/?token=...).\n"
+        )
+        return Response(
+            http.HTTPStatus.FORBIDDEN,
+            "Forbidden",
+            Headers(
+                {"Content-Type": "text/plain; charset=utf-8", "Content-Length": str(len(body))}
+            ),
+            body,
+        )
 
     def process_request(self, inner):
         """A websockets ``process_request`` hook: the checks, then ``inner`` (viser's page
         server); a page fetched with the secret in its query sets the cookie."""
+
         def hook(connection, request):
             why = self.problem(request)
             if why is not None:
@@ -188,12 +219,14 @@ class StationAccess:
             response = inner(connection, request) if inner is not None else None
             token, in_query = self._presented(request)
             if response is not None and in_query:
-                response.headers["Set-Cookie"] = (f"{self.cookie_name}={self.secret}; Path=/; "
-                                                  f"HttpOnly; SameSite=Strict")
+                response.headers["Set-Cookie"] = (
+                    f"{self.cookie_name}={self.secret}; Path=/; HttpOnly; SameSite=Strict"
+                )
             if response is not None:
                 response.headers["Cache-Control"] = "no-store"
                 response.headers["X-Frame-Options"] = "DENY"
             return response
+
         return hook
 
     def paced(self, handler):
@@ -210,8 +243,10 @@ class StationAccess:
                 if wait > 0:
                     await asyncio.sleep(wait)
                 return message
+
             connection.recv = paced_recv
             return await handler(connection)
+
         return guarded_handler
 
 
@@ -246,34 +281,42 @@ def guarded(access: StationAccess):
     gets ``access``'s checks, frame bound and pacing. Raises :class:`AffordanceError` after the
     block when viser did not start its server through the hook (nothing would be checked)."""
     import websockets.asyncio.server as ws_server
+
     with _PATCH_LOCK:
         original = ws_server.serve
 
         def serve(handler, *args, **kwargs):
             kwargs["process_request"] = access.process_request(kwargs.get("process_request"))
             kwargs["max_size"] = access.max_frame_bytes
-            kwargs["max_queue"] = 4        # frames buffered per connection before TCP waits
+            kwargs["max_queue"] = 4  # frames buffered per connection before TCP waits
             access.installed = True
             return original(access.paced(handler), *args, **kwargs)
+
         ws_server.serve = serve
         try:
             yield access
         finally:
             ws_server.serve = original
     if not access.installed:
-        raise AffordanceError("this viser does not start its websocket server through "
-                              "websockets.asyncio.server.serve: the station cannot check who "
-                              "connects, so it does not serve the page")
+        raise AffordanceError(
+            "this viser does not start its websocket server through "
+            "websockets.asyncio.server.serve: the station cannot check who "
+            "connects, so it does not serve the page"
+        )
 
 
 def disable_share(server, log) -> None:
     """viser's share tunnel (a public URL through viser's share server) never opens: its
     ``ShareUrlRequest`` handler looks ``request_share_url`` up on the server when a request
     comes, so the instance's own refusing version answers."""
+
     def refuse_share(*args, **kwargs):
-        log("station: a client asked for a public share URL: refused (the station makes no "
-            "outbound connections)")
+        log(
+            "station: a client asked for a public share URL: refused (the station makes no "
+            "outbound connections)"
+        )
         return None
+
     server.request_share_url = refuse_share
     server.disconnect_share_url = lambda *args, **kwargs: None
     server.get_share_url = lambda *args, **kwargs: None
@@ -319,10 +362,13 @@ def _audit(event: str, args) -> None:
     log = _OUTBOUND["log"]
     if log is not None:
         with contextlib.suppress(Exception):
-            log(f"station: refused an outbound connection to {_bounded(host)!r} ({event}): the "
-                f"station talks to this machine only")
-    raise PermissionError(f"the operator station makes no outbound connections ({event} "
-                          f"{_bounded(host)!r})")
+            log(
+                f"station: refused an outbound connection to {_bounded(host)!r} ({event}): the "
+                f"station talks to this machine only"
+            )
+    raise PermissionError(
+        f"the operator station makes no outbound connections ({event} {_bounded(host)!r})"
+    )
 
 
 def forbid_outbound(allowed_hosts=(), log=None) -> None:

@@ -12,7 +12,8 @@ colour and a status panel. On the page the operator
 * drags the gizmo on the shown fit: an interactive-marker feedback client of its own (MOUSE_DOWN,
   POSE_UPDATE, MOUSE_UP of ``affordance_fit`` on ``<interactive_namespace>/feedback``) -- the
   release is an absolute correction followed by a refit, as a drag in RViz;
-* presses Next / Previous / Accept / Refit / Undo / Discard / Save / Joint - / Joint + (the engine's
+* presses Next / Previous / Accept / Refit / Undo / Discard / Save / Joint - / Joint + (the
+engine's
   std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
 * sees the engine's waypoint grippers (the "Waypoints" toggle hides them) and, with "Show path",
   the path of the selected object's waypoint to the state typed in "Path to state" (``paths.py``);
@@ -32,6 +33,7 @@ Layout: what the page shows is computed by plain functions in ``state.py`` (test
 viser, and the node (this module, :class:`StationNode`) the only code calling rclpy; the geometry
 is in ``core/display.py``, the access rules in ``access.py``.
 """
+
 from __future__ import annotations
 
 import json
@@ -79,21 +81,36 @@ from .state import (
     suggested_pose,
 )
 
-__all__ = ["StationNode", "feedback_message", "click_message", "check_port", "check_parameters",
-           "PARAMETERS", "main"]
+__all__ = [
+    "StationNode",
+    "feedback_message",
+    "click_message",
+    "check_port",
+    "check_parameters",
+    "PARAMETERS",
+    "main",
+]
 
-MARKER_NAME = "affordance_fit"          # the engine's interactive marker for the shown fit
-DRAG_KEEP_ALIVE_S = 1.0                 # the engine drops a silent drag after 3 s
-CALL_TIMEOUT_S = 120.0                  # a button's call unanswered this long is given up
+MARKER_NAME = "affordance_fit"  # the engine's interactive marker for the shown fit
+DRAG_KEEP_ALIVE_S = 1.0  # the engine drops a silent drag after 3 s
+CALL_TIMEOUT_S = 120.0  # a button's call unanswered this long is given up
 
 
 # ============================================================================ page -> messages
-def feedback_message(event_type: int, T_scene_model: np.ndarray, frame: str, client_id: str,
-                     stamp=None) -> InteractiveMarkerFeedback:
+def feedback_message(
+    event_type: int, T_scene_model: np.ndarray, frame: str, client_id: str, stamp=None
+) -> InteractiveMarkerFeedback:
     """Interactive-marker feedback on the engine's ``affordance_fit`` marker."""
-    return stamped(InteractiveMarkerFeedback(client_id=client_id, marker_name=MARKER_NAME,
-                                             event_type=event_type,
-                                             pose=matrix_to_pose(T_scene_model)), frame, stamp)
+    return stamped(
+        InteractiveMarkerFeedback(
+            client_id=client_id,
+            marker_name=MARKER_NAME,
+            event_type=event_type,
+            pose=matrix_to_pose(T_scene_model),
+        ),
+        frame,
+        stamp,
+    )
 
 
 def click_message(point: np.ndarray, frame: str, stamp=None) -> PointStamped:
@@ -117,47 +134,49 @@ class _CloudShown:
     """The cloud as the page shows it (the page worker's; ``points`` and ``frame`` are read by
     clicks too, under the node's lock)."""
 
-    text: str                                   #: the status panel's line on it
+    text: str  #: the status panel's line on it
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     frame: str = ""
-    shown_at: float = -math.inf                 #: monotonic time it was last replaced
-    thin_voxel: float | None = None             #: its display voxel edge
-    first_view_frame: str | None = None         #: the frame the browsers were last pointed in
+    shown_at: float = -math.inf  #: monotonic time it was last replaced
+    thin_voxel: float | None = None  #: its display voxel edge
+    first_view_frame: str | None = None  #: the frame the browsers were last pointed in
 
 
 @dataclass
 class _ViewOut:
     """The browser camera on ``view_pose`` (``pending`` guarded by the node's lock)."""
 
-    pending: np.ndarray | None = None           #: T_world_optical (4x4) not yet sent
+    pending: np.ndarray | None = None  #: T_world_optical (4x4) not yet sent
     sent_at: float = -math.inf
-    sent: np.ndarray | None = None              #: T_world_optical last sent
-    readers: int = 0                            #: view_pose subscriptions when last looked
+    sent: np.ndarray | None = None  #: T_world_optical last sent
+    readers: int = 0  #: view_pose subscriptions when last looked
 
 
 @dataclass
 class _Drawn:
     """What the page last drew, so that a change is drawn (and logged) once."""
 
-    label: str = ""                             #: the open object's label
-    refused: frozenset = frozenset()            #: objects drawn as refused outlines
-    pending: np.ndarray | None = None           #: the click drawn as being fitted
+    label: str = ""  #: the open object's label
+    refused: frozenset = frozenset()  #: objects drawn as refused outlines
+    pending: np.ndarray | None = None  #: the click drawn as being fitted
 
 
 class _PendingClick(NamedTuple):
     """A click sent to the engine and not yet handled by it."""
 
     point: np.ndarray
-    note: str                   #: what the panel says about it
-    handled: int                #: the engine's count of handled clicks when it was sent
-    sent_at: float              #: monotonic time it was sent
+    note: str  #: what the panel says about it
+    handled: int  #: the engine's count of handled clicks when it was sent
+    sent_at: float  #: monotonic time it was sent
 
 
 class StationNode(Node):
     def __init__(self):
         super().__init__("affordance_station")
-        p = {name: self.declare_parameter(name, default).value
-             for name, (default, _) in PARAMETERS.items()}
+        p = {
+            name: self.declare_parameter(name, default).value
+            for name, (default, _) in PARAMETERS.items()
+        }
         problem = check_parameters(p)
         if problem:
             raise AffordanceError(problem)
@@ -176,48 +195,62 @@ class StationNode(Node):
         self._last_action = ""
         self._view = _ViewOut()
         self._drag_id = f"affordance_station_{int(time.time() * 1e6):x}"
-        self._drag_last = None                       # (T, time) of the drag in progress
-        self._calls: deque = deque()                 # buttons waiting for the call in flight
-        self._calling = None                         # (action, time sent) of the call in flight
+        self._drag_last = None  # (T, time) of the drag in progress
+        self._calls: deque = deque()  # buttons waiting for the call in flight
+        self._calling = None  # (action, time sent) of the call in flight
         self._refresh = True
-        self._pending: _PendingClick | None = None     # the click being fitted
-        self._seen_error = ("", "")        # (last_error, last_message when it first showed)
+        self._pending: _PendingClick | None = None  # the click being fitted
+        self._seen_error = ("", "")  # (last_error, last_message when it first showed)
 
         self.create_subscription(
-            PointCloud2, "points", self._on_cloud,
-            qos.cloud(p["points_reliable"]))
+            PointCloud2, "points", self._on_cloud, qos.cloud(p["points_reliable"])
+        )
         self.status_topic = f"{self.engine}/status"
         self.create_subscription(String, self.status_topic, self._on_status, LATCHED)
         markers_qos = qos.latched(10)
-        self.create_subscription(MarkerArray, f"{self.engine}/markers", self._on_markers,
-                                 markers_qos)
+        self.create_subscription(
+            MarkerArray, f"{self.engine}/markers", self._on_markers, markers_qos
+        )
         self.pub_click = self.create_publisher(PointStamped, "clicked_point", INPUT)
         self.pub_view = self.create_publisher(PoseStamped, "view_pose", INPUT)
         self.pub_select = self.create_publisher(String, f"{self.engine}/select_model", INPUT)
         self.pub_dimension = self.create_publisher(String, f"{self.engine}/set_dimension", INPUT)
         self.pub_sensor = self.create_publisher(PoseStamped, "sensor_view_request", INPUT)
         ns = "/" + p["interactive_namespace"].strip("/")
-        self.pub_feedback = self.create_publisher(InteractiveMarkerFeedback, f"{ns}/feedback",
-                                                  INPUT)
-        self.triggers = {action: self.create_client(Trigger, f"{self.engine}/{action}")
-                        for action, _ in ACTIONS}
+        self.pub_feedback = self.create_publisher(
+            InteractiveMarkerFeedback, f"{ns}/feedback", INPUT
+        )
+        self.triggers = {
+            action: self.create_client(Trigger, f"{self.engine}/{action}") for action, _ in ACTIONS
+        }
         # the operator only: an access secret, same-origin websockets, bounded frames and
         # message rates, no share tunnel, no outbound connections (ros/station/access.py)
         self.access = station_access.StationAccess(
-            station_access.configured_secret(p["access_secret"]), p["host"], p["port"],
-            log=self.get_logger().warning)
+            station_access.configured_secret(p["access_secret"]),
+            p["host"],
+            p["port"],
+            log=self.get_logger().warning,
+        )
         station_access.forbid_outbound([p["host"]], log=self.get_logger().error)
         with station_access.guarded(self.access):
-            self.page = StationPage(p["host"], p["port"], p["fov_deg"], p["point_size"],
-                                    PageHandlers(click=self._click, action=self._action,
-                                                 select=self._select, drag=self._drag,
-                                                 camera=self._camera,
-                                                 dimension=self._dimension,
-                                                 move_sensor=self._move_sensor,
-                                                 path=lambda state: self.paths.request(state),
-                                                 waypoints=lambda shown, drawn:
-                                                 self.paths.toggled(shown, drawn)))
-        self.paths = StationPaths(self)     # "Show path" -> <engine>/path_request, <engine>/path
+            self.page = StationPage(
+                p["host"],
+                p["port"],
+                p["fov_deg"],
+                p["point_size"],
+                PageHandlers(
+                    click=self._click,
+                    action=self._action,
+                    select=self._select,
+                    drag=self._drag,
+                    camera=self._camera,
+                    dimension=self._dimension,
+                    move_sensor=self._move_sensor,
+                    path=lambda state: self.paths.request(state),
+                    waypoints=lambda shown, drawn: self.paths.toggled(shown, drawn),
+                ),
+            )
+        self.paths = StationPaths(self)  # "Show path" -> <engine>/path_request, <engine>/path
         station_access.disable_share(self.page.server, self.get_logger().warning)
         self.access.port = self.page.port
         self.url = self.access.url()
@@ -253,20 +286,25 @@ class StationNode(Node):
         with self._lock:
             points, frame = self._cloud.points, self._cloud.frame
         try:
-            i = display.snap_ray(points, origin, direction,
-                                 cone_rad=math.radians(self.p["click_cone_deg"]))
+            i = display.snap_ray(
+                points, origin, direction, cone_rad=math.radians(self.p["click_cone_deg"])
+            )
         except AffordanceError as exc:
             self._note(f"click ignored: {exc}")
             return
         if i is None:
-            self._note("click missed the cloud: click on a point of the cloud"
-                       if len(points) else "click ignored: no cloud received yet")
+            self._note(
+                "click missed the cloud: click on a point of the cloud"
+                if len(points)
+                else "click ignored: no cloud received yet"
+            )
             return
         point = points[i]
         note = f"clicked ({', '.join(f'{v:.3f}' for v in point)}) in '{frame}'"
-        with self._lock:     # fitting until the engine's status counts one more handled click
-            self._pending = _PendingClick(point.copy(), note, self._clicks_handled(self._status),
-                                          time.monotonic())
+        with self._lock:  # fitting until the engine's status counts one more handled click
+            self._pending = _PendingClick(
+                point.copy(), note, self._clicks_handled(self._status), time.monotonic()
+            )
         self.pub_click.publish(click_message(point, frame, self.get_clock().now().to_msg()))
         self._note(f"{note}: fitting")
 
@@ -281,8 +319,9 @@ class StationNode(Node):
         are not ordered on the wire)."""
         client = self.triggers[action]
         if not client.service_is_ready():
-            self._note(f"{action}: not sent, the engine's {client.srv_name} service is not "
-                       f"available")
+            self._note(
+                f"{action}: not sent, the engine's {client.srv_name} service is not available"
+            )
             return
         with self._lock:
             self._calls.append(action)
@@ -303,11 +342,11 @@ class StationNode(Node):
         try:
             res = future.result()
             text = f"{action}: {'ok' if res.success else 'refused'} — {res.message}"
-        except Exception as exc:          # the call failed in rclpy (engine gone mid-call)
+        except Exception as exc:  # the call failed in rclpy (engine gone mid-call)
             text = f"{action}: failed ({exc})"
         with self._lock:
             if self._calling is None or self._calling[0] != action:
-                return                    # given up on already (see _step)
+                return  # given up on already (see _step)
             self._calling = None
         self._note(text)
         self._next_call()
@@ -340,25 +379,29 @@ class StationNode(Node):
             return
         self.pub_sensor.publish(pose_stamped(T, frame, self.get_clock().now().to_msg()))
         where = ", ".join(f"{v:.3f}" for v in T[:3, 3])
-        self._note(f"Move sensor here: sent ({where}) in '{frame}' on "
-                   f"{self.pub_sensor.topic_name}" + ("" if self.pub_sensor.get_subscription_count()
-                                                      else " (nothing subscribes to it)"))
+        self._note(
+            f"Move sensor here: sent ({where}) in '{frame}' on "
+            f"{self.pub_sensor.topic_name}"
+            + ("" if self.pub_sensor.get_subscription_count() else " (nothing subscribes to it)")
+        )
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
         F = InteractiveMarkerFeedback
-        if phase == "cancel":       # no keep-alives: the engine cancels the silent drag
+        if phase == "cancel":  # no keep-alives: the engine cancels the silent drag
             with self._lock:
                 self._drag_last = None
             self._note("the dragging browser went away: its drag is cancelled")
-            self.get_logger().info("a browser went away mid-drag: its drag is cancelled (not "
-                                   "released)")
+            self.get_logger().info(
+                "a browser went away mid-drag: its drag is cancelled (not released)"
+            )
             return
         kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
         if kind is None or not self._cloud.frame:
             return
         frame = self._frame()
-        self.pub_feedback.publish(feedback_message(kind, T, frame, self._drag_id,
-                                                   self.get_clock().now().to_msg()))
+        self.pub_feedback.publish(
+            feedback_message(kind, T, frame, self._drag_id, self.get_clock().now().to_msg())
+        )
         with self._lock:
             self._drag_last = None if phase == "end" else (T, time.monotonic())
         if phase == "end":
@@ -385,7 +428,7 @@ class StationNode(Node):
             self._wake.clear()
             try:
                 self._step()
-            except Exception as exc:        # the page must outlive one bad update
+            except Exception as exc:  # the page must outlive one bad update
                 self.get_logger().error(f"station: page update failed: {exc!r}")
                 time.sleep(0.2)
 
@@ -435,12 +478,14 @@ class StationNode(Node):
         refused) or it waited too long; True when the panel must change."""
         with self._lock:
             pending = self._pending
-            if pending is None or not (self._clicks_handled(self._status) > pending.handled or
-                                       now - pending.sent_at > CALL_TIMEOUT_S):
+            if pending is None or not (
+                self._clicks_handled(self._status) > pending.handled
+                or now - pending.sent_at > CALL_TIMEOUT_S
+            ):
                 return False
             self._pending = None
             if self._last_action == f"{pending.note}: fitting":
-                self._last_action = ""    # what happened is in Shown and Last message
+                self._last_action = ""  # what happened is in Shown and Last message
             return True
 
     def _draw_pending_click(self, now: float) -> None:
@@ -450,13 +495,19 @@ class StationNode(Node):
         at once."""
         with self._lock:
             pending = self._pending
-        point = None if pending is None else fitting_marker(
-            pending.point, pending.sent_at, now, float(self.p["fitting_marker_delay"]))
+        point = (
+            None
+            if pending is None
+            else fitting_marker(
+                pending.point, pending.sent_at, now, float(self.p["fitting_marker_delay"])
+            )
+        )
         if point is not self._drawn.pending:
             self.page.show_pending_click(point)
             self._drawn.pending = point
-            self.get_logger().info("fitting marker shown" if point is not None else
-                                   "fitting marker cleared")
+            self.get_logger().info(
+                "fitting marker shown" if point is not None else "fitting marker cleared"
+            )
 
     def _watch_engine(self, now: float) -> bool:
         """Whether the engine is up (its status has a publisher); the button calls it does not
@@ -467,8 +518,9 @@ class StationNode(Node):
         with self._lock:
             calling = self._calling
         if calling is not None and (not connected or now - calling[1] > CALL_TIMEOUT_S):
-            self._give_up_calls("the engine is not running" if not connected else
-                                f"waited {CALL_TIMEOUT_S:.0f} s")
+            self._give_up_calls(
+                "the engine is not running" if not connected else f"waited {CALL_TIMEOUT_S:.0f} s"
+            )
         return changed
 
     def _send_view(self, view: np.ndarray | None, now: float) -> None:
@@ -483,10 +535,13 @@ class StationNode(Node):
                     self._view.pending = self._view.sent
                 view = self._view.pending
         self._view.readers = readers
-        if view is None or not self._frame() or \
-                now - self._view.sent_at < 1.0 / self.p["view_rate"]:
+        if (
+            view is None
+            or not self._frame()
+            or now - self._view.sent_at < 1.0 / self.p["view_rate"]
+        ):
             return
-        with self._lock:        # (a newer view the camera sent meanwhile stays pending)
+        with self._lock:  # (a newer view the camera sent meanwhile stays pending)
             if self._view.pending is view:
                 self._view.pending = None
         self.pub_view.publish(pose_stamped(view, self._frame(), self.get_clock().now().to_msg()))
@@ -496,8 +551,11 @@ class StationNode(Node):
         """A gizmo held still still owns its drag: a keep-alive every DRAG_KEEP_ALIVE_S."""
         if drag is None or now - drag[1] < DRAG_KEEP_ALIVE_S:
             return
-        self.pub_feedback.publish(feedback_message(InteractiveMarkerFeedback.KEEP_ALIVE,
-                                                   drag[0], self._frame(), self._drag_id))
+        self.pub_feedback.publish(
+            feedback_message(
+                InteractiveMarkerFeedback.KEEP_ALIVE, drag[0], self._frame(), self._drag_id
+            )
+        )
         with self._lock:
             if self._drag_last is drag:
                 self._drag_last = (drag[0], now)
@@ -516,11 +574,15 @@ class StationNode(Node):
         # an error goes stale once the engine reports something after it
         stale = bool(error) and message != self._seen_error[1]
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
-        self.page.show_text(f"**Shown**: {label}" if label else "**Shown**: nothing selected",
-                            status_markdown(status, self._connected, self.engine,
-                                            self._cloud.text, last_action, fitting, stale))
-        self.page.show_candidates(candidate_options(obj),
-                                  obj["candidates"][obj["shown"]]["template"] if obj else None)
+        self.page.show_text(
+            f"**Shown**: {label}" if label else "**Shown**: nothing selected",
+            status_markdown(
+                status, self._connected, self.engine, self._cloud.text, last_action, fitting, stale
+            ),
+        )
+        self.page.show_candidates(
+            candidate_options(obj), obj["candidates"][obj["shown"]]["template"] if obj else None
+        )
         shown = obj["candidates"][obj["shown"]] if obj else {}
         self.page.show_dimensions(shown.get("dimensions") if shown.get("primitive") else None)
         self.page.enable(self._connected)
@@ -530,10 +592,16 @@ class StationNode(Node):
         obj = active_object(self._status)
         label = candidate_label(obj)
         frame = self._frame()
-        drawings = {k: d for k, d in self._drawings.items()
-                    if not frame or not d.frame or d.frame.lstrip("/") == frame.lstrip("/")}
-        refused = frozenset(o.get("id") for o in (self._status or {}).get("objects") or []
-                            if candidate_standing(o)[1])
+        drawings = {
+            k: d
+            for k, d in self._drawings.items()
+            if not frame or not d.frame or d.frame.lstrip("/") == frame.lstrip("/")
+        }
+        refused = frozenset(
+            o.get("id")
+            for o in (self._status or {}).get("objects") or []
+            if candidate_standing(o)[1]
+        )
         self.page.show_scene(drawings, obj["id"] if obj else None, label, refused)
         if refused != self._drawn.refused:
             self._drawn.refused = refused
@@ -555,12 +623,14 @@ class StationNode(Node):
         finite = np.all(np.isfinite(pts), axis=1)
         if not finite.all():
             pts = pts[finite]
-        thinned = display.thin(pts, int(self.p["display_points"]),
-                               start_voxel=self._cloud.thin_voxel) if len(pts) else \
-            display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
+        thinned = (
+            display.thin(pts, int(self.p["display_points"]), start_voxel=self._cloud.thin_voxel)
+            if len(pts)
+            else display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
+        )
         self._cloud.thin_voxel = thinned.voxel or None
         keep = thinned.indices
-        values = None                   # the colour values of the shown points only
+        values = None  # the colour values of the shown points only
         if self.p["color_by"] in ("auto", "intensity"):
             values = pointcloud2_field(msg, "intensity")
             if values is not None:
@@ -575,14 +645,19 @@ class StationNode(Node):
             self._cloud.points, self._cloud.frame = pts, frame
         if frame != self._cloud.first_view_frame and len(pts):
             self._cloud.first_view_frame = frame
-            up = np.array(UP_AXES[self.p["up"]] if self.p["up"] != "auto" else
-                          ((0, -1, 0) if "optical" in frame else (0, 0, 1)), dtype=float)
+            up = np.array(
+                UP_AXES[self.p["up"]]
+                if self.p["up"] != "auto"
+                else ((0, -1, 0) if "optical" in frame else (0, 0, 1)),
+                dtype=float,
+            )
             position, look_at = display.initial_view(pts, up, math.radians(self.p["fov_deg"]))
             self.page.set_view(up, position, look_at)
         self.page.show_cloud(pts[keep], display.scalar_colors(values))
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self._cloud.text = (f"{len(pts):,} points in '{frame}', {len(keep):,} shown "
-                            f"(stamp {stamp:.3f})")
+        self._cloud.text = (
+            f"{len(pts):,} points in '{frame}', {len(keep):,} shown (stamp {stamp:.3f})"
+        )
 
     def shutdown(self) -> None:
         self._stop.set()
@@ -592,8 +667,7 @@ class StationNode(Node):
 
 def main(args=None) -> int:
     """Console script ``affordance_station`` (takes ``--ros-args``)."""
-    return run_node(StationNode, "affordance_station", args,
-                    shutdown=lambda node: node.shutdown())
+    return run_node(StationNode, "affordance_station", args, shutdown=lambda node: node.shutdown())
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The operator page the station serves: every viser call of the station is here
 (:class:`StationPage`); what the browser does reaches the station through :class:`PageHandlers`."""
+
 from __future__ import annotations
 
 import math
@@ -21,16 +22,24 @@ __all__ = ["StationPage", "PageHandlers", "gizmo_scale", "ACTIONS", "DIMENSIONS"
 #: a primitive's dimensions, each a field of the page (m)
 DIMENSIONS = ("x", "y", "z", "radius", "length")
 #: the buttons, in page order: (engine service, button label)
-ACTIONS = (("previous_model", "Previous"), ("next_model", "Next"), ("accept", "Accept"),
-           ("refit", "Refit"), ("undo", "Undo"), ("discard", "Discard"), ("save", "Save"),
-           ("joint_minus", "Joint −"), ("joint_plus", "Joint +"))
-MESH_MARGIN = 0.005                     # m: meshes are drawn this far out of their surface
-REFUSED_RGB = (150, 150, 150)           # a candidate the verdict refuses: a grey outline ...
-REFUSED_OPACITY = 0.5                   # ... half transparent
-PENDING_RGB = (255, 140, 0)             # the click being fitted
-PENDING_RADIUS = 0.008                  # m
-PATH_RGB = (255, 60, 200)               # the path the engine answered
-LINE_PX = 3.0                           # width of the waypoints' and the path's lines (pixels)
+ACTIONS = (
+    ("previous_model", "Previous"),
+    ("next_model", "Next"),
+    ("accept", "Accept"),
+    ("refit", "Refit"),
+    ("undo", "Undo"),
+    ("discard", "Discard"),
+    ("save", "Save"),
+    ("joint_minus", "Joint −"),
+    ("joint_plus", "Joint +"),
+)
+MESH_MARGIN = 0.005  # m: meshes are drawn this far out of their surface
+REFUSED_RGB = (150, 150, 150)  # a candidate the verdict refuses: a grey outline ...
+REFUSED_OPACITY = 0.5  # ... half transparent
+PENDING_RGB = (255, 140, 0)  # the click being fitted
+PENDING_RADIUS = 0.008  # m
+PATH_RGB = (255, 60, 200)  # the path the engine answered
+LINE_PX = 3.0  # width of the waypoints' and the path's lines (pixels)
 
 
 def gizmo_scale(vertices: np.ndarray) -> float:
@@ -80,26 +89,31 @@ class PageHandlers:
 class StationPage:
     """The operator page: every viser call of the station is here."""
 
-    def __init__(self, host: str, port: int, fov_deg: float, point_size: float,
-                 handlers: PageHandlers):
+    def __init__(
+        self, host: str, port: int, fov_deg: float, point_size: float, handlers: PageHandlers
+    ):
         import viser  # here: only the station needs it
+
         self.h = handlers
         self.fov = math.radians(fov_deg)
         self.point_size = point_size
-        self.server = viser.ViserServer(host=host, port=port, label="affordance station",
-                                        verbose=False)
+        self.server = viser.ViserServer(
+            host=host, port=port, label="affordance station", verbose=False
+        )
         self.server.initial_camera.fov = self.fov
         self._lock = threading.RLock()
-        self._nodes: dict[str, tuple] = {}             # scene name -> (handle, digest)
+        self._nodes: dict[str, tuple] = {}  # scene name -> (handle, digest)
         self._dragging = False
         self._gizmo = None
         self._gizmo_scale = 0.0
-        self._view = None                              # (position, look_at, up) for new views
-        self._unpointed: set = set()       # browsers not yet pointed at the first view
+        self._view = None  # (position, look_at, up) for new views
+        self._unpointed: set = set()  # browsers not yet pointed at the first view
         self._options: dict[str, str] = {}
         gui = self.server.gui
-        gui.add_markdown("**Affordance station** — click an object in the cloud to fit it; "
-                         "drag the gizmo to correct the shown fit.")
+        gui.add_markdown(
+            "**Affordance station** — click an object in the cloud to fit it; "
+            "drag the gizmo to correct the shown fit."
+        )
         self.shown = gui.add_markdown("**Shown**: nothing selected")
         self.candidates = gui.add_dropdown("Candidate", options=("none",), initial_value="none")
         self.candidates.on_update(self._on_select)
@@ -110,14 +124,17 @@ class StationPage:
             self.buttons[action] = button
         # shown while the open object is unsettled and the engine suggests where to look from
         self.move_sensor = gui.add_button(
-            "Move sensor here", visible=False,
-            hint="ask whatever moves the sensor to scan from the suggested view")
+            "Move sensor here",
+            visible=False,
+            hint="ask whatever moves the sensor to scan from the suggested view",
+        )
         self.move_sensor.on_click(lambda event: self.h.move_sensor())
         # a primitive's dimensions (m), shown while the shown candidate is one
         self.dimensions = {}
         for name in DIMENSIONS:
-            box = gui.add_number(f"{name} (m)", initial_value=0.1, min=0.001, max=100.0,
-                                 step=0.001, visible=False)
+            box = gui.add_number(
+                f"{name} (m)", initial_value=0.1, min=0.001, max=100.0, step=0.001, visible=False
+            )
             box.on_update(lambda event, name=name: self._on_dimension(event, name))
             self.dimensions[name] = box
         # the engine's waypoints (grippers) on or off; the path of the shown object's waypoint
@@ -141,18 +158,19 @@ class StationPage:
 
     # ------------------------------------------------------------------ browser -> host
     def _on_click(self, event) -> None:
-        self.h.click(np.asarray(event.ray_origin, dtype=float),
-                     np.asarray(event.ray_direction, dtype=float))
+        self.h.click(
+            np.asarray(event.ray_origin, dtype=float), np.asarray(event.ray_direction, dtype=float)
+        )
 
     def _on_select(self, event) -> None:
-        if event.client is None:              # set by the station, not by an operator
+        if event.client is None:  # set by the station, not by an operator
             return
         template = self._options.get(self.candidates.value)
         if template:
             self.h.select(template)
 
     def _on_dimension(self, event, name: str) -> None:
-        if event.client is None:              # set by the station, not by an operator
+        if event.client is None:  # set by the station, not by an operator
             return
         self.h.dimension(name, float(self.dimensions[name].value))
 
@@ -195,7 +213,7 @@ class StationPage:
             client.camera.up_direction = tuple(up)
             client.camera.position = tuple(position)
             client.camera.look_at = tuple(look_at)
-        except (AssertionError, ValueError):    # viser: "camera state not known yet"
+        except (AssertionError, ValueError):  # viser: "camera state not known yet"
             return False
         return True
 
@@ -238,9 +256,15 @@ class StationPage:
                     self._unpointed.discard(cid)
 
     def show_cloud(self, points: np.ndarray, colors: np.ndarray) -> None:
-        self.server.scene.add_point_cloud("/cloud", points.astype(np.float32), colors,
-                                          point_size=self.point_size, point_shape="square",
-                                          precision="float32", point_shading="flat")
+        self.server.scene.add_point_cloud(
+            "/cloud",
+            points.astype(np.float32),
+            colors,
+            point_size=self.point_size,
+            point_shape="square",
+            precision="float32",
+            point_shading="flat",
+        )
 
     def show_text(self, shown: str, status: str) -> None:
         if self.shown.content != shown:
@@ -294,8 +318,15 @@ class StationPage:
         # a candidate the verdict refuses is a translucent grey outline, not a solid fit
         style = {"wireframe": True, "opacity": REFUSED_OPACITY} if refused else {}
         handle = self.server.scene.add_mesh_simple(
-            name, vertices, faces, color=REFUSED_RGB if refused else d.color, side="double",
-            position=T[:3, 3], wxyz=_wxyz(T), **style)
+            name,
+            vertices,
+            faces,
+            color=REFUSED_RGB if refused else d.color,
+            side="double",
+            position=T[:3, 3],
+            wxyz=_wxyz(T),
+            **style,
+        )
         self._nodes[name] = (handle, digest)
 
     def show_pending_click(self, point: np.ndarray | None) -> None:
@@ -309,10 +340,18 @@ class StationPage:
             if point is None:
                 return
             p = np.asarray(point, dtype=float)
-            self._nodes["/pending/click"] = (self.server.scene.add_icosphere(
-                "/pending/click", radius=PENDING_RADIUS, color=PENDING_RGB, position=p), "")
-            self._nodes["/pending/label"] = (self.server.scene.add_label(
-                "/pending/label", "fitting…", position=p, anchor="bottom-center"), "")
+            self._nodes["/pending/click"] = (
+                self.server.scene.add_icosphere(
+                    "/pending/click", radius=PENDING_RADIUS, color=PENDING_RGB, position=p
+                ),
+                "",
+            )
+            self._nodes["/pending/label"] = (
+                self.server.scene.add_label(
+                    "/pending/label", "fitting…", position=p, anchor="bottom-center"
+                ),
+                "",
+            )
 
     def show_path(self, points: np.ndarray | None) -> None:
         """The path the engine answered: its poses' positions (N, 3) in the cloud frame as a
@@ -326,8 +365,12 @@ class StationPage:
             p = np.asarray(points, dtype=np.float32)
             segments = np.stack([p[:-1], p[1:]], axis=1)
             colors = np.broadcast_to(np.array(PATH_RGB, np.uint8), segments.shape).copy()
-            self._nodes["/path"] = (self.server.scene.add_line_segments(
-                "/path", segments, colors, thickness=LINE_PX, thickness_units="screen"), "")
+            self._nodes["/path"] = (
+                self.server.scene.add_line_segments(
+                    "/path", segments, colors, thickness=LINE_PX, thickness_units="screen"
+                ),
+                "",
+            )
 
     def _other(self, name: str, d) -> None:
         key = repr(d)
@@ -341,19 +384,27 @@ class StationPage:
         if old is not None and old[1] == key:
             return
         if isinstance(d, TextDrawing):
-            handle = self.server.scene.add_label(name, d.text, position=d.position,
-                                                 anchor="top-center")
-        elif isinstance(d, LineDrawing):     # waypoint grippers (as the toggle says), a view
+            handle = self.server.scene.add_label(
+                name, d.text, position=d.position, anchor="top-center"
+            )
+        elif isinstance(d, LineDrawing):  # waypoint grippers (as the toggle says), a view
             handle = self.server.scene.add_line_segments(
-                name, d.segments, d.colors, thickness=LINE_PX, thickness_units="screen",
-                visible=bool(self.waypoints.value) or "_waypoints_" not in name)
+                name,
+                d.segments,
+                d.colors,
+                thickness=LINE_PX,
+                thickness_units="screen",
+                visible=bool(self.waypoints.value) or "_waypoints_" not in name,
+            )
         else:
-            handle = self.server.scene.add_icosphere(name, radius=d.radius, color=d.color,
-                                                     position=d.position)
+            handle = self.server.scene.add_icosphere(
+                name, radius=d.radius, color=d.color, position=d.position
+            )
         self._nodes[name] = (handle, key)
 
-    def show_scene(self, drawings: dict, active_id: int | None, label: str,
-                   refused: frozenset = frozenset()) -> None:
+    def show_scene(
+        self, drawings: dict, active_id: int | None, label: str, refused: frozenset = frozenset()
+    ) -> None:
         """Draw the engine's markers: the active object's candidate under the gizmo (so a drag
         moves it in the browser at once), the rest where the engine put them; ``label`` replaces
         the active candidate's label text; the candidates of the objects in ``refused`` are
@@ -398,8 +449,13 @@ class StationPage:
                 self._gizmo.remove()
                 self._nodes = {k: v for k, v in self._nodes.items() if not k.startswith("/fit/")}
             self._gizmo = self.server.scene.add_transform_controls(
-                "/fit", scale=scale, depth_test=False, disable_sliders=True,
-                position=fit.T[:3, 3], wxyz=_wxyz(fit.T))
+                "/fit",
+                scale=scale,
+                depth_test=False,
+                disable_sliders=True,
+                position=fit.T[:3, 3],
+                wxyz=_wxyz(fit.T),
+            )
             self._gizmo.on_update(self._on_gizmo)
             self._gizmo_scale = scale
         elif not self._dragging:

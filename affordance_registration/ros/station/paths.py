@@ -6,6 +6,7 @@ object's id from the engine's status), and the engine's answer (``<engine>/path`
 in the cloud frame) is drawn as a polyline. A refusal (no such state...) is the engine's: the
 panel shows its last error. The engine's waypoint grippers come with its markers; the page's
 "Waypoints" toggle shows or hides them."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -43,7 +44,7 @@ class StationPaths:
         node._note(f"path of object {obj['id']} to {state}: asked")
 
     def _on_path(self, msg: PoseArray) -> None:
-        if not self._asked:          # a path another client asked for before this station ran
+        if not self._asked:  # a path another client asked for before this station ran
             return
         points = np.array([[p.position.x, p.position.y, p.position.z] for p in msg.poses])
         self._node.page.show_path(points)

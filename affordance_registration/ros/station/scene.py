@@ -17,6 +17,7 @@ metres gets a warning naming ``--units``.
 
 Parameters: ``file`` (required), ``units`` (m | cm | mm; m), ``frame_id`` (``scan``).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -41,7 +42,7 @@ def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:
         raise AffordanceError("no scan file given (parameter 'file')")
     f = read_points(path)
     pts = np.asarray(f.points, dtype=float) * UNITS[units]
-    if f.organized is not None:            # an organized cloud stays one (the engine's crops)
+    if f.organized is not None:  # an organized cloud stays one (the engine's crops)
         pts = pts.reshape(*f.organized, 3)
     flat = pts.reshape(-1, 3)
     finite = flat[np.all(np.isfinite(flat), axis=1)]
@@ -50,8 +51,10 @@ def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:
     extent = float(np.max(finite.max(axis=0) - finite.min(axis=0)))
     warning = ""
     if extent > MM_LOOKING_EXTENT:
-        warning = (f"{path}: the scan is {extent:.0f} m across in '{units}', larger than a room: "
-                   f"if it is in millimetres or centimetres, give its units (--units mm or cm)")
+        warning = (
+            f"{path}: the scan is {extent:.0f} m across in '{units}', larger than a room: "
+            f"if it is in millimetres or centimetres, give its units (--units mm or cm)"
+        )
     return pts, warning
 
 
@@ -68,8 +71,9 @@ class FileScanNode(Node):
             self.get_logger().warning(warning)
         self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(pts, frame))
         n = int(np.all(np.isfinite(pts.reshape(-1, 3)), axis=1).sum())
-        self.get_logger().info(f"scan {path} ({units}): {n} points in '{frame}' on "
-                               f"{self.cloud.topic_name}")
+        self.get_logger().info(
+            f"scan {path} ({units}): {n} points in '{frame}' on {self.cloud.topic_name}"
+        )
 
 
 def main(args=None) -> int:

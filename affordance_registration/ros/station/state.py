@@ -4,6 +4,7 @@
 ``~/markers`` (:func:`apply_markers`) and the text of its ``~/status`` (the selected object, its
 shown candidate's label and verdict, the status panel). Plain functions and records, tested
 without ``rclpy.init`` or a browser."""
+
 from __future__ import annotations
 
 import hashlib
@@ -16,9 +17,20 @@ from ...core.labels import REFUSED_PREFIX, standing
 from ..glue.conversions import ConversionError, pose_to_matrix
 from ..glue.mesh_refs import referenced_mesh
 
-__all__ = ["MeshDrawing", "TextDrawing", "SphereDrawing", "LineDrawing", "apply_markers", "active_object",
-           "candidate_standing", "candidate_label", "candidate_options", "fitting_marker",
-           "status_markdown", "suggested_pose"]
+__all__ = [
+    "MeshDrawing",
+    "TextDrawing",
+    "SphereDrawing",
+    "LineDrawing",
+    "apply_markers",
+    "active_object",
+    "candidate_standing",
+    "candidate_label",
+    "candidate_options",
+    "fitting_marker",
+    "status_markdown",
+    "suggested_pose",
+]
 
 
 # ============================================================================ messages -> drawings
@@ -46,7 +58,7 @@ class MeshDrawing:
 @dataclass(frozen=True)
 class TextDrawing:
     text: str
-    position: np.ndarray = field(repr=False)       # (3,) in the header frame
+    position: np.ndarray = field(repr=False)  # (3,) in the header frame
     frame: str
 
 
@@ -80,23 +92,25 @@ def _drawing(m: Marker):
         if n == 0:
             return None
         verts = np.array([(p.x, p.y, p.z) for p in m.points[:n]], dtype=np.float32)
-        verts *= np.array([m.scale.x or 1.0, m.scale.y or 1.0, m.scale.z or 1.0],
-                          dtype=np.float32)
+        verts *= np.array([m.scale.x or 1.0, m.scale.y or 1.0, m.scale.z or 1.0], dtype=np.float32)
         faces = np.arange(n, dtype=np.uint32).reshape(-1, 3)
-        return MeshDrawing(verts, faces, pose_to_matrix(m.pose), _rgb(m.color),
-                           float(m.color.a), frame)
+        return MeshDrawing(
+            verts, faces, pose_to_matrix(m.pose), _rgb(m.color), float(m.color.a), frame
+        )
     if m.type in (Marker.MESH_RESOURCE, Marker.CUBE, Marker.CYLINDER):
-        verts = referenced_mesh(m)           # the file read once, a shape made once
+        verts = referenced_mesh(m)  # the file read once, a shape made once
         faces = np.arange(len(verts), dtype=np.uint32).reshape(-1, 3)
-        return MeshDrawing(verts, faces, pose_to_matrix(m.pose), _rgb(m.color),
-                           float(m.color.a), frame)
+        return MeshDrawing(
+            verts, faces, pose_to_matrix(m.pose), _rgb(m.color), float(m.color.a), frame
+        )
     if m.type == Marker.TEXT_VIEW_FACING:
         p = m.pose.position
         return TextDrawing(m.text, np.array([p.x, p.y, p.z]), frame)
     if m.type == Marker.SPHERE:
         p = m.pose.position
-        return SphereDrawing(np.array([p.x, p.y, p.z]), 0.5 * float(m.scale.x), _rgb(m.color),
-                             frame)
+        return SphereDrawing(
+            np.array([p.x, p.y, p.z]), 0.5 * float(m.scale.x), _rgb(m.color), frame
+        )
     if m.type == Marker.LINE_LIST:
         n = len(m.points) // 2 * 2
         if n == 0:
@@ -104,8 +118,11 @@ def _drawing(m: Marker):
         T = pose_to_matrix(m.pose)
         pts = np.array([(p.x, p.y, p.z) for p in m.points[:n]], dtype=float) @ T[:3, :3].T
         colors = [_rgb(c) for c in m.colors[:n]] if len(m.colors) >= n else [_rgb(m.color)] * n
-        return LineDrawing((pts + T[:3, 3]).astype(np.float32).reshape(-1, 2, 3),
-                           np.array(colors, dtype=np.uint8).reshape(-1, 2, 3), frame)
+        return LineDrawing(
+            (pts + T[:3, 3]).astype(np.float32).reshape(-1, 2, 3),
+            np.array(colors, dtype=np.uint8).reshape(-1, 2, 3),
+            frame,
+        )
     return None
 
 
@@ -122,7 +139,7 @@ def apply_markers(current: dict, msg: MarkerArray) -> dict:
             out.clear()
         elif m.action == Marker.DELETE:
             out.pop(key, None)
-        elif m.action == Marker.ADD:        # ADD == MODIFY
+        elif m.action == Marker.ADD:  # ADD == MODIFY
             try:
                 drawing = _drawing(m)
             except ConversionError:
@@ -152,9 +169,14 @@ def candidate_standing(obj: dict | None) -> tuple[str, bool]:
     cands = obj["candidates"]
     shown = int(obj.get("shown", 0))
     primitive = 0 <= shown < len(cands) and cands[shown].get("primitive") is not None
-    return standing(bool(obj.get("no_match")), shown,
-                    [float(c.get("probability") or 0.0) for c in cands],
-                    [c.get("fits") for c in cands], primitive, str(obj.get("verdict") or ""))
+    return standing(
+        bool(obj.get("no_match")),
+        shown,
+        [float(c.get("probability") or 0.0) for c in cands],
+        [c.get("fits") for c in cands],
+        primitive,
+        str(obj.get("verdict") or ""),
+    )
 
 
 def candidate_label(obj: dict | None) -> str:
@@ -182,8 +204,9 @@ def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
     return out
 
 
-def fitting_marker(point: np.ndarray | None, sent_at: float, now: float,
-                   delay: float) -> np.ndarray | None:
+def fitting_marker(
+    point: np.ndarray | None, sent_at: float, now: float, delay: float
+) -> np.ndarray | None:
     """Where the "fitting…" marker is drawn: the point of the click being fitted (None: no
     click is) once it has waited ``delay`` s since it was sent at ``sent_at``, else None (the
     same object as ``point``: the station redraws only when it changes)."""
@@ -196,8 +219,12 @@ def suggested_pose(obj: dict | None) -> np.ndarray | None:
     or no usable pose."""
     amb = (obj or {}).get("ambiguity") or {}
     view = (obj or {}).get("suggested_view") or {}
-    if not isinstance(amb, dict) or amb.get("settled") is not False or \
-            not isinstance(view, dict) or not view.get("pose"):
+    if (
+        not isinstance(amb, dict)
+        or amb.get("settled") is not False
+        or not isinstance(view, dict)
+        or not view.get("pose")
+    ):
         return None
     try:
         T = np.asarray(view["pose"], dtype=float)
@@ -208,40 +235,57 @@ def suggested_pose(obj: dict | None) -> np.ndarray | None:
     return T
 
 
-def status_markdown(status: dict | None, connected: bool, engine: str, cloud: str,
-                    last_action: str, fitting: str = "", stale_error: bool = False) -> str:
+def status_markdown(
+    status: dict | None,
+    connected: bool,
+    engine: str,
+    cloud: str,
+    last_action: str,
+    fitting: str = "",
+    stale_error: bool = False,
+) -> str:
     """The status panel: engine connection, a click being fitted (``fitting``), open object and
     its verdict, why it is unsettled and the suggested view, counts, fit time, what the engine
     is doing, its last message and error (left out when ``stale_error``: a later message came
     after it), the cloud, the reply to the last button."""
     lines = []
     if not connected:
-        lines.append(f"**Engine not running**: nothing publishes {engine}/status (start "
-                     f"`affordance_engine`; the page recovers when it comes up)")
+        lines.append(
+            f"**Engine not running**: nothing publishes {engine}/status (start "
+            f"`affordance_engine`; the page recovers when it comes up)"
+        )
     elif status is None:
         lines.append(f"**Engine**: {engine} is up, waiting for its status")
     else:
         node = status.get("node") or {}
         doing = node.get("busy") or ("refit pending" if node.get("pending_refit") else "idle")
-        lines.append(f"**Engine**: {engine} — {doing}"
-                     + (f", {node['queued']} queued" if node.get("queued") else ""))
+        lines.append(
+            f"**Engine**: {engine} — {doing}"
+            + (f", {node['queued']} queued" if node.get("queued") else "")
+        )
     if fitting:
         lines.append(f"**Fitting**: {fitting}")
     st = status or {}
     obj = active_object(st)
     lines.append(f"**Open object**: {candidate_label(obj) if obj else 'none (click an object)'}")
     if obj and candidate_standing(obj)[1]:
-        lines.append("**Verdict**: the shown candidate is refused (drawn as a grey outline); "
-                     "Accept registers it anyway, marked as an operator override")
+        lines.append(
+            "**Verdict**: the shown candidate is refused (drawn as a grey outline); "
+            "Accept registers it anyway, marked as an operator override"
+        )
     amb = (obj or {}).get("ambiguity") or {}
-    if amb.get("settled") is False:         # why it is not settled, and the view that would
+    if amb.get("settled") is False:  # why it is not settled, and the view that would
         view = (obj.get("suggested_view") or {}).get("text")
-        lines.append(f"**Unsettled**: {'; '.join(amb.get('reasons') or [])}"
-                     + (f" — **suggested view**: {view}" if view else ""))
+        lines.append(
+            f"**Unsettled**: {'; '.join(amb.get('reasons') or [])}"
+            + (f" — **suggested view**: {view}" if view else "")
+        )
     counts = st.get("counts") or {}
-    lines.append(f"**Objects**: {counts.get('objects', 0)} open, "
-                 f"{counts.get('registered', len(st.get('registered') or []))} registered, "
-                 f"{counts.get('undo', 0)} undo steps")
+    lines.append(
+        f"**Objects**: {counts.get('objects', 0)} open, "
+        f"{counts.get('registered', len(st.get('registered') or []))} registered, "
+        f"{counts.get('undo', 0)} undo steps"
+    )
     fit_s = (st.get("timing_s") or {}).get("total")
     if fit_s is not None:
         lines.append(f"**Fit time**: {float(fit_s):.2f} s")

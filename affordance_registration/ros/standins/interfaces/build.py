@@ -24,6 +24,7 @@ Prints one line. Exit status 0 when built, or when tf2_msgs already comes from e
 install); otherwise ``tf2_msgs not built: REASON`` and exit status 1, and the prefix is left as it
 was (everything is built in a temporary directory first).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,9 +44,12 @@ from pathlib import Path
 
 PACKAGE = "tf2_msgs"
 MESSAGES = ("TFMessage", "TF2Error")
-DEPENDENCIES = ("geometry_msgs", "std_msgs", "builtin_interfaces")   # what TFMessage nests
-TYPESUPPORTS = ("rosidl_typesupport_c", "rosidl_typesupport_fastrtps_c",
-                "rosidl_typesupport_introspection_c")
+DEPENDENCIES = ("geometry_msgs", "std_msgs", "builtin_interfaces")  # what TFMessage nests
+TYPESUPPORTS = (
+    "rosidl_typesupport_c",
+    "rosidl_typesupport_fastrtps_c",
+    "rosidl_typesupport_introspection_c",
+)
 SOURCE_DIR = Path(__file__).resolve().parent / PACKAGE
 
 __all__ = ["BuildError", "build", "main"]
@@ -56,8 +60,7 @@ class BuildError(Exception):
 
 
 def _site_packages(prefix: Path) -> Path:
-    return Path(sysconfig.get_path("platlib", vars={"base": str(prefix),
-                                                    "platbase": str(prefix)}))
+    return Path(sysconfig.get_path("platlib", vars={"base": str(prefix), "platbase": str(prefix)}))
 
 
 def _external_tf2_msgs(prefix: Path) -> str | None:
@@ -73,9 +76,10 @@ def generate(ros_prefix: Path, out: Path) -> Path:
     """Write the generated sources under ``out`` (one folder per generator); returns the folder
     of the type descriptions (JSON)."""
     os.environ["AMENT_PREFIX_PATH"] = os.pathsep.join(
-        [str(ros_prefix)] + [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)
-                             if p])
-    with contextlib.redirect_stdout(io.StringIO()):   # the generators narrate every file
+        [str(ros_prefix)]
+        + [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    )
+    with contextlib.redirect_stdout(io.StringIO()):  # the generators narrate every file
         from rosidl_adapter.msg import convert_msg_to_idl
         from rosidl_generator_c.cli import GenerateC
         from rosidl_generator_py.cli import GeneratePython
@@ -87,20 +91,25 @@ def generate(ros_prefix: Path, out: Path) -> Path:
         idl_root = out / "idl"
         idl_files = []
         for name in MESSAGES:
-            idl = convert_msg_to_idl(SOURCE_DIR, PACKAGE, Path("msg") / f"{name}.msg",
-                                     idl_root / "msg")
+            idl = convert_msg_to_idl(
+                SOURCE_DIR, PACKAGE, Path("msg") / f"{name}.msg", idl_root / "msg"
+            )
             idl_files.append(f"{idl_root}:msg/{idl.name}")
         include_paths = [str(ros_prefix / "share" / dep) for dep in DEPENDENCIES]
         descriptions = out / "type_description"
         hashes = HashTypeDescription("type_description").generate_type_hashes(
-            PACKAGE, idl_files, include_paths, output_path=descriptions)
+            PACKAGE, idl_files, include_paths, output_path=descriptions
+        )
         # each generator writes under out/<kind>/tf2_msgs so that includes read "tf2_msgs/msg/..."
-        GenerateC("c").generate(PACKAGE, idl_files, include_paths, out / "c" / PACKAGE,
-                                type_description_files=hashes)
-        for kind, extension in (("typesupport_c", GenerateCTypesupport),
-                                ("fastrtps_c", GenerateFastRTPSCTypesupport),
-                                ("introspection_c", GenerateIntrospectionCTypesupport),
-                                ("py", GeneratePython)):
+        GenerateC("c").generate(
+            PACKAGE, idl_files, include_paths, out / "c" / PACKAGE, type_description_files=hashes
+        )
+        for kind, extension in (
+            ("typesupport_c", GenerateCTypesupport),
+            ("fastrtps_c", GenerateFastRTPSCTypesupport),
+            ("introspection_c", GenerateIntrospectionCTypesupport),
+            ("py", GeneratePython),
+        ):
             extension(kind).generate(PACKAGE, idl_files, include_paths, out / kind / PACKAGE)
     return descriptions
 
@@ -108,8 +117,10 @@ def generate(ros_prefix: Path, out: Path) -> Path:
 def _compiler(variable: str, default: str) -> list[str]:
     command = shlex.split(os.environ.get(variable, default)) or [default]
     if shutil.which(command[0]) is None:
-        raise BuildError(f"no {'C++' if variable == 'CXX' else 'C'} compiler '{command[0]}' "
-                         f"(apt-get install {'g++' if variable == 'CXX' else 'gcc'})")
+        raise BuildError(
+            f"no {'C++' if variable == 'CXX' else 'C'} compiler '{command[0]}' "
+            f"(apt-get install {'g++' if variable == 'CXX' else 'gcc'})"
+        )
     return command
 
 
@@ -128,15 +139,18 @@ def _python_include() -> Path:
     return include
 
 
-def compile_sources(ros_prefix: Path, gen: Path, stage: Path, site_rel: Path, cc: list[str],
-                    cxx: list[str]) -> None:
+def compile_sources(
+    ros_prefix: Path, gen: Path, stage: Path, site_rel: Path, cc: list[str], cxx: list[str]
+) -> None:
     """Compile the generated sources into ``stage`` laid out like the prefix (``lib/`` and
     ``site_rel/tf2_msgs``) with the compilers ``cc`` and ``cxx`` (command lines)."""
     python_include = _python_include()
     import numpy
+
     ros_include = ros_prefix / "include"
-    includes = [gen / "c", gen / "fastrtps_c", gen / "introspection_c", ros_include] + \
-        sorted(p for p in ros_include.iterdir() if p.is_dir())
+    includes = [gen / "c", gen / "fastrtps_c", gen / "introspection_c", ros_include] + sorted(
+        p for p in ros_include.iterdir() if p.is_dir()
+    )
     lib = stage / "lib"
     pkg_dir = stage / site_rel / PACKAGE
     lib.mkdir(parents=True)
@@ -149,46 +163,94 @@ def compile_sources(ros_prefix: Path, gen: Path, stage: Path, site_rel: Path, cc
         return [f"-l{dep}__{kind}" for dep in DEPENDENCIES]
 
     def library(compiler, kind, sources, libs, extra=()):
-        return compiler + flags + list(extra) + [str(s) for s in sorted(sources)] + \
-            ["-o", str(lib / f"lib{PACKAGE}__{kind}.so")] + lib_dirs + \
-            ["-Wl,-rpath,$ORIGIN"] + libs + ["-lrosidl_runtime_c", "-lrcutils"]
+        return (
+            compiler
+            + flags
+            + list(extra)
+            + [str(s) for s in sorted(sources)]
+            + ["-o", str(lib / f"lib{PACKAGE}__{kind}.so")]
+            + lib_dirs
+            + ["-Wl,-rpath,$ORIGIN"]
+            + libs
+            + ["-lrosidl_runtime_c", "-lrcutils"]
+        )
 
     msg = Path(PACKAGE) / "msg"
-    first = library(cc, "rosidl_generator_c", (gen / "c" / msg / "detail").glob("*.c"),
-                    deps("rosidl_generator_c"))
+    first = library(
+        cc,
+        "rosidl_generator_c",
+        (gen / "c" / msg / "detail").glob("*.c"),
+        deps("rosidl_generator_c"),
+    )
     cxx17 = cxx + ["-std=c++17"]
     libraries = [
-        library(cc, "rosidl_typesupport_introspection_c",
-                (gen / "introspection_c" / msg / "detail").glob("*.c"),
-                [own] + deps("rosidl_typesupport_introspection_c") +
-                ["-lrosidl_typesupport_introspection_c"]),
-        library(cxx17, "rosidl_typesupport_fastrtps_c",
-                (gen / "fastrtps_c" / msg / "detail").glob("*.cpp"),
-                [own] + deps("rosidl_typesupport_fastrtps_c") + deps("rosidl_generator_c") +
-                ["-lrosidl_typesupport_fastrtps_c", "-lrosidl_typesupport_fastrtps_cpp",
-                 "-lfastcdr", "-lrmw"]),
-        library(cxx17, "rosidl_typesupport_c", (gen / "typesupport_c" / msg).glob("*.cpp"),
-                [own, "-lrosidl_typesupport_c", "-lrcpputils"]),
-        library(cc, "rosidl_generator_py", (gen / "py" / msg).glob("*_s.c"),
-                [own] + deps("rosidl_generator_c") + deps("rosidl_generator_py"),
-                extra=[f"-I{python_include}", f"-I{numpy.get_include()}"]),
+        library(
+            cc,
+            "rosidl_typesupport_introspection_c",
+            (gen / "introspection_c" / msg / "detail").glob("*.c"),
+            [own]
+            + deps("rosidl_typesupport_introspection_c")
+            + ["-lrosidl_typesupport_introspection_c"],
+        ),
+        library(
+            cxx17,
+            "rosidl_typesupport_fastrtps_c",
+            (gen / "fastrtps_c" / msg / "detail").glob("*.cpp"),
+            [own]
+            + deps("rosidl_typesupport_fastrtps_c")
+            + deps("rosidl_generator_c")
+            + [
+                "-lrosidl_typesupport_fastrtps_c",
+                "-lrosidl_typesupport_fastrtps_cpp",
+                "-lfastcdr",
+                "-lrmw",
+            ],
+        ),
+        library(
+            cxx17,
+            "rosidl_typesupport_c",
+            (gen / "typesupport_c" / msg).glob("*.cpp"),
+            [own, "-lrosidl_typesupport_c", "-lrcpputils"],
+        ),
+        library(
+            cc,
+            "rosidl_generator_py",
+            (gen / "py" / msg).glob("*_s.c"),
+            [own] + deps("rosidl_generator_c") + deps("rosidl_generator_py"),
+            extra=[f"-I{python_include}", f"-I{numpy.get_include()}"],
+        ),
     ]
     # the Python extension modules, one per typesupport, find lib/ relative to themselves
     to_lib = os.path.relpath(stage / "lib", pkg_dir)
     suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
-    modules = [cc + flags + [f"-I{python_include}",
-                             str(gen / "py" / PACKAGE / f"_{PACKAGE}_s.ep.{ts}.c"),
-                             "-o", str(pkg_dir / f"{PACKAGE}_s__{ts}{suffix}")] +
-               lib_dirs + [f"-Wl,-rpath,$ORIGIN/{to_lib}", f"-l{PACKAGE}__rosidl_generator_py",
-                           f"-l{PACKAGE}__{ts}", own, "-lrosidl_runtime_c", "-lrcutils"]
-               for ts in TYPESUPPORTS]
+    modules = [
+        cc
+        + flags
+        + [
+            f"-I{python_include}",
+            str(gen / "py" / PACKAGE / f"_{PACKAGE}_s.ep.{ts}.c"),
+            "-o",
+            str(pkg_dir / f"{PACKAGE}_s__{ts}{suffix}"),
+        ]
+        + lib_dirs
+        + [
+            f"-Wl,-rpath,$ORIGIN/{to_lib}",
+            f"-l{PACKAGE}__rosidl_generator_py",
+            f"-l{PACKAGE}__{ts}",
+            own,
+            "-lrosidl_runtime_c",
+            "-lrcutils",
+        ]
+        for ts in TYPESUPPORTS
+    ]
     _run(first)
     with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
         list(pool.map(_run, libraries))
         list(pool.map(_run, modules))
     (pkg_dir / "__init__.py").write_text("")
-    shutil.copytree(gen / "py" / PACKAGE / "msg", pkg_dir / "msg",
-                    ignore=shutil.ignore_patterns("*.c"))
+    shutil.copytree(
+        gen / "py" / PACKAGE / "msg", pkg_dir / "msg", ignore=shutil.ignore_patterns("*.c")
+    )
 
 
 def stage_share(gen: Path, descriptions: Path, stage: Path) -> None:
@@ -197,8 +259,11 @@ def stage_share(gen: Path, descriptions: Path, stage: Path) -> None:
     share.mkdir(parents=True)
     files = []
     for name in MESSAGES:
-        for src in (SOURCE_DIR / "msg" / f"{name}.msg", gen / "idl" / "msg" / f"{name}.idl",
-                    descriptions / "msg" / f"{name}.json"):
+        for src in (
+            SOURCE_DIR / "msg" / f"{name}.msg",
+            gen / "idl" / "msg" / f"{name}.idl",
+            descriptions / "msg" / f"{name}.json",
+        ):
             shutil.copy2(src, share / src.name)
             if src.suffix != ".json":
                 files.append(f"msg/{src.name}")
@@ -219,7 +284,7 @@ def install(stage: Path, prefix: Path, site_rel: Path) -> None:
         dst.parent.mkdir(parents=True, exist_ok=True)
         tmp = dst.with_name(f".{dst.name}.tmp")
         shutil.copy2(src, tmp)
-        os.replace(tmp, dst)      # a running process keeps the library it has mapped
+        os.replace(tmp, dst)  # a running process keeps the library it has mapped
 
 
 def build(prefix: Path, ros_prefix: Path | None = None, force: bool = False) -> str:
@@ -232,8 +297,9 @@ def build(prefix: Path, ros_prefix: Path | None = None, force: bool = False) -> 
     if external:
         return f"tf2_msgs: using {external} (nothing to build)"
     if not (ros_prefix / "share" / "rosidl_generator_c").is_dir():
-        raise BuildError(f"the rosidl wheels are not installed in {ros_prefix} "
-                         f"(pip install -e '.[ros]')")
+        raise BuildError(
+            f"the rosidl wheels are not installed in {ros_prefix} (pip install -e '.[ros]')"
+        )
     site_rel = _site_packages(prefix).relative_to(prefix)
     cc, cxx = _compiler("CC", "gcc"), _compiler("CXX", "g++")
     _python_include()
@@ -244,21 +310,26 @@ def build(prefix: Path, ros_prefix: Path | None = None, force: bool = False) -> 
             descriptions = generate(ros_prefix, gen)
         except BuildError:
             raise
-        except Exception as exc:   # the generators raise whatever their templates raise
+        except Exception as exc:  # the generators raise whatever their templates raise
             raise BuildError(f"generating the sources failed: {exc!r}"[:300]) from None
         compile_sources(ros_prefix, gen, stage, site_rel, cc, cxx)
         stage_share(gen, descriptions, stage)
         install(stage, prefix, site_rel)
-    return (f"tf2_msgs: built {', '.join(MESSAGES)} into {prefix} "
-            f"({time.monotonic() - t0:.1f} s)")
+    return f"tf2_msgs: built {', '.join(MESSAGES)} into {prefix} ({time.monotonic() - t0:.1f} s)"
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--prefix", default=sys.prefix,
-                        help="install prefix (default: this interpreter's, i.e. the venv)")
-    parser.add_argument("--force", action="store_true",
-                        help="build even where tf2_msgs is importable from elsewhere")
+    parser.add_argument(
+        "--prefix",
+        default=sys.prefix,
+        help="install prefix (default: this interpreter's, i.e. the venv)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="build even where tf2_msgs is importable from elsewhere",
+    )
     args = parser.parse_args(argv)
     try:
         sys.stdout.write(f"{build(Path(args.prefix), force=args.force)}\n")
