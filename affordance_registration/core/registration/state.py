@@ -31,7 +31,7 @@ __all__ = ["FitState", "stage", "AMBIGUITY"]
 AMBIGUITY = "assess"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FitState:
     """One click's fit between two stages. Set at the start: the services, the ``scene``, the
     ``click`` as given, the templates to fit (``specific``) and the primitives to measure
@@ -97,16 +97,15 @@ class FitState:
     def report(self) -> FitReport:
         """The :class:`~.results.FitReport` of the click. Its ``timing_s``: ``prepare``,
         ``fit`` (every stage after it but the ambiguity), ``total`` (the two), ``ambiguity``,
-        ``primitives`` where primitives were measured, and every other stage's own time under
-        its name."""
+        ``primitives`` where primitives were measured, and every other stage that ran its own
+        time under its name."""
         seconds = self.seconds()
         ambiguity = seconds.pop(AMBIGUITY, 0.0)
         prepare = seconds.pop("prepare", 0.0)
-        measured = seconds.pop("primitives", 0.0)
         fit = self.fit_seconds()
         timing = {"prepare": prepare, "fit": fit, "total": prepare + fit, "ambiguity": ambiguity}
-        if self.primitives:
-            timing["primitives"] = measured
+        if "primitives" in seconds:
+            timing["primitives"] = seconds.pop("primitives")
         timing.update(seconds)
         return FitReport(
             point=self.ctx.click,
@@ -120,14 +119,15 @@ class FitState:
 
 def stage(name: str):
     """Make ``fn(state, ...) -> state`` a stage named ``name``: its time is added to the state
-    it returns (:meth:`FitState.timed`)."""
+    it returns (:meth:`FitState.timed`) -- unless it returns the state it was given (it had
+    nothing to do: no primitives to measure, no joint to estimate)."""
 
     def decorate(fn):
         @functools.wraps(fn)
         def timed(state: FitState, *args, **kwargs) -> FitState:
             t0 = time.perf_counter()
             out = fn(state, *args, **kwargs)
-            return out.timed(name, time.perf_counter() - t0)
+            return out if out is state else out.timed(name, time.perf_counter() - t0)
 
         timed.stage = name
         return timed
