@@ -636,7 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="what real depth cameras do: flying pixels on depth edges, a smooth "
         "depth distortion, dropouts on dark patches and at grazing angles, more "
-        "range noise (core.simulation.FaultModel's defaults)",
+        "range noise (evaluation.simulation.FaultModel's defaults)",
     )
     p.set_defaults(func=cmd_simulate)
 
