@@ -80,6 +80,12 @@ def test_reader_gives_640x480_with_labels(learn0):
     assert 0 < valid.sum() < 640 * 480
     assert set(np.unique(learn0.labels[valid])) == {1, 20, 30}
     assert np.all(learn0.labels[~valid] == 0)
+    # the registered colour image: the pale wooden table (every channel above 150), the front
+    # box's printed face red (R over B by more than 20) and darker than the table
+    assert learn0.colors.shape == (480, 640, 3) and learn0.colors.dtype == np.uint8
+    table = learn0.colors[valid & (learn0.labels == 1)].astype(float).mean(axis=0)
+    box = learn0.colors[valid & (learn0.labels == 20)].astype(float).mean(axis=0)
+    assert table.min() > 150 and box[0] > box[2] + 20 and table.sum() - box.sum() > 100
     np.testing.assert_array_equal(learn0.viewpoint, [0.0, 0.0, 0.0])
     # the same points as the core reader (which gives x, y, z without labels)
     from affordance_registration.core.pointfiles import read_points

@@ -204,12 +204,15 @@ def osd_scene_paths(data_dir: str | None = None, held_out: bool | None = None) -
 class LabelledCloud:
     """An organized labelled scan: ``points`` (H, W, 3) float64 metres, NaN where invalid;
     ``labels`` (H, W) int64 (0 invalid, 1-9 the table, 10k..10k+9 parts of object k);
-    ``viewpoint`` (3,) the sensor origin (the PCD's VIEWPOINT)."""
+    ``viewpoint`` (3,) the sensor origin (the PCD's VIEWPOINT); ``colors`` (H, W, 3) uint8 RGB,
+    the registered colour image (every pixel, invalid ones too), or None where the file has no
+    8-bit colour field."""
 
     name: str
     points: np.ndarray = field(repr=False)
     labels: np.ndarray = field(repr=False)
     viewpoint: np.ndarray = field(repr=False)
+    colors: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple:
@@ -237,8 +240,9 @@ def read_labelled_pcd(path: str) -> LabelledCloud:
 
     The header is checked by :func:`core.pointfiles.check_header` (size, POINTS, VIEWPOINT) and
     its WIDTH / HEIGHT read with the same header parser; the values by Open3D's tensor reader,
-    which keeps a ``label`` field (``core.pointfiles.read_points`` returns x, y, z only, and
-    no organized shape for a PCD). Raises :class:`SceneError` naming the file."""
+    which keeps a ``label`` field and the colour (``rgba`` / ``rgb``; ``core.pointfiles.
+    read_points`` returns x, y, z only, and no organized shape for a PCD). Raises
+    :class:`SceneError` naming the file."""
     path = str(path)
     if not os.path.isfile(path):
         raise SceneError(f"{path}: no such file")
@@ -273,8 +277,17 @@ def read_labelled_pcd(path: str) -> LabelledCloud:
         raise SceneError(f"{path}: read {len(pts)} points, its header says {width * height}")
     pts[~np.all(np.isfinite(pts), axis=1)] = np.nan
     viewpoint = np.asarray((info.get("viewpoint") or [0.0, 0.0, 0.0])[:3], dtype=float)
+    colors = cloud.point.colors.numpy() if "colors" in cloud.point else None
+    if colors is not None and (colors.dtype != np.uint8 or colors.shape != (len(pts), 3)):
+        colors = None  # not an 8-bit colour per point: no colour image
+    if colors is not None:
+        colors = colors.reshape(height, width, 3)
     return LabelledCloud(
-        scene_name(path), pts.reshape(height, width, 3), labels.reshape(height, width), viewpoint
+        scene_name(path),
+        pts.reshape(height, width, 3),
+        labels.reshape(height, width),
+        viewpoint,
+        colors,
     )
 
 
