@@ -54,6 +54,7 @@ PIP_ONLY = {
     "ament_package",
     "websockets",
     "msgspec",
+    "markdown_it",
 }
 #: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS
 #: install has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry

@@ -77,6 +77,7 @@ from .state import (
     candidate_options,
     candidate_standing,
     fitting_marker,
+    shown_markdown,
     status_markdown,
     suggested_pose,
 )
@@ -563,7 +564,6 @@ class StationNode(Node):
     def _render_panel(self) -> None:
         status = self._status if self._connected else None
         obj = active_object(self._status)
-        label = candidate_label(obj)
         with self._lock:
             last_action = self._last_action
             pending = self._pending
@@ -575,7 +575,7 @@ class StationNode(Node):
         stale = bool(error) and message != self._seen_error[1]
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
         self.page.show_text(
-            f"**Shown**: {label}" if label else "**Shown**: nothing selected",
+            shown_markdown(obj),
             status_markdown(
                 status, self._connected, self.engine, self._cloud.text, last_action, fitting, stale
             ),
