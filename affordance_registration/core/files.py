@@ -93,14 +93,15 @@ def _target(path: str) -> tuple[str, os.stat_result | None]:
     return final, st
 
 
-def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
+def write_atomically(files: Mapping[str, bytes | str], mode: int | None = None) -> list[str]:
     """Write every ``path -> content`` of ``files`` (bytes, or text written as UTF-8): all of
     them to temporary files first, then each renamed over its path. A failure while writing
     (a full disk, a target that is not a regular file) leaves no file changed -- the temporary
     ones are removed -- and raises the ``OSError``. Creates missing folders. Returns the
-    absolute paths written, in the order given."""
+    absolute paths written, in the order given. ``mode`` (such as 0o600 for a secret): the
+    permission bits of every file written, whatever they were."""
     staged: list[tuple[str, str]] = []
-    mode_new = 0o666 & ~_umask()
+    mode_new = 0o666 & ~_umask() if mode is None else mode
     targets: dict[str, tuple] = {}  # final path -> (the path given, its stat)
     for path in files:  # every target checked before anything is written
         final, st = _target(path)
@@ -122,7 +123,10 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
             with os.fdopen(fd, "wb") as handle:
                 handle.write(data)
                 handle.flush()
-                os.fchmod(handle.fileno(), stat.S_IMODE(st.st_mode) if st else mode_new)
+                os.fchmod(
+                    handle.fileno(),
+                    stat.S_IMODE(st.st_mode) if st and mode is None else mode_new,
+                )
                 if st is not None and os.geteuid() == 0:
                     os.fchown(handle.fileno(), st.st_uid, st.st_gid)
                 os.fsync(handle.fileno())
