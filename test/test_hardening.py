@@ -247,6 +247,56 @@ def test_bad_template_libraries_are_refused_with_a_reason(node, library, tmp_pat
     assert all("t.yaml" in r for r in reasons.values()), reasons
 
 
+def _set(node, name, value):
+    """SetParameters of one string parameter on the node: its result."""
+    req = SetParameters.Request(
+        parameters=[
+            Parameter(
+                name=name,
+                value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value),
+            )
+        ]
+    )
+    return node["client"].call(SetParameters, f"{NS}/set_parameters", req, timeout=60).results[0]
+
+
+def _registrations_path(node) -> str:
+    return node["client"].wait_for(lambda: status(node).get("node"), 60, "the node's status")[
+        "registrations_file"
+    ]["path"]
+
+
+def test_the_file_the_node_writes_cannot_be_changed_over_the_graph(node, tmp_path):
+    """SetParameters registrations_file := another file, then ~/save: the parameter is read
+    only, the other file stays as it was, the save writes the node's own file."""
+    victim = tmp_path / "authorized_keys"
+    victim.write_text("ssh-ed25519 AAAA... operator@station\n")
+    own = _registrations_path(node)
+    res = _set(node, "registrations_file", str(victim))
+    assert not res.successful and "read-only" in res.reason.lower(), res.reason
+    save = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    assert save.success and own in save.message, save.message
+    assert sorted(os.listdir(tmp_path)) == ["authorized_keys"]
+    assert victim.read_text() == "ssh-ed25519 AAAA... operator@station\n"
+
+
+def test_a_fifo_in_place_of_the_registrations_file_never_stops_the_node(node):
+    """The registrations file replaced by a FIFO: ~/save is answered (refused, naming it), and
+    so is every call after it; once the FIFO is gone the save works again."""
+    path = _registrations_path(node)
+    node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    os.unlink(path)
+    os.mkfifo(path)
+    try:
+        res = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+        assert not res.success and "a FIFO" in res.message, res.message
+        assert node["client"].call(Trigger, f"{NS}/next_model", timeout=60) is not None
+    finally:
+        os.unlink(path)
+    res = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    assert res.success and path in res.message
+
+
 def test_a_huge_twist_and_a_far_marker_pose_are_refused(node, library):
     """Rows 'one Twist of 1e300' and 'marker feedback with a pose at 1e30': refused with one
     line; the object stays put, accept and save write a sane pose."""
@@ -415,7 +465,8 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     """A FIFO where a settings, template or launch file is read (each blocked its reader for
     good), /dev/null as a settings file, a FIFO where a session writes its truth; an empty
     --out (it wrote into the current folder); two outputs of one save that are one file (a
-    symbolic link from one to the other: the scene was lost under the truth); a folder where
+    symbolic link from one to the other: the scene was lost under the truth; a link is never
+    followed now); a folder where
     one template of the library is written (the ones before it were written): one line each,
     exit 2, nothing written."""
     for name in ("settings.yaml", "launch.yaml"):
@@ -470,7 +521,7 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
         (("launch", str(tmp_path / "launch.yaml")), "not a regular file"),
         (("session", "--out", str(session)), "not a regular file"),
         (("simulate", "--out", ""), "is not a path"),
-        (("simulate", "--out", str(linked)), "are one file"),
+        (("simulate", "--out", str(linked)), "is a symbolic link: not followed"),
         (("generate-models", "--out", str(models)), "is a folder"),
         # and options: a sensor 1e300 m away (numpy's overflow warnings made it three
         # lines), settings nested 2000 deep, two exclusive views of the settings
@@ -759,12 +810,13 @@ def test_saving_never_replaces_what_is_not_a_regular_file(tmp_path):
             before.st_rdev,
         ), kind
     assert sorted(os.listdir(tmp_path)) == sorted(p.name for p in targets.values())
-    # a link to a regular file: the file it points to is written, the link stays
+    # a link to a regular file is never followed: refused, the link and its file as they were
     real = tmp_path / "real.yaml"
     real.write_text("old")
     (tmp_path / "link.yaml").symlink_to(real)
-    save_registrations(str(tmp_path / "link.yaml"), _registrations())
-    assert (tmp_path / "link.yaml").is_symlink() and "ball_valve" in real.read_text()
+    with pytest.raises(AffordanceError, match="symbolic link"):
+        save_registrations(str(tmp_path / "link.yaml"), _registrations())
+    assert (tmp_path / "link.yaml").is_symlink() and real.read_text() == "old"
 
 
 def test_saving_keeps_a_files_mode_and_honours_the_umask(tmp_path):
