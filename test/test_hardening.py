@@ -297,6 +297,28 @@ def test_a_fifo_in_place_of_the_registrations_file_never_stops_the_node(node):
     assert res.success and path in res.message
 
 
+def test_an_alias_bomb_template_library_is_refused_and_the_node_answers(node, tmp_path):
+    """templates_dir set to a folder holding a 1 kB alias-bomb template: refused with the
+    reason, at once, and the node answers the next call."""
+    lib = tmp_path / "bomb"
+    lib.mkdir()
+    shutil.copy(os.path.join(MODELS, "meshes", "grab_handle.stl"), lib / "m.stl")
+    (lib / "t.yaml").write_text(alias_bomb("name: a\nmesh: m.stl\nscale:", levels=12))
+    res = _set(node, "templates_dir", str(lib))
+    assert not res.successful and "t.yaml" in res.reason and "aliases" in res.reason, res.reason
+    assert node["client"].call(Trigger, f"{NS}/next_model", timeout=60) is not None
+
+
+def alias_bomb(prefix: str, levels: int = 9) -> str:
+    """YAML whose last key (``prefix`` ends with it) holds a "billion laughs": a list of
+    ``levels`` lists, each of nine aliases of the one before, 9**levels strings when expanded,
+    in under 1 kB."""
+    items = ['&x0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]'] + [
+        f"&x{k} [" + ",".join([f"*x{k - 1}"] * 9) + "]" for k in range(1, levels)
+    ]
+    return f"{prefix} [{', '.join(items)}]\n"
+
+
 def test_a_huge_twist_and_a_far_marker_pose_are_refused(node, library):
     """Rows 'one Twist of 1e300' and 'marker feedback with a pose at 1e30': refused with one
     line; the object stays put, accept and save write a sane pose."""
@@ -710,6 +732,55 @@ def test_bad_template_files_are_one_line(tmp_path):
     from affordance_registration.core.templates import TemplateLibrary
 
     assert TemplateLibrary.load(str(lib))["v"].diameter > 0.05
+
+
+def test_alias_bombs_in_every_yaml_the_product_reads_are_one_line(tmp_path):
+    """A "billion laughs" (under 1 kB, billions of nodes expanded) in a settings file (as the
+    455-byte one whose seed ran 30 s at 1 GB), a template, a launch file, a parameter file a
+    launch file names, a bag's metadata.yaml, a registrations file: refused in one line before
+    anything is built (the one loader, core/files.read_yaml), within a 2 GB memory limit; a
+    merge of a few shared keys still reads."""
+    from affordance_registration.core.errors import AffordanceError
+    from affordance_registration.core.files import MAX_ALIAS_NODES, read_yaml
+    from affordance_registration.core.persistence import load_registrations
+
+    (tmp_path / "settings.yaml").write_text(alias_bomb("seed:"))
+    assert len((tmp_path / "settings.yaml").read_bytes()) < 1000
+    lib = _library(tmp_path, "lib", alias_bomb("name: v\nmesh: meshes/ball_valve.stl\nscale:"))
+    (tmp_path / "bomb.launch.yaml").write_text(alias_bomb("launch:"))
+    (tmp_path / "params.yaml").write_text(alias_bomb("affordance_engine:"))
+    (tmp_path / "params.launch.yaml").write_text(
+        "launch:\n- node:\n    pkg: affordance_registration\n    exec: affordance_engine\n"
+        f"    param:\n    - from: {tmp_path / 'params.yaml'}\n"
+    )
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(alias_bomb("rosbag2_bagfile_information:"))
+    cases = [
+        (("settings", str(tmp_path / "settings.yaml")), "settings.yaml"),
+        (("simulate", "--out", str(tmp_path / "out"), "--templates", str(lib)), "t.yaml"),
+        (("launch", str(tmp_path / "bomb.launch.yaml")), "bomb.launch.yaml"),
+        (("launch", str(tmp_path / "params.launch.yaml")), "params.yaml"),
+        (("bag", "info", str(bag)), "metadata.yaml"),
+    ]
+    results = run_cli_all(*(args for args, _ in cases), timeout=120)
+    for (args, where), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
+        assert where in line and "aliases would add" in line, (args, line)
+    (tmp_path / "registrations.yaml").write_text(alias_bomb("registrations:"))
+    with pytest.raises(AffordanceError, match="aliases would add"):
+        load_registrations(str(tmp_path / "registrations.yaml"))
+    # a few merged keys are well within the bound; a cycle is refused
+    (tmp_path / "merge.yaml").write_text("base: &b {x: 1}\nuse: {<<: *b, y: 2}\n")
+    assert read_yaml(str(tmp_path / "merge.yaml"), AffordanceError)["use"] == {"x": 1, "y": 2}
+    (tmp_path / "wide.yaml").write_text(
+        "a: &a [" + ",".join(["1"] * MAX_ALIAS_NODES) + "]\nb: *a\nc: *a\n"
+    )
+    with pytest.raises(AffordanceError, match=f"{2 * MAX_ALIAS_NODES + 2:,} nodes"):
+        read_yaml(str(tmp_path / "wide.yaml"), AffordanceError)
+    (tmp_path / "cycle.yaml").write_text("a: &a [1, *a]\n")
+    with pytest.raises(AffordanceError, match="cycle"):
+        read_yaml(str(tmp_path / "cycle.yaml"), AffordanceError)
 
 
 def test_bad_launch_files_are_one_line(tmp_path):

@@ -18,8 +18,9 @@ Files are read with :func:`open_regular`: only a regular file (a FIFO would bloc
 good, a device never end), opened without blocking and, where asked, without following a link.
 :func:`read_yaml` reads a YAML file that way and turns whatever makes it unreadable into one
 line: a missing file, not UTF-8, not YAML, nested too deeply, a number PyYAML cannot convert,
-too large, or a key written twice in one mapping (PyYAML would keep the last one silently; a
-settings, template or launch file with a key twice is a mistake).
+too large, a key written twice in one mapping (PyYAML would keep the last one silently; a
+settings, template or launch file with a key twice is a mistake), or aliases that would expand
+past :data:`MAX_ALIAS_NODES` (a "billion laughs" bomb: refused before anything is built).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ __all__ = [
     "read_yaml",
     "parse_yaml",
     "unreadable",
+    "MAX_ALIAS_NODES",
 ]
 
 _UMASK_LOCK = threading.Lock()
@@ -228,9 +230,64 @@ def not_regular(mode: int) -> str | None:
     )
 
 
+#: the most nodes a YAML document's aliases (``*name``, merge keys ``<<: *name``) may add to it
+#: when expanded: a settings or template file merging a few shared blocks adds tens; a
+#: 455-byte "billion laughs" adds billions (refused before anything is built)
+MAX_ALIAS_NODES = 10_000
+
+
+def _children(node) -> list:
+    if isinstance(node, yaml.SequenceNode):
+        return node.value
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def _check_aliases(root) -> None:
+    """Raise a YAML error when the node graph ``root`` (aliases share nodes) refers to itself
+    or would expand to more than :data:`MAX_ALIAS_NODES` nodes beyond its own: sizes are
+    summed over shared nodes once each, without expanding anything."""
+    expanded: dict[int, int] = {}  # id(node) -> nodes in it, expanded
+    on_path: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            on_path.discard(key)
+            expanded[key] = 1 + sum(expanded[id(c)] for c in _children(node))
+            continue
+        if key in expanded:
+            continue
+        if key in on_path:
+            raise yaml.composer.ComposerError(
+                None, None, "an alias refers to a node that holds it (a cycle)", node.start_mark
+            )
+        on_path.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in _children(node) if id(c) not in expanded)
+    extra = expanded[id(root)] - len(expanded)
+    if extra > MAX_ALIAS_NODES:
+        raise yaml.composer.ComposerError(
+            None,
+            None,
+            f"its aliases would add {extra:,} nodes to it, more than the "
+            f"{MAX_ALIAS_NODES:,} allowed",
+            root.start_mark,
+        )
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a mapping that has one key twice (merge keys ``<<`` aside:
-    a merged key may be overridden, as YAML intends)."""
+    a merged key may be overridden, as YAML intends), and a document whose aliases refer to
+    themselves or would expand it past :data:`MAX_ALIAS_NODES` (checked on the composed nodes,
+    before anything is constructed)."""
+
+    def compose_document(self):
+        node = super().compose_document()
+        _check_aliases(node)
+        return node
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -278,7 +335,7 @@ def read_yaml(
 
 def parse_yaml(text: str | bytes, error: type[Exception], label: str):
     """The YAML document in ``text`` (None for an empty one), by :func:`read_yaml`'s rules
-    (no key twice); what keeps it from being read raises ``error`` with one
+    (aliases bounded, no key twice); what keeps it from being read raises ``error`` with one
     line starting with ``label``."""
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)

@@ -24,7 +24,7 @@ from pathlib import PurePath
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ...core.errors import AffordanceError
-from ...core.files import unreadable
+from ...core.files import read_yaml, unreadable
 from ..glue.qos import LATCHED
 
 __all__ = [
@@ -44,6 +44,8 @@ class BagError(AffordanceError):
     """A bag cannot be read or written (the message says which and why)."""
 
 
+#: the largest metadata.yaml read (a bag of thousands of topics and files is well under this)
+MAX_METADATA_BYTES = 10_000_000
 #: a playback rate outside these plays a bag for ever or all at once (--rate 1e-300 never ended)
 RATE_LIMITS = (1e-3, 1e3)
 
@@ -113,12 +115,11 @@ def _check_bag_files(path: str) -> None:
     _regular_file(meta)
     if not os.path.exists(meta):
         return
-    import yaml
-
+    # read here first by the one YAML loader (aliases bounded), before rosbags reads it
+    doc = read_yaml(meta, BagError, max_bytes=MAX_METADATA_BYTES, kind="bag's metadata.yaml")
     try:
-        with open(meta, "rb") as handle:
-            files = yaml.safe_load(handle)["rosbag2_bagfile_information"]["relative_file_paths"]
-    except Exception:  # rosbags says what is wrong with the metadata
+        files = doc["rosbag2_bagfile_information"]["relative_file_paths"]
+    except (KeyError, TypeError):  # rosbags says what is wrong with the metadata
         return
     for name in files if isinstance(files, list) else ():
         if isinstance(name, str):  # rosbags reads each by its name in the bag folder
