@@ -27,6 +27,7 @@ ROSDEP = {
     "open3d": "python3-open3d-pip",
     "hid": "python3-hidapi",
     "rosbags": "python3-rosbags-pip",
+    "lz4": "python3-lz4",
     "PIL": "python3-pil",
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",

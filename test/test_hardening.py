@@ -464,6 +464,43 @@ def test_point_file_headers_that_do_not_match_their_data_are_one_line(tmp_path):
         assert name in line and expected in line, line
 
 
+def _lzf_zeros(size: int) -> bytes:
+    """An LZF stream (liblzf's format, as PCD's binary_compressed holds) that unpacks to
+    ``size`` zero bytes: a literal zero or three, then back references of 264 bytes at
+    distance 1, three bytes each (about 88:1)."""
+    literal = next(n for n in (1, 2, 3) if (size - n) % 264 not in (1, 2))
+    rest, last = divmod(size - literal, 264)
+    out = bytearray([literal - 1]) + bytes(literal) + b"\xe0\xff\x00" * rest
+    if last:
+        out += bytes([(last - 2) << 5, 0]) if last - 2 < 7 else bytes([0xE0, last - 9, 0])
+    return bytes(out)
+
+
+def test_a_binary_compressed_pcd_bomb_is_refused_in_one_line(tmp_path):
+    """A binary_compressed PCD within the point limit whose LZF data unpacks to over 1 GB
+    (9 million points of 112 bytes: an 11 MB file; one of 48.6 MB took 4.65 GB and 75 s):
+    refused in one line from its header, before anything is unpacked."""
+    from affordance_registration.core.pointfiles import MAX_POINTS, MAX_UNPACKED_BYTES
+
+    points = 9_000_000
+    point_bytes = 3 * 4 + 100
+    assert points <= MAX_POINTS and points * point_bytes > MAX_UNPACKED_BYTES
+    packed = _lzf_zeros(points * point_bytes)
+    header = (
+        "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z _\nSIZE 4 4 4 1\nTYPE F F F U\n"
+        f"COUNT 1 1 1 100\nWIDTH {points}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+        f"POINTS {points}\nDATA binary_compressed\n"
+    ).encode()
+    sizes = np.array([len(packed), points * point_bytes], dtype="<u4").tobytes()
+    (tmp_path / "bomb.pcd").write_bytes(header + sizes + packed)
+    assert (tmp_path / "bomb.pcd").stat().st_size < 12_000_000
+    ((code, err, _),) = run_cli_all(
+        ("fit", "--scene", str(tmp_path / "bomb.pcd"), "--point", "0", "0", "1"), timeout=300
+    )
+    line = one_line(code, err)
+    assert "bomb.pcd" in line and f"more than the {MAX_UNPACKED_BYTES:,}" in line, line
+
+
 @settings(max_examples=25, deadline=None)
 @given(count=st.integers(0, 5000), kind=st.sampled_from(["ply", "pcd"]))
 def test_any_point_count_but_the_true_one_is_refused(tmp_path_factory, count, kind):
