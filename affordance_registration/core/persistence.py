@@ -226,7 +226,7 @@ def _read_bytes(path: str) -> tuple[bytes, int] | None:
         return None
     except OSError as exc:
         raise AffordanceError(
-            f"cannot save registrations to {path}: it {exc.strerror or exc} (not replaced)"
+            f"cannot save registrations to {path}: {exc.strerror or exc} (not replaced)"
         ) from None
 
 
