@@ -385,7 +385,10 @@ def cmd_station(args) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    with open(log_path, "w") as log:
+    # the nodes' output holds the station's URL with its secret: a file for this user alone
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
+    os.fchmod(fd, 0o600)
+    with os.fdopen(fd, "w") as log:
         # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
         launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
         launcher.start()

@@ -27,6 +27,7 @@ ROSDEP = {
     "open3d": "python3-open3d-pip",
     "hid": "python3-hidapi",
     "rosbags": "python3-rosbags-pip",
+    "lz4": "python3-lz4",
     "PIL": "python3-pil",
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
@@ -54,6 +55,7 @@ PIP_ONLY = {
     "ament_package",
     "websockets",
     "msgspec",
+    "markdown_it",
 }
 #: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS
 #: install has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry

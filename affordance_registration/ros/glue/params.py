@@ -109,7 +109,8 @@ NODE_PARAMETERS = {
         "affordance_registrations.yaml",
         "the session's registrations (YAML): "
         "~/save writes it, autosave rewrites it after every change, resume "
-        "reads it at start",
+        "reads it at start; locked while the node runs (one engine per file); "
+        "read at start",
         None,
     ),
     "resume": (
@@ -176,7 +177,10 @@ PARAMETERS = {
     **NODE_PARAMETERS,
     **{name: (default, doc, None) for name, (default, doc, _) in FIT_TABLE.items()},
 }
+#: read at start only (rclpy refuses a set): among them the file the node writes -- a path set
+#: over the graph would have any file the node can write replaced
 READ_ONLY = {
+    "registrations_file",
     "points_reliable",
     "interactive_namespace",
     "twist_stamped",

@@ -98,7 +98,9 @@ class EngineNode(Node):
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
-        self._store = RegistrationStore(self._p["registrations_file"])
+        self._store = RegistrationStore(
+            self._p["registrations_file"], holder=f"the engine {self.get_fully_qualified_name()}"
+        )
         self._unsaved = False  # registrations changed and not written (autosave off)
         self._resume()
         self.frames = StaticFrames(self._p["static_transforms"])
@@ -268,12 +270,6 @@ class EngineNode(Node):
             self.library = self.engine.library
         if "static_transforms" in changed:
             self.frames = StaticFrames(new["static_transforms"])
-        if (
-            "registrations_file" in changed
-            and new["registrations_file"] != self._p["registrations_file"]
-        ):
-            self._store = RegistrationStore(new["registrations_file"])
-            self._unsaved = bool(self.engine.state.registered)
         if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
             self._converted = -1  # the next fit converts the cloud again
         self.stream.configure(params.operator_settings(new))
@@ -684,6 +680,7 @@ class EngineNode(Node):
                 self.get_logger().info(self.persist(True) + " (at shutdown)")
             except AffordanceError as exc:
                 self.get_logger().error(f"registrations NOT saved at shutdown: {exc}")
+        self._store.close()  # the file's lock, for the next engine
 
 
 def main(args=None) -> int:

@@ -36,8 +36,10 @@ is in ``core/display.py``, the access rules in ``access.py``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -77,6 +79,7 @@ from .state import (
     candidate_options,
     candidate_standing,
     fitting_marker,
+    shown_markdown,
     status_markdown,
     suggested_pose,
 )
@@ -254,9 +257,20 @@ class StationNode(Node):
         station_access.disable_share(self.page.server, self.get_logger().warning)
         self.access.port = self.page.port
         self.url = self.access.url()
+        # the secret: printed to the terminal that started the station and kept in a 0600
+        # file; never through the ROS logger (/rosout, the ROS log folder) nor a parameter
+        self.undeclare_parameter("access_secret")
+        try:
+            self.url_file = station_access.keep_url(self.url, self.access.port)
+            kept = f"; its URL with the access secret is kept in {self.url_file}"
+        except OSError as exc:
+            self.url_file, kept = None, f"; its URL could not be kept in a file ({exc})"
+        print(f"operator station: {self.url}", flush=True)
         self._worker = threading.Thread(target=self._run, name="station-page", daemon=True)
         self._worker.start()
-        self.get_logger().info(f"operator station on {self.url} (engine {self.engine})")
+        self.get_logger().info(
+            f"operator station on {self.access.url(secret=False)} (engine {self.engine}){kept}"
+        )
 
     # ------------------------------------------------------------------ ROS -> inbox
     def _on_cloud(self, msg: PointCloud2) -> None:
@@ -563,7 +577,6 @@ class StationNode(Node):
     def _render_panel(self) -> None:
         status = self._status if self._connected else None
         obj = active_object(self._status)
-        label = candidate_label(obj)
         with self._lock:
             last_action = self._last_action
             pending = self._pending
@@ -575,7 +588,7 @@ class StationNode(Node):
         stale = bool(error) and message != self._seen_error[1]
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
         self.page.show_text(
-            f"**Shown**: {label}" if label else "**Shown**: nothing selected",
+            shown_markdown(obj),
             status_markdown(
                 status, self._connected, self.engine, self._cloud.text, last_action, fitting, stale
             ),
@@ -663,6 +676,9 @@ class StationNode(Node):
         self._stop.set()
         self._worker.join(timeout=2.0)
         self.page.stop()
+        if self.url_file is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.url_file)
 
 
 def main(args=None) -> int:
