@@ -35,3 +35,7 @@ def bounded(text, limit: int = MAX_ECHO) -> str:
     if len(text) <= limit:
         return text
     return f"{text[:limit]}... ({len(text):,} characters)"
+
+
+class FrameError(AffordanceError):
+    """No transform is known between two frames (at the time asked for)."""

@@ -15,7 +15,8 @@ from collections import deque
 
 import numpy as np
 
-from ...core.errors import AffordanceError
+from ...core.errors import AffordanceError, FrameError
+from ...core.scene_feed import R_BODY_OPTICAL, T_frame_optical, is_body_frame
 from ...core.transforms import invert, make_T, quat_xyzw_to_matrix
 
 __all__ = [
@@ -29,43 +30,6 @@ __all__ = [
     "R_BODY_OPTICAL",
     "is_body_frame",
 ]
-
-#: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
-#: (x right, y down, z forward): R_body_optical
-R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-#: frames REP-103 / REP-105 name for robots and the world (x forward, z up); a frame named
-#: ``*_link`` or ``*_footprint``, or a lidar's, is one too
-BODY_FRAMES = ("map", "odom", "earth", "world", "base_link", "base_footprint", "base_stabilized")
-BODY_HINTS = ("lidar", "laser", "velodyne", "ouster", "livox", "scan")
-
-
-def is_body_frame(frame: str) -> bool:
-    """Whether ``frame`` names a REP-103 body or world frame (x forward, y left, z up) rather
-    than a camera's optical frame: not ``*optical*``, and a REP-105 name, ``*_link``,
-    ``*_footprint`` or a lidar's. Any other name keeps the optical convention the node has
-    always assumed of a cloud's frame (a camera driver's ``cam``, ``camera_depth``)."""
-    name = frame.strip().lstrip("/").lower()
-    if "optical" in name:
-        return False
-    return (
-        name in BODY_FRAMES
-        or name.endswith(("_link", "_footprint"))
-        or any(hint in name for hint in BODY_HINTS)
-    )
-
-
-def T_frame_optical(frame: str) -> np.ndarray:
-    """The optical frame (x right, y down, z forward) of a sensor whose frame is named
-    ``frame``, in that frame: for a REP-103 body frame (:func:`is_body_frame`: ``base_link``,
-    ``map``, ``lidar``) one looking along its x axis, else the frame itself (REP-105's
-    ``camera_depth_optical_frame``, and any camera frame not named as a body frame)."""
-    return make_T(R_BODY_OPTICAL) if is_body_frame(frame) else make_T()
-
-
-class FrameError(AffordanceError):
-    """No transform is known between two frames."""
 
 
 def parse_static_transform(text: str) -> tuple[str, str, np.ndarray]:

@@ -39,7 +39,7 @@ from ...core.memo import PerRecord
 from ...core.transforms import invert
 from ...core.waypoints import waypoint_poses
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
-from .frames import FrameError, FrameGraph, TransformBuffer
+from .frames import FrameGraph, TransformBuffer
 from .qos import INPUT, LATCHED, latched
 
 __all__ = [
@@ -183,16 +183,17 @@ class TfBroadcaster:
 
 
 class TfListener:
-    """``lookup(target, source, fallback)`` -> T_target_source (4x4) from tf2_ros where it is
-    installed, else from the latest transforms heard on /tf and /tf_static; ``fallback`` (a
-    FrameGraph: the static_transforms parameter) fills in what TF does not know."""
+    """``lookup(target, source, stamp)`` -> T_target_source (4x4) from tf2_ros where it is
+    installed, else from the transforms heard on /tf and /tf_static; ``static`` (a FrameGraph:
+    the static_transforms parameter, replaceable at any time) fills in what TF does not know."""
 
-    def __init__(self, node):
+    def __init__(self, node, static: FrameGraph | None = None):
         self._lock = threading.Lock()
         self._frames = TransformBuffer()
         self._buffer = None
         self._bad_logged: set[str] = set()
         self._node = node
+        self.static = static if static is not None else FrameGraph()
         try:
             import tf2_ros
         except ImportError:
@@ -224,17 +225,12 @@ class TfListener:
             with self._lock:
                 self._frames.set(t.header.frame_id, t.child_frame_id, T, stamp, static=static)
 
-    def lookup(
-        self,
-        target: str,
-        source: str,
-        fallback: FrameGraph | None = None,
-        stamp: float | None = None,
-    ) -> np.ndarray:
+    def lookup(self, target: str, source: str, stamp: float | None = None) -> np.ndarray:
         """T_target_source at ``stamp`` (s, a message's header stamp; None or 0: the latest)."""
         target, source = target.lstrip("/"), source.lstrip("/")
         if not source or source == target:
             return np.eye(4)
+        fallback = self.static
         if self._buffer is not None:
             from rclpy.time import Time
 
@@ -246,11 +242,7 @@ class TfListener:
                     tf = self._buffer.lookup_transform(target, source, Time())
                 return transform_to_matrix(tf.transform)
             except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
-                if fallback is None:
-                    raise FrameError(
-                        f"no transform from frame '{source}' to frame '{target}' on TF"
-                    ) from None
                 return fallback.lookup(target, source)
         with self._lock:
-            graph = (fallback or FrameGraph()).merged(self._frames.graph(stamp))
+            graph = fallback.merged(self._frames.graph(stamp))
         return graph.lookup(target, source)
