@@ -274,6 +274,27 @@ def _core_demo(args) -> int:
     return 0 if rows and all(r["ok"] for r in rows) else 1
 
 
+#: the ROS domains a demo picks its own from (even numbers: the test suite's processes take odd
+#: ones); a demo's nodes must not hear other engines of this machine in the default domain
+DEMO_DOMAINS = range(2, 101, 2)
+
+
+def own_domain() -> str:
+    """Put the nodes a demo starts (and this process) in a ROS domain of their own unless
+    ``ROS_DOMAIN_ID`` is set; returns the words saying which. (Engines of the package running
+    on the default domain of the same machine were heard as the demo's own: a TF check saw
+    their registrations.)"""
+    given = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if given:
+        return f"ROS domain {given} (ROS_DOMAIN_ID)"
+    domain = DEMO_DOMAINS[os.getpid() % len(DEMO_DOMAINS)]
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    return (
+        f"ROS domain {domain}, its own (ROS_DOMAIN_ID was not set; set it, e.g. "
+        f"ROS_DOMAIN_ID={domain} for RViz, to share the demo's topics)"
+    )
+
+
 def default_session_dir() -> str:
     from .core.templates import default_models_dir
 
@@ -289,9 +310,10 @@ def cmd_demo(args) -> int:
     session = args.session or default_session_dir()
     if not os.path.isdir(session):
         raise AffordanceError(f"no recorded session at {session}")
+    domain = own_domain()
     print(
         f"replaying the recorded operator session {session} into a live affordance_engine "
-        f"node (started from launch_configs/affordance_engine.launch.yaml) ...",
+        f"node (started from launch_configs/affordance_engine.launch.yaml) in {domain} ...",
         flush=True,
     )
     result = replay_session(session, args.out)
@@ -356,6 +378,7 @@ def cmd_station(args) -> int:
         check_first_view(args.first_view, _library(None))
         _seed(args.seed)
     os.makedirs(args.out, exist_ok=True)
+    domain = own_domain()
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
     given = {
         "host": args.host,
@@ -404,7 +427,7 @@ def cmd_station(args) -> int:
                     ) from None
                 time.sleep(0.3)
         print(
-            f"operator station: {url}\n  {what} are running; Save writes "
+            f"operator station: {url}\n  {what} are running in {domain}; Save writes "
             f"{registrations}; node logs in {log_path}; Ctrl-C stops everything",
             flush=True,
         )
