@@ -39,3 +39,12 @@ def bounded(text, limit: int = MAX_ECHO) -> str:
 
 class FrameError(AffordanceError):
     """No transform is known between two frames (at the time asked for)."""
+
+
+class FrameNotYet(FrameError):
+    """The transform at the time asked for has not arrived yet: the newest one known is
+    ``behind`` seconds older."""
+
+    def __init__(self, message: str, behind: float = 0.0):
+        super().__init__(message)
+        self.behind = float(behind)

@@ -9,19 +9,31 @@ is (:class:`Sensor`) and an :class:`~.inputs.Outbox` for what it has to say -- a
 stream asks it for a scene before anything that fits (:meth:`SceneFeed.refresh`) and for a
 click in the scene's frame (:meth:`SceneFeed.express`). It never calls back into the node.
 
-When the cloud's frame changes, everything the engine holds is re-expressed in the new frame
-through the transform between the two at the cloud's stamp (the open objects are closed when no
-transform is known). Pure Python (no ROS).
+**The fixed frame.** Without one (``fixed_frame`` ''), the scene is in the cloud's own frame.
+With one (``odom``, ``map``: a camera on a moving robot), each cloud is brought into it through
+the transform at the cloud's stamp -- exactly then (``lookup(..., exact=True)``: interpolated
+between two transforms, never the latest in its place), so the scene, the objects and the
+registrations stay where they are while the camera moves; the sensor's origin and optical pose
+come through the same transform. A cloud whose transform has not arrived yet is left for the
+next refresh (the previous scene is kept; said when TF is more than :data:`TF_BEHIND_S`
+behind); one TF cannot place (unknown, or older than TF
+keeps) is refused in one line and the previous scene kept.
+
+When the scene's frame changes (the cloud's, without a fixed frame; or the fixed frame),
+everything the engine holds is re-expressed in the new frame through the transform between the
+two at the cloud's stamp (the open objects are closed when no transform is known). Pure Python
+(no ROS).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from .errors import AffordanceError, EngineStateError, FrameError, bounded
+from .errors import AffordanceError, EngineStateError, FrameError, FrameNotYet, bounded
 from .inputs import LatestCloud, Outbox
 from .scene import NO_VIEWPOINT
 from .transforms import make_T
@@ -37,8 +49,10 @@ __all__ = [
     "is_body_frame",
 ]
 
-#: ``lookup(target, source, stamp)``: T_target_source (4x4) at ``stamp`` (s; None: the latest)
-Lookup = Callable[[str, str, "float | None"], np.ndarray]
+#: ``lookup(target, source, stamp, exact=False)``: T_target_source (4x4) at ``stamp`` (s; None:
+#: the latest); ``exact``: at that stamp or not at all (:class:`~.errors.FrameNotYet` when it is
+#: newer than the newest transform), else the newest transform for a later stamp
+Lookup = Callable[..., np.ndarray]
 
 #: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
 #: (x right, y down, z forward): R_body_optical
@@ -48,6 +62,12 @@ R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 #: ``*_link`` or ``*_footprint``, or a lidar's, is one too
 BODY_FRAMES = ("map", "odom", "earth", "world", "base_link", "base_footprint", "base_stabilized")
 BODY_HINTS = ("lidar", "laser", "velodyne", "ouster", "livox", "scan")
+#: a transform into the fixed frame that has not arrived is waited for (as tf2's lookups with a
+#: timeout do) while TF's newest is at most this much older than the stamp asked for (s): TF is
+#: live and a little behind; past it, TF has stopped or lags, and the cloud or click says so
+TF_BEHIND_S = 1.0
+#: how often a transform waited for is looked for again (s)
+TF_POLL_S = 0.02
 
 
 def is_body_frame(frame: str) -> bool:
@@ -73,7 +93,9 @@ def T_frame_optical(frame: str) -> np.ndarray:
     return make_T(R_BODY_OPTICAL) if is_body_frame(frame) else make_T()
 
 
-def no_transforms(target: str, source: str, stamp: float | None = None) -> np.ndarray:
+def no_transforms(
+    target: str, source: str, stamp: float | None = None, exact: bool = False
+) -> np.ndarray:
     """The lookup of a feed without TF: a frame to itself only."""
     if not source or target.lstrip("/") == source.lstrip("/"):
         return np.eye(4)
@@ -100,19 +122,29 @@ class SceneFeed:
         lookup: Lookup = no_transforms,
         sensor: Sensor = Sensor(),
         outbox: Outbox | None = None,
+        fixed_frame: str = "",
+        clock=time.monotonic,
+        sleep=time.sleep,
     ):
         self.clouds = clouds
+        self.clock, self.sleep = clock, sleep
         self.lookup = lookup
         self.sensor = sensor
         self.outbox = outbox if outbox is not None else Outbox()
+        #: the frame the scene is made in ('': each cloud's own)
+        self.fixed_frame = fixed_frame.strip().lstrip("/")
         self._converted = 0  # the count of the cloud the scene was made from
 
-    def configure(self, sensor: Sensor | None = None, again: bool = False) -> None:
-        """Use ``sensor`` from the next cloud on; ``again``: make the next scene from the latest
-        cloud even when it was used (the sensor or the transforms changed)."""
+    def configure(
+        self, sensor: Sensor | None = None, fixed_frame: str | None = None, again: bool = False
+    ) -> None:
+        """Use ``sensor`` and ``fixed_frame`` from the next cloud on; ``again``: make the next
+        scene from the latest cloud even when it was used (the transforms changed)."""
         if sensor is not None:
             self.sensor = sensor
-        if again or sensor is not None:
+        if fixed_frame is not None:
+            self.fixed_frame = fixed_frame.strip().lstrip("/")
+        if again or sensor is not None or fixed_frame is not None:
             self._converted = -1
 
     # ------------------------------------------------------------------ the scene
@@ -131,15 +163,39 @@ class SceneFeed:
             )
         if count == self._converted and engine.has_scene:
             return  # (a cloud that was unusable with no scene is tried again: its
-        self._converted = count  # sensor frame may have reached TF since)
+        try:  # sensor frame may have reached TF since)
+            T_fixed_cloud = self._to_fixed(cloud)
+        except FrameNotYet as exc:  # its transform is on its way: the next refresh uses it
+            if not engine.has_scene:
+                raise AffordanceError(f"the cloud in '{cloud.frame}' is unusable: {exc}") from None
+            if exc.behind > TF_BEHIND_S:  # not on its way: TF has fallen behind the clouds
+                self.outbox.outcome(
+                    "cloud",
+                    False,
+                    f"the latest cloud waits for TF ({exc}); still using the previous one",
+                )
+            return
+        except FrameError as exc:
+            T_fixed_cloud = exc  # refused below, as any cloud that cannot be used
+        self._converted = count
         try:
+            if isinstance(T_fixed_cloud, FrameError):
+                raise T_fixed_cloud
             points = cloud.read()
             origin, T_optical = self._sensor(cloud.frame, cloud.stamp)
-            old, new = engine.frame_id.lstrip("/"), cloud.frame.lstrip("/")
+            frame = cloud.frame
+            if T_fixed_cloud is not None:  # the cloud, the sensor and its view in the fixed frame
+                R, t = T_fixed_cloud[:3, :3], T_fixed_cloud[:3, 3]
+                points = np.asarray(points, dtype=float) @ R.T + t
+                if origin != NO_VIEWPOINT:
+                    origin = R @ np.asarray(origin, dtype=float) + t
+                T_optical = T_fixed_cloud @ T_optical
+                frame = self.fixed_frame
+            old, new = engine.frame_id.lstrip("/"), frame.lstrip("/")
             if old and new and old != new:  # only for a cloud that is used
                 self._change_frame(engine, old, new, cloud.stamp)
             engine.set_scene(
-                points, frame_id=cloud.frame, sensor_origin=origin, T_scene_optical=T_optical
+                points, frame_id=frame, sensor_origin=origin, T_scene_optical=T_optical
             )
         except AffordanceError as exc:
             if not engine.has_scene:
@@ -149,6 +205,21 @@ class SceneFeed:
                 False,
                 f"the latest cloud is unusable ({exc}); still using the previous one",
             )
+
+    def _to_fixed(self, cloud) -> np.ndarray | None:
+        """T_fixed_cloud at the cloud's stamp, exactly (None without a fixed frame or for a
+        cloud already in it)."""
+        fixed = self.fixed_frame
+        if not fixed or cloud.frame.lstrip("/") == fixed:
+            return None
+        try:
+            return self._exact(fixed, cloud.frame, cloud.stamp)
+        except FrameNotYet:
+            raise
+        except FrameError as exc:
+            raise FrameError(
+                f"TF cannot place it in the fixed frame '{bounded(fixed)}' at its stamp ({exc})"
+            ) from None
 
     def _change_frame(self, engine, old: str, new: str, stamp: float | None) -> None:
         """The cloud's frame changed: what the engine holds is re-expressed in the new frame
@@ -188,13 +259,34 @@ class SceneFeed:
             ) from None
         return T_cloud_sensor[:3, 3].copy(), T_cloud_sensor @ T_frame_optical(name)
 
+    def _exact(self, target: str, source: str, stamp: float | None) -> np.ndarray:
+        """T_target_source at ``stamp`` exactly, waited for while TF is a little behind (see
+        :data:`TF_BEHIND_S`)."""
+        deadline = self.clock() + TF_BEHIND_S
+        while True:
+            try:
+                return self.lookup(target, source, stamp, exact=True)
+            except FrameNotYet as exc:
+                if exc.behind > TF_BEHIND_S or self.clock() >= deadline:
+                    raise
+            self.sleep(TF_POLL_S)
+
     # ------------------------------------------------------------------ points
     def express(self, point: np.ndarray, frame: str, stamp: float | None, scene_frame: str):
-        """A click given in ``frame`` at ``stamp`` expressed in ``scene_frame``."""
+        """A click given in ``frame`` at ``stamp`` expressed in ``scene_frame`` (through TF at
+        its stamp: with a fixed frame, where the camera was when it was clicked)."""
         if not frame or frame.lstrip("/") == scene_frame.lstrip("/"):
             return point
         try:
-            T = self.lookup(scene_frame, frame, stamp)
+            if self.fixed_frame and stamp:  # a moving frame: where it was then, not now
+                T = self._exact(scene_frame, frame, stamp)
+            else:
+                T = self.lookup(scene_frame, frame, stamp)
+        except FrameNotYet as exc:
+            raise AffordanceError(
+                f"click refused: it is in frame '{frame}' and TF has no transform to "
+                f"'{scene_frame}' at its stamp yet ({exc})"
+            ) from None
         except FrameError:
             raise AffordanceError(
                 f"click refused: it is in frame '{frame}' and no transform to "

@@ -428,6 +428,11 @@ class Registrar:
     def _model_of(self, r: FitResult) -> Model:
         return self._model(r.template, r.joints, r.scale, r.dimensions)
 
+    def model_of(self, result: FitResult) -> Model:
+        """The model ``result`` was fitted as: its template at its joint values, scale and
+        size."""
+        return self._model_of(result)
+
     def _judged(self, ctx: ClickContext, results) -> list:
         """Each result with its verdict (:func:`.scoring.judge`)."""
         results = list(results)

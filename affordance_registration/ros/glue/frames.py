@@ -15,7 +15,7 @@ from collections import deque
 
 import numpy as np
 
-from ...core.errors import AffordanceError, FrameError
+from ...core.errors import AffordanceError, FrameError, FrameNotYet
 from ...core.scene_feed import R_BODY_OPTICAL, T_frame_optical, is_body_frame
 from ...core.transforms import invert, make_T, quat_xyzw_to_matrix
 
@@ -26,6 +26,7 @@ __all__ = [
     "TF_CACHE_S",
     "parse_static_transform",
     "FrameError",
+    "FrameNotYet",
     "T_frame_optical",
     "R_BODY_OPTICAL",
     "is_body_frame",
@@ -125,8 +126,9 @@ class TransformBuffer:
       out-of-order old transform, arriving after a newer one, never replaces it;
     * a stamp between two transforms of a frame: interpolated (translation linearly, rotation
       along the shortest arc), as tf2 does;
-    * a stamp after the newest: the newest (tf2 would refuse to extrapolate; a click made
-      between two TF messages of a slowly published frame is normal);
+    * a stamp after the newest: the newest (a click made between two TF messages of a slowly
+      published frame is normal) -- or, with ``exact`` (a cloud brought into the fixed frame),
+      none: the frame is left out, as tf2 refuses to extrapolate;
     * a stamp before the oldest kept: refused (:class:`FrameError`), the frame's history there
       is gone.
 
@@ -167,19 +169,33 @@ class TransformBuffer:
             history.pop(0)
         self._dynamic[child] = (parent, history)
 
-    def graph(self, stamp: float | None = None) -> FrameGraph:
-        """The frames at ``stamp`` (s; None or 0: the newest) as a :class:`FrameGraph`."""
+    def graph(
+        self, stamp: float | None = None, exact: bool = False, behind: dict | None = None
+    ) -> FrameGraph:
+        """The frames at ``stamp`` (s; None or 0: the newest) as a :class:`FrameGraph`; with
+        ``exact``, a frame whose newest transform is older than ``stamp`` is left out (and, given
+        a ``behind`` dict, how far behind it is is put there: child -> s)."""
         out = FrameGraph()
         for child, (parent, T) in self._static.items():
             out.set(parent, child, T)
         for child, (parent, history) in self._dynamic.items():
             try:
-                out.set(parent, child, self._at(child, history, stamp))
+                out.set(parent, child, self._at(child, history, stamp, exact))
+            except FrameNotYet as exc:
+                if behind is not None:
+                    behind[child] = exc.behind
             except FrameError:  # its history does not reach back to ``stamp``
                 continue
         return out
 
-    def _at(self, child: str, history: list, stamp: float | None) -> np.ndarray:
+    def _at(
+        self, child: str, history: list, stamp: float | None, exact: bool = False
+    ) -> np.ndarray:
+        if stamp and exact and stamp > history[-1][0]:
+            raise FrameNotYet(
+                f"frame '{child}' is known up to {history[-1][0]:.3f} s, not yet at {stamp:.3f} s",
+                behind=stamp - history[-1][0],
+            )
         if not stamp or stamp >= history[-1][0]:
             return history[-1][1]
         stamps = [s for s, _ in history]

@@ -103,7 +103,13 @@ class EngineNode(Node):
         )
         self.clouds = LatestCloud(self._sub_points.topic_name)
         self._cloud_status_at = 0.0
-        self.feed = SceneFeed(self.clouds, self._tf.lookup, self._sensor(self._p), self.outbox)
+        self.feed = SceneFeed(
+            self.clouds,
+            self._tf.lookup,
+            self._sensor(self._p),
+            self.outbox,
+            fixed_frame=self._p["fixed_frame"],
+        )
         self.stream = OperatorStream(
             self.engine,
             params.operator_settings(self._p),
@@ -149,6 +155,7 @@ class EngineNode(Node):
             [sub.topic_name for sub in inputs],
             None,
             self._p["publish_rate"],
+            self._p["collision_objects"],
         )
         self.paths = PathRequests(self, self.engine, self.outbox, self.output.frame)
         # service calls wait for the stream without holding the default callback group: the
@@ -257,13 +264,15 @@ class EngineNode(Node):
             self.saver.store = RegistrationStore(new["registrations_file"])
             self.saver.unsaved = bool(self.engine.state.registered)
         self.saver.enabled = bool(new["autosave"])
-        if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
-            self.feed.configure(self._sensor(new), again=True)  # the next fit converts again
+        if changed & {"sensor_frame", "sensor_origin", "static_transforms", "fixed_frame"}:
+            # the next fit makes the scene from the latest cloud again
+            self.feed.configure(self._sensor(new), new["fixed_frame"], again=True)
         self.stream.configure(params.operator_settings(new))
         self._set_joint_steps(new)
         if "interactive_orientation" in changed:
             self.interactive.orientation = new["interactive_orientation"]
         self.output.publish_rate = float(new["publish_rate"])
+        self.output.collisions.enabled = bool(new["collision_objects"])
         self._p = new
         self.outbox.changed()
         return SetParametersResult(successful=True)

@@ -8,8 +8,10 @@ its ``wake`` triggers a guard condition, and :class:`EngineOutput` drains it in 
 thread: every outcome is logged (successes as info, failures as errors, or as warnings
 throttled per kind for inputs that come in streams) and then, at most ``publish_rate`` times a
 second (a change that comes too soon goes out once the period is over: nothing polls),
-``~/status``, ``~/fit``, ``~/suggested_view``, ``~/registered``, TF, ``~/markers`` and the
-interactive markers are published from the engine's state.
+``~/status``, ``~/fit``, ``~/suggested_view``, ``~/registered``, TF, the registrations as
+MoveIt collision objects (``collision_object``), the open objects as vision_msgs detections
+(``~/detections``), ``~/markers`` and the interactive markers are published from the engine's
+state (:mod:`~affordance_registration.ros.glue.planning`).
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ from geometry_msgs.msg import PoseArray, PoseStamped
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
+from ...core.detections import Detections
 from ...core.errors import bounded
 from ..glue.conversions import matrix_to_pose, pose_stamped
 from ..glue.markers import registered_markers_memo, state_markers
+from ..glue.planning import CollisionObjects, detection_array, load_detection_array
 from ..glue.qos import LATCHED
 from ..glue.tf import TfBroadcaster
 from ..glue.throttle import Throttle
@@ -45,9 +49,21 @@ class EngineOutput:
     ``clouds`` slot, the registrations' ``saver``, the input topics (counted in the status from
     the start) and the interactive-marker server to keep in sync (None: set it later, before
     the executor spins); its guard condition becomes the wake of the stream's outbox.
-    ``publish_rate`` (Hz) may be changed at any time."""
+    ``publish_rate`` (Hz) and ``collisions.enabled`` (``collision_objects``) may be changed at
+    any time."""
 
-    def __init__(self, node, engine, stream, clouds, saver, inputs, interactive, publish_rate):
+    def __init__(
+        self,
+        node,
+        engine,
+        stream,
+        clouds,
+        saver,
+        inputs,
+        interactive,
+        publish_rate,
+        collision_objects: bool = True,
+    ):
         self._node, self.engine, self.stream = node, engine, stream
         self.clouds, self.saver, self.interactive = clouds, saver, interactive
         self.outbox = stream.outbox
@@ -64,6 +80,19 @@ class EngineOutput:
         #: what ~/markers last drew: (state, library, frame, view up)
         self._markers_of: tuple = (None, None, None, None)
         self.tf = TfBroadcaster(node)
+        self.collisions = CollisionObjects(node, collision_objects)
+        self._detection_classes = load_detection_array()
+        self._detections = Detections()
+        self.pub_detections = None
+        if self._detection_classes is None:
+            self._log.warning(
+                "vision_msgs is not installed: open objects are not published as detections "
+                "(make setup builds it into the venv)"
+            )
+        else:
+            self.pub_detections = node.create_publisher(
+                self._detection_classes[0], "~/detections", 10
+            )
         self.pub_markers = node.create_publisher(MarkerArray, "~/markers", LATCHED)
         self.pub_fit = node.create_publisher(PoseStamped, "~/fit", 10)
         self.pub_registered = node.create_publisher(PoseArray, "~/registered", LATCHED)
@@ -174,6 +203,7 @@ class EngineOutput:
         self.pub_registered.publish(arr)
         self.tf.publish_registrations(state.registered, frame, stamp, library)
         self.tf.publish_candidate(None if active is None else active.shown, frame, stamp, library)
+        self.collisions.publish(state.registered, frame, stamp, library)
         # the status before the markers: it is small, and a client showing it (the station's
         # label) need not wait for the meshes to be built, sent and read
         self.pub_status.publish(String(data=json.dumps(self.status())))
@@ -184,6 +214,12 @@ class EngineOutput:
         last = self._markers_of
         if last[0] is not state or last[1] is not library or last[2:] != drawn[2:]:
             self.pub_markers.publish(state_markers(state, library, frame, stamp, up, self._drawn))
+            if self.pub_detections is not None and (last[0] is not state or last[2] != frame):
+                self.pub_detections.publish(
+                    detection_array(
+                        self._detection_classes, self._detections.of(self.engine), frame, stamp
+                    )
+                )
             self._markers_of = drawn
         if self.interactive is not None:
             self.interactive.sync()
