@@ -65,6 +65,7 @@ def data_files():
     # the bundled operator session is what `affordance-registration demo` replays: installed at
     # the same place relative to models/ as in the source tree
     for folder in (
+        "launch",
         "launch_configs",
         "models",
         "models/meshes",

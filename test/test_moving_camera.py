@@ -526,3 +526,30 @@ def test_pose_covariance_is_the_residual_scaled_inverse_in_pose_coordinates(seed
     want = residual**2 * np.linalg.inv(Jp.T @ Jp)
     assert np.allclose(got, want, rtol=1e-6, atol=1e-12 * residual**2)
     assert np.allclose(pose_covariance(None, T, residual), np.eye(6) * UNHELD_VARIANCE)
+
+
+def test_the_station_draws_the_cloud_in_the_fixed_frame(moving, tmp_path):
+    """A station on the engine (its fixed frame now map): the camera's cloud is drawn in map,
+    through TF at its stamp, as the engine's markers are."""
+    from browser_helpers import free_port, station_argv
+    from ros_helpers import NodeProcess
+
+    s, client = moving, moving["client"]
+    assert status(s)["frame_id"] == "map", "needs the collision objects test"
+    port = free_port()
+    station = NodeProcess(station_argv(port), tmp_path / "station.log")
+    try:
+        assert station.wait_output("operator station on", 120), station.output()
+        client.wait_for_subscribers(s["pubs"]["points"], count=2, timeout=120)
+        client.wait_for_subscribers(s["pubs"]["tf"], count=2, timeout=120)
+        t3 = s["t1"] + 4.0
+        publish_camera(s, T_ODOM_CAM1 @ T_CAM1_CAM2, t3)
+        time.sleep(0.5)  # (the cloud is drawn with the newest transform it has)
+        publish_cloud(s, s["second"], t3)
+        assert station.wait_output(f"cloud drawn in 'map' (from '{CAMERA}')", 60), (
+            station.output()[-2000:]
+        )
+    finally:
+        station.interrupt(timeout=10)
+        station.kill()
+        print(station.output()[-2000:])

@@ -148,14 +148,19 @@ class EngineOutput:
 
     # ------------------------------------------------------------------ what is published
     def frame(self) -> str:
-        """The frame of everything the node reports: the scene's, else the latest cloud's."""
+        """The frame of everything the node reports: the scene's, else the frame the next scene
+        will be in (the fixed frame, else the latest cloud's)."""
         if self.engine.frame_id:
             return self.engine.frame_id
+        if self.stream.feed.fixed_frame:
+            return self.stream.feed.fixed_frame
         cloud, _ = self.clouds.latest()
         return cloud.frame if cloud is not None else ""
 
     def status(self) -> dict:
         st = self.engine.status()
+        # before the first scene, the fixed frame it will be in (the station draws the cloud there)
+        st["frame_id"] = st["frame_id"] or self.stream.feed.fixed_frame
         stream = self.stream.status()
         cloud, count = self.clouds.latest()
         # every input topic from the start (a paced player waits for the topics it finds
