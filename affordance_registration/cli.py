@@ -202,6 +202,8 @@ def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
 
     log = lambda *a: print(*a, file=sys.stderr, flush=True)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):  # (said before the long run)
+        raise AffordanceError(f"--out {args.out} is not a folder")
     if args.row:  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
 
@@ -212,7 +214,7 @@ def cmd_bench(args) -> int:
     )
     print(format_table(result))
     if result.get("written"):
-        print(f"table written to {result['written']} (settings: {result['settings_written']})")
+        print("written: " + ", ".join(result["written"]))
     return 0
 
 
@@ -657,7 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="what real depth cameras do: flying pixels on depth edges, a smooth "
         "depth distortion, dropouts on dark patches and at grazing angles, more "
-        "range noise (core.simulation.FaultModel's defaults)",
+        "range noise (evaluation.simulation.FaultModel's defaults)",
     )
     p.set_defaults(func=cmd_simulate)
 
@@ -671,7 +673,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="clicks for the slow paper baseline (default 25; 0 = all)",
     )
     p.add_argument(
-        "--out", type=path_arg, default="bench_output/bench.json", help="JSON output path"
+        "--out",
+        type=path_arg,
+        default="bench_output",
+        metavar="DIR",
+        help="folder for the results (benchmark.json), the settings they were measured with "
+        "(benchmark.settings.yaml) and their rendering (BENCHMARK.md); default bench_output",
     )
     p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
     p.set_defaults(func=cmd_bench)

@@ -113,9 +113,8 @@ class Detections:
     def _covariance(registrar, ctx, candidate) -> np.ndarray:
         if ctx is None or ctx.sensor_origin is None or candidate.template not in registrar.library:
             return pose_covariance(None, candidate.T_scene_model, candidate.residual)
-        hessian = pose_hessian(
-            ctx, registrar.model_of(candidate), candidate.T_scene_model, registrar.settings
-        )
+        model = registrar.services.model_of(candidate)
+        hessian = pose_hessian(ctx, model, candidate.T_scene_model, registrar.settings)
         return pose_covariance(hessian, candidate.T_scene_model, candidate.residual)
 
 
