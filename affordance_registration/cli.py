@@ -686,7 +686,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "demo",
         help="the main job: replay the bundled operator session into a "
-        "live engine node, print the results, write demo_output/",
+        "live engine node, print the results, write demo_output/; its nodes run in a ROS "
+        "domain of their own unless ROS_DOMAIN_ID is set (it says which)",
     )
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
     p.add_argument(
@@ -723,7 +724,8 @@ def _add_station_and_tool_parsers(sub) -> None:
     p = sub.add_parser(
         "station",
         help="the browser operator station (viser), a client of the "
-        "engine node; --demo: with an engine and a simulated scan",
+        "engine node; --demo: with an engine and a simulated scan (--demo and --scene run "
+        "their nodes in a ROS domain of their own unless ROS_DOMAIN_ID is set, and say which)",
     )
     p.add_argument(
         "--demo",
