@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
-from affordance_registration.core.operator import OperatorSettings, OperatorStream, StandaloneHost
+from affordance_registration.core.operator import OperatorSettings, OperatorStream, Outbox
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
@@ -37,15 +37,16 @@ class SimClock:
         self.t += seconds
 
 
-class Recorder(StandaloneHost):
-    """A host without a node that records every outcome the stream reports."""
+class Recorder(Outbox):
+    """An outbox without a node that keeps every outcome the stream puts into it."""
 
-    def __init__(self, engine):
-        super().__init__(engine)
+    def __init__(self):
+        super().__init__()
         self.reports = []
 
-    def report(self, kind, ok, message):
+    def outcome(self, kind, ok, message):
         self.reports.append((kind, ok, message))
+        super().outcome(kind, ok, message)
 
 
 class SlowEngine(AffordanceEngine):
@@ -72,10 +73,14 @@ class Stream:
             else AffordanceEngine(library)
         )
         self.engine.set_scene(sim.organized, frame_id=FRAME)
-        self.host = Recorder(self.engine)
-        self.reports = self.host.reports
+        self.outbox = Recorder()
+        self.reports = self.outbox.reports
         self.stream = OperatorStream(
-            self.engine, OperatorSettings(**settings), self.clock, self.clock.sleep, host=self.host
+            self.engine,
+            OperatorSettings(**settings),
+            self.clock,
+            self.clock.sleep,
+            outbox=self.outbox,
         )
 
     def shown(self):

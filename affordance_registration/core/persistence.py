@@ -53,6 +53,7 @@ from .waypoints import waypoints_dict
 
 __all__ = [
     "RegistrationStore",
+    "Autosave",
     "registrations_document",
     "backup_path",
     "save_registrations",
@@ -363,3 +364,38 @@ class RegistrationStore:
                     os.unlink(lock_path(self.path))
                 self._lock_file.close()
                 self._lock_file = None
+
+
+class Autosave:
+    """When a session's registrations are written to its ``store``: on ``save``
+    (:meth:`persist` with ``explicit``), and after every change of them when ``enabled``
+    (autosave) -- otherwise the change is remembered as ``unsaved`` until the next save. The
+    operator stream calls :meth:`persist` before it answers the input that changed them, so
+    what is acknowledged is durable."""
+
+    def __init__(self, store: RegistrationStore, enabled: bool = True):
+        self.store, self.enabled = store, bool(enabled)
+        self.unsaved = False  #: registrations changed and not written (autosave off)
+
+    def persist(self, engine, explicit: bool) -> str:
+        """Write ``engine``'s registrations (in its frame, with their waypoints) when
+        ``explicit`` or enabled; returns the reply's words ("" for none). Raises
+        :class:`AffordanceError` when the file cannot be written (they stay in memory)."""
+        if not explicit and not self.enabled:
+            self.unsaved = True
+            return ""
+        regs = engine.state.registered
+        path, backup = self.store.write(regs, engine.frame_id, engine.library)
+        self.unsaved = False
+        text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
+        return text + (f" (the file it replaced is kept as {backup})" if backup else "")
+
+    def status(self) -> dict:
+        """The status' ``registrations_file``: its path, how many it holds as last written,
+        whether changes are unsaved and the last backup made."""
+        return {
+            "path": self.store.path,
+            "saved": self.store.count,
+            "unsaved": self.unsaved,
+            "backup": self.store.last_backup,
+        }

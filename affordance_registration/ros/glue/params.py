@@ -141,6 +141,19 @@ NODE_PARAMETERS = {
         "fitted without the visibility terms)",
         None,
     ),
+    "fixed_frame": (
+        "",
+        "the frame the scene, the objects and the registrations live in: each cloud is "
+        "brought into it through TF at the cloud's stamp (odom or map for a camera on a "
+        "moving robot); '' = the cloud's own frame",
+        None,
+    ),
+    "collision_objects": (
+        True,
+        "publish each registration as a moveit_msgs/CollisionObject on collision_object "
+        "(ADD, MOVE, REMOVE: what MoveIt's move_group listens to); false removes them",
+        None,
+    ),
     "points_reliable": (
         True,
         "subscribe to points with reliable QoS (false: best effort, for "

@@ -8,7 +8,8 @@ shown candidate of the selected object as its mesh with a label, the registratio
 colour and a status panel. On the page the operator
 
 * clicks the cloud: the click ray is snapped to the nearest cloud point (``core.display.snap_ray``)
-  and published on ``clicked_point`` in the cloud's frame;
+  and published on ``clicked_point`` in the cloud's frame (the engine's fixed frame, when it has
+  one: each cloud is drawn there, through TF at its stamp);
 * drags the gizmo on the shown fit: an interactive-marker feedback client of its own (MOUSE_DOWN,
   POSE_UPDATE, MOUSE_UP of ``affordance_fit`` on ``<interactive_namespace>/feedback``) -- the
   release is an absolute correction followed by a refit, as a drag in RViz;
@@ -67,6 +68,7 @@ from ..glue.conversions import (
     stamped,
 )
 from ..glue.qos import INPUT, LATCHED
+from ..glue.tf import TfListener
 from ..standins.spin import run_node
 from . import access as station_access
 from .page import ACTIONS, PageHandlers, StationPage
@@ -143,6 +145,7 @@ class _CloudShown:
     shown_at: float = -math.inf  #: monotonic time it was last replaced
     thin_voxel: float | None = None  #: its display voxel edge
     first_view_frame: str | None = None  #: the frame the browsers were last pointed in
+    message: PointCloud2 | None = None  #: the cloud shown (drawn again in a new engine frame)
 
 
 @dataclass
@@ -208,6 +211,8 @@ class StationNode(Node):
         self.create_subscription(
             PointCloud2, "points", self._on_cloud, qos.cloud(p["points_reliable"])
         )
+        #: the cloud is drawn in the engine's frame (its fixed frame, when it has one)
+        self._tf = TfListener(self)
         self.status_topic = f"{self.engine}/status"
         self.create_subscription(String, self.status_topic, self._on_status, LATCHED)
         markers_qos = qos.latched(10)
@@ -457,6 +462,9 @@ class StationNode(Node):
         if inbox.status_new:
             self._status = inbox.status
             refresh = True
+            scene = (self._status or {}).get("frame_id")
+            if scene and self._cloud.message is not None and scene != self._cloud.frame:
+                self._show_cloud(self._cloud.message)  # the engine's frame changed: drawn there
         refresh = self._settle_pending_click(now) or refresh
         refresh = self._watch_engine(now) or refresh
         if refresh:
@@ -627,6 +635,7 @@ class StationNode(Node):
             self.get_logger().info(f"drawn: object {obj['id']} as {drawn.text}")
 
     def _show_cloud(self, msg: PointCloud2) -> None:
+        self._cloud.message = msg
         try:
             pts, _ = pointcloud2_to_xyz(msg)
         except ConversionError as exc:
@@ -654,10 +663,21 @@ class StationNode(Node):
             shown = pts[keep]
             values = np.sqrt(np.einsum("ij,ij->i", shown, shown))
         frame = msg.header.frame_id
+        scene = (self._status or {}).get("frame_id") or frame
+        if scene.lstrip("/") != frame.lstrip("/"):  # the engine's fixed frame: drawn in it
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            try:
+                T = self._tf.lookup(scene, frame, stamp or None)
+            except AffordanceError as exc:
+                self._cloud.text = f"the cloud in '{frame}' is not placed in '{scene}' ({exc})"
+                return
+            pts = pts @ T[:3, :3].T + T[:3, 3]
+            frame = scene
         with self._lock:
             self._cloud.points, self._cloud.frame = pts, frame
         if frame != self._cloud.first_view_frame and len(pts):
             self._cloud.first_view_frame = frame
+            self.get_logger().info(f"cloud drawn in '{frame}' (from '{msg.header.frame_id}')")
             up = np.array(
                 UP_AXES[self.p["up"]]
                 if self.p["up"] != "auto"
