@@ -101,7 +101,9 @@ def forward_pairs(
         rows = np.flatnonzero(vis.reshape(-1) & ~in_band)
     else:
         rows = np.flatnonzero(vis)
-    d_v, i_v = nearest(tree, Xf[rows], parallel=True)
+    # (only pairs within a hypothesis' radius weigh anything: the search stops at the largest
+    # radius, and a sample with nothing there keeps a finite partner and a zero weight)
+    d_v, i_v = nearest(tree, Xf[rows], float(radius.max()), parallel=True)
     dist[rows] = d_v
     Q[rows] = pts[i_v]
     if normals:
@@ -137,7 +139,7 @@ def reverse_pairs(
     whether it is on the moving part (M,))."""
     near = in_sphere(pts, R @ model.centroid + t, 0.5 * model.diameter)
     q = pts[near]
-    d, local, moving = model.nearest((q - t) @ R, parts=True)
+    d, local, moving = model.nearest((q - t) @ R, radius, parts=True)  # (beyond: weight 0)
     return (
         local @ R.T + t,
         q,
