@@ -47,6 +47,7 @@ ROS_PACKAGES = {
 PIP_ONLY = {
     "viser",
     "pykdtree",
+    "numba",
     "threadpoolctl",
     "playwright",
     "small_gicp",

@@ -7,12 +7,14 @@ the posed samples and the dense surfaces' KD-trees.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..compiled import DistanceGrid, kernels
 from ..neighbours import build_tree, nearest
 from ..templates import AffordanceTemplate
 from .settings import SAMPLE_SEED
@@ -44,6 +46,24 @@ class Surface:
         self.moving_part = build_tree(self.moving_points) if jointed else None
         #: the mesh as it is, ready for ray casting (a point-cloud template has none)
         self.raycaster = raycaster(template.mesh) if template.mesh is not None else None
+        self._grids: dict = {}  # (part, cell) -> DistanceGrid, built when first asked
+
+    def distances(self, part: str, points: np.ndarray, upper: float) -> np.ndarray:
+        """Distance (N,) from ``points`` (N, 3, the template's frame, unscaled) to the nearest
+        dense sample of ``part`` ("whole", "base" or "moving"), inf beyond ``upper``: the
+        distances :func:`..neighbours.nearest` gives on that part's tree, to the last bit --
+        from a compiled grid (:class:`..compiled.DistanceGrid`, cells of the power of two at
+        or above the bound) where the compiled kernels are in use and the bound is finite."""
+        k = kernels() if 0.0 < upper < np.inf else None
+        if k is None:
+            tree = {"whole": self.whole, "base": self.base, "moving": self.moving_part}[part]
+            return nearest(tree, points, upper)[0]
+        cell = 2.0 ** math.ceil(math.log2(upper))
+        grid = self._grids.get((part, cell))
+        if grid is None:
+            pts = {"whole": self.points, "base": self.base_points, "moving": self.moving_points}
+            grid = self._grids.setdefault((part, cell), DistanceGrid(pts[part], cell, k))
+        return grid.distances(points, upper)
 
 
 def raycaster(mesh):
@@ -260,9 +280,9 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
         u = np.asarray(local[sel], dtype=float) / scale
         ub, flat = upper / scale, u.reshape(-1, 3)
         if first.q == 0.0 or surface.moving_part is None:
-            d, _ = nearest(surface.whole, flat, ub)
+            d = surface.distances("whole", flat, ub)
         else:
-            d, _ = nearest(surface.base, flat, ub)
+            d = surface.distances("base", flat, ub)
             # into the moving part's zero pose, model by model (hypotheses of one model
             # together, as the model's own query turns them)
             rows = np.arange(len(sel) * u.shape[1]).reshape(len(sel), -1)
@@ -274,7 +294,7 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
                 um.append(models[sel[int(mine[0])]]._to_moving_part(u[mine].reshape(-1, 3))[0])
             order = np.concatenate(order)
             dm = np.empty(len(flat))
-            dm[order], _ = nearest(surface.moving_part, np.concatenate(um), ub)
+            dm[order] = surface.distances("moving", np.concatenate(um), ub)
             d = np.where(dm < d, dm, d)
         out[sel] = (d * scale).reshape(len(sel), -1)
     return out
