@@ -138,3 +138,32 @@ def test_without_numba_one_log_line_and_the_numpy_path():
     warnings = [x for x in out.stderr.splitlines() if "compiled kernels unavailable" in x]
     assert len(warnings) == 1, out.stderr
     assert warnings[0].startswith("WARNING") and "numba" in warnings[0]
+
+
+@needs_numba
+def test_the_bench_compares_the_two_paths_click_by_click():
+    """The bench's kernels row: each click fitted with the kernels off and on, both timed, the
+    ratios to the numpy path's, and the table's line for it."""
+    from affordance_registration.core.templates import TemplateLibrary
+    from affordance_registration.evaluation.bench import format_table
+    from affordance_registration.evaluation.bench_rows import kernel_rows, simulated_jobs
+
+    library = TemplateLibrary.load().specific()
+    jobs = simulated_jobs(library, range(1000, 1001))[:2]
+    rows = kernel_rows(library, jobs)
+    assert [r["kernels"] for r in rows] == ["numpy", "compiled"]
+    assert all(r["clicks"] == 2 and r["median_cpu_s"] > 0 and r["median_s"] > 0 for r in rows)
+    assert rows[0]["cpu_ratio_to_numpy"] == rows[0]["ratio_to_numpy"] == 1.0
+    assert compiled.compiled_enabled()  # the row switched the kernels back on
+    table = format_table(
+        {
+            "rows": [],
+            "refit": {"median_s": 0.01, "success": 1.0},
+            "scenes": 1,
+            "pose_tolerance": {"m": 0.005, "deg": 5.0},
+            "machine": {"cpus": 2},
+            "kernels": rows,
+        }
+    )
+    line = next(x for x in table.splitlines() if "compiled kernels" in x)
+    assert f"{rows[1]['cpu_ratio_to_numpy']:.2f}x the numpy path's" in line, line
