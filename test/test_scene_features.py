@@ -10,6 +10,7 @@ import numpy as np
 
 
 def test_scene_descriptors_are_computed_once_a_click_and_go_with_it():
+    from affordance_registration.core import memo
     from affordance_registration.core.registration import Registrar, features
     from affordance_registration.core.scene import Scene
     from affordance_registration.core.templates import TemplateLibrary
@@ -34,7 +35,7 @@ def test_scene_descriptors_are_computed_once_a_click_and_go_with_it():
     other = registrar.prepare(Scene(sim.organized), sim.objects[0].click)
     assert features._scene_features(other) is not crop
     key = id(ctx)
-    assert key in features._click_memo
+    assert key in memo._per_object
     del ctx, other
     gc.collect()
-    assert key not in features._click_memo
+    assert key not in memo._per_object

@@ -32,11 +32,11 @@ from __future__ import annotations
 
 import math
 import threading
-import weakref
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..memo import per_object
 from ..neighbours import pca_normals
 from ..scene import ClickContext
 from ..transforms import rotation_angle
@@ -63,28 +63,18 @@ GLOBAL_ITERATIONS = 100000  #: RANSAC draws per run
 GLOBAL_DISTANCE = 1.5  #: a correspondence within this many voxels is an inlier
 GLOBAL_EDGE = 0.9  #: a draw's edges must agree to this ratio (Open3D's edge check)
 _o3d_lock = threading.Lock()
-_click_lock = threading.Lock()
-#: id(click context) -> {what: value}, while the context lives (see :func:`_per_click`)
-_click_memo: dict = {}
 
 
 def _per_click(ctx: ClickContext, what: str, compute):
-    """``compute()`` once per click context: the scene's side of the matching, shared by the
-    library's scanned templates. The entry goes with the context (before its id can be
-    reused); two threads may compute one twice, never see a half-built one."""
-    key = id(ctx)
-    with _click_lock:
-        memo = _click_memo.get(key)
-        if memo is None:
-            memo = _click_memo[key] = {}
-            weakref.finalize(ctx, _click_memo.pop, key, None)
-        hit = memo.get(what)
-    if hit is not None:
-        return hit
-    value = compute()
-    value.setflags(write=False)  # (shared between templates and threads)
-    with _click_lock:
-        return memo.setdefault(what, value)
+    """``compute()`` (an array, made read-only: it is shared) once per click context: the
+    scene's side of the matching, shared by the library's scanned templates."""
+
+    def shared():
+        value = compute()
+        value.setflags(write=False)
+        return value
+
+    return per_object(ctx, ("features", what), shared)
 
 
 def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
