@@ -36,10 +36,30 @@ def test_grid_distances_are_the_kd_trees(seed, n, m, upper, cell):
     rng = np.random.default_rng(seed)
     data = rng.normal(size=(n, 3)) * rng.uniform(0.01, 0.2)
     queries = rng.normal(size=(m, 3)) * rng.uniform(0.01, 0.5)
-    want, _ = nearest(build_tree(data), queries, upper)
-    got = compiled.DistanceGrid(data, cell).distances(queries, upper)
+    want, want_i = nearest(build_tree(data), queries, upper)
+    got, got_i = compiled.DistanceGrid(data, cell).nearest(queries, upper)
     assert np.array_equal(np.isfinite(got), np.isfinite(want))
     assert np.array_equal(got, want)  # not close: equal
+    found = np.isfinite(want)
+    assert np.array_equal(got_i[found], want_i[found])  # (random points: no ties)
+    assert got_i.shape == (m,) and (got_i >= 0).all() and (got_i < n).all()
+
+
+@needs_numba
+def test_a_grid_is_built_only_where_its_cells_stay_light():
+    """The cell is the power of two at or above the bound; a grid whose cells would hold more
+    than MAX_CELL_LOAD surface points, an unbounded query or an empty set gets none."""
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(4096, 3))
+    sphere *= 0.1 / np.linalg.norm(sphere, axis=1, keepdims=True)  # 20 cm across
+    assert compiled.grid_cell(sphere, 0.01) == 2.0**-6  # 1.56 cm: about 25 points a cell
+    assert compiled.grid_cell(sphere, 0.03) is None  # 6.25 cm: about 400
+    assert compiled.grid_cell(sphere, np.inf) is None
+    assert compiled.grid_cell(sphere[:0], 0.01) is None
+    load = compiled.cell_load(4096, 0.2, 2.0**-6)
+    assert 20 < load <= compiled.MAX_CELL_LOAD
+    with compiled.use_compiled(False):
+        assert compiled.grid_cell(sphere, 0.01) is None
 
 
 @pytest.fixture(scope="module")

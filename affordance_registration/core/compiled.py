@@ -14,11 +14,15 @@ seconds once per machine, a few milliseconds a process after). Where numba is mi
 to compile, one log line says so and every caller takes the numpy path; ``use_compiled(False)``
 takes it on purpose (the bench's ``kernels`` row compares the two in one run).
 
-The kernel: the distance from each query point to the nearest of a point set, up to a bound
+The kernel: the nearest of a point set to each query point, up to a bound
 (:class:`DistanceGrid`) -- what the residual's cluster -> template pass and the verdict's
-explained share ask of a template's dense surface for every hypothesis (a fifth of a click's
-KD queries). A uniform grid of cells at least as large as the bound answers it from the few
-cells the bound reaches; the distance is the KD-tree's, sqrt((dx^2 + dy^2) + dz^2).
+explained share ask of a template's dense surface for every hypothesis. A uniform grid of cells
+at least as large as the bound answers it from the few cells the bound reaches; the distance is
+the KD-tree's, sqrt((dx^2 + dy^2) + dz^2), and the point the same one (two points exactly as
+near are the one case where the two may name different ones). Where the cells would hold many
+points the KD-tree prunes better and answers instead (:func:`grid_cell`): ICP's correspondences
+in the full-resolution cluster, and in the voxelized one, where a grid measured no faster (a
+simulated click's CPU 1.009x with it; the grid code kept the tree's numbers).
 """
 
 from __future__ import annotations
@@ -30,7 +34,16 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["DistanceGrid", "kernels", "available", "use_compiled", "compiled_enabled"]
+__all__ = [
+    "DistanceGrid",
+    "kernels",
+    "available",
+    "use_compiled",
+    "compiled_enabled",
+    "cell_load",
+    "grid_cell",
+    "MAX_CELL_LOAD",
+]
 
 _log = logging.getLogger(__name__)
 _lock = threading.Lock()
@@ -41,6 +54,10 @@ _enabled = True
 #: a grid has at most this many cells along an axis (a finer bound than the set's extent over
 #: this: the cells are this coarse)
 MAX_CELLS_PER_AXIS = 64
+#: a grid answers a query faster than the KD-tree where its cells hold about this many points
+#: or fewer (:func:`cell_load`; measured on the fitter's queries, cells of 1.6 and 3.1 cm: 80-500
+#: ns a query up to here against the tree's 400-460, 400-770 above)
+MAX_CELL_LOAD = 64
 
 
 def _compile():
@@ -76,9 +93,9 @@ def _compile():
         for j in range(n):
             for d in range(3):
                 pts[j, d] = points[order[j], d]
-        return pts, lo, dims, first
+        return pts, order, lo, dims, first
 
-    def distances(pts, lo, dims, first, cell, queries, upper, out):
+    def nearest(pts, order, lo, dims, first, cell, queries, upper, out, index):
         bound = upper * upper
         for i in range(queries.shape[0]):
             q0, q1, q2 = queries[i, 0], queries[i, 1], queries[i, 2]
@@ -89,6 +106,7 @@ def _compile():
             c0 = max(int(math.floor((q2 - upper - lo[2]) / cell)), 0)
             c1 = min(int(math.floor((q2 + upper - lo[2]) / cell)), dims[2] - 1)
             best = np.inf
+            at = -1
             if c0 > c1:  # (beyond the grid along z: no cell to read)
                 a1 = a0 - 1
             for a in range(a0, a1 + 1):
@@ -101,7 +119,13 @@ def _compile():
                         d = dx * dx + dy * dy + dz * dz
                         if d < best:
                             best = d
-            out[i] = math.sqrt(best) if best <= bound else np.inf
+                            at = j
+            if best <= bound:
+                out[i] = math.sqrt(best)
+                index[i] = order[at]
+            else:
+                out[i] = np.inf
+                index[i] = -1
 
     def jit(fn, signature):
         try:
@@ -113,9 +137,11 @@ def _compile():
         pass
 
     k = Kernels()
-    k.build = jit(build, "Tuple((f8[:, ::1], f8[::1], i8[::1], i8[::1]))(f8[:, ::1], f8)")
-    k.distances = jit(
-        distances, "void(f8[:, ::1], f8[::1], i8[::1], i8[::1], f8, f8[:, ::1], f8, f8[::1])"
+    k.build = jit(build, "Tuple((f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1]))(f8[:, ::1], f8)")
+    k.nearest = jit(
+        nearest,
+        "void(f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1], f8, f8[:, ::1], f8, f8[::1], "
+        "i8[::1])",
     )
     return k
 
@@ -166,6 +192,26 @@ def use_compiled(on: bool):
         _enabled = before
 
 
+def cell_load(n: int, extent: float, cell: float) -> float:
+    """About how many of ``n`` points sampling a surface ``extent`` (m) across lie in a cell of
+    edge ``cell``: the share of the extent, squared (a query reads up to 27 cells: where they
+    are full, a KD-tree prunes better)."""
+    return n * (cell / max(extent, cell)) ** 2
+
+
+def grid_cell(points: np.ndarray, upper: float, extent: float | None = None) -> float | None:
+    """The cell of the grid worth building over ``points`` (N, 3) for queries bounded by
+    ``upper`` -- the power of two at or above it -- or None where a grid does not pay (its
+    cells would hold more than ``MAX_CELL_LOAD`` points, the bound is not finite and positive,
+    or the kernels are not in use). ``extent``: the points' largest side, if known."""
+    if not 0.0 < upper < np.inf or len(points) == 0 or kernels() is None:
+        return None
+    cell = 2.0 ** math.ceil(math.log2(upper))
+    if extent is None:
+        extent = float(np.ptp(points, axis=0).max()) if len(points) else 0.0
+    return cell if cell_load(len(points), extent, cell) <= MAX_CELL_LOAD else None
+
+
 class DistanceGrid:
     """Distances from query points to the nearest of ``points`` (N, 3), up to a bound: the
     points sorted into cubic cells of edge ``cell`` (a grid over their bounding box, at most
@@ -181,13 +227,19 @@ class DistanceGrid:
         self._k = k
         self._grid = k.build(points, self.cell)
 
-    def distances(self, queries: np.ndarray, upper: float) -> np.ndarray:
-        """Distance (M,) from each of ``queries`` (M, 3) to the nearest point, inf beyond
-        ``upper`` (finite; a query reads the cells the bound reaches: a bound of about the cell
-        or less is what the grid is for)."""
+    def nearest(self, queries: np.ndarray, upper: float):
+        """Distance (M,) from each of ``queries`` (M, 3) to the nearest point and that point's
+        index (M,), as :func:`..neighbours.nearest` gives them: beyond ``upper`` the distance is
+        inf and the index a valid but meaningless one. ``upper`` is finite; a query reads the
+        cells the bound reaches (a bound of about the cell or less is what the grid is for)."""
         # (the compiled signature takes writable C arrays: a read-only one is copied)
         q = np.require(np.reshape(queries, (-1, 3)), float, ["C", "W"])
-        out = np.empty(len(q))
+        out, index = np.empty(len(q)), np.empty(len(q), dtype=np.int64)
         if len(q):
-            self._k.distances(*self._grid, self.cell, q, float(upper), out)
-        return out
+            self._k.nearest(*self._grid, self.cell, q, float(upper), out, index)
+        index[index < 0] = max(self.n - 1, 0)
+        return out, index.astype(np.intp, copy=False)
+
+    def distances(self, queries: np.ndarray, upper: float) -> np.ndarray:
+        """The distances of :meth:`nearest`."""
+        return self.nearest(queries, upper)[0]
