@@ -175,15 +175,8 @@ def test_the_bench_compares_the_two_paths_click_by_click():
     assert all(r["clicks"] == 2 and r["median_cpu_s"] > 0 and r["median_s"] > 0 for r in rows)
     assert rows[0]["cpu_ratio_to_numpy"] == rows[0]["ratio_to_numpy"] == 1.0
     assert compiled.compiled_enabled()  # the row switched the kernels back on
-    table = format_table(
-        {
-            "rows": [],
-            "refit": {"median_s": 0.01, "success": 1.0},
-            "scenes": 1,
-            "pose_tolerance": {"m": 0.005, "deg": 5.0},
-            "machine": {"cpus": 2},
-            "kernels": rows,
-        }
-    )
+    base = {"rows": [], "refit": {"median_s": 0.01, "success": 1.0}, "scenes": 1}
+    base |= {"pose_tolerance": {"m": 0.005, "deg": 5.0}, "machine": {"cpus": 2}}
+    table = format_table({**base, "kernels": rows})
     line = next(x for x in table.splitlines() if "compiled kernels" in x)
     assert f"{rows[1]['cpu_ratio_to_numpy']:.2f}x the numpy path's" in line, line
