@@ -110,6 +110,10 @@ def test_scoring_passes_are_the_same_either_way(golden_click):
                 explained_share(ctx, models, fits, s),
                 [(r.residual, r.inlier_fraction) for r in fits],
             )
+    from affordance_registration.core import memo
+
+    grids = [k for k in memo._per_object.get(id(ctx), {}) if k[0] == "grid"]
+    assert grids, "the compiled path read no grid of the click's crop: nothing was compared"
     np.testing.assert_array_equal(out[True][0], out[False][0])
     np.testing.assert_array_equal(out[True][1], out[False][1])
     assert out[True][2] == out[False][2]
@@ -139,7 +143,9 @@ def test_without_numba_one_log_line_and_the_numpy_path():
         ref = nearest(surface.whole, pts[0], 0.01)[0]
         print("AVAILABLE", compiled.available(), compiled.kernels() is None)
         print("EQUAL", bool(np.array_equal(d, ref)), int(np.isfinite(d).sum()))
-        print("GRIDS", len(surface._grids))
+        from affordance_registration.core import memo
+        grids = [k for v in memo._per_object.values() for k in v if k[0] == "grid"]
+        print("GRIDS", len(grids))
         """
     )
     out = subprocess.run(

@@ -29,11 +29,15 @@ from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
+from .compiled import DistanceGrid, grid_cell
+from .memo import per_object
+
 __all__ = [
     "KDTree",
     "build_tree",
     "tree_points",
     "nearest",
+    "nearest_distances",
     "k_nearest",
     "pairs_within",
     "pca_normals",
@@ -116,6 +120,26 @@ def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf, parallel: b
         tree, pts, k=1, distance_upper_bound=float(upper) if np.isfinite(upper) else None
     )
     return d, np.minimum(i, tree.n - 1).astype(np.intp)
+
+
+def nearest_distances(tree: KDTree, points: np.ndarray, upper: float, owner=None) -> np.ndarray:
+    """The distances of :func:`nearest` (the same numbers, to the last bit), from a compiled
+    grid over the tree's points (:class:`.compiled.DistanceGrid`) where one pays
+    (:func:`.compiled.grid_cell`: a finite bound and light cells), kept with ``owner`` -- the
+    object holding ``tree`` (a template's surface, a click's context) -- and built when first
+    asked; else from the tree."""
+    if owner is not None:
+        pts = tree_points(tree)
+        extent = per_object(
+            owner,
+            ("extent", id(tree)),
+            lambda: float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0,
+        )
+        cell = grid_cell(pts, upper, extent)
+        if cell is not None:
+            grid = per_object(owner, ("grid", id(tree), cell), lambda: DistanceGrid(pts, cell))
+            return grid.distances(points, upper)
+    return nearest(tree, points, upper)[0]
 
 
 def k_nearest(tree: KDTree, points: np.ndarray, k: int) -> np.ndarray:

@@ -13,8 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..compiled import DistanceGrid, grid_cell
-from ..neighbours import build_tree, nearest
+from ..neighbours import build_tree, nearest, nearest_distances
 from ..templates import AffordanceTemplate
 from .settings import SAMPLE_SEED
 
@@ -45,31 +44,14 @@ class Surface:
         self.moving_part = build_tree(self.moving_points) if jointed else None
         #: the mesh as it is, ready for ray casting (a point-cloud template has none)
         self.raycaster = raycaster(template.mesh) if template.mesh is not None else None
-        self._grids: dict = {}  # (part, cell) -> DistanceGrid, built when first asked
-        self._extents: dict = {}  # part -> the largest side of its samples' box
 
     def distances(self, part: str, points: np.ndarray, upper: float) -> np.ndarray:
         """Distance (N,) from ``points`` (N, 3, the template's frame, unscaled) to the nearest
-        dense sample of ``part`` ("whole", "base" or "moving"), inf beyond ``upper``: the
-        distances :func:`..neighbours.nearest` gives on that part's tree, to the last bit --
-        from a compiled grid (:class:`..compiled.DistanceGrid`) where one pays
-        (:func:`..compiled.grid_cell`), built when first asked."""
-        pts = {"whole": self.points, "base": self.base_points, "moving": self.moving_points}[part]
-        cell = grid_cell(pts, upper, self._extent(part, pts))
-        if cell is None:
-            tree = {"whole": self.whole, "base": self.base, "moving": self.moving_part}[part]
-            return nearest(tree, points, upper)[0]
-        grid = self._grids.get((part, cell))
-        if grid is None:
-            grid = self._grids.setdefault((part, cell), DistanceGrid(pts, cell))
-        return grid.distances(points, upper)
-
-    def _extent(self, part: str, pts: np.ndarray) -> float:
-        extent = self._extents.get(part)
-        if extent is None:
-            extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
-            self._extents[part] = extent
-        return extent
+        dense sample of ``part`` ("whole", "base" or "moving"), inf beyond ``upper``
+        (:func:`..neighbours.nearest_distances`: a compiled grid kept with the surface where
+        one pays, the same numbers as the part's tree)."""
+        tree = {"whole": self.whole, "base": self.base, "moving": self.moving_part}[part]
+        return nearest_distances(tree, points, upper, owner=self)
 
 
 def raycaster(mesh):
