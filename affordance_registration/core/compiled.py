@@ -9,10 +9,12 @@ reductions reordered), and a test holds the two equal (``test/test_compiled.py``
 saves is the work around them -- the calls, the pruning -- and it releases the GIL, so the
 fitter's threads (:mod:`.registration.parallel`) run it side by side.
 
-The kernels are compiled on first use (cached on disk by numba where it can write; about two
-seconds once per machine, a few milliseconds a process after). Where numba is missing or fails
-to compile, one log line says so and every caller takes the numpy path; ``use_compiled(False)``
-takes it on purpose (the bench's ``kernels`` row compares the two in one run).
+The kernels are compiled on first use -- a template's first dense surface, so a registrar's
+warm-up pays it, not a click -- and cached on disk by numba where it can write (on this loaded
+machine compiling took 9 s once; loading them again, with numba's own start, 1.3 s a process).
+Where numba is missing or fails to compile, one log line says so and every caller takes the
+numpy path; ``use_compiled(False)`` takes it on purpose (the bench's ``kernels`` row compares
+the two in one run).
 
 The kernel: the nearest of a point set to each query point, up to a bound
 (:class:`DistanceGrid`) -- what the residual's cluster -> template pass and the verdict's
@@ -60,72 +62,81 @@ MAX_CELLS_PER_AXIS = 64
 MAX_CELL_LOAD = 64
 
 
-def _compile():
-    """The compiled kernels (a namespace of numba functions), compiled now."""
-    import numba
-
-    def build(points, cell):
-        n = points.shape[0]
-        lo = np.empty(3)
-        dims = np.empty(3, np.int64)
+# the kernels, as plain Python that numba compiles (module level: numba caches them on disk)
+def _build(points, cell):
+    """A grid over ``points`` (N, 3) with cells of edge ``cell``: the points sorted by cell
+    (N, 3), their indices in ``points`` (N,), the grid's corner (3,), its cells along each axis
+    (3,), and where each cell's points start in the sorted ones (cells + 1,)."""
+    n = points.shape[0]
+    lo = np.empty(3)
+    dims = np.empty(3, np.int64)
+    for d in range(3):
+        mn = np.inf
+        mx = -np.inf
+        for i in range(n):
+            v = points[i, d]
+            mn = min(mn, v)
+            mx = max(mx, v)
+        lo[d] = mn
+        dims[d] = int((mx - mn) / cell) + 1
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        a = int((points[i, 0] - lo[0]) / cell)
+        b = int((points[i, 1] - lo[1]) / cell)
+        c = int((points[i, 2] - lo[2]) / cell)
+        key[i] = (a * dims[1] + b) * dims[2] + c
+    order = np.argsort(key, kind="mergesort")
+    first = np.zeros(dims[0] * dims[1] * dims[2] + 1, np.int64)
+    for i in range(n):
+        first[key[i] + 1] += 1
+    for c in range(first.shape[0] - 1):
+        first[c + 1] += first[c]
+    pts = np.empty((n, 3))
+    for j in range(n):
         for d in range(3):
-            mn = np.inf
-            mx = -np.inf
-            for i in range(n):
-                v = points[i, d]
-                mn = min(mn, v)
-                mx = max(mx, v)
-            lo[d] = mn
-            dims[d] = int((mx - mn) / cell) + 1
-        key = np.empty(n, np.int64)
-        for i in range(n):
-            a = int((points[i, 0] - lo[0]) / cell)
-            b = int((points[i, 1] - lo[1]) / cell)
-            c = int((points[i, 2] - lo[2]) / cell)
-            key[i] = (a * dims[1] + b) * dims[2] + c
-        order = np.argsort(key, kind="mergesort")
-        first = np.zeros(dims[0] * dims[1] * dims[2] + 1, np.int64)
-        for i in range(n):
-            first[key[i] + 1] += 1
-        for c in range(first.shape[0] - 1):
-            first[c + 1] += first[c]
-        pts = np.empty((n, 3))
-        for j in range(n):
-            for d in range(3):
-                pts[j, d] = points[order[j], d]
-        return pts, order, lo, dims, first
+            pts[j, d] = points[order[j], d]
+    return pts, order, lo, dims, first
 
-    def nearest(pts, order, lo, dims, first, cell, queries, upper, out, index):
-        bound = upper * upper
-        for i in range(queries.shape[0]):
-            q0, q1, q2 = queries[i, 0], queries[i, 1], queries[i, 2]
-            a0 = max(int(math.floor((q0 - upper - lo[0]) / cell)), 0)
-            a1 = min(int(math.floor((q0 + upper - lo[0]) / cell)), dims[0] - 1)
-            b0 = max(int(math.floor((q1 - upper - lo[1]) / cell)), 0)
-            b1 = min(int(math.floor((q1 + upper - lo[1]) / cell)), dims[1] - 1)
-            c0 = max(int(math.floor((q2 - upper - lo[2]) / cell)), 0)
-            c1 = min(int(math.floor((q2 + upper - lo[2]) / cell)), dims[2] - 1)
-            best = np.inf
-            at = -1
-            if c0 > c1:  # (beyond the grid along z: no cell to read)
-                a1 = a0 - 1
-            for a in range(a0, a1 + 1):
-                for b in range(b0, b1 + 1):
-                    row = (a * dims[1] + b) * dims[2]
-                    for j in range(first[row + c0], first[row + c1 + 1]):
-                        dx = q0 - pts[j, 0]
-                        dy = q1 - pts[j, 1]
-                        dz = q2 - pts[j, 2]
-                        d = dx * dx + dy * dy + dz * dz
-                        if d < best:
-                            best = d
-                            at = j
-            if best <= bound:
-                out[i] = math.sqrt(best)
-                index[i] = order[at]
-            else:
-                out[i] = np.inf
-                index[i] = -1
+
+def _nearest(pts, order, lo, dims, first, cell, queries, upper, out, index):
+    """For each of ``queries`` (M, 3): the distance to the nearest grid point within ``upper``
+    into ``out`` (inf beyond) and its index in the original points into ``index`` (-1)."""
+    bound = upper * upper
+    for i in range(queries.shape[0]):
+        q0, q1, q2 = queries[i, 0], queries[i, 1], queries[i, 2]
+        a0 = max(int(math.floor((q0 - upper - lo[0]) / cell)), 0)
+        a1 = min(int(math.floor((q0 + upper - lo[0]) / cell)), dims[0] - 1)
+        b0 = max(int(math.floor((q1 - upper - lo[1]) / cell)), 0)
+        b1 = min(int(math.floor((q1 + upper - lo[1]) / cell)), dims[1] - 1)
+        c0 = max(int(math.floor((q2 - upper - lo[2]) / cell)), 0)
+        c1 = min(int(math.floor((q2 + upper - lo[2]) / cell)), dims[2] - 1)
+        best = np.inf
+        at = -1
+        if c0 > c1:  # (beyond the grid along z: no cell to read)
+            a1 = a0 - 1
+        for a in range(a0, a1 + 1):
+            for b in range(b0, b1 + 1):
+                row = (a * dims[1] + b) * dims[2]
+                for j in range(first[row + c0], first[row + c1 + 1]):
+                    dx = q0 - pts[j, 0]
+                    dy = q1 - pts[j, 1]
+                    dz = q2 - pts[j, 2]
+                    d = dx * dx + dy * dy + dz * dz
+                    if d < best:
+                        best = d
+                        at = j
+        if best <= bound:
+            out[i] = math.sqrt(best)
+            index[i] = order[at]
+        else:
+            out[i] = np.inf
+            index[i] = -1
+
+
+def _compile():
+    """The compiled kernels (a namespace of numba functions), compiled now (or loaded from
+    numba's cache)."""
+    import numba
 
     def jit(fn, signature):
         try:
@@ -137,9 +148,11 @@ def _compile():
         pass
 
     k = Kernels()
-    k.build = jit(build, "Tuple((f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1]))(f8[:, ::1], f8)")
+    k.build = jit(
+        _build, "Tuple((f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1]))(f8[:, ::1], f8)"
+    )
     k.nearest = jit(
-        nearest,
+        _nearest,
         "void(f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1], f8, f8[:, ::1], f8, f8[::1], "
         "i8[::1])",
     )

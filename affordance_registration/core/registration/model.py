@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..compiled import kernels
 from ..neighbours import build_tree, nearest, nearest_distances
 from ..templates import AffordanceTemplate
 from .settings import SAMPLE_SEED
@@ -44,6 +45,7 @@ class Surface:
         self.moving_part = build_tree(self.moving_points) if jointed else None
         #: the mesh as it is, ready for ray casting (a point-cloud template has none)
         self.raycaster = raycaster(template.mesh) if template.mesh is not None else None
+        kernels()  # (loaded, or compiled, with the first surface: a warm-up's cost, not a click's)
 
     def distances(self, part: str, points: np.ndarray, upper: float) -> np.ndarray:
         """Distance (N,) from ``points`` (N, 3, the template's frame, unscaled) to the nearest
