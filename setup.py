@@ -15,6 +15,7 @@ CORE_REQUIRES = [
     "numpy==2.4.6",
     "scipy==1.17.1",
     "pykdtree==1.4.3",
+    "numba==0.68.1",
     "threadpoolctl==3.8.0",
     "trimesh==5.2.0",
     "manifold3d==3.5.4",

@@ -55,6 +55,7 @@ VENV_BUILT = {"tf2_msgs", "moveit_msgs", "vision_msgs", "object_recognition_msgs
 PIP_ONLY = {
     "viser",
     "pykdtree",
+    "numba",
     "threadpoolctl",
     "playwright",
     "small_gicp",

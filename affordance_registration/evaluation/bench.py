@@ -25,8 +25,9 @@ Viewpoint advice: hard first views (grazing, occluded, far, edge-on) wrong or un
 from the suggested view, a random one and the first one again (:mod:`.viewpoints`).
 
 Speed lines, measured click by click in turn (each click fitted by every variant before the
-next, so load changes hit them alike): the default method on 1 and 2 threads, and libraries of
-5/10/20/40 templates (the five and scaled / stretched variants of them) and of 5/40 of a family
+next, so load changes hit them alike): the default method on 1 and 2 threads and with the
+compiled kernels (:mod:`..core.compiled`) off and on, and libraries of 5/10/20/40 templates
+(the five and scaled / stretched variants of them) and of 5/40 of a family
 made differently (random-direction stretches, kept out of the prefilter's tuning, on held-out
 taskboards: seeds 7000 on), with how often the library prefilter decided. Click -> result from a
 1024 x 1024 organized cloud (``Scene()`` plus the fit), and ``Scene()`` after the PointCloud2
@@ -65,6 +66,7 @@ from .bench_rows import (
     baseline_fit,
     browser_latency_bench,
     evaluate_row,
+    kernel_rows,
     large_cloud_row,
     library_size_rows,
     real_capture_rows,
@@ -173,6 +175,10 @@ def run_bench(
     lib_jobs = _spread(jobs, 40)
     log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
     threads_rows = thread_rows(library, lib_jobs)
+    log(
+        f"compiled kernels off and on, each click both ways in turn, on {len(lib_jobs)} clicks ..."
+    )
+    kernels = kernel_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
     library_rows = library_size_rows(library, lib_jobs)
     held_out = _spread(
@@ -203,6 +209,7 @@ def run_bench(
         "library_sizes_held_out_family": held_out_library_rows,
         "large_cloud": large,
         "threads": threads_rows,
+        "kernels": kernels,
         **captures,
         "viewpoint": {
             k: {kk: vv for kk, vv in v.items() if kk != "cases"} for k, v in viewpoint.items()
@@ -486,6 +493,12 @@ def format_table(result: dict) -> str:
         lines.append(
             f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
             f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first"
+        )
+    for r in result.get("kernels", ()):
+        lines.append(
+            f"default method, {r['kernels']} kernels ({r['clicks']} clicks, paired, one "
+            f"thread): median {r['median_cpu_s'] * 1e3:.0f} ms CPU = "
+            f"{r['cpu_ratio_to_numpy']:.2f}x the numpy path's, wall {r['ratio_to_numpy']:.2f}x"
         )
     for r in result.get("library_sizes", ()):
         lines.append(

@@ -206,6 +206,11 @@ class IcpSettings(_Group):
         0.005, "d0 of the correspondence weight w = 1/(1 + d/d0) (m)", limits=(0.0005, 0.1)
     )
     reject_floor: float = knob(0.015, "an ICP rejection radius shrinks to this within a stage (m)")
+    projective: bool = knob(
+        False,
+        "with a viewpoint, a sample pairs with the target point the sensor sees in its direction "
+        "(the click's range image), not the nearest one (experimental: other numbers)",
+    )
 
 
 @dataclass(frozen=True)
