@@ -336,6 +336,20 @@ def test_the_command_writes_every_click(tmp_path, scenes):
     assert all(r["verdict"] in ("right", "wrong and accepted", "refused") for r in doc["records"])
     summary = doc["summary"]["mixed"]["development"]
     assert summary["clicks"] == len(clickable)
-    assert summary["right"] == pytest.approx(
-        np.mean([r["right"] for r in doc["records"]]), abs=1e-4
+    right = np.mean([r["right"] for r in doc["records"]])
+    assert summary["right"] == pytest.approx(right, abs=1e-4)
+    (line,) = cp.format_lines(doc["summary"])  # the bench's line
+    assert line.startswith(f"trust, mixed (development, {len(clickable)} clicks): ")
+    assert f"right {right:.0%}," in line
+
+
+def test_the_trust_row_without_the_data_says_so_in_one_line(tmp_path):
+    env = dict(os.environ, AFFORDANCE_SHARED_DATA=str(tmp_path))
+    out = subprocess.run(
+        [sys.executable, "-m", "affordance_registration.cli", "bench", "--row", "trust"],
+        capture_output=True,
+        text=True,
+        env=env,
     )
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+    assert "AFFORDANCE_SHARED_DATA" in out.stderr
