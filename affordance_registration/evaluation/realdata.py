@@ -74,6 +74,7 @@ __all__ = [
     "local_noise",
     "PrimitiveScore",
     "score_primitive",
+    "fit_record",
     "evaluate_scene",
     "SENSOR_ORIGIN",
 ]
@@ -870,25 +871,67 @@ def _annotated_kind(name: str, object_id: int) -> str | None:
         return None
 
 
+def fit_record(
+    cloud: LabelledCloud,
+    obj: LabelledObject,
+    best,
+    object_kind: str | None = None,
+    refined: bool = False,
+) -> dict:
+    """What :func:`evaluate_scene` records of the shown candidate ``best`` (a
+    ``core.registration.FitResult``) of a click on ``obj`` of ``cloud``: ``template``,
+    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason`` (these four read with
+    getattr: None where the registrar does not give them), ``T_scene_model`` (4 rows),
+    ``score`` (:meth:`PrimitiveScore.to_dict` when it is a box or cylinder with dimensions,
+    else None), ``refined_score`` (with ``refined``, where it is of ``object_kind``: the score
+    of the fit refined on the object's labelled points, :func:`.label_ceiling.refined_score`)
+    and ``error`` (a scoring that failed: its message; else None)."""
+    primitive = getattr(best, "primitive", None)
+    dims = _dims_dict(getattr(best, "dimensions", None))
+    T = np.asarray(best.T_scene_model, float)
+    rec = {
+        "template": best.template,
+        "fits": best.fits,
+        "primitive": primitive,
+        "dimensions": dims,
+        "explained": getattr(best, "explained", None),
+        "reason": getattr(best, "reason", None),
+        "T_scene_model": [[round(float(v), 6) for v in row] for row in T],
+        "score": None,
+        "refined_score": None,
+        "error": None,
+    }
+    if primitive in ("box", "cylinder") and dims:
+        try:
+            rec["score"] = score_primitive(cloud, obj, primitive, T, dims).to_dict()
+            if refined and primitive == object_kind:
+                from .label_ceiling import refined_score
+
+                rec["refined_score"] = refined_score(cloud, obj, primitive, T, dims).to_dict()
+        except (AffordanceError, KeyError, ValueError) as exc:
+            rec["error"] = f"scoring: {exc}"
+    return rec
+
+
 def evaluate_scene(
     registrar,
     scene_path: str | LabelledCloud,
     min_points: int = MIN_OBJECT_POINTS,
     refined: bool = False,
+    object_kinds: dict | None = None,
 ) -> list[dict]:
     """Click the middle of every labelled object (>= ``min_points``) of an mOSD scene with
     ``registrar`` (a :class:`core.registration.Registrar`) -- the sensor at the origin -- and
     return one record per object:
 
     ``scene``, ``kind``, ``uniform_kind`` (:func:`uniform_kind`), ``held_out``, ``object``
-    (id), ``object_kind`` (:func:`object_kind`), ``n_points``, ``click`` (3 floats),
-    ``template`` (the best candidate's), ``fits``, ``primitive``, ``dimensions``, ``explained``
-    (these three read with getattr: None where the registrar does not give them), ``score``
-    (:meth:`PrimitiveScore.to_dict` when the best candidate is a box or cylinder with
-    dimensions, else None), ``time_s`` (the fit's wall time) and ``error`` (a fit that raised:
-    its one-line message, the other fields None); with ``refined``, also ``refined_score``:
-    the score of that fit refined on the object's labelled points
-    (:func:`.label_ceiling.refined_score`) where it is of the object's kind, else None."""
+    (id), ``object_kind`` (:func:`object_kind`; for a scene that is not a learn scene, such as
+    a composite of several, ``object_kinds`` {id: kind} gives it), ``n_points``, ``click`` (3
+    floats), ``pixel`` (row, column), what :func:`fit_record` records of the best candidate
+    (``template``, ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason``,
+    ``T_scene_model``, ``score``, with ``refined`` ``refined_score``), ``time_s`` (the fit's
+    wall time) and ``error`` (a fit that raised: its one-line message, the other fields
+    None)."""
     from ..core.scene import Scene
 
     cloud = scene_path if isinstance(scene_path, LabelledCloud) else read_labelled_pcd(scene_path)
@@ -900,20 +943,27 @@ def evaluate_scene(
         kind, held, uniform = None, None, None
     records = []
     for obj in labelled_objects(cloud, min_points):
+        if object_kinds is not None:
+            what = object_kinds.get(obj.id)
+        else:
+            what = _annotated_kind(cloud.name, obj.id)
         rec = {
             "scene": cloud.name,
             "kind": kind,
             "uniform_kind": uniform,
             "held_out": held,
             "object": obj.id,
-            "object_kind": _annotated_kind(cloud.name, obj.id),
+            "object_kind": what,
             "n_points": obj.n_points,
             "click": [round(float(v), 6) for v in obj.click],
+            "pixel": list(obj.pixel) if obj.pixel is not None else None,
             "template": None,
             "fits": None,
             "primitive": None,
             "dimensions": None,
             "explained": None,
+            "reason": None,
+            "T_scene_model": None,
             "score": None,
             "refined_score": None,
             "time_s": None,
@@ -928,27 +978,6 @@ def evaluate_scene(
             records.append(rec)
             continue
         rec["time_s"] = time.perf_counter() - t0
-        primitive = getattr(best, "primitive", None)
-        dims = _dims_dict(getattr(best, "dimensions", None))
-        rec.update(
-            template=best.template,
-            fits=best.fits,
-            primitive=primitive,
-            dimensions=dims,
-            explained=getattr(best, "explained", None),
-        )
-        if primitive in ("box", "cylinder") and dims:
-            try:
-                rec["score"] = score_primitive(
-                    cloud, obj, primitive, best.T_scene_model, dims
-                ).to_dict()
-                if refined and primitive == rec["object_kind"]:
-                    from .label_ceiling import refined_score
-
-                    rec["refined_score"] = refined_score(
-                        cloud, obj, primitive, best.T_scene_model, dims
-                    ).to_dict()
-            except (AffordanceError, KeyError, ValueError) as exc:
-                rec["error"] = f"scoring: {exc}"
+        rec.update(fit_record(cloud, obj, best, what, refined))
         records.append(rec)
     return records

@@ -36,6 +36,7 @@ __all__ = [
     "simulate_stack",
     "simulate_mugs",
     "mug_mesh",
+    "mug_handle",
     "primitive_pose_error",
     "DIM_TOL",
     "POSE_TOL_M",
@@ -353,6 +354,19 @@ def mug_mesh(radius: float, length: float, wall: float, bottom: float, handle: d
     return trimesh.util.concatenate(parts)
 
 
+def mug_handle(rng: np.random.Generator, length: float) -> dict:
+    """A seeded handle for :func:`mug_mesh` on a vessel ``length`` (m) tall: reaching
+    15-30 mm past the mantle, bars 7-12 mm thick, its lower arm at 15-30% of the height and
+    the upper one 40-60% of it higher."""
+    low = rng.uniform(0.15, 0.3) * length
+    return {
+        "reach": rng.uniform(0.015, 0.03),
+        "bar": rng.uniform(0.007, 0.012),
+        "low": low,
+        "high": low + rng.uniform(0.4, 0.6) * length,
+    }
+
+
 def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
     """A seeded table with ``n_objects`` open-topped vessels (:func:`mug_mesh`: radius 30-60 mm,
     70-140 mm tall, walls of 3-6 mm, two in three with a handle), rendered as
@@ -366,15 +380,7 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
     for _ in range(n_objects):
         radius, length = rng.uniform(0.03, 0.06), rng.uniform(0.07, 0.14)
         wall, bottom = rng.uniform(0.003, 0.006), rng.uniform(0.005, 0.012)
-        handle = None
-        if rng.random() < 2 / 3:
-            low = rng.uniform(0.15, 0.3) * length
-            handle = {
-                "reach": rng.uniform(0.015, 0.03),
-                "bar": rng.uniform(0.007, 0.012),
-                "low": low,
-                "high": low + rng.uniform(0.4, 0.6) * length,
-            }
+        handle = mug_handle(rng, length) if rng.random() < 2 / 3 else None
         footprint = radius + (handle["reach"] if handle else 0.0)
         T_table_model = _place(rng, placed, footprint, (0.3, 0.15))
         if T_table_model is None:
