@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core.errors import AffordanceError, SceneError
+from ..core.meshes import primitive_distance as core_primitive_distance
 from ..core.pointfiles import check_header, header_lines
 from .simulation import CameraIntrinsics
 
@@ -74,6 +75,7 @@ __all__ = [
     "local_noise",
     "PrimitiveScore",
     "score_primitive",
+    "score_points",
     "fit_record",
     "evaluate_scene",
     "SENSOR_ORIGIN",
@@ -710,26 +712,14 @@ def box_distance(points: np.ndarray, T_scene_model: np.ndarray, dims) -> np.ndar
     """Distance (N,) of ``points`` (N, 3) to the closed surface of the box ``dims``
     ({"x", "y", "z"} full edge lengths, m) posed by ``T_scene_model`` (origin at the centre of
     its base face, +z up): zero on a face, positive inside and outside."""
-    half = _box_half(dims)
-    q = _in_model(points, T_scene_model) - np.array([0.0, 0.0, half[2]])
-    d = np.abs(q) - half
-    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
-    inside = np.minimum(d.max(axis=1), 0.0)
-    return np.abs(outside + inside)
+    return core_primitive_distance("box", dims, _in_model(points, T_scene_model))
 
 
 def cylinder_distance(points: np.ndarray, T_scene_model: np.ndarray, dims) -> np.ndarray:
     """Distance (N,) of ``points`` (N, 3) to the closed surface of the cylinder ``dims``
     ({"radius", "length"}, m) posed by ``T_scene_model`` (origin at the centre of one end
     face, +z along the axis): the mantle and both end discs."""
-    r, length = float(dims["radius"]), float(dims["length"])
-    q = _in_model(points, T_scene_model)
-    d = np.stack(
-        [np.hypot(q[:, 0], q[:, 1]) - r, np.abs(q[:, 2] - 0.5 * length) - 0.5 * length], axis=1
-    )
-    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
-    inside = np.minimum(d.max(axis=1), 0.0)
-    return np.abs(outside + inside)
+    return core_primitive_distance("cylinder", dims, _in_model(points, T_scene_model))
 
 
 def primitive_distance(
@@ -836,20 +826,34 @@ def score_primitive(
     max(6 mm, 3 x the object's local noise) (``noise`` given, or :func:`local_noise` of its
     points)."""
     flat = cloud.points.reshape(-1, 3)
-    ids = cloud.object_ids.reshape(-1)
     valid = cloud.valid.reshape(-1)
     k = obj.id if isinstance(obj, LabelledObject) else int(obj)
-    own = flat[valid & (ids == k)]
-    if len(own) == 0:
+    own = valid & (cloud.object_ids.reshape(-1) == k)
+    if not own.any():
         raise AffordanceError(f"{cloud.name}: no object {k}")
-    sigma = local_noise(own) if noise is None else float(noise)
+    return score_points(flat[valid], own[valid], kind, T_scene_model, dims, noise)
+
+
+def score_points(
+    points: np.ndarray,
+    own: np.ndarray,
+    kind: str,
+    T_scene_model: np.ndarray,
+    dims,
+    noise: float | None = None,
+) -> PrimitiveScore:
+    """The label rule of :func:`score_primitive` on a scan's finite ``points`` (N, 3), of
+    which ``own`` (N,) bool are the object's (a simulated scene's, from its truth)."""
+    points = np.asarray(points, float)
+    own = np.asarray(own, bool)
+    sigma = local_noise(points[own]) if noise is None else float(noise)
     tol = max(MIN_TOLERANCE, NOISE_SIGMAS * sigma)
-    recall = float(np.mean(primitive_distance(kind, own, T_scene_model, dims) <= tol))
-    near = valid & inside_region(kind, np.nan_to_num(flat), T_scene_model, dims, tol)
+    recall = float(np.mean(primitive_distance(kind, points[own], T_scene_model, dims) <= tol))
+    near = inside_region(kind, points, T_scene_model, dims, tol)
     on = np.zeros_like(near)
-    on[near] = primitive_distance(kind, flat[near], T_scene_model, dims) <= tol
+    on[near] = primitive_distance(kind, points[near], T_scene_model, dims) <= tol
     n_on = int(on.sum())
-    precision = float(np.mean(ids[on] == k)) if n_on else 0.0
+    precision = float(np.mean(own[on])) if n_on else 0.0
     return PrimitiveScore(recall, precision, tol, sigma, n_on)
 
 

@@ -261,8 +261,8 @@ def _place(rng, placed: list, radius: float, half) -> np.ndarray | None:
 def _rendered(rng, cam, objects: list, meshes: list):
     """The table with ``meshes`` ((mesh, T_table_mesh) each, one per object) rendered by
     ``cam`` from a seeded viewpoint 0.8-1.3 m away at 35-65 deg above the table: (organized
-    (H, W, 3), ``objects`` each given ``visible``, ``click`` and ``T_scene_model`` for its
-    ``T_table_model``)."""
+    (H, W, 3), ``objects`` each given ``mask`` (H, W) -- its pixels -- ``visible``, ``click`` and
+    ``T_scene_model`` for its ``T_table_model``)."""
     import trimesh
 
     table = trimesh.creation.box(extents=TABLE)
@@ -279,6 +279,7 @@ def _rendered(rng, cam, objects: list, meshes: list):
     organized, labels = cam.render(scene_meshes, rng)
     for i, obj in enumerate(objects, start=1):
         mask = labels == i
+        obj["mask"] = mask
         obj["visible"] = int(mask.sum())
         obj["click"] = click_in_middle(organized, mask)[0] if obj["visible"] else None
         obj["T_scene_model"] = T_cam_table @ obj.pop("T_table_model")
@@ -395,6 +396,20 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
         )
         meshes.append((mug_mesh(radius, length, wall, bottom, handle), T_table_model))
     return _rendered(rng, cam, objects, meshes)
+
+
+def label_score(organized: np.ndarray, obj: dict, result):
+    """The label rule (:func:`.realdata.score_points`) of a primitive ``result`` (a FitResult:
+    ``primitive``, ``T_scene_model``, ``dimensions``) of a simulated ``obj`` (its ``mask``),
+    in the scene ``organized`` (H, W, 3)."""
+    from .realdata import score_points
+
+    pts = organized.reshape(-1, 3)
+    valid = np.all(np.isfinite(pts), axis=1)
+    own = np.asarray(obj["mask"], bool).reshape(-1)
+    return score_points(
+        pts[valid], own[valid], result.primitive, result.T_scene_model, result.dimensions
+    )
 
 
 def primitive_pose_error(
