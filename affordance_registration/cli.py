@@ -428,7 +428,10 @@ def cmd_station(args) -> int:
     os.fchmod(fd, 0o600)
     with os.fdopen(fd, "w") as log:
         # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
-        launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
+        # (what it starts, and a node that did not end cleanly, are named in the log)
+        launcher = Launcher(
+            nodes, log=lambda m: print(m, file=log, flush=True), output=log, grace=10.0
+        )
         launcher.start()
         url = f"http://{args.host}:{args.port}/?token={secret}"
         deadline = time.monotonic() + 120
@@ -451,7 +454,10 @@ def cmd_station(args) -> int:
             f"{registrations}; node logs in {log_path}; Ctrl-C stops everything",
             flush=True,
         )
-        return launcher.wait(stop.is_set)
+        code = launcher.wait(stop.is_set)
+        if code:
+            print(f"a node did not stop cleanly; see {log_path}", file=sys.stderr, flush=True)
+        return code
 
 
 # ---------------------------------------------------------------------------- bag
