@@ -1,6 +1,7 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """affordance_registration: click-to-fit affordance template registration for ROS 2."""
+
 import os
 from glob import glob
 
@@ -60,8 +61,14 @@ def data_files():
     ]
     # the bundled operator session is what `affordance-registration demo` replays: installed at
     # the same place relative to models/ as in the source tree
-    for folder in ("launch_configs", "models", "models/meshes", "msg_docs",
-                   "test/data/session", "test/data/session/bag"):
+    for folder in (
+        "launch_configs",
+        "models",
+        "models/meshes",
+        "msg_docs",
+        "test/data/session",
+        "test/data/session/bag",
+    ):
         paths = [p for p in glob(f"{folder}/*") if os.path.isfile(p)]
         if paths:
             files.append((f"share/{PACKAGE}/{folder}", paths))
@@ -78,10 +85,15 @@ setup(
     extras_require={
         "ros": ROS_REQUIRES + INTERFACE_BUILD_REQUIRES,
         # colcon and ament_package: test/test_colcon.py builds a colcon workspace of the package
-        "test": ["pytest==9.2.0", "pytest-xdist==3.8.0", "hypothesis==6.170.17",
-        "playwright==1.65.2",
-                 "colcon-common-extensions==0.3.0", "ros-jazzy-ament-package==0.16.4",
-                 "ruff==0.17.5"],
+        "test": [
+            "pytest==9.2.0",
+            "pytest-xdist==3.8.0",
+            "hypothesis==6.170.17",
+            "playwright==1.65.2",
+            "colcon-common-extensions==0.3.0",
+            "ros-jazzy-ament-package==0.16.4",
+            "ruff==0.17.5",
+        ],
         "bench": ["small_gicp==1.0.1"],
     },
     python_requires=">=3.10",
