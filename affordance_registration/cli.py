@@ -131,8 +131,12 @@ def cmd_fit(args) -> int:
         )
         print(f"{verdict(report.candidates)}{why}")
     print(
-        f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
-        f"{'explained':>9} {'rmse mm':>7}  position (m)"
+        "ranked best first: templates by likelihood, then primitives (first only where no "
+        "template fits); p is within its group, beside 'no template fits here'"
+    )
+    print(
+        f"{'rank':>4}  {'template':<22} {'verdict':<12} {'p':>5} {'residual mm':>11} "
+        f"{'coverage':>8} {'explained':>9} {'rmse mm':>7}  position (m)"
     )
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
@@ -141,10 +145,12 @@ def cmd_fit(args) -> int:
             if c.fits is not None
             else f"{'-':>8} {'-':>9} {'-':>7}"
         )  # set aside: not judged
+        said = {True: "fits", False: "does not fit", None: "not judged"}[c.fits]
         size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(
-            f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
-            f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}"
+            f"{c.rank:>4}  {c.template:<22} {said:<12} {c.probability:>5.2f} "
+            f"{c.residual * 1000:>11.2f} {judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})"
+            f"{size}"
         )
     print(report.ambiguity.describe())
     if args.suggest_view:
