@@ -43,9 +43,11 @@ class Recorder(StandaloneHost):
     def __init__(self, engine):
         super().__init__(engine)
         self.reports = []
+        self.benign = []  # whether each report was a refusal because nothing applied
 
-    def report(self, kind, ok, message):
+    def report(self, kind, ok, message, benign=False):
         self.reports.append((kind, ok, message))
+        self.benign.append(benign)
 
 
 class SlowEngine(AffordanceEngine):
@@ -283,6 +285,11 @@ def test_wrong_inputs_are_answered_and_reported(library, scene):
     messages = [m for _, ok, m in s.reports if not ok]
     assert any("twist ignored: no object selected" in m for m in messages)
     assert any("NaN/inf" in m for m in messages)
+    # accept with nothing selected does not apply now (a warning for the node), a far click or
+    # an unknown action is an error
+    benign = {m: b for (_, ok, m), b in zip(s.reports, s.host.benign) if not ok}
+    assert benign["no object selected: click an object first"] is True
+    assert not any(b for m, b in benign.items() if "unknown action" in m or "cm from" in m)
     # a storm of calls while a fit is queued: every one answered, in order
     s.stream.click(scene.objects[0].click)
     answers = []

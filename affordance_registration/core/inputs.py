@@ -139,8 +139,10 @@ class OperatorHost(Protocol):
     ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
     ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
     s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
-    cannot); ``report(kind, success, message)`` hears every outcome (``kind`` names the input,
-    for throttled logging); ``changed()`` is called after every handled input; ``busy(text)``
+    cannot); ``report(kind, success, message, benign)`` hears every outcome (``kind`` names the
+    input, for throttled logging; ``benign``: a refusal because the action does not apply now --
+    nothing selected, nothing to undo -- which is the operator's to see, not an error);
+    ``changed()`` is called after every handled input; ``busy(text)``
     when a click's fit starts. ``persist(explicit)`` writes the registrations: with ``True`` for
     ``save``, and with ``False`` right after any input that changed them (accept, undo, a Joy
     accept...), *before* that input is replied to, so what is acknowledged is durable; it
@@ -154,7 +156,7 @@ class OperatorHost(Protocol):
         self, point: np.ndarray, frame: str, stamp: float | None = None
     ) -> np.ndarray: ...
 
-    def report(self, kind: str, ok: bool, message: str) -> None: ...
+    def report(self, kind: str, ok: bool, message: str, benign: bool = False) -> None: ...
 
     def changed(self) -> None: ...
 
@@ -179,7 +181,7 @@ class StandaloneHost:
     ) -> np.ndarray:
         return point
 
-    def report(self, kind: str, ok: bool, message: str) -> None:
+    def report(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
         pass
 
     def changed(self) -> None:

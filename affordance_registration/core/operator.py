@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .corrections import R_VIEW_SPACENAV
-from .errors import AffordanceError
+from .errors import AffordanceError, EngineStateError
 from .inputs import (
     INDEPENDENT,
     Action,
@@ -367,8 +367,11 @@ class OperatorStream:
             item = self._queue.popleft()
             self._busy = _describe(item, len(self._queue))
         registered = self.engine.state.registered
+        benign = False
         try:
             ok, message = self._handle(item)
+        except EngineStateError as exc:  # the action does not apply now (nothing selected...)
+            ok, message, benign = False, str(exc), True
         except AffordanceError as exc:
             ok, message = False, str(exc)
         except Exception as exc:  # a bug must not kill the worker or leave a caller waiting
@@ -382,7 +385,7 @@ class OperatorStream:
             except Exception as exc:
                 ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
-            self.host.report(_kind(item), ok, message)
+            self.host.report(_kind(item), ok, message, benign=benign)
         if item.reply is not None:
             item.reply(ok, message)
         with self._cv:

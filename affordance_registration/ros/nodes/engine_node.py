@@ -556,25 +556,30 @@ class EngineNode(Node):
         """A long step started: the status says so at once."""
         self.pub_status.publish(String(data=json.dumps(self.status())))
 
-    def report(self, kind: str, ok: bool, message: str) -> None:
+    def report(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
         """An outcome of the stream: successes are logged as info; failures as errors, or as
-        warnings throttled per kind for inputs that come in streams."""
+        warnings throttled per kind for inputs that come in streams; a ``benign`` refusal (the
+        action does not apply now: nothing selected, nothing to undo) as a warning."""
         message = bounded(message, MAX_MESSAGE)
         if ok:
             self._last_message = message
             self.get_logger().info(message)
         else:
             self._error(
-                kind, f"{kind.replace('_', ' ')}: {message}" if kind in ACTIONS else message
+                kind,
+                f"{kind.replace('_', ' ')}: {message}" if kind in ACTIONS else message,
+                benign,
             )
 
-    def _error(self, kind: str, msg: str) -> None:
-        """Log an error; for inputs that come in streams (``STREAMED`` kinds), at most one line
-        per kind every THROTTLE_S, as a warning."""
+    def _error(self, kind: str, msg: str, benign: bool = False) -> None:
+        """Log an error; a ``benign`` refusal as a warning; for inputs that come in streams
+        (``STREAMED`` kinds), at most one line per kind every THROTTLE_S, as a warning."""
         msg = bounded(msg, MAX_MESSAGE)
         self._last_error = msg
         self.changed()
-        if kind in STREAMED:
+        if benign:
+            self.get_logger().warning(msg)
+        elif kind in STREAMED:
             if self._warnings.due(kind):
                 self.get_logger().warning(msg)
         else:
