@@ -18,6 +18,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import os
 import textwrap
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -41,7 +42,23 @@ __all__ = [
     "operator_settings",
     "params_file",
     "fit_table",
+    "registrations_path",
+    "REGISTRATIONS_NAME",
 ]
+
+#: the registrations file's name in ROS_HOME when ``registrations_file`` is ''
+REGISTRATIONS_NAME = "affordance_registrations.yaml"
+
+
+def registrations_path(value: str) -> str:
+    """Where ``registrations_file`` says the registrations are: ``''`` is
+    :data:`REGISTRATIONS_NAME` in ROS_HOME (``$ROS_HOME``, else ``~/.ros``, where a ROS node keeps
+    its files), never the folder the node was started from."""
+    if value:
+        return value
+    home = os.environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+    return os.path.join(home, REGISTRATIONS_NAME)
+
 
 # name: (default, description, (min, max) or choices or None)
 NODE_PARAMETERS = {
@@ -106,10 +123,11 @@ NODE_PARAMETERS = {
         None,
     ),
     "registrations_file": (
-        "affordance_registrations.yaml",
+        "",
         "the session's registrations (YAML): "
         "~/save writes it, autosave rewrites it after every change, resume "
-        "reads it at start",
+        "reads it at start ('' = affordance_registrations.yaml in ROS_HOME, ~/.ros by default; "
+        "a relative path is taken from the working folder)",
         None,
     ),
     "resume": (

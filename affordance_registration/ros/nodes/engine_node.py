@@ -98,7 +98,7 @@ class EngineNode(Node):
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
         self._set_joint_steps(self._p)
-        self._store = RegistrationStore(self._p["registrations_file"])
+        self._store = RegistrationStore(params.registrations_path(self._p["registrations_file"]))
         self._unsaved = False  # registrations changed and not written (autosave off)
         self._resume()
         self.frames = StaticFrames(self._p["static_transforms"])
@@ -272,7 +272,7 @@ class EngineNode(Node):
             "registrations_file" in changed
             and new["registrations_file"] != self._p["registrations_file"]
         ):
-            self._store = RegistrationStore(new["registrations_file"])
+            self._store = RegistrationStore(params.registrations_path(new["registrations_file"]))
             self._unsaved = bool(self.engine.state.registered)
         if changed & {"sensor_frame", "sensor_origin", "static_transforms"}:
             self._converted = -1  # the next fit converts the cloud again
