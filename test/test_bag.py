@@ -493,3 +493,12 @@ def test_demo_verdict_names_what_failed(library):
     )
     colours = {tuple(c) for c in picture.reshape(-1, 3)}
     assert FAIL_COLOUR in colours and PASS_COLOUR in colours
+
+
+def test_a_session_folder_names_the_bag_inside_it():
+    """The README's session (test/data/session) is a folder holding the bag and its truth:
+    given to `bag info`, the one line names the bag to give."""
+    result = _cli(["bag", "info", SESSION], ["bag", "info", os.path.join(SESSION, "bag")])
+    line = _one_line_error(result[0], SESSION, "not a bag but a folder holding one")
+    assert line.endswith(os.path.join(SESSION, "bag")), line
+    assert result[1][0] == 0 and "messages" in result[1][1], result[1]
