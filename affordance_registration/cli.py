@@ -327,14 +327,15 @@ def cmd_station(args) -> int:
 
     if args.demo and args.scene:
         raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
-    scene = None
+    scene = origin = None
     if args.scene:  # the file is checked here, so a bad one is one line before any node starts
         from .ros.station.scene import read_scan
 
         scene = os.path.abspath(args.scene)
-        _, warning = read_scan(scene, args.units)
-        if warning:
-            print(f"affordance-registration: warning: {warning}", file=sys.stderr)
+        scan = read_scan(scene, args.units)
+        if scan.warning:
+            print(f"affordance-registration: warning: {scan.warning}", file=sys.stderr)
+        origin = "[" + ", ".join(f"{float(v)!r}" for v in scan.sensor_origin) + "]"
     check_port(args.host, args.port)
     if not args.demo and not scene:
         from .ros.station.node import main as station_main
@@ -371,7 +372,7 @@ def cmd_station(args) -> int:
     }
     if scene:
         launch_name, log_name = "station_scene.launch.yaml", "station_scene.log"
-        given.update(scene=scene, units=args.units)
+        given.update(scene=scene, units=args.units, sensor_origin=origin)
         what = f"an engine node and the scan {scene} (in {args.units})"
     else:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"

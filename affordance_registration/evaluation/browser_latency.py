@@ -43,6 +43,7 @@ __all__ = [
     "chromium_missing",
     "measure_browser_latency",
     "on_canvas",
+    "open_details",
     "page_pixel",
     "station_command",
 ]
@@ -276,6 +277,17 @@ def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
         ) from None
 
 
+def open_details(page) -> None:
+    """Open the panel's Details folder: the engine's state, the shown candidate's full label,
+    the cloud and the last reply (the headline above it says one sentence)."""
+    import re
+
+    from ..ros.station.page import DETAILS
+
+    page.get_by_text(DETAILS, exact=True).first.click()
+    page.get_by_text(re.compile(r"^Engine")).first.wait_for(state="visible")
+
+
 def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
     """Wait until the station has logged drawing object ``drawn`` (0: none yet) and then the
     page has drawn no frame for QUIET_MS: the next click lands on a page at rest, as an
@@ -379,6 +391,7 @@ def measure_browser_latency(
                 page = ctx.new_page()
                 page.set_default_timeout(120_000)
                 page.goto(f"http://127.0.0.1:{port}/?token={secret}")
+                open_details(page)
                 _wait_text(page, f"Engine: {NS} — idle")
                 k, T_view, box = 0, None, None
                 for seed in seeds:

@@ -5,6 +5,7 @@ the node so that the command line checks them before it starts one."""
 
 from __future__ import annotations
 
+import math
 import socket
 
 from ...core.errors import AffordanceError
@@ -27,11 +28,22 @@ PARAMETERS = {
     ),
     "display_points": (60000, "most cloud points sent to the page (the cloud is thinned)"),
     "point_size": (0.003, "m, drawn size of a cloud point"),
-    "color_by": ("auto", "auto (intensity when the cloud has it, else depth) | depth | intensity"),
+    "color_by": (
+        "auto",
+        "auto (the scan's own colours -- an rgb or rgba field -- when it has them, else its "
+        "intensity, else depth) | rgb | intensity | depth; the page's 'Depth colours' toggle "
+        "switches to depth colours and back",
+    ),
     "up": (
         "auto",
-        "the world's up axis on the page: auto (-y for optical frames, else +z) | "
-        "+x | -x | +y | -y | +z | -z",
+        "the world's up axis on the page: auto (an optical frame: -y; else the normal of the "
+        "scan's dominant plane where the sensor sees it at a slant, else +z; then the support "
+        "plane under the first click) | +x | -x | +y | -y | +z | -z",
+    ),
+    "sensor_origin": (
+        [0.0, 0.0, 0.0],
+        "m, where the scans were taken from in the cloud's frame (a PCD's VIEWPOINT): the first "
+        "view looks from there",
     ),
     "fov_deg": (60.0, "vertical field of view of the page's camera"),
     "view_rate": (10.0, "Hz, highest rate of view_pose messages"),
@@ -82,8 +94,11 @@ def check_parameters(p: dict) -> str:
     """'' when the station's parameters are usable, else what is wrong."""
     if p["up"] != "auto" and p["up"] not in UP_AXES:
         return f"up must be auto or one of {', '.join(UP_AXES)}, got {p['up']!r}"
-    if p["color_by"] not in ("auto", "depth", "intensity"):
-        return f"color_by must be auto, depth or intensity, got {p['color_by']!r}"
+    if p["color_by"] not in ("auto", "rgb", "depth", "intensity"):
+        return f"color_by must be auto, rgb, depth or intensity, got {p['color_by']!r}"
+    origin = p["sensor_origin"]
+    if len(origin) != 3 or not all(math.isfinite(float(v)) for v in origin):
+        return f"sensor_origin must be 3 finite numbers (m), got {list(origin)!r}"
     if not 1000 <= int(p["display_points"]) <= 5_000_000:
         return f"display_points must be within 1000-5000000, got {p['display_points']}"
     for name, lo, hi in (
