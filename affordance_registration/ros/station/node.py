@@ -466,6 +466,7 @@ class StationNode(Node):
         elif phase == "end" and started:
             self.pub_feedback.publish(feedback_message(F.MOUSE_UP, T, frame, self._drag_id, stamp))
             self._note("correction sent: refitting from the released pose")
+            self.get_logger().info("gizmo released: correction sent")
         elif phase == "end":
             self.get_logger().info("gizmo pressed without moving it: no correction")
 

@@ -160,11 +160,12 @@ class StationPage:
             hint="ask whatever moves the sensor to scan from the suggested view",
         )
         self.move_sensor.on_click(lambda event: self.h.move_sensor())
-        # a primitive's dimensions (m), shown while the shown candidate is one
+        # a primitive's dimensions (m), shown while the shown candidate is one; to 0.1 mm (the
+        # page keeps as many decimals as the step has: at 0.001 a typed 0.0669 became 0.066)
         self.dimensions = {}
         for name in DIMENSIONS:
             box = gui.add_number(
-                f"{name} (m)", initial_value=0.1, min=0.001, max=100.0, step=0.001, visible=False
+                f"{name} (m)", initial_value=0.1, min=0.001, max=100.0, step=0.0001, visible=False
             )
             box.on_update(lambda event, name=name: self._on_dimension(event, name))
             self.dimensions[name] = box
