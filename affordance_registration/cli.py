@@ -208,10 +208,20 @@ def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
 
     log = lambda *a: print(*a, file=sys.stderr, flush=True)
-    if args.row:  # one row alone (its own seeds): for its numbers
+    if args.row == "viewpoint":  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
 
         print("\n".join(format_row(viewpoint_row(log=log))))
+        return 0
+    if args.row == "browser-operator":
+        from .evaluation.bench_rows import browser_operator_bench
+        from .evaluation.browser_operator import format_row
+
+        seeds = range(1000, 1001 if args.quick else 1002)
+        row = browser_operator_bench(seeds, 2 if args.quick else 6, log)
+        if row is None:
+            raise AffordanceError("the browser operator row needs the ROS packages")
+        print("\n".join(format_row(row)))
         return 0
     result = run_bench(
         quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks, out=args.out, log=log
@@ -657,7 +667,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=path_arg, default="bench_output/bench.json", help="JSON output path"
     )
-    p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
+    p.add_argument(
+        "--row",
+        choices=("viewpoint", "browser-operator"),
+        help="run that row alone and print it (browser-operator: the scripted operator in the "
+        "browser, on 2 simulated taskboards and 6 shared real scans; --quick: 1 and 2)",
+    )
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser(

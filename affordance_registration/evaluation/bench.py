@@ -34,7 +34,8 @@ conversion. Over ROS, the live engine node in its own process against the same f
 (:mod:`.ros_latency`): click -> status over the in-process fit, status -> markers, markers
 message size, idle engine CPU; and the browser station's click -> label in headless Chromium
 (:mod:`.browser_latency`; left out, with its reason, where Playwright or the browser is
-missing).
+missing), and the operator's effort in the browser: a scripted operator registering every object
+of simulated taskboards and shared real scans through the page (:mod:`.browser_operator`).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from .bench_rows import (
     articulated_rows,
     baseline_fit,
     browser_latency_bench,
+    browser_operator_bench,
     evaluate_row,
     large_cloud_row,
     library_size_rows,
@@ -70,6 +72,7 @@ from .bench_rows import (
     thread_rows,
     variant_library,
 )
+from .browser_operator import format_row as operator_lines
 from .realdata import DATA_ENV
 from .simulation import POSE_TOL_M, POSE_TOL_RAD, sized_library
 from .viewpoints import REPORT_SEEDS, TUNING_SEEDS, format_row, viewpoint_row
@@ -200,6 +203,9 @@ def run_bench(
     browser = browser_latency_bench(range(1000, 1000 + n_scenes), 3 if quick else 10, log)
     if browser:
         result["browser_latency"] = browser
+    operator = browser_operator_bench(range(1000, 1001 if quick else 1002), 2 if quick else 6, log)
+    if operator:
+        result["browser_operator"] = operator
     if out:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         with open(out, "w", encoding="utf-8") as handle:
@@ -420,6 +426,7 @@ def format_table(result: dict) -> str:
             f"(largest {lat['markers_bytes_max'] / 1000:.0f} kB); idle engine "
             f"{lat['idle_engine_cores']:.3f} cores"
         )
+    lines += operator_lines(result.get("browser_operator"))
     web = result.get("browser_latency")
     if web and web["clicks"]:
         lines.append(
