@@ -9,19 +9,20 @@ PY     := $(VENV)/bin/python
 # is spent waiting for nodes, browsers and events, which a third worker fills.
 TEST_WORKERS ?= 3
 STAMP  := $(VENV)/.installed
-TF2_STAMP := $(VENV)/.tf2_msgs
-TF2_SOURCES := affordance_registration/ros/standins/interfaces/build.py \
-	$(wildcard affordance_registration/ros/standins/interfaces/tf2_msgs/msg/*.msg)
+INTERFACES_STAMP := $(VENV)/.interfaces
+INTERFACES_SOURCES := affordance_registration/ros/standins/interfaces/build.py \
+	$(wildcard affordance_registration/ros/standins/interfaces/*/msg/*.msg)
 
 # ROS 2 discovery never leaves this machine (Fast DDS multicasts on the network otherwise).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup syslibs browser demo test bench models clean
 
-setup: syslibs $(STAMP) $(TF2_STAMP)
+setup: syslibs $(STAMP) $(INTERFACES_STAMP)
 
 # open3d's wheel links against libusb-1.0; install it when missing (root) or say what to do.
-# g++ builds tf2_msgs (below); without it setup goes on and the node has no TF output.
+# g++ builds tf2_msgs and the other interfaces (below); without it setup goes on and the node has
+# no TF output.
 syslibs:
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
 	  if [ "$$(id -u)" = "0" ]; then \
@@ -62,10 +63,11 @@ $(STAMP): setup.py
 	$(PY) -m pip install -q --disable-pip-version-check -e ".[ros,test]"
 	@touch $(STAMP)
 
-# ROS 2 Jazzy's wheels have no tf2_msgs: generate and compile it into the venv (a few seconds;
-# again only when the venv was reinstalled or the definitions changed). Where that fails, one
-# line says why and setup goes on: the engine node then runs without TF output.
-$(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
+# ROS 2 Jazzy's wheels have no tf2_msgs, moveit_msgs or vision_msgs: generate and compile the
+# messages the package uses into the venv (under a minute; again only when the venv was
+# reinstalled or the definitions changed). Where that fails, one line says why and setup goes on:
+# the engine node then runs without TF output, collision objects and detections.
+$(INTERFACES_STAMP): $(STAMP) $(INTERFACES_SOURCES)
 	@$(PY) -m affordance_registration.ros.standins.interfaces.build --prefix $(VENV) && touch $@ || true
 
 demo: setup

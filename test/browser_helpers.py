@@ -13,6 +13,7 @@ import socket
 import sys
 import tempfile
 import time
+from html.parser import HTMLParser
 
 from affordance_registration.evaluation.browser_latency import (  # noqa: E402,F401
     CHROMIUM,
@@ -25,6 +26,34 @@ from affordance_registration.evaluation.browser_latency import (  # noqa: E402,F
     station_command,
 )
 from affordance_registration.evaluation.browser_latency import CHROMIUM_ARGS as ARGS  # noqa: E402
+
+
+class _PanelHTML(HTMLParser):
+    """The tags and the text of a rendered panel."""
+
+    def __init__(self):
+        super().__init__(convert_charrefs=True)
+        self.tags: list[str] = []
+        self.text: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+
+    def handle_data(self, data):
+        self.text.append(data)
+
+
+def rendered_panel(markdown: str) -> tuple[set[str], str]:
+    """(the HTML tags, the text with runs of white space as one space) of the station panel's
+    ``markdown`` as a CommonMark renderer that passes raw HTML through (as viser's does) makes
+    them: markdown-it, viser's dependency rich's own, with GFM's tables and strikethrough."""
+    from markdown_it import MarkdownIt
+
+    html = MarkdownIt("commonmark", {"html": True}).enable(["table", "strikethrough"])
+    parsed = _PanelHTML()
+    parsed.feed(html.render(markdown))
+    parsed.close()
+    return set(parsed.tags), " ".join("".join(parsed.text).split())
 
 
 def free_port() -> int:

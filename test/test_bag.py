@@ -502,3 +502,64 @@ def test_a_session_folder_names_the_bag_inside_it():
     line = _one_line_error(result[0], SESSION, "not a bag but a folder holding one")
     assert line.endswith(os.path.join(SESSION, "bag")), line
     assert result[1][0] == 0 and "messages" in result[1][1], result[1]
+
+
+def _bomb_bag(folder, unpacked: int, promised: int | None = None) -> int:
+    """A bag (MCAP, zstd chunks) of one String message whose chunk is a zstd bomb: the chunk's
+    data unpacks to ``unpacked`` bytes of zeros; its record promises ``promised`` (default:
+    the true size of the message's chunk). Returns the bag file's size."""
+    from rosbags.rosbag2 import Writer, storage_mcap
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+    from rosbags.typesys import Stores, get_typestore
+
+    zstd = storage_mcap.zstd
+    bomb = zstd.ZstdCompressor()
+    block = bytes(1 << 26)
+    packed = [bomb.compress(block) for _ in range(unpacked >> 26)]
+    packed.append(
+        bomb.compress(bytes(unpacked & ((1 << 26) - 1)), zstd.ZstdCompressor.FLUSH_FRAME)
+    )
+    packed = b"".join(packed)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    writer = Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    writer.open()
+    mcap = writer.storage
+    conn = writer.add_connection("/status", "std_msgs/msg/String", typestore=store)
+    msg = store.types["std_msgs/msg/String"](data="x")
+    writer.write(conn, 1, store.serialize_cdr(msg, conn.msgtype))
+    mcap.compressor = lambda data: packed  # the chunk's data: the bomb
+    if promised is not None:
+        real_tell = mcap.chunk.bio.tell
+        mcap.chunk.bio.tell = lambda: promised if real_tell() else 0
+    writer.close()
+    # without its summary (as a bag cut short has none): a reader scans the chunks
+    (mcap,) = folder.glob("*.mcap")
+    data, at = mcap.read_bytes(), 8
+    while data[at] != 0x0F:  # up to the DataEnd record
+        at += 9 + int.from_bytes(data[at + 1 : at + 9], "little")
+    at += 9 + int.from_bytes(data[at + 1 : at + 9], "little")
+    footer = b"\x02" + (20).to_bytes(8, "little") + bytes(20)
+    mcap.write_bytes(data[:at] + footer + b"\x89MCAP0\r\n")
+    return sum(p.stat().st_size for p in folder.iterdir())
+
+
+def test_a_compressed_bag_bomb_is_refused_in_one_line_within_its_bound(tmp_path):
+    """`bag info` on a bag of a few hundred kB whose MCAP chunk is a zstd bomb (2.6 GB of zeros;
+    rosbags unpacked it whole): refused in one line, within a 1 GB memory limit, whether the
+    chunk's record promises its true size (the data unpacks to more) or the bomb's (more than
+    MAX_UNPACKED_BYTES)."""
+    from test_hardening import one_line, run_cli_all
+
+    from affordance_registration.ros.standins.bag import MAX_UNPACKED_BYTES
+
+    honest, claims = tmp_path / "honest", tmp_path / "claims"
+    size = _bomb_bag(honest, 2_600_000_000)
+    assert size < 400_000, size
+    _bomb_bag(claims, 2_600_000_000, promised=2_600_000_000)
+    results = run_cli_all(
+        ("bag", "info", str(honest)), ("bag", "info", str(claims)), limit_gb=1.0, timeout=120
+    )
+    lines = [one_line(code, err) for code, err, _ in results]
+    assert str(honest) in lines[0] and "unpacks to more than the" in lines[0], lines[0]
+    assert f"more than the {MAX_UNPACKED_BYTES:,}" in lines[1], lines[1]

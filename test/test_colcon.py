@@ -219,6 +219,8 @@ def test_every_console_script_is_installed_for_ros2_run(workspaces, kind):
         assert path.is_file() and os.access(path, os.X_OK), path
     out = ws.run([ws.lib / "affordance-registration", "--help"])
     assert out.returncode == 0 and "station" in out.stdout, out.stderr
+    # `ros2 launch affordance_registration engine.launch.py` finds it in the share folder
+    assert (ws.share / "launch" / "engine.launch.py").is_file()
     # the installed code runs, not this checkout's
     where = ws.run(
         [VENV_BIN / "python", "-c", "import affordance_registration as a; print(a.__file__)"]

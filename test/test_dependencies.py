@@ -27,6 +27,7 @@ ROSDEP = {
     "open3d": "python3-open3d-pip",
     "hid": "python3-hidapi",
     "rosbags": "python3-rosbags-pip",
+    "lz4": "python3-lz4",
     "PIL": "python3-pil",
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
@@ -42,11 +43,19 @@ ROS_PACKAGES = {
     "std_srvs",
     "tf2_msgs",
     "builtin_interfaces",
+    "shape_msgs",
+    "moveit_msgs",
+    "vision_msgs",
+    "object_recognition_msgs",
 }
+#: built into the venv by ros/standins/interfaces/build.py (no wheel); a ROS install has them
+#: (object_recognition_msgs is nested by moveit_msgs, which brings it there)
+VENV_BUILT = {"tf2_msgs", "moveit_msgs", "vision_msgs", "object_recognition_msgs"}
 #: imported, no rosdep key: named in package.xml's pip-only comments
 PIP_ONLY = {
     "viser",
     "pykdtree",
+    "numba",
     "threadpoolctl",
     "playwright",
     "small_gicp",
@@ -54,6 +63,7 @@ PIP_ONLY = {
     "ament_package",
     "websockets",
     "msgspec",
+    "markdown_it",
 }
 #: imported only by ros/standins/interfaces/build.py, which builds tf2_msgs into a venv (a ROS
 #: install has tf2_msgs): setup.py's INTERFACE_BUILD_REQUIRES, no package.xml entry
@@ -75,7 +85,15 @@ NOT_IMPORTED = {
     "the venv build makes",
 }
 #: imported when present, else done without: module -> its rosdep key
-OPTIONAL = {"tf2_ros": "tf2_ros_py"}  # ros/glue/tf.py: tf2_ros' buffer, else /tf read directly
+OPTIONAL = {
+    "tf2_ros": "tf2_ros_py",  # ros/glue/tf.py: tf2_ros' buffer, else /tf read directly
+    # ros/standins/interactive.py: its server, else the package's own
+    "interactive_markers": "interactive_markers",
+    # launch/engine.launch.py: `ros2 launch` in a ROS install (the pip-only install starts the
+    # YAML launch files with `affordance-registration launch`)
+    "launch": "launch",
+    "launch_ros": "launch_ros",
+}
 
 
 def _imports(folder: Path) -> dict[str, set[str]]:
@@ -175,6 +193,7 @@ def test_every_import_is_declared_in_package_xml():
     problems = []
     for folder, declared, kind in (
         (ROOT / PACKAGE_DIR, run_deps, "exec_depend"),
+        (ROOT / "launch", run_deps, "exec_depend"),
         (ROOT / "test", test_deps, "test_depend"),
     ):
         for module, files in sorted(_imports(folder).items()):
@@ -203,7 +222,11 @@ def test_every_import_is_declared_in_package_xml():
 
 def test_every_package_xml_dependency_is_used_or_explained():
     deps, _ = _package_xml()
-    imported = set(_imports(ROOT / PACKAGE_DIR)) | set(_imports(ROOT / "test"))
+    imported = (
+        set(_imports(ROOT / PACKAGE_DIR))
+        | set(_imports(ROOT / "launch"))
+        | set(_imports(ROOT / "test"))
+    )
     keys = {ROSDEP.get(m, OPTIONAL.get(m, m)) for m in imported}
     declared = set().union(*deps.values())
     unexplained = sorted(declared - keys - set(NOT_IMPORTED))
@@ -212,7 +235,8 @@ def test_every_package_xml_dependency_is_used_or_explained():
 
 def test_every_import_is_installed_by_setup_py():
     """Each imported distribution is a setup.py requirement or comes with one (as installed
-    here); tf2_msgs is built into the venv by ros/standins/interfaces/build.py."""
+    here); tf2_msgs, moveit_msgs and vision_msgs are built into the venv by
+    ros/standins/interfaces/build.py."""
     reqs = _setup_requirements()
     named = {canonicalize_name(r.name) for r in reqs}
     closure = _closure(reqs)
@@ -221,8 +245,8 @@ def test_every_import_is_installed_by_setup_py():
     for module in sorted(set(_imports(ROOT / PACKAGE_DIR)) | set(_imports(ROOT / "test"))):
         if module in OPTIONAL:
             continue
-        if module == "tf2_msgs":
-            assert (ROOT / PACKAGE_DIR / "ros" / "standins" / "interfaces" / "build.py").is_file()
+        if module in VENV_BUILT:
+            assert (ROOT / PACKAGE_DIR / "ros" / "standins" / "interfaces" / module).is_dir()
             continue
         names = {canonicalize_name(d) for d in dists.get(module, [])}
         if not names:

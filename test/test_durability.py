@@ -6,10 +6,11 @@ started again on the same registrations file, a real client here (topics and ser
 import os
 import re
 import signal
+import stat
+import threading
 
 import numpy as np
 import pytest
-import yaml
 from geometry_msgs.msg import PointStamped
 from ros_helpers import LATCHED, Client, engine_process
 from sensor_msgs.msg import PointCloud2
@@ -17,7 +18,13 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from affordance_registration.core.engine import Registration, load_registrations
-from affordance_registration.core.persistence import RegistrationStore
+from affordance_registration.core.errors import AffordanceError
+from affordance_registration.core.files import write_atomically
+from affordance_registration.core.persistence import (
+    RegistrationStore,
+    lock_path,
+    registrations_document,
+)
 from affordance_registration.evaluation.simulation import simulate_taskboard
 from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
 
@@ -224,7 +231,132 @@ def test_the_store_backs_up_only_what_it_did_not_write(tmp_path, library):
     store = RegistrationStore(str(path))
     assert store.write((), "f") == (str(path), None)
     assert store.write((), "f")[1] is None  # its own file: no backup
-    path.write_text(yaml.safe_dump({"format": "x"}))  # someone else wrote it meanwhile
+    theirs = registrations_document((), "other")  # another program wrote one meanwhile
+    path.write_text(theirs)
+    os.chmod(path, 0o640)
     _, backup = store.write((), "f")
-    assert backup and yaml.safe_load(open(backup)) == {"format": "x"}
+    # the backup keeps what it holds and who may read it
+    assert backup and open(backup).read() == theirs
+    assert stat.S_IMODE(os.stat(backup).st_mode) == 0o640
     assert len(load_registrations(str(path))) == 0
+
+
+def _folder(path) -> dict:
+    """Every entry of a folder: name -> (mode, size, bytes of a regular file)."""
+    out = {}
+    for entry in sorted(os.listdir(path)):
+        st = os.lstat(os.path.join(path, entry))
+        data = open(os.path.join(path, entry), "rb").read() if stat.S_ISREG(st.st_mode) else None
+        out[entry] = (st.st_mode, st.st_size, data)
+    return out
+
+
+def test_a_write_target_that_is_not_a_registrations_file_is_refused_and_kept(tmp_path):
+    """What the store writes over is registrations or nothing: another file there (a secret,
+    a config) is neither replaced nor copied into a backup."""
+    path = tmp_path / "r.yaml"
+    store = RegistrationStore(str(path))
+    for text in ("password: hunter2\n", "#!/bin/sh\nrm -rf /\n", "\x00\x01binary"):
+        path.write_text(text)
+        os.chmod(path, 0o600)
+        before = _folder(tmp_path)
+        with pytest.raises(AffordanceError, match="not a registrations file.*not replaced"):
+            store.write((), "f")
+        assert _folder(tmp_path) == before
+
+
+def test_a_link_planted_between_saves_is_never_followed(tmp_path):
+    """A symbolic link put where the registrations file was, pointing at a 0600 file
+    elsewhere: the save is refused, the file it points to is neither overwritten nor copied
+    into a backup, and the link stays."""
+    path, elsewhere = tmp_path / "r.yaml", tmp_path / "private"
+    elsewhere.mkdir()
+    secret = elsewhere / "id_ed25519"
+    secret.write_text(registrations_document((), "a file the engine may read and write"))
+    os.chmod(secret, 0o600)
+    store = RegistrationStore(str(path))
+    store.write((), "f")
+    path.unlink()
+    path.symlink_to(secret)
+    before, kept = _folder(tmp_path), secret.read_bytes()
+    with pytest.raises(AffordanceError, match="symbolic link"):
+        store.write((), "f")
+    assert _folder(tmp_path) == before and secret.read_bytes() == kept
+    # and through the one function every saved file goes through
+    with pytest.raises(OSError, match="symbolic link"):
+        write_atomically({str(path): "x"})
+    assert secret.read_bytes() == kept and path.is_symlink()
+
+
+def test_a_fifo_where_the_file_was_is_refused_without_blocking(tmp_path):
+    """The file replaced by a FIFO: the save answers (refused, naming it) instead of waiting
+    for ever for a writer on the FIFO."""
+    path = tmp_path / "r.yaml"
+    store = RegistrationStore(str(path))
+    store.write((), "f")
+    path.unlink()
+    os.mkfifo(path)
+    outcome = []
+
+    def save():
+        try:
+            store.write((), "f")
+            outcome.append("written")
+        except AffordanceError as exc:
+            outcome.append(str(exc))
+
+    worker = threading.Thread(target=save, daemon=True)
+    worker.start()
+    worker.join(timeout=60)  # a guard against hanging the suite, not a speed bound
+    assert outcome and "a FIFO" in outcome[0], outcome or "the save blocked on the FIFO"
+    assert stat.S_ISFIFO(os.lstat(path).st_mode)
+
+
+def test_one_store_per_file_the_second_is_refused_naming_the_holder(tmp_path):
+    path = tmp_path / "r.yaml"
+    first = RegistrationStore(str(path), holder="the engine /left")
+    with pytest.raises(AffordanceError, match=r"in use by the engine /left \(pid \d+"):
+        RegistrationStore(str(path), holder="the engine /right")
+    first.write((), "f")
+    assert stat.S_IMODE(os.stat(lock_path(str(path))).st_mode) == 0o600
+    first.close()  # a clean end removes the lock file
+    assert not os.path.exists(lock_path(str(path)))
+    second = RegistrationStore(str(path), holder="the engine /right")
+    second.write((), "g")
+    del second  # a store that dies without closing leaves its file unlocked: taken over
+    RegistrationStore(str(path), holder="the engine /third").write((), "h")
+
+
+def test_a_second_engine_on_a_locked_file_refuses_to_start_in_one_line(engines, sim):
+    """Two engines on one registrations file would each acknowledge accepts that only one file
+    keeps: the second refuses to start, in one line naming the first."""
+    first = engines("first")
+    first.started()
+    second = engine_process(first.tmp, name="second")
+    try:
+        assert second.proc.wait(timeout=120) == 2
+        out = second.output()
+        lines = [line for line in out.splitlines() if "in use by" in line]
+        assert len(lines) == 1 and "the engine /affordance_engine (pid" in lines[0], out
+        assert "Traceback" not in out
+    finally:
+        second.kill()
+    first.cloud(sim)
+    assert "saved to" in first.register(sim.objects[0]).message
+
+
+def test_a_save_fsyncs_the_folder_after_the_rename(tmp_path, monkeypatch):
+    """Acknowledged is durable: after the rename the folder itself is fsynced (its new entry
+    would be lost on power loss otherwise)."""
+    synced = []
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        st = os.fstat(fd)
+        synced.append((stat.S_ISDIR(st.st_mode), st.st_ino, os.listdir(tmp_path)))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    RegistrationStore(str(tmp_path / "r.yaml")).write((), "f")
+    folder = os.stat(tmp_path).st_ino
+    assert any(is_dir and ino == folder and "r.yaml" in names for is_dir, ino, names in synced)

@@ -247,6 +247,78 @@ def test_bad_template_libraries_are_refused_with_a_reason(node, library, tmp_pat
     assert all("t.yaml" in r for r in reasons.values()), reasons
 
 
+def _set(node, name, value):
+    """SetParameters of one string parameter on the node: its result."""
+    req = SetParameters.Request(
+        parameters=[
+            Parameter(
+                name=name,
+                value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value),
+            )
+        ]
+    )
+    return node["client"].call(SetParameters, f"{NS}/set_parameters", req, timeout=60).results[0]
+
+
+def _registrations_path(node) -> str:
+    return node["client"].wait_for(lambda: status(node).get("node"), 60, "the node's status")[
+        "registrations_file"
+    ]["path"]
+
+
+def test_the_file_the_node_writes_cannot_be_changed_over_the_graph(node, tmp_path):
+    """SetParameters registrations_file := another file, then ~/save: the parameter is read
+    only, the other file stays as it was, the save writes the node's own file."""
+    victim = tmp_path / "authorized_keys"
+    victim.write_text("ssh-ed25519 AAAA... operator@station\n")
+    own = _registrations_path(node)
+    res = _set(node, "registrations_file", str(victim))
+    assert not res.successful and "read-only" in res.reason.lower(), res.reason
+    save = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    assert save.success and own in save.message, save.message
+    assert sorted(os.listdir(tmp_path)) == ["authorized_keys"]
+    assert victim.read_text() == "ssh-ed25519 AAAA... operator@station\n"
+
+
+def test_a_fifo_in_place_of_the_registrations_file_never_stops_the_node(node):
+    """The registrations file replaced by a FIFO: ~/save is answered (refused, naming it), and
+    so is every call after it; once the FIFO is gone the save works again."""
+    path = _registrations_path(node)
+    node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    os.unlink(path)
+    os.mkfifo(path)
+    try:
+        res = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+        assert not res.success and "a FIFO" in res.message, res.message
+        assert node["client"].call(Trigger, f"{NS}/next_model", timeout=60) is not None
+    finally:
+        os.unlink(path)
+    res = node["client"].call(Trigger, f"{NS}/save", timeout=60)
+    assert res.success and path in res.message
+
+
+def test_an_alias_bomb_template_library_is_refused_and_the_node_answers(node, tmp_path):
+    """templates_dir set to a folder holding a 1 kB alias-bomb template: refused with the
+    reason, at once, and the node answers the next call."""
+    lib = tmp_path / "bomb"
+    lib.mkdir()
+    shutil.copy(os.path.join(MODELS, "meshes", "grab_handle.stl"), lib / "m.stl")
+    (lib / "t.yaml").write_text(alias_bomb("name: a\nmesh: m.stl\nscale:", levels=12))
+    res = _set(node, "templates_dir", str(lib))
+    assert not res.successful and "t.yaml" in res.reason and "aliases" in res.reason, res.reason
+    assert node["client"].call(Trigger, f"{NS}/next_model", timeout=60) is not None
+
+
+def alias_bomb(prefix: str, levels: int = 9) -> str:
+    """YAML whose last key (``prefix`` ends with it) holds a "billion laughs": a list of
+    ``levels`` lists, each of nine aliases of the one before, 9**levels strings when expanded,
+    in under 1 kB."""
+    items = ['&x0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]'] + [
+        f"&x{k} [" + ",".join([f"*x{k - 1}"] * 9) + "]" for k in range(1, levels)
+    ]
+    return f"{prefix} [{', '.join(items)}]\n"
+
+
 def test_a_huge_twist_and_a_far_marker_pose_are_refused(node, library):
     """Rows 'one Twist of 1e300' and 'marker feedback with a pose at 1e30': refused with one
     line; the object stays put, accept and save write a sane pose."""
@@ -392,6 +464,43 @@ def test_point_file_headers_that_do_not_match_their_data_are_one_line(tmp_path):
         assert name in line and expected in line, line
 
 
+def _lzf_zeros(size: int) -> bytes:
+    """An LZF stream (liblzf's format, as PCD's binary_compressed holds) that unpacks to
+    ``size`` zero bytes: a literal zero or three, then back references of 264 bytes at
+    distance 1, three bytes each (about 88:1)."""
+    literal = next(n for n in (1, 2, 3) if (size - n) % 264 not in (1, 2))
+    rest, last = divmod(size - literal, 264)
+    out = bytearray([literal - 1]) + bytes(literal) + b"\xe0\xff\x00" * rest
+    if last:
+        out += bytes([(last - 2) << 5, 0]) if last - 2 < 7 else bytes([0xE0, last - 9, 0])
+    return bytes(out)
+
+
+def test_a_binary_compressed_pcd_bomb_is_refused_in_one_line(tmp_path):
+    """A binary_compressed PCD within the point limit whose LZF data unpacks to over 1 GB
+    (9 million points of 112 bytes: an 11 MB file; one of 48.6 MB took 4.65 GB and 75 s):
+    refused in one line from its header, before anything is unpacked."""
+    from affordance_registration.core.pointfiles import MAX_POINTS, MAX_UNPACKED_BYTES
+
+    points = 9_000_000
+    point_bytes = 3 * 4 + 100
+    assert points <= MAX_POINTS and points * point_bytes > MAX_UNPACKED_BYTES
+    packed = _lzf_zeros(points * point_bytes)
+    header = (
+        "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z _\nSIZE 4 4 4 1\nTYPE F F F U\n"
+        f"COUNT 1 1 1 100\nWIDTH {points}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+        f"POINTS {points}\nDATA binary_compressed\n"
+    ).encode()
+    sizes = np.array([len(packed), points * point_bytes], dtype="<u4").tobytes()
+    (tmp_path / "bomb.pcd").write_bytes(header + sizes + packed)
+    assert (tmp_path / "bomb.pcd").stat().st_size < 12_000_000
+    ((code, err, _),) = run_cli_all(
+        ("fit", "--scene", str(tmp_path / "bomb.pcd"), "--point", "0", "0", "1"), timeout=300
+    )
+    line = one_line(code, err)
+    assert "bomb.pcd" in line and f"more than the {MAX_UNPACKED_BYTES:,}" in line, line
+
+
 @settings(max_examples=25, deadline=None)
 @given(count=st.integers(0, 5000), kind=st.sampled_from(["ply", "pcd"]))
 def test_any_point_count_but_the_true_one_is_refused(tmp_path_factory, count, kind):
@@ -415,7 +524,8 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
     """A FIFO where a settings, template or launch file is read (each blocked its reader for
     good), /dev/null as a settings file, a FIFO where a session writes its truth; an empty
     --out (it wrote into the current folder); two outputs of one save that are one file (a
-    symbolic link from one to the other: the scene was lost under the truth); a folder where
+    symbolic link from one to the other: the scene was lost under the truth; a link is never
+    followed now); a folder where
     one template of the library is written (the ones before it were written): one line each,
     exit 2, nothing written."""
     for name in ("settings.yaml", "launch.yaml"):
@@ -470,7 +580,7 @@ def test_files_that_are_not_regular_files_and_paths_that_are_one_file_are_one_li
         (("launch", str(tmp_path / "launch.yaml")), "not a regular file"),
         (("session", "--out", str(session)), "not a regular file"),
         (("simulate", "--out", ""), "is not a path"),
-        (("simulate", "--out", str(linked)), "are one file"),
+        (("simulate", "--out", str(linked)), "is a symbolic link: not followed"),
         (("generate-models", "--out", str(models)), "is a folder"),
         # and options: a sensor 1e300 m away (numpy's overflow warnings made it three
         # lines), settings nested 2000 deep, two exclusive views of the settings
@@ -661,6 +771,55 @@ def test_bad_template_files_are_one_line(tmp_path):
     assert TemplateLibrary.load(str(lib))["v"].diameter > 0.05
 
 
+def test_alias_bombs_in_every_yaml_the_product_reads_are_one_line(tmp_path):
+    """A "billion laughs" (under 1 kB, billions of nodes expanded) in a settings file (as the
+    455-byte one whose seed ran 30 s at 1 GB), a template, a launch file, a parameter file a
+    launch file names, a bag's metadata.yaml, a registrations file: refused in one line before
+    anything is built (the one loader, core/files.read_yaml), within a 2 GB memory limit; a
+    merge of a few shared keys still reads."""
+    from affordance_registration.core.errors import AffordanceError
+    from affordance_registration.core.files import MAX_ALIAS_NODES, read_yaml
+    from affordance_registration.core.persistence import load_registrations
+
+    (tmp_path / "settings.yaml").write_text(alias_bomb("seed:"))
+    assert len((tmp_path / "settings.yaml").read_bytes()) < 1000
+    lib = _library(tmp_path, "lib", alias_bomb("name: v\nmesh: meshes/ball_valve.stl\nscale:"))
+    (tmp_path / "bomb.launch.yaml").write_text(alias_bomb("launch:"))
+    (tmp_path / "params.yaml").write_text(alias_bomb("affordance_engine:"))
+    (tmp_path / "params.launch.yaml").write_text(
+        "launch:\n- node:\n    pkg: affordance_registration\n    exec: affordance_engine\n"
+        f"    param:\n    - from: {tmp_path / 'params.yaml'}\n"
+    )
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(alias_bomb("rosbag2_bagfile_information:"))
+    cases = [
+        (("settings", str(tmp_path / "settings.yaml")), "settings.yaml"),
+        (("simulate", "--out", str(tmp_path / "out"), "--templates", str(lib)), "t.yaml"),
+        (("launch", str(tmp_path / "bomb.launch.yaml")), "bomb.launch.yaml"),
+        (("launch", str(tmp_path / "params.launch.yaml")), "params.yaml"),
+        (("bag", "info", str(bag)), "metadata.yaml"),
+    ]
+    results = run_cli_all(*(args for args, _ in cases), timeout=120)
+    for (args, where), (code, err, _) in zip(cases, results):
+        line = one_line(code, err)
+        assert where in line and "aliases would add" in line, (args, line)
+    (tmp_path / "registrations.yaml").write_text(alias_bomb("registrations:"))
+    with pytest.raises(AffordanceError, match="aliases would add"):
+        load_registrations(str(tmp_path / "registrations.yaml"))
+    # a few merged keys are well within the bound; a cycle is refused
+    (tmp_path / "merge.yaml").write_text("base: &b {x: 1}\nuse: {<<: *b, y: 2}\n")
+    assert read_yaml(str(tmp_path / "merge.yaml"), AffordanceError)["use"] == {"x": 1, "y": 2}
+    (tmp_path / "wide.yaml").write_text(
+        "a: &a [" + ",".join(["1"] * MAX_ALIAS_NODES) + "]\nb: *a\nc: *a\n"
+    )
+    with pytest.raises(AffordanceError, match=f"{2 * MAX_ALIAS_NODES + 2:,} nodes"):
+        read_yaml(str(tmp_path / "wide.yaml"), AffordanceError)
+    (tmp_path / "cycle.yaml").write_text("a: &a [1, *a]\n")
+    with pytest.raises(AffordanceError, match="cycle"):
+        read_yaml(str(tmp_path / "cycle.yaml"), AffordanceError)
+
+
 def test_bad_launch_files_are_one_line(tmp_path):
     """Rows 'launch with a param entry - 5, - arg: 5 or non-UTF-8 bytes' and 'an arg default
     $(env X) where X contains $(env X) (or a $(var) self-reference)': one line, no hang."""
@@ -759,12 +918,13 @@ def test_saving_never_replaces_what_is_not_a_regular_file(tmp_path):
             before.st_rdev,
         ), kind
     assert sorted(os.listdir(tmp_path)) == sorted(p.name for p in targets.values())
-    # a link to a regular file: the file it points to is written, the link stays
+    # a link to a regular file is never followed: refused, the link and its file as they were
     real = tmp_path / "real.yaml"
     real.write_text("old")
     (tmp_path / "link.yaml").symlink_to(real)
-    save_registrations(str(tmp_path / "link.yaml"), _registrations())
-    assert (tmp_path / "link.yaml").is_symlink() and "ball_valve" in real.read_text()
+    with pytest.raises(AffordanceError, match="symbolic link"):
+        save_registrations(str(tmp_path / "link.yaml"), _registrations())
+    assert (tmp_path / "link.yaml").is_symlink() and real.read_text() == "old"
 
 
 def test_saving_keeps_a_files_mode_and_honours_the_umask(tmp_path):

@@ -103,6 +103,7 @@ def test_launch_starts_the_engine_and_stops_it_cleanly(ros_context, tmp_path):
             LAUNCH,
             "points:=/test_launch/cloud",
             f"settings_file:={tmp_path / 'fit.yaml'}",
+            f"registrations_file:={tmp_path / 'r.yaml'}",
             "--shm",
         ],
         tmp_path / "launch.log",

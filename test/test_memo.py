@@ -123,3 +123,24 @@ def test_status_entries_are_made_once_and_a_caller_cannot_change_them(library, p
     first[0]["template"] = "changed by a caller"
     again = engine.status()["registered"]
     assert again[0]["template"] == engine.state.registered[0].template
+
+
+def test_per_object_computes_once_per_live_object_and_forgets_it():
+    """``per_object``: one value per live object and key (objects that are not hashable
+    too), the same object on every call, and nothing kept once the object is gone."""
+    from affordance_registration.core import memo
+
+    class Unhashable:
+        __hash__ = None
+
+    made = []
+    a, b = Unhashable(), Unhashable()
+    first = memo.per_object(a, "x", lambda: made.append("a") or ["a"])
+    assert memo.per_object(a, "x", lambda: made.append("again") or ["again"]) is first
+    assert memo.per_object(a, "y", lambda: made.append("ay") or ["ay"]) == ["ay"]
+    assert memo.per_object(b, "x", lambda: made.append("b") or ["b"]) == ["b"]
+    assert made == ["a", "ay", "b"]
+    key = id(a)
+    del a
+    gc.collect()
+    assert key not in memo._per_object and id(b) in memo._per_object

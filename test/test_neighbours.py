@@ -74,25 +74,33 @@ neighbours.nearest(tree, queries)
 neighbours.k_nearest(tree, queries[:20000], 8)
 worker = threading.Thread(target=neighbours.nearest, args=(tree, queries))
 worker.start(); worker.join()
+with neighbours.one_openmp_thread():       # a block (as a fit holds): set once, nested too
+    with neighbours.one_openmp_thread():
+        inside = neighbours.openmp_threads()
+        neighbours.nearest(tree, queries)
+    inside_outer = neighbours.openmp_threads()
 deadline = time.monotonic() + 20     # a joined thread may take a moment to leave /proc;
 while threads() > before and time.monotonic() < deadline:   # OpenMP's workers never do
     time.sleep(0.01)
 after, settings_after = threads(), neighbours.openmp_threads()
 KDTree(data).query(queries)       # pykdtree left to itself starts its OpenMP team
-print(before, after, threads(), settings, settings_after, sep="|")
+print(before, after, threads(), settings, settings_after, inside, inside_outer, sep="|")
 """
 
 
 def test_queries_run_on_one_openmp_thread_and_leave_the_setting_alone():
     """With OMP_NUM_THREADS=4 a plain pykdtree query starts OpenMP worker threads; the
-    module's queries (from the main thread and from another one) start none, and the
+    module's queries (from the main thread, from another one and in a ``one_openmp_thread``
+    block, which holds the count at one until its outermost level ends) start none, and the
     calling thread's OpenMP setting is what it was."""
     env = dict(os.environ, OMP_NUM_THREADS="4")
     out = subprocess.run(
         [sys.executable, "-c", _THREADS], capture_output=True, text=True, env=env, timeout=120
     )
     assert out.returncode == 0, out.stderr
-    before, after, unpinned, settings_before, settings_after = out.stdout.strip().split("|")
+    fields = out.stdout.strip().split("|")
+    before, after, unpinned, settings_before, settings_after, inside, inside_outer = fields
     assert settings_before == settings_after and "4" in settings_before
+    assert inside == inside_outer == "(1,)"  # within a block (and after a nested one): one
     assert int(after) == int(before)
     assert int(unpinned) > int(before)  # the control: the check can fail

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
-from affordance_registration.core.operator import OperatorSettings, OperatorStream, StandaloneHost
+from affordance_registration.core.operator import OperatorSettings, OperatorStream, Outbox
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
@@ -37,17 +37,18 @@ class SimClock:
         self.t += seconds
 
 
-class Recorder(StandaloneHost):
-    """A host without a node that records every outcome the stream reports."""
+class Recorder(Outbox):
+    """An outbox without a node that keeps every outcome the stream puts into it."""
 
-    def __init__(self, engine):
-        super().__init__(engine)
+    def __init__(self):
+        super().__init__()
         self.reports = []
-        self.benign = []  # whether each report was a refusal because nothing applied
+        self.benign = []  # whether each was a refusal because the action did not apply
 
-    def report(self, kind, ok, message, benign=False):
+    def outcome(self, kind, ok, message, benign=False):
         self.reports.append((kind, ok, message))
         self.benign.append(benign)
+        super().outcome(kind, ok, message, benign)
 
 
 class SlowEngine(AffordanceEngine):
@@ -74,10 +75,14 @@ class Stream:
             else AffordanceEngine(library)
         )
         self.engine.set_scene(sim.organized, frame_id=FRAME)
-        self.host = Recorder(self.engine)
-        self.reports = self.host.reports
+        self.outbox = Recorder()
+        self.reports = self.outbox.reports
         self.stream = OperatorStream(
-            self.engine, OperatorSettings(**settings), self.clock, self.clock.sleep, host=self.host
+            self.engine,
+            OperatorSettings(**settings),
+            self.clock,
+            self.clock.sleep,
+            outbox=self.outbox,
         )
 
     def shown(self):
@@ -287,8 +292,8 @@ def test_wrong_inputs_are_answered_and_reported(library, scene):
     assert any("NaN/inf" in m for m in messages)
     # accept with nothing selected does not apply now (a warning for the node), a far click or
     # an unknown action is an error
-    benign = {m: b for (_, ok, m), b in zip(s.reports, s.host.benign) if not ok}
-    assert benign["no object selected: click an object first"] is True
+    benign = {m: b for (_, ok, m), b in zip(s.reports, s.outbox.benign) if not ok}
+    assert benign["accept: no object selected: click an object first"] is True
     assert not any(b for m, b in benign.items() if "unknown action" in m or "cm from" in m)
     # a storm of calls while a fit is queued: every one answered, in order
     s.stream.click(scene.objects[0].click)

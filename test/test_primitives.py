@@ -182,7 +182,7 @@ def test_a_box_measured_from_part_of_its_segment_is_refused(registrar):
     )
 )
 def test_who_leads_when_nothing_specific_fits(rows):
-    """The ranking's rule (README, "Objects outside the library"): a specific template that
+    """The ranking's rule (docs/TEMPLATES.md, "Primitives"): a specific template that
     fits leads; else a primitive that fits; where nothing fits, the specific templates stay
     first as the best guess (the right object refused at its right pose, its segment joined
     to a neighbour, is shown rather than a box around both); within a group, by likelihood."""

@@ -1,15 +1,18 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""The README runs as written: its Python snippets execute unchanged, every command and option of
-``affordance-registration`` has help text and is in the README's command list, and every node
-executable has its section in msg_docs."""
+"""The README is a user's guide that runs as written: it opens with the two commands, stays
+short, its Python snippet executes unchanged, its commands parse (the fitting ones run), its links
+resolve, and the ROS names it gives are the ones msg_docs documents. Every node executable has
+its section in msg_docs and is named in the README; every launch file is documented."""
 
-import argparse
 import ast
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from affordance_registration.cli import build_parser
 
@@ -22,18 +25,31 @@ def _python_blocks(text: str) -> list[str]:
     return re.findall(r"^```python\n(.*?)^```", text, re.S | re.M)
 
 
-def _commands(parser, prefix=()):
-    """(command words, parser) of every (sub)command."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                yield (*prefix, name), sub, action
-                yield from _commands(sub, (*prefix, name))
+def _command_lines(text: str) -> list[list[str]]:
+    """The ``affordance-registration`` command lines of the README's code blocks, as argv after
+    the command (continuation lines joined, comments and redirections dropped)."""
+    lines = []
+    for block in re.findall(r"^```\n(.*?)^```", text, re.S | re.M):
+        for line in block.replace("\\\n", " ").splitlines():
+            words = shlex.split(line, comments=True)
+            for i, word in enumerate(words):  # (the shell's part: a redirection, a pipe)
+                if word in (">", ">>", "|", "&&"):
+                    words = words[:i]
+                    break
+            if words and words[0].endswith("affordance-registration"):
+                lines.append(words[1:])
+    return lines
 
 
-def _command_list() -> str:
-    section = README.split("## Command line", 1)[1]
-    return re.search(r"```\n(.*?)```", section, re.S).group(1)
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a markdown heading."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_readme_opens_with_the_two_commands_and_stays_a_guide():
+    head = "\n".join(README.splitlines()[:6])
+    assert "make demo" in head and "make test" in head, head
+    assert len(README.splitlines()) <= 300
 
 
 def test_readme_python_snippets_run_as_written(tmp_path):
@@ -50,41 +66,63 @@ def test_readme_python_snippets_run_as_written(tmp_path):
     assert "registrations" in saved and "accepted" in out.stdout
 
 
-def test_every_cli_option_has_help_text():
-    missing = []
-    for words, sub, group in _commands(build_parser()):
-        choice_help = {a.dest: a.help for a in group._choices_actions}
-        if not choice_help.get(words[-1]):
-            missing.append(" ".join(words))
-        for action in sub._actions:
-            if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)):
+def test_every_readme_command_line_parses():
+    commands = _command_lines(README)
+    assert {argv[0] for argv in commands} >= {"station", "simulate", "fit", "launch", "bench"}
+    parser = build_parser()
+    for argv in commands:
+        try:
+            parser.parse_args(argv)
+        except SystemExit:
+            pytest.fail(
+                f"the README's `affordance-registration {shlex.join(argv)}` does not parse"
+            )
+
+
+def test_the_readme_fit_commands_do_what_they_say(tmp_path):
+    """The command-line section's simulate and fit lines, run as written: the click is the ball
+    valve's, and the ball valve fits there."""
+    command = Path(sys.executable).with_name("affordance-registration")
+    runs = [argv for argv in _command_lines(README) if argv[0] in ("simulate", "fit")]
+    assert [argv[0] for argv in runs] == ["simulate", "fit"], runs
+    for argv in runs:
+        done = subprocess.run(
+            [str(command), *argv], cwd=tmp_path, capture_output=True, text=True, timeout=600
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+    assert re.search(r"^ball_valve fits", done.stdout, re.M), done.stdout
+
+
+def test_every_relative_link_of_the_documentation_resolves():
+    """The README's links, and those of the pages it links (docs/, msg_docs), reach a file and,
+    with an anchor, a heading of it."""
+    pages = [ROOT / "README.md", ROOT / "msg_docs" / "README.md", *(ROOT / "docs").glob("*.md")]
+    headings = {}
+    for page in pages:
+        for link in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if re.match(r"[a-z]+:", link):
                 continue
-            if not action.help:
-                missing.append(
-                    f"{' '.join(words)} {'/'.join(action.option_strings) or action.dest}"
-                )
-    assert not missing, f"no help text: {missing}"
+            path, _, anchor = link.partition("#")
+            target = (page.parent / path).resolve() if path else page
+            assert target.exists(), f"{page.name}: {link}"
+            if anchor:
+                if target not in headings:
+                    text = target.read_text()
+                    headings[target] = {_anchor(h) for h in re.findall(r"^#+ (.*)$", text, re.M)}
+                assert anchor in headings[target], f"{page.name}: {link}"
+    for doc in ("msg_docs/README.md", "docs/CLI.md", "docs/TEMPLATES.md", "docs/BENCHMARK.md"):
+        assert f"]({doc}" in README, f"the README does not link {doc}"
 
 
-def test_readme_lists_every_command_and_option():
-    listed = _command_list()
-    missing = []
-    for words, sub, _ in _commands(build_parser()):
-        if any(isinstance(a, argparse._SubParsersAction) for a in sub._actions):
-            continue  # 'bag': its own commands are listed
-        line = f"affordance-registration {' '.join(words)}"
-        if line not in listed:
-            missing.append(line)
-            continue
-        # the command's lines: from its first mention to the next command
-        block = listed[listed.index(line) :]
-        nxt = block.find("\naffordance-registration ", 1)
-        block = block if nxt < 0 else block[:nxt]
-        for action in sub._actions:
-            for opt in action.option_strings:
-                if opt.startswith("--") and opt != "--help" and opt not in block:
-                    missing.append(f"{line} {opt}")
-    assert not missing, f"not in the README's command list: {missing}"
+def test_the_ros_names_the_readme_gives_are_documented_in_msg_docs():
+    names = set(re.findall(r"`(~/[a-z_]+)`", README))
+    glance = README.split("The interface at a glance", 1)[1].split("Other executables", 1)[0]
+    names |= {
+        n for n in re.findall(r"`([^`\s]+)`", glance) if "." not in n and not n.startswith("fit")
+    }
+    assert {"~/accept", "~/save", "points", "clicked_point", "templates_dir"} <= names
+    missing = sorted(n for n in names if f"`{n}`" not in MSG_DOCS)
+    assert not missing, f"named in the README, not in msg_docs: {missing}"
 
 
 def test_every_node_executable_has_its_msg_docs_section():

@@ -62,14 +62,22 @@ def test_the_bench_says_when_the_real_rows_were_not_measured(tmp_path, monkeypat
         assert lines and not any("not measured" in line for line in lines)
 
 
-def test_split_is_fixed_one_held_out_scene_per_kind():
-    held = [n for n in rd.HELD_OUT]
-    assert sorted(rd.scene_kind(f"learn{n}") for n in held) == sorted(rd.SCENE_KINDS)
+def test_split_is_fixed_about_a_third_of_each_group_held_out():
+    """mOSD's 45 learn scenes in its four groups, 15 held out: between a quarter and two fifths
+    of each group, the four held out since the first round among them; of the 15 scenes the
+    earlier rounds measured, the same four held out and eleven tuning."""
     every = [n for numbers in rd.SCENE_KINDS.values() for n in numbers]
-    assert len(every) == 15 == len(set(every))
+    assert sorted(every) == list(range(45))
+    held = set(rd.HELD_OUT)
+    assert len(held) == len(rd.HELD_OUT) == 15 and held <= set(every)
+    for kind, numbers in rd.SCENE_KINDS.items():
+        assert 0.25 <= len(held & set(numbers)) / len(numbers) <= 0.4, kind
+    assert held & set(rd.ORIGINAL_SCENES) == {12, 24, 32, 44}
+    assert len(rd.ORIGINAL_SCENES) == 15 and set(rd.ORIGINAL_SCENES) <= set(every)
     assert rd.is_held_out("learn44") and not rd.is_held_out("learn41")
+    assert rd.scene_kind("learn1") == "boxes" and rd.scene_kind("learn30") == "occluded objects"
     with pytest.raises(AffordanceError):
-        rd.scene_kind("learn1")
+        rd.scene_kind("learn45")
 
 
 # ---------------------------------------------------------------------------- reading
@@ -80,6 +88,12 @@ def test_reader_gives_640x480_with_labels(learn0):
     assert 0 < valid.sum() < 640 * 480
     assert set(np.unique(learn0.labels[valid])) == {1, 20, 30}
     assert np.all(learn0.labels[~valid] == 0)
+    # the registered colour image: the pale wooden table (every channel above 150), the front
+    # box's printed face red (R over B by more than 20) and darker than the table
+    assert learn0.colors.shape == (480, 640, 3) and learn0.colors.dtype == np.uint8
+    table = learn0.colors[valid & (learn0.labels == 1)].astype(float).mean(axis=0)
+    box = learn0.colors[valid & (learn0.labels == 20)].astype(float).mean(axis=0)
+    assert table.min() > 150 and box[0] > box[2] + 20 and table.sum() - box.sum() > 100
     np.testing.assert_array_equal(learn0.viewpoint, [0.0, 0.0, 0.0])
     # the same points as the core reader (which gives x, y, z without labels)
     from affordance_registration.core.pointfiles import read_points
@@ -113,8 +127,9 @@ def test_intrinsics_fitted_to_the_pixels(learn0):
 # ---------------------------------------------------------------------------- objects
 @needs_data
 def test_objects_counted_and_clicked_on_their_object():
+    """On the 15 scenes the earlier rounds measured (``ORIGINAL_SCENES``)."""
     counts = {}
-    for path in rd.osd_scene_paths():
+    for path in rd.osd_scene_paths(scenes=rd.ORIGINAL_SCENES):
         cloud = rd.read_labelled_pcd(path)
         objs = rd.labelled_objects(cloud)
         counts[cloud.name] = len(objs)

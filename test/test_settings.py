@@ -190,11 +190,17 @@ def test_the_dump_of_the_defaults_is_every_knob_at_its_declared_default():
 
 
 def test_the_bench_writes_the_settings_it_ran_with_next_to_its_json(tmp_path):
-    from affordance_registration.evaluation.bench import write_settings
+    import json
+    from pathlib import Path
 
+    from affordance_registration.evaluation.bench import write_results
+
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    result = json.loads((docs / "benchmark.json").read_text())
     ran = FitSettings(seed=2).with_(**{"coarse.samples": 48})
-    path = write_settings(str(tmp_path / "out" / "bench.json"), ran)
-    assert path == str(tmp_path / "out" / "bench.settings.yaml")
+    written = write_results(result, str(tmp_path / "out"), ran)
+    path = str(tmp_path / "out" / "benchmark.settings.yaml")
+    assert path in written
     assert FitSettings.load(path) == ran
 
 

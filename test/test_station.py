@@ -5,9 +5,11 @@ camera -> view_pose conversion, display thinning and colours, and the message/st
 
 import math
 import socket
+import unicodedata
 
 import numpy as np
 import pytest
+from browser_helpers import rendered_panel
 from geometry_msgs.msg import Point
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
@@ -35,6 +37,7 @@ from affordance_registration.ros.station.state import (
     MeshDrawing,
     SphereDrawing,
     TextDrawing,
+    active_object,
     apply_markers,
     candidate_label,
     candidate_options,
@@ -42,6 +45,7 @@ from affordance_registration.ros.station.state import (
     fitting_marker,
     headline,
     short_label,
+    shown_markdown,
     status_markdown,
 )
 
@@ -433,7 +437,10 @@ def test_labels_and_the_status_panel():
         "1. gate_valve (fits)",
         "2. ball_valve (does not fit)",
     ]
-    md = status_markdown(STATUS, True, "/affordance_engine", "10 points", "next_model: ok")
+    tags, md = rendered_panel(
+        status_markdown(STATUS, True, "/affordance_engine", "10 points", "next_model: ok")
+    )
+    assert tags == {"p", "strong"}
     for text in (
         "/affordance_engine — idle",
         "rank 2/2",
@@ -446,16 +453,18 @@ def test_labels_and_the_status_panel():
     ):
         assert text in md
     assert "Fitting" not in md
-    md = status_markdown(
-        dict(STATUS, objects=[first]),
-        True,
-        "/affordance_engine",
-        "",
-        "",
-        fitting="clicked (0.1, 0.2, 0.3)",
-        stale_error=True,
+    _, md = rendered_panel(
+        status_markdown(
+            dict(STATUS, objects=[first]),
+            True,
+            "/affordance_engine",
+            "",
+            "",
+            fitting="clicked (0.1, 0.2, 0.3)",
+            stale_error=True,
+        )
     )
-    assert "**Fitting**: clicked (0.1, 0.2, 0.3)" in md
+    assert "Fitting: clicked (0.1, 0.2, 0.3)" in md
     assert "click refused" not in md and "refused" not in md  # a fit, and a stale error
     down = status_markdown(STATUS, False, "/affordance_engine", "10 points", "")
     assert down.startswith("**Engine not running**")
@@ -638,3 +647,96 @@ def test_parameters_and_port_are_checked():
             check_port("127.0.0.1", s.getsockname()[1])
     with pytest.raises(AffordanceError, match="1-65535"):
         check_port("127.0.0.1", 70000)
+
+
+def _with(status: dict, path: tuple, value) -> dict:
+    """A deep copy of ``status`` with ``value`` at ``path`` (keys and list indices)."""
+    import copy
+
+    out = copy.deepcopy(status)
+    where = out
+    for key in path[:-1]:
+        where = where[key]
+    where[path[-1]] = value
+    return out
+
+
+#: every text of an engine status that reaches the panel: (path in the status, the panel's
+#: line before it)
+_STATUS_TEXTS = {
+    ("node", "busy"): "Engine: /affordance_engine — ",
+    ("node", "queued"): "idle, ",
+    ("node", "last_message"): "Last message: ",
+    ("node", "last_error"): "Last error: ",
+    ("objects", 0, "candidates", 1, "template"): "#3 ",
+    ("objects", 0, "candidates", 1, "state"): "ball_valve (",
+    ("objects", 0, "id"): "Shown: #",
+    ("counts", "objects"): "Objects: ",
+    ("counts", "registered"): "open, ",
+    ("counts", "undo"): "registered, ",
+}
+_UNSETTLED = {
+    "ambiguity": {"settled": False, "reasons": ["x"]},
+    "suggested_view": {"text": "y"},
+}
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    where=st.sampled_from(
+        sorted(_STATUS_TEXTS, key=str)
+        + ["reason", "view", "engine", "cloud", "last_action", "fitting"]
+    ),
+    value=st.text(min_size=1, max_size=40)
+    | st.sampled_from(
+        [
+            '<iframe srcdoc="<script>parent.document.title=1</script>"></iframe>',
+            "<img src=x onerror=alert(1)>",
+            "[link](javascript:alert(1))",
+            "**bold** _it_ `code` ~~s~~ | a | b |",
+            "&lt;b&gt; &amp; &#60;",
+            "# heading\n- item\n1. one\n\n    code",
+            "<!-- a comment --> <?php ?> <![CDATA[x]]>",
+            "a\\\nb  \nc\r\nd",
+            "http://example.com www.example.com a@b.c",
+        ]
+    ),
+)
+def test_any_text_from_outside_renders_as_that_text(where, value):
+    """Whatever text reaches the panel from outside the station -- any field of the engine's
+    status (anyone on the graph may publish one), a reason or suggested view, the engine's name,
+    the cloud's line (its frame id), a note quoting a service reply -- is rendered as exactly
+    that text (line breaks as spaces), never as markup: the only tags are the panel's own."""
+    status, engine, cloud, last_action, fitting = STATUS, "/affordance_engine", "c", "a", ""
+    if where in _STATUS_TEXTS:
+        status, before = _with(STATUS, where, value), _STATUS_TEXTS[where]
+    elif where in ("reason", "view"):
+        status = _with(STATUS, ("objects", 0, "ambiguity"), _UNSETTLED["ambiguity"])
+        status = _with(status, ("objects", 0, "suggested_view"), _UNSETTLED["suggested_view"])
+        path = ("reasons", 0) if where == "reason" else ("text",)
+        key = "ambiguity" if where == "reason" else "suggested_view"
+        status = _with(status, ("objects", 0, key, *path), value)
+        before = "Unsettled: " if where == "reason" else "suggested view: "
+    else:
+        engine = value if where == "engine" else engine
+        cloud = value if where == "cloud" else cloud
+        last_action = value if where == "last_action" else last_action
+        fitting = value if where == "fitting" else fitting
+        before = {
+            "engine": "Engine: ",
+            "cloud": "Cloud: ",
+            "last_action": "Last action: ",
+            "fitting": "Fitting: ",
+        }[where]
+    line = " ".join(f"{before}{_one_line(value)}".split())
+    tags, text = rendered_panel(status_markdown(status, True, engine, cloud, last_action, fitting))
+    assert tags <= {"p", "strong"} and line in text, (tags, line, text)
+    # the Shown line: the shown candidate's label, as it is
+    tags, text = rendered_panel(shown_markdown(active_object(status)))
+    label = candidate_label(active_object(status))
+    assert tags <= {"p", "strong"} and text == " ".join(f"Shown: {_one_line(label)}".split())
+
+
+def _one_line(value: str) -> str:
+    """``value`` as the panel shows it: line breaks and control characters as spaces."""
+    return "".join(" " if unicodedata.category(c) in ("Cc", "Zl", "Zp") else c for c in value)

@@ -355,3 +355,62 @@ def test_the_pacing_never_admits_more_than_the_rate_and_the_burst(arrivals):
         count, size_sum = count + 1, size_sum + size
         assert count <= 2 * rate + rate * clock[0] + 1e-6
         assert size_sum <= 2 * byte_rate + byte_rate * clock[0] + 50_000 + 1e-6
+
+
+def test_the_secret_never_reaches_rosout_the_ros_log_a_parameter_or_a_shared_file(
+    tmp_path, ros_context
+):
+    """Jupyter's rule: the URL with the access secret is printed to the terminal that started
+    the station and kept in a file only its user reads (0600, in a 0700 folder); it never goes
+    out on /rosout (``ros2 topic echo /rosout`` or a bag recording at start-up), into the ROS
+    log folder, or through GetParameters -- even when given as the ``access_secret``
+    parameter."""
+    from rcl_interfaces.msg import Log, ParameterType
+    from rcl_interfaces.srv import GetParameters
+    from ros_helpers import LATCHED, Client
+
+    from affordance_registration.ros.station.access import url_file
+
+    secret = "a-secret-given-as-a-parameter-4242"
+    port = free_port()
+    runtime, logs = tmp_path / "runtime", tmp_path / "roslog"
+    client = Client("rosout_listener")
+    heard: list[str] = []
+    client.node.create_subscription(Log, "/rosout", lambda m: heard.append(m.msg), LATCHED)
+    proc = NodeProcess(
+        station_argv(port, access_secret=secret),
+        tmp_path / "station.out",
+        env={"AFFORDANCE_RUNTIME_DIR": str(runtime), "ROS_LOG_DIR": str(logs)},
+    )
+    try:
+        client.wait_for(
+            lambda: any("operator station on" in m for m in heard), 120, "the station on /rosout"
+        )
+        answers = {
+            name: client.call(
+                GetParameters,
+                "/affordance_station/get_parameters",
+                GetParameters.Request(names=[name]),
+            ).values
+            for name in ("access_secret", "port")
+        }
+        assert [v.integer_value for v in answers["port"]] == [port]
+        assert [v.type for v in answers["access_secret"]] in (
+            [],
+            [ParameterType.PARAMETER_NOT_SET],
+        )
+        assert not [m for m in heard if secret in m], heard
+        # the terminal that started it has the URL; the 0600 file keeps it
+        assert proc.wait_output(f"operator station: http://127.0.0.1:{port}/?token={secret}")
+        kept = runtime / os.path.basename(url_file(port))
+        assert open(kept).read().strip() == f"http://127.0.0.1:{port}/?token={secret}"
+        assert os.stat(kept).st_mode & 0o777 == 0o600
+        assert os.stat(runtime).st_mode & 0o777 == 0o700
+        # nothing in the ROS log folder has it
+        ros_logs = [p for p in logs.rglob("*") if p.is_file()]
+        assert ros_logs and not [p for p in ros_logs if secret in p.read_text(errors="replace")]
+    finally:
+        client.close()
+        proc.interrupt(timeout=10)
+        proc.kill()
+    assert not kept.exists(), "the URL file outlived its station"

@@ -239,3 +239,56 @@ def test_operator_station_in_a_real_browser(
             wait_text(second, r"save: ok — saved 1 registration")
     finally:
         client.close()
+
+
+#: a frame id that is HTML: a script in an iframe that would run in the page's origin
+HOSTILE_FRAME = (
+    "<iframe srcdoc=\"<script>parent.window.__pwned=1;parent.document.title='pwned'</script>\">"
+    "</iframe><b>bold</b>"
+)
+
+
+def test_a_frame_id_that_is_html_is_shown_as_text_and_its_script_never_runs(
+    tmp_path, ros_context, processes
+):
+    """A PointStamped on clicked_point whose frame_id is HTML with a script: the engine refuses
+    the click quoting the frame, the station shows that error -- as the text it is: no element
+    of it is made, its script does not run (the page's title and globals stay as they were)."""
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import PointCloud2
+
+    from affordance_registration.ros.glue.conversions import xyz_to_pointcloud2
+
+    missing = chromium_missing()
+    assert not missing, missing
+    port = free_port()
+    processes(engine_process(tmp_path))
+    station = processes(station_argv(port), "station")
+    client = Client("station_html_test")
+    client.subscribe(String, "/affordance_engine/status", LATCHED)
+    points = client.node.create_publisher(PointCloud2, "/points", 1)
+    clicks = client.node.create_publisher(PointStamped, "/clicked_point", 10)
+    try:
+        client.wait_for_subscribers(points, timeout=60)
+        client.wait_for_subscribers(clicks, timeout=60)
+        grid = np.stack(np.meshgrid(np.linspace(-0.2, 0.2, 20), np.linspace(-0.2, 0.2, 20)), -1)
+        cloud = np.concatenate([grid.reshape(-1, 2), np.ones((400, 1))], axis=1)
+        points.publish(xyz_to_pointcloud2(cloud, "cam"))
+        client.wait_for_cloud(60)
+        assert station.wait_output("operator station on", 90), station.output()
+        with browser_page(station_url(port)) as page:
+            wait_text(page, r"Engine: /affordance_engine — idle")
+            title = page.title()
+            click = PointStamped()
+            click.header.frame_id = HOSTILE_FRAME
+            click.point.z = 1.0
+            clicks.publish(click)
+            # the engine's error, quoting the frame id as it is, shown as that text
+            shown = wait_text(page, r"Last error: click refused: it is in frame '")
+            assert page.locator("iframe").count() == 0, "the frame id became an iframe"
+            assert page.locator("b", has_text="bold").count() == 0
+            assert HOSTILE_FRAME in shown.inner_text()
+            assert page.evaluate("typeof window.__pwned") == "undefined"
+            assert page.title() == title != "pwned"
+    finally:
+        client.close()

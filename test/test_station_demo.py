@@ -4,6 +4,7 @@
 the URL once the page is served by a station talking to a live engine and a simulated scan, and
 Ctrl-C stops every node. A taken port is one line and exit status 2."""
 
+import os
 import signal
 import socket
 import subprocess
@@ -59,6 +60,8 @@ def test_station_demo_serves_the_page_and_stops_on_ctrl_c(tmp_path, ros_context)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=30) == 0, proc.stdout.read()
         log = (tmp_path / "out" / "station_demo.log").read_text()
+        # the nodes' output holds the URL with the station's secret: for this user alone
+        assert os.stat(tmp_path / "out" / "station_demo.log").st_mode & 0o777 == 0o600
         for node in ("affordance_engine", "affordance_simulated_scan", "affordance_station"):
             assert f"[{node}]: shutting down" in log, log[-2000:]
     finally:

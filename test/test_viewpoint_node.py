@@ -137,6 +137,8 @@ def test_an_unsettled_click_gets_a_suggested_view_and_the_view_settles_it(
 
 
 def test_the_station_panel_says_why_a_click_is_unsettled_and_where_to_look_from():
+    from browser_helpers import rendered_panel
+
     from affordance_registration.ros.station.state import status_markdown
 
     obj = {
@@ -165,9 +167,9 @@ def test_the_station_panel_says_why_a_click_is_unsettled_and_where_to_look_from(
         },
         "suggested_view": {"text": "look from (0.1, 0.2, 0.3), 0.50 m from the object"},
     }
-    md = status_markdown({"objects": [obj], "active_id": 1}, True, NS, "", "")
-    assert "**Unsettled**: the scan barely holds gate_valve along one motion" in md
-    assert "**suggested view**: look from (0.1, 0.2, 0.3)" in md
+    _, md = rendered_panel(status_markdown({"objects": [obj], "active_id": 1}, True, NS, "", ""))
+    assert "Unsettled: the scan barely holds gate_valve along one motion" in md
+    assert "suggested view: look from (0.1, 0.2, 0.3)" in md
     settled = dict(
         obj, ambiguity={"settled": True, "kinds": [], "reasons": []}, suggested_view=None
     )

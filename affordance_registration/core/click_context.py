@@ -67,6 +67,12 @@ class RangeImage:
 
     def lookup_offsets(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`lookup` of points given as their offsets (..., 3) from the sensor origin."""
+        flat, z = self.bins(offsets)
+        return self._depth_or_nan[flat], z
+
+    def bins(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The flat bin (...,) of each of the points given as offsets (..., 3) from the sensor
+        origin -- ``nu * nv`` for a point outside the image -- and its depth (...,)."""
         rel = offsets @ self.frame
         z = rel[..., 2]
         zs = np.maximum(z, 1e-3)
@@ -74,8 +80,19 @@ class RangeImage:
         iv = np.floor((rel[..., 1] / zs - self.v0) / self.bin).astype(np.int64)
         # a negative bin wraps to a huge unsigned one: one comparison per axis
         inside = (iu.view(np.uint64) < self.nu) & (iv.view(np.uint64) < self.nv) & (z > 1e-3)
-        flat = np.where(inside, iu * self.nv + iv, self.nu * self.nv)  # outside: the NaN
-        return self._depth_or_nan[flat], z
+        return np.where(inside, iu * self.nv + iv, self.nu * self.nv), z
+
+    def front_points(self, points: np.ndarray) -> np.ndarray:
+        """For each bin, the index of the one of ``points`` (N, 3) in it nearest the sensor,
+        -1 where none is: (nu * nv + 1,), the last entry (outside the image) -1 -- an organized
+        view of ``points`` for projective correspondences."""
+        flat, z = self.bins(minus_point(points, self.origin))
+        out = np.full(self.nu * self.nv + 1, -1, dtype=np.int64)
+        order = np.lexsort((z, flat))  # by bin, nearest first
+        first = order[np.r_[True, flat[order][1:] != flat[order][:-1]]]
+        out[flat[first]] = first
+        out[-1] = -1
+        return out
 
     @cached_property
     def _depth_or_nan(self) -> np.ndarray:

@@ -265,7 +265,7 @@ class AffordanceEngine:
                 raise SceneError(f"click must be 3 finite numbers, got {point!r}")
             for obj in self._state.objects:
                 T = obj.shown.T_scene_model
-                tpl = self._geometry(obj.shown)
+                tpl = self.geometry(obj.shown)
                 centre = T[:3, :3] @ tpl.centroid + T[:3, 3]
                 if np.linalg.norm(p - centre) <= self.select_radius * tpl.diameter:
                     if obj.id != self._state.active_id:
@@ -377,7 +377,7 @@ class AffordanceEngine:
         with self._lock:
             obj = self._require_active()
             view = self.view_pose() if T_scene_view is None else np.asarray(T_scene_view, float)
-            tpl = self._geometry(obj.shown)
+            tpl = self.geometry(obj.shown)
             T = apply_twist(obj.shown.T_scene_model, linear, angular, dt, view, tpl.centroid)
             first = self._last_action != "twist"
             new = self._with_pose(obj, T, corrections=obj.corrections + (1 if first else 0))
@@ -430,7 +430,7 @@ class AffordanceEngine:
         T = np.array(T, dtype=float)
         if not is_rigid(T):
             raise AffordanceError("the corrected pose must be a finite rigid 4x4 transform")
-        tpl = self._geometry(obj.shown)
+        tpl = self.geometry(obj.shown)
         away = float(np.linalg.norm(T[:3, :3] @ tpl.centroid + T[:3, 3] - obj.click))
         if away > self.reach_m:
             raise AffordanceError(
@@ -514,7 +514,7 @@ class AffordanceEngine:
             msg += "; " + self.refit(coalesce=True)
         return msg
 
-    def _geometry(self, candidate: FitResult):
+    def geometry(self, candidate: FitResult):
         """The template a candidate is drawn and placed with (a primitive at its size)."""
         tpl = self.library[candidate.template]
         return (
@@ -533,7 +533,7 @@ class AffordanceEngine:
         ctx = obj.context
         if scene is not None and (ctx is None or obj.scene_version != version):
             # a newer cloud arrived: re-crop it around the object's current centre
-            tpl = self._geometry(obj.shown)
+            tpl = self.geometry(obj.shown)
             T = obj.shown.T_scene_model
             try:
                 ctx = self.registrar.prepare(scene, T[:3, :3] @ tpl.centroid + T[:3, 3])
@@ -700,7 +700,7 @@ class AffordanceEngine:
             fit = self._state.fit_of(object_id)
         if fit is None or fit.template not in self.library:
             raise EngineStateError(f"no object {bounded(object_id)} (registered or open)")
-        return trajectory(self._geometry(fit), fit, state, waypoint)
+        return trajectory(self.geometry(fit), fit, state, waypoint)
 
     # ------------------------------------------------------------------ status
     def status(self) -> dict:

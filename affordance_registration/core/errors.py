@@ -35,3 +35,16 @@ def bounded(text, limit: int = MAX_ECHO) -> str:
     if len(text) <= limit:
         return text
     return f"{text[:limit]}... ({len(text):,} characters)"
+
+
+class FrameError(AffordanceError):
+    """No transform is known between two frames (at the time asked for)."""
+
+
+class FrameNotYet(FrameError):
+    """The transform at the time asked for has not arrived yet: the newest one known is
+    ``behind`` seconds older."""
+
+    def __init__(self, message: str, behind: float = 0.0):
+        super().__init__(message)
+        self.behind = float(behind)

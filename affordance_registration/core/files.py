@@ -5,17 +5,22 @@ renamed into place, so a failure (a full disk, a crash) never leaves a half-writ
 
 Only regular files are ever replaced: a path that is a device, a FIFO, a socket or a folder is
 refused (as root, a rename over ``/dev/something`` would replace the device node). A symbolic
-link is followed: its target is written; two paths of one write that are one file are refused.
-A file that existed keeps its permission bits (and, for root, its owner); a new one gets the
-process's umask like any file it creates. Temporary files are named
-``.<name>.tmp-<pid>-<random>``; those of processes that no longer run (killed while saving) are
-removed by the next write to that folder.
+link is never followed: a link where a file is to be written is refused (one planted between
+two saves would have its target overwritten); a rename replaces the directory entry, never
+what a link points to. A file that existed keeps its permission bits (and, for root, its
+owner); a new one gets the process's umask like any file it creates, or the ``mode`` asked for.
+Once renamed, the folder is fsynced too, so that a write that returned survives a power loss
+(the rule of SQLite and rosbag2). Temporary files are named ``.<name>.tmp-<pid>-<random>``; those
+of processes that no longer run (killed while saving) are removed by the next write to that
+folder.
 
 Files are read with :func:`open_regular`: only a regular file (a FIFO would block the reader for
-good, a device never end). :func:`read_yaml` reads a YAML file that way and turns whatever makes
-it unreadable into one line: a missing file, not UTF-8, not YAML, nested too deeply, a number
-PyYAML cannot convert, too large, or a key written twice in one mapping (PyYAML would keep the
-last one silently; a settings, template or launch file with a key twice is a mistake).
+good, a device never end), opened without blocking and, where asked, without following a link.
+:func:`read_yaml` reads a YAML file that way and turns whatever makes it unreadable into one
+line: a missing file, not UTF-8, not YAML, nested too deeply, a number PyYAML cannot convert,
+too large, a key written twice in one mapping (PyYAML would keep the last one silently; a
+settings, template or launch file with a key twice is a mistake), or aliases that would expand
+past :data:`MAX_ALIAS_NODES` (a "billion laughs" bomb: refused before anything is built).
 """
 
 from __future__ import annotations
@@ -30,7 +35,16 @@ from typing import Mapping
 
 import yaml
 
-__all__ = ["write_atomically", "open_regular", "not_regular", "read_yaml", "unreadable"]
+__all__ = [
+    "write_atomically",
+    "sync_folder",
+    "open_regular",
+    "not_regular",
+    "read_yaml",
+    "parse_yaml",
+    "unreadable",
+    "MAX_ALIAS_NODES",
+]
 
 _UMASK_LOCK = threading.Lock()
 _TEMP = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-[^.]+$")
@@ -79,13 +93,15 @@ def _remove_stale(folder: str, name: str) -> None:
 
 
 def _target(path: str) -> tuple[str, os.stat_result | None]:
-    """The file to write for ``path`` (a symbolic link's target) and its stat (None if new).
-    Raises OSError for anything that is not a regular file."""
-    final = os.path.realpath(os.path.abspath(path))
+    """The file to write for ``path`` (absolute) and its stat (None if new). Raises OSError
+    for anything that is not a regular file: a symbolic link is not followed."""
+    final = os.path.abspath(path)
     try:
-        st = os.stat(final)
+        st = os.lstat(final)
     except FileNotFoundError:
         return final, None
+    if stat.S_ISLNK(st.st_mode):
+        raise OSError(errno.ELOOP, "is a symbolic link: not followed, not replaced", final)
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(21, "is a folder, not a file", final)
     if not stat.S_ISREG(st.st_mode):
@@ -93,26 +109,30 @@ def _target(path: str) -> tuple[str, os.stat_result | None]:
     return final, st
 
 
-def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
+def write_atomically(
+    files: Mapping[str, bytes | str], mode: int | Mapping[str, int] | None = None
+) -> list[str]:
     """Write every ``path -> content`` of ``files`` (bytes, or text written as UTF-8): all of
-    them to temporary files first, then each renamed over its path. A failure while writing
-    (a full disk, a target that is not a regular file) leaves no file changed -- the temporary
-    ones are removed -- and raises the ``OSError``. Creates missing folders. Returns the
-    absolute paths written, in the order given."""
+    them to temporary files first, then each renamed over its path, then their folders fsynced.
+    A failure while writing (a full disk, a target that is not a regular file, a symbolic link)
+    leaves no file changed -- the temporary ones are removed -- and raises the ``OSError``.
+    Creates missing folders. Returns the absolute paths written, in the order given. ``mode``
+    (such as 0o600 for a secret; or path -> mode for some of the files): the permission bits of
+    a file written, whatever they were."""
     staged: list[tuple[str, str]] = []
-    mode_new = 0o666 & ~_umask()
+    modes = mode if isinstance(mode, Mapping) else {path: mode for path in files}
     targets: dict[str, tuple] = {}  # final path -> (the path given, its stat)
     for path in files:  # every target checked before anything is written
         final, st = _target(path)
         if final in targets:
             raise OSError(
-                errno.EINVAL,
-                f"{path} and {targets[final][0]} are one file (a symbolic link): neither written",
-                path,
+                errno.EINVAL, f"{path} and {targets[final][0]} are one file: neither written", path
             )
         targets[final] = (path, st)
     try:
-        for (final, (_, st)), content in zip(targets.items(), files.values()):
+        for (final, (given, st)), content in zip(targets.items(), files.values()):
+            asked = modes.get(given)
+            mode_new = 0o666 & ~_umask() if asked is None else asked
             folder, name = os.path.split(final)
             os.makedirs(folder, exist_ok=True)
             _remove_stale(folder, name)
@@ -122,7 +142,10 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
             with os.fdopen(fd, "wb") as handle:
                 handle.write(data)
                 handle.flush()
-                os.fchmod(handle.fileno(), stat.S_IMODE(st.st_mode) if st else mode_new)
+                os.fchmod(
+                    handle.fileno(),
+                    stat.S_IMODE(st.st_mode) if st and asked is None else mode_new,
+                )
                 if st is not None and os.geteuid() == 0:
                     os.fchown(handle.fileno(), st.st_uid, st.st_gid)
                 os.fsync(handle.fileno())
@@ -131,18 +154,36 @@ def write_atomically(files: Mapping[str, bytes | str]) -> list[str]:
             os.replace(tmp, final)
     except BaseException:
         for tmp, _ in staged:
-            if os.path.exists(tmp):
+            if os.path.lexists(tmp):
                 os.unlink(tmp)
         raise
+    for folder in dict.fromkeys(os.path.dirname(final) for _, final in staged):
+        sync_folder(folder)
     return [final for _, final in staged]
 
 
-def open_regular(path: str, encoding: str | None = None):
+def sync_folder(folder: str) -> None:
+    """fsync ``folder``: the names renamed or created in it survive a power loss."""
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def open_regular(path: str, encoding: str | None = None, follow: bool = True):
     """Open ``path`` for reading -- text in ``encoding``, else binary -- when it is a regular
-    file (a symbolic link to one included). A folder, FIFO, device or socket raises
-    ``OSError`` (its ``strerror`` says which) without blocking: the file is opened
-    non-blocking, checked, then read as usual."""
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    file (a symbolic link to one included, unless not ``follow``). A folder, FIFO, device or
+    socket raises ``OSError`` (its ``strerror`` says which) without blocking: the file is
+    opened non-blocking, checked, then read as usual; so does a symbolic link when not
+    ``follow`` (it is opened with ``O_NOFOLLOW``)."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags if follow else flags | os.O_NOFOLLOW)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP and not follow:
+            raise OSError(errno.ELOOP, "is a symbolic link: not followed", path) from None
+        raise
     try:
         mode = os.fstat(fd).st_mode
         if stat.S_ISDIR(mode):
@@ -189,9 +230,64 @@ def not_regular(mode: int) -> str | None:
     )
 
 
+#: the most nodes a YAML document's aliases (``*name``, merge keys ``<<: *name``) may add to it
+#: when expanded: a settings or template file merging a few shared blocks adds tens; a
+#: 455-byte "billion laughs" adds billions (refused before anything is built)
+MAX_ALIAS_NODES = 10_000
+
+
+def _children(node) -> list:
+    if isinstance(node, yaml.SequenceNode):
+        return node.value
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def _check_aliases(root) -> None:
+    """Raise a YAML error when the node graph ``root`` (aliases share nodes) refers to itself
+    or would expand to more than :data:`MAX_ALIAS_NODES` nodes beyond its own: sizes are
+    summed over shared nodes once each, without expanding anything."""
+    expanded: dict[int, int] = {}  # id(node) -> nodes in it, expanded
+    on_path: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            on_path.discard(key)
+            expanded[key] = 1 + sum(expanded[id(c)] for c in _children(node))
+            continue
+        if key in expanded:
+            continue
+        if key in on_path:
+            raise yaml.composer.ComposerError(
+                None, None, "an alias refers to a node that holds it (a cycle)", node.start_mark
+            )
+        on_path.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in _children(node) if id(c) not in expanded)
+    extra = expanded[id(root)] - len(expanded)
+    if extra > MAX_ALIAS_NODES:
+        raise yaml.composer.ComposerError(
+            None,
+            None,
+            f"its aliases would add {extra:,} nodes to it, more than the "
+            f"{MAX_ALIAS_NODES:,} allowed",
+            root.start_mark,
+        )
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a mapping that has one key twice (merge keys ``<<`` aside:
-    a merged key may be overridden, as YAML intends)."""
+    a merged key may be overridden, as YAML intends), and a document whose aliases refer to
+    themselves or would expand it past :data:`MAX_ALIAS_NODES` (checked on the composed nodes,
+    before anything is constructed)."""
+
+    def compose_document(self):
+        node = super().compose_document()
+        _check_aliases(node)
+        return node
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -229,9 +325,20 @@ def read_yaml(
         with open_regular(path, encoding="utf-8") as handle:
             if max_bytes is not None and os.fstat(handle.fileno()).st_size > max_bytes:
                 raise error(f"{label}: larger than {max_bytes // 1000} kB: not a {kind}")
-            return yaml.load(handle, Loader=_UniqueKeyLoader)
+            text = handle.read()
     except OSError as exc:
         raise error(f"{label}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise error(f"{label}: not UTF-8 text") from None
+    return parse_yaml(text, error, label)
+
+
+def parse_yaml(text: str | bytes, error: type[Exception], label: str):
+    """The YAML document in ``text`` (None for an empty one), by :func:`read_yaml`'s rules
+    (aliases bounded, no key twice); what keeps it from being read raises ``error`` with one
+    line starting with ``label``."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except UnicodeDecodeError:
         raise error(f"{label}: not UTF-8 text") from None
     except yaml.YAMLError as exc:

@@ -1,13 +1,17 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""The operator's inputs, one small frozen record per kind, and the host the operator stream
-(:mod:`~affordance_registration.core.operator`) talks to: what it needs from the node it runs
-in, as one :class:`OperatorHost` protocol. Pure Python (no ROS)."""
+"""The operator's inputs, one small frozen record per kind, and the seam between the operator
+stream (:mod:`~affordance_registration.core.operator`) and the node it runs in: what the node
+gives it (:class:`Cloud` records in a :class:`LatestCloud` slot; a transform lookup, see
+:mod:`~affordance_registration.core.scene_feed`) and what it gives back (an :class:`Outbox` of
+what changed, which the node publishes from). Nothing here calls into the node. Pure Python (no
+ROS)."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
-from typing import Callable, ClassVar, Protocol
+from typing import Callable, ClassVar
 
 import numpy as np
 
@@ -22,8 +26,11 @@ __all__ = [
     "NewCloud",
     "OperatorInput",
     "INDEPENDENT",
-    "OperatorHost",
-    "StandaloneHost",
+    "Cloud",
+    "LatestCloud",
+    "Outcome",
+    "Outbox",
+    "Drained",
 ]
 
 
@@ -132,63 +139,121 @@ OperatorInput = Click | Action | Twist | Joy | View | Pose | CancelDrag | NewClo
 INDEPENDENT = (View, NewCloud)
 
 
-# ============================================================================ the host
-class OperatorHost(Protocol):
-    """What the stream needs from the node it runs in (the engine node implements it).
+# ============================================================================ the seam
+@dataclass(frozen=True)
+class Cloud:
+    """A cloud as it arrived: its ``frame``, ``stamp`` (s; None: unstamped), ``width`` and
+    ``height`` as sent, and ``read()``, which gives its points ((N, 3), NaN rows kept) -- called
+    only when a fit needs them, so a fast camera costs nothing between clicks. ``read`` raises
+    :class:`~affordance_registration.core.errors.AffordanceError` for points it cannot read."""
 
-    ``refresh_scene()`` makes the engine's scene the latest cloud before anything that fits;
-    ``to_scene_frame(point, frame, stamp)`` expresses a click given in ``frame`` (at ``stamp``,
-    s, or None: the latest) in the scene's frame (raising :class:`AffordanceError` when it
-    cannot); ``report(kind, success, message, benign)`` hears every outcome (``kind`` names the
-    input, for throttled logging; ``benign``: a refusal because the action does not apply now --
-    nothing selected, nothing to undo -- which is the operator's to see, not an error);
-    ``changed()`` is called after every handled input; ``busy(text)``
-    when a click's fit starts. ``persist(explicit)`` writes the registrations: with ``True`` for
-    ``save``, and with ``False`` right after any input that changed them (accept, undo, a Joy
-    accept...), *before* that input is replied to, so what is acknowledged is durable; it
-    returns a message to add to the reply ("" for none) or raises :class:`AffordanceError` (the
-    input then fails with the reason; the registrations stay in memory).
-    """
-
-    def refresh_scene(self) -> None: ...
-
-    def to_scene_frame(
-        self, point: np.ndarray, frame: str, stamp: float | None = None
-    ) -> np.ndarray: ...
-
-    def report(self, kind: str, ok: bool, message: str, benign: bool = False) -> None: ...
-
-    def changed(self) -> None: ...
-
-    def busy(self, text: str | None) -> None: ...
-
-    def persist(self, explicit: bool) -> str: ...
+    frame: str
+    stamp: float | None
+    read: Callable[[], np.ndarray] = field(compare=False, repr=False)
+    width: int = 0
+    height: int = 1
 
 
-class StandaloneHost:
-    """The host of a stream without a node: the engine's scene is used as it is, clicks are in
-    its frame, outcomes go nowhere, and ``save`` writes ``registrations_file`` (changes are not
-    written on their own)."""
+class LatestCloud:
+    """The newest cloud from ``source`` (a topic name, said in errors), set from any thread: the
+    node puts every cloud here on arrival (or says why one was dropped), the stream's scene feed
+    takes the latest when it needs a scene. ``count``: clouds put so far."""
 
-    def __init__(self, engine, registrations_file: str = "affordance_registrations.yaml"):
-        self.engine, self.registrations_file = engine, registrations_file
+    def __init__(self, source: str = "points"):
+        self.source = source
+        self._lock = threading.Lock()
+        self._cloud: Cloud | None = None
+        self._count = 0
+        self.dropped = ""  #: why the latest cloud was refused ("" if it was not)
 
-    def refresh_scene(self) -> None:
-        pass
+    def put(self, cloud: Cloud) -> Cloud | None:
+        """Keep ``cloud`` as the latest; returns the one it replaces."""
+        with self._lock:
+            previous, self._cloud = self._cloud, cloud
+            self._count += 1
+            self.dropped = ""
+            return previous
 
-    def to_scene_frame(
-        self, point: np.ndarray, frame: str, stamp: float | None = None
-    ) -> np.ndarray:
-        return point
+    def refuse(self, why: str) -> None:
+        """A cloud arrived and was dropped: ``why`` (the previous one stays the latest)."""
+        self.dropped = why
 
-    def report(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
-        pass
+    def latest(self) -> tuple[Cloud | None, int]:
+        """(the latest cloud or None, how many had been put when it came)."""
+        with self._lock:
+            return self._cloud, self._count
+
+    @property
+    def count(self) -> int:
+        return self._count
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What came of an input (or of a step the stream took on its own): ``kind`` names it (an
+    action's name, an input's kind, "cloud", "frame", "queue"...), ``ok`` and a ``message`` for
+    a person; ``benign``: a refusal because the action does not apply now (nothing selected,
+    nothing to undo) -- the operator's to see, not an error."""
+
+    kind: str
+    ok: bool
+    message: str
+    benign: bool = False
+
+
+@dataclass(frozen=True)
+class Drained:
+    """What an :class:`Outbox` held: the ``outcomes`` in order, whether the state changed since
+    the last drain (``changed``) and whether a long step started (``busy``: say so now)."""
+
+    outcomes: tuple = ()
+    changed: bool = False
+    busy: bool = False
+
+
+class Outbox:
+    """What changed, for the node to publish: outcomes, a change of state, the start of a long
+    step. Filled from any thread (the stream's worker, the node's callbacks); ``wake()`` (given,
+    now or later: the node's guard condition, say) is called after each put so that nothing
+    polls; the node drains it (:meth:`drain`) where it publishes."""
+
+    def __init__(self, wake: Callable[[], None] | None = None):
+        #: called after each put (from the putting thread)
+        self.wake: Callable[[], None] = wake or (lambda: None)
+        self._lock = threading.Lock()
+        self._outcomes: list[Outcome] = []
+        self._changed = True  # the first drain publishes what there is
+        self._busy = False
+
+    def outcome(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
+        """An outcome worth saying (an empty message is not)."""
+        if not message:
+            return
+        with self._lock:
+            self._outcomes.append(Outcome(kind, ok, message, benign))
+            self._changed = True
+        self.wake()
 
     def changed(self) -> None:
-        pass
+        """Something the status, markers or TF show changed."""
+        with self._lock:
+            self._changed = True
+        self.wake()
 
-    def busy(self, text: str | None) -> None:
-        pass
+    def busy(self) -> None:
+        """A long step (a click's fit) started: the status should say so at once."""
+        with self._lock:
+            self._busy = self._changed = True
+        self.wake()
 
-    def persist(self, explicit: bool) -> str:
-        return self.engine.save(self.registrations_file) if explicit else ""
+    def drain(self) -> Drained:
+        """Everything put since the last drain (and empty the box)."""
+        with self._lock:
+            out = Drained(tuple(self._outcomes), self._changed, self._busy)
+            self._outcomes, self._changed, self._busy = [], False, False
+        return out
+
+    def pending(self) -> bool:
+        """Whether anything is waiting to be drained."""
+        with self._lock:
+            return bool(self._outcomes) or self._changed or self._busy

@@ -9,14 +9,19 @@ is published, and a session with many registrations would otherwise rebuild all 
 click. :class:`PerRecord` keeps one value per record, found by the record's identity (records
 hold numpy arrays and are not hashable) and checked against the record itself, so a new record
 that reuses a freed object's ``id`` is never given the old one's value.
+
+:func:`per_object` is the other way round: values derived from a live object (a click's
+context: its scene descriptors, its grids) that several callers ask for, kept while the object
+lives and dropped with it.
 """
 
 from __future__ import annotations
 
 import threading
+import weakref
 from collections.abc import Callable, Hashable, Iterable
 
-__all__ = ["PerRecord"]
+__all__ = ["PerRecord", "per_object"]
 
 
 class PerRecord:
@@ -44,3 +49,26 @@ class PerRecord:
                 out.append(entry[2])
             self._held = kept
             return out
+
+
+_object_lock = threading.Lock()
+#: id(object) -> {what: value}, while the object lives (see :func:`per_object`)
+_per_object: dict = {}
+
+
+def per_object(obj, what: Hashable, compute: Callable):
+    """``compute()`` once per live ``obj`` (weak-referenceable; it need not be hashable) and
+    ``what``: later calls get the same value. The values go with the object (before its id can
+    be reused); two threads may compute one twice, never see a half-built one."""
+    key = id(obj)
+    with _object_lock:
+        memo = _per_object.get(key)
+        if memo is None:
+            memo = _per_object[key] = {}
+            weakref.finalize(obj, _per_object.pop, key, None)
+        hit = memo.get(what)
+    if hit is not None:
+        return hit
+    value = compute()
+    with _object_lock:
+        return memo.setdefault(what, value)

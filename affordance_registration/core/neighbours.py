@@ -13,26 +13,37 @@ over every core by default; on a loaded machine that made it many times *slower*
 fitter runs its own threads (:mod:`.registration.parallel`). So every query runs on one OpenMP
 thread: the calling thread's OpenMP thread count is set to one for the query and put back
 after it (through ``threadpoolctl``), leaving ``OMP_NUM_THREADS`` and every other library's
-threads as the user set them. ``query_pairs`` (the crop's segmentation) stays scipy's.
+threads as the user set them. Setting and reading the count costs as much as a small query
+itself, and a click makes hundreds: inside :func:`one_openmp_thread` (a fit holds it on each of
+its threads) the count is set once for the block instead. ``query_pairs`` (the crop's
+segmentation) stays scipy's.
 """
 
 from __future__ import annotations
+
+import threading
+from contextlib import contextmanager
 
 import numpy as np
 from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
+from .compiled import DistanceGrid, grid_cell
+from .memo import per_object
+
 __all__ = [
     "KDTree",
     "build_tree",
     "tree_points",
     "nearest",
+    "nearest_distances",
     "k_nearest",
     "pairs_within",
     "pca_normals",
     "least_spread",
     "openmp_threads",
+    "one_openmp_thread",
 ]
 
 #: the OpenMP runtimes loaded with pykdtree (its wheel brings a private libgomp)
@@ -45,8 +56,36 @@ def openmp_threads() -> tuple:
     return tuple(lib.num_threads for lib in _OPENMP)
 
 
+#: per thread: how deep in :func:`one_openmp_thread` blocks it is, and the counts before them
+_pinned = threading.local()
+
+
+@contextmanager
+def one_openmp_thread():
+    """The calling thread's OpenMP thread count at one while the block runs (nested blocks:
+    the outermost sets it and puts back what it was), so that the queries in it need not set
+    it each."""
+    depth = getattr(_pinned, "depth", 0)
+    if depth == 0:
+        _pinned.before = [lib.num_threads for lib in _OPENMP]
+        for lib, n in zip(_OPENMP, _pinned.before):
+            if n != 1:
+                lib.set_num_threads(1)
+    _pinned.depth = depth + 1
+    try:
+        yield
+    finally:
+        _pinned.depth -= 1
+        if _pinned.depth == 0:
+            for lib, n in zip(_OPENMP, _pinned.before):
+                if n != 1:
+                    lib.set_num_threads(n)
+
+
 def _query(tree: KDTree, points: np.ndarray, **kwargs):
     """``tree.query`` on one OpenMP thread (the calling thread's count restored after)."""
+    if getattr(_pinned, "depth", 0):
+        return tree.query(points, **kwargs)
     before = [lib.num_threads for lib in _OPENMP]
     for lib, n in zip(_OPENMP, before):
         if n != 1:
@@ -81,6 +120,26 @@ def nearest(tree: KDTree, points: np.ndarray, upper: float = np.inf, parallel: b
         tree, pts, k=1, distance_upper_bound=float(upper) if np.isfinite(upper) else None
     )
     return d, np.minimum(i, tree.n - 1).astype(np.intp)
+
+
+def nearest_distances(tree: KDTree, points: np.ndarray, upper: float, owner=None) -> np.ndarray:
+    """The distances of :func:`nearest` (the same numbers, to the last bit), from a compiled
+    grid over the tree's points (:class:`.compiled.DistanceGrid`) where one pays
+    (:func:`.compiled.grid_cell`: a finite bound and light cells), kept with ``owner`` -- the
+    object holding ``tree`` (a template's surface, a click's context) -- and built when first
+    asked; else from the tree."""
+    if owner is not None:
+        pts = tree_points(tree)
+        extent = per_object(
+            owner,
+            ("extent", id(tree)),
+            lambda: float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0,
+        )
+        cell = grid_cell(pts, upper, extent)
+        if cell is not None:
+            grid = per_object(owner, ("grid", id(tree), cell), lambda: DistanceGrid(pts, cell))
+            return grid.distances(points, upper)
+    return nearest(tree, points, upper)[0]
 
 
 def k_nearest(tree: KDTree, points: np.ndarray, k: int) -> np.ndarray:

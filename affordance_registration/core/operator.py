@@ -24,8 +24,12 @@ The stream also owns what would otherwise depend on when messages happen to be h
   re-arms only after it comes back below half of it.
 
 Each kind of input is a small frozen record (:class:`Click`, :class:`Action`, :class:`Twist`,
-:class:`Joy`, :class:`View`, :class:`Pose`, :class:`CancelDrag`, :class:`NewCloud`); the stream
-talks to the node it runs in through one :class:`OperatorHost`.
+:class:`Joy`, :class:`View`, :class:`Pose`, :class:`CancelDrag`, :class:`NewCloud`). The stream
+never calls into the node it runs in: it is given what it needs -- a
+:class:`~.scene_feed.SceneFeed` (the latest cloud and a transform lookup), an
+:class:`~.persistence.Autosave` (where the registrations are written) -- and it puts what came of
+each input, and that something changed, into an :class:`~.inputs.Outbox`, which the node
+publishes from.
 
 Pure Python with an injectable clock (and sleep): tests drive it in simulated time without ROS.
 The ROS node converts messages into :meth:`OperatorStream.submit` calls and publishes what changed.
@@ -50,20 +54,20 @@ from .inputs import (
     Click,
     Joy,
     NewCloud,
-    OperatorHost,
     OperatorInput,
+    Outbox,
     Pose,
-    StandaloneHost,
     Twist,
     View,
 )
+from .persistence import Autosave, RegistrationStore
+from .scene_feed import SceneFeed
 
 __all__ = [
     "OperatorSettings",
     "OperatorInput",
     "OperatorStream",
-    "OperatorHost",
-    "StandaloneHost",
+    "Outbox",
     "Click",
     "Action",
     "Twist",
@@ -175,8 +179,9 @@ class OperatorSettings:
 # ============================================================================ the stream
 class OperatorStream:
     """The ordered stream of operator input in front of an
-    :class:`~affordance_registration.core.engine.AffordanceEngine`, in a node (``host``, an
-    :class:`OperatorHost`; None: a :class:`StandaloneHost`).
+    :class:`~affordance_registration.core.engine.AffordanceEngine`, given its scene ``feed``,
+    its ``outbox`` and its registrations' ``saver`` (see the module docstring; each has a default
+    for a stream without a node).
 
     ``clock()`` (s, monotonic) and ``sleep(s)`` are injectable. Submit from any thread; handle
     with :meth:`run` (a worker thread) or, in tests, :meth:`process_pending`.
@@ -188,12 +193,28 @@ class OperatorStream:
         settings: OperatorSettings | None = None,
         clock=time.monotonic,
         sleep=time.sleep,
-        host: OperatorHost | None = None,
+        *,
+        feed: SceneFeed | None = None,
+        outbox: Outbox | None = None,
+        saver: Autosave | None = None,
     ):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
         self.clock, self.sleep = clock, sleep
-        self.host: OperatorHost = host if host is not None else StandaloneHost(engine)
+        if outbox is None:
+            outbox = feed.outbox if feed is not None else Outbox()
+        #: what came of each input and that the state changed, for the node to publish
+        self.outbox = outbox
+        #: the engine's scene from the latest cloud, clicks in its frame (without a node: the
+        #: scene the engine has, clicks in its frame)
+        self.feed = feed if feed is not None else SceneFeed(outbox=outbox)
+        #: where the registrations are written (without a node: ``save`` writes
+        #: affordance_registrations.yaml, changes are not written on their own)
+        self.saver = (
+            saver
+            if saver is not None
+            else Autosave(RegistrationStore("affordance_registrations.yaml"), enabled=False)
+        )
         self._cv = threading.Condition()
         self._queue: collections.deque[OperatorInput] = collections.deque()
         self._busy: str | None = None
@@ -258,7 +279,7 @@ class OperatorStream:
                 self._handled[old.source] = self._handled.get(old.source, 0) + 1
             self._cv.notify_all()
         for old, why in dropped:
-            self.host.report(
+            self._say(
                 "queue",
                 False,
                 f"{_kind(old).replace('_', ' ')} from {old.source or 'an input'} {why}",
@@ -378,20 +399,20 @@ class OperatorStream:
             ok, message = False, f"internal error while handling {item.kind}: {exc!r}"
         if self.engine.state.registered is not registered:
             try:  # durable before it is acknowledged
-                saved = self.host.persist(False)
+                saved = self.saver.persist(self.engine, False)
                 message = "; ".join(m for m in (message, saved) if m)
             except AffordanceError as exc:
                 ok, message = False, f"{message}; NOT saved: {exc}"
             except Exception as exc:
                 ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
-            self.host.report(_kind(item), ok, message, benign=benign)
+            self._say(_kind(item), ok, message, benign)
         if item.reply is not None:
             item.reply(ok, message)
         with self._cv:
             self._busy = None
             self._handled[item.source] = self._handled.get(item.source, 0) + 1
-        self.host.changed()
+        self.outbox.changed()
         return True
 
     def _idle_refit_if_due(self) -> None:
@@ -402,13 +423,21 @@ class OperatorStream:
             self._pending_refit = False
             self._busy = "refitting after the SpaceMouse stopped"
         try:
-            self.host.report("refit", *self._refit())
+            self._say("refit", *self._refit())
         except AffordanceError as exc:
-            self.host.report("refit", False, str(exc))
+            self._say("refit", False, str(exc))
         finally:
             with self._cv:
                 self._busy = None
-            self.host.changed()
+            self.outbox.changed()
+
+    def _say(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
+        """An outcome into the outbox; a failed action's line names the action ("accept: no
+        object selected ...": the reply to the input itself does not); ``benign``: the action
+        did not apply now (:class:`~.inputs.Outcome`)."""
+        if not ok and kind in ACTIONS:
+            message = f"{kind.replace('_', ' ')}: {message}"
+        self.outbox.outcome(kind, ok, message, benign)
 
     def _handle(self, item: OperatorInput) -> tuple[bool, str]:
         match item:
@@ -440,18 +469,18 @@ class OperatorStream:
         if action in LEAVING_ACTIONS:
             self._pending_refit = False
             ok, message = self._refit()
-            self.host.report("refit", ok, message)
+            self._say("refit", ok, message)
         elif action in SETTLING_ACTIONS or action == "pose":
             self._pending_refit = False
 
     def _refit(self) -> tuple[bool, str]:
-        self.host.refresh_scene()
+        self.feed.refresh(self.engine)
         return True, self.engine.refit()
 
     def _on_click(self, item: Click) -> tuple[bool, str]:
-        self.host.busy(self._busy)
-        self.host.refresh_scene()
-        point = self.host.to_scene_frame(item.point, item.frame, item.stamp)
+        self.outbox.busy()
+        self.feed.refresh(self.engine)
+        point = self.feed.express(item.point, item.frame, item.stamp, self.engine.frame_id)
         return True, self.engine.click(point)
 
     def _act(self, action: str, argument=None) -> tuple[bool, str]:
@@ -459,11 +488,11 @@ class OperatorStream:
             raise AffordanceError(f"unknown action {action!r}")
         self._settle(action)
         if action in ("refit", "joint_plus", "joint_minus", "joint_value", "dimension"):
-            self.host.refresh_scene()
+            self.feed.refresh(self.engine)
         engine = self.engine
         match action:
             case "save":
-                return True, self.host.persist(True)
+                return True, self.saver.persist(self.engine, True)
             case "refit":
                 return True, engine.refit()
             case "joint_plus":
@@ -559,7 +588,7 @@ class OperatorStream:
             or now - self._last_follow < s.follow_period_s
         ):
             return True, ""
-        self.host.refresh_scene()
+        self.feed.refresh(self.engine)
         message = self.engine.follow_scene()
         if message is None:
             return True, ""
@@ -581,7 +610,7 @@ class OperatorStream:
         if not item.release:
             return True, ""
         self.engine.end_drag()
-        self.host.refresh_scene()
+        self.feed.refresh(self.engine)
         return True, f"{message}; {self.engine.refit()}"
 
 

@@ -13,14 +13,31 @@ small file is rewritten each time (atomically: a temporary file renamed into pla
 
 Backups: the first time the store replaces a file whose bytes differ from what it wrote itself
 (the file found at start, or one another program wrote meanwhile), that file is first copied to
-``<stem>.<UTC time>.bak<suffix>`` next to it (``registrations.20261201T213000Z.bak.yaml``), and
-the backup's path is named in the reply.
+``<stem>.<UTC time>.bak<suffix>`` next to it (``registrations.20261201T213000Z.bak.yaml``), with
+the original's permission bits, and the backup's path is named in the reply.
+
+What the store writes over is a registrations file or nothing: a file there that is not one
+(empty aside) is refused, never replaced nor copied; so is a symbolic link (never followed: one
+planted between two saves would have its target read into a backup and overwritten) and
+anything that is not a regular file (a FIFO is never opened for reading, so it cannot block the
+engine). One engine per file: the store holds an exclusive lock (``fcntl.flock``) on
+``.<name>.lock`` next to the file while it lives; a second store on the same file is refused
+in one line naming the holder (two engines would each acknowledge accepts that only one file
+keeps). :meth:`RegistrationStore.close` removes the lock file (one left by a process that
+died is unlocked, and taken over); a lock cannot be taken where the folder cannot be written,
+and then nothing can be saved there either.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import math
 import os
+import socket
+import stat
+import sys
 import threading
 import time
 
@@ -28,7 +45,7 @@ import numpy as np
 import yaml
 
 from .errors import AffordanceError
-from .files import read_yaml, write_atomically
+from .files import open_regular, parse_yaml, read_yaml, write_atomically
 from .templates import TemplateLibrary
 from .tracked import Registration
 from .transforms import is_rigid
@@ -36,11 +53,13 @@ from .waypoints import waypoints_dict
 
 __all__ = [
     "RegistrationStore",
+    "Autosave",
     "registrations_document",
     "backup_path",
     "save_registrations",
     "load_registrations",
     "REGISTRATIONS_FORMAT",
+    "lock_path",
 ]
 
 REGISTRATIONS_FORMAT = "affordance_registration/registrations/1"
@@ -197,25 +216,99 @@ def backup_path(path: str, now: float | None = None) -> str:
     return candidate
 
 
-def _read_bytes(path: str) -> bytes | None:
-    """The bytes of the regular file at ``path`` (following a link), None when there is none."""
+def _read_bytes(path: str) -> tuple[bytes, int] | None:
+    """(the bytes, the permission bits) of the regular file at ``path``, None when there is
+    none. A symbolic link is not followed and a FIFO not waited on: each, and anything else
+    that is not a regular file, raises :class:`AffordanceError`."""
     try:
-        with open(path, "rb") as handle:
-            return handle.read()
+        with open_regular(path, follow=False) as handle:
+            return handle.read(), stat.S_IMODE(os.fstat(handle.fileno()).st_mode)
     except FileNotFoundError:
         return None
-    except IsADirectoryError:
-        raise AffordanceError(f"{path} is a folder, not a registrations file") from None
     except OSError as exc:
-        raise AffordanceError(f"cannot read {path}: {exc.strerror or exc}") from None
+        raise AffordanceError(
+            f"cannot save registrations to {path}: {exc.strerror or exc} (not replaced)"
+        ) from None
+
+
+def _is_registrations(data: bytes) -> bool:
+    """Whether ``data`` is empty or the YAML of a registrations file (any version's format)."""
+    if not data.strip():
+        return True
+    try:
+        doc = parse_yaml(data, AffordanceError, "registrations")
+    except AffordanceError:
+        return False
+    return isinstance(doc, dict) and str(doc.get("format", "")).startswith(
+        REGISTRATIONS_FORMAT.rsplit("/", 1)[0] + "/"
+    )
+
+
+def lock_path(path: str) -> str:
+    """The lock file of the registrations file ``path``: ``.<name>.lock`` next to it."""
+    folder, name = os.path.split(os.path.abspath(path))
+    return os.path.join(folder, f".{name}.lock")
+
+
+def _lock(path: str, holder: str):
+    """An exclusive lock on ``path``'s lock file (the open file: closing it, or its garbage
+    collection, releases the lock), None where the folder cannot be written. Raises
+    :class:`AffordanceError` naming the holder when another has it. A lock file its holder
+    removed meanwhile (:meth:`RegistrationStore.close`) is not taken: the lock is on the file
+    at that name, checked after locking, else tried again."""
+    lock = lock_path(path)
+    for _ in range(10):
+        try:
+            os.makedirs(os.path.dirname(lock), exist_ok=True)
+            fd = os.open(
+                lock,
+                os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC,
+                0o600,
+            )
+        except OSError as exc:
+            if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+                return None  # nothing can be saved there either: each save says so
+            raise AffordanceError(
+                f"cannot lock the registrations file {path}: {lock} {exc.strerror or exc}"
+            ) from None
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise AffordanceError(
+                    f"cannot lock the registrations file {path}: {lock} is not a file"
+                )
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                who = os.pread(fd, 300, 0).decode("utf-8", "replace").strip() or "another process"
+                raise AffordanceError(
+                    f"the registrations file {path} is in use by {who}: two engines on one "
+                    f"file would each acknowledge accepts only one keeps (stop it, or give this "
+                    f"one another registrations_file)"
+                ) from None
+            try:
+                same = os.lstat(lock).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:  # removed by its holder between our open and our lock
+                os.close(fd)
+                continue
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{holder} (pid {os.getpid()} on {socket.gethostname()})\n".encode(), 0)
+            return os.fdopen(fd, "r+b", buffering=0)
+        except BaseException:
+            os.close(fd)
+            raise
+    raise AffordanceError(f"cannot lock the registrations file {path}: {lock} keeps changing")
 
 
 class RegistrationStore:
     """One registrations file. Thread-safe: :meth:`write` may be called from the stream worker
     and from the node's shutdown at once."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, holder: str | None = None):
         self.path = os.path.abspath(os.path.expanduser(path))
+        #: the lock on the file (released by :meth:`close` or at the process's end)
+        self._lock_file = _lock(self.path, holder or os.path.basename(sys.argv[0]) or "python")
         self._lock = threading.Lock()
         self._written: bytes | None = None  # what this store last wrote there
         self.count: int | None = None  # registrations in the file as last written
@@ -238,15 +331,21 @@ class RegistrationStore:
         :class:`AffordanceError` (nothing changed) when it cannot."""
         text = registrations_document(registrations, frame_id, library).encode("utf-8")
         with self._lock:
-            old = _read_bytes(self.path)
+            found = _read_bytes(self.path)
             files: dict = {}
-            backup = None
-            if old is not None and old != self._written:
+            backup, modes = None, {}
+            if found is not None and found[0] != self._written:
+                if not _is_registrations(found[0]):
+                    raise AffordanceError(
+                        f"cannot save registrations to {self.path}: it holds something that is "
+                        f"not a registrations file (not replaced; move it away or name another "
+                        f"registrations_file)"
+                    )
                 backup = backup_path(self.path)
-                files[backup] = old
+                files[backup], modes[backup] = found
             files[self.path] = text
             try:
-                write_atomically(files)
+                write_atomically(files, modes)
             except OSError as exc:
                 raise AffordanceError(
                     f"cannot save registrations to {self.path}: {exc.strerror or exc}"
@@ -256,3 +355,47 @@ class RegistrationStore:
             if backup is not None:
                 self.last_backup = backup
             return self.path, backup
+
+    def close(self) -> None:
+        """Release the file's lock and remove the lock file (another store may then take it)."""
+        with self._lock:
+            if self._lock_file is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(lock_path(self.path))
+                self._lock_file.close()
+                self._lock_file = None
+
+
+class Autosave:
+    """When a session's registrations are written to its ``store``: on ``save``
+    (:meth:`persist` with ``explicit``), and after every change of them when ``enabled``
+    (autosave) -- otherwise the change is remembered as ``unsaved`` until the next save. The
+    operator stream calls :meth:`persist` before it answers the input that changed them, so
+    what is acknowledged is durable."""
+
+    def __init__(self, store: RegistrationStore, enabled: bool = True):
+        self.store, self.enabled = store, bool(enabled)
+        self.unsaved = False  #: registrations changed and not written (autosave off)
+
+    def persist(self, engine, explicit: bool) -> str:
+        """Write ``engine``'s registrations (in its frame, with their waypoints) when
+        ``explicit`` or enabled; returns the reply's words ("" for none). Raises
+        :class:`AffordanceError` when the file cannot be written (they stay in memory)."""
+        if not explicit and not self.enabled:
+            self.unsaved = True
+            return ""
+        regs = engine.state.registered
+        path, backup = self.store.write(regs, engine.frame_id, engine.library)
+        self.unsaved = False
+        text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
+        return text + (f" (the file it replaced is kept as {backup})" if backup else "")
+
+    def status(self) -> dict:
+        """The status' ``registrations_file``: its path, how many it holds as last written,
+        whether changes are unsaved and the last backup made."""
+        return {
+            "path": self.store.path,
+            "saved": self.store.count,
+            "unsaved": self.unsaved,
+            "backup": self.store.last_backup,
+        }

@@ -6,7 +6,9 @@ what a reader could not read is an error rather than a shorter cloud, a PCD's ``
 is kept (where the scan was taken from) and so are the scan's own colours (a PCD's ``rgb`` or
 ``rgba`` field, a PLY's ``red green blue``).
 
-Formats: PLY and PCD (read by Open3D), organized ``.npy`` arrays (H, W, 3) of numbers.
+Formats: PLY and PCD (read by Open3D), organized ``.npy`` arrays (H, W, 3) of numbers. A
+``binary_compressed`` PCD is unpacked (by Open3D, into a buffer of the size its header gives)
+only when that size is its points' bytes and at most :data:`MAX_UNPACKED_BYTES`.
 """
 
 from __future__ import annotations
@@ -27,11 +29,16 @@ __all__ = [
     "unpack_rgb",
     "MAX_FILE_BYTES",
     "MAX_POINTS",
+    "MAX_UNPACKED_BYTES",
 ]
 
 #: the largest point or mesh file read (bytes) and the most points one may hold
 MAX_FILE_BYTES = 2_000_000_000
 MAX_POINTS = 10_000_000
+#: the most bytes a ``binary_compressed`` PCD's data may unpack to (LZF packs up to about 90:1:
+#: a 48.6 MB file within MAX_POINTS unpacked to 4.65 GB in 75 s); its header must also promise
+#: exactly its points' bytes. A 10-million-point cloud of x y z rgb and normals is 320 MB
+MAX_UNPACKED_BYTES = 1_000_000_000
 #: the sizes (bytes) a PCD field of each TYPE may have
 _PCD_SIZES = {"F": (4, 8), "I": (1, 2, 4, 8), "U": (1, 2, 4, 8)}
 _HEADER_LIMIT = 65536  # bytes of header read before giving up on finding its end
@@ -222,6 +229,13 @@ def _check_pcd(path: str, size: int, error) -> dict:
                 path,
                 f"its compressed data unpacks to {int(unpacked):,} bytes, not the "
                 f"{points * point_bytes:,} of its {points:,} points (corrupt)",
+                error,
+            )
+        if int(unpacked) > MAX_UNPACKED_BYTES:
+            raise _fail(
+                path,
+                f"its compressed data unpacks to {int(unpacked):,} bytes, more than the "
+                f"{MAX_UNPACKED_BYTES:,} this reads (MAX_UNPACKED_BYTES)",
                 error,
             )
         needed = 8 + int(packed)

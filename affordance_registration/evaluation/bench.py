@@ -25,8 +25,9 @@ Viewpoint advice: hard first views (grazing, occluded, far, edge-on) wrong or un
 from the suggested view, a random one and the first one again (:mod:`.viewpoints`).
 
 Speed lines, measured click by click in turn (each click fitted by every variant before the
-next, so load changes hit them alike): the default method on 1 and 2 threads, and libraries of
-5/10/20/40 templates (the five and scaled / stretched variants of them) and of 5/40 of a family
+next, so load changes hit them alike): the default method on 1 and 2 threads and with the
+compiled kernels (:mod:`..core.compiled`) off and on, and libraries of 5/10/20/40 templates
+(the five and scaled / stretched variants of them) and of 5/40 of a family
 made differently (random-direction stretches, kept out of the prefilter's tuning, on held-out
 taskboards: seeds 7000 on), with how often the library prefilter decided. Click -> result from a
 1024 x 1024 organized cloud (``Scene()`` plus the fit), and ``Scene()`` after the PointCloud2
@@ -36,13 +37,21 @@ message size, idle engine CPU; and the browser station's click -> label in headl
 (:mod:`.browser_latency`; left out, with its reason, where Playwright or the browser is
 missing), and the operator's effort in the browser: a scripted operator registering every object
 of simulated taskboards and shared real scans through the page (:mod:`.browser_operator`).
+
+``bench --out DIR`` writes the results (``benchmark.json``), the settings they were measured with
+(``benchmark.settings.yaml``) and their rendering for people (``BENCHMARK.md``: the table and
+what each row measures); ``docs/`` holds the committed ones, which a test keeps equal.
 """
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
 import os
+import subprocess
+import textwrap
+import time
 
 import numpy as np
 
@@ -59,6 +68,7 @@ from .bench_rows import (
     browser_latency_bench,
     browser_operator_bench,
     evaluate_row,
+    kernel_rows,
     large_cloud_row,
     library_size_rows,
     real_capture_rows,
@@ -80,6 +90,11 @@ from .viewpoints import REPORT_SEEDS, TUNING_SEEDS, format_row, viewpoint_row
 __all__ = [
     "run_bench",
     "format_table",
+    "render_markdown",
+    "write_results",
+    "RESULTS_NAME",
+    "SETTINGS_NAME",
+    "DOC_NAME",
     "variant_library",
     "MIN_VISIBLE",
     "VARIANT_SCALES",
@@ -87,14 +102,22 @@ __all__ = [
 ]
 
 
+#: what ``bench --out DIR`` writes into DIR: the results, their settings, their rendering
+RESULTS_NAME = "benchmark.json"
+SETTINGS_NAME = "benchmark.settings.yaml"
+DOC_NAME = "BENCHMARK.md"
+
+
 def run_bench(
     quick: bool = False,
     scenes: int | None = None,
     paper_clicks: int | None = None,
-    out: str | None = "bench_output/bench.json",
+    out: str | None = "bench_output",
     log=print,
 ) -> dict:
-    """Run the benchmark; returns (and writes as JSON) the table."""
+    """Run the benchmark; returns the results and, with ``out`` (a folder), writes them there
+    (:func:`write_results`)."""
+    started = time.monotonic()
     library = (
         TemplateLibrary.load().specific()
     )  # the taskboard templates (primitives: rows of their own)
@@ -155,6 +178,10 @@ def run_bench(
     lib_jobs = _spread(jobs, 40)
     log(f"threads 1 and 2, each click by both in turn, on {len(lib_jobs)} clicks ...")
     threads_rows = thread_rows(library, lib_jobs)
+    log(
+        f"compiled kernels off and on, each click both ways in turn, on {len(lib_jobs)} clicks ..."
+    )
+    kernels = kernel_rows(library, lib_jobs)
     log(f"library sizes {', '.join(map(str, LIBRARY_SIZES))} on {len(lib_jobs)} clicks ...")
     library_rows = library_size_rows(library, lib_jobs)
     held_out = _spread(
@@ -185,6 +212,7 @@ def run_bench(
         "library_sizes_held_out_family": held_out_library_rows,
         "large_cloud": large,
         "threads": threads_rows,
+        "kernels": kernels,
         **captures,
         "viewpoint": {
             k: {kk: vv for kk, vv in v.items() if kk != "cases"} for k, v in viewpoint.items()
@@ -206,13 +234,44 @@ def run_bench(
     operator = browser_operator_bench(range(1000, 1001 if quick else 1002), 2 if quick else 6, log)
     if operator:
         result["browser_operator"] = operator
+    result["run"] = {
+        "commit": _commit(),
+        "date": datetime.datetime.now(datetime.timezone.utc).date().isoformat(),
+        "minutes": round((time.monotonic() - started) / 60),
+        "quick": quick,
+    }
     if out:
-        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        with open(out, "w", encoding="utf-8") as handle:
-            json.dump(result, handle, indent=2)
-        result["written"] = os.path.abspath(out)
-        result["settings_written"] = write_settings(out, default.settings)
+        result["written"] = write_results(result, out, default.settings)
     return result
+
+
+def _commit() -> str | None:
+    """The package checkout's commit (short hash), None outside a git checkout."""
+    try:
+        done = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=os.path.dirname(os.path.abspath(__file__)),
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() or None if done.returncode == 0 else None
+
+
+def write_results(result: dict, out: str, settings: FitSettings | None = None) -> list:
+    """Write ``result`` into the folder ``out``: :data:`RESULTS_NAME` (the JSON),
+    :data:`DOC_NAME` (:func:`render_markdown` of it) and, given the settings the run used,
+    :data:`SETTINGS_NAME`; all or none of them (atomically). Returns the paths written."""
+    results = os.path.join(out, RESULTS_NAME)
+    files = {
+        results: json.dumps(result, indent=2) + "\n",
+        os.path.join(out, DOC_NAME): render_markdown(result),
+    }
+    if settings is not None:
+        files[settings_path(results)] = settings_text(settings)
+    return write_atomically(files)
 
 
 #: the rows that change knobs of the default settings, and how
@@ -224,18 +283,20 @@ ROW_SETTINGS = {
 }
 
 
-def write_settings(out: str, settings: FitSettings) -> str:
-    """Write the settings the bench ran with next to its JSON (``bench.json`` ->
-    ``bench.settings.yaml``, readable by ``fit --settings``); returns the path."""
-    path = os.path.splitext(os.path.abspath(out))[0] + ".settings.yaml"
+def settings_path(out: str) -> str:
+    """Where the settings of the results file ``out`` go (``benchmark.json`` ->
+    ``benchmark.settings.yaml``, readable by ``fit --settings``)."""
+    return os.path.splitext(os.path.abspath(out))[0] + ".settings.yaml"
+
+
+def settings_text(settings: FitSettings) -> str:
+    """The settings the bench ran with, as a settings file naming the rows that differ."""
     rows = "".join(f"#   {row}: {change}\n" for row, change in ROW_SETTINGS.items())
-    write_atomically(
-        {
-            path: "# the fitting settings of the bench's default rows; the rows that "
-            "differ:\n" + rows + settings.dump()
-        }
+    return (
+        "# the fitting settings of the bench's default rows; the rows that differ:\n"
+        + rows
+        + settings.dump()
     )
-    return path
 
 
 def _pct(v) -> str:
@@ -440,6 +501,12 @@ def format_table(result: dict) -> str:
             f"default method on {r['threads']} thread(s) ({r['clicks']} clicks, paired): "
             f"median {r['median_s']:.3f} s = {r['ratio_to_first']:.2f}x the first"
         )
+    for r in result.get("kernels", ()):
+        lines.append(
+            f"default method, {r['kernels']} kernels ({r['clicks']} clicks, paired, one "
+            f"thread): median {r['median_cpu_s'] * 1e3:.0f} ms CPU = "
+            f"{r['cpu_ratio_to_numpy']:.2f}x the numpy path's, wall {r['ratio_to_numpy']:.2f}x"
+        )
     for r in result.get("library_sizes", ()):
         lines.append(
             f"library of {r['templates']:>2} templates ({r['clicks']} clicks): median "
@@ -476,4 +543,295 @@ def format_table(result: dict) -> str:
         f"and {result['pose_tolerance']['deg']:.0f} deg (symmetry-aware); "
         f"{result['scenes']} panel scenes, {result['machine']['cpus']} CPUs"
     )
+    return "\n".join(lines)
+
+
+#: what each line of the table measures, by how the line starts (the longest start that fits):
+#: (start, title, one short paragraph); BENCHMARK.md gives those of the lines it shows
+ROW_NOTES = (
+    (
+        "method",
+        "the first block",
+        "One line per method, on the same simulated taskboard clicks (20 panel scenes of five "
+        "objects each, seeds 1000+) unless the line says otherwise: the clicks fitted, the median "
+        "and 90th-percentile time of a click with every template of the library, `top-1` the "
+        "share with the true template ranked first, `pose ok` the share where it is also within "
+        "5 mm and 5 deg of the truth (symmetry-aware), and the median time over the default "
+        "method's in this run.",
+    ),
+    (
+        "default ",
+        "default",
+        "The package's fitter with its default settings (`FitSettings()`, the node's `fit.*` "
+        "defaults): joint values and scale estimated with the pose.",
+    ),
+    (
+        "default, rigid only",
+        "default, rigid only",
+        "The same fitter with `articulated: false`: rigid templates, no joint value or scale "
+        "estimated.",
+    ),
+    (
+        "default (table)",
+        "default (table)",
+        "Objects lying on a table in their stable resting poses (table scenes, seeds 2000+): no "
+        "mounting plane prior applies.",
+    ),
+    (
+        "paper (literal)",
+        "paper (literal)",
+        "The method of Hagenow et al. implemented literally (`fit --method paper`), the slow "
+        "baseline: run on 25 of the clicks (`--paper-clicks 0` runs all).",
+    ),
+    (
+        "open3d icp p2p",
+        "open3d icp p2p",
+        "Open3D's point-to-point `registration_icp` started from the same hypotheses on the same "
+        "crop, ranked by its own fitness.",
+    ),
+    (
+        "small_gicp gicp",
+        "small_gicp gicp",
+        "small_gicp's GICP likewise; the line is there only where small_gicp is installed (`pip "
+        "install small_gicp`, a bench-only extra).",
+    ),
+    (
+        "frames (",
+        "frames",
+        "The panel clicks re-expressed in four frames that are not the camera's optical frame "
+        "(scene, click and sensor origin moved together), 100 clicks in each.",
+    ),
+    (
+        "frames:",
+        "frames (each)",
+        "The frames row by frame: top-1 / pose ok in a z-up base frame with the sensor 1.1 m "
+        "up, a map frame metres away, an arbitrary rotation and upside down, against the optical "
+        "frame on the same clicks, and the fits that raised an error.",
+    ),
+    (
+        "no viewpoint",
+        "no viewpoint",
+        "The panel clicks fitted with `sensor_origin none`, as for an accumulated map: no "
+        "visibility terms, normals estimated from the data.",
+    ),
+    (
+        "sensor faults",
+        "sensor faults",
+        "The panel scenes rendered with the depth-camera fault model (`simulate --faults`: "
+        "flying pixels, a smooth depth distortion, dropouts on dark patches and at grazing "
+        "angles, more range noise).",
+    ),
+    (
+        "real scans",
+        "real scans",
+        "The four Armadillo range scans of or-pcd that have ground truth, fitted with a "
+        "point-cloud template made of the other views merged, of all four merged, of all four in "
+        "the taskboard library, and clicked low on the statue (its lowest 5% of points).",
+    ),
+    (
+        "right fits the verdict accepts",
+        "right fits the verdict accepts",
+        "Of each row's right fits (pose ok), the share the verdict accepts (`fits: true`): a "
+        "right answer the operator is not told to doubt.",
+    ),
+    (
+        "default library with the box",
+        "default library with the primitives",
+        "The panel clicks with the bundled library including the box and cylinder primitives: "
+        "what the primitives cost and change where a known object is clicked.",
+    ),
+    (
+        "real Kinect (mOSD",
+        "real Kinect (mOSD learn)",
+        "The labelled objects of mOSD's real Kinect scans (learn split; tuning and held-out "
+        "scenes apart; `$AFFORDANCE_SHARED_DATA`): the share the library's specific templates "
+        "refuse (none of these objects is in it), and the box or cylinder fitted instead, scored "
+        "against the per-point labels -- recall, precision, the share passing both at 90%, the "
+        "same for the fit refined on the labels (what the score allows) -- and the right kind "
+        "shown.",
+    ),
+    (
+        "real Kinect click against",
+        "real Kinect click against a simulated one",
+        "What a real capture's click costs: one registrar fits a real mOSD click and a simulated "
+        "panel click alternately; the median of the pairs' time ratios.",
+    ),
+    (
+        "primitives on simulated",
+        "primitives on simulated scenes",
+        "Simulated tables of boxes and cylinders, of stacked boxes and of open-topped mugs (some "
+        "seen by a faulty sensor), with true dimensions; development and held-out seeds apart. "
+        "The right primitive shown, its dimensions within 5 mm, its pose within 5 mm / 5 deg, "
+        "and 'wrong and accepted': the best candidate fits but is not the right primitive of the "
+        "right size and pose.",
+    ),
+    (
+        "clutter",
+        "clutter",
+        "The Armadillo point-cloud template standing on real mOSD tables, touching a real "
+        "object (tuning tables, then held-out ones): ranked first, found within 5 mm / 5 deg, "
+        "and accepted by the verdict.",
+    ),
+    (
+        "PCL's milk carton in its real scene",
+        "PCL's milk carton",
+        "PCL's milk carton scene with the carton as a point-cloud template: its rank, the pose "
+        "error at its centroid and the verdict.",
+    ),
+    (
+        "PCL's milk carton without its template",
+        "PCL's milk carton without its template",
+        "The same carton clicked with the bundled library alone: what it is shown as, whether "
+        "that is accepted, and the share of the carton's points on the fitted box.",
+    ),
+    (
+        "viewpoint advice",
+        "viewpoint advice",
+        "Each taskboard object scanned from a hard first view (grazing, occluded, far, edge-on) "
+        "and clicked; where the fit is wrong or unsettled the scene is scanned again from the "
+        "suggested view, from a random view within the same bounds and from the first view "
+        "again. Top-1 / pose ok of each, the suggestion's time, the hard views by kind; the "
+        "indented line counts the unsettled clicks alone. `bench --row viewpoint` runs it alone.",
+    ),
+    (
+        "refit after a correction",
+        "refit after a correction",
+        "A right fit moved by 1.5 cm and 8 deg, as an operator's correction, then refitted: the "
+        "refit's median time and the share that lands back within tolerance.",
+    ),
+    (
+        "articulated",
+        "articulated",
+        "Taskboards with valve handles at random angles, e-stops pressed or released and grab "
+        "handles in sizes 0.8-1.25 (seeds 3000+): joint values within 5 deg / 2 mm, the named "
+        "state, the scale within 3%, and the time against the rigid fit of the same clicks.",
+    ),
+    (
+        "refit after a SpaceMouse push",
+        "refit after a SpaceMouse push over ROS",
+        "The same corrections sent as SpaceMouse twists to a live engine node: the share that "
+        "lands within tolerance, against the core's refit from the same corrections.",
+    ),
+    (
+        "the engine node over ROS",
+        "the engine node over ROS",
+        "The engine node started from its launch file in its own process, each object clicked "
+        "as RViz would: click -> `~/status` over the same fit in the bench's process (median of "
+        "the ratios), `~/markers` after the status, a `~/markers` message's size, and the idle "
+        "engine's CPU.",
+    ),
+    (
+        "the browser station",
+        "the browser station",
+        "Click -> label in headless Chromium against the station, an engine and the panel "
+        "scenes, on the page's own clock from the mouse press to the label; the engine's part is "
+        "clicked_point -> status.",
+    ),
+    (
+        "default method on",
+        "threads",
+        "Each click fitted on 1 and on 2 threads in turn (`threads`): the median and the median "
+        "of the per-click ratios to the first.",
+    ),
+    (
+        "library of",
+        "library sizes",
+        "Libraries of 5, 10, 20 and 40 templates (the five and scaled or stretched copies), each "
+        "click fitted by each in turn: the time against the five, the true template first, and "
+        "how often the library prefilter decided and what it set aside.",
+    ),
+    (
+        "held-out variant family",
+        "held-out variant family",
+        "Copies made differently (stretched or squeezed 20-50% along random directions) and kept "
+        "out of the prefilter's tuning, on held-out taskboards (seeds 7000+): 40 templates "
+        "against the five.",
+    ),
+    (
+        "click -> result",
+        "click -> result from a 1M-point cloud",
+        "`Scene()` of a 1024 x 1024 organized cloud (a simulated camera of that resolution) plus "
+        "the fit.",
+    ),
+    (
+        "PointCloud2 -> numpy",
+        "PointCloud2 conversions",
+        "The node's conversion of a 1M-point organized PointCloud2 to numpy, `Scene()` of it, "
+        "and numpy back to PointCloud2.",
+    ),
+    (
+        "pose ok =",
+        "the last line",
+        "The tolerances of `pose ok`, the panel scenes and the machine's CPUs.",
+    ),
+)
+
+
+def row_note(line: str) -> tuple | None:
+    """The (start, title, paragraph) of :data:`ROW_NOTES` for a line of the table; None for a
+    line no note describes (an indented line: part of the row above it)."""
+    starts = [note for note in ROW_NOTES if line.startswith(note[0])]
+    return max(starts, key=lambda note: len(note[0])) if starts else None
+
+
+def _wrap(line: str, width: int = 100) -> str:
+    indent = len(line) - len(line.lstrip())
+    return textwrap.fill(line, width=width, subsequent_indent=" " * (indent + 2))
+
+
+def render_markdown(result: dict) -> str:
+    """BENCHMARK.md: the run, the table (:func:`format_table`, wrapped at 100 columns) and what
+    each of its rows measures."""
+    run = result.get("run") or {}
+    when = ", ".join(
+        part
+        for part in (
+            f"at commit {run['commit']}" if run.get("commit") else "",
+            f"on {run['date']}" if run.get("date") else "",
+            f"{run['minutes']} minutes" if run.get("minutes") is not None else "",
+            f"{result['machine']['cpus']} CPUs",
+            "--quick" if run.get("quick") else "",
+        )
+        if part
+    )
+    table = format_table(result)
+    notes, seen = [], set()
+    for line in table.splitlines():
+        note = row_note(line)
+        if note and note[0] not in seen:
+            seen.add(note[0])
+            notes.append(f"**{note[1]}** -- {note[2]}")
+    intro = (
+        "Speed and accuracy of the default method against the paper's method and other ICP, "
+        "measured in one run of `affordance-registration bench` on simulated scenes with ground "
+        "truth and on real scans. Times depend on the machine and its load: compare the ratios "
+        "within a run, not times across runs."
+    )
+    lines = [
+        "# Benchmark",
+        "",
+        textwrap.fill(intro, 99),
+        "",
+        textwrap.fill(
+            f"This run: {when}." + (f" {result['note']}" if result.get("note") else ""), 99
+        ),
+        "",
+        textwrap.fill(
+            f"`affordance-registration bench --out DIR` writes {RESULTS_NAME} (the results), "
+            f"{SETTINGS_NAME} (the settings they were measured with) and this file, their "
+            "rendering. docs/ holds one run's three; `test/test_benchmark_doc.py` checks that "
+            "docs/BENCHMARK.md is the rendering of docs/benchmark.json, so regenerate them "
+            "(`bench --out docs`) rather than edit them.",
+            99,
+        ),
+        "",
+        "```",
+        *(_wrap(line) for line in table.splitlines()),
+        "```",
+        "",
+        "## What each row measures",
+        "",
+    ]
+    for note in notes:
+        lines += [textwrap.fill(note, 99), ""]
     return "\n".join(lines)

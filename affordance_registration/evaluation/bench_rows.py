@@ -423,6 +423,43 @@ def thread_rows(library, jobs, threads=(1, 2)) -> list:
     ]
 
 
+def kernel_rows(library, jobs) -> list:
+    """The default method with the compiled kernels (:mod:`..core.compiled`) off and on, each
+    click by both in turn (one registrar, one thread): median CPU and wall time a click and the
+    medians over clicks of the ratios to the numpy path's. The numbers are the same either way
+    (``test/test_compiled.py``); [] where numba is missing."""
+    from ..core import compiled
+
+    if not compiled.available():
+        return []
+    reg = Registrar(library, FitSettings(threads=1))
+    reg.warm_up()
+    for on in (False, True):
+        with compiled.use_compiled(on):
+            reg.fit(jobs[0][0], jobs[0][1].click)
+    cpu, wall = np.zeros((len(jobs), 2)), np.zeros((len(jobs), 2))
+    for c, (scene, obj) in enumerate(jobs):
+        for k, on in enumerate((False, True) if c % 2 == 0 else (True, False)):
+            with compiled.use_compiled(on):
+                t0, w0 = time.process_time(), time.perf_counter()
+                reg.fit(scene, obj.click)
+                cpu[c, int(on)], wall[c, int(on)] = (
+                    time.process_time() - t0,
+                    time.perf_counter() - w0,
+                )
+    return [
+        {
+            "kernels": name,
+            "clicks": len(jobs),
+            "median_cpu_s": float(np.median(cpu[:, k])),
+            "median_s": float(np.median(wall[:, k])),
+            "cpu_ratio_to_numpy": float(np.median(cpu[:, k] / cpu[:, 0])),
+            "ratio_to_numpy": float(np.median(wall[:, k] / wall[:, 0])),
+        }
+        for k, name in enumerate(("numpy", "compiled"))
+    ]
+
+
 def _timed(fn, *args) -> float:
     t0 = time.perf_counter()
     fn(*args)

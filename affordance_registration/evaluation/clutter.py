@@ -29,7 +29,7 @@ from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
 from ..core.errors import AffordanceError
-from ..core.files import write_atomically
+from ..core.files import read_yaml, write_atomically
 from ..core.pointfiles import read_points
 from ..core.transforms import axis_angle_matrix, make_T
 from .realdata import (
@@ -109,8 +109,7 @@ def armadillo_template(
 
 
 def _template_points(yaml_path: str) -> np.ndarray:
-    with open(yaml_path, encoding="utf-8") as handle:
-        doc = yaml.safe_load(handle)
+    doc = read_yaml(yaml_path, AffordanceError, kind="template file")
     return read_points(os.path.join(os.path.dirname(yaml_path), doc["mesh"])).points
 
 

@@ -19,7 +19,14 @@ import numpy as np
 
 from ..core.errors import AffordanceError
 from ..core.transforms import axis_angle_matrix, invert, make_T, pose_error
-from .realdata import HELD_OUT, click_in_middle, evaluate_scene, osd_scene_paths, scene_name
+from .realdata import (
+    HELD_OUT,
+    ORIGINAL_SCENES,
+    click_in_middle,
+    evaluate_scene,
+    osd_scene_paths,
+    scene_name,
+)
 
 __all__ = [
     "real_kinect_rows",
@@ -98,7 +105,7 @@ def real_kinect_rows(
     registrar_factory=None, scenes=None, library=None, log=None, refined: bool = False
 ) -> dict:
     """The "real Kinect (mOSD learn)" rows: every labelled object (>= 1500 points) of
-    ``scenes`` (paths; default all shared learn scenes) clicked in its middle with
+    ``scenes`` (paths; default all 45 shared learn scenes) clicked in its middle with
     ``registrar_factory(library)`` (default ``Registrar``; ``library`` default the bundled
     one). Returns {"tuning": summary, "held_out": summary, "all": summary, "records": [...]},
     a summary: ``scenes``, ``objects``, ``errors``, ``called_fits`` (a specific template
@@ -135,15 +142,17 @@ def real_kinect_rows(
 
 def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | None:
     """What a click on a real capture costs against a simulated bench click, in one process
-    with one ``registrar``: mOSD objects (``scenes``, default the shared learn scenes, clicked
-    in their middle) and the simulated ``jobs`` ((scene, object) pairs) fitted alternately, a
+    with one ``registrar``: mOSD objects (``scenes``, default the 15 learn scenes of the earlier
+    rounds, ``realdata.ORIGINAL_SCENES``, so that the row picks the same clicks; clicked in
+    their middle) and the simulated ``jobs`` ((scene, object) pairs) fitted alternately, a
     real click then a simulated one, ``clicks`` pairs. Returns {"pairs", "real_median_s",
     "simulated_median_s", "ratio"} (the median of the pairs' ratios), None without data."""
     from ..core.scene import Scene
     from .realdata import labelled_objects, read_labelled_pcd
 
     real = []
-    for path in list(scenes) if scenes is not None else osd_scene_paths():
+    paths = list(scenes) if scenes is not None else osd_scene_paths(scenes=ORIGINAL_SCENES)
+    for path in paths:
         cloud = read_labelled_pcd(path)
         scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
         real += [(scene, obj.click) for obj in labelled_objects(cloud)]
@@ -608,11 +617,12 @@ def clutter_rows(
     learn0 and learn20, tuning scenes -- with each of ``seeds``): ``ranked_first``, ``found``
     (ranked first within 5 mm / 5 deg), ``fits`` (the verdict accepts it when ranked first),
     ``median_s``, ``records`` (one per click). "armadillo_held_out": the same on
-    ``held_out_scenes`` (default the held-out learn scenes, ``realdata.HELD_OUT``; [] for
-    none). "milk": PCL's milk carton as a point-cloud template in the bundled library, clicked
-    on the carton: ranked first, within 2 mm / 2 deg of the identity, accepted; "as_box" the
-    same click without the carton's template (:func:`_milk_as_box`). A row whose
-    data is absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
+    ``held_out_scenes`` (default the four held-out learn scenes of the earlier rounds, those
+    of ``realdata.HELD_OUT`` among ``realdata.ORIGINAL_SCENES``, so that the row stays
+    comparable; [] for none). "milk": PCL's milk carton as a point-cloud template in the bundled
+    library, clicked on the carton: ranked first, within 2 mm / 2 deg of the identity,
+    accepted; "as_box" the same click without the carton's template (:func:`_milk_as_box`). A
+    row whose data is absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
     from ..core.templates import TemplateLibrary, load_template
@@ -633,7 +643,11 @@ def clutter_rows(
             registrar = factory(TemplateLibrary([tpl] + bundled))
             bases = base_scenes or [os.path.join(folder, f) for f in ("learn0.pcd", "learn20.pcd")]
             out["armadillo"] = _armadillo_row(registrar, tpl, yml, bases, seeds)
-            held = osd_scene_paths(held_out=True) if held_out_scenes is None else held_out_scenes
+            held = (
+                osd_scene_paths(held_out=True, scenes=ORIGINAL_SCENES)
+                if held_out_scenes is None
+                else held_out_scenes
+            )
             out["armadillo_held_out"] = (
                 _armadillo_row(registrar, tpl, yml, held, seeds) if held else None
             )

@@ -1,13 +1,16 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""Random-restart weighted ICP over every template, batched: the :class:`Registrar` composes
-the stages of this package (see :mod:`.registrar` for the algorithm).
+"""Random-restart weighted ICP over every template, batched: the :class:`Registrar` runs the
+recipe (:mod:`.registrar`: the algorithm, and the stages in order), each stage a module of
+:mod:`.stages` passing the click's :class:`~.state.FitState` on.
 
-settings (parameters, stage constants), results (FitResult, FitReport, rank), model (the posed
-model, the locked cache of samples and KD-trees), solve (closed-form and Gauss-Newton steps),
-visibility, correspondences, icp, parallel (pieces of a batch side by side), scoring (the
-two-way residual), hypotheses, articulation (joint values and scale), refit, primitives
-(boxes and cylinders, measured), paper (the literal baseline), registrar (the composer).
+Below the stages: settings (parameters, stage constants), results (FitResult, FitReport, rank),
+model (the posed model, the locked cache of samples and KD-trees), solve (closed-form and
+Gauss-Newton steps), visibility, correspondences, icp, parallel (pieces of a batch side by
+side), scoring (the two-way residual and the verdict), features, hypotheses (where ICP starts),
+articulation (joint values and scale), refit (a local refit), primitives (boxes and cylinders,
+measured), hidden_parts, ambiguity, viewpoint (a suggested view); services (what every stage
+uses) and state (what passes from stage to stage).
 """
 
 from .correspondences import correspondence_weights

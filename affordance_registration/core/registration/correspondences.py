@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..memo import per_object
 from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
 from ..transforms import pose_points
@@ -101,7 +102,12 @@ def forward_pairs(
         rows = np.flatnonzero(vis.reshape(-1) & ~in_band)
     else:
         rows = np.flatnonzero(vis)
-    d_v, i_v = nearest(tree, Xf[rows], parallel=True)
+    # (only pairs within a hypothesis' radius weigh anything: the search stops at the largest
+    # radius, and a sample with nothing there keeps a finite partner and a zero weight)
+    if settings.icp.projective and ctx.range_image is not None:
+        d_v, i_v = _projective(ctx, target, pts, Xf[rows])
+    else:
+        d_v, i_v = nearest(tree, Xf[rows], float(radius.max()), parallel=True)
     dist[rows] = d_v
     Q[rows] = pts[i_v]
     if normals:
@@ -109,6 +115,21 @@ def forward_pairs(
     dist = dist.reshape(shape)
     w = correspondence_weights(dist, radius[:, None], settings.icp.weight_scale)
     return Q.reshape(X.shape), Nq.reshape(X.shape), w
+
+
+def _projective(ctx: ClickContext, target: str, pts: np.ndarray, X: np.ndarray):
+    """Projective correspondences (``icp.projective``): each of ``X`` (M, 3) paired with the
+    ``target`` point (of ``pts``) the sensor sees nearest in its bin of the click's range image
+    -- distance (M,), inf where the bin holds none, and that point's index (M,), as
+    :func:`..neighbours.nearest` gives them."""
+    image = ctx.range_image
+    front = per_object(ctx, ("front points", target), lambda: image.front_points(pts))
+    j = front[image.bins(X - image.origin)[0]]
+    seen = j >= 0
+    j = np.where(seen, j, 0)
+    gap = X - pts[j]
+    d = np.sqrt(np.einsum("ij,ij->i", gap, gap))
+    return np.where(seen, d, np.inf), j
 
 
 def reverse_subset(ctx: ClickContext, limit: int):
@@ -137,7 +158,7 @@ def reverse_pairs(
     whether it is on the moving part (M,))."""
     near = in_sphere(pts, R @ model.centroid + t, 0.5 * model.diameter)
     q = pts[near]
-    d, local, moving = model.nearest((q - t) @ R, parts=True)
+    d, local, moving = model.nearest((q - t) @ R, radius, parts=True)  # (beyond: weight 0)
     return (
         local @ R.T + t,
         q,

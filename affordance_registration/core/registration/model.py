@@ -13,7 +13,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..neighbours import build_tree, nearest
+from ..compiled import kernels
+from ..neighbours import build_tree, nearest, nearest_distances
 from ..templates import AffordanceTemplate
 from .settings import SAMPLE_SEED
 
@@ -44,6 +45,15 @@ class Surface:
         self.moving_part = build_tree(self.moving_points) if jointed else None
         #: the mesh as it is, ready for ray casting (a point-cloud template has none)
         self.raycaster = raycaster(template.mesh) if template.mesh is not None else None
+        kernels()  # (loaded, or compiled, with the first surface: a warm-up's cost, not a click's)
+
+    def distances(self, part: str, points: np.ndarray, upper: float) -> np.ndarray:
+        """Distance (N,) from ``points`` (N, 3, the template's frame, unscaled) to the nearest
+        dense sample of ``part`` ("whole", "base" or "moving"), inf beyond ``upper``
+        (:func:`..neighbours.nearest_distances`: a compiled grid kept with the surface where
+        one pays, the same numbers as the part's tree)."""
+        tree = {"whole": self.whole, "base": self.base, "moving": self.moving_part}[part]
+        return nearest_distances(tree, points, upper, owner=self)
 
 
 def raycaster(mesh):
@@ -260,9 +270,9 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
         u = np.asarray(local[sel], dtype=float) / scale
         ub, flat = upper / scale, u.reshape(-1, 3)
         if first.q == 0.0 or surface.moving_part is None:
-            d, _ = nearest(surface.whole, flat, ub)
+            d = surface.distances("whole", flat, ub)
         else:
-            d, _ = nearest(surface.base, flat, ub)
+            d = surface.distances("base", flat, ub)
             # into the moving part's zero pose, model by model (hypotheses of one model
             # together, as the model's own query turns them)
             rows = np.arange(len(sel) * u.shape[1]).reshape(len(sel), -1)
@@ -274,7 +284,7 @@ def surface_distances(models, local: np.ndarray, upper: float = np.inf) -> np.nd
                 um.append(models[sel[int(mine[0])]]._to_moving_part(u[mine].reshape(-1, 3))[0])
             order = np.concatenate(order)
             dm = np.empty(len(flat))
-            dm[order], _ = nearest(surface.moving_part, np.concatenate(um), ub)
+            dm[order] = surface.distances("moving", np.concatenate(um), ub)
             d = np.where(dm < d, dm, d)
         out[sel] = (d * scale).reshape(len(sel), -1)
     return out

@@ -16,7 +16,8 @@ every core, and on a loaded machine those threads wait for each other far longer
 products take (a click's crop preparation took 3x as long). While any fit runs, BLAS runs on
 one thread (:func:`single_threaded_blas`; the fitter's parallelism is its own threads), and
 the count the user set is put back when the last one ends. The numbers are the same either
-way.
+way. So are the KD queries' OpenMP threads: one per fitting thread, set once for the fit on the
+calling thread and once for each piece on the pool (:func:`..neighbours.one_openmp_thread`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from contextlib import contextmanager
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
+
+from ..neighbours import one_openmp_thread
 
 __all__ = ["run", "parts", "over_batch", "single_threaded_blas", "MIN_PART"]
 
@@ -71,7 +74,7 @@ def run(tasks, threads: int) -> list:
     if threads <= 1 or len(tasks) <= 1 or getattr(_inside, "worker", False):
         return [task() for task in tasks]
     pool = _executor(threads - 1)
-    futures = [pool.submit(task) for task in tasks[1:]]
+    futures = [pool.submit(_on_one_openmp_thread, task) for task in tasks[1:]]
     try:
         first = tasks[0]()
     finally:
@@ -80,6 +83,11 @@ def run(tasks, threads: int) -> list:
         if exc is not None:
             raise exc
     return [first] + [f.result() for f in futures]
+
+
+def _on_one_openmp_thread(task):
+    with one_openmp_thread():
+        return task()
 
 
 def over_batch(fn, batch, threads: int, min_part: int = MIN_PART) -> list:
@@ -101,7 +109,9 @@ def parts(n: int, threads: int, min_part: int = MIN_PART) -> list:
 @contextmanager
 def single_threaded_blas():
     """BLAS on one thread while the block runs (numbers unchanged): the first of concurrent
-    blocks to enter sets it, the last to leave puts back the user's thread counts."""
+    blocks to enter sets it, the last to leave puts back the user's thread counts. The calling
+    thread's KD queries run on one OpenMP thread meanwhile
+    (:func:`..neighbours.one_openmp_thread`)."""
     global _blas_users, _blas_before, _blas_libs
     with _blas_lock:
         if _blas_users == 0:
@@ -112,7 +122,8 @@ def single_threaded_blas():
                 lib.set_num_threads(1)
         _blas_users += 1
     try:
-        yield
+        with one_openmp_thread():
+            yield
     finally:
         with _blas_lock:
             _blas_users -= 1

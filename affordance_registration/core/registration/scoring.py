@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..neighbours import nearest
+from ..neighbours import nearest_distances
 from ..scene import ClickContext
 from ..transforms import make_T, pose_points, rotate
 from .correspondences import stack_samples
@@ -74,8 +74,7 @@ def _forward_distances(
     Nw = rotate(batch.R, N)
     vis, violated, exposed = visible(ctx, X, Nw, settings, exposed=True, occluded=occluded)
     dist = np.full(vis.shape, cap)
-    d_v, _ = nearest(ctx.crop_tree, X[vis], cap, parallel=True)
-    dist[vis] = np.minimum(d_v, cap)
+    dist[vis] = np.minimum(nearest_distances(ctx.crop_tree, X[vis], cap, owner=ctx), cap)
     dist[violated] = cap
     return dist, vis, exposed
 

@@ -1,9 +1,9 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage),
-the ICP stages they make (:class:`Stage`) and the constants several stages share (sample seeds,
-the fixed stage lengths, the fine stage's convergence). A constant one stage alone uses lives
-beside that stage's code.
+"""Fitting parameters (:class:`FitSettings`: a few top knobs and one frozen group per stage, each
+read by that stage's module in :mod:`.stages`), the ICP stages they make (:class:`Stage`) and the
+constants several stages share (sample seeds, the fixed stage lengths, the fine stage's
+convergence). A constant one stage alone uses lives beside that stage's code.
 
 Every knob is declared once, with its default, its one-line description and its rule
 (:func:`knob`); the node's ``fit.*`` parameters, the YAML settings files and the error messages
@@ -187,7 +187,7 @@ class Stages(NamedTuple):
 # --------------------------------------------------------------------------- the groups
 @dataclass(frozen=True)
 class CropSettings(_Group):
-    """The scan around a click: what is cut out and how it is thinned."""
+    """The scan around a click: what is cut out and how it is thinned (:mod:`.stages.prepare`)."""
 
     name = "crop"
     voxel: float = knob(0.005, "voxel edge of the crop around a click (m)", limits=(0.001, 0.05))
@@ -199,18 +199,23 @@ class CropSettings(_Group):
 
 @dataclass(frozen=True)
 class IcpSettings(_Group):
-    """The weighted ICP every stage runs."""
+    """The weighted ICP every stage runs (:mod:`.icp`)."""
 
     name = "icp"
     weight_scale: float = knob(
         0.005, "d0 of the correspondence weight w = 1/(1 + d/d0) (m)", limits=(0.0005, 0.1)
     )
     reject_floor: float = knob(0.015, "an ICP rejection radius shrinks to this within a stage (m)")
+    projective: bool = knob(
+        False,
+        "with a viewpoint, a sample pairs with the target point the sensor sees in its direction "
+        "(the click's range image), not the nearest one (experimental: other numbers)",
+    )
 
 
 @dataclass(frozen=True)
 class ScoringSettings(_Group):
-    """The residual candidates are ranked on."""
+    """The residual candidates are ranked on (:mod:`.scoring`)."""
 
     name = "scoring"
     cap: float = knob(0.01, "per-point distance cap of the residual (m)")
@@ -228,7 +233,7 @@ class ScoringSettings(_Group):
 
 @dataclass(frozen=True)
 class HypothesesSettings(_Group):
-    """The restarts each template starts from."""
+    """The restarts each template starts from (:mod:`.stages.hypothesise`)."""
 
     name = "hypotheses"
     yaw_restarts: int = knob(12, "plane-prior restarts per template (a yaw sweep)", COUNT0)
@@ -249,7 +254,8 @@ class HypothesesSettings(_Group):
 
 @dataclass(frozen=True)
 class CoarseSettings(_Group):
-    """The coarse stage: every restart of every template, on few samples."""
+    """The coarse stage: every restart of every template, on few samples
+    (:mod:`.stages.coarse`)."""
 
     name = "coarse"
     samples: int = knob(64, "template samples per restart")
@@ -269,7 +275,7 @@ class CoarseSettings(_Group):
 class PrefilterSettings(_Group):
     """The library prefilter: in the coarse stage, the templates whose best coarse score is more
     than ``margin`` x the best template's leave the fit (ranked behind the others with their
-    coarse pose), except the ``keep`` best."""
+    coarse pose), except the ``keep`` best (:mod:`.stages.prefilter`)."""
 
     name = "prefilter"
     keep: int = knob(
@@ -296,7 +302,7 @@ class PrefilterSettings(_Group):
 
 @dataclass(frozen=True)
 class MediumSettings(_Group):
-    """The medium stage: the best few restarts per template."""
+    """The medium stage: the best few restarts per template (:mod:`.stages.medium`)."""
 
     name = "medium"
     samples: int = knob(
@@ -311,7 +317,7 @@ class MediumSettings(_Group):
 @dataclass(frozen=True)
 class FineSettings(_Group):
     """The fine stage: each leader alone, point-to-plane and two-way, on the full-resolution
-    cluster."""
+    cluster (:mod:`.stages.finish`)."""
 
     name = "fine"
     samples: int = knob(1500, "template samples per leader")
@@ -329,7 +335,8 @@ class FineSettings(_Group):
 
 @dataclass(frozen=True)
 class FinishSettings(_Group):
-    """The leaders' finish: yaw sweep, fine stage, ranked again on the fine residual."""
+    """The leaders' finish: yaw sweep, fine stage, ranked again on the fine residual
+    (:mod:`.stages.finish`)."""
 
     name = "finish"
     yaw_sweep: int = knob(
@@ -359,7 +366,8 @@ class FinishSettings(_Group):
 
 @dataclass(frozen=True)
 class ArticulationSettings(_Group):
-    """Joint values and scale, where templates have them (``FitSettings.articulated``)."""
+    """Joint values and scale, where templates have them (``FitSettings.articulated``;
+    :mod:`.stages.articulate`)."""
 
     name = "articulation"
     candidates: int = knob(4, "at most this many leading candidates get them estimated", COUNT0)
@@ -407,7 +415,7 @@ class ArticulationSettings(_Group):
 @dataclass(frozen=True)
 class VerdictSettings(_Group):
     """Whether the best candidate fits: it covers what the sensor could see of it, explains the
-    clicked object and runs close to it."""
+    clicked object and runs close to it (:mod:`.stages.judge`, :func:`.scoring.judge`)."""
 
     name = "verdict"
     coverage_distance: float = knob(
@@ -473,7 +481,7 @@ class VerdictSettings(_Group):
 
 @dataclass(frozen=True)
 class RefitSettings(_Group):
-    """A refit from the operator's correction."""
+    """A refit from the operator's correction (:mod:`.stages.refit`)."""
 
     name = "refit"
     restarts: int = knob(10, "restarts around the correction")
@@ -489,7 +497,8 @@ class RefitSettings(_Group):
 @dataclass(frozen=True)
 class ViewpointSettings(_Group):
     """Whether a click's answer is settled, and where the sensor should look from when it is not
-    (:mod:`.ambiguity`, :mod:`.viewpoint`): they only add information to a fit, never change it."""
+    (:mod:`.stages.assess`, :mod:`.ambiguity`, :mod:`.viewpoint`): they only add information to a
+    fit, never change it."""
 
     name = "viewpoint"
     #: the leading candidates within this factor of the best's residual are rivals: a template

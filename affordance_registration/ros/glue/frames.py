@@ -15,7 +15,8 @@ from collections import deque
 
 import numpy as np
 
-from ...core.errors import AffordanceError
+from ...core.errors import AffordanceError, FrameError, FrameNotYet
+from ...core.scene_feed import R_BODY_OPTICAL, T_frame_optical, is_body_frame
 from ...core.transforms import invert, make_T, quat_xyzw_to_matrix
 
 __all__ = [
@@ -25,47 +26,11 @@ __all__ = [
     "TF_CACHE_S",
     "parse_static_transform",
     "FrameError",
+    "FrameNotYet",
     "T_frame_optical",
     "R_BODY_OPTICAL",
     "is_body_frame",
 ]
-
-#: a REP-103 body frame (x forward, y left, z up) -> the optical frame at the same place
-#: (x right, y down, z forward): R_body_optical
-R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-#: frames REP-103 / REP-105 name for robots and the world (x forward, z up); a frame named
-#: ``*_link`` or ``*_footprint``, or a lidar's, is one too
-BODY_FRAMES = ("map", "odom", "earth", "world", "base_link", "base_footprint", "base_stabilized")
-BODY_HINTS = ("lidar", "laser", "velodyne", "ouster", "livox", "scan")
-
-
-def is_body_frame(frame: str) -> bool:
-    """Whether ``frame`` names a REP-103 body or world frame (x forward, y left, z up) rather
-    than a camera's optical frame: not ``*optical*``, and a REP-105 name, ``*_link``,
-    ``*_footprint`` or a lidar's. Any other name keeps the optical convention the node has
-    always assumed of a cloud's frame (a camera driver's ``cam``, ``camera_depth``)."""
-    name = frame.strip().lstrip("/").lower()
-    if "optical" in name:
-        return False
-    return (
-        name in BODY_FRAMES
-        or name.endswith(("_link", "_footprint"))
-        or any(hint in name for hint in BODY_HINTS)
-    )
-
-
-def T_frame_optical(frame: str) -> np.ndarray:
-    """The optical frame (x right, y down, z forward) of a sensor whose frame is named
-    ``frame``, in that frame: for a REP-103 body frame (:func:`is_body_frame`: ``base_link``,
-    ``map``, ``lidar``) one looking along its x axis, else the frame itself (REP-105's
-    ``camera_depth_optical_frame``, and any camera frame not named as a body frame)."""
-    return make_T(R_BODY_OPTICAL) if is_body_frame(frame) else make_T()
-
-
-class FrameError(AffordanceError):
-    """No transform is known between two frames."""
 
 
 def parse_static_transform(text: str) -> tuple[str, str, np.ndarray]:
@@ -161,8 +126,9 @@ class TransformBuffer:
       out-of-order old transform, arriving after a newer one, never replaces it;
     * a stamp between two transforms of a frame: interpolated (translation linearly, rotation
       along the shortest arc), as tf2 does;
-    * a stamp after the newest: the newest (tf2 would refuse to extrapolate; a click made
-      between two TF messages of a slowly published frame is normal);
+    * a stamp after the newest: the newest (a click made between two TF messages of a slowly
+      published frame is normal) -- or, with ``exact`` (a cloud brought into the fixed frame),
+      none: the frame is left out, as tf2 refuses to extrapolate;
     * a stamp before the oldest kept: refused (:class:`FrameError`), the frame's history there
       is gone.
 
@@ -203,19 +169,33 @@ class TransformBuffer:
             history.pop(0)
         self._dynamic[child] = (parent, history)
 
-    def graph(self, stamp: float | None = None) -> FrameGraph:
-        """The frames at ``stamp`` (s; None or 0: the newest) as a :class:`FrameGraph`."""
+    def graph(
+        self, stamp: float | None = None, exact: bool = False, behind: dict | None = None
+    ) -> FrameGraph:
+        """The frames at ``stamp`` (s; None or 0: the newest) as a :class:`FrameGraph`; with
+        ``exact``, a frame whose newest transform is older than ``stamp`` is left out (and, given
+        a ``behind`` dict, how far behind it is is put there: child -> s)."""
         out = FrameGraph()
         for child, (parent, T) in self._static.items():
             out.set(parent, child, T)
         for child, (parent, history) in self._dynamic.items():
             try:
-                out.set(parent, child, self._at(child, history, stamp))
+                out.set(parent, child, self._at(child, history, stamp, exact))
+            except FrameNotYet as exc:
+                if behind is not None:
+                    behind[child] = exc.behind
             except FrameError:  # its history does not reach back to ``stamp``
                 continue
         return out
 
-    def _at(self, child: str, history: list, stamp: float | None) -> np.ndarray:
+    def _at(
+        self, child: str, history: list, stamp: float | None, exact: bool = False
+    ) -> np.ndarray:
+        if stamp and exact and stamp > history[-1][0]:
+            raise FrameNotYet(
+                f"frame '{child}' is known up to {history[-1][0]:.3f} s, not yet at {stamp:.3f} s",
+                behind=stamp - history[-1][0],
+            )
         if not stamp or stamp >= history[-1][0]:
             return history[-1][1]
         stamps = [s for s, _ in history]

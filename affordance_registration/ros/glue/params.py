@@ -126,8 +126,9 @@ NODE_PARAMETERS = {
         "",
         "the session's registrations (YAML): "
         "~/save writes it, autosave rewrites it after every change, resume "
-        "reads it at start ('' = affordance_registrations.yaml in ROS_HOME, ~/.ros by default; "
-        "a relative path is taken from the working folder)",
+        "reads it at start; locked while the node runs (one engine per file); read at start "
+        "('' = affordance_registrations.yaml in ROS_HOME, ~/.ros by default; a relative path is "
+        "taken from the working folder)",
         None,
     ),
     "resume": (
@@ -156,6 +157,19 @@ NODE_PARAMETERS = {
         "origin, looked up through TF / static_transforms (a cloud in "
         "base_link or map); 'none' = no single viewpoint (an accumulated map: "
         "fitted without the visibility terms)",
+        None,
+    ),
+    "fixed_frame": (
+        "",
+        "the frame the scene, the objects and the registrations live in: each cloud is "
+        "brought into it through TF at the cloud's stamp (odom or map for a camera on a "
+        "moving robot); '' = the cloud's own frame",
+        None,
+    ),
+    "collision_objects": (
+        True,
+        "publish each registration as a moveit_msgs/CollisionObject on collision_object "
+        "(ADD, MOVE, REMOVE: what MoveIt's move_group listens to); false removes them",
         None,
     ),
     "points_reliable": (
@@ -194,7 +208,10 @@ PARAMETERS = {
     **NODE_PARAMETERS,
     **{name: (default, doc, None) for name, (default, doc, _) in FIT_TABLE.items()},
 }
+#: read at start only (rclpy refuses a set): among them the file the node writes -- a path set
+#: over the graph would have any file the node can write replaced
 READ_ONLY = {
+    "registrations_file",
     "points_reliable",
     "interactive_namespace",
     "twist_stamped",

@@ -51,29 +51,29 @@ def path_message(trajectory, frame: str, stamp) -> PoseArray:
 
 
 class PathRequests:
-    """The request subscription and the answer publisher of an engine node (``node.engine``,
-    ``node.frame()``, ``node.report(kind, ok, message)``)."""
+    """The request subscription and the answer publisher of an engine node: requests answered
+    from ``engine``, in ``frame()`` (the frame the node reports in), what came of each put into
+    ``outbox``."""
 
-    def __init__(self, node):
-        self._node = node
+    def __init__(self, node, engine, outbox, frame):
+        self._node, self._engine, self._outbox, self._frame = node, engine, outbox, frame
         self._pub = node.create_publisher(PoseArray, "~/path", LATCHED)
         self._sub = node.create_subscription(String, "~/path_request", self._on_request, INPUT)
 
     def _on_request(self, msg: String) -> None:
-        node = self._node
+        engine = self._engine
         try:
             object_id, state, waypoint = parse_path_request(msg.data)
-            path = node.engine.trajectory(object_id, state, waypoint)
+            path = engine.trajectory(object_id, state, waypoint)
         except AffordanceError as exc:
-            node.report("path", False, f"path request refused: {exc}")
+            self._outbox.outcome("path", False, f"path request refused: {exc}")
             return
         # a registration keeps the frame it was registered in (the cloud's may have changed)
-        frame = getattr(node.engine.state.fit_of(object_id), "frame_id", "") or node.frame()
-        self._pub.publish(path_message(path, frame, node.get_clock().now().to_msg()))
-        node.report(
+        frame = getattr(engine.state.fit_of(object_id), "frame_id", "") or self._frame()
+        self._pub.publish(path_message(path, frame, self._node.get_clock().now().to_msg()))
+        self._outbox.outcome(
             "path",
             True,
             f"path of object {object_id}'s {path.waypoint} to "
             f"{path.state}: {len(path.poses)} poses on ~/path",
         )
-        node.changed()

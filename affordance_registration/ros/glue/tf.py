@@ -39,7 +39,7 @@ from ...core.memo import PerRecord
 from ...core.transforms import invert
 from ...core.waypoints import waypoint_poses
 from .conversions import ConversionError, matrix_to_transform, transform_to_matrix
-from .frames import FrameError, FrameGraph, TransformBuffer
+from .frames import TF_CACHE_S, FrameError, FrameGraph, FrameNotYet, TransformBuffer
 from .qos import INPUT, LATCHED, latched
 
 __all__ = [
@@ -183,16 +183,17 @@ class TfBroadcaster:
 
 
 class TfListener:
-    """``lookup(target, source, fallback)`` -> T_target_source (4x4) from tf2_ros where it is
-    installed, else from the latest transforms heard on /tf and /tf_static; ``fallback`` (a
-    FrameGraph: the static_transforms parameter) fills in what TF does not know."""
+    """``lookup(target, source, stamp)`` -> T_target_source (4x4) from tf2_ros where it is
+    installed, else from the transforms heard on /tf and /tf_static; ``static`` (a FrameGraph:
+    the static_transforms parameter, replaceable at any time) fills in what TF does not know."""
 
-    def __init__(self, node):
+    def __init__(self, node, static: FrameGraph | None = None):
         self._lock = threading.Lock()
         self._frames = TransformBuffer()
         self._buffer = None
         self._bad_logged: set[str] = set()
         self._node = node
+        self.static = static if static is not None else FrameGraph()
         try:
             import tf2_ros
         except ImportError:
@@ -225,32 +226,56 @@ class TfListener:
                 self._frames.set(t.header.frame_id, t.child_frame_id, T, stamp, static=static)
 
     def lookup(
-        self,
-        target: str,
-        source: str,
-        fallback: FrameGraph | None = None,
-        stamp: float | None = None,
+        self, target: str, source: str, stamp: float | None = None, exact: bool = False
     ) -> np.ndarray:
-        """T_target_source at ``stamp`` (s, a message's header stamp; None or 0: the latest)."""
+        """T_target_source at ``stamp`` (s, a message's header stamp; None or 0: the latest).
+        A stamp after the newest transform gets the newest -- or, with ``exact``, raises
+        :class:`FrameNotYet` (the transform then is still on its way)."""
         target, source = target.lstrip("/"), source.lstrip("/")
         if not source or source == target:
             return np.eye(4)
+        fallback = self.static
         if self._buffer is not None:
-            from rclpy.time import Time
-
-            try:
-                at = Time(nanoseconds=int(stamp * 1e9)) if stamp else Time()
-                try:
-                    tf = self._buffer.lookup_transform(target, source, at)
-                except Exception:  # past the newest transform: the latest one
-                    tf = self._buffer.lookup_transform(target, source, Time())
-                return transform_to_matrix(tf.transform)
-            except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
-                if fallback is None:
-                    raise FrameError(
-                        f"no transform from frame '{source}' to frame '{target}' on TF"
-                    ) from None
-                return fallback.lookup(target, source)
+            return self._lookup_tf2(target, source, stamp, exact)
+        behind: dict = {}
         with self._lock:
-            graph = (fallback or FrameGraph()).merged(self._frames.graph(stamp))
-        return graph.lookup(target, source)
+            graph = fallback.merged(self._frames.graph(stamp, exact, behind))
+            try:
+                return graph.lookup(target, source)
+            except FrameError:
+                if not (exact and stamp):
+                    raise
+                try:  # found with the newest transforms: not at the stamp
+                    fallback.merged(self._frames.graph()).lookup(target, source)
+                except FrameError:
+                    raise
+                if not behind:
+                    raise FrameError(
+                        f"TF has no transform from frame '{source}' to frame '{target}' at "
+                        f"{stamp:.3f} s: older than it keeps ({TF_CACHE_S:g} s)"
+                    ) from None
+        raise FrameNotYet(
+            f"TF reaches '{source}' from '{target}' only up to {max(behind.values()):.2f} s "
+            f"before {stamp:.3f} s",
+            behind=max(behind.values()),
+        )
+
+    def _lookup_tf2(self, target: str, source: str, stamp, exact: bool) -> np.ndarray:
+        """The lookup through tf2_ros' buffer, ``static`` where it knows nothing."""
+        from rclpy.time import Time
+
+        at = Time(nanoseconds=int(stamp * 1e9)) if stamp else Time()
+        try:
+            try:
+                tf = self._buffer.lookup_transform(target, source, at)
+            except Exception as exc:
+                if exact and "future" in str(exc):  # tf2's extrapolation into the future
+                    raise FrameNotYet(f"TF has no transform at {stamp:.3f} s yet") from None
+                if exact:
+                    raise
+                tf = self._buffer.lookup_transform(target, source, Time())  # the latest
+            return transform_to_matrix(tf.transform)
+        except FrameNotYet:
+            raise
+        except Exception:  # tf2 raises several lookup exceptions; fall back to the parameter
+            return self.static.lookup(target, source)

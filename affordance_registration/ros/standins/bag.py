@@ -6,6 +6,13 @@ Bags are rosbag2 version 9, MCAP storage, CDR serialization, with the type hashe
 publishers' offered QoS in metadata.yaml -- what ``ros2 bag info`` / ``ros2 bag play`` of a ROS 2
 Jazzy install read. Messages are recorded and replayed as serialized CDR (no per-message
 conversion), so any message type the typestore knows is supported.
+
+Every decompression of a bag read is bounded (:func:`bounded_decompression`): an MCAP chunk
+(zstd or lz4) unpacks to at most the size its record promises, and that size is at most
+:data:`MAX_UNPACKED_BYTES`; a message of a bag compressed per message, and a storage file of a
+bag compressed per file, unpack to at most :data:`MAX_UNPACKED_BYTES` and
+:data:`MAX_UNPACKED_FILE_BYTES`. Past either, the bag is refused in one line (a 262 kB bag whose
+chunk was a zstd bomb took 2.6 GB).
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ from pathlib import PurePath
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ...core.errors import AffordanceError
-from ...core.files import unreadable
+from ...core.files import read_yaml, unreadable
 from ..glue.qos import LATCHED
 
 __all__ = [
@@ -33,6 +40,7 @@ __all__ = [
     "Player",
     "StatusPacer",
     "bag_info",
+    "bounded_decompression",
     "check_number",
     "message_class",
     "read_messages",
@@ -44,6 +52,15 @@ class BagError(AffordanceError):
     """A bag cannot be read or written (the message says which and why)."""
 
 
+#: the most bytes one MCAP chunk, or one message of a bag compressed per message, unpacks to
+#: (rosbag2 writes chunks of about 1 MB; one holds at least a whole message, and a 10-million
+#: point cloud is 160 MB)
+MAX_UNPACKED_BYTES = 1 << 30
+#: the most bytes one storage file of a bag compressed per file unpacks to (into a temporary
+#: folder, as rosbags does)
+MAX_UNPACKED_FILE_BYTES = 16 << 30
+#: the largest metadata.yaml read (a bag of thousands of topics and files is well under this)
+MAX_METADATA_BYTES = 10_000_000
 #: a playback rate outside these plays a bag for ever or all at once (--rate 1e-300 never ended)
 RATE_LIMITS = (1e-3, 1e3)
 
@@ -113,16 +130,101 @@ def _check_bag_files(path: str) -> None:
     _regular_file(meta)
     if not os.path.exists(meta):
         return
-    import yaml
-
+    # read here first by the one YAML loader (aliases bounded), before rosbags reads it
+    doc = read_yaml(meta, BagError, max_bytes=MAX_METADATA_BYTES, kind="bag's metadata.yaml")
     try:
-        with open(meta, "rb") as handle:
-            files = yaml.safe_load(handle)["rosbag2_bagfile_information"]["relative_file_paths"]
-    except Exception:  # rosbags says what is wrong with the metadata
+        files = doc["rosbag2_bagfile_information"]["relative_file_paths"]
+    except (KeyError, TypeError):  # rosbags says what is wrong with the metadata
         return
     for name in files if isinstance(files, list) else ():
         if isinstance(name, str):  # rosbags reads each by its name in the bag folder
             _regular_file(os.path.join(path, PurePath(name).name))
+
+
+def _unpack(make, data: bytes, size: int, what: str, promised: bool = True) -> bytes:
+    """``data`` (zstd or lz4 frames) unpacked by decompressors ``make()`` makes (each one
+    frame: ``decompress(data, max_length)``, ``eof``, ``needs_input``, ``unused_data``) to at
+    most ``size`` bytes -- what the chunk's header ``promised``, else a cap --, never more:
+    past it (or past :data:`MAX_UNPACKED_BYTES`), or cut short, a BagError."""
+    if size > MAX_UNPACKED_BYTES:
+        raise BagError(
+            f"{what} claims {size:,} bytes unpacked, more than the {MAX_UNPACKED_BYTES:,} "
+            f"this reads (MAX_UNPACKED_BYTES)"
+        )
+    pieces, left = [], size
+    while True:
+        decompressor = make()
+        piece = decompressor.decompress(data, max_length=left)
+        pieces.append(piece)
+        left -= len(piece)
+        if not decompressor.eof:
+            if getattr(decompressor, "needs_input", True):
+                raise BagError(f"{what} is cut short (corrupt)")
+            raise BagError(
+                f"{what} unpacks to more than the {size:,} bytes "
+                + ("its header promises" if promised else "this reads (MAX_UNPACKED_BYTES)")
+            )
+        data = decompressor.unused_data
+        if not data:
+            return b"".join(pieces)
+
+
+class _BoundedZstd:
+    """What rosbags' reader uses of its zstd module, bounded: ``decompress`` (a message of a
+    bag compressed per message) and ``open`` (a storage file of a bag compressed per file)."""
+
+    def __init__(self, zstd):
+        self.zstd = zstd
+
+    def decompress(self, data: bytes) -> bytes:
+        return _unpack(
+            self.zstd.ZstdDecompressor, data, MAX_UNPACKED_BYTES, "a message", promised=False
+        )
+
+    def open(self, fileobj, mode: str = "rb"):
+        return _CappedReader(self.zstd.open(fileobj, mode), MAX_UNPACKED_FILE_BYTES)
+
+
+class _CappedReader:
+    """A file object that refuses to be read past ``cap`` bytes."""
+
+    def __init__(self, inner, cap: int):
+        self.inner, self.left = inner, cap
+
+    def read(self, n: int = -1) -> bytes:
+        want = self.left + 1 if n is None or n < 0 else min(n, self.left + 1)
+        data = self.inner.read(want)
+        self.left -= len(data)
+        if self.left < 0:
+            raise BagError(
+                f"a storage file unpacks to more than {MAX_UNPACKED_FILE_BYTES:,} bytes "
+                f"(MAX_UNPACKED_FILE_BYTES)"
+            )
+        return data
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.inner.close()
+
+
+def bounded_decompression() -> None:
+    """Make every decompression rosbags does while reading a bag bounded (idempotent): its
+    MCAP chunk decompressors (by the size each chunk record promises) and the zstd module its
+    reader unpacks messages and files with."""
+    import lz4.frame
+    from rosbags.rosbag2 import reader, storage_mcap
+
+    zstd = storage_mcap.zstd  # the module rosbags chose (compression.zstd or its backport)
+    storage_mcap.DECOMPRESSORS["zstd"] = lambda data, size: _unpack(
+        zstd.ZstdDecompressor, data, size, "an MCAP chunk (zstd)"
+    )
+    storage_mcap.DECOMPRESSORS["lz4"] = lambda data, size: _unpack(
+        lz4.frame.LZ4FrameDecompressor, data, size, "an MCAP chunk (lz4)"
+    )
+    if not isinstance(reader.zstd, _BoundedZstd):
+        reader.zstd = _BoundedZstd(reader.zstd)
 
 
 def message_class(type_name: str):
@@ -383,10 +485,13 @@ def _open_reader(path: str):
             f"{path}: not a bag but a folder holding one: give {os.path.join(path, inner[0])}"
         )
     _check_bag_files(path)
+    bounded_decompression()
     try:
         reader = Reader(path)
         reader.open()
         return reader
+    except BagError as exc:  # a bound (a compressed bomb)
+        raise BagError(f"{path}: {exc}") from None
     except Exception as exc:  # rosbags raises several types for truncated/corrupt bags
         raise BagError(
             f"{path}: not a readable rosbag2 bag ({exc.__class__.__name__}: "
@@ -422,8 +527,8 @@ def read_messages(path: str, topic: str):
         conns = [c for c in reader.connections if c.topic == topic]
         for conn, _, data in reader.messages(connections=conns):
             yield deserialize_message(bytes(data), message_class(conn.msgtype))
-    except BagError:
-        raise
+    except BagError as exc:
+        raise BagError(f"{path}: {exc}" if not str(exc).startswith(path) else str(exc)) from None
     except Exception as exc:
         raise BagError(
             f"{path}: reading {topic} failed ({exc.__class__.__name__}: {exc}); "

@@ -1,7 +1,9 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Interactive-marker server for RViz's Interactive Markers display, implemented from the
-visualization_msgs definitions (the interactive_markers package is not on PyPI).
+visualization_msgs definitions (the interactive_markers package is not on PyPI). In a ROS
+install with interactive_markers, its ``InteractiveMarkerServer`` speaks the protocol instead
+(:meth:`CorrectionMarkerServer.attach`); what is shown and the feedback handling stay here.
 
 Protocol, for a one-level namespace ``ns`` (parameter ``interactive_namespace``):
 
@@ -167,11 +169,20 @@ class CorrectionMarkerServer:
         self._cancelled: dict[str, int | None] = {}  # client id -> object of its lost drag
         self._warnings = Throttle(WARN_EVERY_S, clock)
         self._publish_fn = None
+        self._installed = None  # interactive_markers' server, where it is installed
 
     # ------------------------------------------------------------------ ROS wiring
     def attach(self, node) -> None:
         """Serve on ``node``: the update topic, the feedback subscription, the full-set service
-        and the keep-alive timer."""
+        and the keep-alive timer -- through interactive_markers' server where it is installed
+        (every marker inserted with :meth:`feedback` as its callback), else here."""
+        try:
+            from interactive_markers import InteractiveMarkerServer
+        except ImportError:
+            InteractiveMarkerServer = None
+        if InteractiveMarkerServer is not None:
+            self._installed = InteractiveMarkerServer(node, self.ns)
+            return
         pub = node.create_publisher(InteractiveMarkerUpdate, f"{self.ns}/update", INPUT)
         self._publish_fn = pub.publish
         node.create_subscription(
@@ -208,6 +219,15 @@ class CorrectionMarkerServer:
         )
         if self._publish_fn is not None:
             self._publish_fn(upd)
+        server = self._installed
+        if server is not None:  # the same change set through interactive_markers
+            for marker in markers:
+                server.insert(marker, feedback_callback=self.feedback)
+            for pose in poses:
+                server.setPose(pose.name, pose.pose, pose.header)
+            for name in erases:
+                server.erase(name)
+            server.applyChanges()
         return upd
 
     def sync(self) -> InteractiveMarkerUpdate | None:

@@ -242,6 +242,15 @@ def parse_launch_file(path: str, arguments: dict | None = None) -> list[NodeActi
                     file_path = sub(p["from"])
                     if not os.path.isfile(file_path):
                         raise LaunchError(f"{where}: parameter file not found: {file_path}")
+                    # read by the one YAML loader before a node starts: a file that is not
+                    # YAML, or an alias bomb, is one line here (rcl refuses aliases itself)
+                    read_yaml(
+                        file_path,
+                        LaunchError,
+                        label=f"{where}: parameter file {file_path}",
+                        max_bytes=MAX_LAUNCH_BYTES,
+                        kind="parameter file",
+                    )
                     node.params.append(("file", file_path))
                 elif "name" in p and "value" in p:
                     node.params.append(("value", p["name"], sub(p["value"])))

@@ -6,10 +6,13 @@ the bounds on websocket frames and message rates, no share tunnel and no outboun
 The station drives a robot's picture of the world, so it admits its operator only:
 
 * **an access secret** per start (random, 32 URL-safe characters; or configured with the
-  ``access_secret`` parameter / the ``AFFORDANCE_STATION_SECRET`` environment variable) is
-  required for the page and for the websocket. The URL the station logs carries it
-  (``http://127.0.0.1:8080/?token=...``, as notebook servers do); the page's first request with
-  it sets an HttpOnly, SameSite=Strict cookie named after the port, which the page's own
+  ``AFFORDANCE_STATION_SECRET`` environment variable / the ``access_secret`` parameter) is
+  required for the page and for the websocket. It goes where notebook servers put theirs: the
+  URL that carries it (``http://127.0.0.1:8080/?token=...``) is printed to the terminal that
+  started the station and kept in a file only its user can read (:func:`keep_url`); it never
+  goes through the ROS logger (``/rosout``, the ROS log folder), and the ``access_secret``
+  parameter is undeclared once read (no GetParameters answers it). The page's first request
+  with it sets an HttpOnly, SameSite=Strict cookie named after the port, which the page's own
   websocket then presents. A plain websocket client gives it as ``?token=`` or the cookie.
 * **no cross-origin websocket**: a browser always sends ``Origin``; it must be the station's own
   (``http://`` + the request's ``Host``), so a page of another origin opened in the operator's
@@ -47,6 +50,7 @@ from http.cookies import CookieError, SimpleCookie
 from urllib.parse import parse_qs, urlsplit
 
 from ...core.errors import AffordanceError
+from ...core.files import write_atomically
 from ..glue.throttle import Throttle
 
 __all__ = [
@@ -60,6 +64,9 @@ __all__ = [
     "MAX_MESSAGES_PER_S",
     "MAX_BYTES_PER_S",
     "SECRET_ENV",
+    "RUNTIME_ENV",
+    "keep_url",
+    "url_file",
 ]
 
 #: largest websocket frame a client may send (1 MiB): the page sends clicks, camera poses, GUI
@@ -72,6 +79,10 @@ MAX_MESSAGES_PER_S = 100.0
 MAX_BYTES_PER_S = 4.0 * (1 << 20)
 #: environment variable holding the secret when the access_secret parameter is ''
 SECRET_ENV = "AFFORDANCE_STATION_SECRET"
+#: environment variable naming the folder of the files keeping the stations' URLs (default:
+#: ``$XDG_RUNTIME_DIR/affordance_registration``, else ``~/.local/share/affordance_registration/
+#: runtime``, as Jupyter's runtime folder)
+RUNTIME_ENV = "AFFORDANCE_RUNTIME_DIR"
 #: shortest secret accepted when configured
 MIN_SECRET = 16
 _LOOPBACK_NAMES = ("localhost", "localhost.localdomain", "ip6-localhost", "ip6-loopback")
@@ -127,13 +138,13 @@ class StationAccess:
         """Cookies are per host, not per port: the name carries the port."""
         return f"affordance_station_{self.port}"
 
-    def url(self, host: str | None = None) -> str:
-        """The URL an operator opens (with the secret)."""
+    def url(self, host: str | None = None, secret: bool = True) -> str:
+        """The URL an operator opens (with the secret; without it for a log line)."""
         host = host or self.host
         if host in ("0.0.0.0", "::", ""):
             host = "127.0.0.1"
         shown = f"[{host}]" if ":" in host else host
-        return f"http://{shown}:{self.port}/?token={self.secret}"
+        return f"http://{shown}:{self.port}/" + (f"?token={self.secret}" if secret else "")
 
     def allowed_hosts(self) -> set[str] | None:
         """The Host header values accepted (None: any -- bound to every interface)."""
@@ -386,3 +397,22 @@ def forbid_outbound(allowed_hosts=(), log=None) -> None:
 def configured_secret(parameter: str) -> str:
     """The secret: the parameter, else the environment variable, else a new random one."""
     return parameter or os.environ.get(SECRET_ENV, "") or new_secret()
+
+
+def url_file(port: int) -> str:
+    """The file keeping the URL (with its secret) of the station on ``port``."""
+    folder = os.environ.get(RUNTIME_ENV) or (
+        os.path.join(os.environ["XDG_RUNTIME_DIR"], "affordance_registration")
+        if os.environ.get("XDG_RUNTIME_DIR")
+        else os.path.join(os.path.expanduser("~"), ".local/share/affordance_registration/runtime")
+    )
+    return os.path.join(folder, f"station-{int(port)}.url")
+
+
+def keep_url(url: str, port: int) -> str:
+    """Keep ``url`` in :func:`url_file` -- mode 0600, in a folder made 0700 -- for the operator's
+    own tools to find; returns its path. Raises OSError when it cannot."""
+    path = url_file(port)
+    os.makedirs(os.path.dirname(path), mode=0o700, exist_ok=True)
+    write_atomically({path: url + "\n"}, mode=0o600)
+    return path

@@ -13,7 +13,8 @@ the normal of its dominant plane where the sensor sees it at a slant (a table); 
 under the first click then sets it (``core.display``). On the page the operator
 
 * clicks the cloud: the click ray is snapped to the nearest cloud point (``core.display.snap_ray``)
-  and published on ``clicked_point`` in the cloud's frame;
+  and published on ``clicked_point`` in the cloud's frame (the engine's fixed frame, when it has
+  one: each cloud is drawn there, through TF at its stamp);
 * drags the gizmo on the shown fit (it stays within the object's outline, so a click beside it
   lands on the cloud): an interactive-marker feedback client of its own (MOUSE_DOWN,
   POSE_UPDATE, MOUSE_UP of ``affordance_fit`` on ``<interactive_namespace>/feedback``) -- the
@@ -42,8 +43,10 @@ is in ``core/display.py``, the access rules in ``access.py``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -72,8 +75,10 @@ from ..glue.conversions import (
     stamped,
 )
 from ..glue.qos import INPUT, LATCHED
+from ..glue.tf import TfListener
 from ..standins.spin import run_node
 from . import access as station_access
+from .markup import text
 from .page import ACTIONS, PageHandlers, StationPage
 from .parameters import PARAMETERS, UP_AXES, check_parameters, check_port
 from .paths import StationPaths
@@ -149,6 +154,7 @@ class _CloudShown:
     shown_at: float = -math.inf  #: monotonic time it was last replaced
     thin_voxel: float | None = None  #: its display voxel edge
     first_view_frame: str | None = None  #: the frame the browsers were last pointed in
+    message: PointCloud2 | None = None  #: the cloud shown (drawn again in a new engine frame)
     #: the shown (thinned) points, their colours by depth and their own (the scan's, or its
     #: intensity's; None without): the "Depth colours" toggle switches between them
     shown: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.float32))
@@ -156,6 +162,7 @@ class _CloudShown:
     own_rgb: np.ndarray | None = None
     up: np.ndarray | None = None  #: the page's up axis in this frame
     up_from_click: bool = False  #: the support plane under a click has set it
+    sensor: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: in ``frame``
 
 
 @dataclass
@@ -226,6 +233,8 @@ class StationNode(Node):
         self.create_subscription(
             PointCloud2, "points", self._on_cloud, qos.cloud(p["points_reliable"])
         )
+        #: the cloud is drawn in the engine's frame (its fixed frame, when it has one)
+        self._tf = TfListener(self)
         self.status_topic = f"{self.engine}/status"
         self.create_subscription(String, self.status_topic, self._on_status, LATCHED)
         markers_qos = qos.latched(10)
@@ -277,14 +286,19 @@ class StationNode(Node):
         station_access.disable_share(self.page.server, self.get_logger().warning)
         self.access.port = self.page.port
         self.url = self.access.url()
+        # the secret: printed to the terminal that started the station and kept in a 0600
+        # file; never through the ROS logger (/rosout, the ROS log folder) nor a parameter
+        self.undeclare_parameter("access_secret")
+        try:
+            self.url_file = station_access.keep_url(self.url, self.access.port)
+            kept = f"; its URL with the access secret is kept in {self.url_file}"
+        except OSError as exc:
+            self.url_file, kept = None, f"; its URL could not be kept in a file ({exc})"
+        print(f"operator station: {self.url}", flush=True)
         self._worker = threading.Thread(target=self._run, name="station-page", daemon=True)
         self._worker.start()
-        # the one URL that works (it holds the access secret) goes to the terminal, first and
-        # only there: not through the ROS logger, whose lines reach /rosout and log files
-        print(f"operator station: {self.url}", flush=True)
         self.get_logger().info(
-            f"operator station on {self.access.url().split('?')[0]} (engine {self.engine}; "
-            f"the URL with its access secret is printed on the terminal)"
+            f"operator station on {self.access.url(secret=False)} (engine {self.engine}){kept}"
         )
 
     # ------------------------------------------------------------------ ROS -> inbox
@@ -512,6 +526,9 @@ class StationNode(Node):
         if inbox.status_new:
             self._status = inbox.status
             refresh = True
+            scene = (self._status or {}).get("frame_id")
+            if scene and self._cloud.message is not None and scene != self._cloud.frame:
+                self._show_cloud(self._cloud.message)  # the engine's frame changed: drawn there
         refresh = self._settle_pending_click(now) or refresh
         refresh = self._watch_engine(now) or refresh
         if refresh:
@@ -644,7 +661,7 @@ class StationNode(Node):
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
         said = headline(status, self._connected, self.engine, pending is not None, alert)
         self.page.show_text(
-            said,
+            text(said),
             status_markdown(
                 status, self._connected, self.engine, self._cloud.text, last_action, fitting, stale
             ),
@@ -686,6 +703,7 @@ class StationNode(Node):
             self.get_logger().info(f"drawn: object {obj['id']} as {drawn.text}")
 
     def _show_cloud(self, msg: PointCloud2) -> None:
+        self._cloud.message = msg
         try:
             pts, _ = pointcloud2_to_xyz(msg)
         except ConversionError as exc:
@@ -695,6 +713,19 @@ class StationNode(Node):
         finite = np.all(np.isfinite(pts), axis=1)
         if not finite.all():
             pts = pts[finite]
+        sensor = self._sensor_origin()
+        frame = msg.header.frame_id
+        scene = (self._status or {}).get("frame_id") or frame
+        if scene.lstrip("/") != frame.lstrip("/"):  # the engine's fixed frame: drawn in it
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            try:
+                T = self._tf.lookup(scene, frame, stamp or None)
+            except AffordanceError as exc:
+                self._cloud.text = f"the cloud in '{frame}' is not placed in '{scene}' ({exc})"
+                return
+            pts = pts @ T[:3, :3].T + T[:3, 3]
+            sensor = T[:3, :3] @ sensor + T[:3, 3]
+            frame = scene
         thinned = (
             display.thin(pts, int(self.p["display_points"]), start_voxel=self._cloud.thin_voxel)
             if len(pts)
@@ -705,15 +736,13 @@ class StationNode(Node):
         shown = pts[keep]
         own, note = self._own_colors(msg, finite, keep)
         self._cloud.shown, self._cloud.own_rgb = shown, own
-        self._cloud.depth_rgb = display.scalar_colors(
-            np.linalg.norm(shown - self._sensor_origin(), axis=1)
-        )
-        frame = msg.header.frame_id
+        self._cloud.depth_rgb = display.scalar_colors(np.linalg.norm(shown - sensor, axis=1))
         with self._lock:
-            self._cloud.points, self._cloud.frame = pts, frame
+            self._cloud.points, self._cloud.frame, self._cloud.sensor = pts, frame, sensor
         if frame != self._cloud.first_view_frame and len(pts):
             self._cloud.first_view_frame = frame
-            self._first_view(shown, frame)
+            self.get_logger().info(f"cloud drawn in '{frame}' (from '{msg.header.frame_id}')")
+            self._first_view(shown, frame, sensor)
         self._draw_cloud()
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self._cloud.text = (
@@ -752,10 +781,10 @@ class StationNode(Node):
     def _sensor_origin(self) -> np.ndarray:
         return np.asarray(self.p["sensor_origin"], dtype=float)
 
-    def _first_view(self, shown: np.ndarray, frame: str) -> None:
+    def _first_view(self, shown: np.ndarray, frame: str, sensor: np.ndarray) -> None:
         """Point the browsers at a cloud in a new frame: its up axis (``up``, or with ``auto``
-        what the scan says: display.first_up) and a view from the sensor (display.initial_view)."""
-        sensor = self._sensor_origin()
+        what the scan says: display.first_up) and a view from the ``sensor`` (in ``frame``:
+        display.initial_view)."""
         if self.p["up"] != "auto":
             up, why = np.array(UP_AXES[self.p["up"]], dtype=float), f"up {self.p['up']}"
         else:
@@ -776,8 +805,8 @@ class StationNode(Node):
             if self._cloud.up_from_click or self._cloud.up is None:
                 return
             self._cloud.up_from_click = True
-            points, up = self._cloud.points, self._cloud.up
-        normal = display.support_under(points, point, self._sensor_origin(), up)
+            points, up, sensor = self._cloud.points, self._cloud.up, self._cloud.sensor
+        normal = display.support_under(points, point, sensor, up)
         if normal is None:
             self.get_logger().info("no support plane under the first click: the up axis stays")
             return
@@ -792,6 +821,9 @@ class StationNode(Node):
         self._stop.set()
         self._worker.join(timeout=2.0)
         self.page.stop()
+        if self.url_file is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.url_file)
 
 
 def main(args=None) -> int:

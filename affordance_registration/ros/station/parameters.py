@@ -59,7 +59,9 @@ PARAMETERS = {
         "",
         "the secret the page and its websocket need ('' = the "
         "AFFORDANCE_STATION_SECRET environment variable, else a random one "
-        "per start, shown in the URL the station logs); at least 16 characters",
+        "per start); at least 16 characters. Undeclared once read (no GetParameters "
+        "answers it); a command line is readable by every local user: prefer the "
+        "environment variable",
     ),
 }
 UP_AXES = {

@@ -17,6 +17,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ...core.labels import REFUSED_PREFIX, standing
 from ..glue.conversions import ConversionError, pose_to_matrix
 from ..glue.mesh_refs import referenced_mesh
+from .markup import text
 
 __all__ = [
     "MeshDrawing",
@@ -33,6 +34,7 @@ __all__ = [
     "HEADLINE_MAX",
     "candidate_options",
     "fitting_marker",
+    "shown_markdown",
     "status_markdown",
     "suggested_pose",
 ]
@@ -261,7 +263,8 @@ def headline(
             f"Engine not running: start affordance_engine ({_cut(engine, 40)}); "
             "this page recovers when it comes up."
         )
-    elif alert:
+    elif alert.strip():
+        alert = " ".join(alert.split())
         text = alert[0].upper() + alert[1:]
     elif fitting:
         text = "Fitting your click…"
@@ -357,6 +360,12 @@ def suggested_pose(obj: dict | None) -> np.ndarray | None:
     return T
 
 
+def shown_markdown(obj: dict | None) -> str:
+    """The panel's "Shown" line: the shown candidate's label (as text) or "nothing selected"."""
+    label = candidate_label(obj)
+    return f"**Shown**: {text(label)}" if label else "**Shown**: nothing selected"
+
+
 def status_markdown(
     status: dict | None,
     connected: bool,
@@ -369,27 +378,29 @@ def status_markdown(
     """The status panel: engine connection, a click being fitted (``fitting``), open object and
     its verdict, why it is unsettled and the suggested view, counts, fit time, what the engine
     is doing, its last message and error (left out when ``stale_error``: a later message came
-    after it), the cloud, the reply to the last button."""
+    after it), the cloud, the reply to the last button. Every value in it is from outside the
+    station (the status is anyone's JSON, the notes quote frames and replies): each is shown as
+    text (:func:`.markup.text`), only the field names are markup."""
     lines = []
     if not connected:
         lines.append(
-            f"**Engine not running**: nothing publishes {engine}/status (start "
+            f"**Engine not running**: nothing publishes {text(engine + '/status')} (start "
             f"`affordance_engine`; the page recovers when it comes up)"
         )
     elif status is None:
-        lines.append(f"**Engine**: {engine} is up, waiting for its status")
+        lines.append(f"**Engine**: {text(engine)} is up, waiting for its status")
     else:
         node = status.get("node") or {}
         doing = node.get("busy") or ("refit pending" if node.get("pending_refit") else "idle")
         lines.append(
-            f"**Engine**: {engine} — {doing}"
-            + (f", {node['queued']} queued" if node.get("queued") else "")
+            f"**Engine**: {text(engine)} — {text(doing)}"
+            + (f", {text(node['queued'])} queued" if node.get("queued") else "")
         )
     if fitting:
-        lines.append(f"**Fitting**: {fitting}")
+        lines.append(f"**Fitting**: {text(fitting)}")
     st = status or {}
     obj = active_object(st)
-    lines.append(f"**Shown**: {candidate_label(obj) if obj else 'nothing selected'}")
+    lines.append(f"**Shown**: {text(candidate_label(obj)) if obj else 'nothing selected'}")
     if obj and candidate_standing(obj)[1]:
         lines.append(
             "**Verdict**: the shown candidate is refused (drawn as a grey outline); "
@@ -399,24 +410,24 @@ def status_markdown(
     if amb.get("settled") is False:  # why it is not settled, and the view that would
         view = (obj.get("suggested_view") or {}).get("text")
         lines.append(
-            f"**Unsettled**: {'; '.join(amb.get('reasons') or [])}"
-            + (f" — **suggested view**: {view}" if view else "")
+            f"**Unsettled**: {text('; '.join(str(r) for r in amb.get('reasons') or []))}"
+            + (f" — **suggested view**: {text(view)}" if view else "")
         )
     counts = st.get("counts") or {}
     lines.append(
-        f"**Objects**: {counts.get('objects', 0)} open, "
-        f"{counts.get('registered', len(st.get('registered') or []))} registered, "
-        f"{counts.get('undo', 0)} undo steps"
+        f"**Objects**: {text(counts.get('objects', 0))} open, "
+        f"{text(counts.get('registered', len(st.get('registered') or [])))} registered, "
+        f"{text(counts.get('undo', 0))} undo steps"
     )
     fit_s = (st.get("timing_s") or {}).get("total")
     if fit_s is not None:
         lines.append(f"**Fit time**: {float(fit_s):.2f} s")
     node = st.get("node") or {}
     if node.get("last_message"):
-        lines.append(f"**Last message**: {node['last_message']}")
+        lines.append(f"**Last message**: {text(node['last_message'])}")
     if node.get("last_error") and not stale_error:
-        lines.append(f"**Last error**: {node['last_error']}")
-    lines.append(f"**Cloud**: {cloud}")
+        lines.append(f"**Last error**: {text(node['last_error'])}")
+    lines.append(f"**Cloud**: {text(cloud)}")
     if last_action:
-        lines.append(f"**Last action**: {last_action}")
+        lines.append(f"**Last action**: {text(last_action)}")
     return "\n\n".join(lines)
