@@ -168,7 +168,14 @@ def cmd_settings(args) -> int:
     if args.node_params or args.markdown:
         from .ros.glue import params
 
-        print(params.params_file() if args.node_params else params.fit_table(), end="")
+        if args.node_params:
+            print(params.params_file(), end="")
+        elif args.markdown == "station":
+            from .ros.station.parameters import station_table
+
+            print(station_table(), end="")
+        else:
+            print(params.node_table() if args.markdown == "node" else params.fit_table(), end="")
     else:
         print((FitSettings.load(args.file) if args.file else FitSettings()).dump(), end="")
     return 0
@@ -656,7 +663,14 @@ def build_parser() -> argparse.ArgumentParser:
     which.add_argument(
         "--node-params", action="store_true", help="the node's parameter file instead"
     )
-    which.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
+    which.add_argument(
+        "--markdown",
+        nargs="?",
+        const="fit",
+        choices=("fit", "node", "station"),
+        help="a table of msg_docs/README.md instead: the engine node's fit.* parameters (fit, "
+        "the default), its other parameters (node) or the station's (station)",
+    )
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
@@ -770,20 +784,10 @@ def _add_station_and_tool_parsers(sub) -> None:
         default="m",
         help="with --scene: units of the file (default m)",
     )
-    p.add_argument(
-        "--up",
-        default="auto",
-        choices=("auto", "+x", "-x", "+y", "-y", "+z", "-z"),
-        help="the scan's up axis on the page (default auto: -y for an optical "
-        "frame, else +z; a leading '-' needs the form --up=-y)",
-    )
-    p.add_argument("--port", type=int, default=8080, help="TCP port of the page (default 8080)")
-    p.add_argument(
-        "--host",
-        default="127.0.0.1",
-        help="address the page is served on (default 127.0.0.1: this machine "
-        "only; 0.0.0.0 serves every interface)",
-    )
+    # the station's own knobs, declared once (ros/station/parameters.py): --up, --port, --host
+    from .ros.station.parameters import add_options
+
+    add_options(p)
     p.add_argument("--seed", default="7", help="with --demo: the simulated scene (default 7)")
     p.add_argument(
         "--first-view",

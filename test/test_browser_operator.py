@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from affordance_registration.evaluation import realdata as rd
+from affordance_registration.evaluation.bench import row_note
 from affordance_registration.evaluation.browser_latency import chromium_missing
 from affordance_registration.evaluation.browser_operator import (
     format_row,
@@ -40,6 +41,7 @@ def test_the_scripted_operator_registers_a_real_scan_through_the_page(tmp_path):
         assert reg["primitive"] == "cylinder" and rec["clicks"] == 1
         # timed on the page: the shown fit after the click, the registration after that
         assert 0 < rec["fit_s"] < rec["accept_s"], rec
-    # the bench prints it
+    # the bench prints it, and its page says what the line measures
     (line,) = format_row(row)
     assert "2 of 2 objects accepted" in line and "learn41" in line, line
+    assert row_note(line)[1] == "the scripted operator"

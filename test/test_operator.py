@@ -7,6 +7,8 @@ before anything that leaves the object, Joy buttons act on edges and the joint a
 hysteresis. No ROS."""
 
 import math
+import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.core.operator import OperatorSettings, OperatorStream, Outbox
+from affordance_registration.core.persistence import Autosave, RegistrationStore
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
@@ -77,12 +80,15 @@ class Stream:
         self.engine.set_scene(sim.organized, frame_id=FRAME)
         self.outbox = Recorder()
         self.reports = self.outbox.reports
+        # its own registrations file (locked while in use): not one in the working folder
+        folder = tempfile.mkdtemp(prefix="ar_stream_")
         self.stream = OperatorStream(
             self.engine,
             OperatorSettings(**settings),
             self.clock,
             self.clock.sleep,
             outbox=self.outbox,
+            saver=Autosave(RegistrationStore(os.path.join(folder, "r.yaml")), enabled=False),
         )
 
     def shown(self):
@@ -243,7 +249,7 @@ def test_a_burst_moves_the_same_however_late_it_is_handled(fitted, delays):
 
 
 def test_joy_buttons_act_on_press_edges(library, scene):
-    s = Stream(library, scene, buttons=(("next_model", 0), ("previous_model", 2)))
+    s = Stream(library, scene, button_next_model=0, button_previous_model=2)
     s.stream.click(scene.objects[0].click)
     for buttons in ([1, 0, 0], [1, 0, 0], [0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 0]):
         s.stream.joy(buttons, [0.0] * 6)

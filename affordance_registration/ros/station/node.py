@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
@@ -63,6 +64,7 @@ from visualization_msgs.msg import InteractiveMarkerFeedback, MarkerArray
 
 from ...core import display
 from ...core.errors import AffordanceError
+from ...core.knobs import described
 from ..glue import qos
 from ..glue.conversions import (
     ConversionError,
@@ -80,7 +82,7 @@ from ..standins.spin import run_node
 from . import access as station_access
 from .markup import text
 from .page import ACTIONS, PageHandlers, StationPage
-from .parameters import PARAMETERS, UP_AXES, check_parameters, check_port
+from .parameters import PARAMETERS, STATION_TABLE, UP_AXES, check_parameters, check_port
 from .paths import StationPaths
 from .state import (
     active_object,
@@ -198,9 +200,14 @@ class StationNode(Node):
     def __init__(self):
         super().__init__("affordance_station")
         p = {
-            name: self.declare_parameter(name, default).value
-            for name, (default, _) in PARAMETERS.items()
+            name: self.declare_parameter(
+                name,
+                d.default,
+                ParameterDescriptor(description=described(d), additional_constraints=d.rule),
+            ).value
+            for name, d in STATION_TABLE.items()
         }
+        p["sensor_origin"] = [float(v) for v in p["sensor_origin"]]
         problem = check_parameters(p)
         if problem:
             raise AffordanceError(problem)
