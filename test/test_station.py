@@ -740,3 +740,23 @@ def test_any_text_from_outside_renders_as_that_text(where, value):
 def _one_line(value: str) -> str:
     """``value`` as the panel shows it: line breaks and control characters as spaces."""
     return "".join(" " if unicodedata.category(c) in ("Cc", "Zl", "Zp") else c for c in value)
+
+
+def test_a_scan_files_viewpoint_is_where_the_station_looks_from(tmp_path):
+    """`station --scene` hands the file's VIEWPOINT (in its units) to the engine and the
+    station as sensor_origin: the first view looks from there."""
+    from affordance_registration.ros.station.scene import read_scan
+
+    rows = "\n".join(f"{x} {y} 1500" for x in range(-20, 21) for y in range(-20, 21))
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1681\n"
+    path = tmp_path / "scan.pcd"
+    path.write_text(
+        head + "HEIGHT 1\nVIEWPOINT 10 20 30 1 0 0 0\nPOINTS 1681\nDATA ascii\n" + rows
+    )
+    scan = read_scan(str(path), "mm")
+    np.testing.assert_allclose(scan.sensor_origin, [0.01, 0.02, 0.03])
+    assert scan.colors is None and scan.points.shape == (1681, 3)
+    position, _ = display.initial_view(
+        scan.points, [0, -1, 0], math.radians(60), scan.sensor_origin
+    )
+    assert np.allclose(position, scan.sensor_origin)  # (the scan fits the view from there)
