@@ -15,7 +15,7 @@ import time
 import urllib.request
 
 import pytest
-from browser_helpers import browser_page, chromium_missing, free_port
+from browser_helpers import browser_page, chromium_missing, free_port, station_command
 from ros_helpers import ros_env
 
 URL = re.compile(r"https?://\S+")
@@ -73,14 +73,7 @@ def test_the_first_url_printed_answers_and_opens_the_page(command, tmp_path):
     argv = (
         [sys.executable, "-m", "affordance_registration.cli", "station", "--port", str(port)]
         if command == "station"
-        else [
-            sys.executable,
-            "-m",
-            "affordance_registration.ros.station.node",
-            "--ros-args",
-            "-p",
-            f"port:={port}",
-        ]
+        else station_command(port, None)
     )
     proc, url, before = _first_url(argv, tmp_path)
     try:

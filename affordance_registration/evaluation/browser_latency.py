@@ -121,9 +121,9 @@ def chromium_missing(chromium: str = CHROMIUM) -> str:
     return ""
 
 
-def station_command(port: int, secret: str, **params) -> list[str]:
-    """The operator station's command line on ``port`` with ``access_secret`` and more ROS
-    parameters."""
+def station_command(port: int, secret: str | None, **params) -> list[str]:
+    """The operator station's command line on ``port`` with ``access_secret`` (None: none
+    given, a random one per start) and more ROS parameters."""
     argv = [
         sys.executable,
         "-m",
@@ -131,9 +131,9 @@ def station_command(port: int, secret: str, **params) -> list[str]:
         "--ros-args",
         "-p",
         f"port:={port}",
-        "-p",
-        f"access_secret:={secret}",
     ]
+    if secret is not None:
+        argv += ["-p", f"access_secret:={secret}"]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
     return argv
