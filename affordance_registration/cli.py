@@ -131,8 +131,12 @@ def cmd_fit(args) -> int:
         )
         print(f"{verdict(report.candidates)}{why}")
     print(
-        f"{'rank':>4}  {'template':<22} {'p':>5} {'residual mm':>11} {'coverage':>8} "
-        f"{'explained':>9} {'rmse mm':>7}  position (m)"
+        "ranked best first: templates by likelihood, then primitives (first only where no "
+        "template fits); p is within its group, beside 'no template fits here'"
+    )
+    print(
+        f"{'rank':>4}  {'template':<22} {'verdict':<12} {'p':>5} {'residual mm':>11} "
+        f"{'coverage':>8} {'explained':>9} {'rmse mm':>7}  position (m)"
     )
     for c in report.candidates:
         pos = c.T_scene_model[:3, 3]
@@ -141,10 +145,12 @@ def cmd_fit(args) -> int:
             if c.fits is not None
             else f"{'-':>8} {'-':>9} {'-':>7}"
         )  # set aside: not judged
+        said = {True: "fits", False: "does not fit", None: "not judged"}[c.fits]
         size = f"  {describe_primitive(c)}" if c.primitive else ""
         print(
-            f"{c.rank:>4}  {c.template:<22} {c.probability:>5.2f} {c.residual * 1000:>11.2f} "
-            f"{judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}){size}"
+            f"{c.rank:>4}  {c.template:<22} {said:<12} {c.probability:>5.2f} "
+            f"{c.residual * 1000:>11.2f} {judged}  ({pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f})"
+            f"{size}"
         )
     print(report.ambiguity.describe())
     if args.suggest_view:
@@ -162,7 +168,14 @@ def cmd_settings(args) -> int:
     if args.node_params or args.markdown:
         from .ros.glue import params
 
-        print(params.params_file() if args.node_params else params.fit_table(), end="")
+        if args.node_params:
+            print(params.params_file(), end="")
+        elif args.markdown == "station":
+            from .ros.station.parameters import station_table
+
+            print(station_table(), end="")
+        else:
+            print(params.node_table() if args.markdown == "node" else params.fit_table(), end="")
     else:
         print((FitSettings.load(args.file) if args.file else FitSettings()).dump(), end="")
     return 0
@@ -214,10 +227,20 @@ def cmd_bench(args) -> int:
             return 2
         print("\n".join(format_lines(trust["summary"])))
         return 0
-    if args.row:  # one row alone (its own seeds): for its numbers
+    if args.row == "viewpoint":  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
 
         print("\n".join(format_row(viewpoint_row(log=log))))
+        return 0
+    if args.row == "browser-operator":
+        from .evaluation.bench_rows import browser_operator_bench
+        from .evaluation.browser_operator import format_row
+
+        seeds = range(1000, 1001 if args.quick else 1002)
+        row = browser_operator_bench(seeds, 2 if args.quick else 6, log)
+        if row is None:
+            raise AffordanceError("the browser operator row needs the ROS packages")
+        print("\n".join(format_row(row)))
         return 0
     result = run_bench(
         quick=args.quick,
@@ -360,14 +383,15 @@ def cmd_station(args) -> int:
 
     if args.demo and args.scene:
         raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
-    scene = None
+    scene = origin = None
     if args.scene:  # the file is checked here, so a bad one is one line before any node starts
         from .ros.station.scene import read_scan
 
         scene = os.path.abspath(args.scene)
-        _, warning = read_scan(scene, args.units)
-        if warning:
-            print(f"affordance-registration: warning: {warning}", file=sys.stderr)
+        scan = read_scan(scene, args.units)
+        if scan.warning:
+            print(f"affordance-registration: warning: {scan.warning}", file=sys.stderr)
+        origin = "[" + ", ".join(f"{float(v)!r}" for v in scan.sensor_origin) + "]"
     check_port(args.host, args.port)
     if not args.demo and not scene:
         from .ros.station.node import main as station_main
@@ -405,7 +429,7 @@ def cmd_station(args) -> int:
     }
     if scene:
         launch_name, log_name = "station_scene.launch.yaml", "station_scene.log"
-        given.update(scene=scene, units=args.units)
+        given.update(scene=scene, units=args.units, sensor_origin=origin)
         what = f"an engine node and the scan {scene} (in {args.units})"
     else:
         launch_name, log_name = "station_demo.launch.yaml", "station_demo.log"
@@ -660,7 +684,14 @@ def build_parser() -> argparse.ArgumentParser:
     which.add_argument(
         "--node-params", action="store_true", help="the node's parameter file instead"
     )
-    which.add_argument("--markdown", action="store_true", help="the node's fit.* table instead")
+    which.add_argument(
+        "--markdown",
+        nargs="?",
+        const="fit",
+        choices=("fit", "node", "station"),
+        help="a table of msg_docs/README.md instead: the engine node's fit.* parameters (fit, "
+        "the default), its other parameters (node) or the station's (station)",
+    )
     p.set_defaults(func=cmd_settings)
 
     p = sub.add_parser("simulate", help="render a simulated taskboard scan with ground truth")
@@ -704,7 +735,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="folder for the results (benchmark.json), the settings they were measured with "
         "(benchmark.settings.yaml) and their rendering (BENCHMARK.md); default bench_output",
     )
-    p.add_argument("--row", choices=("viewpoint", "trust"), help="run that row alone and print it")
+    p.add_argument(
+        "--row",
+        choices=("viewpoint", "trust", "browser-operator"),
+        help="run that row alone and print it (browser-operator: the scripted operator in the "
+        "browser, on 2 simulated taskboards and 6 shared real scans; --quick: 1 and 2)",
+    )
     p.add_argument(
         "--all-composites",
         action="store_true",
@@ -775,20 +811,10 @@ def _add_station_and_tool_parsers(sub) -> None:
         default="m",
         help="with --scene: units of the file (default m)",
     )
-    p.add_argument(
-        "--up",
-        default="auto",
-        choices=("auto", "+x", "-x", "+y", "-y", "+z", "-z"),
-        help="the scan's up axis on the page (default auto: -y for an optical "
-        "frame, else +z; a leading '-' needs the form --up=-y)",
-    )
-    p.add_argument("--port", type=int, default=8080, help="TCP port of the page (default 8080)")
-    p.add_argument(
-        "--host",
-        default="127.0.0.1",
-        help="address the page is served on (default 127.0.0.1: this machine "
-        "only; 0.0.0.0 serves every interface)",
-    )
+    # the station's own knobs, declared once (ros/station/parameters.py): --up, --port, --host
+    from .ros.station.parameters import add_options
+
+    add_options(p)
     p.add_argument("--seed", default="7", help="with --demo: the simulated scene (default 7)")
     p.add_argument(
         "--first-view",

@@ -21,6 +21,7 @@ from affordance_registration.evaluation.browser_latency import (  # noqa: E402,F
     at_sensor,
     chromium_missing,
     on_canvas,
+    open_details,
     page_pixel,
     station_command,
 )
@@ -62,8 +63,10 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def browser_page(url: str, timeout_s: float = 120.0):
-    """A page of a fresh headless chromium at ``url``, once the station's panel is there."""
+def browser_page(url: str, timeout_s: float = 120.0, details: bool = True):
+    """A page of a fresh headless chromium at ``url``, once the station's panel is there; with
+    ``details``, its Details folder opened (the engine state, counts, cloud and last reply the
+    tests read)."""
     from playwright.sync_api import sync_playwright
 
     profile = tempfile.mkdtemp(prefix="ar_chromium_")
@@ -76,6 +79,8 @@ def browser_page(url: str, timeout_s: float = 120.0):
                 page = ctx.new_page()
                 page.set_default_timeout(timeout_s * 1000)
                 open_station(page, url)
+                if details:
+                    open_details(page)
                 try:
                     yield page
                 except BaseException:

@@ -37,7 +37,7 @@ def ros_env(extra=None) -> dict:
 class NodeProcess:
     """A node started as its own process; output goes to a log file; killed by PID on exit."""
 
-    def __init__(self, argv, log_path, env=None):
+    def __init__(self, argv, log_path, env=None, cwd=None):
         self.log_path = str(log_path)
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(
@@ -46,6 +46,7 @@ class NodeProcess:
             stderr=subprocess.STDOUT,
             env=ros_env(env),
             start_new_session=True,
+            cwd=cwd,
         )
 
     def output(self) -> str:

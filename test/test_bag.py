@@ -495,6 +495,15 @@ def test_demo_verdict_names_what_failed(library):
     assert FAIL_COLOUR in colours and PASS_COLOUR in colours
 
 
+def test_a_session_folder_names_the_bag_inside_it():
+    """The README's session (test/data/session) is a folder holding the bag and its truth:
+    given to `bag info`, the one line names the bag to give."""
+    result = _cli(["bag", "info", SESSION], ["bag", "info", os.path.join(SESSION, "bag")])
+    line = _one_line_error(result[0], SESSION, "not a bag but a folder holding one")
+    assert line.endswith(os.path.join(SESSION, "bag")), line
+    assert result[1][0] == 0 and "messages" in result[1][1], result[1]
+
+
 def _bomb_bag(folder, unpacked: int, promised: int | None = None) -> int:
     """A bag (MCAP, zstd chunks) of one String message whose chunk is a zstd bomb: the chunk's
     data unpacks to ``unpacked`` bytes of zeros; its record promises ``promised`` (default:

@@ -122,10 +122,16 @@ def test_simulate_then_fit_json_contract(scene11, library):
         library[obj["template"]].symmetry,
     )
     assert dt < 0.005 and dr < math.radians(5)
-    # the readable table names the templates in rank order
+    # the readable table names the templates in rank order, says what orders it, and gives
+    # each its verdict (so a higher p below a lower one is no contradiction)
     lines = table.stdout.splitlines()
     assert lines[1].startswith(f"{obj['template']} fits")  # the verdict, then the table
-    assert lines[2].split()[:2] == ["rank", "template"] and lines[3].split()[1] == obj["template"]
+    assert lines[2].startswith("ranked best first:") and "within its group" in lines[2]
+    assert len(lines[2]) <= 160
+    assert lines[3].split()[:3] == ["rank", "template", "verdict"]
+    said = {True: "fits", False: "does not fit", None: "not judged"}
+    for row, c in zip(lines[4:], doc["candidates"]):
+        assert row.split()[1] == c["template"] and row[29:41].strip() == said[c["fits"]], row
 
 
 def _one_line_error(res):
@@ -217,8 +223,9 @@ def test_templates_the_prefilter_set_aside_have_no_verdict(tmp_path, scene11, li
         if line.split()[:1] and line.split()[0].isdigit()
     }
     assert len(rows) == 15
-    for c in cands:
-        assert (rows[c["template"]][4:6] == ["-", "-"]) == c["prefiltered"], rows[c["template"]]
+    for c in cands:  # set aside: "not judged", its coverage, explained and rmse "-"
+        row = " ".join(rows[c["template"]])
+        assert ("not judged" in row and " - - - " in row) == c["prefiltered"], row
 
 
 def test_settings_print_load_and_reach_the_fit(tmp_path, scene11):

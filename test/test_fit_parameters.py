@@ -41,7 +41,9 @@ def test_the_parameter_file_is_made_from_the_code():
     )
     active = yaml.safe_load(text)["affordance_engine"]["ros__parameters"]
     assert active == {
-        name: default for name, (default, _, _) in params.NODE_PARAMETERS.items() if default != []
+        name: default
+        for name, (default, _, _) in params.ENGINE_PARAMETERS.items()
+        if default != []
     }
     commented = dict(re.findall(r"^    # (fit\.[\w.]+): (.+)$", text, flags=re.M))
     assert {k: yaml.safe_load(v) for k, v in commented.items()} == {
@@ -49,38 +51,49 @@ def test_the_parameter_file_is_made_from_the_code():
     }
 
 
-def _cells(row: str) -> list:
-    return [c.strip() for c in row.strip().strip("|").split("|")]
+def _block(doc: str, name: str) -> str:
+    """The generated table between ``<!-- NAME: ... -->`` and ``<!-- end NAME -->``."""
+    begin = doc.index(f"<!-- {name}:")
+    return doc[doc.index("\n", begin) + 1 : doc.index(f"<!-- end {name} -->")]
 
 
-def _default(text: str):
-    return yaml.safe_load(text.replace("`", "").replace("\u2212", "-"))
+def test_msg_docs_tables_are_made_from_the_code():
+    """The engine's parameters (its own and the operator's knobs), its fit.* knobs and the
+    station's knobs: each table of msg_docs/README.md is the one the code makes."""
+    from affordance_registration.ros.station.parameters import station_table
 
-
-def test_msg_docs_name_every_parameter_with_the_codes_default():
     with open(MSG_DOCS, encoding="utf-8") as handle:
         doc = handle.read()
-    begin = doc.index("<!-- fit-parameters:")
-    block = doc[doc.index("\n", begin) + 1 : doc.index("<!-- end fit-parameters -->")]
-    assert block == params.fit_table(), "regenerate: affordance-registration settings --markdown"
-    # the node's own table: every name, each with the default the code declares
-    table = doc[doc.index("### Parameters") : begin]
-    seen = {}
-    for row in table.splitlines():
-        if not row.startswith("| `"):
-            continue
-        names, defaults = _cells(row)[:2]
-        names = re.findall(r"`([\w.]+)`", names)
-        values = (
-            [_default(v) for v in defaults.split(", ")]
-            if len(names) > 1 and ", " in defaults
-            else [_default(defaults)] * len(names)
-        )
-        seen.update(zip(names, values))
-    assert set(seen) == set(params.NODE_PARAMETERS)
-    assert {n: v for n, v in seen.items()} == {
-        n: d for n, (d, _, _) in params.NODE_PARAMETERS.items()
-    }
+    assert _block(doc, "fit-parameters") == params.fit_table(), (
+        "regenerate: affordance-registration settings --markdown"
+    )
+    assert _block(doc, "node-parameters") == params.node_table(), (
+        "regenerate: affordance-registration settings --markdown node"
+    )
+    assert _block(doc, "station-parameters") == station_table(), (
+        "regenerate: affordance-registration settings --markdown station"
+    )
+
+
+def test_the_operators_parameters_are_its_knobs_one_name_one_unit():
+    """Each of the operator's parameters is OperatorSettings' knob of the same name (default,
+    rule, unit in its description): the core and the node cannot disagree."""
+    from affordance_registration.core.knobs import declared
+    from affordance_registration.core.operator import OperatorSettings
+
+    knobs = declared(OperatorSettings)
+    assert [d.name for d in knobs] == list(params.OPERATOR_TABLE)
+    assert not set(params.OPERATOR_TABLE) & set(params.NODE_PARAMETERS)
+    for d in knobs:
+        default, description, _ = params.PARAMETERS[d.name]
+        assert default == d.default and description.startswith(d.doc)
+        assert not d.unit or description.endswith(f"({d.unit})")
+    values = {n: d for n, (d, _, _) in params.ENGINE_PARAMETERS.items()}
+    assert params.operator_settings(values) == OperatorSettings()
+    assert params.check({"joint_step_deg": 120.0}) == (
+        "joint_step_deg must be a positive number in [0.1, 90.0], got 120.0"
+    )
+    assert "twist_frame must be one of: spacenav, view" in params.check({"twist_frame": "x"})
 
 
 def test_every_knob_is_a_parameter_with_its_code_default_and_description():

@@ -7,6 +7,8 @@ before anything that leaves the object, Joy buttons act on edges and the joint a
 hysteresis. No ROS."""
 
 import math
+import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from affordance_registration.core.corrections import R_VIEW_SPACENAV
 from affordance_registration.core.engine import AffordanceEngine
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.core.operator import OperatorSettings, OperatorStream, Outbox
+from affordance_registration.core.persistence import Autosave, RegistrationStore
 from affordance_registration.core.transforms import pose_error
 from affordance_registration.evaluation.simulation import simulate_taskboard
 
@@ -43,10 +46,12 @@ class Recorder(Outbox):
     def __init__(self):
         super().__init__()
         self.reports = []
+        self.benign = []  # whether each was a refusal because the action did not apply
 
-    def outcome(self, kind, ok, message):
+    def outcome(self, kind, ok, message, benign=False):
         self.reports.append((kind, ok, message))
-        super().outcome(kind, ok, message)
+        self.benign.append(benign)
+        super().outcome(kind, ok, message, benign)
 
 
 class SlowEngine(AffordanceEngine):
@@ -75,12 +80,15 @@ class Stream:
         self.engine.set_scene(sim.organized, frame_id=FRAME)
         self.outbox = Recorder()
         self.reports = self.outbox.reports
+        # its own registrations file (locked while in use): not one in the working folder
+        folder = tempfile.mkdtemp(prefix="ar_stream_")
         self.stream = OperatorStream(
             self.engine,
             OperatorSettings(**settings),
             self.clock,
             self.clock.sleep,
             outbox=self.outbox,
+            saver=Autosave(RegistrationStore(os.path.join(folder, "r.yaml")), enabled=False),
         )
 
     def shown(self):
@@ -241,7 +249,7 @@ def test_a_burst_moves_the_same_however_late_it_is_handled(fitted, delays):
 
 
 def test_joy_buttons_act_on_press_edges(library, scene):
-    s = Stream(library, scene, buttons=(("next_model", 0), ("previous_model", 2)))
+    s = Stream(library, scene, button_next_model=0, button_previous_model=2)
     s.stream.click(scene.objects[0].click)
     for buttons in ([1, 0, 0], [1, 0, 0], [0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 0]):
         s.stream.joy(buttons, [0.0] * 6)
@@ -288,6 +296,11 @@ def test_wrong_inputs_are_answered_and_reported(library, scene):
     messages = [m for _, ok, m in s.reports if not ok]
     assert any("twist ignored: no object selected" in m for m in messages)
     assert any("NaN/inf" in m for m in messages)
+    # accept with nothing selected does not apply now (a warning for the node), a far click or
+    # an unknown action is an error
+    benign = {m: b for (_, ok, m), b in zip(s.reports, s.outbox.benign) if not ok}
+    assert benign["accept: no object selected: click an object first"] is True
+    assert not any(b for m, b in benign.items() if "unknown action" in m or "cm from" in m)
     # a storm of calls while a fit is queued: every one answered, in order
     s.stream.click(scene.objects[0].click)
     answers = []

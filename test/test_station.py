@@ -22,15 +22,18 @@ from affordance_registration.core import display
 from affordance_registration.core.corrections import view_from_optical
 from affordance_registration.core.errors import AffordanceError
 from affordance_registration.ros.glue.conversions import (
+    pointcloud2_colors,
     pointcloud2_field,
     pointcloud2_to_xyz,
     pose_stamped,
     pose_to_matrix,
+    xyz_to_pointcloud2,
 )
 from affordance_registration.ros.station.node import feedback_message
 from affordance_registration.ros.station.page import gizmo_scale
 from affordance_registration.ros.station.parameters import PARAMETERS, check_parameters, check_port
 from affordance_registration.ros.station.state import (
+    HEADLINE_MAX,
     MeshDrawing,
     SphereDrawing,
     TextDrawing,
@@ -38,7 +41,10 @@ from affordance_registration.ros.station.state import (
     apply_markers,
     candidate_label,
     candidate_options,
+    drag_moved,
     fitting_marker,
+    headline,
+    short_label,
     shown_markdown,
     status_markdown,
 )
@@ -227,6 +233,62 @@ def test_meshes_are_drawn_just_outside_their_surface():
     )
 
 
+@settings(max_examples=30)
+@given(st.integers(1, 50), st.integers(0, 2**31))
+def test_a_clouds_own_colours_go_through_pointcloud2(n, seed):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(n, 3))
+    colors = rng.integers(0, 256, (n, 3)).astype(np.uint8)
+    msg = xyz_to_pointcloud2(points, "scan", colors=colors)
+    assert [f.name for f in msg.fields] == ["x", "y", "z", "rgb"] and msg.point_step == 16
+    np.testing.assert_array_equal(pointcloud2_colors(msg), colors)
+    np.testing.assert_allclose(pointcloud2_to_xyz(msg)[0], points.astype(np.float32))
+    assert pointcloud2_colors(xyz_to_pointcloud2(points, "scan")) is None
+
+
+def test_a_scan_files_own_colours_are_read(tmp_path):
+    """A PCD's rgb (a packed float) or rgba (a packed unsigned int), a PLY's red green blue,
+    ASCII or binary."""
+    import open3d as o3d
+
+    from affordance_registration.core.pointfiles import read_points
+
+    pts = np.random.default_rng(0).random((5, 3))
+    rgb = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [10, 20, 30], [200, 100, 50]])
+    packed = (rgb[:, 0] << 16 | rgb[:, 1] << 8 | rgb[:, 2]).astype(np.uint32)
+    head = "VERSION 0.7\nFIELDS x y z {}\nSIZE 4 4 4 4\nTYPE F F F {}\nCOUNT 1 1 1 1\n"
+    head += "WIDTH 5\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 5\nDATA ascii\n"
+    values = {"rgb": [repr(float(v)) for v in packed.view(np.float32)]}
+    values["rgba"] = [str(int(v) | 0xFF000000) for v in packed]
+    for field, kind in (("rgb", "F"), ("rgba", "U")):
+        path = tmp_path / f"{field}.pcd"
+        rows = [f"{p[0]} {p[1]} {p[2]} {v}" for p, v in zip(pts, values[field])]
+        path.write_text(head.format(field, kind) + "\n".join(rows) + "\n")
+        np.testing.assert_array_equal(read_points(str(path)).colors, rgb)
+    ply = tmp_path / "rgb.ply"
+    props = "".join(f"property float {c}\n" for c in "xyz")
+    props += "".join(f"property uchar {c}\n" for c in ("red", "green", "blue"))
+    rows = [f"{p[0]} {p[1]} {p[2]} {c[0]} {c[1]} {c[2]}" for p, c in zip(pts, rgb)]
+    ply.write_text(
+        f"ply\nformat ascii 1.0\nelement vertex 5\n{props}end_header\n" + "\n".join(rows) + "\n"
+    )
+    np.testing.assert_array_equal(read_points(str(ply)).colors, rgb)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    cloud.colors = o3d.utility.Vector3dVector(rgb / 255.0)
+    for name in ("binary.pcd", "binary.ply"):
+        o3d.io.write_point_cloud(str(tmp_path / name), cloud, write_ascii=False)
+        np.testing.assert_array_equal(read_points(str(tmp_path / name)).colors, rgb)
+    plain = tmp_path / "plain.pcd"
+    plain.write_text(
+        head.replace(" {}", "")
+        .replace("SIZE 4 4 4 4", "SIZE 4 4 4")
+        .replace("COUNT 1 1 1 1", "COUNT 1 1 1")
+        + "\n".join(f"{p[0]} {p[1]} {p[2]}" for p in pts)
+        + "\n"
+    )
+    assert read_points(str(plain)).colors is None
+
+
 def test_pointcloud2_field_reads_intensity_in_any_layout():
     rng = np.random.default_rng(1)
     xyz = rng.normal(size=(6, 3)).astype(np.float32)
@@ -300,7 +362,8 @@ def test_markers_become_drawings_and_deleteall_clears():
     mesh = d[("candidate", 1)]
     assert isinstance(mesh, MeshDrawing) and mesh.faces.shape == (1, 3)
     assert mesh.T[0, 3] == 0.5 and mesh.color == (255, 128, 0) and mesh.frame == "cam"
-    assert abs(gizmo_scale(mesh.vertices) - 0.16) < 1e-6 and gizmo_scale(mesh.vertices[:1]) == 0.08
+    # the gizmo stays within the object's outline (0.45 of its 0.2 m), at least 3 cm
+    assert abs(gizmo_scale(mesh.vertices) - 0.09) < 1e-6 and gizmo_scale(mesh.vertices[:1]) == 0.03
     assert isinstance(d[("candidate_label", 1)], TextDrawing)
     assert isinstance(d[("click", 1)], SphereDrawing) and d[("click", 1)].radius == 0.006
     moved = apply_markers(d, MarkerArray(markers=[_mesh_marker("candidate", 1, 0.7)]))
@@ -407,6 +470,139 @@ def test_labels_and_the_status_panel():
     assert down.startswith("**Engine not running**")
 
 
+def test_the_headline_is_one_sentence_saying_what_is_shown_and_what_to_do():
+    obj = STATUS["objects"][0]
+    first = dict(obj, shown=0)
+    said = headline(dict(STATUS, objects=[first]), True, "/affordance_engine")
+    assert said == (
+        "#3 gate_valve (closed): fits, 3.0x the next. Accept, Next, or drag the gizmo to "
+        "correct it."
+    )
+    assert short_label(first) == "#3 gate_valve (closed) — fits"
+    refused = dict(first, no_match=True)
+    assert headline(dict(STATUS, objects=[refused]), True, "/e").startswith(
+        "#3: no template fits here (best guess gate_valve (closed))."
+    )
+    assert short_label(refused) == "#3 best guess gate_valve (closed) — no fit"
+    unsettled = dict(first, ambiguity={"settled": False, "reasons": ["a second pose"]})
+    said = headline(dict(STATUS, objects=[unsettled]), True, "/e")
+    assert "unsettled (Details says why)" in said and "a second pose" not in said
+    box = dict(
+        first,
+        no_match=True,
+        candidates=[
+            {"template": "box", "primitive": "box", "fits": True, "probability": 0.3},
+            *first["candidates"],
+        ],
+        verdict="no template fits here; fitted as a box 0.21 x 0.12 x 0.08 m",
+    )
+    assert headline(dict(STATUS, objects=[box]), True, "/e").startswith(
+        "#3: a box 0.21 x 0.12 x 0.08 m (no template fits here). Correct its size below"
+    )
+    assert short_label(box) == "#3 box 0.21 x 0.12 x 0.08 m"
+    nothing = dict(STATUS, objects=[], counts={"registered": 2})
+    assert headline(nothing, True, "/e") == (
+        "No object open: click one in the cloud to fit it; 2 registered, Save writes them."
+    )
+    assert headline(STATUS, True, "/e", fitting=True) == "Fitting your click…"
+    assert headline(STATUS, True, "/e", alert="accept: refused — nothing") == (
+        "Accept: refused — nothing"
+    )
+    assert headline(STATUS, False, "/affordance_engine").startswith("Engine not running")
+
+
+_TEXT = st.text(min_size=0, max_size=300)
+
+
+@settings(max_examples=200)
+@given(
+    _TEXT,
+    _TEXT,
+    st.booleans(),
+    st.booleans(),
+    st.none() | st.booleans(),
+    st.sampled_from([None, "box", "cylinder"]),
+    st.integers(0, 3),
+    st.booleans(),
+    _TEXT,
+    st.booleans(),
+)
+def test_the_headline_is_never_longer_than_one_short_sentence(
+    template, state, no_match, unsettled, fits, primitive, shown, fitting, alert, connected
+):
+    candidates = [
+        {"template": template, "state": state, "fits": fits, "primitive": primitive}
+        for _ in range(shown + 1)
+    ]
+    obj = {
+        "id": 10**9,
+        "active": True,
+        "shown": shown,
+        "no_match": no_match,
+        "verdict": "no template fits here; fitted as " + template,
+        "candidates": candidates,
+        "ambiguity": {"settled": not unsettled},
+    }
+    status = dict(STATUS, objects=[obj])
+    said = headline(status, connected, "/" + template, fitting, alert)
+    assert 0 < len(said) <= HEADLINE_MAX and "\n" not in said
+    assert len(short_label(obj)) <= 120
+
+
+@given(st.floats(-0.2, 0.2), st.floats(-0.2, 0.2), st.floats(-30, 30))
+def test_a_gizmo_press_that_does_not_move_the_fit_is_no_drag(dx, dy, deg):
+    A = np.eye(4)
+    A[:3, 3] = [0.3, -0.1, 0.9]
+    B = A.copy()
+    B[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    B[:3, 3] += [dx, dy, 0.0]
+    moved = math.hypot(dx, dy) > 0.001 or abs(deg) > 0.5
+    assume(abs(math.hypot(dx, dy) - 0.001) > 1e-9 and abs(abs(deg) - 0.5) > 1e-6)
+    assert drag_moved(A, B) == moved
+    assert not drag_moved(A, A)
+
+
+def _table_scan(tilt_deg: float, seed: int = 0):
+    """A Kinect-like scan in an optical frame that does not say so (y down, z forward): a
+    camera pitched ``tilt_deg`` down looks at a table 1.2 m ahead on its axis, a box on it."""
+    rng = np.random.default_rng(seed)
+    t = math.radians(tilt_deg)
+    up = np.array([0.0, -math.cos(t), -math.sin(t)])  # the table's normal, in the camera
+    forward = np.array([0.0, -math.sin(t), math.cos(t)])  # along the table, away
+    centre = np.array([0.0, 0.0, 1.2])
+    side = np.cross(up, forward)
+    a, b = rng.uniform(-0.5, 0.5, (2, 6000))
+    table = (
+        centre + np.outer(a, side) + np.outer(b, forward) + rng.normal(0, 0.002, (6000, 1)) * up
+    )
+    u, v, w = rng.uniform(-0.05, 0.05, (3, 800))
+    box = centre + np.outer(u, side) + np.outer(v, forward) + np.outer(w + 0.05, up)
+    return np.vstack([table, box]), up, centre
+
+
+@given(st.floats(25.0, 65.0))
+@settings(max_examples=15)
+def test_a_tables_normal_is_up_where_the_frame_does_not_say(tilt_deg):
+    points, up, centre = _table_scan(tilt_deg)
+    got, why = display.first_up(points, np.zeros(3))
+    assert math.degrees(math.acos(min(1.0, got @ up))) < 3, why
+    # the support under a click on the box is the table; not where it turns the view over
+    under = display.support_under(points, centre + 0.05 * up, np.zeros(3), got)
+    assert under is not None and under @ up > 0.99
+    assert display.support_under(points, centre, np.zeros(3), -up) is None
+    # a frame that says it is optical keeps the camera's up
+    assert np.allclose(display.first_up(points, np.zeros(3), optical=True)[0], [0, -1, 0])
+
+
+def test_a_wall_seen_head_on_is_not_a_floor():
+    g = np.linspace(-0.6, 0.6, 80)
+    x, y = np.meshgrid(g, g)
+    wall = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 1.0)])
+    got, why = display.first_up(wall, np.zeros(3))
+    assert np.allclose(got, [0, 0, 1]) and "+z" in why
+    assert display.support_under(wall, [0.0, 0.0, 1.0], np.zeros(3), [0, -1, 0]) is None
+
+
 @given(st.floats(0.0, 1e4), st.floats(0.0, 600.0), st.floats(0.0, 600.0))
 def test_the_fitting_marker_waits_its_delay_and_goes_with_the_click(sent_at, waited, delay):
     assume(abs(waited - delay) > 1e-6)  # (sent_at + waited - sent_at is rounded)
@@ -439,7 +635,8 @@ def test_parameters_and_port_are_checked():
         ("display_points", 10),
         ("fov_deg", 170.0),
         ("engine", "affordance_engine"),
-        ("color_by", "rgb"),
+        ("color_by", "rainbow"),
+        ("sensor_origin", [0.0, 0.0]),
         ("fitting_marker_delay", -0.1),
     ):
         assert name in check_parameters(dict(good, **{name: bad}))
@@ -473,7 +670,7 @@ _STATUS_TEXTS = {
     ("node", "last_error"): "Last error: ",
     ("objects", 0, "candidates", 1, "template"): "#3 ",
     ("objects", 0, "candidates", 1, "state"): "ball_valve (",
-    ("objects", 0, "id"): "Open object: #",
+    ("objects", 0, "id"): "Shown: #",
     ("counts", "objects"): "Objects: ",
     ("counts", "registered"): "open, ",
     ("counts", "undo"): "registered, ",
@@ -543,3 +740,23 @@ def test_any_text_from_outside_renders_as_that_text(where, value):
 def _one_line(value: str) -> str:
     """``value`` as the panel shows it: line breaks and control characters as spaces."""
     return "".join(" " if unicodedata.category(c) in ("Cc", "Zl", "Zp") else c for c in value)
+
+
+def test_a_scan_files_viewpoint_is_where_the_station_looks_from(tmp_path):
+    """`station --scene` hands the file's VIEWPOINT (in its units) to the engine and the
+    station as sensor_origin: the first view looks from there."""
+    from affordance_registration.ros.station.scene import read_scan
+
+    rows = "\n".join(f"{x} {y} 1500" for x in range(-20, 21) for y in range(-20, 21))
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1681\n"
+    path = tmp_path / "scan.pcd"
+    path.write_text(
+        head + "HEIGHT 1\nVIEWPOINT 10 20 30 1 0 0 0\nPOINTS 1681\nDATA ascii\n" + rows
+    )
+    scan = read_scan(str(path), "mm")
+    np.testing.assert_allclose(scan.sensor_origin, [0.01, 0.02, 0.03])
+    assert scan.colors is None and scan.points.shape == (1681, 3)
+    position, _ = display.initial_view(
+        scan.points, [0, -1, 0], math.radians(60), scan.sensor_origin
+    )
+    assert np.allclose(position, scan.sensor_origin)  # (the scan fits the view from there)

@@ -16,6 +16,7 @@ from browser_helpers import (
     drag,
     free_port,
     on_canvas,
+    open_details,
     open_station,
     pixel,
     scan_argv,
@@ -233,6 +234,7 @@ def test_operator_station_in_a_real_browser(
             # a second browser shows the same state
             second = page.context.new_page()
             open_station(second, station_url(port))
+            open_details(second)
             wait_text(second, r"Objects: 0 open, 1 registered")
             wait_text(second, r"save: ok — saved 1 registration")
     finally:

@@ -56,7 +56,7 @@ def test_station_toggles_waypoints_and_draws_the_path_to_a_state(
 
             # the shown candidate's grippers are drawn (one set: one object); the toggle hides
             # and shows them
-            toggle = page.get_by_role("checkbox")
+            toggle = page.get_by_role("checkbox", name="Waypoints")
             toggle.click()
             wait_text(page, r"waypoints hidden \(1 drawn\)")
             toggle.click()

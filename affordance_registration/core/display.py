@@ -1,7 +1,8 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Geometry of an operator's view of a cloud: thinning a cloud for display, colouring it, picking
-the cloud point under a click ray, and the pinhole camera of a browser view.
+the cloud point under a click ray, the pinhole camera of a browser view, and which way is up in
+a scan.
 
 Pure numpy (no ROS, no viewer): the browser station (``ros/station/node.py``) calls these, and the
 tests check them without a browser.
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import AffordanceError
+from .plane import ransac_plane
 from .transforms import finite_vector, make_T
 
 __all__ = [
@@ -32,7 +34,24 @@ __all__ = [
     "project",
     "pixel_ray",
     "initial_view",
+    "first_up",
+    "support_under",
+    "SUPPORT_SLANT_DEG",
+    "SUPPORT_TURN_DEG",
 ]
+
+#: a plane is a floor or a table -- the world's up is its normal -- only where the sensor sees it
+#: at a slant: its normal at least this far from the line of sight to it (a wall or a mounting
+#: panel is seen head-on; a table from a camera looking down at it, at 30-60 degrees)
+SUPPORT_SLANT_DEG = 20.0
+#: the plane under a click replaces the up axis of the first view only within this angle of it
+#: (a panel the objects are mounted on, seen at a slant, is not the floor)
+SUPPORT_TURN_DEG = 65.0
+#: the plane fits of the up axis: inlier band (m), least share of the points, the crop around a
+#: click (m)
+UP_PLANE_BAND = 0.012
+UP_PLANE_SHARE = 0.3
+SUPPORT_RADIUS = 0.3
 
 #: colour map of :func:`scalar_colors`: near/low (dark slate) -> far/high (light sand), muted so
 #: that the fitted meshes (green..red, orange, blue) stand out against the cloud
@@ -266,31 +285,32 @@ def pixel_ray(
 
 
 def initial_view(
-    points: np.ndarray, up, fov: float | None = None
+    points: np.ndarray, up, fov: float | None = None, sensor=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where a first view of a cloud stands and looks: (camera position (3,), look-at point (3,)).
 
-    A cloud seen from its frame's origin (a sensor frame: the origin lies outside the cloud's
-    bounding box, within 20 m of it) is viewed from there -- stepped back along the view, with
-    ``fov`` (rad, the page's narrower field of view), as far as it takes for 99% of the points to
-    be in the picture (a sensor's field of view is often wider than the page's); any other cloud
-    (a map) from above and in front of its centre -- ``up`` (3,) is the world's up -- at 1.5
-    times its size.
+    A cloud seen from ``sensor`` (3,; default the frame's origin: a sensor frame) -- the sensor
+    lies outside the cloud's bounding box, within 20 m of it -- is viewed from there, stepped
+    back along the view, with ``fov`` (rad, the page's narrower field of view), as far as it
+    takes for 99% of the points to be in the picture (a sensor's field of view is often wider
+    than the page's); any other cloud (a map) from above and in front of its centre -- ``up``
+    (3,) is the world's up -- at 1.5 times its size.
     """
-    pts = np.asarray(points, dtype=float)
+    o = np.zeros(3) if sensor is None else finite_vector(sensor, "sensor origin", AffordanceError)
+    pts = np.asarray(points, dtype=float) - o
     if len(pts) == 0:
-        return np.array([1.0, 1.0, 1.0]), np.zeros(3)
+        return o + np.array([1.0, 1.0, 1.0]), o
     target = np.median(pts, axis=0)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     outside = bool(np.any((lo > 0) | (hi < 0)))
     if outside and np.linalg.norm(target) < 20.0:
         if fov is None or np.linalg.norm(target) < 1e-9:
-            return np.zeros(3), target
+            return o.copy(), o + target
         d = target / np.linalg.norm(target)
         depth = pts @ d  # along the view
         lateral = np.linalg.norm(pts - np.outer(depth, d), axis=1)
         back = float(np.percentile(lateral / math.tan(0.5 * fov) - depth, 99))
-        return -max(back, 0.0) * d, target
+        return o - max(back, 0.0) * d, o + target
     u = finite_vector(up, "up direction", AffordanceError)
     u /= max(np.linalg.norm(u), 1e-12)
     side = np.cross(u, [1.0, 0.0, 0.0])
@@ -298,4 +318,54 @@ def initial_view(
         side = np.cross(u, [0.0, 1.0, 0.0])
     side /= np.linalg.norm(side)
     size = max(float(np.linalg.norm(hi - lo)), 0.5)
-    return target + 1.5 * size * (0.6 * u + 0.8 * side), target
+    return o + target + 1.5 * size * (0.6 * u + 0.8 * side), o + target
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+def _slanted_support(points: np.ndarray, sensor) -> np.ndarray | None:
+    """The unit normal (towards the sensor) of the dominant plane of ``points`` (N, 3), when it
+    holds UP_PLANE_SHARE of them and the sensor sees it at a slant (SUPPORT_SLANT_DEG); else
+    None."""
+    pts = np.asarray(points, dtype=float)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    origin = None if sensor is None else np.asarray(sensor, dtype=float)
+    plane = ransac_plane(pts, UP_PLANE_BAND, UP_PLANE_SHARE, origin, seed=0, hypotheses=200)
+    if plane is None:
+        return None
+    if origin is not None:
+        on = pts[np.abs(plane.distance(pts)) < UP_PLANE_BAND]
+        sight = origin - on.mean(axis=0)
+        if _angle_deg(plane.normal, sight) < SUPPORT_SLANT_DEG:
+            return None
+    return np.asarray(plane.normal, dtype=float)
+
+
+def first_up(points: np.ndarray, sensor=None, optical: bool = False) -> tuple[np.ndarray, str]:
+    """The up axis (3,) of a first view of a scan, and why: a cloud in an optical frame (a
+    camera's, by its name: z forward, y down) has the camera's up, -y; else the normal of the
+    dominant plane of ``points`` where the ``sensor`` (3,; None: unknown) sees it at a slant --
+    the table or floor a scan was taken of (a Kinect file in a frame called ``scan`` is an
+    optical frame that does not say so); else +z (REP-103)."""
+    if optical:
+        return np.array([0.0, -1.0, 0.0]), "an optical frame (the camera's up, -y)"
+    normal = _slanted_support(points, sensor)
+    if normal is not None:
+        return normal, "the dominant plane of the scan, seen at a slant (a table or floor)"
+    return np.array([0.0, 0.0, 1.0]), "+z (no plane of the scan looks like a floor)"
+
+
+def support_under(points: np.ndarray, click, sensor, up) -> np.ndarray | None:
+    """The up axis the plane under a click gives: the unit normal (towards the ``sensor``) of
+    the dominant plane within SUPPORT_RADIUS of ``click`` when the sensor sees it at a slant and
+    it lies within SUPPORT_TURN_DEG of the current ``up``; else None (keep ``up``)."""
+    pts = np.asarray(points, dtype=float)
+    c = finite_vector(click, "click", AffordanceError)
+    near = pts[np.sum((pts - c) ** 2, axis=1) <= SUPPORT_RADIUS**2]
+    normal = _slanted_support(near, sensor)
+    if normal is None or _angle_deg(normal, np.asarray(up, dtype=float)) > SUPPORT_TURN_DEG:
+        return None
+    return normal

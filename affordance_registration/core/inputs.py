@@ -192,11 +192,13 @@ class LatestCloud:
 class Outcome:
     """What came of an input (or of a step the stream took on its own): ``kind`` names it (an
     action's name, an input's kind, "cloud", "frame", "queue"...), ``ok`` and a ``message`` for
-    a person."""
+    a person; ``benign``: a refusal because the action does not apply now (nothing selected,
+    nothing to undo) -- the operator's to see, not an error."""
 
     kind: str
     ok: bool
     message: str
+    benign: bool = False
 
 
 @dataclass(frozen=True)
@@ -223,12 +225,12 @@ class Outbox:
         self._changed = True  # the first drain publishes what there is
         self._busy = False
 
-    def outcome(self, kind: str, ok: bool, message: str) -> None:
+    def outcome(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
         """An outcome worth saying (an empty message is not)."""
         if not message:
             return
         with self._lock:
-            self._outcomes.append(Outcome(kind, ok, message))
+            self._outcomes.append(Outcome(kind, ok, message, benign))
             self._changed = True
         self.wake()
 

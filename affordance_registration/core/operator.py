@@ -46,7 +46,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .corrections import R_VIEW_SPACENAV
-from .errors import AffordanceError
+from .errors import AffordanceError, EngineStateError
 from .inputs import (
     INDEPENDENT,
     Action,
@@ -60,6 +60,7 @@ from .inputs import (
     Twist,
     View,
 )
+from .knobs import INTEGER, NUMBER, POSITIVE, check_all, knob
 from .persistence import Autosave
 from .scene_feed import SceneFeed
 
@@ -110,6 +111,8 @@ MAX_QUEUED_PER_SOURCE = 500
 CLICK_DEPTH = 2
 
 #: the actions Joy buttons can be mapped to
+#: the largest Joy button or axis index a knob takes
+MAX_JOY_INDEX = 63
 BUTTON_ACTIONS = (
     "next_model",
     "previous_model",
@@ -122,58 +125,128 @@ BUTTON_ACTIONS = (
 )
 
 
+def _button(action: str, default: int):
+    return knob(
+        default,
+        f"Joy button for {action.replace('_', ' ')} (-1: none)",
+        INTEGER,
+        (-1, MAX_JOY_INDEX),
+    )
+
+
 @dataclass(frozen=True)
 class OperatorSettings:
-    """How operator input is interpreted (lengths m, angles rad, times s)."""
+    """How operator input is interpreted. Every field is a knob (:mod:`.knobs`), declared once:
+    the engine node's parameter of the same name (``ros/glue/params.py`` makes them), with this
+    default, doc, rule and unit; a bad value is refused on construction with one line."""
 
-    linear_gain: float = 0.1  #: m/s per unit of twist linear
-    angular_gain: float = 0.6  #: rad/s per unit of twist angular
-    #: axes of the twists: "spacenav" (device axes: x away from the user, y left, z up) or
-    #: "view" (x right, y up, z to the viewer)
-    twist_frame: str = "spacenav"
-    max_twist_dt: float = 0.1  #: longest time one twist is held
-    first_twist_dt: float = 1.0 / 30  #: the first twist of a burst: one frame of a 30 Hz device
-    max_speed: float = 2.0  #: m/s; a faster twist (after the gain) is refused
-    max_turn_rate: float = 10.0  #: rad/s; likewise
-    refit_idle_s: float = 0.5  #: refit once the twists stopped this long
-    #: Joy button per action (action name -> button index; -1 or absent: none)
-    buttons: tuple = (("next_model", 0), ("accept", 1))
-    joint_axis: int = -1  #: Joy axis stepping the joint (-1: none)
-    joint_axis_threshold: float = 0.5  #: how far the axis must be pushed to step
-    #: a new cloud refits the selected (not yet accepted) object from its current pose, at most
-    #: once every ``follow_period_s``
-    follow_clouds: bool = True
-    follow_period_s: float = 0.5
+    linear_gain: float = knob(0.1, "per unit of spacenav/twist linear", NUMBER, (0.0, 10.0), "m/s")
+    angular_gain: float = knob(
+        0.6, "per unit of spacenav/twist angular", NUMBER, (0.0, 20.0), "rad/s"
+    )
+    twist_frame: str = knob(
+        "spacenav",
+        "axes of spacenav/twist: spacenav (REP-103 device axes: x away from the user, y left, "
+        "z up), mapped into the operator's view, or view (x right, y up, z to the viewer)",
+        ("spacenav", "view"),
+    )
+    max_twist_dt: float = knob(
+        0.1, "longest time one twist message is integrated over", POSITIVE, (0.001, 1.0), "s"
+    )
+    first_twist_dt: float = knob(
+        1.0 / 30,
+        "how long the first twist of a burst is held (one frame of a 30 Hz device)",
+        POSITIVE,
+        (0.001, 1.0),
+        "s",
+    )
+    max_speed: float = knob(
+        2.0, "a twist faster than this (after the gain) is refused", POSITIVE, (0.01, 100.0), "m/s"
+    )
+    max_turn_rate: float = knob(
+        10.0,
+        "a twist turning faster than this (after the gain) is refused",
+        POSITIVE,
+        (0.01, 100.0),
+        "rad/s",
+    )
+    refit_idle_s: float = knob(
+        0.5,
+        "refit once no twist came for this long and nothing else is queued",
+        POSITIVE,
+        (0.05, 30.0),
+        "s",
+    )
+    button_next_model: int = _button("next_model", 0)
+    button_accept: int = _button("accept", 1)
+    button_previous_model: int = _button("previous_model", -1)
+    button_refit: int = _button("refit", -1)
+    button_undo: int = _button("undo", -1)
+    button_discard: int = _button("discard", -1)
+    button_joint_plus: int = _button("joint_plus", -1)
+    button_joint_minus: int = _button("joint_minus", -1)
+    joint_axis: int = knob(
+        -1,
+        "Joy axis stepping the joint once per push past joint_axis_threshold, in the push's "
+        "direction (e.g. 5 = the SpaceMouse's twist axis in spacenav/joy); re-armed below half "
+        "of it (-1: none)",
+        INTEGER,
+        (-1, MAX_JOY_INDEX),
+    )
+    joint_axis_threshold: float = knob(
+        0.5, "how far joint_axis must be pushed to step", POSITIVE, (0.05, 1.0)
+    )
+    joint_step_deg: float = knob(
+        5.0,
+        "one joint step of a revolute joint, by joint_plus / joint_minus",
+        POSITIVE,
+        (0.1, 90.0),
+        "deg",
+    )
+    joint_step_mm: float = knob(
+        2.0,
+        "one joint step of a prismatic joint, by joint_plus / joint_minus",
+        POSITIVE,
+        (0.1, 100.0),
+        "mm",
+    )
+    dimension_step_mm: float = knob(
+        5.0,
+        "one step of a primitive's dimension, by ~/set_dimension NAME+ / NAME-",
+        POSITIVE,
+        (0.1, 100.0),
+        "mm",
+    )
+    refit_on_new_cloud: bool = knob(
+        True,
+        "a new cloud refits the selected (not yet accepted) object from its current pose, "
+        "keeping its joint values (at most once every refit_on_new_cloud_period_s; not while "
+        "the SpaceMouse is moving it -- its refit uses the new cloud); not an undo step",
+    )
+    refit_on_new_cloud_period_s: float = knob(
+        0.5, "shortest time between two refits on new clouds", NUMBER, (0.0, 60.0), "s"
+    )
+
+    def __post_init__(self):
+        check_all(self)
 
     def validate(self) -> "OperatorSettings":
-        if self.twist_frame not in ("spacenav", "view"):
-            raise AffordanceError(
-                f"twist_frame must be 'spacenav' or 'view', got {self.twist_frame!r}"
-            )
-        for name in ("linear_gain", "angular_gain", "follow_period_s"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise AffordanceError(f"{name} must be a finite number >= 0, got {v!r}")
-        for name in (
-            "max_twist_dt",
-            "first_twist_dt",
-            "refit_idle_s",
-            "joint_axis_threshold",
-            "max_speed",
-            "max_turn_rate",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise AffordanceError(f"{name} must be a positive number, got {v!r}")
-        for action, _ in self.buttons:
-            if action not in BUTTON_ACTIONS:
-                raise AffordanceError(
-                    f"no Joy action {action!r} (one of {', '.join(BUTTON_ACTIONS)})"
-                )
+        """The settings (they validated themselves on construction)."""
         return self
 
     def button_map(self) -> dict:
-        return {a: int(b) for a, b in self.buttons if int(b) >= 0}
+        """Joy button index per action (the actions with a button)."""
+        return {
+            a: int(getattr(self, f"button_{a}"))
+            for a in BUTTON_ACTIONS
+            if int(getattr(self, f"button_{a}")) >= 0
+        }
+
+    def apply_steps(self, engine) -> None:
+        """Give ``engine`` the joint and dimension steps (it keeps them in rad and m)."""
+        engine.joint_step_rad = math.radians(self.joint_step_deg)
+        engine.joint_step_m = self.joint_step_mm / 1000.0
+        engine.dimension_step_m = self.dimension_step_mm / 1000.0
 
 
 # ============================================================================ the stream
@@ -200,6 +273,7 @@ class OperatorStream:
     ):
         self.engine = engine
         self.settings = (settings or OperatorSettings()).validate()
+        self.settings.apply_steps(engine)
         self.clock, self.sleep = clock, sleep
         if outbox is None:
             outbox = feed.outbox if feed is not None else Outbox()
@@ -236,6 +310,7 @@ class OperatorStream:
         settings = settings.validate()
         with self._cv:
             self.settings = settings
+            settings.apply_steps(self.engine)
             self._cv.notify_all()
 
     # ------------------------------------------------------------------ input
@@ -389,8 +464,11 @@ class OperatorStream:
             item = self._queue.popleft()
             self._busy = _describe(item, len(self._queue))
         registered = self.engine.state.registered
+        benign = False
         try:
             ok, message = self._handle(item)
+        except EngineStateError as exc:  # the action does not apply now (nothing selected...)
+            ok, message, benign = False, str(exc), True
         except AffordanceError as exc:
             ok, message = False, str(exc)
         except Exception as exc:  # a bug must not kill the worker or leave a caller waiting
@@ -404,7 +482,7 @@ class OperatorStream:
             except Exception as exc:
                 ok, message = False, f"{message}; NOT saved: internal error: {exc!r}"
         if message:
-            self._say(_kind(item), ok, message)
+            self._say(_kind(item), ok, message, benign)
         if item.reply is not None:
             item.reply(ok, message)
         with self._cv:
@@ -429,12 +507,13 @@ class OperatorStream:
                 self._busy = None
             self.outbox.changed()
 
-    def _say(self, kind: str, ok: bool, message: str) -> None:
+    def _say(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
         """An outcome into the outbox; a failed action's line names the action ("accept: no
-        object selected ...": the reply to the input itself does not)."""
+        object selected ...": the reply to the input itself does not); ``benign``: the action
+        did not apply now (:class:`~.inputs.Outcome`)."""
         if not ok and kind in ACTIONS:
             message = f"{kind.replace('_', ' ')}: {message}"
-        self.outbox.outcome(kind, ok, message)
+        self.outbox.outcome(kind, ok, message, benign)
 
     def _handle(self, item: OperatorInput) -> tuple[bool, str]:
         match item:
@@ -580,9 +659,9 @@ class OperatorStream:
         s = self.settings
         now = self.clock()
         if (
-            not s.follow_clouds
+            not s.refit_on_new_cloud
             or self._pending_refit
-            or now - self._last_follow < s.follow_period_s
+            or now - self._last_follow < s.refit_on_new_cloud_period_s
         ):
             return True, ""
         self.feed.refresh(self.engine)

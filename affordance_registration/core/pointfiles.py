@@ -2,8 +2,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """Point-cloud and mesh files, read safely: a header is checked against the file's size before
 anything is allocated (a PLY that claims a billion vertices and holds one is refused at once),
-what a reader could not read is an error rather than a shorter cloud, and a PCD's ``VIEWPOINT``
-is kept (where the scan was taken from).
+what a reader could not read is an error rather than a shorter cloud, a PCD's ``VIEWPOINT``
+is kept (where the scan was taken from) and so are the scan's own colours (a PCD's ``rgb`` or
+``rgba`` field, a PLY's ``red green blue``).
 
 Formats: PLY and PCD (read by Open3D), organized ``.npy`` arrays (H, W, 3) of numbers. A
 ``binary_compressed`` PCD is unpacked (by Open3D, into a buffer of the size its header gives)
@@ -25,6 +26,7 @@ __all__ = [
     "PointFile",
     "read_points",
     "check_header",
+    "unpack_rgb",
     "MAX_FILE_BYTES",
     "MAX_POINTS",
     "MAX_UNPACKED_BYTES",
@@ -72,6 +74,8 @@ class PointFile:
     faces: bool = False
     #: unit normals (N, 3) where a binary PLY / PCD holds them (nx ny nz, normal_x ...), or None
     normals: np.ndarray | None = None
+    #: the scan's colours (N, 3) uint8 RGB where the file holds them, or None
+    colors: np.ndarray | None = None
 
 
 def _fail(path: str, why: str, error=SceneError) -> Exception:
@@ -115,7 +119,7 @@ def _check_ply(path: str, size: int, error) -> dict:
                 ) from None
             if count < 0:
                 raise _fail(path, f"negative element count in {line!r}", error)
-            elements.append([words[1], count, 0, 0, []])
+            elements.append([words[1], count, 0, 0, [], []])
         elif words[:1] == ["property"] and elements:
             kind = (
                 words[2]
@@ -127,6 +131,7 @@ def _check_ply(path: str, size: int, error) -> dict:
             elements[-1][2] += _PLY_SIZES[kind]  # a list holds at least its length
             elements[-1][3] += 1
             elements[-1][4].append(words[-1] if words[1] != "list" else None)
+            elements[-1][5].append("F" if kind.startswith(("float", "double")) else "U")
             if words[1] == "list" and elements[-1][0] == "vertex":
                 raise _fail(
                     path,
@@ -137,9 +142,10 @@ def _check_ply(path: str, size: int, error) -> dict:
         raise _fail(path, f"unknown PLY format {fmt!r}", error)
     # an ASCII value takes at least two bytes (a digit and a separator)
     needed = sum(
-        count * (2 * props if fmt == "ascii" else least) for _, count, least, props, _ in elements
+        count * (2 * props if fmt == "ascii" else least)
+        for _, count, least, props, _, _ in elements
     )
-    counts = {name: count for name, count, _, _, _ in elements}
+    counts = {name: count for name, count, _, _, _, _ in elements}
     names = [e[0] for e in elements]
     vertex = elements[names.index("vertex")] if "vertex" in names else None
     if vertex is not None and not all(c in vertex[4] for c in "xyz"):
@@ -161,6 +167,7 @@ def _check_ply(path: str, size: int, error) -> dict:
         "rows": sum(counts.values()),
         "header_bytes": header_bytes,
         "columns": vertex[4] if vertex else [],
+        "types": vertex[5] if vertex else [],
         "skip": sum(e[1] for e in elements[: names.index("vertex")]) if vertex else 0,
     }
 
@@ -234,10 +241,12 @@ def _check_pcd(path: str, size: int, error) -> dict:
         needed = 8 + int(packed)
     if viewpoint is not None and (len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint))):
         raise _fail(path, "VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz)", error)
-    columns = []
-    for name, count in zip(fields.get("FIELDS", []), counts):
+    columns, kinds = [], []
+    for name, kind, count in zip(fields.get("FIELDS", []), types, counts):
         columns += [name] + [None] * (count - 1)
+        kinds += [kind] * count
     return {
+        "types": kinds,
         "points": points,
         "faces": False,
         "needed": needed,
@@ -328,13 +337,15 @@ def read_points(path: str, error=SceneError) -> PointFile:
     if ext not in (".ply", ".pcd"):
         raise _fail(path, f"unsupported point file format '{ext}' (PLY, PCD or .npy)", error)
     info = check_header(path, error)
-    normals = None
+    normals = colors = None
     if info["ascii"]:
-        pts = _read_ascii(path, info, error)
+        pts, colors = _read_ascii(path, info, error)
     else:
         with _quiet_open3d() as o3d:
             cloud = o3d.io.read_point_cloud(path)
         pts = np.asarray(cloud.points, dtype=float)
+        if cloud.has_colors() and len(cloud.colors) == len(pts):
+            colors = np.round(np.clip(np.asarray(cloud.colors), 0.0, 1.0) * 255).astype(np.uint8)
         if cloud.has_normals():
             normals = np.asarray(cloud.normals, dtype=float)
             length = np.linalg.norm(normals, axis=1)
@@ -359,12 +370,51 @@ def read_points(path: str, error=SceneError) -> PointFile:
         viewpoint=_viewpoint_origin(info.get("viewpoint")),
         faces=bool(info["faces"]),
         normals=normals,
+        colors=colors,
     )
 
 
-def _read_ascii(path: str, info: dict, error) -> np.ndarray:
+#: the colour columns of an ASCII file: a PLY's three, a PCD's one packed field (0x00RRGGBB in
+#: the bits of a float for ``rgb``, of an unsigned integer for ``rgba``, as PCL writes them)
+_PLY_COLORS = ("red", "green", "blue")
+_PCD_COLORS = ("rgb", "rgba")
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 RGB of PCL's packed colours: uint32 values 0x??RRGGBB."""
+    v = np.asarray(packed, dtype=np.uint32)
+    return np.stack([(v >> 16) & 255, (v >> 8) & 255, v & 255], axis=1).astype(np.uint8)
+
+
+def _ascii_colors(rows: list, info: dict) -> np.ndarray | None:
+    """The colours of an ASCII file's rows, or None (no colour columns, or values that are not
+    colours: the points are still read)."""
+    columns = info["columns"]
+    try:
+        if all(c in columns for c in _PLY_COLORS):
+            use = [columns.index(c) for c in _PLY_COLORS]
+            values = np.loadtxt(rows, usecols=use, dtype=float, ndmin=2, comments=None)
+            if info["types"][use[0]] == "F":
+                values = values * 255  # float colours are in [0, 1]
+            return np.round(np.clip(values, 0, 255)).astype(np.uint8)
+        name = next((c for c in _PCD_COLORS if c in columns), None)
+        if name is None:
+            return None
+        i = columns.index(name)
+        values = np.loadtxt(rows, usecols=[i], dtype=float, ndmin=1, comments=None)
+        if info.get("types", [""] * len(columns))[i] == "F":
+            packed = values.astype(np.float32).view(np.uint32)
+        else:
+            packed = np.clip(values, 0, 2**32 - 1).astype(np.uint32)
+        return unpack_rgb(packed)
+    except (ValueError, IndexError):
+        return None
+
+
+def _read_ascii(path: str, info: dict, error) -> tuple[np.ndarray, np.ndarray | None]:
     """x, y, z of an ASCII PLY's vertices or an ASCII PCD's points, every value checked (Open3D
-    reads a value that is not a number as whatever memory held, or as 0)."""
+    reads a value that is not a number as whatever memory held, or as 0), and their colours
+    (None without)."""
     columns = info["columns"]
     if not all(c in columns for c in "xyz"):
         raise _fail(path, f"no x, y, z among its fields ({', '.join(map(str, columns))})", error)
@@ -382,9 +432,10 @@ def _read_ascii(path: str, info: dict, error) -> np.ndarray:
         )
     rows = text[info["skip"] : info["skip"] + info["points"]]
     if not rows:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), None
     try:  # numpy's parser; on failure find the row that broke it
-        return np.loadtxt(rows, usecols=use, dtype=float, ndmin=2, comments=None)
+        xyz = np.loadtxt(rows, usecols=use, dtype=float, ndmin=2, comments=None)
+        return xyz, _ascii_colors(rows, info)
     except ValueError:
         pass
     out = np.empty((len(rows), 3))
@@ -396,7 +447,7 @@ def _read_ascii(path: str, info: dict, error) -> np.ndarray:
             raise _fail(
                 path, f"point {i}: {row.strip()[:60]!r} does not hold x, y, z as numbers", error
             ) from None
-    return out
+    return out, _ascii_colors(rows, info)
 
 
 def _read_npy(path: str, error) -> PointFile:

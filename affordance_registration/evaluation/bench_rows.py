@@ -743,6 +743,20 @@ def browser_latency_bench(seeds, clicks: int, log) -> dict | None:
     )
 
 
+def browser_operator_bench(seeds, real_scans: int, log) -> dict | None:
+    """The scripted operator registering every object of simulated taskboards and shared real
+    scans through the browser station's page (:mod:`.browser_operator`; needs the ROS packages,
+    Playwright and Debian's chromium; left out with its reason else)."""
+    return _over_ros(
+        "browser_operator",
+        "measure_browser_operator",
+        seeds,
+        real_scans,
+        "the scripted operator in the browser",
+        log,
+    )
+
+
 def ros_conversion_bench(height: int = 1024, width: int = 1024, repeats: int = 7) -> dict | None:
     """PointCloud2 <-> numpy for a 1-million-point organized cloud with NaN holes, then Scene()
     (needs the ROS messages)."""

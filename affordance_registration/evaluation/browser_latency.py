@@ -32,6 +32,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,12 +40,21 @@ __all__ = [
     "CHROMIUM",
     "CHROMIUM_ARGS",
     "VIEWPORT",
+    "BrowserSession",
+    "Heard",
+    "browser_session",
     "at_sensor",
     "chromium_missing",
     "measure_browser_latency",
     "on_canvas",
+    "open_details",
     "page_pixel",
+    "settle",
+    "show_cloud",
     "station_command",
+    "station_process",
+    "wait_listening",
+    "wait_page_text",
 ]
 
 CHROMIUM = os.environ.get("AFFORDANCE_CHROMIUM", "/usr/bin/chromium")
@@ -111,9 +121,9 @@ def chromium_missing(chromium: str = CHROMIUM) -> str:
     return ""
 
 
-def station_command(port: int, secret: str, **params) -> list[str]:
-    """The operator station's command line on ``port`` with ``access_secret`` and more ROS
-    parameters."""
+def station_command(port: int, secret: str | None, **params) -> list[str]:
+    """The operator station's command line on ``port`` with ``access_secret`` (None: none
+    given, a random one per start) and more ROS parameters."""
     argv = [
         sys.executable,
         "-m",
@@ -121,9 +131,9 @@ def station_command(port: int, secret: str, **params) -> list[str]:
         "--ros-args",
         "-p",
         f"port:={port}",
-        "-p",
-        f"access_secret:={secret}",
     ]
+    if secret is not None:
+        argv += ["-p", f"access_secret:={secret}"]
     for key, value in params.items():
         argv += ["-p", f"{key}:={value}"]
     return argv
@@ -164,7 +174,7 @@ def at_sensor(T: np.ndarray) -> bool:
     return bool(np.linalg.norm(np.cross(p, z)) < 1e-3 and p @ z <= 1e-6)
 
 
-class _Heard:
+class Heard:
     """What this process hears: the station's camera (``/view_pose``), when a click and the
     status that shows a given object arrived, and how many clouds the engine has received (its
     status: the station shows a cloud from its own subscription, and a click the engine gets
@@ -234,7 +244,7 @@ class _Heard:
                 self._cv.wait(min(left, 0.2))
 
 
-def _show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: float = 10.0):
+def show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: float = 10.0):
     """Publish the cloud ``msg`` until the page shows it (the text ``shown``): once the engine
     and the station both read the topic, and again while the page has not shown it -- their
     cloud readers are volatile (best effort where ``points_reliable`` is off), so one cloud
@@ -252,13 +262,13 @@ def _show_cloud(page, pub, msg, shown: str, timeout_s: float = 120.0, every_s: f
         pub.publish(msg)
         left = deadline - time.monotonic()
         try:  # (never 0: Playwright's timeout 0 waits for ever)
-            return _wait_text(page, shown, min(every_s, max(left, 1.0)))
+            return wait_page_text(page, shown, min(every_s, max(left, 1.0)))
         except TimeoutError:
             if time.monotonic() + 1.0 >= deadline:
                 raise
 
 
-def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
+def wait_page_text(page, pattern: str, timeout_s: float = 120.0) -> None:
     """Wait until the page shows ``pattern`` (a regular expression); a TimeoutError that says
     what the page showed instead."""
     import re
@@ -276,7 +286,18 @@ def _wait_text(page, pattern: str, timeout_s: float = 120.0) -> None:
         ) from None
 
 
-def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
+def open_details(page) -> None:
+    """Open the panel's Details folder: the engine's state, the shown candidate's full label,
+    the cloud and the last reply (the headline above it says one sentence)."""
+    import re
+
+    from ..ros.station.page import DETAILS
+
+    page.get_by_text(DETAILS, exact=True).first.click()
+    page.get_by_text(re.compile(r"^Engine")).first.wait_for(state="visible")
+
+
+def settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
     """Wait until the station has logged drawing object ``drawn`` (0: none yet) and then the
     page has drawn no frame for QUIET_MS: the next click lands on a page at rest, as an
     operator's does, not in the frames of the result just shown (on software WebGL each holds
@@ -293,7 +314,7 @@ def _settle(page, out_dir: str, drawn: int, timeout_s: float = 30.0) -> None:
 
 
 @contextlib.contextmanager
-def _station(port: int, secret: str, out_dir: str, params: dict):
+def station_process(port: int, secret: str, out_dir: str, params: dict):
     log = open(os.path.join(out_dir, STATION_LOG), "w")
     proc = subprocess.Popen(
         station_command(port, secret, **params), stdout=log, stderr=subprocess.STDOUT
@@ -311,7 +332,7 @@ def _station(port: int, secret: str, out_dir: str, params: dict):
         log.close()
 
 
-def _wait_listening(port: int, proc, timeout_s: float = 90.0) -> None:
+def wait_listening(port: int, proc, timeout_s: float = 90.0) -> None:
     import socket
 
     deadline = time.monotonic() + timeout_s
@@ -322,6 +343,73 @@ def _wait_listening(port: int, proc, timeout_s: float = 90.0) -> None:
             return
         time.sleep(0.1)
     raise TimeoutError("the station served no page")
+
+
+@dataclass
+class BrowserSession:
+    """A live engine node and station, a headless Chromium at the station's page (its details
+    open) and this process's ROS node: what it hears (``heard``) and its cloud publisher
+    (``points``, latched)."""
+
+    node: object
+    heard: Heard
+    points: object
+    page: object
+    out_dir: str
+
+
+@contextlib.contextmanager
+def browser_session(out_dir: str, display_points: int = 60000, chromium: str = CHROMIUM):
+    """A :class:`BrowserSession`: the engine from the package's launch file (its registrations
+    in ``out_dir``), the station in its own process, Chromium with a fresh profile; all stopped
+    at the end. Raise where no browser can be driven (:func:`chromium_missing`)."""
+    missing = chromium_missing(chromium)
+    if missing:
+        raise RuntimeError(missing)
+    import secrets
+    import socket
+
+    from playwright.sync_api import sync_playwright
+    from sensor_msgs.msg import PointCloud2
+
+    from ..ros.glue.qos import LATCHED
+    from ..ros.standins.spin import background_node
+    from .session import NS, start_engine
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    secret = secrets.token_urlsafe(24)
+    profile = tempfile.mkdtemp(prefix="ar_chromium_")
+    launcher = start_engine(out_dir)
+    try:
+        with (
+            background_node("affordance_browser_bench") as node,
+            station_process(port, secret, out_dir, {"display_points": display_points}) as station,
+            sync_playwright() as pw,
+        ):
+            heard = Heard(node, f"{NS}/status")
+            pub = node.create_publisher(PointCloud2, "/points", LATCHED)
+            wait_listening(port, station)
+            ctx = pw.chromium.launch_persistent_context(
+                profile,
+                executable_path=chromium,
+                headless=True,
+                args=CHROMIUM_ARGS,
+                viewport=VIEWPORT,
+            )
+            try:
+                page = ctx.new_page()
+                page.set_default_timeout(120_000)
+                page.goto(f"http://127.0.0.1:{port}/?token={secret}")
+                open_details(page)
+                wait_page_text(page, f"Engine: {NS} — idle")
+                yield BrowserSession(node, heard, pub, page, out_dir)
+            finally:
+                ctx.close()
+    finally:
+        launcher.stop()
+        shutil.rmtree(profile, ignore_errors=True)
 
 
 def measure_browser_latency(
@@ -339,99 +427,54 @@ def measure_browser_latency(
     if chromium_missing(chromium):
         log(f"  browser row left out: {chromium_missing(chromium)}")
         return None
-    import secrets
-    import socket
-
-    from playwright.sync_api import sync_playwright
-    from sensor_msgs.msg import PointCloud2
-
     from ..core.templates import TemplateLibrary
-    from ..ros.glue.qos import LATCHED
-    from ..ros.standins.spin import background_node
-    from .session import FRAME, NS, cloud_message, start_engine
+    from .session import FRAME, cloud_message
     from .simulation import simulate_taskboard
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    secret = secrets.token_urlsafe(24)
     library = TemplateLibrary.load()
     clicks, engine, templates, right = [], [], [], 0
-    profile = tempfile.mkdtemp(prefix="ar_chromium_")
-    launcher = start_engine(out_dir)
-    try:
-        with (
-            background_node("affordance_browser_bench") as node,
-            _station(port, secret, out_dir, {"display_points": display_points}) as station,
-            sync_playwright() as pw,
-        ):
-            heard = _Heard(node, f"{NS}/status")
-            pub = node.create_publisher(PointCloud2, "/points", LATCHED)
-            _wait_listening(port, station)
-            ctx = pw.chromium.launch_persistent_context(
-                profile,
-                executable_path=chromium,
-                headless=True,
-                args=CHROMIUM_ARGS,
-                viewport=VIEWPORT,
+    with browser_session(out_dir, display_points, chromium) as b:
+        page, heard = b.page, b.heard
+        k, T_view, box = 0, None, None
+        for seed in seeds:
+            if len(clicks) >= max_clicks:
+                break
+            sim = simulate_taskboard(library, seed)
+            n_points = int(np.all(np.isfinite(sim.organized.reshape(-1, 3)), axis=1).sum())
+            clouds = heard.clouds
+            show_cloud(
+                page,
+                b.points,
+                cloud_message(sim.organized.reshape(-1, 3)),
+                rf"{n_points:,} points in '{FRAME}'",
             )
-            try:
-                page = ctx.new_page()
-                page.set_default_timeout(120_000)
-                page.goto(f"http://127.0.0.1:{port}/?token={secret}")
-                _wait_text(page, f"Engine: {NS} — idle")
-                k, T_view, box = 0, None, None
-                for seed in seeds:
-                    if len(clicks) >= max_clicks:
-                        break
-                    sim = simulate_taskboard(library, seed)
-                    n_points = int(np.all(np.isfinite(sim.organized.reshape(-1, 3)), axis=1).sum())
-                    clouds = heard.clouds
-                    _show_cloud(
-                        page,
-                        pub,
-                        cloud_message(sim.organized.reshape(-1, 3)),
-                        rf"{n_points:,} points in '{FRAME}'",
-                    )
-                    heard.engine_holds(clouds)
-                    T_view = heard.settled_view()
-                    box = page.locator("canvas").first.bounding_box()
-                    for obj in sim.objects:
-                        if (
-                            obj.click is None
-                            or obj.visible_points < 200
-                            or len(clicks) >= max_clicks
-                        ):
-                            continue
-                        xy = page_pixel(T_view, box, obj.click)
-                        if not on_canvas(page, xy):  # under the panel: not clickable
-                            continue
-                        k += 1
-                        heard.arm(k)
-                        # an operator clicks a page that shows the last result: wait until the
-                        # station has sent the last fit's meshes and the page has drawn them
-                        _settle(page, out_dir, k - 1)
-                        page.evaluate(OBSERVE, f"Shown: #{k} ")
-                        page.mouse.click(*xy)
-                        _wait_text(page, rf"Shown: #{k} ")
-                        clicks.append(page.evaluate("window.__arShown - window.__arClick") / 1000)
-                        shown = page.get_by_text(f"Shown: #{k} ").first.inner_text()
-                        templates.append(shown)
-                        right += obj.template in shown
-                        t = heard.times
-                        part = ""
-                        if "click" in t and "status" in t:
-                            engine.append(t["status"] - t["click"])
-                            part = f" (the engine's part {engine[-1]:.2f} s)"
-                        log(
-                            f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s"
-                            f"{part}"
-                        )
-            finally:
-                ctx.close()
-    finally:
-        launcher.stop()
-        shutil.rmtree(profile, ignore_errors=True)
+            heard.engine_holds(clouds)
+            T_view = heard.settled_view()
+            box = page.locator("canvas").first.bounding_box()
+            for obj in sim.objects:
+                if obj.click is None or obj.visible_points < 200 or len(clicks) >= max_clicks:
+                    continue
+                xy = page_pixel(T_view, box, obj.click)
+                if not on_canvas(page, xy):  # under the panel: not clickable
+                    continue
+                k += 1
+                heard.arm(k)
+                # an operator clicks a page that shows the last result: wait until the
+                # station has sent the last fit's meshes and the page has drawn them
+                settle(page, out_dir, k - 1)
+                page.evaluate(OBSERVE, f"Shown: #{k} ")
+                page.mouse.click(*xy)
+                wait_page_text(page, rf"Shown: #{k} ")
+                clicks.append(page.evaluate("window.__arShown - window.__arClick") / 1000)
+                shown = page.get_by_text(f"Shown: #{k} ").first.inner_text()
+                templates.append(shown)
+                right += obj.template in shown
+                t = heard.times
+                part = ""
+                if "click" in t and "status" in t:
+                    engine.append(t["status"] - t["click"])
+                    part = f" (the engine's part {engine[-1]:.2f} s)"
+                log(f"  browser click {k} ({obj.template}): label after {clicks[-1]:.2f} s{part}")
     return {
         "clicks": len(clicks),
         "click_to_label_s": statistics.median(clicks) if clicks else None,

@@ -24,6 +24,7 @@ import yaml
 
 from ..errors import RegistrationError
 from ..files import read_yaml
+from ..knobs import COUNT0, FRACTION, check_knob, describe_rule, knob
 
 __all__ = ["FitSettings", "Stage", "Stages", "CLUSTER", "FINE", "knob"]
 
@@ -47,101 +48,12 @@ FINE_CONVERGED = 3.0
 NEAR_TIE = 1.02
 
 # --------------------------------------------------------------------------- knobs
-#: the rules a knob's value follows (``knob(rule=...)``); a tuple of strings is a choice
-POSITIVE, COUNT, COUNT0, FRACTION, SWITCH = "positive", "count", "count0", "fraction", "switch"
 #: the largest settings file read (bytes): every knob set takes a few kB
 MAX_SETTINGS_BYTES = 1_000_000
-#: the largest value of any count (samples, points, iterations): a fit's memory grows with them
-#: (coarse.samples 20,000 takes 1.8 GB, 100,000 more than 8 GB) -- no count needs more
-MAX_COUNT = 10_000
-_RULE_TEXT = {
-    POSITIVE: "a positive number",
-    COUNT: "an integer >= 1",
-    COUNT0: "an integer >= 0",
-    FRACTION: "a number in (0, 1]",
-    SWITCH: "true or false",
-}
-
-
-def knob(default, doc: str, rule=None, limits: tuple | None = None):
-    """A settings field: its ``default``, a one-line ``doc`` (the node parameter's description)
-    and its ``rule``: :data:`POSITIVE` (the default for a float), :data:`COUNT` (for an int),
-    :data:`COUNT0`, :data:`FRACTION`, :data:`SWITCH` (for a bool) or a tuple of choices;
-    ``limits`` (lo, hi) bound it further."""
-    if rule is None:
-        rule = (
-            SWITCH
-            if isinstance(default, bool)
-            else COUNT
-            if isinstance(default, int)
-            else POSITIVE
-        )
-    return field(default=default, metadata={"doc": doc, "rule": rule, "limits": limits})
-
-
-def describe_rule(f) -> str:
-    """A knob's rule as a person reads it ("a positive number", "one of: auto, free")."""
-    rule, limits = f.metadata["rule"], f.metadata["limits"]
-    if isinstance(rule, tuple):
-        return "one of: " + ", ".join(rule)
-    text = _RULE_TEXT[rule]
-    if limits is None and rule in (COUNT, COUNT0):
-        return f"{text}, at most {MAX_COUNT}"
-    return text if limits is None else f"{text} in [{limits[0]}, {limits[1]}]"
 
 
 def _check(name: str, f, v) -> None:
-    rule, limits = f.metadata["rule"], f.metadata["limits"]
-    if isinstance(rule, tuple):
-        ok = isinstance(v, str) and v in rule
-    elif rule == SWITCH:
-        ok = isinstance(v, bool)
-    elif rule in (COUNT, COUNT0):
-        ok = (
-            isinstance(v, int)
-            and not isinstance(v, bool)
-            and (1 if rule == COUNT else 0) <= v <= (MAX_COUNT if limits is None else limits[1])
-        )
-    else:
-        try:
-            ok = (
-                isinstance(v, (int, float))
-                and not isinstance(v, bool)
-                and math.isfinite(v)
-                and v > 0
-                and (rule != FRACTION or v <= 1)
-            )
-        except OverflowError:  # an integer of hundreds of digits
-            ok = False
-    ok = ok and (limits is None or limits[0] <= v <= limits[1])
-    if not ok:
-        raise RegistrationError(
-            f"{name} must be {describe_rule(f)}, got {_shown(v)}{_number_as_text(v)}"
-        )
-
-
-def _number_as_text(v) -> str:
-    """A hint where a number came as text: YAML 1.1 reads ``1e-3`` (no dot) as a string."""
-    if not isinstance(v, str) or "e" not in v.lower():
-        return ""
-    try:
-        number = float(v)
-    except ValueError:
-        return ""
-    return (
-        " (text: YAML reads a number in e-notation as one only with a dot, as 1.0e-3)"
-        if math.isfinite(number)
-        else ""
-    )
-
-
-def _shown(v) -> str:
-    """``repr(v)``, cut to 80 characters (an integer of thousands of digits has no repr)."""
-    try:
-        text = repr(v)
-    except ValueError:
-        return "an integer of more than 4300 digits"
-    return text if len(text) <= 80 else text[:77] + "..."
+    check_knob(name, f, v, RegistrationError)
 
 
 @dataclass(frozen=True)

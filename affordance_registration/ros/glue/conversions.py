@@ -18,7 +18,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from ...core.errors import AffordanceError
-from ...core.pointfiles import MAX_POINTS
+from ...core.pointfiles import MAX_POINTS, unpack_rgb
 from ...core.transforms import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 __all__ = [
@@ -29,6 +29,8 @@ __all__ = [
     "pointcloud2_layout",
     "pointcloud2_to_xyz",
     "pointcloud2_field",
+    "pointcloud2_colors",
+    "COLOR_FIELDS",
     "xyz_to_pointcloud2",
     "pose_to_matrix",
     "matrix_to_pose",
@@ -153,14 +155,44 @@ def pointcloud2_field(msg: PointCloud2, name: str) -> np.ndarray | None:
     field = next((f for f in msg.fields if f.name == name), None)
     if field is None or field.datatype not in _NUMERIC or field.count not in (0, 1):
         return None
+    values = _field_values(msg, field, _NUMERIC[field.datatype])
+    return None if values is None else values.astype(np.float64)
+
+
+#: the fields that hold a point's colour, packed 0x??RRGGBB in 4 bytes (a float32 ``rgb`` as
+#: PCL and RViz write it, or a uint32 ``rgba``)
+COLOR_FIELDS = ("rgb", "rgba")
+
+
+def pointcloud2_colors(msg: PointCloud2) -> np.ndarray | None:
+    """The cloud's own colours (N, 3) uint8 RGB in the order of :func:`pointcloud2_to_xyz`, from
+    its ``rgb`` or ``rgba`` field (4 bytes each, whatever type it is declared as), or None when
+    it has neither. Call it on a cloud that :func:`pointcloud2_to_xyz` accepted."""
+    field = next(
+        (
+            f
+            for name in COLOR_FIELDS
+            for f in msg.fields
+            if f.name == name and _SIZES.get(f.datatype) == 4 and f.count in (0, 1)
+        ),
+        None,
+    )
+    packed = None if field is None else _field_values(msg, field, "u4")
+    return None if packed is None else unpack_rgb(packed)
+
+
+def _field_values(msg: PointCloud2, field, kind: str) -> np.ndarray | None:
+    """The values of one field of every point, read as numpy ``kind`` in the cloud's byte order
+    (None when the field does not fit in a point)."""
+    name = field.name
     h, w, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
-    if field.offset + _SIZES[field.datatype] > step or h * w == 0:
-        return None if h * w else np.zeros(0)
+    if field.offset + np.dtype(kind).itemsize > step or h * w == 0:
+        return None if h * w else np.zeros(0, dtype=kind)
     endian = ">" if msg.is_bigendian else "<"
     dtype = np.dtype(
         {
             "names": [name],
-            "formats": [endian + _NUMERIC[field.datatype]],
+            "formats": [endian + kind],
             "offsets": [int(field.offset)],
             "itemsize": step,
         }
@@ -171,12 +203,16 @@ def pointcloud2_field(msg: PointCloud2, name: str) -> np.ndarray | None:
         else msg.data.view(np.uint8)
     )
     rows = np.ascontiguousarray(buf.reshape(h, row_step)[:, : w * step])
-    return rows.reshape(-1).view(dtype)[name].astype(np.float64)
+    return rows.reshape(-1).view(dtype)[name]
 
 
-def xyz_to_pointcloud2(points: np.ndarray, frame_id: str, stamp=None) -> PointCloud2:
-    """PointCloud2 with float32 x, y, z (point_step 16, 4 bytes padding). ``points`` is (N, 3) or
-    organized (H, W, 3); NaN rows are kept (organized clouds mark holes that way)."""
+def xyz_to_pointcloud2(
+    points: np.ndarray, frame_id: str, stamp=None, colors: np.ndarray | None = None
+) -> PointCloud2:
+    """PointCloud2 with float32 x, y, z (point_step 16: 4 bytes padding, or with ``colors``, (N,
+    3) uint8 RGB one per point, an ``rgb`` field there packed as PCL and RViz read it). ``points``
+    is (N, 3) or organized (H, W, 3); NaN rows are kept (organized clouds mark holes that
+    way)."""
     pts = np.asarray(points, dtype=np.float32)
     if pts.ndim == 3:
         h, w = pts.shape[:2]
@@ -186,6 +222,12 @@ def xyz_to_pointcloud2(points: np.ndarray, frame_id: str, stamp=None) -> PointCl
         raise ConversionError(f"points must be (N, 3) or (H, W, 3), got {pts.shape}")
     buf = np.zeros((h * w, 4), dtype="<f4")
     buf[:, :3] = pts.reshape(-1, 3)
+    if colors is not None:
+        rgb = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
+        if len(rgb) != h * w:
+            raise ConversionError(f"{len(rgb)} colours for {h * w} points")
+        packed = (rgb[:, 0].astype("<u4") << 16) | (rgb[:, 1].astype("<u4") << 8) | rgb[:, 2]
+        buf.view("<u4")[:, 3] = packed
     msg = PointCloud2()
     msg.header = Header(frame_id=frame_id)
     if stamp is not None:
@@ -193,7 +235,7 @@ def xyz_to_pointcloud2(points: np.ndarray, frame_id: str, stamp=None) -> PointCl
     msg.height, msg.width = h, w
     msg.fields = [
         PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-        for i, n in enumerate("xyz")
+        for i, n in enumerate(("x", "y", "z") + (() if colors is None else ("rgb",)))
     ]
     msg.is_bigendian = False
     msg.point_step = 16

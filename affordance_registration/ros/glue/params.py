@@ -18,6 +18,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import os
 import textwrap
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -25,13 +26,16 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
 from ...core.errors import AffordanceError, RegistrationError
-from ...core.operator import BUTTON_ACTIONS, OperatorSettings
+from ...core.knobs import check_knob, declared, described
+from ...core.operator import OperatorSettings
 from ...core.registration import FitSettings
 from .frames import StaticFrames
 
 __all__ = [
     "PARAMETERS",
     "NODE_PARAMETERS",
+    "OPERATOR_TABLE",
+    "ENGINE_PARAMETERS",
     "READ_ONLY",
     "FIT_PARAMETERS",
     "FIT_PREFIX",
@@ -41,104 +45,96 @@ __all__ = [
     "operator_settings",
     "params_file",
     "fit_table",
+    "node_table",
+    "registrations_path",
+    "REGISTRATIONS_NAME",
 ]
 
-# name: (default, description, (min, max) or choices or None)
+#: the registrations file's name in ROS_HOME when ``registrations_file`` is ''
+REGISTRATIONS_NAME = "affordance_registrations.yaml"
+
+
+def registrations_path(value: str) -> str:
+    """Where ``registrations_file`` says the registrations are: ``''`` is
+    :data:`REGISTRATIONS_NAME` in ROS_HOME (``$ROS_HOME``, else ``~/.ros``, where a ROS node keeps
+    its files), never the folder the node was started from."""
+    if value:
+        return value
+    home = os.environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+    return os.path.join(home, REGISTRATIONS_NAME)
+
+
+# The node's own parameters, one row each: name: (default, description, (min, max) or choices
+# or None). The operator's (gains, twist times, buttons, joint and dimension steps, the refit on
+# a new cloud) are OperatorSettings' knobs, declared once in core/operator.py; the fitting knobs
+# FitSettings' (core/registration/settings.py).
 NODE_PARAMETERS = {
-    "templates_dir": ("", "template library directory ('' = the package's models/)", None),
-    "settings_file": (
+    "templates_dir": (
         "",
-        "fitting settings (YAML, as 'affordance-registration settings' prints) "
-        "that replace the fit.* parameters' defaults ('' = none); read at "
-        "start",
+        "template library directory ('' = the package's models/); changing it is refused while "
+        "objects are open",
         None,
     ),
-    "linear_gain": (0.1, "m/s per unit of spacenav/twist linear", (0.0, 10.0)),
-    "angular_gain": (0.6, "rad/s per unit of spacenav/twist angular", (0.0, 20.0)),
-    "twist_frame": (
-        "spacenav",
-        "axes of spacenav/twist: spacenav (REP-103 device axes: x away "
-        "from the user, y left, z up) or view (x right, y up, z to the viewer)",
-        ("spacenav", "view"),
+    "settings_file": (
+        "",
+        "fitting settings (YAML, as 'affordance-registration settings' prints them; knobs left "
+        "out keep their defaults) that replace the fit.* parameters' defaults at start; a fit.* "
+        "parameter given in a parameter file or with -p overrides it. A file that cannot be "
+        "read, an unknown knob or a bad value stops the start with one line",
+        None,
     ),
     "twist_stamped": (
         False,
-        "spacenav/twist is geometry_msgs/TwistStamped (the spacenav driver's "
-        "and affordance_spacemouse's use_twist_stamped): twists are held "
-        "for the time between their header stamps; read at start",
+        "spacenav/twist is geometry_msgs/TwistStamped (the spacenav driver's and "
+        "affordance_spacemouse's use_twist_stamped): twists are held for the time between their "
+        "header stamps -- exact, also when a bag is replayed",
         None,
-    ),
-    "max_twist_dt": (0.1, "longest time one twist message is integrated over (s)", (0.001, 1.0)),
-    "refit_idle_s": (0.5, "refit after the twists stop for this long (s)", (0.05, 30.0)),
-    "button_next_model": (0, "Joy button for next model (-1: none)", (-1, 63)),
-    "button_accept": (1, "Joy button for accept (-1: none)", (-1, 63)),
-    "button_previous_model": (-1, "Joy button for previous model (-1: none)", (-1, 63)),
-    "button_refit": (-1, "Joy button for refit (-1: none)", (-1, 63)),
-    "button_undo": (-1, "Joy button for undo (-1: none)", (-1, 63)),
-    "button_discard": (-1, "Joy button for discard (-1: none)", (-1, 63)),
-    "button_joint_plus": (
-        -1,
-        "Joy button stepping the shown object's joint up (-1: none)",
-        (-1, 63),
-    ),
-    "button_joint_minus": (
-        -1,
-        "Joy button stepping the shown object's joint down (-1: none)",
-        (-1, 63),
-    ),
-    "joint_axis": (
-        -1,
-        "Joy axis stepping the joint once per push past joint_axis_threshold, "
-        "in the push's direction; re-armed below half of it (-1: none)",
-        (-1, 63),
-    ),
-    "joint_axis_threshold": (0.5, "how far joint_axis must be pushed to step", (0.05, 1.0)),
-    "joint_step_deg": (5.0, "one joint step of a revolute joint (deg)", (0.1, 90.0)),
-    "joint_step_mm": (2.0, "one joint step of a prismatic joint (mm)", (0.1, 100.0)),
-    "dimension_step_mm": (
-        5.0,
-        "one step of a primitive's dimension (mm), ~/set_dimension NAME+ / NAME-",
-        (0.1, 100.0),
     ),
     "static_transforms": (
         [],
-        "'parent child x y z qx qy qz qw' entries for frames TF does not know",
+        "'parent child x y z qx qy qz qw' entries (pose of child in parent, as "
+        "static_transform_publisher takes it) for frames TF does not know",
         None,
     ),
     "registrations_file": (
-        "affordance_registrations.yaml",
-        "the session's registrations (YAML): "
-        "~/save writes it, autosave rewrites it after every change, resume "
-        "reads it at start; locked while the node runs (one engine per file); "
-        "read at start",
+        "",
+        "the session's registrations (YAML): ~/save writes it, autosave rewrites it after every "
+        "change, resume reads it at start; '' = affordance_registrations.yaml in ROS_HOME "
+        "(~/.ros unless set), where a ROS node keeps its files, never the folder it was started "
+        "from (a relative path is taken from the working folder; ~ expands); locked while the "
+        "node runs (one engine per file)",
         None,
     ),
     "resume": (
         True,
-        "at start, load the registrations in registrations_file (a restarted "
-        "engine continues its session); false: a fresh session -- the file found "
-        "there is kept as a backup when first replaced; read at start",
+        "at start, load the registrations in registrations_file: a restarted engine (after a "
+        "crash, kill -9, a reboot) continues its session; false: a fresh session -- the file "
+        "found there is kept as a backup when first replaced",
         None,
     ),
     "autosave": (
         True,
-        "write registrations_file (atomically) after every accept, undo or load "
-        "that changes the registrations, before the action is answered; false: "
-        "only ~/save and shutdown write it",
+        "write registrations_file (atomically) after every accept, undo or load that changes "
+        "the registrations, before the action is answered; false: only ~/save and a clean "
+        "shutdown (SIGINT/SIGTERM) write it",
         None,
     ),
     "sensor_origin": (
         [0.0, 0.0, 0.0],
-        "sensor position in the cloud frame (m), used when sensor_frame is ''",
+        "the sensor's position in the cloud frame (m; visibility reasoning), used when "
+        "sensor_frame is ''",
         None,
     ),
     "sensor_frame": (
         "",
-        "where the scans are taken from: '' = sensor_origin in the cloud frame "
-        "(default: the cloud frame's origin); a frame name = that frame's "
-        "origin, looked up through TF / static_transforms (a cloud in "
-        "base_link or map); 'none' = no single viewpoint (an accumulated map: "
-        "fitted without the visibility terms)",
+        "where the scans are taken from: '' = sensor_origin in the cloud frame (by default the "
+        "cloud frame's origin: a cloud in its camera's frame); a frame name = that frame's "
+        "origin, looked up through TF / static_transforms when the cloud comes in another frame "
+        "(base_link, odom, map); 'none' = no single viewpoint (an accumulated map): fitted "
+        "without the visibility terms, normals from the data. The sensor frame's pose (else the "
+        "cloud frame's) is also the default view for twists: a REP-103 body or world frame "
+        "(map, odom, world, base_link, *_link, *_footprint, a lidar's) is taken as x forward, z "
+        "up; any other (*optical*, or a camera's own name) as an optical frame",
         None,
     ),
     "fixed_frame": (
@@ -157,26 +153,28 @@ NODE_PARAMETERS = {
     "points_reliable": (
         True,
         "subscribe to points with reliable QoS (false: best effort, for "
-        "sensor drivers publishing with SensorDataQoS); read at start",
+        "sensor drivers publishing with SensorDataQoS)",
         None,
     ),
     "publish_rate": (20.0, "highest rate of marker/status updates (Hz)", (1.0, 100.0)),
     "interactive_namespace": (
         "/affordance_correction",
-        "interactive marker server namespace (one level); read at start",
+        "interactive marker server namespace (one level)",
         None,
     ),
     "interactive_orientation": (
         "object",
-        "interactive marker controls aligned with the object or the operator's view",
+        "interactive marker controls aligned with the object's axes, or with the operator's "
+        "view (right, up, towards the viewer)",
         ("object", "view"),
     ),
-    "refit_on_new_cloud": (
-        True,
-        "a new cloud refits the selected (not yet accepted) object "
-        "from its current pose, at most twice a second",
-        None,
-    ),
+}
+#: the operator's parameters: OperatorSettings' knobs, by name
+OPERATOR_TABLE = {d.name: d for d in declared(OperatorSettings)}
+#: the node's parameters but the fitting knobs: its own, then the operator's
+ENGINE_PARAMETERS = {
+    **NODE_PARAMETERS,
+    **{name: (d.default, described(d), None) for name, d in OPERATOR_TABLE.items()},
 }
 FIT_PREFIX = "fit."
 #: the fitting settings' knobs as parameters (``fit.`` + the knob's dotted name): (code default,
@@ -187,7 +185,7 @@ FIT_TABLE = {
 #: parameters that make the fitting settings (a change rebuilds the registrar)
 FIT_PARAMETERS = frozenset(FIT_TABLE)
 PARAMETERS = {
-    **NODE_PARAMETERS,
+    **ENGINE_PARAMETERS,
     **{name: (default, doc, None) for name, (default, doc, _) in FIT_TABLE.items()},
 }
 #: read at start only (rclpy refuses a set): among them the file the node writes -- a path set
@@ -202,14 +200,30 @@ READ_ONLY = {
 }
 
 
+def _rule(name: str) -> str:
+    """A parameter's rule as a person reads it (its knob's, or its row's constraint)."""
+    if name in FIT_TABLE:
+        rule = FIT_TABLE[name][2]
+    elif name in OPERATOR_TABLE:
+        rule = OPERATOR_TABLE[name].rule
+    else:
+        default, _, constraint = PARAMETERS[name]
+        if isinstance(constraint, tuple) and isinstance(constraint[0], str):
+            rule = "one of: " + ", ".join(constraint)
+        elif isinstance(constraint, tuple):
+            rule = f"range [{constraint[0]}, {constraint[1]}]"
+        elif isinstance(default, bool):
+            rule = "true or false"
+        elif isinstance(default, list):
+            rule = "a list"
+        else:
+            rule = "text"
+    return rule + ("; read only" if name in READ_ONLY else "")
+
+
 def _descriptor(name, description, constraint) -> ParameterDescriptor:
     desc = ParameterDescriptor(description=description, read_only=name in READ_ONLY)
-    if name in FIT_TABLE:
-        desc.additional_constraints = FIT_TABLE[name][2]
-    elif isinstance(constraint, tuple) and isinstance(constraint[0], str):
-        desc.additional_constraints = "one of: " + ", ".join(constraint)
-    elif isinstance(constraint, tuple):
-        desc.additional_constraints = f"range [{constraint[0]}, {constraint[1]}]"
+    desc.additional_constraints = _rule(name).removesuffix("; read only")
     return desc
 
 
@@ -274,6 +288,12 @@ def _check_one(name: str, value) -> str | None:
         except RegistrationError as exc:
             return f"{FIT_PREFIX}{exc}"
         return None
+    if name in OPERATOR_TABLE:
+        try:
+            check_knob(name, OPERATOR_TABLE[name].field, value)
+        except AffordanceError as exc:
+            return str(exc)
+        return None
     default, _, constraint = PARAMETERS[name]
     if isinstance(default, bool):
         return None if isinstance(value, bool) else f"{name} must be true or false"
@@ -332,17 +352,8 @@ def fit_settings(p: dict) -> FitSettings:
 
 
 def operator_settings(p: dict) -> OperatorSettings:
-    return OperatorSettings(
-        linear_gain=float(p["linear_gain"]),
-        angular_gain=float(p["angular_gain"]),
-        twist_frame=p["twist_frame"],
-        max_twist_dt=float(p["max_twist_dt"]),
-        refit_idle_s=float(p["refit_idle_s"]),
-        buttons=tuple((a, int(p[f"button_{a}"])) for a in BUTTON_ACTIONS),
-        joint_axis=int(p["joint_axis"]),
-        joint_axis_threshold=float(p["joint_axis_threshold"]),
-        follow_clouds=bool(p["refit_on_new_cloud"]),
-    )
+    """The operator's settings the values of ``p`` make (its knobs by their own names)."""
+    return OperatorSettings(**{name: p[name] for name in OPERATOR_TABLE})
 
 
 # ---------------------------------------------------------------------------- the documents
@@ -365,7 +376,7 @@ def params_file() -> str:
         "affordance_engine:",
         "  ros__parameters:",
     ]
-    for name, (default, description, _) in NODE_PARAMETERS.items():
+    for name, (default, description, _) in ENGINE_PARAMETERS.items():
         lines += _comment(description, "    ")
         if default == []:  # a parameter file cannot give an empty list
             lines.append(f'    # {name}: ["parent child x y z qx qy qz qw"]')
@@ -380,6 +391,14 @@ def params_file() -> str:
         lines += _comment(description, "    ")
         lines.append(f"    # {name}: {_value(default)}")
     return "\n".join(lines) + "\n"
+
+
+def node_table() -> str:
+    """The documentation's table of the node's parameters but the fitting knobs (markdown)."""
+    rows = ["| name | default | rule | meaning |", "|---|---|---|---|"]
+    for name, (default, description, _) in ENGINE_PARAMETERS.items():
+        rows.append(f"| `{name}` | `{_value(default)}` | {_rule(name)} | {description} |")
+    return "\n".join(rows) + "\n"
 
 
 def fit_table() -> str:

@@ -20,7 +20,6 @@ sends its feedback into the stream through :class:`MarkerBridge`.
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 import time
@@ -90,10 +89,9 @@ class EngineNode(Node):
             self.get_logger().warning(line)
         self.library = TemplateLibrary.load(self._p["templates_dir"] or None)
         self.engine = AffordanceEngine(self.library, params.fit_settings(self._p))
-        self._set_joint_steps(self._p)
         self.saver = Autosave(
             RegistrationStore(
-                self._p["registrations_file"],
+                params.registrations_path(self._p["registrations_file"]),
                 holder=f"the engine {self.get_fully_qualified_name()}",
             ),
             self._p["autosave"],
@@ -227,11 +225,6 @@ class EngineNode(Node):
     def _sensor(p: dict) -> Sensor:
         return Sensor(p["sensor_frame"], tuple(float(v) for v in p["sensor_origin"]))
 
-    def _set_joint_steps(self, p: dict) -> None:
-        self.engine.joint_step_rad = math.radians(float(p["joint_step_deg"]))
-        self.engine.joint_step_m = float(p["joint_step_mm"]) / 1000.0
-        self.engine.dimension_step_m = float(p["dimension_step_mm"]) / 1000.0
-
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         new = dict(self._p)
         changed = {p.name for p in parameters if p.name in params.PARAMETERS}
@@ -266,7 +259,6 @@ class EngineNode(Node):
             # the next fit makes the scene from the latest cloud again
             self.feed.configure(self._sensor(new), new["fixed_frame"], again=True)
         self.stream.configure(params.operator_settings(new))
-        self._set_joint_steps(new)
         if "interactive_orientation" in changed:
             self.interactive.orientation = new["interactive_orientation"]
         self.output.publish_rate = float(new["publish_rate"])

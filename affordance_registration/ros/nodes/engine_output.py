@@ -106,23 +106,26 @@ class EngineOutput:
     def on_wake(self) -> None:
         drained = self.outbox.drain()
         for outcome in drained.outcomes:
-            self._say(outcome.kind, outcome.ok, outcome.message)
+            self._say(outcome.kind, outcome.ok, outcome.message, outcome.benign)
         if drained.busy:  # a long step started: the status says so at once
             self.pub_status.publish(String(data=json.dumps(self.status())))
         self._dirty |= drained.changed or bool(drained.outcomes)
         self._publish_when_due()
 
-    def _say(self, kind: str, ok: bool, message: str) -> None:
-        """Log an outcome: a success as info; a failure as an error -- for inputs that come in
-        streams (``STREAMED`` kinds), at most one line per kind every THROTTLE_S, as a
-        warning."""
+    def _say(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
+        """Log an outcome: a success as info; a failure as an error -- a ``benign`` one (the
+        action does not apply now: nothing selected, nothing to undo) as a warning, and for
+        inputs that come in streams (``STREAMED`` kinds) at most one line per kind every
+        THROTTLE_S, as a warning."""
         message = bounded(message, MAX_MESSAGE)
         if ok:
             self._last_message = message
             self._log.info(message)
             return
         self._last_error = message
-        if kind in STREAMED:
+        if benign:
+            self._log.warning(message)
+        elif kind in STREAMED:
             if self._warnings.due(kind):
                 self._log.warning(message)
         else:

@@ -474,6 +474,16 @@ def _open_reader(path: str):
 
     if not os.path.exists(path):
         raise BagError(f"{path}: no such bag")
+    inner = [
+        name
+        for name in (sorted(os.listdir(path)) if os.path.isdir(path) else [])
+        if os.path.isfile(os.path.join(path, name, "metadata.yaml"))
+    ]
+    if not os.path.isfile(os.path.join(path, "metadata.yaml")) and inner:
+        # a folder holding a bag (a recorded session: the bag and its truth)
+        raise BagError(
+            f"{path}: not a bag but a folder holding one: give {os.path.join(path, inner[0])}"
+        )
     _check_bag_files(path)
     bounded_decompression()
     try:

@@ -3,25 +3,31 @@
 """Node ``affordance_station``: the browser operator station, a plain ROS client of an engine node.
 
 It serves a page with viser (``http://127.0.0.1:8080`` by default; the web client ships inside the
-viser wheel) that shows the live cloud (thinned for display, coloured by intensity or depth), the
-shown candidate of the selected object as its mesh with a label, the registrations in their own
-colour and a status panel. On the page the operator
+viser wheel; the URL with its access secret is printed on the terminal, first) that shows the
+live cloud (thinned for display, in its own colours -- an ``rgb`` / ``rgba`` field -- else by
+intensity or depth; "Depth colours" switches to depth), the shown candidate of the selected
+object as its mesh with a short label, the registrations in their own colour, and a panel that
+says one sentence (what is shown, its verdict, what the operator can do) with the reasons in its
+closed "Details". A scan opens the right way up: an optical frame has the camera's up; any other
+the normal of its dominant plane where the sensor sees it at a slant (a table); the support plane
+under the first click then sets it (``core.display``). On the page the operator
 
 * clicks the cloud: the click ray is snapped to the nearest cloud point (``core.display.snap_ray``)
   and published on ``clicked_point`` in the cloud's frame (the engine's fixed frame, when it has
   one: each cloud is drawn there, through TF at its stamp);
-* drags the gizmo on the shown fit: an interactive-marker feedback client of its own (MOUSE_DOWN,
+* drags the gizmo on the shown fit (it stays within the object's outline, so a click beside it
+  lands on the cloud): an interactive-marker feedback client of its own (MOUSE_DOWN,
   POSE_UPDATE, MOUSE_UP of ``affordance_fit`` on ``<interactive_namespace>/feedback``) -- the
-  release is an absolute correction followed by a refit, as a drag in RViz;
+  release is an absolute correction followed by a refit, as a drag in RViz; a press on a handle
+  that does not move the fit sends nothing;
 * presses Next / Previous / Accept / Refit / Undo / Discard / Save / Joint - / Joint + (the
-engine's
-  std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
+  engine's std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
 * sees the engine's waypoint grippers (the "Waypoints" toggle hides them) and, with "Show path",
   the path of the selected object's waypoint to the state typed in "Path to state" (``paths.py``);
 * presses "Move sensor here" (shown while the open object is unsettled and the engine suggests a
-  view): that view goes out on ``sensor_view_request`` (geometry_msgs/PoseStamped, an optical
-  frame in the cloud's frame) for whatever moves the sensor (in ``station --demo``, the
-  simulated scan node);
+  view; the view's frustum is drawn with "Suggested view" in the details): that view goes out
+  on ``sensor_view_request`` (geometry_msgs/PoseStamped, an optical frame in the cloud's frame)
+  for whatever moves the sensor (in ``station --demo``, the simulated scan node);
 * looks around: the browser camera is published on ``view_pose`` (an optical frame in the cloud's
   frame), so SpaceMouse pushes move the object in the view the operator is looking at.
 
@@ -49,6 +55,7 @@ from typing import NamedTuple
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
@@ -57,11 +64,13 @@ from visualization_msgs.msg import InteractiveMarkerFeedback, MarkerArray
 
 from ...core import display
 from ...core.errors import AffordanceError
+from ...core.knobs import described
 from ..glue import qos
 from ..glue.conversions import (
     ConversionError,
     matrix_to_pose,
     point_stamped,
+    pointcloud2_colors,
     pointcloud2_field,
     pointcloud2_to_xyz,
     pose_stamped,
@@ -71,17 +80,19 @@ from ..glue.qos import INPUT, LATCHED
 from ..glue.tf import TfListener
 from ..standins.spin import run_node
 from . import access as station_access
+from .markup import text
 from .page import ACTIONS, PageHandlers, StationPage
-from .parameters import PARAMETERS, UP_AXES, check_parameters, check_port
+from .parameters import PARAMETERS, STATION_TABLE, UP_AXES, check_parameters, check_port
 from .paths import StationPaths
 from .state import (
     active_object,
     apply_markers,
-    candidate_label,
     candidate_options,
     candidate_standing,
+    drag_moved,
     fitting_marker,
-    shown_markdown,
+    headline,
+    short_label,
     status_markdown,
     suggested_pose,
 )
@@ -146,6 +157,14 @@ class _CloudShown:
     thin_voxel: float | None = None  #: its display voxel edge
     first_view_frame: str | None = None  #: the frame the browsers were last pointed in
     message: PointCloud2 | None = None  #: the cloud shown (drawn again in a new engine frame)
+    #: the shown (thinned) points, their colours by depth and their own (the scan's, or its
+    #: intensity's; None without): the "Depth colours" toggle switches between them
+    shown: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.float32))
+    depth_rgb: np.ndarray | None = None
+    own_rgb: np.ndarray | None = None
+    up: np.ndarray | None = None  #: the page's up axis in this frame
+    up_from_click: bool = False  #: the support plane under a click has set it
+    sensor: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: in ``frame``
 
 
 @dataclass
@@ -163,6 +182,7 @@ class _Drawn:
     """What the page last drew, so that a change is drawn (and logged) once."""
 
     label: str = ""  #: the open object's label
+    headline: str = ""  #: the panel's sentence
     refused: frozenset = frozenset()  #: objects drawn as refused outlines
     pending: np.ndarray | None = None  #: the click drawn as being fitted
 
@@ -180,9 +200,14 @@ class StationNode(Node):
     def __init__(self):
         super().__init__("affordance_station")
         p = {
-            name: self.declare_parameter(name, default).value
-            for name, (default, _) in PARAMETERS.items()
+            name: self.declare_parameter(
+                name,
+                d.default,
+                ParameterDescriptor(description=described(d), additional_constraints=d.rule),
+            ).value
+            for name, d in STATION_TABLE.items()
         }
+        p["sensor_origin"] = [float(v) for v in p["sensor_origin"]]
         problem = check_parameters(p)
         if problem:
             raise AffordanceError(problem)
@@ -207,6 +232,10 @@ class StationNode(Node):
         self._refresh = True
         self._pending: _PendingClick | None = None  # the click being fitted
         self._seen_error = ("", "")  # (last_error, last_message when it first showed)
+        self._alert = ""  # what went wrong with the operator's last action (the headline)
+        self._depth_colors = p["color_by"] == "depth"
+        self._recolor = False  # the "Depth colours" toggle changed
+        self._drag_start = None  # the gizmo's pose when pressed, until it moved (no drag yet)
 
         self.create_subscription(
             PointCloud2, "points", self._on_cloud, qos.cloud(p["points_reliable"])
@@ -246,7 +275,8 @@ class StationNode(Node):
                 p["port"],
                 p["fov_deg"],
                 p["point_size"],
-                PageHandlers(
+                depth_colors=self._depth_colors,
+                handlers=PageHandlers(
                     click=self._click,
                     action=self._action,
                     select=self._select,
@@ -256,6 +286,7 @@ class StationNode(Node):
                     move_sensor=self._move_sensor,
                     path=lambda state: self.paths.request(state),
                     waypoints=lambda shown, drawn: self.paths.toggled(shown, drawn),
+                    colors=self._colors,
                 ),
             )
         self.paths = StationPaths(self)  # "Show path" -> <engine>/path_request, <engine>/path
@@ -309,13 +340,14 @@ class StationNode(Node):
                 points, origin, direction, cone_rad=math.radians(self.p["click_cone_deg"])
             )
         except AffordanceError as exc:
-            self._note(f"click ignored: {exc}")
+            self._note(f"click ignored: {exc}", failed=True)
             return
         if i is None:
             self._note(
                 "click missed the cloud: click on a point of the cloud"
                 if len(points)
-                else "click ignored: no cloud received yet"
+                else "click ignored: no cloud received yet",
+                failed=True,
             )
             return
         point = points[i]
@@ -326,6 +358,8 @@ class StationNode(Node):
             )
         self.pub_click.publish(click_message(point, frame, self.get_clock().now().to_msg()))
         self._note(f"{note}: fitting")
+        if self.p["up"] == "auto":
+            self._up_from_support(point)
 
     def _clicks_handled(self, status: dict | None) -> int:
         """How many clicks on this station's topic the engine's status says it has handled."""
@@ -339,7 +373,8 @@ class StationNode(Node):
         client = self.triggers[action]
         if not client.service_is_ready():
             self._note(
-                f"{action}: not sent, the engine's {client.srv_name} service is not available"
+                f"{action}: not sent, the engine's {client.srv_name} service is not available",
+                failed=True,
             )
             return
         with self._lock:
@@ -361,13 +396,14 @@ class StationNode(Node):
         try:
             res = future.result()
             text = f"{action}: {'ok' if res.success else 'refused'} — {res.message}"
+            failed = not res.success
         except Exception as exc:  # the call failed in rclpy (engine gone mid-call)
-            text = f"{action}: failed ({exc})"
+            text, failed = f"{action}: failed ({exc})", True
         with self._lock:
             if self._calling is None or self._calling[0] != action:
                 return  # given up on already (see _step)
             self._calling = None
-        self._note(text)
+        self._note(text, failed=failed)
         self._next_call()
 
     def _give_up_calls(self, why: str) -> None:
@@ -377,7 +413,7 @@ class StationNode(Node):
             lost = ([self._calling[0]] if self._calling else []) + list(self._calls)
             self._calling, self._calls = None, deque()
         if lost:
-            self._note(f"{', '.join(lost)}: no answer ({why})")
+            self._note(f"{', '.join(lost)}: no answer ({why})", failed=True)
 
     def _select(self, template: str) -> None:
         self.pub_select.publish(String(data=template))
@@ -385,7 +421,7 @@ class StationNode(Node):
 
     def _dimension(self, name: str, value: float) -> None:
         if not math.isfinite(value) or value <= 0:
-            self._note(f"{name}: {value!r} is not a size in metres")
+            self._note(f"{name}: {value!r} is not a size in metres", failed=True)
             return
         self.pub_dimension.publish(String(data=f"{name}={value:.6g}"))
         self._note(f"{name} {value * 1000:.1f} mm: sent")
@@ -394,7 +430,9 @@ class StationNode(Node):
         """The suggested view of the open object on ``sensor_view_request``."""
         T, frame = suggested_pose(active_object(self._status)), self._frame()
         if T is None or not frame:
-            self._note("Move sensor here: not sent, the open object has no suggested view")
+            self._note(
+                "Move sensor here: not sent, the open object has no suggested view", failed=True
+            )
             return
         self.pub_sensor.publish(pose_stamped(T, frame, self.get_clock().now().to_msg()))
         where = ", ".join(f"{v:.3f}" for v in T[:3, 3])
@@ -405,35 +443,65 @@ class StationNode(Node):
         )
 
     def _drag(self, phase: str, T: np.ndarray) -> None:
+        """The gizmo: a drag goes to the engine once it has moved the fit (``drag_moved``); a
+        press on a handle that does not move it sends nothing, so it neither moves nor refits
+        the shown fit."""
         F = InteractiveMarkerFeedback
         if phase == "cancel":  # no keep-alives: the engine cancels the silent drag
             with self._lock:
-                self._drag_last = None
+                started, self._drag_last, self._drag_start = self._drag_last, None, None
+            if started is None:
+                return
             self._note("the dragging browser went away: its drag is cancelled")
             self.get_logger().info(
                 "a browser went away mid-drag: its drag is cancelled (not released)"
             )
             return
-        kind = {"start": F.MOUSE_DOWN, "update": F.POSE_UPDATE, "end": F.MOUSE_UP}.get(phase)
-        if kind is None or not self._cloud.frame:
+        if phase not in ("start", "update", "end") or not self._cloud.frame:
             return
-        frame = self._frame()
-        self.pub_feedback.publish(
-            feedback_message(kind, T, frame, self._drag_id, self.get_clock().now().to_msg())
-        )
         with self._lock:
-            self._drag_last = None if phase == "end" else (T, time.monotonic())
-        if phase == "end":
+            if phase == "start":
+                self._drag_start, self._drag_last = T, None
+                return
+            started = self._drag_last is not None
+            begin = (
+                not started
+                and self._drag_start is not None
+                and phase == "update"
+                and drag_moved(self._drag_start, T)
+            )
+            if phase == "end":
+                self._drag_start, self._drag_last = None, None
+            elif started or begin:
+                self._drag_last = (T, time.monotonic())
+        frame = self._frame()
+        stamp = self.get_clock().now().to_msg()
+        if begin:
+            self.pub_feedback.publish(
+                feedback_message(F.MOUSE_DOWN, T, frame, self._drag_id, stamp)
+            )
+        if phase == "update" and (started or begin):
+            self.pub_feedback.publish(
+                feedback_message(F.POSE_UPDATE, T, frame, self._drag_id, stamp)
+            )
+        elif phase == "end" and started:
+            self.pub_feedback.publish(feedback_message(F.MOUSE_UP, T, frame, self._drag_id, stamp))
             self._note("correction sent: refitting from the released pose")
+            self.get_logger().info("gizmo released: correction sent")
+        elif phase == "end":
+            self.get_logger().info("gizmo pressed without moving it: no correction")
 
     def _camera(self, T_world_optical: np.ndarray) -> None:
         with self._lock:
             self._view.pending = T_world_optical
         self._wake.set()
 
-    def _note(self, text: str) -> None:
+    def _note(self, text: str, failed: bool = False) -> None:
+        """What happened to the operator's last action (the details' "Last action"); when it
+        ``failed``, the headline says so until the next action."""
         with self._lock:
             self._last_action = text
+            self._alert = text if failed else ""
             self._refresh = True
         self._wake.set()
 
@@ -458,6 +526,9 @@ class StationNode(Node):
             inbox, self._inbox = self._inbox, _Inbox()
             view, drag = self._view.pending, self._drag_last
             refresh, self._refresh = self._refresh, False
+            recolor, self._recolor = self._recolor, False
+        if recolor and inbox.cloud is None:
+            self._draw_cloud()
         refresh = self._take_cloud(inbox.cloud, now) or refresh
         if inbox.status_new:
             self._status = inbox.status
@@ -586,7 +657,7 @@ class StationNode(Node):
         status = self._status if self._connected else None
         obj = active_object(self._status)
         with self._lock:
-            last_action = self._last_action
+            last_action, alert = self._last_action, self._alert
             pending = self._pending
         node = (self._status or {}).get("node") or {}
         error, message = node.get("last_error") or "", node.get("last_message") or ""
@@ -595,12 +666,16 @@ class StationNode(Node):
         # an error goes stale once the engine reports something after it
         stale = bool(error) and message != self._seen_error[1]
         fitting = "" if pending is None else f"{pending.note} — the engine is fitting it"
+        said = headline(status, self._connected, self.engine, pending is not None, alert)
         self.page.show_text(
-            shown_markdown(obj),
+            text(said),
             status_markdown(
                 status, self._connected, self.engine, self._cloud.text, last_action, fitting, stale
             ),
         )
+        if said != self._drawn.headline:
+            self._drawn.headline = said
+            self.get_logger().info(f"panel: {said}")
         self.page.show_candidates(
             candidate_options(obj), obj["candidates"][obj["shown"]]["template"] if obj else None
         )
@@ -611,7 +686,7 @@ class StationNode(Node):
 
     def _render_scene(self) -> None:
         obj = active_object(self._status)
-        label = candidate_label(obj)
+        label = short_label(obj)
         frame = self._frame()
         drawings = {
             k: d
@@ -645,23 +720,7 @@ class StationNode(Node):
         finite = np.all(np.isfinite(pts), axis=1)
         if not finite.all():
             pts = pts[finite]
-        thinned = (
-            display.thin(pts, int(self.p["display_points"]), start_voxel=self._cloud.thin_voxel)
-            if len(pts)
-            else display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
-        )
-        self._cloud.thin_voxel = thinned.voxel or None
-        keep = thinned.indices
-        values = None  # the colour values of the shown points only
-        if self.p["color_by"] in ("auto", "intensity"):
-            values = pointcloud2_field(msg, "intensity")
-            if values is not None:
-                values = (values[finite] if not finite.all() else values)[keep]
-        if values is None:
-            if self.p["color_by"] == "intensity":
-                self._cloud.text = "the cloud has no intensity field: coloured by depth"
-            shown = pts[keep]
-            values = np.sqrt(np.einsum("ij,ij->i", shown, shown))
+        sensor = self._sensor_origin()
         frame = msg.header.frame_id
         scene = (self._status or {}).get("frame_id") or frame
         if scene.lstrip("/") != frame.lstrip("/"):  # the engine's fixed frame: drawn in it
@@ -672,24 +731,97 @@ class StationNode(Node):
                 self._cloud.text = f"the cloud in '{frame}' is not placed in '{scene}' ({exc})"
                 return
             pts = pts @ T[:3, :3].T + T[:3, 3]
+            sensor = T[:3, :3] @ sensor + T[:3, 3]
             frame = scene
+        thinned = (
+            display.thin(pts, int(self.p["display_points"]), start_voxel=self._cloud.thin_voxel)
+            if len(pts)
+            else display.Thinned(np.zeros(0, dtype=np.int64), 0.0)
+        )
+        self._cloud.thin_voxel = thinned.voxel or None
+        keep = thinned.indices
+        shown = pts[keep]
+        own, note = self._own_colors(msg, finite, keep)
+        self._cloud.shown, self._cloud.own_rgb = shown, own
+        self._cloud.depth_rgb = display.scalar_colors(np.linalg.norm(shown - sensor, axis=1))
         with self._lock:
-            self._cloud.points, self._cloud.frame = pts, frame
+            self._cloud.points, self._cloud.frame, self._cloud.sensor = pts, frame, sensor
         if frame != self._cloud.first_view_frame and len(pts):
             self._cloud.first_view_frame = frame
             self.get_logger().info(f"cloud drawn in '{frame}' (from '{msg.header.frame_id}')")
-            up = np.array(
-                UP_AXES[self.p["up"]]
-                if self.p["up"] != "auto"
-                else ((0, -1, 0) if "optical" in frame else (0, 0, 1)),
-                dtype=float,
-            )
-            position, look_at = display.initial_view(pts, up, math.radians(self.p["fov_deg"]))
-            self.page.set_view(up, position, look_at)
-        self.page.show_cloud(pts[keep], display.scalar_colors(values))
+            self._first_view(shown, frame, sensor)
+        self._draw_cloud()
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         self._cloud.text = (
-            f"{len(pts):,} points in '{frame}', {len(keep):,} shown (stamp {stamp:.3f})"
+            f"{len(pts):,} points in '{frame}', {len(keep):,} shown (stamp {stamp:.3f})" + note
+        )
+
+    def _own_colors(self, msg: PointCloud2, finite: np.ndarray, keep: np.ndarray):
+        """(the shown points' own colours -- the scan's ``rgb`` / ``rgba``, else its intensity
+        as a scale -- or None, and a note for the details) as ``color_by`` asks."""
+        mode = self.p["color_by"]
+        if mode in ("auto", "rgb"):
+            rgb = pointcloud2_colors(msg)
+            if rgb is not None:
+                return (rgb[finite] if not finite.all() else rgb)[keep], ", its own colours"
+        if mode in ("auto", "intensity"):
+            values = pointcloud2_field(msg, "intensity")
+            if values is not None:
+                values = (values[finite] if not finite.all() else values)[keep]
+                return display.scalar_colors(values), ", coloured by intensity"
+        if mode in ("rgb", "intensity"):
+            return None, f" (it has no {mode} field: coloured by depth)"
+        return None, ""
+
+    def _draw_cloud(self) -> None:
+        own = self._cloud.own_rgb
+        depth = self._depth_colors or own is None
+        self.page.show_cloud(self._cloud.shown, self._cloud.depth_rgb if depth else own)
+
+    def _colors(self, depth: bool) -> None:
+        """The "Depth colours" toggle (viser's thread): the page worker redraws the cloud."""
+        with self._lock:
+            self._depth_colors = bool(depth)
+            self._recolor = True
+        self._wake.set()
+
+    def _sensor_origin(self) -> np.ndarray:
+        return np.asarray(self.p["sensor_origin"], dtype=float)
+
+    def _first_view(self, shown: np.ndarray, frame: str, sensor: np.ndarray) -> None:
+        """Point the browsers at a cloud in a new frame: its up axis (``up``, or with ``auto``
+        what the scan says: display.first_up) and a view from the ``sensor`` (in ``frame``:
+        display.initial_view)."""
+        if self.p["up"] != "auto":
+            up, why = np.array(UP_AXES[self.p["up"]], dtype=float), f"up {self.p['up']}"
+        else:
+            up, why = display.first_up(shown, sensor, optical="optical" in frame)
+        self._cloud.up, self._cloud.up_from_click = up, self.p["up"] != "auto"
+        position, look_at = display.initial_view(
+            shown, up, math.radians(self.p["fov_deg"]), sensor=sensor
+        )
+        self.page.set_view(up, position, look_at)
+        self.get_logger().info(
+            f"first view of '{frame}': up ({', '.join(f'{v:.3f}' for v in up)}), {why}"
+        )
+
+    def _up_from_support(self, point: np.ndarray) -> None:
+        """The first click in a frame (``up`` auto): the plane under it, where the scan shows
+        one, is the world's up axis from now on (display.support_under)."""
+        with self._lock:
+            if self._cloud.up_from_click or self._cloud.up is None:
+                return
+            self._cloud.up_from_click = True
+            points, up, sensor = self._cloud.points, self._cloud.up, self._cloud.sensor
+        normal = display.support_under(points, point, sensor, up)
+        if normal is None:
+            self.get_logger().info("no support plane under the first click: the up axis stays")
+            return
+        self._cloud.up = normal
+        self.page.set_up(normal)
+        self.get_logger().info(
+            f"up ({', '.join(f'{v:.3f}' for v in normal)}): the support plane under the "
+            f"first click"
         )
 
     def shutdown(self) -> None:

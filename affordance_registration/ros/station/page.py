@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from dataclasses import dataclass
@@ -17,7 +18,15 @@ from ...core.errors import AffordanceError
 from ...core.transforms import invert, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from .state import LineDrawing, MeshDrawing, TextDrawing
 
-__all__ = ["StationPage", "PageHandlers", "gizmo_scale", "ACTIONS", "DIMENSIONS"]
+__all__ = [
+    "StationPage",
+    "PageHandlers",
+    "gizmo_scale",
+    "ACTIONS",
+    "DIMENSIONS",
+    "LABEL_ANCHOR",
+    "DETAILS",
+]
 
 #: a primitive's dimensions, each a field of the page (m)
 DIMENSIONS = ("x", "y", "z", "radius", "length")
@@ -40,12 +49,24 @@ PENDING_RGB = (255, 140, 0)  # the click being fitted
 PENDING_RADIUS = 0.008  # m
 PATH_RGB = (255, 60, 200)  # the path the engine answered
 LINE_PX = 3.0  # width of the waypoints' and the path's lines (pixels)
+#: the 3D labels hang left of and below their point: the panel lies over the right of the view,
+#: so a label never runs under it (one centred on an object near the panel did)
+LABEL_ANCHOR = "top-right"
+#: the folder holding the reasons (engine state, why a fit is unsettled, counts, the cloud, the
+#: last reply): closed by default, the headline says what matters in one sentence
+DETAILS = "Details"
+#: the gizmo's arrows reach this fraction of the shown candidate's largest extent from its
+#: centre, so its handles stay within the object's own outline on the screen whatever the zoom
+#: (at 0.8 of it and drawn over everything, its rings covered the neighbours: a click meant for
+#: one moved the shown fit instead); at least GIZMO_MIN_M
+GIZMO_FRACTION = 0.45
+GIZMO_MIN_M = 0.03
 
 
 def gizmo_scale(vertices: np.ndarray) -> float:
     """Length (m) of the gizmo's arrows for a candidate mesh (vertices (N, 3) in its frame):
-    0.8 of its largest extent, at least 8 cm."""
-    return max(0.08, 0.8 * float(np.max(np.ptp(vertices, axis=0))))
+    GIZMO_FRACTION of its largest extent, at least GIZMO_MIN_M."""
+    return max(GIZMO_MIN_M, GIZMO_FRACTION * float(np.max(np.ptp(vertices, axis=0))))
 
 
 def _wxyz(T: np.ndarray) -> np.ndarray:
@@ -84,22 +105,35 @@ class PageHandlers:
     waypoints: Callable = lambda shown, drawn: None
     #: ``move_sensor()``: "Move sensor here" pressed (send the suggested view)
     move_sensor: Callable = lambda: None
+    #: ``colors(depth)``: the "Depth colours" toggle changed (True: colour the cloud by depth)
+    colors: Callable = lambda depth: None
 
 
 class StationPage:
     """The operator page: every viser call of the station is here."""
 
     def __init__(
-        self, host: str, port: int, fov_deg: float, point_size: float, handlers: PageHandlers
+        self,
+        host: str,
+        port: int,
+        fov_deg: float,
+        point_size: float,
+        handlers: PageHandlers,
+        depth_colors: bool = False,
     ):
+        import io
+
         import viser  # here: only the station needs it
 
         self.h = handlers
         self.fov = math.radians(fov_deg)
         self.point_size = point_size
-        self.server = viser.ViserServer(
-            host=host, port=port, label="affordance station", verbose=False
-        )
+        # viser prints a banner with its address, which answers 403 without the access secret:
+        # the station prints the one URL that works itself (StationNode)
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server = viser.ViserServer(
+                host=host, port=port, label="affordance station", verbose=False
+            )
         self.server.initial_camera.fov = self.fov
         self._lock = threading.RLock()
         self._nodes: dict[str, tuple] = {}  # scene name -> (handle, digest)
@@ -110,11 +144,8 @@ class StationPage:
         self._unpointed: set = set()  # browsers not yet pointed at the first view
         self._options: dict[str, str] = {}
         gui = self.server.gui
-        gui.add_markdown(
-            "**Affordance station** — click an object in the cloud to fit it; "
-            "drag the gizmo to correct the shown fit."
-        )
-        self.shown = gui.add_markdown("**Shown**: nothing selected")
+        # one sentence: what is shown, its verdict, what the operator can do (state.headline)
+        self.headline = gui.add_markdown("Click an object in the cloud to fit it.")
         self.candidates = gui.add_dropdown("Candidate", options=("none",), initial_value="none")
         self.candidates.on_update(self._on_select)
         self.buttons = {}
@@ -129,11 +160,12 @@ class StationPage:
             hint="ask whatever moves the sensor to scan from the suggested view",
         )
         self.move_sensor.on_click(lambda event: self.h.move_sensor())
-        # a primitive's dimensions (m), shown while the shown candidate is one
+        # a primitive's dimensions (m), shown while the shown candidate is one; to 0.1 mm (the
+        # page keeps as many decimals as the step has: at 0.001 a typed 0.0669 became 0.066)
         self.dimensions = {}
         for name in DIMENSIONS:
             box = gui.add_number(
-                f"{name} (m)", initial_value=0.1, min=0.001, max=100.0, step=0.001, visible=False
+                f"{name} (m)", initial_value=0.1, min=0.001, max=100.0, step=0.0001, visible=False
             )
             box.on_update(lambda event, name=name: self._on_dimension(event, name))
             self.dimensions[name] = box
@@ -144,7 +176,14 @@ class StationPage:
         self.path_state = gui.add_text("Path to state", initial_value="")
         self.path_button = gui.add_button("Show path")
         self.path_button.on_click(lambda event: self.h.path(str(self.path_state.value).strip()))
-        self.status = gui.add_markdown("**Engine**: starting")
+        # the scan's own colours, or depth colours (the shapes stand out in a dull scan)
+        self.depth_colors = gui.add_checkbox("Depth colours", initial_value=bool(depth_colors))
+        self.depth_colors.on_update(lambda event: self.h.colors(bool(self.depth_colors.value)))
+        # the reasons, on demand
+        with gui.add_folder(DETAILS, expand_by_default=False):
+            self.status = gui.add_markdown("**Engine**: starting")
+            self.show_view = gui.add_checkbox("Suggested view", initial_value=False)
+            self.show_view.on_update(self._on_show_view)
         self.server.scene.on_click()(self._on_click)
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
@@ -173,6 +212,22 @@ class StationPage:
         if event.client is None:  # set by the station, not by an operator
             return
         self.h.dimension(name, float(self.dimensions[name].value))
+
+    def _on_show_view(self, event) -> None:
+        shown = bool(self.show_view.value)
+        with self._lock:
+            for name, (handle, _) in self._nodes.items():
+                if "suggested_view" in name:
+                    handle.visible = shown
+
+    def _visible(self, name: str) -> bool:
+        """Whether a drawing the toggles govern is shown: the waypoints ("Waypoints"), a
+        suggested view's frustum ("Suggested view" in the details)."""
+        if "_waypoints_" in name:
+            return bool(self.waypoints.value)
+        if "suggested_view" in name:
+            return bool(self.show_view.value)
+        return True
 
     def _on_waypoints(self, event) -> None:
         shown = bool(self.waypoints.value)
@@ -255,6 +310,20 @@ class StationPage:
                 with self._lock:
                     self._unpointed.discard(cid)
 
+    def set_up(self, up: np.ndarray) -> None:
+        """The world's up axis, for new browsers and the open ones, without moving their
+        cameras (each rolls its view upright about its line of sight)."""
+        up = tuple(float(v) for v in up)
+        self.server.scene.set_up_direction(up)
+        self.server.initial_camera.up = up
+        with self._lock:
+            if self._view is not None:
+                self._view = (self._view[0], self._view[1], np.asarray(up))
+            clients = dict(self.server.get_clients())
+        for client in clients.values():
+            with contextlib.suppress(AssertionError, ValueError):  # camera not known yet
+                client.camera.up_direction = up
+
     def show_cloud(self, points: np.ndarray, colors: np.ndarray) -> None:
         self.server.scene.add_point_cloud(
             "/cloud",
@@ -266,9 +335,10 @@ class StationPage:
             point_shading="flat",
         )
 
-    def show_text(self, shown: str, status: str) -> None:
-        if self.shown.content != shown:
-            self.shown.content = shown
+    def show_text(self, headline: str, status: str) -> None:
+        """The headline (one sentence) and the details (the reasons)."""
+        if self.headline.content != headline:
+            self.headline.content = headline
         if self.status.content != status:
             self.status.content = status
 
@@ -385,16 +455,16 @@ class StationPage:
             return
         if isinstance(d, TextDrawing):
             handle = self.server.scene.add_label(
-                name, d.text, position=d.position, anchor="top-center"
+                name, d.text, position=d.position, anchor=LABEL_ANCHOR
             )
-        elif isinstance(d, LineDrawing):  # waypoint grippers (as the toggle says), a view
+        elif isinstance(d, LineDrawing):  # waypoint grippers, a view (as their toggles say)
             handle = self.server.scene.add_line_segments(
                 name,
                 d.segments,
                 d.colors,
                 thickness=LINE_PX,
                 thickness_units="screen",
-                visible=bool(self.waypoints.value) or "_waypoints_" not in name,
+                visible=self._visible(name),
             )
         else:
             handle = self.server.scene.add_icosphere(

@@ -34,10 +34,12 @@ class StationPaths:
         node = self._node
         obj = active_object(node._status)
         if obj is None:
-            node._note("path: select an object first (click it)")
+            node._note("path: select an object first (click it)", failed=True)
             return
         if not state or len(state.split()) != 1 or len(state) > 64:
-            node._note("path: type the name of one of the object's states (e.g. closed)")
+            node._note(
+                "path: type the name of one of the object's states (e.g. closed)", failed=True
+            )
             return
         self._pub.publish(String(data=f"{obj['id']} {state}"))
         self._asked = True

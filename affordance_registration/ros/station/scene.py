@@ -11,14 +11,18 @@ header that does not match the file's size, more than 10 million points or value
 numbers are refused with one line), multiplied by the metres per unit of ``units``, and
 published reliable and transient-local in ``frame_id``, again whenever a subscriber joins (a
 volatile subscription, as the engine's and the station's, only hears what is published after it
-matched). The frame's origin is where the engine takes the scan to have been taken from (as
-``fit`` without ``--sensor-origin``). A scan more than ``MM_LOOKING_EXTENT`` across given as
-metres gets a warning naming ``--units``.
+matched). The scan's own colours (a PCD's ``rgb`` / ``rgba``, a PLY's ``red green blue``) go
+with it in an ``rgb`` field, so the station draws the scan as the sensor saw it. Where the scan
+was taken from is the file's (a PCD's VIEWPOINT, else the frame's origin, as ``fit`` without
+``--sensor-origin``): ``station --scene`` hands it to the engine and the station. A scan more
+than ``MM_LOOKING_EXTENT`` across given as metres gets a warning naming ``--units``.
 
 Parameters: ``file`` (required), ``units`` (m | cm | mm; m), ``frame_id`` (``scan``).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from rclpy.node import Node
@@ -30,12 +34,22 @@ from ..glue.cloud_publisher import LatchedCloudPublisher
 from ..glue.conversions import xyz_to_pointcloud2
 from ..standins.spin import run_node
 
-__all__ = ["FileScanNode", "read_scan", "main"]
+__all__ = ["FileScanNode", "ScanFile", "read_scan", "main"]
 
 
-def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:
-    """(points in metres -- organized (H, W, 3) when the file is, else (N, 3) -- and a warning or
-    ''). Raises AffordanceError for a file that cannot be read or unknown units."""
+class ScanFile(NamedTuple):
+    """A scan file as the station shows it."""
+
+    #: points in metres: organized (H, W, 3) when the file is, else (N, 3)
+    points: np.ndarray
+    warning: str  #: a warning for the user, or ''
+    colors: np.ndarray | None  #: (N, 3) uint8 RGB of the points (flattened), or None
+    sensor_origin: np.ndarray  #: (3,) where it was taken from, in metres (the frame's origin)
+
+
+def read_scan(path: str, units: str) -> ScanFile:
+    """The scan ``path`` in ``units``. Raises AffordanceError for a file that cannot be read or
+    unknown units."""
     if units not in UNITS:
         raise AffordanceError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
     if not path:
@@ -55,7 +69,8 @@ def read_scan(path: str, units: str) -> tuple[np.ndarray, str]:
             f"{path}: the scan is {extent:.0f} m across in '{units}', larger than a room: "
             f"if it is in millimetres or centimetres, give its units (--units mm or cm)"
         )
-    return pts, warning
+    origin = np.zeros(3) if f.viewpoint is None else np.asarray(f.viewpoint) * UNITS[units]
+    return ScanFile(pts, warning, f.colors, origin)
 
 
 class FileScanNode(Node):
@@ -66,13 +81,16 @@ class FileScanNode(Node):
         frame = str(self.declare_parameter("frame_id", "scan").value)
         if not frame:
             raise AffordanceError("frame_id must not be empty")
-        pts, warning = read_scan(path, units)
-        if warning:
-            self.get_logger().warning(warning)
-        self.cloud = LatchedCloudPublisher(self, xyz_to_pointcloud2(pts, frame))
-        n = int(np.all(np.isfinite(pts.reshape(-1, 3)), axis=1).sum())
+        scan = read_scan(path, units)
+        if scan.warning:
+            self.get_logger().warning(scan.warning)
+        self.cloud = LatchedCloudPublisher(
+            self, xyz_to_pointcloud2(scan.points, frame, colors=scan.colors)
+        )
+        n = int(np.all(np.isfinite(scan.points.reshape(-1, 3)), axis=1).sum())
         self.get_logger().info(
-            f"scan {path} ({units}): {n} points in '{frame}' on {self.cloud.topic_name}"
+            f"scan {path} ({units}): {n} points in '{frame}'"
+            f"{'' if scan.colors is None else ' with their colours'} on {self.cloud.topic_name}"
         )
 
 

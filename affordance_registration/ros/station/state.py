@@ -8,6 +8,7 @@ without ``rclpy.init`` or a browser."""
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,10 @@ __all__ = [
     "active_object",
     "candidate_standing",
     "candidate_label",
+    "short_label",
+    "headline",
+    "drag_moved",
+    "HEADLINE_MAX",
     "candidate_options",
     "fitting_marker",
     "shown_markdown",
@@ -197,6 +202,124 @@ def candidate_label(obj: dict | None) -> str:
     return f"#{obj.get('id', '?')} {c.get('template', '?')}{state} — {rank} — {text}"
 
 
+#: the longest headline (characters): one sentence an operator reads at a glance
+HEADLINE_MAX = 159
+#: the longest template name a headline or a 3D label carries (a user's library may name them
+#: at length; the dropdown and the details have the whole name)
+NAME_MAX = 32
+
+
+def _cut(text: str, limit: int) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
+
+
+def _shown(obj: dict) -> tuple[dict, int, int]:
+    cands = obj.get("candidates") or [{}]
+    shown = min(max(int(obj.get("shown", 0) or 0), 0), len(cands) - 1)
+    return cands[shown], shown, len(cands)
+
+
+def _name(c: dict) -> str:
+    state = f" ({_cut(c['state'], 16)})" if c.get("state") else ""
+    return _cut(c.get("template", "?"), NAME_MAX) + state
+
+
+def short_label(obj: dict | None) -> str:
+    """The 3D label of the open object: '#3 ball_valve (closed) — fits', '#3 best guess
+    gate_valve — no fit', '#3 box 0.21 x 0.12 x 0.08 m' ('' without an object): the headline
+    says the rest."""
+    if not obj or not obj.get("candidates"):
+        return ""
+    c, shown, _ = _shown(obj)
+    text, refused = candidate_standing(obj)
+    oid = obj.get("id", "?")
+    if c.get("primitive") is not None and not refused:
+        what = text.split("fitted as ")[-1].removeprefix("a ")
+        return f"#{oid} {_cut(what, 48)}"
+    if refused:
+        guess = "best guess " if shown == 0 and obj.get("no_match") else ""
+        return f"#{oid} {guess}{_name(c)} — no fit"
+    word = text.split(",")[0]
+    if ((obj.get("ambiguity") or {}).get("settled")) is False:
+        word += ", unsettled"
+    return f"#{oid} {_name(c)} — {word}"
+
+
+def headline(
+    status: dict | None,
+    connected: bool,
+    engine: str,
+    fitting: bool = False,
+    alert: str = "",
+) -> str:
+    """The panel's one sentence (at most HEADLINE_MAX characters): what is shown, its verdict
+    and what the operator can do -- the reasons are in the details (:func:`status_markdown`).
+    ``fitting``: a click is being fitted; ``alert``: what went wrong with the operator's last
+    action (shown instead, until the next one)."""
+    obj = active_object(status)
+    if not connected:
+        text = (
+            f"Engine not running: start affordance_engine ({_cut(engine, 40)}); "
+            "this page recovers when it comes up."
+        )
+    elif alert.strip():
+        alert = " ".join(alert.split())
+        text = alert[0].upper() + alert[1:]
+    elif fitting:
+        text = "Fitting your click…"
+    elif status is None:
+        text = "The engine is up; waiting for its status."
+    elif obj is None or not obj.get("candidates"):
+        counts = status.get("counts") or {}
+        n = counts.get("registered", len(status.get("registered") or []))
+        text = "No object open: click one in the cloud to fit it" + (
+            f"; {n} registered, Save writes them." if n else "."
+        )
+    else:
+        c, shown, total = _shown(obj)
+        said, refused = candidate_standing(obj)
+        oid = obj.get("id", "?")
+        rank = f" (rank {shown + 1}/{total})" if shown else ""
+        unsettled = ((obj.get("ambiguity") or {}).get("settled")) is False
+        if c.get("primitive") is not None and not refused:
+            what = _cut(said.split("fitted as ")[-1], 60)
+            text = (
+                f"#{oid}{rank}: {what} (no template fits here)"
+                + (", unsettled (Details says why)" if unsettled else "")
+                + ". Correct its size below if it is off, then Accept, or Next."
+            )
+        elif refused and shown == 0 and obj.get("no_match"):
+            text = (
+                f"#{oid}: no template fits here (best guess {_name(c)}). Next, click elsewhere, "
+                "or Accept as an override."
+            )
+        elif refused:
+            text = f"#{oid} {_name(c)}{rank}: {said}. Previous, Next, or Accept as an override."
+        elif unsettled:
+            text = (
+                f"#{oid} {_name(c)}{rank}: {said}, but unsettled (Details says why). Accept, "
+                "Next, or drag the gizmo to correct it."
+            )
+        else:
+            text = (
+                f"#{oid} {_name(c)}{rank}: {said}. Accept, Next, or drag the gizmo to correct it."
+            )
+    return _cut(text, HEADLINE_MAX)
+
+
+def drag_moved(
+    T_start: np.ndarray, T: np.ndarray, tol_m: float = 0.001, tol_deg: float = 0.5
+) -> bool:
+    """Whether the gizmo moved the fit from ``T_start`` to ``T`` (4x4) by more than ``tol_m``
+    or ``tol_deg``: a press on a handle that does not move it is no correction."""
+    A, B = np.asarray(T_start, dtype=float), np.asarray(T, dtype=float)
+    if np.linalg.norm(B[:3, 3] - A[:3, 3]) > tol_m:
+        return True
+    cos = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1.0) / 2.0
+    return math.degrees(math.acos(min(1.0, max(-1.0, cos)))) > tol_deg
+
+
 def candidate_options(obj: dict | None) -> list[tuple[str, str]]:
     """(option text, template) of every ranked candidate of an object, best first."""
     out = []
@@ -277,9 +400,7 @@ def status_markdown(
         lines.append(f"**Fitting**: {text(fitting)}")
     st = status or {}
     obj = active_object(st)
-    lines.append(
-        f"**Open object**: {text(candidate_label(obj)) if obj else 'none (click an object)'}"
-    )
+    lines.append(f"**Shown**: {text(candidate_label(obj)) if obj else 'nothing selected'}")
     if obj and candidate_standing(obj)[1]:
         lines.append(
             "**Verdict**: the shown candidate is refused (drawn as a grey outline); "
