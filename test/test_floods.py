@@ -136,6 +136,8 @@ def test_huge_names_are_refused_and_the_status_stays_small(flooded):
 
 
 class _Engine:
+    views_due = 0
+
     class state:
         registered = ()
 

@@ -365,3 +365,82 @@ def test_the_selected_object_follows_a_new_cloud(library, scene):
     s.stream.process_pending()  # the idle refit, on the new cloud
     dt, dr = pose_error(s.shown().T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
     assert dt < TOL_M and dr < TOL_RAD, (dt, dr)
+
+
+class Watched(Recorder):
+    """A recorder that notes, at every change the stream puts, the open objects as
+    (id, shown candidate, has a suggested view) and the stream's ``views_due`` and ``idle``;
+    ``connect``-ed, it stands for a node that publishes only when the test says
+    (:meth:`publish`)."""
+
+    def __init__(self, engine):
+        super().__init__()
+        self.engine, self.stream, self.changes = engine, None, []
+        self.connect(lambda: None)
+
+    def changed(self):
+        objs = tuple(
+            (o.id, o.active, o.suggested_view is not None) for o in self.engine.state.objects
+        )
+        st = self.stream.status()
+        self.changes.append((objs, st["views_due"], st["idle"]))
+        super().changed()
+
+    def publish(self):
+        self.drain()
+        self.published()
+
+
+def test_an_unsettled_clicks_view_comes_after_its_status_and_what_arrived_before_it(library):
+    """The demo board's quarter-turn valve seen edge-on (unsettled): its click is committed
+    without a view (the view is due: the stream is not idle); a press that arrived meanwhile
+    is handled first; the view waits until the node has published the click's status, then it
+    is computed and given to the object -- and to the state undo returns to, which holds the
+    same answer. A second click discarded before its view was computed has it dropped: never
+    computed, not in the state undo brings back. The object's fit_s is the whole click."""
+    from test_sensor_move import edge_on_case
+
+    from affordance_registration.evaluation.simulated_scan import render_organized
+    from affordance_registration.evaluation.viewpoints import taskboard_meshes
+
+    sim, T, click, _ = edge_on_case(library)
+    organized, _ = render_organized(taskboard_meshes(sim, library), T, None)
+    clock = SimClock()  # (frozen: the wait for the status never times out)
+    engine = AffordanceEngine(library)
+    engine.set_scene(organized, frame_id=FRAME, sensor_origin=T[:3, 3], T_scene_optical=T)
+    box = Watched(engine)
+    stream = box.stream = OperatorStream(
+        engine, OperatorSettings(), clock, clock.sleep, outbox=box
+    )
+    stream.click(click)
+    stream.action("next_model")
+    assert stream.process_pending() == 2
+    obj = engine.active_object()
+    assert not obj.ambiguity.settled and obj.active == 1 and obj.suggested_view is None
+    assert box.changes == [(((1, 0, False),), 1, False), (((1, 1, False),), 1, False)]
+    timing = engine.status()["timing_s"]
+    assert obj.fit_s == pytest.approx(timing["total"], abs=1e-6)
+    assert timing["total"] == pytest.approx(
+        timing["prepare"] + timing["fit"] + timing["ambiguity"], abs=1e-5
+    )
+    assert stream.process_pending() == 0 and engine.views_due == 1  # not yet published
+
+    box.publish()
+    stream.process_pending()
+    assert box.changes[-1] == (((1, 1, True),), 0, True)
+    assert engine.status()["timing_s"]["suggest_view"] > 0.0
+    view = engine.active_object().suggested_view
+    assert engine.undo() == "undid cycle"
+    assert engine.active_object().active == 0 and engine.active_object().suggested_view is view
+
+    stream.action("discard")
+    stream.click(click)
+    stream.action("discard")
+    assert stream.process_pending() == 3 and engine.views_due == 1
+    box.publish()
+    stream.process_pending()
+    assert engine.views_due == 0 and engine.state.objects == ()
+    assert all(not any(v for *_, v in objs) for objs, *_ in box.changes[-3:])
+    assert engine.undo() == "undid discard"
+    again = engine.active_object()
+    assert again.id == 2 and not again.ambiguity.settled and again.suggested_view is None

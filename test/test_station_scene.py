@@ -3,8 +3,9 @@
 """A user with a file: ``affordance-registration station --scene FILE --units mm`` serves the
 browser station on a PLY scan in millimetres with an engine of its own (no other node started
 by the test), and an operator in a real browser (headless chromium) clicks an object, accepts
-and saves it -- in metres, on the truth. Also ``fit --units`` and the units hint of a click
-error on the command line."""
+and saves it -- in metres, on the truth; an unsettled click there gets no "Move sensor here"
+(nothing moves the sensor of a file) until something subscribes to the request. Also ``fit
+--units`` and the units hint of a click error on the command line."""
 
 import math
 import re
@@ -179,6 +180,18 @@ def test_station_on_a_millimetre_ply_in_a_real_browser(
             page.mouse.click(*xy)
             wait_text(page, r"Shown: #2 no template fits here — best guess \w+.* — rank 1/\d+")
             wait_text(page, r"Verdict: the shown candidate is refused")
+            # unsettled, and the engine suggests a view -- but nothing moves the sensor of a
+            # scan read from a file: no "Move sensor here"; it comes when something subscribes
+            # to the request, and goes with it
+            wait_text(page, r"Unsettled: .*suggested view: look from")
+            button = page.get_by_role("button", name="Move sensor here", exact=True)
+            assert not button.is_visible()
+            mover = client.node.create_subscription(
+                PoseStamped, "/sensor_view_request", lambda msg: None, 10
+            )
+            button.wait_for(state="visible", timeout=60_000)
+            client.node.destroy_subscription(mover)
+            button.wait_for(state="hidden", timeout=60_000)
             wait_until(
                 lambda: "drawn as refused outlines: objects [2]" in node_log.read_text(),
                 60,

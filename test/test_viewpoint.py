@@ -263,9 +263,10 @@ def test_taskboard_meshes_rescan_the_simulated_scene(board, library):
 
 
 def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(board, library):
-    """The engine (no ROS): an unsettled click gets its suggested view in the status; the scan
+    """The engine (no ROS): an unsettled click is committed without its view -- the view is
+    due, not on the click's path -- and gets it in the status from ``suggest_view``; the scan
     from that view, set as the new scene, is followed by fitting the untouched click anew --
-    settled and right."""
+    settled and right, with no view due."""
     from affordance_registration.core.engine import AffordanceEngine
 
     k = next(i for i, o in enumerate(board.objects) if o.template == "gate_valve")
@@ -278,7 +279,16 @@ def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(boa
     mine = pts[labels == k + 1]
     engine.click(mine[int(np.argmin(np.linalg.norm(mine - obj.T_scene_model[:3, 3], axis=1)))])
     o = engine.status()["objects"][0]
-    assert o["ambiguity"]["settled"] is False and o["suggested_view"] is not None
+    assert o["ambiguity"]["settled"] is False and o["suggested_view"] is None
+    assert engine.views_due == 1 and "suggest_view" not in engine.status()["timing_s"]
+    said = engine.suggest_view()
+    assert said.startswith("object 1: suggested view: look from") and engine.views_due == 0
+    assert engine.suggest_view() is None  # (nothing more due)
+    st = engine.status()
+    o = st["objects"][0]
+    assert o["suggested_view"] is not None
+    # the view's own time, apart from the click's (its occluders' grid included)
+    assert st["timing_s"]["suggest_view"] >= o["suggested_view"]["time_s"] - 1e-6
     assert "unsettled" in engine.active_object().describe()
     T_view = np.asarray(o["suggested_view"]["pose"])
     p2, _, o2 = scan(meshes, T_view, np.random.default_rng(2))
@@ -286,7 +296,7 @@ def test_the_engine_suggests_a_view_and_a_cloud_from_there_settles_the_click(boa
     said = engine.follow_scene()
     assert said is not None and "fitted again on the new cloud" in said
     now = engine.active_object()
-    assert now.ambiguity.settled and now.suggested_view is None
+    assert now.ambiguity.settled and now.suggested_view is None and engine.views_due == 0
     best = now.candidates[0]
     dt, da = pose_error(best.T_scene_model, obj.T_scene_model, library[obj.template].symmetry)
     assert best.template == obj.template and dt <= POSE_TOL_M and da <= POSE_TOL_RAD

@@ -1,11 +1,13 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
 """Viewpoint advice over ROS: a real engine node in its own process gets a scan of the gate
-valve's handwheel seen edge-on; its status says the click is unsettled and why, it publishes
+valve's handwheel seen edge-on; its status says the click is unsettled and why -- at once, the
+suggested view following in a later status (it is not on the click's path) --, it publishes
 ``~/suggested_view`` and a camera frustum on ``~/markers``; a new cloud scanned from the suggested
 view (the simulator renders it; the sensor origin given as the node's parameter) is fitted anew
 and settles the click."""
 
+import json
 import math
 
 import numpy as np
@@ -14,6 +16,7 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from ros_helpers import LATCHED, engine_session
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from affordance_registration.core.registration.viewpoint import optical_pose
@@ -25,6 +28,7 @@ from affordance_registration.evaluation.simulation import (
 )
 from affordance_registration.evaluation.viewpoints import scan, taskboard_meshes
 from affordance_registration.ros.glue.conversions import pose_to_matrix, xyz_to_pointcloud2
+from affordance_registration.ros.glue.qos import latched
 
 FRAME = "world"
 NS = "/affordance_engine"
@@ -68,6 +72,7 @@ def test_an_unsettled_click_gets_a_suggested_view_and_the_view_settles_it(
         [
             (PoseStamped, f"{NS}/suggested_view", LATCHED, False),
             (MarkerArray, f"{NS}/markers", LATCHED, False),
+            (String, f"{NS}/status", latched(100), True),  # every status, in order
         ],
     ) as s:
         client = s["client"]
@@ -84,6 +89,19 @@ def test_an_unsettled_click_gets_a_suggested_view_and_the_view_settles_it(
         client.wait_for(
             lambda: status().get("objects") and status()["node"]["idle"], 60, "the fit"
         )
+        # the click's status went out first: the object, unsettled, no view yet (one due) and
+        # the whole click's time; then a status with the view, and the view's time apart
+        heard = [json.loads(m.data) for m in client.history[f"{NS}/status"]]
+        shown = [st for st in heard if st.get("objects")]
+        first, last = shown[0], shown[-1]
+        o = first["objects"][0]
+        assert o["ambiguity"]["settled"] is False and o["suggested_view"] is None
+        assert first["node"]["views_due"] == 1 and not first["node"]["idle"]
+        t = first["timing_s"]
+        assert t["total"] >= t["prepare"] + t["fit"] + t["ambiguity"] - 1e-5
+        assert "suggest_view" not in t
+        assert last["objects"][0]["suggested_view"] is not None and last["node"]["idle"]
+        assert last["timing_s"]["suggest_view"] > 0 and last["timing_s"]["total"] == t["total"]
         o = status()["objects"][0]
         amb = o["ambiguity"]
         assert amb["settled"] is False and amb["reasons"], amb

@@ -7,6 +7,11 @@ State is kept in immutable records (:class:`EngineState` and its parts, in ``tra
 undo restores the previous state exactly, and every action swaps the whole state under a lock: the
 engine is safe to call from several threads. Fitting runs outside the lock; only its result is
 committed under it. The registrations file's format is read and written in ``persistence.py``.
+
+A click's object is committed as soon as its fit is judged and assessed (settled or not): where
+the sensor should look from to settle an unsettled one is not on the click's path. It is due
+(:attr:`AffordanceEngine.views_due`) and computed by :meth:`AffordanceEngine.suggest_view`
+when the caller has nothing else to do (the operator stream, once the click's status went out).
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,7 +27,7 @@ from .corrections import apply_twist, view_from_optical
 from .errors import AffordanceError, EngineStateError, SceneError, bounded
 from .memo import PerRecord
 from .persistence import REGISTRATIONS_FORMAT, load_registrations, save_registrations
-from .registration import NO_MATCH, FitResult, FitSettings, Registrar
+from .registration import NO_MATCH, FitReport, FitResult, FitSettings, Registrar
 from .scene import Scene
 from .templates import TemplateLibrary
 from .tracked import EngineState, Registration, TrackedObject
@@ -38,6 +43,20 @@ __all__ = [
     "save_registrations",
     "REGISTRATIONS_FORMAT",
 ]
+
+
+@dataclass(frozen=True, eq=False)
+class _ViewDue:
+    """An unsettled click's answer whose suggested view is still to be computed: the object,
+    the report of its fit (its ``ambiguity`` is the answer: the states that hold it get the
+    view), the scene it was fitted in and the sensor's pose then (None: unknown), and the
+    click's timing as the status shows it (the view's time joins it there)."""
+
+    object_id: int
+    report: FitReport
+    scene: Scene
+    T_scene_optical: np.ndarray | None
+    timing: dict
 
 
 class AffordanceEngine:
@@ -84,6 +103,8 @@ class AffordanceEngine:
         )
         #: the drag in progress: (object id, candidate index, pose and corrections before it)
         self._drag_start: tuple | None = None
+        #: unsettled clicks whose suggested view is still to be computed, by object id
+        self._views_due: dict[int, _ViewDue] = {}
 
     def configure(
         self, settings: FitSettings | None = None, library: TemplateLibrary | None = None
@@ -211,6 +232,7 @@ class AffordanceEngine:
                 self._drag_start = (obj_id, index, T @ T_before, corrections)
             if self._T_scene_view is not None:
                 self._T_scene_view = T @ self._T_scene_view
+            self._views_due.clear()  # (they would be computed in the old frame)
             self._frame_id = new_frame
             n, m = len(self._state.objects), len(self._state.registered)
         return (
@@ -226,6 +248,7 @@ class AffordanceEngine:
             self._state = replace(self._state, objects=(), active_id=None)
             self._undo.clear()
             self._drag_start = None
+            self._views_due.clear()
             self._last_action = "close"
         closed = (
             f"open object(s) {', '.join(map(str, ids))} closed"
@@ -258,6 +281,7 @@ class AffordanceEngine:
         """Select the object of interest near ``point`` or fit every template around it."""
         with self._lock:
             scene, version = self._scene, self._scene_version
+            T_scene_optical = self._T_scene_optical
             if scene is None:
                 raise EngineStateError("no point cloud received yet: cannot fit a click")
             p = np.asarray(point, dtype=float).reshape(-1)
@@ -271,7 +295,7 @@ class AffordanceEngine:
                     if obj.id != self._state.active_id:
                         self._commit(replace(self._state, active_id=obj.id), "select")
                     return f"selected object {obj.id}: {obj.describe()}"
-        report, view = self._fit(scene, p)  # outside the lock: fitting takes time
+        report = self.registrar.fit(scene, p)  # outside the lock: fitting takes time
         with self._lock:
             obj = TrackedObject(
                 id=self._state.next_id,
@@ -282,7 +306,6 @@ class AffordanceEngine:
                 scene_version=version,
                 fit_s=report.timing_s["total"],
                 ambiguity=report.ambiguity,
-                suggested_view=view,
             )
             self._commit(
                 replace(
@@ -293,17 +316,68 @@ class AffordanceEngine:
                 ),
                 "click",
             )
-            self._last_timing = dict(report.timing_s)
+            self._fitted(obj.id, report, scene, T_scene_optical)
             return f"object {obj.id}: {obj.describe()} ({report.timing_s['total']:.2f} s)"
 
-    def _fit(self, scene: Scene, point: np.ndarray):
-        """(the fit of a click, where the sensor should look from when it is unsettled or
-        None); the suggestion's time is in the report's timing (``suggest_view``)."""
-        report = self.registrar.fit(scene, point)
+    def _fitted(self, obj_id: int, report: FitReport, scene: Scene, T_scene_optical) -> None:
+        """A click's fit of object ``obj_id`` committed (call with the lock held): its timing
+        is the status's, and its suggested view is due when the answer is unsettled (and the
+        scan has a viewpoint to move)."""
+        self._last_timing = timing = dict(report.timing_s)
+        for key in [k for k, job in self._views_due.items() if not _holds(self._state, job)]:
+            del self._views_due[key]  # (objects gone: without a stream, none would be computed)
+        self._views_due.pop(obj_id, None)
+        amb, ctx = report.ambiguity, report.context
+        if amb is not None and not amb.settled and ctx.sensor_origin is not None:
+            self._views_due[obj_id] = _ViewDue(obj_id, report, scene, T_scene_optical, timing)
+
+    @property
+    def views_due(self) -> int:
+        """How many unsettled clicks wait for their suggested view (:meth:`suggest_view`)."""
+        with self._lock:
+            return len(self._views_due)
+
+    def suggest_view(self) -> str | None:
+        """Where the sensor should look from to settle an unsettled click
+        (:meth:`Registrar.suggest_view`), computed now for one click whose view is due -- the
+        selected object's first, else the newest -- and given to every state that still holds
+        that click's answer: the current one and those undo returns to. An answer the current
+        state no longer holds (the object was accepted, discarded, undone or fitted anew
+        meanwhile) has its view dropped, uncomputed. Returns a line on what came of it, or
+        None when no view was due. The view's time is its own (``SuggestedView.time_s``, and
+        ``suggest_view`` in the status's timing while that is the click's)."""
+        with self._lock:
+            if not self._views_due:
+                return None
+            key = self._state.active_id
+            job = self._views_due.pop(key if key in self._views_due else max(self._views_due))
+            if not _holds(self._state, job):
+                return f"object {job.object_id} changed: its suggested view is not needed"
         t0 = time.perf_counter()
-        view = self.registrar.suggest_view(report, self._T_scene_optical, scene)
-        report.timing_s["suggest_view"] = time.perf_counter() - t0
-        return report, view
+        view = self.registrar.suggest_view(job.report, job.T_scene_optical, job.scene)
+        took = time.perf_counter() - t0
+        with self._lock:
+            if self._last_timing is job.timing:
+                self._last_timing = dict(job.timing, suggest_view=took)
+            if not _holds(self._state, job):
+                return f"object {job.object_id} changed: its suggested view is dropped"
+
+            def with_view(st: EngineState) -> EngineState:
+                if not _holds(st, job):
+                    return st
+                return replace(
+                    st,
+                    objects=tuple(
+                        replace(o, suggested_view=view) if _answer_of(o, job) else o
+                        for o in st.objects
+                    ),
+                )
+
+            self._state = with_view(self._state)
+            self._undo = [(with_view(st), action) for st, action in self._undo]
+        if view is None:
+            return f"object {job.object_id}: no view within the bounds tells its rivals apart"
+        return f"object {job.object_id}: suggested view: {view.describe()} ({took:.2f} s)"
 
     def _cycle(self, step: int) -> str:
         with self._lock:
@@ -594,13 +668,14 @@ class AffordanceEngine:
             if obj is None or self._scene is None or obj.scene_version == self._scene_version:
                 return None
             scene, version = self._scene, self._scene_version
+            T_scene_optical = self._T_scene_optical
         if (
             obj.ambiguity is not None
             and not obj.ambiguity.settled
             and not obj.corrections
             and not obj.model_changes
         ):  # untouched and unsettled: the click fitted anew
-            report, view = self._fit(scene, obj.click)
+            report = self.registrar.fit(scene, obj.click)
             with self._lock:
                 if self._find(obj.id) is not obj:
                     raise EngineStateError("the object changed during the refit; refit again")
@@ -612,10 +687,10 @@ class AffordanceEngine:
                     refined=frozenset({0}),
                     scene_version=version,
                     ambiguity=report.ambiguity,
-                    suggested_view=view,
+                    suggested_view=None,
                 )
                 self._state = self._replace_object(new)
-                self._last_timing = dict(report.timing_s)
+                self._fitted(obj.id, report, scene, T_scene_optical)
                 return f"object {obj.id}: fitted again on the new cloud: {new.describe()}"
         return self.refit(coalesce=True).replace(": refit ", ": followed the new cloud: ", 1)
 
@@ -724,3 +799,13 @@ class AffordanceEngine:
                 },
                 "timing_s": {k: round(v, 6) for k, v in self._last_timing.items()},
             }
+
+
+def _answer_of(obj: TrackedObject, job: _ViewDue) -> bool:
+    """Whether ``obj`` is the object of ``job`` with that click's answer."""
+    return obj.id == job.object_id and obj.ambiguity is job.report.ambiguity
+
+
+def _holds(state: EngineState, job: _ViewDue) -> bool:
+    """Whether ``state`` holds the answer of the click ``job`` suggests a view for."""
+    return any(_answer_of(o, job) for o in state.objects)

@@ -215,15 +215,33 @@ class Outbox:
     """What changed, for the node to publish: outcomes, a change of state, the start of a long
     step. Filled from any thread (the stream's worker, the node's callbacks); ``wake()`` (given,
     now or later: the node's guard condition, say) is called after each put so that nothing
-    polls; the node drains it (:meth:`drain`) where it publishes."""
+    polls; the node drains it (:meth:`drain`) where it publishes.
+
+    A node that publishes from it says so (:meth:`connect`) and tells it each time it has
+    published (:meth:`published`): then :meth:`published_since` says whether what was put up to
+    a point (:meth:`put_count`) has gone out, and ``on_published()`` (given by the stream) is
+    called after each publication. Without a node, everything counts as published."""
 
     def __init__(self, wake: Callable[[], None] | None = None):
         #: called after each put (from the putting thread)
         self.wake: Callable[[], None] = wake or (lambda: None)
+        #: called after each publication (from the publishing thread)
+        self.on_published: Callable[[], None] = lambda: None
         self._lock = threading.Lock()
         self._outcomes: list[Outcome] = []
         self._changed = True  # the first drain publishes what there is
         self._busy = False
+        self._connected = False  # a node publishes from it
+        self._puts = 0  # puts so far
+        self._drained = 0  # ... of them, those the last drain took
+        self._published = 0  # ... and those the node has published
+
+    def connect(self, wake: Callable[[], None]) -> None:
+        """A node drains this outbox and publishes from it: ``wake`` is called after each put,
+        and the node calls :meth:`published` after each publication."""
+        with self._lock:
+            self._connected = True
+        self.wake = wake
 
     def outcome(self, kind: str, ok: bool, message: str, benign: bool = False) -> None:
         """An outcome worth saying (an empty message is not)."""
@@ -232,18 +250,21 @@ class Outbox:
         with self._lock:
             self._outcomes.append(Outcome(kind, ok, message, benign))
             self._changed = True
+            self._puts += 1
         self.wake()
 
     def changed(self) -> None:
         """Something the status, markers or TF show changed."""
         with self._lock:
             self._changed = True
+            self._puts += 1
         self.wake()
 
     def busy(self) -> None:
         """A long step (a click's fit) started: the status should say so at once."""
         with self._lock:
             self._busy = self._changed = True
+            self._puts += 1
         self.wake()
 
     def drain(self) -> Drained:
@@ -251,9 +272,26 @@ class Outbox:
         with self._lock:
             out = Drained(tuple(self._outcomes), self._changed, self._busy)
             self._outcomes, self._changed, self._busy = [], False, False
+            self._drained = self._puts
         return out
 
     def pending(self) -> bool:
         """Whether anything is waiting to be drained."""
         with self._lock:
             return bool(self._outcomes) or self._changed or self._busy
+
+    def published(self) -> None:
+        """The node published what it had drained (the state as it is now)."""
+        with self._lock:
+            self._published = self._drained
+        self.on_published()
+
+    def put_count(self) -> int:
+        """How many puts there have been so far (for :meth:`published_since`)."""
+        with self._lock:
+            return self._puts
+
+    def published_since(self, count: int) -> bool:
+        """Whether the first ``count`` puts have been published (always, without a node)."""
+        with self._lock:
+            return not self._connected or self._published >= count

@@ -19,6 +19,13 @@ The stream also owns what would otherwise depend on when messages happen to be h
 * **refit before leave**: a refit still waiting for the twists to stop belongs to the object
   they moved, so it runs before any input that leaves that object (a click, accept, next /
   previous / select model, discard); undo, refit, a joint step and a marker drag make it moot;
+* **the suggested view after the click**: where the sensor should look from to settle an
+  unsettled click is not on the click's path -- the click's object goes out first (the stream
+  waits for the node to have published it, at most ``VIEW_WAIT_S``), then the worker computes
+  the view (:meth:`AffordanceEngine.suggest_view`) when nothing else is waiting: an input that
+  arrives before it starts comes first, and the engine drops a view whose object changed
+  meanwhile (accepted, discarded, undone, fitted anew); one that arrives while it runs waits
+  for it;
 * **button edges**: a Joy message acts on the buttons that went down since the previous one;
 * **joint-axis hysteresis**: a Joy axis steps the joint once per push past the threshold and
   re-arms only after it comes back below half of it.
@@ -81,6 +88,7 @@ __all__ = [
     "LEAVING_ACTIONS",
     "MAX_QUEUED_PER_SOURCE",
     "CLICK_DEPTH",
+    "VIEW_WAIT_S",
 ]
 
 #: actions the stream accepts (``Action(name)``); ``joint_value``, ``select_model`` and
@@ -109,6 +117,9 @@ MAX_QUEUED_PER_SOURCE = 500
 #: unstarted clicks one source may have waiting: two quick clicks on two objects are both fitted;
 #: a third supersedes the newer waiting one (the first and the latest intent are kept)
 CLICK_DEPTH = 2
+
+#: a suggested view waits for the node to publish the click's status at most this long (s)
+VIEW_WAIT_S = 1.0
 
 #: the actions Joy buttons can be mapped to
 #: the largest Joy button or axis index a knob takes
@@ -303,6 +314,16 @@ class OperatorStream:
         self._buttons: tuple = ()
         self._axis_sign = 0
         self._last_follow = -math.inf
+        # a suggested view waits for what was put up to here to be published (or this time)
+        self._view_after = 0
+        self._view_deadline = -math.inf
+        cv = self._cv
+
+        def published() -> None:  # (holds the condition only: the stream is freed as before)
+            with cv:
+                cv.notify_all()
+
+        self.outbox.on_published = published
 
     # ------------------------------------------------------------------ settings
     def configure(self, settings: OperatorSettings) -> None:
@@ -417,7 +438,9 @@ class OperatorStream:
     def status(self) -> dict:
         """``busy`` (what the worker does now, or None), ``queued`` inputs, ``received`` and
         ``handled`` inputs per source, ``pending_refit`` (twists moved the object and its refit
-        waits for them to stop) and ``idle`` (none of these)."""
+        waits for them to stop), ``views_due`` (unsettled clicks whose suggested view is still
+        to be computed) and ``idle`` (none of these)."""
+        views = self.engine.views_due
         with self._cv:
             return {
                 "busy": self._busy,
@@ -425,7 +448,11 @@ class OperatorStream:
                 "received": dict(self._received),
                 "handled": dict(self._handled),
                 "pending_refit": self._pending_refit,
-                "idle": self._busy is None and not self._queue and not self._pending_refit,
+                "views_due": views,
+                "idle": self._busy is None
+                and not self._queue
+                and not self._pending_refit
+                and not views,
             }
 
     def idle_refit_due(self) -> float | None:
@@ -437,25 +464,29 @@ class OperatorStream:
 
     # ------------------------------------------------------------------ handling
     def process_pending(self) -> int:
-        """Handle everything queued, then the idle refit if the clock says it is due. Returns the
-        number of inputs handled (the refit not counted). For tests in simulated time."""
+        """Handle everything queued, then the idle refit if the clock says it is due, then the
+        suggested views due. Returns the number of inputs handled (the refit and the views not
+        counted). For tests in simulated time."""
         n = 0
         while self._step():
             n += 1
         self._idle_refit_if_due()
+        while self._suggest_view_if_ready():
+            pass
         return n
 
     def run(self, stop: threading.Event) -> None:
         """The worker loop: handle inputs in order until ``stop`` is set; refit moved objects
-        once the twists stopped."""
+        once the twists stopped; suggest views for unsettled clicks when nothing else waits."""
         while not stop.is_set():
             with self._cv:
-                if not self._queue:
+                if not self._queue and not self._view_ready():
                     due = self.idle_refit_due()
                     wait = 0.1 if due is None else min(0.1, max(0.0, due - self.clock()))
                     self._cv.wait(timeout=wait)
             if not self._step():
                 self._idle_refit_if_due()
+                self._suggest_view_if_ready()
 
     def _step(self) -> bool:
         with self._cv:
@@ -488,6 +519,47 @@ class OperatorStream:
         with self._cv:
             self._busy = None
             self._handled[item.source] = self._handled.get(item.source, 0) + 1
+        self.outbox.changed()
+        self._view_after_publication()
+        return True
+
+    def _view_after_publication(self) -> None:
+        """A suggested view waits for what the outbox holds now to be published (at most
+        VIEW_WAIT_S): the status of the click it belongs to goes out first."""
+        after = self.outbox.put_count()
+        with self._cv:
+            self._view_after, self._view_deadline = after, self.clock() + VIEW_WAIT_S
+
+    def _view_ready(self) -> bool:
+        """Whether a suggested view may be computed now: one is due, no refit waits for the
+        twists to stop, and the node has published what came before it (or waited too long;
+        call with ``_cv`` held)."""
+        return (
+            not self._pending_refit
+            and self.engine.views_due > 0
+            and (
+                self.outbox.published_since(self._view_after)
+                or self.clock() >= self._view_deadline
+            )
+        )
+
+    def _suggest_view_if_ready(self) -> bool:
+        """Compute one suggested view when nothing is queued and it is ready (see
+        :meth:`_view_ready`); True when one was. A view's success is in the status (the
+        object's ``suggested_view``), not said; a failure is."""
+        with self._cv:
+            if self._queue or not self._view_ready():
+                return False
+            self._busy = "suggesting where the sensor should look from"
+        try:
+            self.engine.suggest_view()
+        except AffordanceError as exc:
+            self._say("suggest_view", False, f"suggested view: {exc}")
+        except Exception as exc:  # a bug must not kill the worker
+            self._say("suggest_view", False, f"internal error while suggesting a view: {exc!r}")
+        finally:
+            with self._cv:
+                self._busy = None
         self.outbox.changed()
         return True
 

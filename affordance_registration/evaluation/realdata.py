@@ -933,7 +933,8 @@ def evaluate_scene(
     a composite of several, ``object_kinds`` {id: kind} gives it), ``n_points``, ``click`` (3
     floats), ``pixel`` (row, column), what :func:`fit_record` records of the best candidate
     (``template``, ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason``,
-    ``T_scene_model``, ``score``, with ``refined`` ``refined_score``), ``time_s`` (the fit's
+    ``T_scene_model``, ``score``, with ``refined`` ``refined_score``), ``settled`` (whether the
+    click's answer is settled, the report's ``ambiguity``; None without one), ``time_s`` (the fit's
     wall time) and ``error`` (a fit that raised: its one-line message, the other fields
     None)."""
     from ..core.scene import Scene
@@ -968,6 +969,7 @@ def evaluate_scene(
             "explained": None,
             "reason": None,
             "T_scene_model": None,
+            "settled": None,
             "score": None,
             "refined_score": None,
             "time_s": None,
@@ -975,7 +977,8 @@ def evaluate_scene(
         }
         t0 = time.perf_counter()
         try:
-            best = registrar.fit(scene, obj.click).candidates[0]
+            report = registrar.fit(scene, obj.click)
+            best = report.candidates[0]
         except AffordanceError as exc:
             rec["time_s"] = time.perf_counter() - t0
             rec["error"] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -983,5 +986,6 @@ def evaluate_scene(
             continue
         rec["time_s"] = time.perf_counter() - t0
         rec.update(fit_record(cloud, obj, best, what, refined))
+        rec["settled"] = getattr(getattr(report, "ambiguity", None), "settled", None)
         records.append(rec)
     return records

@@ -8,7 +8,7 @@ the core engine (interleaved: node click, then the in-process one), so the row i
 one machine whatever its load:
 
 * click -> status / in-process fit: from publishing the click to the ``~/status`` that shows
-  its fit (the node idle again), over the in-process ``AffordanceEngine.click`` on the same
+  its fit (the node's inputs handled), over the in-process ``AffordanceEngine.click`` on the same
   cloud and point (median of the per-click ratios); and the fit's own time in the node (the
   status's ``timing_s``) over the in-process one, which tells a fit slowed down in the node
   from work the node adds around it;
@@ -47,9 +47,9 @@ MARKERS_TOPIC = f"{NS}/markers"
 class _Arrivals:
     """Arrival times (monotonic s) of ``~/markers`` messages with their serialized sizes (bytes)
     and the objects whose candidate they draw, and of ``~/status`` messages with the selected
-    object's id and whether the node was idle. A click's status and its markers are each found
-    by what they show (an object not known before the click), not by the order the two
-    callbacks ran in: on a loaded machine the markers' callback may run first.
+    object's id and whether the node had handled its inputs. A click's status and its markers
+    are each found by what they show (an object not known before the click), not by the order
+    the two callbacks ran in: on a loaded machine the markers' callback may run first.
 
     The markers are taken as they came (serialized) and read only when asked for: reading a
     MarkerArray of tens of objects into Python costs this process CPU that the node, fitting
@@ -67,10 +67,11 @@ class _Arrivals:
         st = json.loads(msg.data)
         active = next((o["id"] for o in st.get("objects", []) if o.get("active")), None)
         fit_s = (st.get("timing_s") or {}).get("total")
+        node = st.get("node") or {}
+        # the inputs handled (a suggested view may still be due: it is not the click's)
+        done = not (node.get("busy") or node.get("queued") or node.get("pending_refit"))
         with self._cv:
-            self.status.append(
-                (time.monotonic(), active, bool(st.get("node", {}).get("idle")), fit_s)
-            )
+            self.status.append((time.monotonic(), active, done, fit_s))
             self._cv.notify_all()
 
     def _on_markers(self, raw: bytes):
@@ -92,14 +93,14 @@ class _Arrivals:
 
     def status_showing(self, t0: float, known: set, timeout: float = 10.0) -> tuple | None:
         """(when it arrived, the node's fit time in it (s)) of the first status after ``t0``
-        that selects an object not in ``known`` with the node idle (the status that shows a
-        click's fit); waits up to ``timeout``."""
+        that selects an object not in ``known`` with the node's inputs handled (the status that
+        shows a click's fit; a suggested view comes after it); waits up to ``timeout``."""
         return self._first(
             lambda: next(
                 (
                     (t, fit_s)
-                    for t, active, idle, fit_s in self.status
-                    if t >= t0 and idle and active is not None and active not in known
+                    for t, active, done, fit_s in self.status
+                    if t >= t0 and done and active is not None and active not in known
                 ),
                 None,
             ),

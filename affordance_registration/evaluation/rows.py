@@ -76,6 +76,12 @@ def _kinect_summary(records: list) -> dict:
     for r in records:
         if r["uniform_kind"] is not None:
             kind_flags.append(r["primitive"] == r["uniform_kind"])
+    # the clicks whose shown primitive fits and passes the label score: settled?
+    right = [
+        r.get("settled")
+        for r in records
+        if r["primitive"] is not None and r["fits"] and (r["score"] or {}).get("passes")
+    ]
     return {
         "scenes": len({r["scene"] for r in records}),
         "objects": len(records),
@@ -98,6 +104,8 @@ def _kinect_summary(records: list) -> dict:
         if refined
         else None,
         "refined_objects": sum(bool(r.get("refined_score")) for r in records),
+        "right_settled": _share(right) if right else None,
+        "right_objects": len(right),
         "median_s": _median([r["time_s"] for r in records]),
     }
 
@@ -117,7 +125,9 @@ def real_kinect_rows(
     scenes whose objects are all boxes or all cylinders, ``realdata.ALL_OF_KIND``, fitted as
     that primitive), ``median_s`` per click; with ``refined``, ``refined_pass``: the share of
     the objects fitted with their own kind whose fit, refined on their labelled points
-    (:mod:`.label_ceiling`), passes the label score (``refined_objects`` of them). None where
+    (:mod:`.label_ceiling`), passes the label score (``refined_objects`` of them);
+    ``right_settled``: of the clicks whose shown primitive fits and passes the label score
+    (``right_objects``), the share whose answer is settled. None where
     the registrar gives no
     primitives (or there is no data: every summary then has 0 objects)."""
     from ..core.registration import Registrar
@@ -142,12 +152,20 @@ def real_kinect_rows(
 
 
 def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | None:
-    """What a click on a real capture costs against a simulated bench click, in one process
-    with one ``registrar``: mOSD objects (``scenes``, default the 15 learn scenes of the earlier
-    rounds, ``realdata.ORIGINAL_SCENES``, so that the row picks the same clicks; clicked in
-    their middle) and the simulated ``jobs`` ((scene, object) pairs) fitted alternately, a
-    real click then a simulated one, ``clicks`` pairs. Returns {"pairs", "real_median_s",
-    "simulated_median_s", "ratio"} (the median of the pairs' ratios), None without data."""
+    """What the engine's click costs on a real capture against a simulated bench click, in one
+    process: the click the node runs (``AffordanceEngine.click``: the fit, its verdict, the
+    primitives, whether it is settled), on one engine with ``registrar``'s library and
+    settings, alternately on mOSD objects (``scenes``, default the 15 learn scenes of the
+    earlier rounds, ``realdata.ORIGINAL_SCENES``, so that the row picks the same clicks;
+    clicked in their middle) and on the simulated ``jobs`` ((scene, object) pairs), a real
+    click then a simulated one, ``clicks`` pairs. CPU time (``time.process_time``: every
+    thread of this process, whatever else the shared machine runs). The suggested view of an
+    unsettled real click is computed after it, as the node does once the click's status went
+    out (``AffordanceEngine.suggest_view``), and timed apart. Returns {"pairs",
+    "real_median_s", "simulated_median_s", "ratio" (the median of the pairs' ratios),
+    "views" (the real clicks that were unsettled), "view_median_s" (their views' CPU time;
+    None without one), "clock": "cpu"}, None without data."""
+    from ..core.engine import AffordanceEngine
     from ..core.scene import Scene
     from .realdata import labelled_objects, read_labelled_pcd
 
@@ -160,23 +178,38 @@ def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | 
     n = min(clicks, len(real), len(jobs))
     if n == 0:
         return None
+    engine = AffordanceEngine(registrar.library, registrar.settings)
+
+    def click(scene, point) -> float:
+        """The CPU time of the engine's click at ``point`` in ``scene`` (the object is then
+        discarded: the next click is a new object)."""
+        engine.set_scene(scene)
+        t0 = time.process_time()
+        engine.click(point)
+        return time.process_time() - t0
+
     pick = np.linspace(0, len(real) - 1, n).astype(int)  # spread over the scenes
-    times = []
+    times, views = [], []
     for k in range(n):
-        scene, click = real[pick[k]]
-        t0 = time.perf_counter()
-        registrar.fit(scene, click)
-        t_real = time.perf_counter() - t0
+        t_real = click(*real[pick[k]])
+        if engine.views_due:
+            t0 = time.process_time()
+            engine.suggest_view()
+            views.append(time.process_time() - t0)
+        engine.discard()
         scene, obj = jobs[k % len(jobs)]
-        t0 = time.perf_counter()
-        registrar.fit(scene, obj.click)
-        times.append((t_real, time.perf_counter() - t0))
+        times.append((t_real, click(scene, obj.click)))
+        engine.discard()
+        engine.suggest_view()  # (a simulated click's due view: dropped, not computed)
     t = np.array(times)
     return {
         "pairs": n,
         "real_median_s": float(np.median(t[:, 0])),
         "simulated_median_s": float(np.median(t[:, 1])),
         "ratio": float(np.median(t[:, 0] / t[:, 1])),
+        "views": len(views),
+        "view_median_s": float(np.median(views)) if views else None,
+        "clock": "cpu",
     }
 
 

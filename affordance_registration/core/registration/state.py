@@ -96,14 +96,20 @@ class FitState:
 
     def report(self) -> FitReport:
         """The :class:`~.results.FitReport` of the click. Its ``timing_s``: ``prepare``,
-        ``fit`` (every stage after it but the ambiguity), ``total`` (the two), ``ambiguity``,
-        ``primitives`` where primitives were measured, and every other stage that ran its own
-        time under its name."""
+        ``fit`` (every stage after it but the ambiguity: the templates, their verdict, the
+        primitives), ``ambiguity`` (whether the answer is settled), ``total`` (the three: the
+        whole click), ``primitives`` where primitives were measured, and every other stage that
+        ran its own time under its name."""
         seconds = self.seconds()
         ambiguity = seconds.pop(AMBIGUITY, 0.0)
         prepare = seconds.pop("prepare", 0.0)
         fit = self.fit_seconds()
-        timing = {"prepare": prepare, "fit": fit, "total": prepare + fit, "ambiguity": ambiguity}
+        timing = {
+            "prepare": prepare,
+            "fit": fit,
+            "total": prepare + fit + ambiguity,
+            "ambiguity": ambiguity,
+        }
         if "primitives" in seconds:
             timing["primitives"] = seconds.pop("primitives")
         timing.update(seconds)

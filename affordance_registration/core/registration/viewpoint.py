@@ -38,15 +38,12 @@ import numpy as np
 from scipy.ndimage import minimum_filter
 
 from ..scene import ClickContext
-from ..transforms import axis_angle_matrix, make_T
-from .ambiguity import Ambiguity, Hypothesis, pose_hessian
+from .ambiguity import WEAK_STEP, Ambiguity, Hypothesis, moved_along, pose_hessian
 from .parallel import parts, run
 from .settings import FitSettings
 
 __all__ = ["SuggestedView", "suggest_view", "predict_views", "optical_pose", "WEAK_STEP"]
 
-#: a weakly held pose's rival is moved along its weak motion until its samples move this far (m)
-WEAK_STEP = 0.02
 GOLDEN = math.pi * (3.0 - math.sqrt(5.0))
 #: the predicted views of one hypothesis hold at most this many bins in all (V x n x n; at the
 #: defaults 121 views of about 170 x 170)
@@ -152,20 +149,15 @@ def _weak_rivals(
     held = pose_hessian(ctx, best.model, best.T_scene_model, settings)
     if held is None:
         return []
-    return [_moved(best, held, np.asarray(amb.weak_direction, float) * sign) for sign in (1, -1)]
-
-
-def _moved(best: Hypothesis, held, m: np.ndarray) -> Hypothesis:
-    """``best`` moved by the motion ``m`` (rotation, translation about the held samples'
-    centroid) scaled so that its samples move ``WEAK_STEP``."""
-    _, c, L = held
-    w, v = m[:3], m[3:]
-    step = WEAK_STEP / max(float(np.linalg.norm(v) + np.linalg.norm(w) * L), 1e-9)
-    angle = step * float(np.linalg.norm(w))
-    R = axis_angle_matrix(w / max(np.linalg.norm(w), 1e-12), angle) if angle > 0 else np.eye(3)
-    T = best.T_scene_model
-    moved = make_T(R @ T[:3, :3], R @ (T[:3, 3] - c) + c + step * v)
-    return Hypothesis(best.template, moved, best.residual, best.model)
+    return [
+        Hypothesis(
+            best.template,
+            moved_along(best.T_scene_model, held, np.asarray(amb.weak_direction, float) * sign),
+            best.residual,
+            best.model,
+        )
+        for sign in (1, -1)
+    ]
 
 
 def _occluders(ctx: ClickContext) -> np.ndarray:

@@ -100,7 +100,7 @@ class EngineOutput:
         #: where the sensor should look from to settle the selected object (optical frame)
         self.pub_view = node.create_publisher(PoseStamped, "~/suggested_view", LATCHED)
         self.guard = node.create_guard_condition(self.on_wake)
-        self.outbox.wake = self.guard.trigger
+        self.outbox.connect(self.guard.trigger)
 
     # ------------------------------------------------------------------ the outbox
     def on_wake(self) -> None:
@@ -176,6 +176,7 @@ class EngineOutput:
             "queued": stream["queued"],
             "idle": stream["idle"],
             "pending_refit": stream["pending_refit"],
+            "views_due": stream["views_due"],
             "received": stream["received"],
             "handled": handled,
             "cloud": None
@@ -231,3 +232,4 @@ class EngineOutput:
             self._markers_of = drawn
         if self.interactive is not None:
             self.interactive.sync()
+        self.outbox.published()  # (the stream waits for this before a suggested view)

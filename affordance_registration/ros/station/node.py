@@ -24,8 +24,9 @@ under the first click then sets it (``core.display``). On the page the operator
   engine's std_srvs/Trigger services) or picks a candidate by name (``<engine>/select_model``);
 * sees the engine's waypoint grippers (the "Waypoints" toggle hides them) and, with "Show path",
   the path of the selected object's waypoint to the state typed in "Path to state" (``paths.py``);
-* presses "Move sensor here" (shown while the open object is unsettled and the engine suggests a
-  view; the view's frustum is drawn with "Suggested view" in the details): that view goes out
+* presses "Move sensor here" (shown while the open object is unsettled, the engine suggests a
+  view and something subscribes to ``sensor_view_request`` -- nothing does for a scan read from
+  a file; the view's frustum is drawn with "Suggested view" in the details): that view goes out
   on ``sensor_view_request`` (geometry_msgs/PoseStamped, an optical frame in the cloud's frame)
   for whatever moves the sensor (in ``station --demo``, the simulated scan node);
 * looks around: the browser camera is published on ``view_pose`` (an optical frame in the cloud's
@@ -221,6 +222,7 @@ class StationNode(Node):
         self._drawings: dict = {}
         self._status: dict | None = None
         self._connected = False
+        self._movers = False  # something subscribes to sensor_view_request
         self._cloud = _CloudShown("none received yet on " + self.resolve_topic_name("points"))
         self._drawn = _Drawn()
         self._last_action = ""
@@ -538,6 +540,7 @@ class StationNode(Node):
                 self._show_cloud(self._cloud.message)  # the engine's frame changed: drawn there
         refresh = self._settle_pending_click(now) or refresh
         refresh = self._watch_engine(now) or refresh
+        refresh = self._watch_movers() or refresh
         if refresh:
             # the panel first, in a message window of its own: the browser applies a window
             # that touches only the panel at once, one with scene changes (the fitting marker,
@@ -616,6 +619,13 @@ class StationNode(Node):
             )
         return changed
 
+    def _watch_movers(self) -> bool:
+        """Whether something moves the sensor: a subscriber to ``sensor_view_request`` ("Move
+        sensor here" is offered only then). True when that changed."""
+        movers = self.pub_sensor.get_subscription_count() > 0
+        changed, self._movers = movers != self._movers, movers
+        return changed
+
     def _send_view(self, view: np.ndarray | None, now: float) -> None:
         """The browser's camera on ``view_pose``, at most ``view_rate`` times a second."""
         # view_pose is volatile and the camera is only reported when it moves: a subscriber that
@@ -682,7 +692,9 @@ class StationNode(Node):
         shown = obj["candidates"][obj["shown"]] if obj else {}
         self.page.show_dimensions(shown.get("dimensions") if shown.get("primitive") else None)
         self.page.enable(self._connected)
-        self.page.show_move_sensor(self._connected and suggested_pose(obj) is not None)
+        self.page.show_move_sensor(
+            self._connected and self._movers and suggested_pose(obj) is not None
+        )
 
     def _render_scene(self) -> None:
         obj = active_object(self._status)
