@@ -17,10 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..compiled import kernels
 from ..scene import ClickContext
 from ..transforms import pose_points, rotate
 from .correspondences import (
+    PLANE_BAND,
     Pairs,
+    compiled_tree,
     contact_rows,
     forward_pairs,
     in_contact,
@@ -31,7 +34,8 @@ from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
 from .settings import FINE, FINE_CONVERGED, SAMPLE_SEED, FitSettings, Stage
-from .solve import plane_step, rigid_step
+from .solve import Step, plane_step, rigid_step
+from .visibility import compiled_view
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
 
@@ -124,10 +128,23 @@ def _icp(
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))  # the hypotheses still moving
     first, stop = span if span is not None else (0, stage.iterations)
+    fused = None if fine or contact or unknowns else _Fused.of(ctx, stage.target, settings)
     it = first - 1
     for it in range(first, stop):
         radius = radius_schedule(reject[active], floor[active], it, stage.iterations)
         Ra, ta = R[active], t[active]
+        if fused is not None:
+            step = fused.step(posing, active, Ra, ta, radius)
+            R[active] = step.R @ Ra
+            t[active] = (step.R @ ta[:, :, None])[:, :, 0] + step.t
+            done = (step.rotation < small * CONVERGED_ROTATION) & (
+                step.motion < small * CONVERGED_TRANSLATION
+            )
+            converged[active[done]] = True
+            active = active[~done]
+            if not len(active):
+                break
+            continue
         X, Nw, U, moving = posing.posed(Ra, ta, active)
         Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
         pairs = forward = Pairs(X, Q, Nq, w, U, moving)
@@ -197,6 +214,53 @@ def fine_stage(
         contact=contact,
         converge=converge,
     )
+
+
+class _Fused:
+    """The point-to-point step of the voxelized stages as one compiled kernel
+    (:func:`..compiled._rigid_step`): posing, visibility, the plane band, the nearest target
+    point (a compiled KD-tree: the same neighbours), the weights and the weighted SVD in one
+    call per iteration, the GIL released. The same numbers as the numpy path but for the
+    rounding of its sums (the golden fits' tolerance holds them, ``test/test_compiled.py``)."""
+
+    def __init__(self, k, tree, view):
+        self.k, self.tree, (self.view, self.frame, self.depth) = k, tree, view
+        self.guess = None  # each sample's last partner (where its next search starts)
+
+    @staticmethod
+    def of(ctx: ClickContext, target: str, settings: FitSettings) -> "_Fused | None":
+        """The fused step for ``target``, or None where the compiled kernels are not in use
+        (or correspondences are projective)."""
+        k = kernels()
+        if k is None or settings.icp.projective:
+            return None
+        view = compiled_view(
+            ctx, settings, PLANE_BAND * ctx.plane_threshold, settings.icp.weight_scale
+        )
+        return _Fused(k, compiled_tree(ctx, target), view)
+
+    def step(self, posing: "_Posing", active, R, t, radius) -> Step:
+        b = len(active)
+        if self.guess is None:
+            self.guess = np.full(posing.P.shape[:2], -1, dtype=np.int64)
+        out_R, out_t, out_c = np.empty((b, 3, 3)), np.empty((b, 3)), np.empty((b, 3))
+        self.k.rigid_step(
+            posing.P,
+            posing.N,
+            np.ascontiguousarray(active, dtype=np.int64),
+            np.ascontiguousarray(R, dtype=float),
+            np.ascontiguousarray(t, dtype=float),
+            np.ascontiguousarray(radius, dtype=float),
+            self.view,
+            self.frame,
+            self.depth,
+            self.tree.arrays,
+            self.guess,
+            out_R,
+            out_t,
+            out_c,
+        )
+        return Step(out_R, out_t, out_c, np.zeros((b, 0)))
 
 
 class _Posing:
