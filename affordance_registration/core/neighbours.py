@@ -39,6 +39,7 @@ __all__ = [
     "nearest",
     "nearest_distances",
     "nearest_in",
+    "compiled_tree_of",
     "k_nearest",
     "pairs_within",
     "pca_normals",
@@ -148,10 +149,16 @@ def nearest_in(owner, tree: KDTree, points: np.ndarray, upper: float = np.inf):
     """:func:`nearest` (the same numbers) from the compiled KD-tree over ``tree``'s points
     (:class:`.compiled.NearestTree`), kept with ``owner`` (the object holding ``tree``) and
     built when first asked, where the compiled kernels are in use; else from ``tree``."""
+    compiled = compiled_tree_of(owner, tree)
+    return nearest(tree, points, upper) if compiled is None else compiled.nearest(points, upper)
+
+
+def compiled_tree_of(owner, tree: KDTree) -> NearestTree | None:
+    """The compiled KD-tree over ``tree``'s points, kept with ``owner`` (the object holding
+    ``tree``), or None where the compiled kernels are not in use."""
     if kernels() is None:
-        return nearest(tree, points, upper)
-    compiled = per_object(owner, ("tree", id(tree)), lambda: NearestTree(tree_points(tree)))
-    return compiled.nearest(points, upper)
+        return None
+    return per_object(owner, ("tree", id(tree)), lambda: NearestTree(tree_points(tree)))
 
 
 def k_nearest(tree: KDTree, points: np.ndarray, k: int) -> np.ndarray:
