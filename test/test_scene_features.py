@@ -21,16 +21,18 @@ def test_scene_descriptors_are_computed_once_a_click_and_go_with_it():
     registrar = Registrar(library)
     ctx = registrar.prepare(Scene(sim.organized), sim.objects[0].click)
     crop, cluster = features._scene_features(ctx), features._cluster_features(ctx)
-    assert crop.shape == (len(ctx.crop), 33) and cluster.shape == (len(ctx.cluster), 33)
+    paired = features._paired(ctx)
+    assert len(ctx.crop) > len(paired) == features.MAX_PAIRS  # (a subset: can differ)
+    assert crop.shape == (len(paired), 33) and cluster.shape == (len(ctx.cluster), 33)
     assert features._scene_features(ctx) is crop and features._cluster_features(ctx) is cluster
     assert not crop.flags.writeable  # shared: nobody may change it
-    # what the memo gives is what computing it afresh gives
+    # what the memo gives is what computing every crop point's afresh gives at those points
     fresh = features._fpfh(
         ctx.crop,
         features._normals(ctx, ctx.crop, ctx.crop_tree),
         features.FEATURE_RADIUS * ctx.voxel,
     )
-    np.testing.assert_array_equal(crop, fresh)
+    np.testing.assert_array_equal(crop, fresh[paired])
     # another context of the same click has its own; the memo goes with each context
     other = registrar.prepare(Scene(sim.organized), sim.objects[0].click)
     assert features._scene_features(other) is not crop

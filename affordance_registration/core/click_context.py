@@ -68,7 +68,7 @@ class RangeImage:
     def lookup_offsets(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`lookup` of points given as their offsets (..., 3) from the sensor origin."""
         flat, z = self.bins(offsets)
-        return self._depth_or_nan[flat], z
+        return self.depth_or_nan[flat], z
 
     def bins(self, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The flat bin (...,) of each of the points given as offsets (..., 3) from the sensor
@@ -95,7 +95,7 @@ class RangeImage:
         return out
 
     @cached_property
-    def _depth_or_nan(self) -> np.ndarray:
+    def depth_or_nan(self) -> np.ndarray:
         """``depth`` followed by one NaN (what a lookup outside the image reads)."""
         return np.append(self.depth, np.nan)
 
@@ -191,10 +191,17 @@ class ClickContext:
         return self._segmentation[1]
 
     @cached_property
-    def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
-        labels, patches = segments_and_patches(
+    def _found_segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """The cluster's segments and patches as found, an inside not joined yet: shared with
+        the copies :meth:`with_insides` makes (the segmentation is a click's dearest step
+        after the fit; it is done once)."""
+        return segments_and_patches(
             self.cluster, self.sensor_origin, self.voxel, self.cluster_tree
         )
+
+    @cached_property
+    def _segmentation(self) -> tuple[np.ndarray, np.ndarray]:
+        labels, patches = self._found_segments
         if self.insides and self.plane is not None:
             clicked = labels[int(np.argmin(self._cluster_to_click))]
             labels = joined_insides(
@@ -213,6 +220,7 @@ class ClickContext:
         as a primitive measures the clicked object; itself where it is so already."""
         if self.insides:
             return self
+        self._found_segments  # (found here, shared with the copy)
         out = self._segmented_again()
         out.__dict__.pop("_segmentation", None)
         out.insides = True

@@ -29,7 +29,7 @@ from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
-from .compiled import DistanceGrid, grid_cell
+from .compiled import DistanceGrid, NearestTree, grid_cell, kernels
 from .memo import per_object
 
 __all__ = [
@@ -38,6 +38,8 @@ __all__ = [
     "tree_points",
     "nearest",
     "nearest_distances",
+    "nearest_in",
+    "compiled_tree_of",
     "k_nearest",
     "pairs_within",
     "pca_normals",
@@ -139,7 +141,24 @@ def nearest_distances(tree: KDTree, points: np.ndarray, upper: float, owner=None
         if cell is not None:
             grid = per_object(owner, ("grid", id(tree), cell), lambda: DistanceGrid(pts, cell))
             return grid.distances(points, upper)
+        return nearest_in(owner, tree, points, upper)[0]
     return nearest(tree, points, upper)[0]
+
+
+def nearest_in(owner, tree: KDTree, points: np.ndarray, upper: float = np.inf):
+    """:func:`nearest` (the same numbers) from the compiled KD-tree over ``tree``'s points
+    (:class:`.compiled.NearestTree`), kept with ``owner`` (the object holding ``tree``) and
+    built when first asked, where the compiled kernels are in use; else from ``tree``."""
+    compiled = compiled_tree_of(owner, tree)
+    return nearest(tree, points, upper) if compiled is None else compiled.nearest(points, upper)
+
+
+def compiled_tree_of(owner, tree: KDTree) -> NearestTree | None:
+    """The compiled KD-tree over ``tree``'s points, kept with ``owner`` (the object holding
+    ``tree``), or None where the compiled kernels are not in use."""
+    if kernels() is None:
+        return None
+    return per_object(owner, ("tree", id(tree)), lambda: NearestTree(tree_points(tree)))
 
 
 def k_nearest(tree: KDTree, points: np.ndarray, k: int) -> np.ndarray:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..compiled import NearestTree, kernels
 from ..memo import per_object
 from ..neighbours import nearest, tree_points
 from ..scene import ClickContext
@@ -32,6 +33,8 @@ __all__ = [
     "in_contact",
     "stack_samples",
     "in_sphere",
+    "compiled_tree",
+    "PLANE_BAND",
 ]
 
 PLANE_BAND = 1.5  #: samples within this many plane thresholds pair with the plane
@@ -107,7 +110,11 @@ def forward_pairs(
     if settings.icp.projective and ctx.range_image is not None:
         d_v, i_v = _projective(ctx, target, pts, Xf[rows])
     else:
-        d_v, i_v = nearest(tree, Xf[rows], float(radius.max()), parallel=True)
+        fast = compiled_tree(ctx, target)  # (the same neighbours, fewer calls' overhead)
+        if fast is not None:
+            d_v, i_v = fast.nearest(Xf[rows], float(radius.max()))
+        else:
+            d_v, i_v = nearest(tree, Xf[rows], float(radius.max()), parallel=True)
     dist[rows] = d_v
     Q[rows] = pts[i_v]
     if normals:
@@ -115,6 +122,16 @@ def forward_pairs(
     dist = dist.reshape(shape)
     w = correspondence_weights(dist, radius[:, None], settings.icp.weight_scale)
     return Q.reshape(X.shape), Nq.reshape(X.shape), w
+
+
+def compiled_tree(ctx: ClickContext, target: str) -> NearestTree | None:
+    """The compiled KD-tree over the ``target`` points (:class:`..compiled.NearestTree`: the
+    same neighbours as the click's own tree), kept with the click; None where the compiled
+    kernels are not in use."""
+    if kernels() is None:
+        return None
+    tree = ctx.cluster_tree if target == CLUSTER else ctx.fine_tree
+    return per_object(ctx, ("compiled tree", target), lambda: NearestTree(tree_points(tree)))
 
 
 def _projective(ctx: ClickContext, target: str, pts: np.ndarray, X: np.ndarray):

@@ -22,10 +22,12 @@ too few runs). (Mesh templates use neither source: the taskboard parts are found
 mounting prior, and their results stay as they were.)
 
 What a scanned template costs a click (a real mOSD click with PCL's milk carton as the one
-scanned template, CPU): the three RANSAC runs about 0.9-1.0 s, the crop's descriptors 165-233
-ms and the cluster's 68-159 ms, the crop matching's own RANSAC 30-50 ms. The scene's
-descriptors are the click's, not the template's: they are computed once a click context
-(:func:`_per_click`) and shared by every scanned template of the library.
+scanned template, CPU): the three RANSAC runs about 0.9-1.0 s, the crop's descriptors 145-175
+ms (at the MAX_PAIRS crop points that get a partner only, their neighbourhoods in the whole
+crop: the same descriptors as the whole crop's there, which cost 200-280 ms) and the
+cluster's 68-159 ms, the crop matching's own RANSAC 30-50 ms. The scene's descriptors are the
+click's, not the template's: they are computed once a click context (:func:`_per_click`) and
+shared by every scanned template of the library.
 """
 
 from __future__ import annotations
@@ -77,15 +79,17 @@ def _per_click(ctx: ClickContext, what: str, compute):
     return per_object(ctx, ("features", what), shared)
 
 
-def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
-    """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3)."""
+def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float, at=None) -> np.ndarray:
+    """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3); ``at``: of those
+    points only (indices, (M, 33) -- the same descriptors, their neighbourhoods still in all
+    the points)."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
-    feat = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100)
-    )
+    param = o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100)
+    compute = o3d.pipelines.registration.compute_fpfh_feature
+    feat = compute(cloud, param) if at is None else compute(cloud, param, np.asarray(at).tolist())
     return np.asarray(feat.data).T.copy()
 
 
@@ -116,15 +120,26 @@ def _normals(ctx: ClickContext, points: np.ndarray, tree) -> np.ndarray:
 
 
 def _scene_features(ctx: ClickContext):
-    """The crop's descriptors (normals towards the sensor, or away from the crop's centre
-    without one), once a click."""
+    """The descriptors of the crop points :func:`_paired` names (normals towards the sensor,
+    or away from the crop's centre without one; their neighbourhoods in the whole crop), once
+    a click."""
     return _per_click(
         ctx,
         "crop",
         lambda: _fpfh(
-            ctx.crop, _normals(ctx, ctx.crop, ctx.crop_tree), FEATURE_RADIUS * ctx.voxel
+            ctx.crop,
+            _normals(ctx, ctx.crop, ctx.crop_tree),
+            FEATURE_RADIUS * ctx.voxel,
+            _paired(ctx),
         ),
     )
+
+
+def _paired(ctx: ClickContext) -> np.ndarray:
+    """The crop points (indices) that get a template partner: at most ``MAX_PAIRS``, evenly
+    spread."""
+    n = len(ctx.crop)
+    return np.unique(np.linspace(0, n - 1, min(n, MAX_PAIRS)).astype(int))
 
 
 def _cluster_features(ctx: ClickContext):
@@ -198,12 +213,12 @@ def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> li
     if len(ctx.crop) < 10:
         return []
     P, _, F = _template_features(model, ctx.voxel)
-    G = _scene_features(ctx)
-    # each crop point's nearest template descriptor (33-D: scipy's tree, not the spatial one)
-    s_idx = np.unique(np.linspace(0, len(G) - 1, min(len(G), MAX_PAIRS)).astype(int))
+    s_idx = _paired(ctx)
     if len(s_idx) < 6:
         return []
-    _, i_sm = cKDTree(F).query(G[s_idx])
+    # each paired crop point's nearest template descriptor (33-D: scipy's tree, not the
+    # spatial one)
+    _, i_sm = cKDTree(F).query(_scene_features(ctx))
     src, dst = P[i_sm], ctx.crop[s_idx]
     picks = rng.integers(0, len(src), size=(RANSAC_TRIALS, 3))
     X, Q = src[picks], dst[picks]

@@ -17,21 +17,27 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..compiled import kernels
+from ..neighbours import compiled_tree_of
 from ..scene import ClickContext
 from ..transforms import pose_points, rotate
 from .correspondences import (
+    PLANE_BAND,
     Pairs,
+    compiled_tree,
     contact_rows,
     forward_pairs,
     in_contact,
     reverse_rows,
+    reverse_subset,
     stack_samples,
 )
 from .model import Batch, Model
 from .parallel import parts, run
 from .results import IcpResult
 from .settings import FINE, FINE_CONVERGED, SAMPLE_SEED, FitSettings, Stage
-from .solve import plane_step, rigid_step
+from .solve import Step, plane_step, rigid_step
+from .visibility import compiled_view
 
 __all__ = ["icp", "fine_stage", "radius_schedule", "JOINT", "SCALE"]
 
@@ -124,17 +130,34 @@ def _icp(
     converged = np.zeros(len(batch), bool)
     active = np.arange(len(batch))  # the hypotheses still moving
     first, stop = span if span is not None else (0, stage.iterations)
+    fused = None if fine or contact or unknowns else _Fused.of(ctx, stage.target, settings)
+    rows = _FineRows.of(ctx, settings) if fine else None
     it = first - 1
     for it in range(first, stop):
         radius = radius_schedule(reject[active], floor[active], it, stage.iterations)
         Ra, ta = R[active], t[active]
-        X, Nw, U, moving = posing.posed(Ra, ta, active)
-        Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
-        pairs = forward = Pairs(X, Q, Nq, w, U, moving)
-        if fine:
-            pairs = pairs.joined(
-                reverse_rows(ctx, Batch(posing.models_at(active), Ra, ta), radius, settings)
+        if fused is not None:
+            step = fused.step(posing, active, Ra, ta, radius)
+            R[active] = step.R @ Ra
+            t[active] = (step.R @ ta[:, :, None])[:, :, 0] + step.t
+            done = (step.rotation < small * CONVERGED_ROTATION) & (
+                step.motion < small * CONVERGED_TRANSLATION
             )
+            converged[active[done]] = True
+            active = active[~done]
+            if not len(active):
+                break
+            continue
+        X, Nw, U, moving = posing.posed(Ra, ta, active)
+        if rows is not None and len(active) == 1:
+            forward, pairs = rows.pairs(X, Nw, U, moving, radius, posing.models[active[0]], Ra, ta)
+        else:
+            Q, Nq, w = forward_pairs(ctx, stage.target, X, Nw, radius, settings, normals=fine)
+            pairs = forward = Pairs(X, Q, Nq, w, U, moving)
+            if fine:
+                pairs = pairs.joined(
+                    reverse_rows(ctx, Batch(posing.models_at(active), Ra, ta), radius, settings)
+                )
         if contact:
             pairs = pairs.joined(contact_rows(ctx, forward, radius, settings))
         if fine:
@@ -197,6 +220,135 @@ def fine_stage(
         contact=contact,
         converge=converge,
     )
+
+
+class _Fused:
+    """The point-to-point step of the voxelized stages as one compiled kernel
+    (:func:`..compiled._rigid_step`): posing, visibility, the plane band, the nearest target
+    point (a compiled KD-tree: the same neighbours), the weights and the weighted SVD in one
+    call per iteration, the GIL released. The same numbers as the numpy path but for the
+    rounding of its sums (the golden fits' tolerance holds them, ``test/test_compiled.py``)."""
+
+    def __init__(self, k, tree, view):
+        self.k, self.tree, (self.view, self.frame, self.depth) = k, tree, view
+        self.guess = None  # each sample's last partner (where its next search starts)
+
+    @staticmethod
+    def of(ctx: ClickContext, target: str, settings: FitSettings) -> "_Fused | None":
+        """The fused step for ``target``, or None where the compiled kernels are not in use
+        (or correspondences are projective)."""
+        k = kernels()
+        if k is None or settings.icp.projective:
+            return None
+        view = compiled_view(
+            ctx, settings, PLANE_BAND * ctx.plane_threshold, settings.icp.weight_scale
+        )
+        return _Fused(k, compiled_tree(ctx, target), view)
+
+    def step(self, posing: "_Posing", active, R, t, radius) -> Step:
+        b = len(active)
+        if self.guess is None:
+            self.guess = np.full(posing.P.shape[:2], -1, dtype=np.int64)
+        out_R, out_t, out_c = np.empty((b, 3, 3)), np.empty((b, 3)), np.empty((b, 3))
+        self.k.rigid_step(
+            posing.P,
+            posing.N,
+            np.ascontiguousarray(active, dtype=np.int64),
+            np.ascontiguousarray(R, dtype=float),
+            np.ascontiguousarray(t, dtype=float),
+            np.ascontiguousarray(radius, dtype=float),
+            self.view,
+            self.frame,
+            self.depth,
+            self.tree.arrays,
+            self.guess,
+            out_R,
+            out_t,
+            out_c,
+        )
+        return Step(out_R, out_t, out_c, np.zeros((b, 0)))
+
+
+class _FineRows:
+    """The correspondences of one hypothesis on the full-resolution cluster -- forward pairs
+    and the scene's reverse ones, as :func:`.correspondences.forward_pairs` and
+    :func:`.correspondences.reverse_rows` make them -- in one compiled call
+    (:func:`..compiled._fine_rows`; compiled KD-trees, the same neighbours), the step solved
+    from them as before."""
+
+    def __init__(self, k, ctx: ClickContext, settings: FitSettings, view):
+        self.k, (self.view, self.frame, self.depth) = k, view
+        self.fine = compiled_tree(ctx, FINE)
+        self.normals = np.require(ctx.fine_normals, float, ["C", "W"])
+        rev, rev_n = reverse_subset(ctx, settings.fine.reverse_points)
+        self.rev = np.require(rev, float, ["C", "W"])
+        self.rev_n = np.require(rev_n, float, ["C", "W"])
+        self.guess = None
+
+    @staticmethod
+    def of(ctx: ClickContext, settings: FitSettings) -> "_FineRows | None":
+        k = kernels()
+        if k is None or settings.icp.projective:
+            return None
+        view = compiled_view(
+            ctx, settings, PLANE_BAND * ctx.plane_threshold, settings.icp.weight_scale
+        )
+        return _FineRows(k, ctx, settings, view)
+
+    def pairs(self, X, Nw, U, moving, radius, model: Model, R, t) -> tuple:
+        """(forward, all) :class:`.correspondences.Pairs` of the one hypothesis at R (1, 3, 3),
+        t (1, 3): the posed samples X, Nw (1, S, 3) (with U, moving: their unscaled model-frame
+        places and parts, or None), ``radius`` (1,)."""
+        S = X.shape[1]
+        if self.guess is None:
+            self.guess = np.full(S, -1, dtype=np.int64)
+        surface = model.cache.surface(model.template)
+        jointed = not (model.q == 0.0 or surface.moving_part is None)
+        whole = compiled_tree_of(surface, surface.whole)
+        base = compiled_tree_of(surface, surface.base) if jointed else whole
+        part = compiled_tree_of(surface, surface.moving_part) if jointed else whole
+        T = model.template.joint_transform(model.q) if jointed else np.eye(4)
+        Rh, th = np.ascontiguousarray(R[0], dtype=float), np.ascontiguousarray(t[0], dtype=float)
+        size = S + len(self.rev)
+        out_X, out_Q, out_N, out_U = (np.zeros((size, 3)) for _ in range(4))
+        out_w, out_moving = np.zeros(size), np.zeros(size, bool)
+        n = self.k.fine_rows(
+            np.ascontiguousarray(X[0], dtype=float),
+            np.ascontiguousarray(Nw[0], dtype=float),
+            float(radius[0]),
+            self.view,
+            self.frame,
+            self.depth,
+            self.fine.arrays,
+            self.normals,
+            self.guess,
+            self.rev,
+            self.rev_n,
+            np.ascontiguousarray(Rh @ model.centroid + th),
+            0.5 * model.diameter,
+            Rh,
+            th,
+            float(model.scale),
+            whole.arrays,
+            np.array(surface.moving, dtype=bool),  # (the kernel takes a writable one)
+            jointed,
+            base.arrays,
+            part.arrays,
+            np.ascontiguousarray(T, dtype=float),
+            out_X,
+            out_Q,
+            out_N,
+            out_w,
+            out_U,
+            out_moving,
+        )
+        if U is not None:
+            out_U[:S], out_moving[:S] = U[0], moving[0]
+        rows = [a[None, :n] for a in (out_X, out_Q, out_N, out_w, out_U, out_moving)]
+        if U is None:
+            rows[4] = rows[5] = None
+        forward = Pairs(X, rows[1][:, :S], rows[2][:, :S], rows[3][:, :S], U, moving)
+        return forward, Pairs(*rows)
 
 
 class _Posing:

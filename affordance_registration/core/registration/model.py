@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..compiled import kernels
-from ..neighbours import build_tree, nearest, nearest_distances
+from ..neighbours import build_tree, nearest_distances, nearest_in
 from ..templates import AffordanceTemplate
 from .settings import SAMPLE_SEED
 
@@ -212,13 +212,13 @@ class Model:
         u = np.asarray(local, dtype=float) / self.scale
         ub = upper / self.scale
         if self.q == 0.0 or surface.moving_part is None:
-            d, i = nearest(surface.whole, u, ub)
+            d, i = nearest_in(surface, surface.whole, u, ub)
             pts, closer = surface.points[i], surface.moving[i]
         else:
-            d, i = nearest(surface.base, u, ub)
+            d, i = nearest_in(surface, surface.base, u, ub)
             pts = surface.base_points[i]
             um, T = self._to_moving_part(u)
-            dm, im = nearest(surface.moving_part, um, ub)
+            dm, im = nearest_in(surface, surface.moving_part, um, ub)
             closer = dm < d
             d = np.where(closer, dm, d)
             pm = surface.moving_points[im]

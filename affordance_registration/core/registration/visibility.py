@@ -20,10 +20,12 @@ import math
 
 import numpy as np
 
+from ..compiled import view_array
+from ..memo import per_object
 from ..scene import ClickContext
 from .settings import FitSettings
 
-__all__ = ["visible", "facing"]
+__all__ = ["visible", "facing", "compiled_view"]
 
 
 def facing(ctx: ClickContext, X: np.ndarray, Nw: np.ndarray, settings: FitSettings) -> np.ndarray:
@@ -87,3 +89,41 @@ def visible(
     seen = front & (obs >= depth - m)
     violated = front & (obs > depth + m)
     return (seen, violated, known) if exposed else (seen, violated)
+
+
+def compiled_view(ctx: ClickContext, settings: FitSettings, band: float, d0: float):
+    """What :func:`visible` reads of the click, and the plane band (samples within ``band`` of
+    the plane pair with it) and the weight scale ``d0`` of the correspondences, as the compiled
+    ICP step takes them: (view, frame, depth) -- kept with the click for these settings."""
+
+    def make():
+        image, plane = ctx.range_image, ctx.plane
+        fields = {"d0": d0}
+        if ctx.sensor_origin is not None:
+            fields.update(
+                origin=ctx.sensor_origin, cos_grazing=math.cos(settings.scoring.grazing_angle)
+            )
+        if image is not None:
+            fields.update(
+                image_origin=image.origin,
+                u0=image.u0,
+                v0=image.v0,
+                bin=image.bin,
+                nu=image.nu,
+                nv=image.nv,
+                margin=settings.scoring.free_space_margin,
+            )
+        if plane is not None:
+            fields.update(normal=plane.normal, plane_d=plane.d, band=band)
+        frame = np.ascontiguousarray(image.frame if image is not None else np.eye(3), float)
+        depth = image.depth_or_nan if image is not None else np.full(1, np.nan)
+        return view_array(**fields), frame, np.ascontiguousarray(depth, float)
+
+    key = (
+        "compiled view",
+        settings.scoring.grazing_angle,
+        settings.scoring.free_space_margin,
+        band,
+        d0,
+    )
+    return per_object(ctx, key, make)
