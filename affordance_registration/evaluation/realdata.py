@@ -884,8 +884,8 @@ def fit_record(
 ) -> dict:
     """What :func:`evaluate_scene` records of the shown candidate ``best`` (a
     ``core.registration.FitResult``) of a click on ``obj`` of ``cloud``: ``template``,
-    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason`` (these four read with
-    getattr: None where the registrar does not give them), ``T_scene_model`` (4 rows),
+    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``recall``, ``precision``, ``reason``
+    (these six read with getattr: None where the registrar does not give them), ``T_scene_model`` (4 rows),
     ``score`` (:meth:`PrimitiveScore.to_dict` when it is a box or cylinder with dimensions,
     else None), ``refined_score`` (with ``refined``, where it is of ``object_kind``: the score
     of the fit refined on the object's labelled points, :func:`.label_ceiling.refined_score`)
@@ -899,6 +899,8 @@ def fit_record(
         "primitive": primitive,
         "dimensions": dims,
         "explained": getattr(best, "explained", None),
+        "recall": getattr(best, "recall", None),
+        "precision": getattr(best, "precision", None),
         "reason": getattr(best, "reason", None),
         "T_scene_model": [[round(float(v), 6) for v in row] for row in T],
         "score": None,
@@ -967,6 +969,8 @@ def evaluate_scene(
             "primitive": None,
             "dimensions": None,
             "explained": None,
+            "recall": None,
+            "precision": None,
             "reason": None,
             "T_scene_model": None,
             "settled": None,

@@ -6,12 +6,14 @@ A box behind a can is seen left and right of the can: two pieces of the scan, no
 and the click lands on one of them. A primitive measured on that piece alone is half the box.
 Another piece is taken for part of the same object when
 
-* it lies off the support, outside the click's cluster, and is not much smaller than the
-  clicked part (``MIN_PART`` of its points);
+* it lies off the support -- outside the click's cluster, or a segment of it other than the
+  clicked one (what stands in front may join both to the cluster) -- and is not much smaller
+  than the clicked part (``MIN_PART`` of its points);
 * the straight line from the clicked part to it (between their nearest points, at most
   ``BRIDGE_REACH`` long) is hidden all along: wherever the sensor returned something in its
-  direction, that return lies at least ``verdict.occluder_gap`` in front of the line -- what
-  splits them stands in front (two boxes side by side show the table between them instead);
+  direction, that return lies at least ``verdict.occluder_gap`` in front of the line (all but
+  ``SEEN_PAST`` of its points) -- what splits them stands in front (two boxes side by side
+  show the table between them instead);
 
 and the primitive measured on both pieces explains each of them (the registrar's test). The
 pieces come at the scan's full resolution, with normals towards the sensor, as
@@ -39,6 +41,9 @@ BRIDGE_REACH = 0.12
 BRIDGE_SAMPLES = 9
 #: at least this share of those points has a return (the rest: no evidence either way)
 BRIDGE_KNOWN = 0.5
+#: ... and all but at most this many of them lie behind something in front (the one at an
+#: end may see the occluder's mixed pixels or the gap at its silhouette)
+SEEN_PAST = 1
 #: a piece holds at least this share of the clicked part's voxels (and 10)
 MIN_PART = 0.2
 #: steps between the voxels of one piece (m; the cluster's own gap)
@@ -62,14 +67,20 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
     off = ctx.support.distance(crop) > ctx.plane_threshold
     d, _ = nearest(ctx.cluster_tree, crop, 1e-9)
     rest = crop[off & ~np.isfinite(d)]
-    if len(rest) < 10:
-        return []
-    labels = gap_components(rest, PIECE_GAP)
-    counts = np.bincount(labels)
+    # the candidates: the crop's pieces outside the cluster, and the cluster's other segments
+    # (what stands in front may join them to the cluster)
+    candidates = []
+    if len(rest) >= 10:
+        labels = gap_components(rest, PIECE_GAP)
+        candidates += [rest[labels == k] for k in range(int(labels.max()) + 1)]
+    segments = ctx.segments
+    clicked_label = ctx.clicked_segment
+    candidates += [ctx.cluster[segments == k] for k in np.unique(segments) if k != clicked_label]
     tree_a = build_tree(clicked)
     image, pieces = None, []
-    for k in np.flatnonzero(counts >= max(10, MIN_PART * len(clicked))):
-        piece = rest[labels == k]
+    for piece in candidates:
+        if len(piece) < max(10, MIN_PART * len(clicked)):
+            continue
         dist, idx = nearest(tree_a, piece, BRIDGE_REACH)
         if not np.isfinite(dist).any():
             continue
@@ -77,15 +88,14 @@ def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSet
         a, b = clicked[idx[j]], piece[j]
         line = a + np.linspace(0.0, 1.0, BRIDGE_SAMPLES + 2)[1:-1, None] * (b - a)
         obs, depth = ctx.range_image.lookup(line)
-        if np.any(obs > depth + settings.scoring.free_space_margin):
+        if np.sum(obs > depth + settings.scoring.free_space_margin) > SEEN_PAST:
             continue  # the sensor saw past the line: nothing stands in front there
         # (what stands in front may lie outside the crop: the whole scan in its cone)
         image = _cone_image(ctx, scene) if image is None else image
         obs, depth = image.lookup(line)
         known = obs == obs
-        if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or not np.all(
-            obs[known] < depth[known] - settings.verdict.occluder_gap
-        ):
+        hidden = obs[known] < depth[known] - settings.verdict.occluder_gap
+        if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or hidden.sum() < known.sum() - SEEN_PAST:
             continue
         pieces.append(_full_resolution(ctx, scene, piece))
     return [p for p in pieces if len(p[0]) >= 10]
