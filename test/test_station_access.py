@@ -367,7 +367,8 @@ def test_the_secret_never_reaches_rosout_the_ros_log_a_parameter_or_a_shared_fil
     parameter."""
     from rcl_interfaces.msg import Log, ParameterType
     from rcl_interfaces.srv import GetParameters
-    from ros_helpers import LATCHED, Client
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from ros_helpers import Client
 
     from affordance_registration.ros.station.access import url_file
 
@@ -376,7 +377,14 @@ def test_the_secret_never_reaches_rosout_the_ros_log_a_parameter_or_a_shared_fil
     runtime, logs = tmp_path / "runtime", tmp_path / "roslog"
     client = Client("rosout_listener")
     heard: list[str] = []
-    client.node.create_subscription(Log, "/rosout", lambda m: heard.append(m.msg), LATCHED)
+    # /rosout keeps a node's last 1000 lines for late joiners: a depth of 1 would hear only the
+    # line after "operator station on" when discovery comes late (a loaded machine)
+    rosout_qos = QoSProfile(
+        depth=1000,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    client.node.create_subscription(Log, "/rosout", lambda m: heard.append(m.msg), rosout_qos)
     proc = NodeProcess(
         station_argv(port, access_secret=secret),
         tmp_path / "station.out",

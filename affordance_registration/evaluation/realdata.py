@@ -884,8 +884,9 @@ def fit_record(
 ) -> dict:
     """What :func:`evaluate_scene` records of the shown candidate ``best`` (a
     ``core.registration.FitResult``) of a click on ``obj`` of ``cloud``: ``template``,
-    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``recall``, ``precision``, ``reason``
-    (these six read with getattr: None where the registrar does not give them), ``T_scene_model`` (4 rows),
+    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``recall``, ``precision``,
+    ``reason`` (these read with getattr: None where the registrar does not give them),
+    ``T_scene_model`` (4 rows),
     ``score`` (:meth:`PrimitiveScore.to_dict` when it is a box or cylinder with dimensions,
     else None), ``refined_score`` (with ``refined``, where it is of ``object_kind``: the score
     of the fit refined on the object's labelled points, :func:`.label_ceiling.refined_score`)
