@@ -111,6 +111,36 @@ def test_symmetry_residual_angle():
     assert cont.residual_angle(tilt) == pytest.approx(0.2, abs=1e-7)
 
 
+def test_a_symmetry_axis_passes_through_its_declared_point(tmp_path, library):
+    """The grab handle written in millimetres with its origin moved off the handle (by 300, -200,
+    100 mm) declares its symmetry's point there: its symmetry motions map the handle onto
+    itself, and a pose composed with one of them is the same pose to ``pose_error``; declared
+    through the origin (the default), the same half turn moves the handle off itself."""
+    from affordance_registration.core.transforms import make_T, pose_error
+
+    shift = np.array([300.0, -200.0, 100.0])  # mm
+    mesh = library["grab_handle"].mesh.copy()
+    mesh.apply_scale(1000.0)
+    mesh.apply_translation(shift)
+    mesh.export(tmp_path / "handle.stl")
+    doc = {"name": "h", "mesh": "handle.stl", "mesh_scale": 0.001}
+    sym = {"axis": [0, 0, 1], "order": 2}
+    on = load_template(
+        _write(tmp_path, {**doc, "symmetry": {**sym, "point": shift.tolist()}}, mesh=False)
+    )
+    off = load_template(_write(tmp_path, {**doc, "symmetry": sym}, "off.yaml", mesh=False))
+    assert np.allclose(on.symmetry.point, shift / 1000.0)
+    pts = on.samples(2000, seed=5)[0]
+    S = on.symmetry.transforms[1]
+    assert np.percentile(mesh_distance(on.mesh, pts @ S[:3, :3].T + S[:3, 3]), 99) < 5e-4
+    S_off = off.symmetry.transforms[1]
+    assert np.median(mesh_distance(off.mesh, pts @ S_off[:3, :3].T + S_off[:3, 3])) > 0.3
+    T = make_T(trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])[:3, :3], [1.0, 2.0, 3.0])
+    dt, dr = pose_error(T @ S, T, on.symmetry)
+    assert dt < 1e-12 and dr < 1e-7
+    assert pose_error(T @ S, T)[0] > 0.7  # the origins: 2 x 0.37 m apart
+
+
 def test_resting_rotations_put_a_facet_down(library):
     for tpl in library.values():
         poses = tpl.resting_rotations()
@@ -153,6 +183,14 @@ def _write(tmp_path, doc, name="t.yaml", mesh=True):
         (
             {"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 0], "order": 2}},
             "symmetry.axis",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"order": 2, "point": [0, "a", 0]}},
+            "symmetry.point",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"order": 2, "point": [0, 0]}},
+            "symmetry.point",
         ),
         ({"name": "x", "mesh": "box.stl", "colour": "red"}, "colour"),
         (

@@ -31,7 +31,8 @@ __all__ = ["Symmetry", "Joint", "AffordanceTemplate"]
 
 @dataclass(frozen=True)
 class Symmetry:
-    """Rotational symmetry of a template about an axis through its origin.
+    """Rotational symmetry of a template about an axis through ``point`` (template frame, m;
+    the origin unless the file says otherwise).
 
     ``order`` n >= 1 means the shape maps onto itself under rotations by 2*pi*k/n; ``continuous``
     means under every rotation about ``axis``.
@@ -40,6 +41,7 @@ class Symmetry:
     axis: tuple = (0.0, 0.0, 1.0)
     order: int = 1
     continuous: bool = False
+    point: tuple = (0.0, 0.0, 0.0)
 
     @property
     def rotations(self) -> np.ndarray:
@@ -47,6 +49,14 @@ class Symmetry:
         1 degree steps (use :meth:`residual_angle` for exact errors)."""
         n = 360 if self.continuous else self.order
         return np.stack([axis_angle_matrix(self.axis, 2.0 * math.pi * k / n) for k in range(n)])
+
+    @property
+    def transforms(self) -> np.ndarray:
+        """The symmetry motions (k, 4, 4) of the template frame, identity first: the
+        :attr:`rotations` about the axis through :attr:`point` (``T @ S`` is a pose the shape
+        cannot be told from ``T``)."""
+        p = np.asarray(self.point, dtype=float)
+        return np.stack([make_T(R, p - R @ p) for R in self.rotations])
 
     def residual_angle(self, R_rel: np.ndarray) -> float:
         """Smallest rotation angle (rad) between ``R_rel`` and any symmetry rotation."""

@@ -214,7 +214,8 @@ def _weakest(hessian, model: Model, T: np.ndarray):
     if sym is not None and sym.continuous:
         a = T[:3, :3] @ np.asarray(sym.axis, float)
         a /= np.linalg.norm(a)
-        s = np.concatenate([a * L, np.cross(a, c - T[:3, 3])])  # rotation about the axis
+        on_axis = T[:3, :3] @ np.asarray(sym.point, float) + T[:3, 3]
+        s = np.concatenate([a * L, np.cross(a, c - on_axis)])  # rotation about the axis
         s /= np.linalg.norm(s)
         basis = np.linalg.svd(np.eye(6) - np.outer(s, s))[0][:, :5]
     w, V = np.linalg.eigh(basis.T @ H @ basis)
