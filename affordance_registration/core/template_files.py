@@ -13,6 +13,8 @@ A template is a YAML file (``models/<name>.yaml``)::
     scale: [0.8, 1.25]               # optional: the design comes in sizes; scale is estimated
     symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}; the axis
                                      # passes through point: [x, y, z] (default the origin)
+    mount: {position: [0, 0, 0], rpy: [0, 0, 0]}   # the mounting frame (default: the file's
+                                     # own); ``mount: none`` for an object with no mounting side
     base_mesh: meshes/ball_valve_base.stl      # the part that does not move (with joints)
     joints:
       - {name: lever, type: revolute, axis: [0, 0, 1], origin: [0, 0, 0.085],
@@ -24,8 +26,8 @@ A template is a YAML file (``models/<name>.yaml``)::
     description: free text
 
 Lengths in the file -- a joint's origin, a prismatic joint's limits and its named states, the
-symmetry's point -- are in the mesh's units (``mesh_scale`` turns them into metres); angles are
-radians.
+symmetry's point, the mount's position -- are in the mesh's units (``mesh_scale`` turns them into
+metres); angles are radians.
 
 A template may instead be a parametric *primitive* (an object outside the library: a box, a
 pipe, a can), its dimensions fitted with its pose from the click::
@@ -57,8 +59,8 @@ from .files import read_yaml, unreadable
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
-from .transforms import template_vector
-from .waypoints import parse_waypoints
+from .transforms import make_T, template_vector
+from .waypoints import parse_waypoints, template_orientation
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
 
@@ -78,6 +80,7 @@ _KNOWN_KEYS = {
     "radius",
     "length",
     "waypoints",
+    "mount",
 }
 MIN_DIMENSION = 0.002  #: m, the smallest dimension a primitive may be given
 #: bounds on what a template file may ask for, checked before any work is done
@@ -134,6 +137,7 @@ def _load_template(path: str) -> AffordanceTemplate:
         raise _fail(path, "allow_external_files", f"expected true or false, got {external!r}")
     mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale), external)
     symmetry = _parse_symmetry(path, doc.get("symmetry"), float(scale))
+    mount = _parse_mount(path, doc, mesh is not None, float(scale))
     joints = _parse_joints(path, doc.get("joints"), float(scale), external)
     states = _parse_states(path, doc.get("states"), joints, float(scale))
     base = None
@@ -165,6 +169,7 @@ def _load_template(path: str) -> AffordanceTemplate:
         base_mesh=base,
         scale_range=scale_range,
         waypoints=waypoints,
+        mount=mount,
     )
     if mesh is not None and len(joints) <= 1:
         files = {"mesh": doc["mesh"]}
@@ -184,13 +189,15 @@ def _primitive_template(path: str, doc: dict, name: str, description: str) -> Af
     if kind not in PRIMITIVES:
         raise _fail(path, "primitive", f"expected one of {', '.join(PRIMITIVES)}, got {kind!r}")
     other = sorted(
-        set(doc) & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale", "symmetry"}
+        set(doc)
+        & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale", "symmetry", "mount"}
     )
     if other:
         raise _fail(
             path,
             other[0],
-            "a primitive template has dimensions, not a mesh, joints or a scale range",
+            "a primitive template has dimensions and its own frame, not a mesh, joints, a "
+            "symmetry, a mount or a scale range",
         )
     given = {"box": ("size",), "cylinder": ("radius", "length")}[kind]
     stray = sorted(set(doc) & {"size", "radius", "length"} - set(given))
@@ -385,6 +392,36 @@ def _parse_symmetry(path: str, value, scale: float = 1.0) -> Symmetry | None:
             f"'continuous: true'",
         )
     return Symmetry(axis=axis, order=order, point=point)
+
+
+_MOUNT_KEYS = {"position", "rpy", "quaternion"}
+
+
+def _parse_mount(path: str, doc: dict, is_mesh: bool, scale: float):
+    """The ``mount`` key: the mounting frame (4, 4; ``position`` in file units, ``rpy`` or
+    ``quaternion``), None for ``mount: none``; left out, the file's frame for a mesh and none
+    for a point cloud."""
+    if "mount" not in doc:
+        return np.eye(4) if is_mesh else None
+    value = doc["mount"]
+    if value == "none":
+        return None
+    if not isinstance(value, dict) or not value:
+        raise _fail(
+            path,
+            "mount",
+            f"expected {{position: [x, y, z], rpy: [r, p, y]}} or none, got {value!r}",
+        )
+    unknown = set(value) - _MOUNT_KEYS
+    if unknown:
+        raise _fail(
+            path,
+            "mount",
+            f"unknown keys {sorted(unknown)} (known: {', '.join(sorted(_MOUNT_KEYS))})",
+        )
+    R = template_orientation(value, "mount", lambda k, m: _fail(path, k, m))
+    position = _vector(path, "mount.position", value.get("position", [0, 0, 0]))
+    return make_T(R, np.asarray(position) * scale)
 
 
 def _parse_joints(path: str, value, scale: float, external: bool = False) -> tuple:
