@@ -91,11 +91,14 @@ def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
 
 def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
     """One sample per voxel of the model's surface (model frame), its normals and descriptors
-    (``radius`` in voxels); cached with the model."""
+    (``radius`` in voxels); cached with the model. The voxel grid is laid out in the template's
+    axes about its centroid (``AffordanceTemplate.axes``), so the samples kept do not depend on
+    the frame its file is in."""
 
     def build():
         P, N = model.samples(FEATURE_SAMPLES)
-        _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
+        own = (P - model.centroid) @ model.axes
+        _, first = np.unique(np.floor(own / voxel).astype(np.int64), axis=0, return_index=True)
         first = np.sort(first)
         P, N = P[first], N[first]
         return P, N, _fpfh(P, N, radius * voxel)
