@@ -364,7 +364,7 @@ def _starts(
 
 def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: int) -> np.ndarray:
     """Indices of the best ``keep`` distinct hypotheses per template by ``scores`` (lower is
-    better; distinct: more than ``DISTINCT_DISTANCE`` apart or turned more than
+    better; distinct: their centroids more than ``DISTINCT_DISTANCE`` apart or turned more than
     ``DISTINCT_ANGLE``, symmetry-aware). The best mounting-prior hypothesis always goes on: few
     samples cannot judge a tipped-over pose against it reliably."""
     out = []
@@ -376,13 +376,14 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
         tpl = hyps.models[int(idx[0])].template
         mounted = idx[hyps.family[idx] == MOUNTED]
         chosen = [mounted[0]] if len(mounted) and keep > 1 else []
-        # where each pose puts the template: its origin, or a scanned object's centroid
-        # (its file's origin may lie anywhere)
-        at = (
-            hyps.t
-            if not tpl.is_point_template
-            else hyps.t + hyps.R @ hyps.models[int(idx[0])].centroid
-        )
+        # where each pose puts the object: its centroid (the file's origin may lie anywhere)
+        centroids = {}
+        for j in idx:
+            m = hyps.models[j]
+            if id(m) not in centroids:
+                centroids[id(m)] = m.centroid
+        c = np.stack([centroids[id(hyps.models[j])] for j in idx])
+        at = dict(zip(idx.tolist(), np.einsum("bij,bj->bi", hyps.R[idx], c) + hyps.t[idx]))
         for j in idx:
             if all(
                 np.linalg.norm(at[j] - at[k]) > DISTINCT_DISTANCE
