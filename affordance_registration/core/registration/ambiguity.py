@@ -175,11 +175,13 @@ def assess(
 
 def _same(settings: FitSettings, h: Hypothesis, r: FitResult) -> bool:
     """Whether ``r`` is the hypothesis ``h`` again: the same template within the pose
-    tolerance (symmetry-aware)."""
+    tolerance (symmetry-aware; the distance where the two put the object's centroid, wherever
+    its file's origin lies)."""
     if h.template != r.template:
         return False
     sym = h.model.symmetry if h.model is not None else None
-    dt, da = pose_error(r.T_scene_model, h.T_scene_model, sym)
+    at = h.model.centroid if h.model is not None else None
+    dt, da = pose_error(r.T_scene_model, h.T_scene_model, sym, at)
     return dt <= settings.viewpoint.pose_distance and da <= settings.viewpoint.pose_angle
 
 
