@@ -204,13 +204,28 @@ def cmd_bench(args) -> int:
     log = lambda *a: print(*a, file=sys.stderr, flush=True)
     if os.path.exists(args.out) and not os.path.isdir(args.out):  # (said before the long run)
         raise AffordanceError(f"--out {args.out} is not a folder")
+    if args.row == "trust":  # the trust rows alone (issue 59)
+        from .evaluation.composite import composite_rows, format_lines
+
+        samples = None if args.all_composites else 1 if args.quick else 5
+        trust = composite_rows(samples=samples, log=log)
+        if trust.get("left_out"):
+            print(f"error: {trust['left_out']}", file=sys.stderr)
+            return 2
+        print("\n".join(format_lines(trust["summary"])))
+        return 0
     if args.row:  # one row alone (its own seeds): for its numbers
         from .evaluation.viewpoints import format_row, viewpoint_row
 
         print("\n".join(format_row(viewpoint_row(log=log))))
         return 0
     result = run_bench(
-        quick=args.quick, scenes=args.scenes, paper_clicks=args.paper_clicks, out=args.out, log=log
+        quick=args.quick,
+        scenes=args.scenes,
+        paper_clicks=args.paper_clicks,
+        out=args.out,
+        log=log,
+        all_composites=args.all_composites,
     )
     print(format_table(result))
     if result.get("written"):
@@ -413,7 +428,10 @@ def cmd_station(args) -> int:
     os.fchmod(fd, 0o600)
     with os.fdopen(fd, "w") as log:
         # a loaded machine may need more than the default 2 s for a node to stop on SIGINT
-        launcher = Launcher(nodes, log=lambda m: None, output=log, grace=10.0)
+        # (what it starts, and a node that did not end cleanly, are named in the log)
+        launcher = Launcher(
+            nodes, log=lambda m: print(m, file=log, flush=True), output=log, grace=10.0
+        )
         launcher.start()
         url = f"http://{args.host}:{args.port}/?token={secret}"
         deadline = time.monotonic() + 120
@@ -436,7 +454,10 @@ def cmd_station(args) -> int:
             f"{registrations}; node logs in {log_path}; Ctrl-C stops everything",
             flush=True,
         )
-        return launcher.wait(stop.is_set)
+        code = launcher.wait(stop.is_set)
+        if code:
+            print(f"a node did not stop cleanly; see {log_path}", file=sys.stderr, flush=True)
+        return code
 
 
 # ---------------------------------------------------------------------------- bag
@@ -683,7 +704,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="folder for the results (benchmark.json), the settings they were measured with "
         "(benchmark.settings.yaml) and their rendering (BENCHMARK.md); default bench_output",
     )
-    p.add_argument("--row", choices=("viewpoint",), help="run that row alone and print it")
+    p.add_argument("--row", choices=("viewpoint", "trust"), help="run that row alone and print it")
+    p.add_argument(
+        "--all-composites",
+        action="store_true",
+        help="the trust rows on every composite seed (20 development and 20 held-out of each "
+        "kind), not a sample of 5 + 5",
+    )
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser(

@@ -16,6 +16,8 @@ _WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if _WORKER.startswith("gw") and _WORKER[2:].isdigit():
     os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) + int(_WORKER[2:])) % 102)
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
+# where a node keeps its files when not told (an engine's registrations file), the run's own
+os.environ["ROS_HOME"] = tempfile.mkdtemp(prefix="ar_roshome_")
 # the files keeping the stations' URLs (with their secrets), in a folder of the test run's own
 os.environ.setdefault("AFFORDANCE_RUNTIME_DIR", tempfile.mkdtemp(prefix="ar_runtime_"))
 

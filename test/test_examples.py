@@ -95,7 +95,10 @@ def test_station_on_file_serves_its_page_until_interrupted(tmp_path):
             assert page.status == 200
             assert b"<html" in page.read().lower()
         proc.send_signal(signal.SIGINT)  # as Ctrl-C: the station stops its nodes, then exits
-        assert proc.wait(timeout=120) == 0, proc.stderr.read()[-3000:]
+        log = tmp_path / "station" / "station_scene.log"
+        assert proc.wait(timeout=120) == 0, proc.stderr.read()[-2000:] + (
+            log.read_text()[-3000:] if log.is_file() else ""
+        )
         assert (tmp_path / "station" / "station_scene.log").is_file()
     finally:
         if proc.poll() is None:

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from label_rule import assert_honest
 
 from affordance_registration.core.registration import Registrar
 from affordance_registration.core.registration.primitives import object_points, stacked
@@ -18,6 +19,7 @@ from affordance_registration.core.transforms import invert
 from affordance_registration.evaluation.rows import (
     DIM_TOL,
     _mosd_camera,
+    label_score,
     primitive_pose_error,
     simulate_mugs,
     simulate_primitives,
@@ -41,12 +43,16 @@ def registrar(library):
 
 @pytest.mark.parametrize("seed,k", HARD)
 def test_a_mug_clicked_inside_is_a_cylinder_of_its_size(registrar, seed, k):
-    """The best candidate is a cylinder that fits, its radius and length within 5 mm of the
-    mug's outside and its pose within 5 mm / 5 deg."""
+    """The cylinder measured on it has the mug's outside radius and length within 5 mm and its
+    pose within 5 mm / 5 deg, and leads where it fits; it fits where the label rule passes (a
+    mug seen from above shows its inside bottom a wall's thickness over the cylinder's base:
+    where that is more than a tenth of what is seen, the closed cylinder does not explain the
+    mug, and the verdict says so)."""
     organized, objects = simulate_mugs(seed)
     mug = objects[k]
-    best = registrar.fit(Scene(organized), mug["click"]).candidates[0]
-    assert best.primitive == "cylinder" and best.fits is True, (best.template, best.reason)
+    candidates = registrar.fit(Scene(organized), mug["click"]).candidates
+    best = next(c for c in candidates if c.primitive == "cylinder")
+    assert candidates[0] is best or not best.fits, (candidates[0].template, best.reason)
     assert all(abs(best.dimensions[a] - v) <= DIM_TOL for a, v in mug["dimensions"].items()), (
         best.dimensions,
         mug["dimensions"],
@@ -55,6 +61,7 @@ def test_a_mug_clicked_inside_is_a_cylinder_of_its_size(registrar, seed, k):
         "cylinder", best.T_scene_model, mug["T_scene_model"], mug["dimensions"]
     )
     assert dt <= 0.005 and dr <= math.radians(5), (dt, math.degrees(dr))
+    assert_honest(best, label_score(organized, mug, best))
 
 
 def test_the_click_inside_a_mug_is_not_on_the_table(registrar):

@@ -527,6 +527,8 @@ def test_node_runs_without_tf2_msgs(ros_context, tmp_path):
             "--ros-args",
             "-r",
             "__node:=engine_without_tf",
+            "-p",
+            f"registrations_file:={tmp_path / 'registrations.yaml'}",
         ],
         tmp_path / "engine.log",
         env=env,

@@ -39,6 +39,51 @@ def primitive_mesh(kind: str, dimensions: Mapping) -> trimesh.Trimesh:
     return mesh
 
 
+def primitive_distance(kind: str, dimensions: Mapping, local: np.ndarray) -> np.ndarray:
+    """Distance (N,) from each of ``local`` (N, 3, in the primitive's frame) to the closed
+    surface of the primitive ``kind`` ("box", "cylinder") of ``dimensions`` (m): zero on a
+    face, positive inside and outside. A box spans [-x/2, x/2] x [-y/2, y/2] x [0, z]; a
+    cylinder radius r about z, z in [0, length]."""
+    d = _face_offsets(kind, dimensions, local)[0]
+    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
+    inside = np.minimum(d.max(axis=1), 0.0)
+    return np.abs(outside + inside)
+
+
+def primitive_normal(kind: str, dimensions: Mapping, local: np.ndarray) -> np.ndarray:
+    """The outward unit normal (N, 3) of the face of the primitive (as
+    :func:`primitive_distance`) nearest each of ``local`` (N, 3): a box's side, top or base,
+    a cylinder's mantle or end."""
+    d, q = _face_offsets(kind, dimensions, local)
+    face = np.argmax(d, axis=1)
+    n = np.zeros((len(q), 3))
+    rows = np.arange(len(q))
+    if kind == "box":
+        n[rows, face] = np.where(q[rows, face] >= 0.0, 1.0, -1.0)
+        return n
+    radial = q[:, :2] / np.maximum(np.linalg.norm(q[:, :2], axis=1), 1e-12)[:, None]
+    mantle = face == 0
+    n[mantle, :2] = radial[mantle]
+    n[~mantle, 2] = np.where(q[~mantle, 2] >= 0.0, 1.0, -1.0)
+    return n
+
+
+def _face_offsets(kind: str, dimensions: Mapping, local: np.ndarray):
+    """(how far outside each of a primitive's face pairs each point lies (N, 2 or 3; negative
+    inside), the points relative to the primitive's centre line (N, 3))."""
+    q = np.asarray(local, dtype=float)
+    if kind == "box":
+        half = 0.5 * np.array([float(dimensions[k]) for k in ("x", "y", "z")])
+        c = q - np.array([0.0, 0.0, half[2]])
+        return np.abs(c) - half, c
+    if kind == "cylinder":
+        r, length = float(dimensions["radius"]), float(dimensions["length"])
+        c = q - np.array([0.0, 0.0, 0.5 * length])
+        d = np.stack([np.hypot(c[:, 0], c[:, 1]) - r, np.abs(c[:, 2]) - 0.5 * length], axis=1)
+        return d, c
+    raise ValueError(f"unknown primitive kind {kind!r} (one of: {', '.join(PRIMITIVES)})")
+
+
 def mesh_distance(mesh: trimesh.Trimesh, points: np.ndarray, signed: bool = False) -> np.ndarray:
     """Distance (N,) from each of ``points`` (N, 3) to the surface of ``mesh``; with ``signed``,
     negative inside a watertight mesh."""

@@ -60,7 +60,7 @@ from .inputs import (
     Twist,
     View,
 )
-from .persistence import Autosave, RegistrationStore
+from .persistence import Autosave
 from .scene_feed import SceneFeed
 
 __all__ = [
@@ -209,11 +209,12 @@ class OperatorStream:
         #: scene the engine has, clicks in its frame)
         self.feed = feed if feed is not None else SceneFeed(outbox=outbox)
         #: where the registrations are written (without a node: ``save`` writes
-        #: affordance_registrations.yaml, changes are not written on their own)
+        #: affordance_registrations.yaml, locked from the first save; changes are not written
+        #: on their own)
         self.saver = (
             saver
             if saver is not None
-            else Autosave(RegistrationStore("affordance_registrations.yaml"), enabled=False)
+            else Autosave("affordance_registrations.yaml", enabled=False)
         )
         self._cv = threading.Condition()
         self._queue: collections.deque[OperatorInput] = collections.deque()

@@ -375,9 +375,16 @@ class Autosave:
     operator stream calls :meth:`persist` before it answers the input that changed them, so
     what is acknowledged is durable."""
 
-    def __init__(self, store: RegistrationStore, enabled: bool = True):
+    def __init__(self, store: RegistrationStore | str, enabled: bool = True):
+        #: the store, or the path of one made (and locked) on the first write: a session that
+        #: never saves takes no lock
         self.store, self.enabled = store, bool(enabled)
         self.unsaved = False  #: registrations changed and not written (autosave off)
+
+    def _store(self) -> RegistrationStore:
+        if isinstance(self.store, str):
+            self.store = RegistrationStore(self.store)
+        return self.store
 
     def persist(self, engine, explicit: bool) -> str:
         """Write ``engine``'s registrations (in its frame, with their waypoints) when
@@ -387,7 +394,7 @@ class Autosave:
             self.unsaved = True
             return ""
         regs = engine.state.registered
-        path, backup = self.store.write(regs, engine.frame_id, engine.library)
+        path, backup = self._store().write(regs, engine.frame_id, engine.library)
         self.unsaved = False
         text = f"saved {len(regs)} registration(s) to {path}" if explicit else f"saved to {path}"
         return text + (f" (the file it replaced is kept as {backup})" if backup else "")
@@ -395,6 +402,13 @@ class Autosave:
     def status(self) -> dict:
         """The status' ``registrations_file``: its path, how many it holds as last written,
         whether changes are unsaved and the last backup made."""
+        if isinstance(self.store, str):
+            return {
+                "path": os.path.abspath(os.path.expanduser(self.store)),
+                "saved": None,
+                "unsaved": self.unsaved,
+                "backup": None,
+            }
         return {
             "path": self.store.path,
             "saved": self.store.count,

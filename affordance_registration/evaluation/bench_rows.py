@@ -601,13 +601,18 @@ def any_frame_rows(default: Registrar, jobs, library, optical, n_scenes: int, lo
     return rows
 
 
-def real_capture_rows(library, jobs, quick: bool, log) -> dict:
+def real_capture_rows(library, jobs, quick: bool, log, all_composites: bool = False) -> dict:
     """The rows of real captures and primitives (:mod:`.evaluation.rows`), with the default
     library (the taskboard templates, a box and a cylinder): the panel clicks fitted with it
     (what the primitives change there); mOSD's real Kinect scans (the verdict refusing the
     taskboard templates, the primitives scored against the labels, tuning and held-out
-    scenes apart); simulated boxes and cylinders, stacked boxes and mugs, with true dimensions (the
-    seeds of the development and others); the Armadillo among real objects, PCL's milk carton."""
+    scenes apart); the trust rows (:mod:`.composite`: right, wrong and accepted, specific
+    claims on the learn scenes by group and on mixed and complex composites, a sample of 5
+    development and 5 held-out seeds of each kind -- 1 with ``quick``, all 20 + 20 with
+    ``all_composites``); simulated boxes and cylinders, stacked boxes and mugs, with true
+    dimensions (the seeds of the development and others); the Armadillo among real objects,
+    PCL's milk carton."""
+    from .composite import composite_rows
     from .rows import clutter_rows, real_capture_cost, real_kinect_rows, simulated_primitive_rows
 
     full = TemplateLibrary.load()
@@ -619,7 +624,13 @@ def real_capture_rows(library, jobs, quick: bool, log) -> dict:
     row.pop("outcomes")
     log("real Kinect scans (mOSD learn) ...")
     kinect = real_kinect_rows(library=full, log=log, refined=True)
-    kinect.pop("records")
+    trust = composite_rows(
+        full,
+        samples=None if all_composites else 1 if quick else 5,
+        learn_records=kinect.pop("records"),
+        log=log,
+    )
+    trust.pop("records", None)
     log("a real capture's click against a simulated one, alternately ...")
     kinect["cost"] = real_capture_cost(with_primitives, jobs, 10 if quick else 20)
     n = 3 if quick else 10
@@ -674,6 +685,7 @@ def real_capture_rows(library, jobs, quick: bool, log) -> dict:
     return {
         "with_primitives": row,
         "real_kinect": kinect,
+        "trust": trust,
         "primitives_simulated": simulated,
         "clutter": clutter,
     }

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core.errors import AffordanceError, SceneError
+from ..core.meshes import primitive_distance as core_primitive_distance
 from ..core.pointfiles import check_header, header_lines
 from .simulation import CameraIntrinsics
 
@@ -74,6 +75,8 @@ __all__ = [
     "local_noise",
     "PrimitiveScore",
     "score_primitive",
+    "score_points",
+    "fit_record",
     "evaluate_scene",
     "SENSOR_ORIGIN",
 ]
@@ -709,26 +712,14 @@ def box_distance(points: np.ndarray, T_scene_model: np.ndarray, dims) -> np.ndar
     """Distance (N,) of ``points`` (N, 3) to the closed surface of the box ``dims``
     ({"x", "y", "z"} full edge lengths, m) posed by ``T_scene_model`` (origin at the centre of
     its base face, +z up): zero on a face, positive inside and outside."""
-    half = _box_half(dims)
-    q = _in_model(points, T_scene_model) - np.array([0.0, 0.0, half[2]])
-    d = np.abs(q) - half
-    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
-    inside = np.minimum(d.max(axis=1), 0.0)
-    return np.abs(outside + inside)
+    return core_primitive_distance("box", dims, _in_model(points, T_scene_model))
 
 
 def cylinder_distance(points: np.ndarray, T_scene_model: np.ndarray, dims) -> np.ndarray:
     """Distance (N,) of ``points`` (N, 3) to the closed surface of the cylinder ``dims``
     ({"radius", "length"}, m) posed by ``T_scene_model`` (origin at the centre of one end
     face, +z along the axis): the mantle and both end discs."""
-    r, length = float(dims["radius"]), float(dims["length"])
-    q = _in_model(points, T_scene_model)
-    d = np.stack(
-        [np.hypot(q[:, 0], q[:, 1]) - r, np.abs(q[:, 2] - 0.5 * length) - 0.5 * length], axis=1
-    )
-    outside = np.linalg.norm(np.maximum(d, 0.0), axis=1)
-    inside = np.minimum(d.max(axis=1), 0.0)
-    return np.abs(outside + inside)
+    return core_primitive_distance("cylinder", dims, _in_model(points, T_scene_model))
 
 
 def primitive_distance(
@@ -835,20 +826,34 @@ def score_primitive(
     max(6 mm, 3 x the object's local noise) (``noise`` given, or :func:`local_noise` of its
     points)."""
     flat = cloud.points.reshape(-1, 3)
-    ids = cloud.object_ids.reshape(-1)
     valid = cloud.valid.reshape(-1)
     k = obj.id if isinstance(obj, LabelledObject) else int(obj)
-    own = flat[valid & (ids == k)]
-    if len(own) == 0:
+    own = valid & (cloud.object_ids.reshape(-1) == k)
+    if not own.any():
         raise AffordanceError(f"{cloud.name}: no object {k}")
-    sigma = local_noise(own) if noise is None else float(noise)
+    return score_points(flat[valid], own[valid], kind, T_scene_model, dims, noise)
+
+
+def score_points(
+    points: np.ndarray,
+    own: np.ndarray,
+    kind: str,
+    T_scene_model: np.ndarray,
+    dims,
+    noise: float | None = None,
+) -> PrimitiveScore:
+    """The label rule of :func:`score_primitive` on a scan's finite ``points`` (N, 3), of
+    which ``own`` (N,) bool are the object's (a simulated scene's, from its truth)."""
+    points = np.asarray(points, float)
+    own = np.asarray(own, bool)
+    sigma = local_noise(points[own]) if noise is None else float(noise)
     tol = max(MIN_TOLERANCE, NOISE_SIGMAS * sigma)
-    recall = float(np.mean(primitive_distance(kind, own, T_scene_model, dims) <= tol))
-    near = valid & inside_region(kind, np.nan_to_num(flat), T_scene_model, dims, tol)
+    recall = float(np.mean(primitive_distance(kind, points[own], T_scene_model, dims) <= tol))
+    near = inside_region(kind, points, T_scene_model, dims, tol)
     on = np.zeros_like(near)
-    on[near] = primitive_distance(kind, flat[near], T_scene_model, dims) <= tol
+    on[near] = primitive_distance(kind, points[near], T_scene_model, dims) <= tol
     n_on = int(on.sum())
-    precision = float(np.mean(ids[on] == k)) if n_on else 0.0
+    precision = float(np.mean(own[on])) if n_on else 0.0
     return PrimitiveScore(recall, precision, tol, sigma, n_on)
 
 
@@ -870,25 +875,67 @@ def _annotated_kind(name: str, object_id: int) -> str | None:
         return None
 
 
+def fit_record(
+    cloud: LabelledCloud,
+    obj: LabelledObject,
+    best,
+    object_kind: str | None = None,
+    refined: bool = False,
+) -> dict:
+    """What :func:`evaluate_scene` records of the shown candidate ``best`` (a
+    ``core.registration.FitResult``) of a click on ``obj`` of ``cloud``: ``template``,
+    ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason`` (these four read with
+    getattr: None where the registrar does not give them), ``T_scene_model`` (4 rows),
+    ``score`` (:meth:`PrimitiveScore.to_dict` when it is a box or cylinder with dimensions,
+    else None), ``refined_score`` (with ``refined``, where it is of ``object_kind``: the score
+    of the fit refined on the object's labelled points, :func:`.label_ceiling.refined_score`)
+    and ``error`` (a scoring that failed: its message; else None)."""
+    primitive = getattr(best, "primitive", None)
+    dims = _dims_dict(getattr(best, "dimensions", None))
+    T = np.asarray(best.T_scene_model, float)
+    rec = {
+        "template": best.template,
+        "fits": best.fits,
+        "primitive": primitive,
+        "dimensions": dims,
+        "explained": getattr(best, "explained", None),
+        "reason": getattr(best, "reason", None),
+        "T_scene_model": [[round(float(v), 6) for v in row] for row in T],
+        "score": None,
+        "refined_score": None,
+        "error": None,
+    }
+    if primitive in ("box", "cylinder") and dims:
+        try:
+            rec["score"] = score_primitive(cloud, obj, primitive, T, dims).to_dict()
+            if refined and primitive == object_kind:
+                from .label_ceiling import refined_score
+
+                rec["refined_score"] = refined_score(cloud, obj, primitive, T, dims).to_dict()
+        except (AffordanceError, KeyError, ValueError) as exc:
+            rec["error"] = f"scoring: {exc}"
+    return rec
+
+
 def evaluate_scene(
     registrar,
     scene_path: str | LabelledCloud,
     min_points: int = MIN_OBJECT_POINTS,
     refined: bool = False,
+    object_kinds: dict | None = None,
 ) -> list[dict]:
     """Click the middle of every labelled object (>= ``min_points``) of an mOSD scene with
     ``registrar`` (a :class:`core.registration.Registrar`) -- the sensor at the origin -- and
     return one record per object:
 
     ``scene``, ``kind``, ``uniform_kind`` (:func:`uniform_kind`), ``held_out``, ``object``
-    (id), ``object_kind`` (:func:`object_kind`), ``n_points``, ``click`` (3 floats),
-    ``template`` (the best candidate's), ``fits``, ``primitive``, ``dimensions``, ``explained``
-    (these three read with getattr: None where the registrar does not give them), ``score``
-    (:meth:`PrimitiveScore.to_dict` when the best candidate is a box or cylinder with
-    dimensions, else None), ``time_s`` (the fit's wall time) and ``error`` (a fit that raised:
-    its one-line message, the other fields None); with ``refined``, also ``refined_score``:
-    the score of that fit refined on the object's labelled points
-    (:func:`.label_ceiling.refined_score`) where it is of the object's kind, else None."""
+    (id), ``object_kind`` (:func:`object_kind`; for a scene that is not a learn scene, such as
+    a composite of several, ``object_kinds`` {id: kind} gives it), ``n_points``, ``click`` (3
+    floats), ``pixel`` (row, column), what :func:`fit_record` records of the best candidate
+    (``template``, ``fits``, ``primitive``, ``dimensions``, ``explained``, ``reason``,
+    ``T_scene_model``, ``score``, with ``refined`` ``refined_score``), ``time_s`` (the fit's
+    wall time) and ``error`` (a fit that raised: its one-line message, the other fields
+    None)."""
     from ..core.scene import Scene
 
     cloud = scene_path if isinstance(scene_path, LabelledCloud) else read_labelled_pcd(scene_path)
@@ -900,20 +947,27 @@ def evaluate_scene(
         kind, held, uniform = None, None, None
     records = []
     for obj in labelled_objects(cloud, min_points):
+        if object_kinds is not None:
+            what = object_kinds.get(obj.id)
+        else:
+            what = _annotated_kind(cloud.name, obj.id)
         rec = {
             "scene": cloud.name,
             "kind": kind,
             "uniform_kind": uniform,
             "held_out": held,
             "object": obj.id,
-            "object_kind": _annotated_kind(cloud.name, obj.id),
+            "object_kind": what,
             "n_points": obj.n_points,
             "click": [round(float(v), 6) for v in obj.click],
+            "pixel": list(obj.pixel) if obj.pixel is not None else None,
             "template": None,
             "fits": None,
             "primitive": None,
             "dimensions": None,
             "explained": None,
+            "reason": None,
+            "T_scene_model": None,
             "score": None,
             "refined_score": None,
             "time_s": None,
@@ -928,27 +982,6 @@ def evaluate_scene(
             records.append(rec)
             continue
         rec["time_s"] = time.perf_counter() - t0
-        primitive = getattr(best, "primitive", None)
-        dims = _dims_dict(getattr(best, "dimensions", None))
-        rec.update(
-            template=best.template,
-            fits=best.fits,
-            primitive=primitive,
-            dimensions=dims,
-            explained=getattr(best, "explained", None),
-        )
-        if primitive in ("box", "cylinder") and dims:
-            try:
-                rec["score"] = score_primitive(
-                    cloud, obj, primitive, best.T_scene_model, dims
-                ).to_dict()
-                if refined and primitive == rec["object_kind"]:
-                    from .label_ceiling import refined_score
-
-                    rec["refined_score"] = refined_score(
-                        cloud, obj, primitive, best.T_scene_model, dims
-                    ).to_dict()
-            except (AffordanceError, KeyError, ValueError) as exc:
-                rec["error"] = f"scoring: {exc}"
+        rec.update(fit_record(cloud, obj, best, what, refined))
         records.append(rec)
     return records

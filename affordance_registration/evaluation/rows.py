@@ -36,6 +36,7 @@ __all__ = [
     "simulate_stack",
     "simulate_mugs",
     "mug_mesh",
+    "mug_handle",
     "primitive_pose_error",
     "DIM_TOL",
     "POSE_TOL_M",
@@ -260,8 +261,8 @@ def _place(rng, placed: list, radius: float, half) -> np.ndarray | None:
 def _rendered(rng, cam, objects: list, meshes: list):
     """The table with ``meshes`` ((mesh, T_table_mesh) each, one per object) rendered by
     ``cam`` from a seeded viewpoint 0.8-1.3 m away at 35-65 deg above the table: (organized
-    (H, W, 3), ``objects`` each given ``visible``, ``click`` and ``T_scene_model`` for its
-    ``T_table_model``)."""
+    (H, W, 3), ``objects`` each given ``mask`` (H, W) -- its pixels -- ``visible``, ``click`` and
+    ``T_scene_model`` for its ``T_table_model``)."""
     import trimesh
 
     table = trimesh.creation.box(extents=TABLE)
@@ -278,6 +279,7 @@ def _rendered(rng, cam, objects: list, meshes: list):
     organized, labels = cam.render(scene_meshes, rng)
     for i, obj in enumerate(objects, start=1):
         mask = labels == i
+        obj["mask"] = mask
         obj["visible"] = int(mask.sum())
         obj["click"] = click_in_middle(organized, mask)[0] if obj["visible"] else None
         obj["T_scene_model"] = T_cam_table @ obj.pop("T_table_model")
@@ -353,6 +355,19 @@ def mug_mesh(radius: float, length: float, wall: float, bottom: float, handle: d
     return trimesh.util.concatenate(parts)
 
 
+def mug_handle(rng: np.random.Generator, length: float) -> dict:
+    """A seeded handle for :func:`mug_mesh` on a vessel ``length`` (m) tall: reaching
+    15-30 mm past the mantle, bars 7-12 mm thick, its lower arm at 15-30% of the height and
+    the upper one 40-60% of it higher."""
+    low = rng.uniform(0.15, 0.3) * length
+    return {
+        "reach": rng.uniform(0.015, 0.03),
+        "bar": rng.uniform(0.007, 0.012),
+        "low": low,
+        "high": low + rng.uniform(0.4, 0.6) * length,
+    }
+
+
 def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
     """A seeded table with ``n_objects`` open-topped vessels (:func:`mug_mesh`: radius 30-60 mm,
     70-140 mm tall, walls of 3-6 mm, two in three with a handle), rendered as
@@ -366,15 +381,7 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
     for _ in range(n_objects):
         radius, length = rng.uniform(0.03, 0.06), rng.uniform(0.07, 0.14)
         wall, bottom = rng.uniform(0.003, 0.006), rng.uniform(0.005, 0.012)
-        handle = None
-        if rng.random() < 2 / 3:
-            low = rng.uniform(0.15, 0.3) * length
-            handle = {
-                "reach": rng.uniform(0.015, 0.03),
-                "bar": rng.uniform(0.007, 0.012),
-                "low": low,
-                "high": low + rng.uniform(0.4, 0.6) * length,
-            }
+        handle = mug_handle(rng, length) if rng.random() < 2 / 3 else None
         footprint = radius + (handle["reach"] if handle else 0.0)
         T_table_model = _place(rng, placed, footprint, (0.3, 0.15))
         if T_table_model is None:
@@ -389,6 +396,20 @@ def simulate_mugs(seed: int, n_objects: int = 2, camera=None):
         )
         meshes.append((mug_mesh(radius, length, wall, bottom, handle), T_table_model))
     return _rendered(rng, cam, objects, meshes)
+
+
+def label_score(organized: np.ndarray, obj: dict, result):
+    """The label rule (:func:`.realdata.score_points`) of a primitive ``result`` (a FitResult:
+    ``primitive``, ``T_scene_model``, ``dimensions``) of a simulated ``obj`` (its ``mask``),
+    in the scene ``organized`` (H, W, 3)."""
+    from .realdata import score_points
+
+    pts = organized.reshape(-1, 3)
+    valid = np.all(np.isfinite(pts), axis=1)
+    own = np.asarray(obj["mask"], bool).reshape(-1)
+    return score_points(
+        pts[valid], own[valid], result.primitive, result.T_scene_model, result.dimensions
+    )
 
 
 def primitive_pose_error(

@@ -138,21 +138,24 @@ def joined(measured, parts, limit: int):
 
 def with_hidden_parts(
     ctx: ClickContext, scene, measured, fitted: list, fit_on, model_of, settings: FitSettings
-) -> list:
+) -> tuple[list, list]:
     """``fitted`` (one primitive each, measured on the clicked part: ``measured``), each
     measured again with the pieces of the object something in front splits off
     (:func:`hidden_parts`) where there are any, and kept so when that one explains the clicked
     part and every piece: the share of each within the verdict's (widened)
     ``explained_distance`` of its surface is at least ``verdict.min_explained``.
     ``fit_on(measured, k)``: the k-th primitive measured on such a tuple; ``model_of(result)``:
-    a result's model."""
+    a result's model. Returns (the fits, the points (N, 3) of the pieces each was measured with
+    -- (0, 3) where none)."""
+    none = np.zeros((0, 3))
     parts = hidden_parts(ctx, scene, ctx.clicked_points, settings)
     if not parts:
-        return fitted
+        return fitted, [none] * len(fitted)
     v = settings.verdict
     within = widening(ctx, settings) * v.explained_distance
     both = joined(measured, parts, MEASURE_POINTS)
-    out = []
+    pieces = np.concatenate([p for p, _ in parts])
+    out, used = [], []
     for k, alone in enumerate(fitted):
         res = fit_on(both, k)
         model, T = model_of(res), res.T_scene_model
@@ -165,5 +168,7 @@ def with_hidden_parts(
             )
             for p in [measured[0]] + [q for q, _ in parts]
         ]
-        out.append(res if min(shares) >= v.min_explained else alone)
-    return out
+        keep = min(shares) >= v.min_explained
+        out.append(res if keep else alone)
+        used.append(pieces if keep else none)
+    return out, used

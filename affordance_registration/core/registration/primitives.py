@@ -27,11 +27,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..neighbours import build_tree, nearest
-from ..scene import ClickContext, ransac_plane, segment
-from ..segmentation import share_within
+from ..neighbours import build_tree
+from ..scene import ClickContext, ransac_plane
+from ..segmentation import segments_and_patches, share_within
 from ..templates import AffordanceTemplate
 from ..transforms import make_T
+from .explains import ObjectVoxels
 from .icp import fine_stage
 from .model import ModelCache
 from .results import FitResult
@@ -42,6 +43,7 @@ __all__ = [
     "fit_primitive",
     "refine_primitive",
     "object_points",
+    "object_voxels",
     "truncated",
     "past_crop",
     "stacked",
@@ -190,15 +192,36 @@ def past_crop(ctx: ClickContext, past: bool, judged: list) -> list:
 def object_points(ctx: ClickContext):
     """The clicked object's full-resolution points, their normals (towards the sensor), the
     surface it stands on (a :class:`~..scene.Plane`, or None) and the object's up direction
-    (None: unknown): the points whose nearest cluster voxel lies in the clicked segment of the
-    cluster. Where the click is on the crop's dominant plane (a box's large face), that plane
-    is the object's and the cluster holds what it stands on too: the support is looked for
-    among the points off that face (:func:`_floor`: a table under a box's top face, or across
-    from its side), and the object is cut from what lies above it; without one the face is the
-    object's top. Where the crop has no dominant plane, or one the click lies behind (the face
-    of a larger box in front of a smaller one standing on it), the support is looked for among
-    the cluster's other segments (none there: that plane, if any, stays the support)."""
-    cluster, labels, support = ctx.cluster, ctx.segments, ctx.support
+    (None: unknown): the points whose nearest cluster voxel lies in the clicked object's voxels
+    (:func:`object_voxels`)."""
+    region = object_voxels(ctx)
+    mine = region.member(ctx.fine)
+    if mine.sum() < 10:
+        mine[:] = True
+    points, normals = ctx.fine[mine], np.array(ctx.fine_normals[mine])
+    towards = (
+        (ctx.sensor_origin - points)
+        if ctx.sensor_origin is not None
+        else (points - points.mean(axis=0))
+    )  # outwards without a viewpoint
+    normals[np.einsum("ij,ij->i", normals, towards) < 0] *= -1
+    if len(points) > MEASURE_POINTS:  # an even subset measures as well
+        keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
+        points, normals = points[keep], normals[keep]
+    support, up = region.support, region.up
+    return points, normals, support, (_up(support, points) if up is None else up)
+
+
+def object_voxels(ctx: ClickContext) -> ObjectVoxels:
+    """The clicked object's voxels: the clicked segment of the cluster. Where the click is on
+    the crop's dominant plane (a box's large face), that plane is the object's and the cluster
+    holds what it stands on too: the support is looked for among the points off that face
+    (:func:`_floor`: a table under a box's top face, or across from its side), and the object
+    is cut from what lies above it; without one the face is the object's top. Where the crop
+    has no dominant plane, or one the click lies behind (the face of a larger box in front of a
+    smaller one standing on it), the support is looked for among the cluster's other segments
+    (none there: that plane, if any, stays the support)."""
+    cluster, labels, patches, support = ctx.cluster, ctx.segments, ctx.patches, ctx.support
     clicked = ctx.clicked_segment
     thr = ctx.plane_threshold
     up = None
@@ -214,7 +237,7 @@ def object_points(ctx: ClickContext):
             above = floor.distance(cluster) > thr
             if above.sum() >= 10:
                 cluster = cluster[above]
-                labels = segment(cluster, ctx.sensor_origin, ctx.voxel)
+                labels, patches = segments_and_patches(cluster, ctx.sensor_origin, ctx.voxel)
                 clicked = labels[int(np.argmin(np.linalg.norm(cluster - ctx.click, axis=1)))]
                 support, up = floor, None
     elif ctx.sensor_origin is not None and (
@@ -227,22 +250,7 @@ def object_points(ctx: ClickContext):
         if floor is not None:  # (none found: a plane in front still gives the axis)
             support = floor
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
-    d, idx = nearest(tree, ctx.fine, ctx.voxel)
-    mine = np.isfinite(d)
-    mine[mine] = labels[idx[mine]] == clicked
-    if mine.sum() < 10:
-        mine[:] = True
-    points, normals = ctx.fine[mine], np.array(ctx.fine_normals[mine])
-    towards = (
-        (ctx.sensor_origin - points)
-        if ctx.sensor_origin is not None
-        else (points - points.mean(axis=0))
-    )  # outwards without a viewpoint
-    normals[np.einsum("ij,ij->i", normals, towards) < 0] *= -1
-    if len(points) > MEASURE_POINTS:  # an even subset measures as well
-        keep = np.linspace(0, len(points) - 1, MEASURE_POINTS).astype(np.int64)
-        points, normals = points[keep], normals[keep]
-    return points, normals, support, (_up(support, points) if up is None else up)
+    return ObjectVoxels(cluster, tree, labels, patches, int(clicked), ctx.voxel, support, up)
 
 
 def stacked(ctx: ClickContext, measured):

@@ -80,6 +80,11 @@ class FitResult:
     #: of the surface that sets a specific template apart from the primitive fitting the same
     #: click, the share the sensor saw (:func:`.scoring.distinguished`; None: not measured)
     distinct: float | None = None
+    #: of the clicked object's points, the share on a primitive's surface, and of the scan's
+    #: points on its surface, the share that is the object's (:mod:`.explains`; None: not
+    #: measured, as for a specific template)
+    recall: float | None = None
+    precision: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -104,6 +109,8 @@ class FitResult:
             if self.primitive
             else None,
             "distinct": None if self.distinct is None else round(float(self.distinct), 4),
+            "recall": None if self.recall is None else round(float(self.recall), 4),
+            "precision": None if self.precision is None else round(float(self.precision), 4),
             "iterations": self.iterations,
             "converged": self.converged,
             "prefiltered": self.prefiltered,
@@ -146,18 +153,36 @@ def rank(results, no_match_likelihood: float = 1.0 / NO_MATCH_RESIDUAL) -> tuple
     ranking of scores that are not likelihoods) filled in.
 
     Primitives describe the "no template fits here" answer: a specific template that fits
-    ranks above every primitive; when none fits, a primitive that fits leads; otherwise the
-    specific templates come first. Their probabilities are shared among the specific
-    templates; a primitive's among the primitives (each with the no-match answer)."""
+    ranks above every primitive; when none fits, a primitive that fits leads; where nothing
+    fits, the group whose best explains more of the clicked object (``explained``) leads -- the
+    specific templates on a tie (the right object refused at its right pose is shown rather
+    than a box around it and its neighbour; a box refused for the table at its base rather
+    than a valve that explains a fifth of the box). Their probabilities are shared among the
+    specific templates; a primitive's among the primitives (each with the no-match answer)."""
     results = list(results)
     fits = {
         p: any(r.fits and (r.primitive is not None) == p for r in results) for p in (False, True)
     }
+    if fits[False]:
+        lead = False
+    elif fits[True]:
+        lead = True
+    else:
+        most = {
+            p: max(
+                (
+                    r.explained
+                    for r in results
+                    if (r.primitive is not None) == p and not r.prefiltered
+                ),
+                default=-1.0,
+            )
+            for p in (False, True)
+        }
+        lead = most[True] > most[False]
 
     def group(r: FitResult) -> int:
-        if r.primitive is None:
-            return 0 if fits[False] or not fits[True] else 1
-        return 0 if fits[True] and not fits[False] else 1
+        return 0 if (r.primitive is not None) == lead else 1
 
     results.sort(key=lambda r: (r.prefiltered, group(r), -r.likelihood))
     total = {

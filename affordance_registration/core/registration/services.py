@@ -96,11 +96,19 @@ class Services:
         return judge(ctx, [self.model_of(r) for r in results], results, self.settings)
 
     def distinguished(self, ctx: ClickContext, candidates, primitives) -> list:
-        """``candidates`` with the fitting specific ones tested against the best fitting of
-        ``primitives`` (:func:`.scoring.distinguished`); unchanged when none of those fits."""
+        """``candidates`` with the fitting specific ones tested against the primitive that
+        stands for the clicked object (:func:`.scoring.distinguished`): the best fitting of
+        ``primitives``, else the one that explains the most of the object where that is at
+        least ``verdict.min_recall`` (it may be refused for what else lies on its surface: it
+        is still what the object's points are, as far as a primitive can say); unchanged
+        without one."""
         fitting = [r for r in primitives if r.fits]
         if not fitting:
-            return list(candidates)
+            bar = self.settings.verdict.min_recall
+            fitting = [r for r in primitives if r.recall is not None and r.recall >= bar]
+            if not fitting:
+                return list(candidates)
+            fitting = [max(fitting, key=lambda r: r.recall)]
         best = max(fitting, key=lambda r: r.likelihood)
         tested = [r for r in candidates if r.fits and r.primitive is None]
         done = dict(

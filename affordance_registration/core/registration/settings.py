@@ -473,6 +473,26 @@ class VerdictSettings(_Group):
         "than the primitive fitting the same click",
         FRACTION,
     )
+    #: a primitive explains the clicked object -- the whole of it and only it
+    #: (:mod:`.explains`): the operator's question, and the label rule real scans are scored by
+    min_recall: float = knob(
+        0.9,
+        "a primitive fits when at least this share of the clicked object's points lies on its "
+        "surface (within object_distance)",
+        FRACTION,
+    )
+    min_precision: float = knob(
+        0.9,
+        "... and at least this share of the scan points on its surface is the object's (not "
+        "the support, not a neighbour)",
+        FRACTION,
+    )
+    object_distance: float = knob(
+        0.006,
+        "a scan point lies on a primitive's surface within this (m), or noise_sigmas x "
+        "the scan's noise where larger",
+    )
+    noise_sigmas: float = knob(3.0, "see object_distance", limits=(0.5, 20.0))
     #: a noisier scan (``ClickContext.noise``) widens the verdict's distances in proportion
     noise_reference: float = knob(
         0.0015, "the verdict's distances hold for a scan noise up to this (m)"

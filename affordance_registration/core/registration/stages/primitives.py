@@ -21,17 +21,21 @@ import numpy as np
 
 from ...click_context import ClickContext
 from ...scene import Scene
-from ..hidden_parts import with_hidden_parts
+from ..explains import explanation
+from ..hidden_parts import hidden_parts, with_hidden_parts
+from ..model import surface_distances
 from ..primitives import (
     REFINE_SHARE,
     fit_primitive,
     object_points,
+    object_voxels,
     past_crop,
     refine_primitive,
     stacked,
     truncated,
 )
 from ..results import FitResult, rank
+from ..scoring import widening
 from ..services import Services
 from ..state import FitState, stage
 from .prepare import click_context
@@ -96,7 +100,7 @@ def measured_on(services: Services, ctx: ClickContext, scene, names, points, ref
     def fit_on(on, k):
         return fit_primitive(ctx, library[names[k]], services.models, s, measured=on, refine=False)
 
-    fitted = with_hidden_parts(
+    fitted, pieces = with_hidden_parts(
         ctx,
         scene,
         points,
@@ -107,7 +111,7 @@ def measured_on(services: Services, ctx: ClickContext, scene, names, points, ref
     )
     # (refining costs an ICP: only the primitives that may lead are refined)
     lead = max(r.likelihood for r in fitted)
-    return services.judged(
+    judged = services.judged(
         ctx,
         [
             refine_primitive(ctx, library[n], services.models, s, r)
@@ -116,6 +120,53 @@ def measured_on(services: Services, ctx: ClickContext, scene, names, points, ref
             for n, r in zip(names, fitted)
         ],
     )
+    return explained(services, ctx, scene, judged, points[0], pieces)
+
+
+def explained(
+    services: Services, ctx: ClickContext, scene, judged: list, region: np.ndarray, pieces
+) -> list:
+    """The ``judged`` primitives, each refused where it does not explain the clicked object
+    -- the whole of it and only it (:func:`..explains.explanation`: ``verdict.min_recall``
+    of the object's points on its surface, ``verdict.min_precision`` of the scan's points on
+    its surface the object's) -- with its ``recall`` and ``precision``. ``region``: the points
+    it was measured on; ``pieces``: per primitive, the points of the pieces an occluder split
+    off that it was measured with (N, 3) -- they are the object's. Without a viewpoint (no
+    segments to tell the object from its neighbours) they stand as judged."""
+    if ctx.sensor_origin is None or not judged:
+        return list(judged)
+    v = services.settings.verdict
+    near = scene.around(ctx.click, ctx.radius) if scene is not None else None
+    scan = ctx.crop if near is None else near.points
+    voxels = object_voxels(ctx)
+    parts = [q for q, _ in hidden_parts(ctx, scene, ctx.clicked_points, services.settings)]
+    out = []
+    for r, extra in zip(judged, pieces):
+        e = explanation(
+            ctx,
+            services.model_of(r),
+            r.T_scene_model,
+            np.concatenate([region, extra]),
+            scan,
+            voxels,
+            parts,
+            services.settings,
+        )
+        why = [
+            f"it explains {e.recall:.0%} of the clicked object (a fit needs {v.min_recall:.0%})"
+            if e.recall < v.min_recall
+            else "",
+            f"{1 - e.precision:.0%} of what lies on its surface is not the clicked object (a "
+            f"fit allows {1 - v.min_precision:.0%})"
+            if e.precision < v.min_precision
+            else "",
+        ]
+        why = "; ".join(w for w in why if w)
+        r = replace(r, recall=e.recall, precision=e.precision)
+        if why:
+            r = replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
+        out.append(r)
+    return out
 
 
 def measured(services: Services, ctx: ClickContext, scene: Scene | None) -> tuple:
@@ -130,6 +181,28 @@ def measured(services: Services, ctx: ClickContext, scene: Scene | None) -> tupl
     wide = click_context(services, scene, ctx.click, WIDER * ctx.radius).with_insides()
     again = object_points(wide)
     return (wide, again, truncated(wide, again)) if truncated(ctx, again) else (ctx, points, False)
+
+
+def pieces_on(services: Services, ctx: ClickContext, scene, res: FitResult) -> np.ndarray:
+    """The points (N, 3) of the pieces an occluder splits off the clicked object
+    (:func:`..hidden_parts.hidden_parts`) that the primitive ``res`` lies on -- at least
+    ``verdict.min_explained`` of each within the verdict's ``explained_distance``, as at the
+    click (:func:`..hidden_parts.with_hidden_parts`)."""
+    s = services.settings
+    parts = hidden_parts(ctx, scene, ctx.clicked_points, s)
+    if not parts:
+        return np.zeros((0, 3))
+    model, T = services.model_of(res), res.T_scene_model
+    within = widening(ctx, s) * s.verdict.explained_distance
+    on = [
+        q
+        for q, _ in parts
+        if np.mean(
+            surface_distances([model], ((q - T[:3, 3]) @ T[:3, :3])[None], 2 * within)[0] <= within
+        )
+        >= s.verdict.min_explained
+    ]
+    return np.concatenate(on) if on else np.zeros((0, 3))
 
 
 def seen(services: Services, ctx: ClickContext, scene: Scene | None = None) -> list:
@@ -176,10 +249,14 @@ def refit(
             )
         ],
     )[0]
+    res = explained(
+        services, ctx, scene, [res], points[0], [pieces_on(services, ctx, scene, res)]
+    )[0]
     cut = stacked(ctx, points) if wide is ctx and not res.fits else None
     if cut is not None:
         alt = services.judged(
             cut[0], [fit_primitive(cut[0], tpl, services.models, s, dimensions, T_init, cut[1])]
         )[0]
+        alt = explained(services, cut[0], scene, [alt], cut[1][0], [np.zeros((0, 3))])[0]
         res = alt if alt.fits else res
     return past_crop(wide, past, [res])[0]
