@@ -111,6 +111,70 @@ def test_symmetry_residual_angle():
     assert cont.residual_angle(tilt) == pytest.approx(0.2, abs=1e-7)
 
 
+def test_a_symmetry_axis_passes_through_its_declared_point(tmp_path, library):
+    """The grab handle written in millimetres with its origin moved off the handle (by 300, -200,
+    100 mm) declares its symmetry's point there: its symmetry motions map the handle onto
+    itself, and a pose composed with one of them is the same pose to ``pose_error``; declared
+    through the origin (the default), the same half turn moves the handle off itself."""
+    from affordance_registration.core.transforms import make_T, pose_error
+
+    shift = np.array([300.0, -200.0, 100.0])  # mm
+    mesh = library["grab_handle"].mesh.copy()
+    mesh.apply_scale(1000.0)
+    mesh.apply_translation(shift)
+    mesh.export(tmp_path / "handle.stl")
+    doc = {"name": "h", "mesh": "handle.stl", "mesh_scale": 0.001}
+    sym = {"axis": [0, 0, 1], "order": 2}
+    on = load_template(
+        _write(tmp_path, {**doc, "symmetry": {**sym, "point": shift.tolist()}}, mesh=False)
+    )
+    off = load_template(_write(tmp_path, {**doc, "symmetry": sym}, "off.yaml", mesh=False))
+    assert np.allclose(on.symmetry.point, shift / 1000.0)
+    pts = on.samples(2000, seed=5)[0]
+    S = on.symmetry.transforms[1]
+    assert np.percentile(mesh_distance(on.mesh, pts @ S[:3, :3].T + S[:3, 3]), 99) < 5e-4
+    S_off = off.symmetry.transforms[1]
+    assert np.median(mesh_distance(off.mesh, pts @ S_off[:3, :3].T + S_off[:3, 3])) > 0.3
+    T = make_T(trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])[:3, :3], [1.0, 2.0, 3.0])
+    dt, dr = pose_error(T @ S, T, on.symmetry)
+    assert dt < 1e-12 and dr < 1e-7
+    assert pose_error(T @ S, T)[0] > 0.7  # the origins: 2 x 0.37 m apart
+
+
+def test_a_mount_is_the_files_frame_unless_declared(tmp_path, library):
+    """A mesh's mount is its file's frame by default, a point cloud has none, ``mount: none``
+    takes it away and a declared one is where the file says; the axes orientations are drawn in
+    are the mount's, else the surface's own -- and the resting facets turn with the file: the
+    grab handle written turned by R (and moved 5 m) with its mount declared rests in
+    R_rest @ R^T."""
+    from affordance_registration.core.transforms import make_T
+    from affordance_registration.evaluation.simulation import ply_bytes
+
+    handle = library["grab_handle"]
+    assert np.array_equal(handle.mount, np.eye(4)) and np.array_equal(handle.axes, np.eye(3))
+    (tmp_path / "scan.ply").write_bytes(ply_bytes(handle.samples(3000, seed=2)[0]))
+    scan = load_template(_write(tmp_path, {"name": "s", "mesh": "scan.ply"}, "s.yaml", False))
+    assert scan.mount is None and scan.axes is scan.own_axes
+    R = trimesh.transformations.rotation_matrix(2.0, [1.0, -2.0, 0.5])[:3, :3]
+    B = make_T(R, [3.0, -4.0, 0.0])
+    handle.mesh.copy().apply_transform(B).export(tmp_path / "moved.stl")
+    rpy = trimesh.transformations.euler_from_matrix(B, "sxyz")
+    mount = {"position": B[:3, 3].tolist(), "rpy": [float(a) for a in rpy]}
+    moved = load_template(
+        _write(tmp_path, {"name": "m", "mesh": "moved.stl", "mount": mount}, "m.yaml", False)
+    )
+    assert np.allclose(moved.mount, B, atol=1e-9) and np.allclose(moved.axes, R, atol=1e-9)
+    rests, rests_moved = handle.resting_rotations(), moved.resting_rotations()
+    assert len(rests) == len(rests_moved) >= 2
+    for (Ra, wa), (Rb, wb) in zip(rests, rests_moved):
+        assert np.allclose(Rb, Ra @ R.T, atol=1e-5) and wb == pytest.approx(wa, abs=1e-6)
+    bare = load_template(
+        _write(tmp_path, {"name": "b", "mesh": "moved.stl", "mount": "none"}, "b.yaml", False)
+    )
+    assert bare.mount is None
+    assert np.allclose(bare.axes, R @ handle.own_axes, atol=1e-6)  # the surface's own, turned
+
+
 def test_resting_rotations_put_a_facet_down(library):
     for tpl in library.values():
         poses = tpl.resting_rotations()
@@ -153,6 +217,38 @@ def _write(tmp_path, doc, name="t.yaml", mesh=True):
         (
             {"name": "x", "mesh": "box.stl", "symmetry": {"axis": [0, 0, 0], "order": 2}},
             "symmetry.axis",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"order": 2, "point": [0, "a", 0]}},
+            "symmetry.point",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "symmetry": {"order": 2, "point": [0, 0]}},
+            "symmetry.point",
+        ),
+        ({"name": "x", "mesh": "box.stl", "mount": "sideways"}, "mount"),
+        ({"name": "x", "mesh": "box.stl", "mount": {"normal": [0, 0, 1]}}, "mount"),
+        ({"name": "x", "mesh": "box.stl", "mount": {"position": [0, 0]}}, "mount.position"),
+        (
+            {
+                "name": "x",
+                "mesh": "box.stl",
+                "mount": {"rpy": [0, 0, 0], "quaternion": [0, 0, 0, 1]},
+            },
+            "mount.rpy",
+        ),
+        (
+            {"name": "x", "mesh": "box.stl", "mount": {"quaternion": [0, 0, 0, 2]}},
+            "mount.quaternion",
+        ),
+        (
+            {
+                "name": "x",
+                "primitive": "box",
+                "size": {"x": [0.1, 0.2], "y": [0.1, 0.2], "z": [0.1, 0.2]},
+                "mount": "none",
+            },
+            "mount",
         ),
         ({"name": "x", "mesh": "box.stl", "colour": "red"}, "colour"),
         (

@@ -3,10 +3,11 @@
 """One affordance template: its geometry (a mesh, or a scan's points), symmetry, joints and named
 states, with the seeded, cached surface samples the fitting draws on.
 
-Template frame: origin at the centre of the mounting base, +z out of the mounting surface, metres.
-A box primitive's frame: origin at the centre of its base face, +z out of the surface it stands
-on, x along its longer horizontal edge (dimensions x >= y, full edge lengths). A cylinder's:
-origin at the centre of one end face, +z along its axis.
+Template frame: the frame the file is written in, metres. By default it is also the mounting
+frame (origin at the centre of the mounting base, +z out of the mounting surface); a file may
+declare another (``mount``) or none. A box primitive's frame: origin at the centre of its base
+face, +z out of the surface it stands on, x along its longer horizontal edge (dimensions x >= y,
+full edge lengths). A cylinder's: origin at the centre of one end face, +z along its axis.
 
 Templates are made by :func:`~affordance_registration.core.template_files.load_template` from
 their YAML files; :class:`~affordance_registration.core.templates.TemplateLibrary` holds them.
@@ -26,12 +27,19 @@ from .errors import TemplateError
 from .meshes import PRIMITIVES, mesh_distance, primitive_mesh, resting_facets
 from .transforms import align_x_to, axis_angle_matrix, make_T, rotation_angle
 
-__all__ = ["Symmetry", "Joint", "AffordanceTemplate"]
+__all__ = ["Symmetry", "Joint", "AffordanceTemplate", "AXES_SAMPLES", "AXES_SEED"]
+
+#: the surface samples (and their seed) whose principal axes are a template's own axes
+#: (:attr:`AffordanceTemplate.own_axes`)
+AXES_SAMPLES, AXES_SEED = 2048, 1
+#: ``mount`` left out: the file's frame for a mesh, none for a point cloud
+_DEFAULT_MOUNT = object()
 
 
 @dataclass(frozen=True)
 class Symmetry:
-    """Rotational symmetry of a template about an axis through its origin.
+    """Rotational symmetry of a template about an axis through ``point`` (template frame, m;
+    the origin unless the file says otherwise).
 
     ``order`` n >= 1 means the shape maps onto itself under rotations by 2*pi*k/n; ``continuous``
     means under every rotation about ``axis``.
@@ -40,6 +48,7 @@ class Symmetry:
     axis: tuple = (0.0, 0.0, 1.0)
     order: int = 1
     continuous: bool = False
+    point: tuple = (0.0, 0.0, 0.0)
 
     @property
     def rotations(self) -> np.ndarray:
@@ -47,6 +56,14 @@ class Symmetry:
         1 degree steps (use :meth:`residual_angle` for exact errors)."""
         n = 360 if self.continuous else self.order
         return np.stack([axis_angle_matrix(self.axis, 2.0 * math.pi * k / n) for k in range(n)])
+
+    @property
+    def transforms(self) -> np.ndarray:
+        """The symmetry motions (k, 4, 4) of the template frame, identity first: the
+        :attr:`rotations` about the axis through :attr:`point` (``T @ S`` is a pose the shape
+        cannot be told from ``T``)."""
+        p = np.asarray(self.point, dtype=float)
+        return np.stack([make_T(R, p - R @ p) for R in self.rotations])
 
     def residual_angle(self, R_rel: np.ndarray) -> float:
         """Smallest rotation angle (rad) between ``R_rel`` and any symmetry rotation."""
@@ -98,6 +115,7 @@ class AffordanceTemplate:
         dimension_ranges: Mapping | None = None,
         dimensions: Mapping | None = None,
         waypoints: tuple = (),
+        mount=_DEFAULT_MOUNT,
     ):
         if mesh is None and points is None:
             raise TemplateError(f"{path}: template '{name}' has neither a mesh nor points")
@@ -126,6 +144,15 @@ class AffordanceTemplate:
         self.mesh_files: dict[str, str] = {}
         #: end-effector waypoints (:class:`~affordance_registration.core.waypoints.Waypoint`)
         self.waypoints = tuple(waypoints)
+        #: the mounting frame (4, 4) in the template frame -- origin at the centre of the
+        #: mounting base, +z out of the surface it is mounted on -- or None for an object with
+        #: no mounting side; left out, the template frame itself for a mesh (the documented
+        #: convention) and None for a point cloud (a scan)
+        if mount is _DEFAULT_MOUNT:
+            mount = None if mesh is None else np.eye(4)
+        self.mount = None if mount is None else np.array(mount, dtype=float)
+        if self.mount is not None:
+            self.mount.setflags(write=False)
         self._cache: dict = {}
         self._lock = threading.Lock()
 
@@ -162,6 +189,7 @@ class AffordanceTemplate:
                 dimension_ranges=self.dimension_ranges,
                 dimensions=dims,
                 waypoints=self.waypoints,
+                mount=self.mount,
             )
 
         return self._cached_mesh(key, build)
@@ -192,6 +220,36 @@ class AffordanceTemplate:
         """Area-weighted surface centroid (3,), template frame."""
         return self.samples(2048, seed=0)[0].mean(axis=0)
 
+    @property
+    def own_axes(self) -> np.ndarray:
+        """The surface's own axes (3, 3 rotation, columns in the template frame): the principal
+        axes of its samples, largest spread first, each pointing where the samples' third moment
+        along it is positive (right-handed). They turn with the surface, whatever frame its
+        file is written in."""
+        with self._lock:
+            hit = self._cache.get("own axes")
+        if hit is not None:
+            return hit
+        rel = self.samples(AXES_SAMPLES, seed=AXES_SEED)[0]
+        rel = rel - rel.mean(axis=0)
+        axes = np.linalg.eigh(rel.T @ rel)[1][:, ::-1].copy()
+        for k in range(2):
+            if np.sum((rel @ axes[:, k]) ** 3) < 0:
+                axes[:, k] *= -1
+        axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
+        axes.setflags(write=False)
+        with self._lock:
+            self._cache["own axes"] = axes
+        return axes
+
+    @property
+    def axes(self) -> np.ndarray:
+        """The axes (3, 3 rotation, columns in the template frame) the fitter lays out what it
+        draws for this template in -- orientations, resting facets, a voxel grid: its mount's
+        (+z out of the mounting surface), or its :attr:`own_axes` without a mount. Both move
+        with the file's declarations, so a fit does not depend on the frame the file is in."""
+        return self.own_axes if self.mount is None else self.mount[:3, :3]
+
     def samples(self, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """``n`` area-weighted surface samples and their outward unit normals, both (n, 3)
         float64 in the template frame. Cached per (n, seed); do not modify the arrays."""
@@ -221,12 +279,21 @@ class AffordanceTemplate:
         A convex-hull facet is a resting facet when the centre of mass projects inside it. Returns
         up to ``max_poses`` (R_rest, weight) pairs, largest facet first: R_rest (3x3) turns the
         template so that facet faces down (-z); weight is the facet's share of the resting area.
-        Point templates have none."""
+        The facets are found in the template's :attr:`axes` (so each R_rest turns with the
+        file's frame). Point templates have none."""
         key = ("resting", int(max_poses))
         with self._lock:
             if key in self._cache:
                 return self._cache[key]
-        poses = [] if self.mesh is None else resting_facets(self.mesh)[:max_poses]
+        A = self.axes
+        if self.mesh is None:
+            poses = []
+        elif np.array_equal(A, np.eye(3)):
+            poses = resting_facets(self.mesh)[:max_poses]
+        else:
+            turned = self.mesh.copy()
+            turned.apply_transform(make_T(A.T))
+            poses = [(R @ A.T, w) for R, w in resting_facets(turned)[:max_poses]]
         total = sum(w for _, w in poses) or 1.0
         poses = [(R, w / total) for R, w in poses]
         with self._lock:
@@ -255,6 +322,7 @@ class AffordanceTemplate:
             self.base_mesh,
             scale_range,
             waypoints=self.waypoints,
+            mount=self.mount,
         )
         copy.mesh_files = dict(self.mesh_files)  # the same geometry, the same files
         return copy

@@ -651,7 +651,11 @@ class AffordanceEngine:
             else:
                 self._commit(self._replace_object(new), "refit")
             self._last_timing = {"refit": time.perf_counter() - t0}
-            moved = np.linalg.norm(res.T_scene_model[:3, 3] - obj.shown.T_scene_model[:3, 3])
+            c = self.geometry(obj.shown).centroid  # where the object is, wherever its origin
+            before, after = obj.shown.T_scene_model, res.T_scene_model
+            moved = np.linalg.norm(
+                after[:3, :3] @ c + after[:3, 3] - before[:3, :3] @ c - before[:3, 3]
+            )
             return (
                 f"object {obj.id}: refit {cand.template} (moved {moved * 1000:.1f} mm, "
                 f"likelihood {cand.likelihood:.0f})"

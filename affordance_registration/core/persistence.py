@@ -146,7 +146,9 @@ def _registration(entry: dict, where: str, doc: dict, i: int, library) -> Regist
     primitive, dims = _primitive_of(
         entry, where, library[template] if library is not None else None
     )
-    click = np.asarray(entry.get("click", T[:3, 3]), dtype=float)
+    # (without a click: where the pose puts the object's centroid, wherever its origin lies)
+    at = library[template].centroid if library is not None else np.zeros(3)
+    click = np.asarray(entry.get("click", T[:3, :3] @ at + T[:3, 3]), dtype=float)
     if click.shape != (3,):
         raise AffordanceError(f"{where}: 'click' must be three numbers")
     state = entry.get("state")

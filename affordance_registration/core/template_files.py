@@ -11,7 +11,10 @@ A template is a YAML file (``models/<name>.yaml``)::
                                      # from the file, or estimated when it has none)
     mesh_scale: 1.0                  # factor from mesh units to metres
     scale: [0.8, 1.25]               # optional: the design comes in sizes; scale is estimated
-    symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}
+    symmetry: {axis: [0, 0, 1], order: 4}      # or {axis: [...], continuous: true}; the axis
+                                     # passes through point: [x, y, z] (default the origin)
+    mount: {position: [0, 0, 0], rpy: [0, 0, 0]}   # the mounting frame (default: the file's
+                                     # own); ``mount: none`` for an object with no mounting side
     base_mesh: meshes/ball_valve_base.stl      # the part that does not move (with joints)
     joints:
       - {name: lever, type: revolute, axis: [0, 0, 1], origin: [0, 0, 0.085],
@@ -22,8 +25,9 @@ A template is a YAML file (``models/<name>.yaml``)::
          rpy: [3.141593, 0, 0], approach: {direction: [0, 0, -1], distance: 0.08}}
     description: free text
 
-Lengths in the file -- a joint's origin, a prismatic joint's limits and its named states -- are
-in the mesh's units (``mesh_scale`` turns them into metres); angles are radians.
+Lengths in the file -- a joint's origin, a prismatic joint's limits and its named states, the
+symmetry's point, the mount's position -- are in the mesh's units (``mesh_scale`` turns them into
+metres); angles are radians.
 
 A template may instead be a parametric *primitive* (an object outside the library: a box, a
 pipe, a can), its dimensions fitted with its pose from the click::
@@ -55,8 +59,8 @@ from .files import read_yaml, unreadable
 from .meshes import PRIMITIVES, primitive_mesh
 from .neighbours import pca_normals
 from .pointfiles import MAX_FILE_BYTES, check_header, read_points
-from .transforms import template_vector
-from .waypoints import parse_waypoints
+from .transforms import make_T, template_vector
+from .waypoints import parse_waypoints, template_orientation
 
 __all__ = ["load_template", "MAX_TEMPLATE_SIZE"]
 
@@ -76,6 +80,7 @@ _KNOWN_KEYS = {
     "radius",
     "length",
     "waypoints",
+    "mount",
 }
 MIN_DIMENSION = 0.002  #: m, the smallest dimension a primitive may be given
 #: bounds on what a template file may ask for, checked before any work is done
@@ -131,7 +136,8 @@ def _load_template(path: str) -> AffordanceTemplate:
     if external not in (True, False):
         raise _fail(path, "allow_external_files", f"expected true or false, got {external!r}")
     mesh, points, normals = _load_geometry(path, "mesh", doc["mesh"], float(scale), external)
-    symmetry = _parse_symmetry(path, doc.get("symmetry"))
+    symmetry = _parse_symmetry(path, doc.get("symmetry"), float(scale))
+    mount = _parse_mount(path, doc, mesh is not None, float(scale))
     joints = _parse_joints(path, doc.get("joints"), float(scale), external)
     states = _parse_states(path, doc.get("states"), joints, float(scale))
     base = None
@@ -163,6 +169,7 @@ def _load_template(path: str) -> AffordanceTemplate:
         base_mesh=base,
         scale_range=scale_range,
         waypoints=waypoints,
+        mount=mount,
     )
     if mesh is not None and len(joints) <= 1:
         files = {"mesh": doc["mesh"]}
@@ -182,13 +189,15 @@ def _primitive_template(path: str, doc: dict, name: str, description: str) -> Af
     if kind not in PRIMITIVES:
         raise _fail(path, "primitive", f"expected one of {', '.join(PRIMITIVES)}, got {kind!r}")
     other = sorted(
-        set(doc) & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale", "symmetry"}
+        set(doc)
+        & {"mesh", "mesh_scale", "base_mesh", "joints", "states", "scale", "symmetry", "mount"}
     )
     if other:
         raise _fail(
             path,
             other[0],
-            "a primitive template has dimensions, not a mesh, joints or a scale range",
+            "a primitive template has dimensions and its own frame, not a mesh, joints, a "
+            "symmetry, a mount or a scale range",
         )
     given = {"box": ("size",), "cylinder": ("radius", "length")}[kind]
     stray = sorted(set(doc) & {"size", "radius", "length"} - set(given))
@@ -340,32 +349,37 @@ def _estimate_normals(points: np.ndarray) -> np.ndarray:
     return normals
 
 
-def _parse_symmetry(path: str, value) -> Symmetry | None:
+def _parse_symmetry(path: str, value, scale: float = 1.0) -> Symmetry | None:
+    """The ``symmetry`` key: an axis (through ``point``, file units, default the origin) with an
+    order or ``continuous: true``."""
     if value is None:
         return None
     if not isinstance(value, dict):
         raise _fail(
             path, "symmetry", f"expected a mapping like {{axis: [0,0,1], order: 4}}, got {value!r}"
         )
-    unknown = set(value) - {"axis", "order", "continuous"}
+    unknown = set(value) - {"axis", "order", "continuous", "point"}
     if unknown:
         raise _fail(
             path,
             "symmetry",
             f"unknown symmetry form: keys {sorted(unknown)} "
-            f"(use axis with order N or continuous: true)",
+            f"(use axis with order N or continuous: true, and optionally point)",
         )
     axis = _vector(path, "symmetry.axis", value.get("axis", [0, 0, 1]))
     if np.linalg.norm(axis) < 1e-9:
         raise _fail(path, "symmetry.axis", "axis must not be zero")
     axis = tuple(float(v) for v in np.asarray(axis) / np.linalg.norm(axis))
+    point = tuple(
+        v * scale for v in _vector(path, "symmetry.point", value.get("point", [0, 0, 0]))
+    )
     continuous = value.get("continuous", False)
     if continuous not in (True, False):
         raise _fail(path, "symmetry.continuous", f"expected true or false, got {continuous!r}")
     if continuous:
         if "order" in value:
             raise _fail(path, "symmetry", "give either order or continuous, not both")
-        return Symmetry(axis=axis, continuous=True)
+        return Symmetry(axis=axis, continuous=True, point=point)
     order = value.get("order")
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise _fail(path, "symmetry.order", f"expected an integer >= 1, got {order!r}")
@@ -377,7 +391,37 @@ def _parse_symmetry(path: str, value) -> Symmetry | None:
             f"shape that looks the same at every angle use "
             f"'continuous: true'",
         )
-    return Symmetry(axis=axis, order=order)
+    return Symmetry(axis=axis, order=order, point=point)
+
+
+_MOUNT_KEYS = {"position", "rpy", "quaternion"}
+
+
+def _parse_mount(path: str, doc: dict, is_mesh: bool, scale: float):
+    """The ``mount`` key: the mounting frame (4, 4; ``position`` in file units, ``rpy`` or
+    ``quaternion``), None for ``mount: none``; left out, the file's frame for a mesh and none
+    for a point cloud."""
+    if "mount" not in doc:
+        return np.eye(4) if is_mesh else None
+    value = doc["mount"]
+    if value == "none":
+        return None
+    if not isinstance(value, dict) or not value:
+        raise _fail(
+            path,
+            "mount",
+            f"expected {{position: [x, y, z], rpy: [r, p, y]}} or none, got {value!r}",
+        )
+    unknown = set(value) - _MOUNT_KEYS
+    if unknown:
+        raise _fail(
+            path,
+            "mount",
+            f"unknown keys {sorted(unknown)} (known: {', '.join(sorted(_MOUNT_KEYS))})",
+        )
+    R = template_orientation(value, "mount", lambda k, m: _fail(path, k, m))
+    position = _vector(path, "mount.position", value.get("position", [0, 0, 0]))
+    return make_T(R, np.asarray(position) * scale)
 
 
 def _parse_joints(path: str, value, scale: float, external: bool = False) -> tuple:

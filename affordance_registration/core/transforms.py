@@ -252,15 +252,25 @@ def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
     return q if q[3] >= 0 else -q
 
 
-def pose_error(T_est: np.ndarray, T_true: np.ndarray, symmetry=None) -> tuple[float, float]:
+def pose_error(
+    T_est: np.ndarray, T_true: np.ndarray, symmetry=None, at=None
+) -> tuple[float, float]:
     """Translation error (m) and rotation error (rad) between two model->scene poses.
 
     ``symmetry`` is a template's :class:`~affordance_registration.core.templates.Symmetry`
     (or None): the error is the smallest over the poses the symmetry makes indistinguishable.
-    Symmetry axes pass through the template origin, so the translation error is the distance
-    between the origins either way.
+    The translation error is the distance between where the two poses put the model point
+    ``at`` (3,): by default the symmetry's point (on its axis, which every indistinguishable
+    pose puts in the same place) or, without a symmetry, the origin. Give ``at`` a point on
+    the object (its centroid) for an error that does not depend on where the file's origin
+    lies; with a symmetry, a point on its axis.
     """
-    dt = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
+    if at is None:
+        at = (0.0, 0.0, 0.0) if symmetry is None else symmetry.point
+    at = np.asarray(at, dtype=float)
+    dt = float(
+        np.linalg.norm(T_est[:3, :3] @ at + T_est[:3, 3] - T_true[:3, :3] @ at - T_true[:3, 3])
+    )
     R_rel = T_true[:3, :3].T @ T_est[:3, :3]  # rotation of est relative to truth, model frame
     if symmetry is None:
         return dt, float(rotation_angle(R_rel))

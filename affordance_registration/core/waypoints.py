@@ -54,6 +54,7 @@ __all__ = [
     "WaypointPose",
     "Trajectory",
     "parse_waypoints",
+    "template_orientation",
     "waypoint_poses",
     "trajectory",
     "waypoints_dict",
@@ -184,7 +185,7 @@ def parse_waypoints(
         position = template_vector(spec["position"], f"{key}.position", fail) * unit
         if float(np.linalg.norm(position)) > 100.0:
             raise fail(f"{key}.position", "more than 100 m from the template's origin")
-        R = _orientation(spec, key, fail)
+        R = template_orientation(spec, key, fail)
         approach, distance = _approach(spec.get("approach"), f"{key}.approach", fail, unit)
         pitch = spec.get("pitch")
         if pitch is not None:
@@ -226,7 +227,10 @@ def _name(value, key: str, fail) -> str:
     return value
 
 
-def _orientation(spec: dict, key: str, fail) -> np.ndarray:
+def template_orientation(spec: dict, key: str, fail) -> np.ndarray:
+    """The rotation (3, 3) a template file's ``spec`` gives by ``rpy`` (fixed axes: roll, pitch,
+    yaw; rad) or ``quaternion`` ([x, y, z, w], unit); the identity with neither. Anything else
+    raises ``fail(key, message)``."""
     if "rpy" in spec and "quaternion" in spec:
         raise fail(f"{key}.rpy", "give either rpy or quaternion, not both")
     if "rpy" in spec:

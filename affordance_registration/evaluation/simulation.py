@@ -675,7 +675,7 @@ class SimulatedOperator:
         sym = self.library[template].symmetry
         if sym is None:
             return T_true
-        cands = [T_true @ make_T(S) for S in sym.rotations]
+        cands = [T_true @ S for S in sym.transforms]
         return min(cands, key=lambda C: float(rotation_angle(C[:3, :3].T @ T[:3, :3])))
 
     def register(self, obj: SimulatedObject, actions, T_scene_view: np.ndarray) -> dict:

@@ -223,11 +223,13 @@ def assess(
 
 def _same(settings: FitSettings, h: Hypothesis, r: FitResult) -> bool:
     """Whether ``r`` is the hypothesis ``h`` again: the same template within the pose
-    tolerance (symmetry-aware)."""
+    tolerance (symmetry-aware; the distance where the two put the object's centroid, wherever
+    its file's origin lies)."""
     if h.template != r.template:
         return False
     sym = h.model.symmetry if h.model is not None else None
-    dt, da = pose_error(r.T_scene_model, h.T_scene_model, sym)
+    at = h.model.centroid if h.model is not None else None
+    dt, da = pose_error(r.T_scene_model, h.T_scene_model, sym, at)
     return dt <= settings.viewpoint.pose_distance and da <= settings.viewpoint.pose_angle
 
 
@@ -306,7 +308,8 @@ def _weakest(hessian, model: Model, T: np.ndarray):
     if sym is not None and sym.continuous:
         a = T[:3, :3] @ np.asarray(sym.axis, float)
         a /= np.linalg.norm(a)
-        s = np.concatenate([a * L, np.cross(a, c - T[:3, 3])])  # rotation about the axis
+        on_axis = T[:3, :3] @ np.asarray(sym.point, float) + T[:3, 3]
+        s = np.concatenate([a * L, np.cross(a, c - on_axis)])  # rotation about the axis
         s /= np.linalg.norm(s)
         basis = np.linalg.svd(np.eye(6) - np.outer(s, s))[0][:, :5]
     w, V = np.linalg.eigh(basis.T @ H @ basis)

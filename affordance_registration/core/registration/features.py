@@ -47,7 +47,8 @@ from .solve import rigid_step
 __all__ = ["feature_alignments", "global_alignments"]
 
 FEATURE_RADIUS = 10.0  #: FPFH radius, in voxels
-FEATURE_SAMPLES = 20000  #: template samples the template's descriptors are computed on
+FEATURE_SAMPLES = 20000  #: a mesh template's samples its descriptors are computed on
+NORMAL_NEIGHBOURS = 12  #: the normals of the crop, the cluster and the thinned template
 RANSAC_TRIALS = 60000  #: three-point draws
 EDGE_TOLERANCE = 0.1  #: a draw's edges must agree to this fraction (rigid)
 INLIER_VOXELS = 2.0  #: a correspondence within this many voxels is an inlier
@@ -94,15 +95,36 @@ def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float, at=None) -> np
 
 
 def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
-    """One sample per voxel of the model's surface (model frame), its normals and descriptors
-    (``radius`` in voxels); cached with the model."""
+    """The model's surface described as the scene's crop is: thinned to the mean of each
+    occupied voxel (model frame), normals by PCA of ``NORMAL_NEIGHBOURS`` of those means
+    (turned to the side of the file's normals), FPFH descriptors (``radius`` in voxels); cached
+    with the model. A scanned template gives every point of its file (it is a scan: its points
+    are the surface), a mesh ``FEATURE_SAMPLES`` samples. The voxel grid is laid out in the
+    template's axes about its centroid (``AffordanceTemplate.axes``), so the voxels do not
+    depend on the frame its file is in, and their means do not depend on which sample came
+    first in each. A voxel whose file normals cancel (two sides of a thin part; their mean
+    shorter than 1/2) is left out."""
 
     def build():
-        P, N = model.samples(FEATURE_SAMPLES)
-        _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
-        first = np.sort(first)
-        P, N = P[first], N[first]
-        return P, N, _fpfh(P, N, radius * voxel)
+        pts = model.template.points
+        P, N = model.samples(FEATURE_SAMPLES if pts is None else len(pts))
+        own = (P - model.centroid) @ model.axes
+        keys = np.floor(own / voxel + 0.5).astype(np.int64)
+        _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.ravel()
+
+        def means(values):
+            sums = [np.bincount(inv, values[:, k], len(counts)) for k in range(3)]
+            return np.stack(sums, axis=1) / counts[:, None]
+
+        P, N = means(P), means(N)
+        length = np.linalg.norm(N, axis=1)
+        keep = length > 0.5
+        P, N = P[keep], N[keep] / length[keep, None]
+        # the normals found as the scene's are (on the thinned points), on the file's side
+        normals = pca_normals(P, NORMAL_NEIGHBOURS)
+        normals[np.einsum("ij,ij->i", normals, N) < 0] *= -1
+        return P, normals, _fpfh(P, normals, radius * voxel)
 
     key = ("fpfh", model.template, model.q, model.scale, float(voxel))
     return model.cache.posed(key if radius == FEATURE_RADIUS else key + (float(radius),), build)
@@ -110,7 +132,7 @@ def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
 
 def _normals(ctx: ClickContext, points: np.ndarray, tree) -> np.ndarray:
     """Unit normals of ``points`` towards the sensor (away from their centre without one)."""
-    normals = pca_normals(points, 12, tree)
+    normals = pca_normals(points, NORMAL_NEIGHBOURS, tree)
     if ctx.sensor_origin is not None:
         flip = np.einsum("ij,ij->i", normals, ctx.sensor_origin - points) < 0
     else:

@@ -33,7 +33,6 @@ __all__ = [
     "yaw_sweep_starts",
     "principal_angle",
     "symmetric_angle",
-    "shape_axes",
 ]
 
 RANDOM_OFFSET = 0.15  #: random restarts start up to this fraction of the diameter off
@@ -107,9 +106,12 @@ def initial_hypotheses(
     """Initial hypotheses for each of ``models`` (anything with ``samples``, ``centroid``,
     ``diameter`` and ``resting_rotations``: a registration model or a template).
 
-    With a plane under the click: mounted (template +z along the plane normal, a yaw sweep;
-    modes auto and mounted), resting (each stable facet of the template down on the plane,
-    a yaw sweep; modes auto and free) and uniformly random orientations resting on the plane.
+    With a plane under the click: mounted (the template's mount's +z along the plane normal, a
+    yaw sweep; modes auto and mounted), resting (each stable facet of the template down on the
+    plane, a yaw sweep; modes auto and free) and uniformly random orientations resting on the
+    plane. Every orientation is drawn in the template's ``axes`` (its mount's, or without one
+    its surface's own: a template with no mount is "mounted" with its least-spread axis along
+    the normal), so the hypotheses turn with the frame its file is written in.
     Without a plane: uniformly random orientations around the cluster (drawn in the frame
     attached to the scan, ``ctx.frame``, so they do not depend on the scene's frame). The
     template's centroid starts over the cluster points within reach of the click (the cluster may
@@ -153,9 +155,9 @@ def initial_hypotheses(
             R0.append(np.stack(d.aligned))
             offsets.append(np.zeros((len(d.aligned), 3)))
         R0 = np.concatenate(R0) if R0 else np.empty((0, 3, 3))
-        C = shape_axes(model)
-        if C is not None:  # a scanned object's drawn orientations are of its own axes
-            R0[: k + n] = R0[: k + n] @ C.T
+        A = model.axes  # drawn in the template's axes: its mount's, or its surface's own
+        if not np.array_equal(A, np.eye(3)):
+            R0[: k + n] = R0[: k + n] @ A.T
         index.append(np.full(len(R0), i))
         Rs.append(R0)
         ts.append(_starts(ctx, model, R0, centre, np.concatenate(offsets)))
@@ -236,7 +238,7 @@ def _draws(
         if s.mode in ("auto", "free"):
             for R_rest, tpl_axis in _resting_axes(model, s.hypotheses.resting_poses):
                 if s.mode == "auto" and R_rest[2, 2] > 0.95:
-                    continue  # the mounted orientation, already swept
+                    continue  # the mounted orientation (of the axes), already swept
                 facet = list(_yaws(s.hypotheses.resting_yaws, rng))
                 # and the two yaws that line the resting template's long axis up with the
                 # cluster's (elongated parts lying on a table)
@@ -273,14 +275,18 @@ def _draws(
 
 
 def _resting_axes(model, max_poses: int) -> list:
-    """The model's resting rotations R_rest (3, 3) with the main-axis angle of its samples
-    turned by each (:func:`principal_angle`, rad or None): [(R_rest, angle)]; computed once
-    per registration model (a template is asked each time)."""
+    """The model's resting rotations R_rest (3, 3), of its ``axes`` (what turns them so the
+    facet faces down: the template frame's R_rest is R_rest @ axes.T), with the main-axis angle
+    of its samples turned by each (:func:`principal_angle`, rad or None): [(R_rest, angle)];
+    computed once per registration model (a template is asked each time)."""
 
     def compute():
         low = model.samples(REST_SAMPLES, seed=SAMPLE_SEED)[0]
         rests = [R for R, _ in model.resting_rotations(max_poses)]
         angles = [principal_angle(low @ R.T) for R in rests]
+        A = model.axes
+        if not np.array_equal(A, np.eye(3)):
+            rests = [R @ A for R in rests]
         return (
             np.array(rests).reshape(-1, 3, 3),
             np.array([np.nan if a is None else a for a in angles], dtype=float),
@@ -303,35 +309,6 @@ def _resting_axes(model, max_poses: int) -> list:
         )
     )
     return [(R, None if math.isnan(a) else float(a)) for R, a in zip(rests, angles)]
-
-
-#: samples whose principal axes are a scanned object's own axes (:func:`shape_axes`)
-AXES_SAMPLES = 2048
-
-
-def shape_axes(model) -> np.ndarray | None:
-    """A point-cloud template's own axes in its file's frame, (3, 3) rotation columns: its
-    samples' principal axes, largest spread first, each pointing where the samples' third
-    moment along it is positive (right-handed). The orientations drawn for it are composed
-    with them, so its fit does not depend on the frame its file is in (a scan's points lie
-    wherever the scanner put them); None for a mesh, whose frame is the documented one
-    (+z out of the mounting surface)."""
-    tpl = getattr(model, "template", model)
-    if not getattr(tpl, "is_point_template", False):
-        return None
-
-    def compute():
-        P = tpl.samples(AXES_SAMPLES, seed=SAMPLE_SEED)[0]
-        rel = P - P.mean(axis=0)
-        axes = np.linalg.eigh(rel.T @ rel)[1][:, ::-1].copy()
-        for k in range(2):
-            if np.sum((rel @ axes[:, k]) ** 3) < 0:
-                axes[:, k] *= -1
-        axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
-        return axes
-
-    cache = getattr(model, "cache", None)
-    return compute() if cache is None else cache.posed(("shape axes", tpl), compute)
 
 
 def _principal_axes(points: np.ndarray) -> np.ndarray:
@@ -387,7 +364,7 @@ def _starts(
 
 def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: int) -> np.ndarray:
     """Indices of the best ``keep`` distinct hypotheses per template by ``scores`` (lower is
-    better; distinct: more than ``DISTINCT_DISTANCE`` apart or turned more than
+    better; distinct: their centroids more than ``DISTINCT_DISTANCE`` apart or turned more than
     ``DISTINCT_ANGLE``, symmetry-aware). The best mounting-prior hypothesis always goes on: few
     samples cannot judge a tipped-over pose against it reliably."""
     out = []
@@ -399,13 +376,14 @@ def keep_distinct(hyps: Hypotheses, scores: np.ndarray, n_templates: int, keep: 
         tpl = hyps.models[int(idx[0])].template
         mounted = idx[hyps.family[idx] == MOUNTED]
         chosen = [mounted[0]] if len(mounted) and keep > 1 else []
-        # where each pose puts the template: its origin, or a scanned object's centroid
-        # (its file's origin may lie anywhere)
-        at = (
-            hyps.t
-            if not tpl.is_point_template
-            else hyps.t + hyps.R @ hyps.models[int(idx[0])].centroid
-        )
+        # where each pose puts the object: its centroid (the file's origin may lie anywhere)
+        centroids = {}
+        for j in idx:
+            m = hyps.models[j]
+            if id(m) not in centroids:
+                centroids[id(m)] = m.centroid
+        c = np.stack([centroids[id(hyps.models[j])] for j in idx])
+        at = dict(zip(idx.tolist(), np.einsum("bij,bj->bi", hyps.R[idx], c) + hyps.t[idx]))
         for j in idx:
             if all(
                 np.linalg.norm(at[j] - at[k]) > DISTINCT_DISTANCE
@@ -472,18 +450,12 @@ def prefilter(hyps: Hypotheses, scores: np.ndarray, names: list, settings: FitSe
 
 
 def yaw_sweep_starts(model, R: np.ndarray, t: np.ndarray, steps: int):
-    """A pose turned about its template's z (mounting / symmetry) axis through the centroid
-    in ``steps`` steps over one symmetry period: (R (steps, 3, 3), t (steps, 3))."""
+    """A pose turned about its template's symmetry axis (else the z of its ``axes``: its mount's
+    normal) through the centroid in ``steps`` steps over one symmetry period: (R (steps, 3, 3),
+    t (steps, 3))."""
     sym = model.symmetry
     period = 2 * math.pi / (sym.order if sym is not None and not sym.continuous else 1)
-    C = shape_axes(model)
-    axis_model = (
-        np.asarray(sym.axis)
-        if sym is not None
-        else np.array([0.0, 0.0, 1.0])
-        if C is None
-        else C[:, 2]
-    )
+    axis_model = np.asarray(sym.axis) if sym is not None else model.axes[:, 2]
     axis = R @ axis_model
     centre = R @ model.centroid + t
     Rs, ts = [], []

@@ -159,6 +159,12 @@ class Model:
         return self.template.symmetry
 
     @property
+    def axes(self) -> np.ndarray:
+        """The template's :attr:`~..affordance_template.AffordanceTemplate.axes` (a joint value
+        or a scale does not turn them)."""
+        return self.template.axes
+
+    @property
     def _as_is(self) -> bool:
         """The template's own geometry (joint at zero, scale one, every part)."""
         return self.q == 0.0 and self.scale == 1.0 and not self.moving_only

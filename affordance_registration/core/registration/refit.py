@@ -44,14 +44,14 @@ def refit(
     )
     R, t = starts.R, starts.t
     fwd, _ = forward_residual(ctx, starts, s.medium.samples, s)
-    allowed = _within_reach(T0, R, t, s)
+    allowed = _within_reach(T0, R, t, s, model.centroid)
     if not allowed.any():  # every restart wandered off: start from the correction itself
         R[0], t[0] = T0[:3, :3], T0[:3, 3]
         allowed[0] = True
     best = int(np.argmin(np.where(allowed, fwd, np.inf)))
     fit = fine_stage(ctx, model, R[best], t[best], s.stages.refit, s, hold_joint=hold_joint)
     iterations = starts.iterations + fit.iterations
-    if _within_reach(T0, fit.R, fit.t, s)[0]:
+    if _within_reach(T0, fit.R, fit.t, s, model.centroid)[0]:
         return result(ctx, fit.models[0], fit.R[0], fit.t[0], s, iterations, fit.converged[0])
     return result(ctx, fit.models[0], R[best], t[best], s, iterations, starts.converged[best])
 
@@ -88,9 +88,12 @@ def refit_starts(
     return np.stack(Ts)
 
 
-def _within_reach(T0: np.ndarray, R: np.ndarray, t: np.ndarray, settings: FitSettings):
-    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit.max_move`` and
-    ``refit.max_turn`` of ``T0``, (B,) bool."""
-    move = np.linalg.norm(t - T0[:3, 3], axis=1)
+def _within_reach(
+    T0: np.ndarray, R: np.ndarray, t: np.ndarray, settings: FitSettings, centroid: np.ndarray
+):
+    """Which poses (R (B, 3, 3), t (B, 3)) lie within ``refit.max_move`` (of where they put the
+    model's ``centroid``, model frame: wherever its file's origin lies) and ``refit.max_turn``
+    of ``T0``, (B,) bool."""
+    move = np.linalg.norm(R @ centroid + t - (T0[:3, :3] @ centroid + T0[:3, 3]), axis=1)
     turn = rotation_angle(np.swapaxes(T0[None, :3, :3], 1, 2) @ R)
     return (move <= settings.refit.max_move) & (turn <= settings.refit.max_turn)

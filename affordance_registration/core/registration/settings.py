@@ -420,7 +420,9 @@ class RefitSettings(_Group):
     spread: float = knob(0.015, "translation spread of the restarts (m)")
     samples: int = knob(800, "template samples of the final ICP")
     iterations: int = knob(12, "ICP iterations of the final ICP")
-    max_move: float = knob(0.05, "a refit moves at most this far from the correction (m)")
+    max_move: float = knob(
+        0.05, "a refit moves the object (its centroid) at most this far from the correction (m)"
+    )
     max_turn: float = knob(
         math.radians(30.0), "... and turns at most this much (rad)", limits=(0.001, math.pi)
     )
@@ -442,7 +444,9 @@ class ViewpointSettings(_Group):
         limits=(1.0, 10.0),
     )
     pose_distance: float = knob(
-        0.005, "one template's poses farther apart than this are distinct hypotheses (m)"
+        0.005,
+        "one template's poses that put its centroid farther apart than this are distinct "
+        "hypotheses (m)",
     )
     pose_angle: float = knob(
         math.radians(5.0),

@@ -5,10 +5,12 @@ compares against. With ``FitSettings(method="paper")`` this one stage takes the 
 default method's hypothesise ... judge (its knobs: ``paper_restarts``, ``paper_iterations``,
 ``paper_samples``).
 
-Per template, per restart: a random orientation and an offset within the template's diameter
-around the click; point-to-point ICP on the whole crop with w = 1 / (1 + d) (d in metres),
-correspondences beyond the diameter rejected, until the weighted residual stops changing or
-``paper_iterations``; the template's likelihood is the inverse of its best weighted residual.
+Per template, per restart: a random orientation and the template's centroid placed within its
+diameter of the click (the paper places the template's origin there: its templates' origins are
+their middles, and a file's origin may lie anywhere); point-to-point ICP on the whole crop with
+w = 1 / (1 + d) (d in metres), correspondences beyond the diameter rejected, until the weighted
+residual stops changing or ``paper_iterations``; the template's likelihood is the inverse of its
+best weighted residual.
 """
 
 from __future__ import annotations
@@ -54,10 +56,13 @@ def fit_template(
     diam = tpl.diameter
     best = None
     total_iters = 0
-    for R0 in ctx.frame @ random_rotations(s.paper_restarts, rng):  # turn with the scan
+    # drawn in the frame attached to the scan and in the template's axes, the template's
+    # centroid at the click: the restarts turn with the scan and with the template's file
+    for R0 in ctx.frame @ random_rotations(s.paper_restarts, rng) @ tpl.axes.T:
         off = ctx.frame @ rng.normal(size=3)
         off *= diam * rng.uniform() ** (1 / 3) / np.linalg.norm(off)
-        R, t, iters = _icp(ctx, P, diam, R0, ctx.click + off, s.paper_iterations)
+        t0 = ctx.click + off - R0 @ tpl.centroid
+        R, t, iters = _icp(ctx, P, diam, R0, t0, s.paper_iterations)
         total_iters += iters
         resid, d = _residual(ctx, P, diam, R, t)
         if best is None or resid < best[0]:
