@@ -610,6 +610,8 @@ def test_inputs_during_a_slow_fit_act_on_that_fit_in_order(ros_context, tmp_path
         # rank 2 of the pushed object's click
         assert reg["template"] != obj.template
         assert st["objects"] == [] and st["node"]["idle"]
+        # (the status may come out before the log line reaches the process's output)
+        assert proc.wait_output("accepted ", 30), proc.output()
         log = proc.output()
         order = [log.index(text) for text in ("object 1:", ": refit", "rank 2/", "accepted")]
         assert order == sorted(order), log[-2000:]
