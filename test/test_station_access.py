@@ -385,8 +385,9 @@ def test_the_secret_never_reaches_rosout_the_ros_log_a_parameter_or_a_shared_fil
         durability=DurabilityPolicy.TRANSIENT_LOCAL,
     )
     client.node.create_subscription(Log, "/rosout", lambda m: heard.append(m.msg), rosout_qos)
+    # a name of its own: another test's station on this domain must not answer for it
     proc = NodeProcess(
-        station_argv(port, access_secret=secret),
+        station_argv(port, access_secret=secret) + ["-r", "__node:=station_secret_probe"],
         tmp_path / "station.out",
         env={"AFFORDANCE_RUNTIME_DIR": str(runtime), "ROS_LOG_DIR": str(logs)},
     )
@@ -399,7 +400,7 @@ def test_the_secret_never_reaches_rosout_the_ros_log_a_parameter_or_a_shared_fil
         answers = {
             name: client.call(
                 GetParameters,
-                "/affordance_station/get_parameters",
+                "/station_secret_probe/get_parameters",
                 GetParameters.Request(names=[name]),
             ).values
             for name in ("access_secret", "port")
