@@ -309,11 +309,7 @@ def _rigid_step(P, N, active, R, t, radius, view, frame, depth, tree, guess, out
     H = np.empty((3, 3))
     xs = np.empty(3)
     ns = np.empty(3)
-    has_origin = view[V_HAS_ORIGIN] > 0
-    has_image = view[V_HAS_IMAGE] > 0
     has_plane = view[V_HAS_PLANE] > 0
-    c = view[V_COS]
-    cc = c * c
     nu, nv = int(view[V_NU]), int(view[V_NV])
     d0 = view[V_D0]
     for b in range(active.shape[0]):
@@ -325,31 +321,7 @@ def _rigid_step(P, N, active, R, t, radius, view, frame, depth, tree, guess, out
             for i in range(3):
                 xs[i] = p0 * R[b, i, 0] + p1 * R[b, i, 1] + p2 * R[b, i, 2] + t[b, i]
                 ns[i] = m0 * R[b, i, 0] + m1 * R[b, i, 1] + m2 * R[b, i, 2]
-            seen = True
-            if has_origin:
-                D0 = xs[0] - view[V_ORIGIN]
-                D1 = xs[1] - view[V_ORIGIN + 1]
-                D2 = xs[2] - view[V_ORIGIN + 2]
-                dot = D0 * ns[0] + D1 * ns[1] + D2 * ns[2]
-                n2 = max(D0 * D0 + D1 * D1 + D2 * D2, 1e-18)
-                if c >= 0.0:
-                    seen = dot < 0.0 and dot * dot > cc * n2
-                else:
-                    seen = dot < 0.0 or dot * dot < cc * n2
-            if seen and has_image:
-                E0 = xs[0] - view[V_IMAGE]
-                E1 = xs[1] - view[V_IMAGE + 1]
-                E2 = xs[2] - view[V_IMAGE + 2]
-                r0 = E0 * frame[0, 0] + E1 * frame[1, 0] + E2 * frame[2, 0]
-                r1 = E0 * frame[0, 1] + E1 * frame[1, 1] + E2 * frame[2, 1]
-                z = E0 * frame[0, 2] + E1 * frame[1, 2] + E2 * frame[2, 2]
-                zs = max(z, 1e-3)
-                fu = math.floor((r0 / zs - view[V_U0]) / view[V_BIN])
-                fv = math.floor((r1 / zs - view[V_V0]) / view[V_BIN])
-                flat = nu * nv
-                if 0 <= fu < nu and 0 <= fv < nv and z > 1e-3:
-                    flat = int(fu) * nv + int(fv)
-                seen = depth[flat] >= z - view[V_MARGIN]  # (NaN: unknown, not seen)
+            seen = _seen(xs, ns, view, frame, depth, nu, nv)
             dist = np.inf
             for i in range(3):
                 x[s, i] = xs[i]
@@ -705,13 +677,14 @@ def _compile():
         "void(f8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[::1], i8[::1], i8[::1], "
         "f8[:, ::1], f8, f8[::1], i8[::1])",
     )
+    # (compiled first: the step kernels call it)
+    globals()["_seen"] = jit(_seen, "b1(f8[::1], f8[::1], f8[::1], f8[:, ::1], f8[::1], i8, i8)")
     k.rigid_step = jit(
         _rigid_step,
         f"void(f8[:, :, ::1], f8[:, :, ::1], i8[::1], f8[:, :, ::1], f8[:, ::1], f8[::1], "
         f"f8[::1], f8[:, ::1], f8[::1], {tree}, i8[:, ::1], f8[:, :, ::1], f8[:, ::1], "
         "f8[:, ::1])",
     )
-    globals()["_seen"] = jit(_seen, "b1(f8[::1], f8[::1], f8[::1], f8[:, ::1], f8[::1], i8, i8)")
     k.fine_rows = jit(
         _fine_rows,
         f"i8(f8[:, ::1], f8[:, ::1], f8, f8[::1], f8[:, ::1], f8[::1], {tree}, f8[:, ::1], "
