@@ -85,6 +85,54 @@ def test_an_emergency_stop_is_refused_on_a_real_box_that_shows_no_button(data_di
     assert best.primitive == "box" and best.fits is True
 
 
+def _learn_click(data_dir, library, scene: str, object_id: int):
+    """The report of a click in the middle of ``object_id`` of the mOSD scene ``scene`` (the
+    default library); skips with one line where the scene is not shared."""
+    path = [p for p in rd.osd_scene_paths(data_dir) if rd.scene_name(p) == scene]
+    if not path:
+        pytest.skip(f"{scene} is not among the shared mOSD scenes")
+    cloud = rd.read_labelled_pcd(path[0])
+    obj = [o for o in rd.labelled_objects(cloud) if o.id == object_id][0]
+    scan = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
+    return cloud, obj, Registrar(library).fit(scan, obj.click)
+
+
+def test_two_templates_tested_against_a_primitive_each_get_their_verdict(data_dir, library):
+    """learn40's tins: on the middle one two specific templates pass the first bars, one is
+    tested for the surface that sets it apart from the cylinder, the other for its
+    description; each gets a verdict with its reason (the second raised a TypeError once), and
+    the cylinder is shown."""
+    cloud, obj, rep = _learn_click(data_dir, library, "learn40", 3)
+    specific = [c for c in rep.candidates if c.primitive is None]
+    assert all(c.fits or c.reason for c in specific)
+    assert rep.candidates[0].primitive == "cylinder"
+
+
+def test_a_template_reaching_into_the_table_is_no_fit(data_dir, library):
+    """learn11's tea box, lying flat: an emergency stop's housing covers it as closely as a
+    box, its button hidden -- in the table, more than 3 cm deep. The table is solid: the e-stop
+    does not fit, says so, and the box is shown, fitting, and passes the label rule."""
+    cloud, obj, rep = _learn_click(data_dir, library, "learn11", 3)
+    stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
+    assert stop.fits is False and "into the surface the object stands on" in stop.reason
+    best = rep.candidates[0]
+    assert best.primitive == "box" and best.fits is True
+    assert rd.score_primitive(cloud, obj, "box", best.T_scene_model, best.dimensions).recall >= 0.9
+
+
+def test_a_template_that_describes_a_real_can_worse_than_a_cylinder_is_no_fit(data_dir, library):
+    """learn30's crisps can, lying behind another and split by it: an emergency stop explains
+    96% of its points (it was shown, "fits"), the cylinder all of them, closer: by the
+    description length of the clicked object's points the cylinder wins, the e-stop does not
+    fit, and the cylinder is shown and passes the label rule."""
+    cloud, obj, rep = _learn_click(data_dir, library, "learn30", 3)
+    stop = [c for c in rep.candidates if c.template == "emergency_stop"][0]
+    assert stop.fits is False and "a cylinder describes the clicked object better" in stop.reason
+    best = rep.candidates[0]
+    assert best.primitive == "cylinder" and best.fits is True
+    assert rd.score_primitive(cloud, obj, "cylinder", best.T_scene_model, best.dimensions).passes
+
+
 @pytest.mark.parametrize("scene,object_id", [("learn28", 3), ("learn32", 3)])
 def test_a_real_object_split_by_one_in_front_is_measured_whole(kinect_records, scene, object_id):
     """learn28's box and learn32's tube are each seen on both sides of an object standing in

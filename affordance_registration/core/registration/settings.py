@@ -376,15 +376,6 @@ class VerdictSettings(_Group):
         "of those it shows the sensor is covered",
         FRACTION,
     )
-    #: a box on a stack read as an emergency stop lying on its side: the housing explains
-    #: most of the box, the box primitive all of it
-    explained_margin: float = knob(
-        0.05,
-        "a specific template fits only when it explains at "
-        "most this share of the clicked object's points less "
-        "than the primitive fitting the same click",
-        FRACTION,
-    )
     #: a primitive explains the clicked object -- the whole of it and only it
     #: (:mod:`.explains`): the operator's question, and the label rule real scans are scored by
     min_recall: float = knob(
