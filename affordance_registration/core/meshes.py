@@ -50,6 +50,12 @@ def primitive_distance(kind: str, dimensions: Mapping, local: np.ndarray) -> np.
     return np.abs(outside + inside)
 
 
+def primitive_outside(kind: str, dimensions: Mapping, local: np.ndarray) -> np.ndarray:
+    """How far (N,) each of ``local`` (N, 3, in the primitive's frame) lies outside the solid
+    primitive (as :func:`primitive_distance`): zero inside it or on it."""
+    return np.linalg.norm(np.maximum(_face_offsets(kind, dimensions, local)[0], 0.0), axis=1)
+
+
 def primitive_normal(kind: str, dimensions: Mapping, local: np.ndarray) -> np.ndarray:
     """The outward unit normal (N, 3) of the face of the primitive (as
     :func:`primitive_distance`) nearest each of ``local`` (N, 3): a box's side, top or base,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..click_context import ClickContext
-from ..meshes import primitive_distance, primitive_normal
+from ..meshes import primitive_distance, primitive_normal, primitive_outside
 from ..neighbours import build_tree, nearest
 from ..plane import runs_along
 from .model import Model, surface_distances
@@ -167,4 +167,12 @@ def explanation(
         band = np.flatnonzero(mine & (np.abs(support.distance(on)) <= ctx.plane_threshold))
         flat = runs_along(support, np.take(on, band, axis=0), ctx.crop, ctx.crop_tree)
         mine[band[flat]] = False
+        if tpl.primitive is not None:  # ... or, round a primitive's base, outside its solid
+            # by more than the verdict's noise (sigma: a noise_sigmas-th of the tolerance):
+            # the strip of support at its foot, which the voxels' membership cannot part
+            # from its side faces' lowest millimetres
+            rest = band[~flat]
+            local = (np.take(on, rest, axis=0) - t) @ R
+            sigma = tol / settings.verdict.noise_sigmas
+            mine[rest[primitive_outside(tpl.primitive, tpl.dimensions, local) > sigma]] = False
     return Explanation(recall, float(np.mean(mine)), tol)
