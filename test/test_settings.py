@@ -184,6 +184,21 @@ def test_load_reads_a_partial_file_and_refuses_a_bad_one_with_one_line(tmp_path)
         assert str(err.value).startswith(f"settings file {path}"), str(err.value)
 
 
+def test_a_settings_file_of_an_earlier_version_still_loads(tmp_path):
+    """A file written by `affordance-registration settings` before a knob was retired (the
+    verdict's explained_margin, replaced by the description length) loads: the retired knob is
+    passed over, the others are read; a misspelled one is still refused."""
+    from affordance_registration.core.registration.settings import RETIRED
+
+    assert "verdict.explained_margin" in RETIRED
+    old = tmp_path / "old.yaml"
+    old.write_text("verdict:\n  explained_margin: 0.05\n  max_residual: 0.004\n")
+    assert FitSettings.load(str(old)) == FitSettings().with_(**{"verdict.max_residual": 0.004})
+    old.write_text("verdict:\n  explained_margins: 0.05\n")
+    with pytest.raises(RegistrationError, match="unknown setting verdict.explained_margins"):
+        FitSettings.load(str(old))
+
+
 def test_the_dump_of_the_defaults_is_every_knob_at_its_declared_default():
     data = yaml.safe_load(FitSettings().dump())
     assert dict(_flat(data)) == {name: default for name, default, _, _ in KNOBS}

@@ -354,8 +354,8 @@ def _seen(
 DISTINCT_SHARE = 0.1
 
 
-#: the description length is taken over an even subset of at most this many of the clicked
-#: segment's points
+#: the description length is taken over an even subset of at most this many of the cluster's
+#: points
 DESCRIPTION_POINTS = 2000
 
 

@@ -324,6 +324,14 @@ class ArticulationSettings(_Group):
     sweep_iterations: int = knob(5, "ICP iterations per sweep hypothesis", COUNT0)
 
 
+#: knobs of earlier versions, passed over where a settings file still has them: dotted name ->
+#: what took their place
+RETIRED = {
+    "verdict.explained_margin": "the description length against a fitting primitive "
+    "(docs/TUNING.md, verdict)",
+}
+
+
 @dataclass(frozen=True)
 class VerdictSettings(_Group):
     """Whether the best candidate fits: it covers what the sensor could see of it, explains the
@@ -597,7 +605,8 @@ class FitSettings:
     def from_dict(cls, data, base: "FitSettings | None" = None) -> "FitSettings":
         """Settings from plain data nested by group (as :meth:`to_dict` makes; missing knobs keep
         ``base``'s values, by default the defaults). An unknown name or a bad value raises
-        :class:`RegistrationError` with one line naming it."""
+        :class:`RegistrationError` with one line naming it; a RETIRED knob (a settings file
+        written by an earlier version) is passed over."""
         base = base or cls()
         if not isinstance(data, dict):
             raise RegistrationError(
@@ -616,6 +625,7 @@ class FitSettings:
             if not isinstance(value, dict):
                 raise RegistrationError(f"{key} must be a mapping of its knobs, got {value!r}")
             inner = {g.name: g for g in fields(group)}
+            value = {n: v for n, v in value.items() if f"{key}.{n}" not in RETIRED}
             for name in value:
                 if name not in inner:
                     raise RegistrationError(
