@@ -177,6 +177,7 @@ def configured(ros_context, tmp_path_factory, library):
             "settings_file": str(tmp / "fit.yaml"),
             "voxel_size": "0.01",
             "fit.crop.snap_distanse": "0.01",
+            "fit.verdict.explained_margin": "0.05",
         },
         "fit_params_tester",
         {"points": (PointCloud2, "/points", 1), "click": (PointStamped, "/clicked_point", 10)},
@@ -217,6 +218,10 @@ def test_a_parameter_the_node_does_not_have_is_named_with_the_one_meant(configur
     assert (
         "parameter 'fit.crop.snap_distanse' is not one of this node's and is ignored (did "
         "you mean 'fit.crop.snap_distance'?)" in out
+    )
+    assert (
+        "parameter 'fit.verdict.explained_margin' is retired (replaced by the description "
+        "length against a fitting primitive (docs/TUNING.md, verdict)) and is ignored" in out
     )
     assert get_parameters(configured["client"], ["fit.crop.voxel"]) == {"fit.crop.voxel": 0.005}
 

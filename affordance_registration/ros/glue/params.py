@@ -29,6 +29,7 @@ from ...core.errors import AffordanceError, RegistrationError
 from ...core.knobs import check_knob, declared, described
 from ...core.operator import OperatorSettings
 from ...core.registration import FitSettings
+from ...core.registration.settings import RETIRED
 from .frames import StaticFrames
 
 __all__ = [
@@ -268,9 +269,13 @@ RENAMED = {
 def unknown_overrides(overrides) -> list[str]:
     """One line for each parameter given to the node (``-p``, a parameter file) that it does
     not have -- ROS would ignore it silently, so a typo or an old name would change nothing --
-    with the name meant where one is close."""
+    with the name meant where one is close; a fit knob of an earlier version says so."""
     lines = []
     for name in sorted(set(overrides) - set(PARAMETERS) - {"use_sim_time"}):
+        retired = RETIRED.get(name[len(FIT_PREFIX) :]) if name.startswith(FIT_PREFIX) else None
+        if retired:
+            lines.append(f"parameter '{name}' is retired (replaced by {retired}) and is ignored")
+            continue
         meant = RENAMED.get(name) or next(
             iter(difflib.get_close_matches(name, PARAMETERS, 1)), None
         )
