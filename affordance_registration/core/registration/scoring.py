@@ -396,10 +396,9 @@ def description_lengths(
     local = (pts[None] - T[:, None, :3, 3]) @ T[:, :3, :3]
     on = surface_distances(list(models), local, 2.0 * tol) <= tol
     counts = np.maximum(np.bincount(labels, minlength=int(ctx.clicked_segment) + 1), 1)
-    part = np.zeros(len(counts), bool)
-    for row in on:
-        part |= np.bincount(labels, weights=row, minlength=len(counts)) >= OBJECT_SEGMENT * counts
-    part[ctx.clicked_segment] = True
+    part = np.logical_or.reduce(
+        [_object_segments(labels, row, ctx.clicked_segment, counts) for row in on]
+    )
     on = on[:, part[labels]]
     n = max(on.shape[1], 1)
     outlier = math.log(max(ctx.radius / tol, 1.0))
@@ -512,6 +511,16 @@ OBJECT_SEGMENT = 0.3
 NEIGHBOUR_PATCH = 0.05
 
 
+def _object_segments(labels: np.ndarray, on: np.ndarray, clicked: int, counts: np.ndarray):
+    """Which segments (bool, one per count of ``counts``, each segment's number of points
+    among ``labels``) are the object a shape stands for, the shape lying on the points ``on``
+    (bool, one per label): the ``clicked`` one and those it lies on for at least
+    OBJECT_SEGMENT of their points."""
+    part = np.bincount(labels, weights=on, minlength=len(counts)) / counts >= OBJECT_SEGMENT
+    part[clicked] = True
+    return part
+
+
 def _explained(
     ctx: ClickContext,
     models,
@@ -544,10 +553,7 @@ def _explained(
     patch_counts = np.maximum(np.bincount(patches, minlength=clicked_patch + 1), 1)
     share_on, mean_d = np.empty(len(T)), np.empty(len(T))
     for k in range(len(T)):
-        share = np.bincount(labels, weights=on[k], minlength=len(counts)) / counts
-        part = share >= OBJECT_SEGMENT
-        part[clicked] = True
-        mine = part[labels]
+        mine = _object_segments(labels, on[k], clicked, counts)[labels]
         if not mine.any():  # (a subsample without the clicked segment: unknown)
             share_on[k], mean_d[k] = 1.0, 0.0
             continue
