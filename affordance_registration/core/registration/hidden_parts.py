@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..click_context import RangeImage
+from ..memo import per_object
 from ..neighbours import build_tree, nearest, pca_normals
 from ..scene import ClickContext
 from ..segmentation import gap_components
@@ -50,11 +51,23 @@ MIN_PART = 0.2
 PIECE_GAP = 0.025
 
 
-def hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSettings) -> list:
-    """The pieces of the crop split off the clicked part ``clicked`` (its voxels, (K, 3)) by
+def hidden_parts(ctx: ClickContext, scene, settings: FitSettings) -> list:
+    """The pieces of the crop split off the clicked part (``ctx.clicked_points``) by
     something in front of it (see the module), each as (points (N, 3), normals (N, 3)) at
     the scan's full resolution from ``scene``; [] without a viewpoint, a support, a range
-    image or a scene."""
+    image or a scene. Found once per click context, scene and settings (the primitives'
+    measure and their verdict both ask)."""
+    key = (
+        "hidden parts",
+        id(scene),
+        settings.verdict.occluder_gap,
+        settings.scoring.free_space_margin,
+    )
+    return per_object(ctx, key, lambda: _hidden_parts(ctx, scene, ctx.clicked_points, settings))
+
+
+def _hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSettings) -> list:
+    """:func:`hidden_parts` of the clicked part ``clicked`` (its voxels, (K, 3))."""
     if (
         scene is None
         or ctx.sensor_origin is None
@@ -158,7 +171,7 @@ def with_hidden_parts(
     a result's model. Returns (the fits, the points (N, 3) of the pieces each was measured with
     -- (0, 3) where none)."""
     none = np.zeros((0, 3))
-    parts = hidden_parts(ctx, scene, ctx.clicked_points, settings)
+    parts = hidden_parts(ctx, scene, settings)
     if not parts:
         return fitted, [none] * len(fitted)
     v = settings.verdict

@@ -139,7 +139,7 @@ def explained(
     near = scene.around(ctx.click, ctx.radius) if scene is not None else None
     scan = ctx.crop if near is None else near.points
     voxels = object_voxels(ctx)
-    parts = [q for q, _ in hidden_parts(ctx, scene, ctx.clicked_points, services.settings)]
+    parts = [q for q, _ in hidden_parts(ctx, scene, services.settings)]
     out = []
     for r, extra in zip(judged, pieces):
         e = explanation(
@@ -189,7 +189,7 @@ def pieces_on(services: Services, ctx: ClickContext, scene, res: FitResult) -> n
     ``verdict.min_explained`` of each within the verdict's ``explained_distance``, as at the
     click (:func:`..hidden_parts.with_hidden_parts`)."""
     s = services.settings
-    parts = hidden_parts(ctx, scene, ctx.clicked_points, s)
+    parts = hidden_parts(ctx, scene, s)
     if not parts:
         return np.zeros((0, 3))
     model, T = services.model_of(res), res.T_scene_model
