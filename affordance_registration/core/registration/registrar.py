@@ -107,7 +107,7 @@ def default(state: FitState) -> FitState:
     """The default method (the module docstring says why each stage is there)."""
     if not state.specific:  # (primitives alone are measured, not fitted)
         return state
-    state = hypothesise.run(state)  # plane prior, resting facets, random; sizes at both ends
+    state = hypothesise.run(state)  # plane prior, facets, random; sizes and slides at both ends
     if coarse.pause(state):  # every restart on few samples, with the prefilter's first look:
         state = coarse.first_look(state)  # the first prefilter.iterations iterations
         state = prefilter.run(state)  # the templates clearly worse than the leaders leave
