@@ -221,13 +221,19 @@ def test_the_bench_writes_the_settings_it_ran_with_next_to_its_json(tmp_path):
 
 def test_the_tuning_guide_names_every_knob_with_its_default():
     """docs/TUNING.md lists each knob of FitSettings as "`name` = `default`" (a knob added,
-    renamed or given another default without its trade-off written down fails here)."""
+    renamed or given another default without its trade-off written down fails here), and no
+    other: a retired knob's line goes with it."""
+    import re
     from pathlib import Path
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "TUNING.md").read_text()
     missing = []
+    knobs = set()
     for name, default, _, _ in FitSettings.knobs():
+        knobs.add(name)
         shown = str(default).lower() if isinstance(default, bool) else str(default)
         if f"- `{name}` = `{shown}`" not in text:
             missing.append(f"{name} = {shown}")
     assert missing == [], missing
+    listed = re.findall(r"^- `([\w.]+)` = `", text, flags=re.MULTILINE)
+    assert [n for n in listed if n not in knobs] == []
