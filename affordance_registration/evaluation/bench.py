@@ -746,8 +746,10 @@ ROW_NOTES = (
     (
         "refit after a correction",
         "refit after a correction",
-        "A right fit moved by 1.5 cm and 8 deg, as an operator's correction, then refitted: the "
-        "refit's median time and the share that lands back within tolerance.",
+        "A right fit moved by 1.5 cm and 8 deg, as an operator's correction, then refitted on "
+        "the click's context as the click's fit left it (as the engine refits: the crop's "
+        "segments, noise and search trees were found by the click): the refit's median time and "
+        "the share that lands back within tolerance.",
     ),
     (
         "articulated",
