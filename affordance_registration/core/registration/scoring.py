@@ -159,7 +159,6 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
     )
     max_residual = widen * settings.verdict.max_residual
     solid_depth = SOLID_DEPTH * object_tolerance(ctx, settings)
-    tpl_specific = ~primitive
     out = []
     for k, (model, res) in enumerate(zip(models, fits)):
         R, t = T[k, :3, :3], T[k, :3, 3]
@@ -191,11 +190,11 @@ def judge(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
             if seen_from and obj_res > max_residual
             else "",
         ]
-        if tpl_specific[k] and ctx.plane is not None:
-            deep = ctx.plane.distance(X) < -solid_depth
-            if deep.mean() > SOLID_SHARE:
+        if not primitive[k] and ctx.plane is not None:
+            above = ctx.plane.distance(X)
+            if np.mean(above < -solid_depth) > SOLID_SHARE:
                 why.append(
-                    f"it would reach {-float(ctx.plane.distance(X).min()) * 1e3:.0f} mm into "
+                    f"it would reach {-float(above.min()) * 1e3:.0f} mm into "
                     f"the surface the object stands on"
                 )
         why = "; ".join(w for w in why if w)
