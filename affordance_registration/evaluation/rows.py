@@ -32,6 +32,7 @@ __all__ = [
     "real_kinect_rows",
     "simulated_primitive_rows",
     "clutter_rows",
+    "scanned_template_cost",
     "simulate_primitives",
     "simulate_stack",
     "simulate_mugs",
@@ -209,6 +210,95 @@ def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | 
         "ratio": float(np.median(t[:, 0] / t[:, 1])),
         "views": len(views),
         "view_median_s": float(np.median(views)) if views else None,
+        "clock": "cpu",
+    }
+
+
+def _carton_mesh_template(case, out_dir: str):
+    """The milk carton as a mesh template: the box of the carton's points in their principal
+    axes (an STL and its YAML in ``out_dir``), the mesh counterpart of its scanned template."""
+    import yaml
+
+    from ..core.files import write_atomically
+    from ..core.meshes import primitive_mesh
+    from ..core.templates import load_template
+
+    pts = case.carton - case.carton.mean(axis=0)
+    axes = np.linalg.svd(pts, full_matrices=False)[2]
+    local = pts @ axes.T
+    ext = local.max(axis=0) - local.min(axis=0)
+    mesh = primitive_mesh("box", dict(zip("xyz", ext)))
+    doc = {"name": "carton_mesh", "mesh": "carton_mesh.stl", "description": "the carton's box"}
+    yml = os.path.join(out_dir, "carton_mesh.yaml")
+    os.makedirs(out_dir, exist_ok=True)
+    write_atomically(
+        {
+            os.path.join(out_dir, "carton_mesh.stl"): mesh.export(file_type="stl"),
+            yml: yaml.safe_dump(doc, sort_keys=False).encode(),
+        }
+    )
+    return load_template(yml)
+
+
+def scanned_template_cost(factory, case, scanned, clicks: int = 20, scenes=None) -> dict | None:
+    """What a scanned template adds to a click, against a mesh template of the same object:
+    three registrars (``factory(library)``) -- the bundled library, it with the ``scanned``
+    template (PCL's milk carton as a point cloud) and it with the carton as a mesh (the box of
+    its points, :func:`_carton_mesh_template`) -- each fit a click in turn, on ``clicks`` mOSD
+    objects (``scenes``, default the 15 learn scenes of the earlier rounds, spread over them;
+    the carton is not among them: what the template costs every other click) and on the
+    carton's own click. CPU time (``time.process_time``). Returns {"clicks", "scanned_ms" and
+    "mesh_ms" (the median over the mOSD clicks of what each adds to the bundled library's
+    click), "ratio" (scanned_ms / mesh_ms), "bundled_ms" (the bundled library's median click),
+    "own_click_scanned_ms", "own_click_mesh_ms" (the same on the carton's click), "clock":
+    "cpu"}; None without data."""
+    from ..core.scene import Scene
+    from ..core.templates import TemplateLibrary
+    from .realdata import labelled_objects, read_labelled_pcd
+
+    real = []
+    paths = list(scenes) if scenes is not None else osd_scene_paths(scenes=ORIGINAL_SCENES)
+    for path in paths:
+        cloud = read_labelled_pcd(path)
+        scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
+        real += [(scene, obj.click) for obj in labelled_objects(cloud)]
+    n = min(clicks, len(real))
+    if n == 0:
+        return None
+    pick = np.linspace(0, len(real) - 1, n).astype(int)
+    bundled = list(_bundled().values())
+    with tempfile.TemporaryDirectory() as tmp:
+        mesh = _carton_mesh_template(case, tmp)
+        registrars = [
+            factory(TemplateLibrary(lib))
+            for lib in (bundled, bundled + [scanned], bundled + [mesh])
+        ]
+    for registrar in registrars:
+        registrar.warm_up()
+
+    def costs(scene, click) -> list:
+        out = []
+        for registrar in registrars:
+            t0 = time.process_time()
+            try:
+                registrar.fit(scene, click)
+            except AffordanceError:
+                pass
+            out.append(time.process_time() - t0)
+        return out
+
+    t = np.array([costs(*real[k]) for k in pick])
+    own = costs(Scene.from_file(case.scene), case.click)
+    scanned_ms = 1000 * float(np.median(t[:, 1] - t[:, 0]))
+    mesh_ms = 1000 * float(np.median(t[:, 2] - t[:, 0]))
+    return {
+        "clicks": n,
+        "bundled_ms": 1000 * float(np.median(t[:, 0])),
+        "scanned_ms": scanned_ms,
+        "mesh_ms": mesh_ms,
+        "ratio": scanned_ms / mesh_ms if mesh_ms > 0 else None,
+        "own_click_scanned_ms": 1000 * (own[1] - own[0]),
+        "own_click_mesh_ms": 1000 * (own[2] - own[0]),
         "clock": "cpu",
     }
 
@@ -664,6 +754,7 @@ def clutter_rows(
     with_library: bool = True,
     milk: bool = True,
     held_out_scenes=None,
+    cost_clicks: int = 20,
 ) -> dict:
     """The clutter rows. "armadillo": the Armadillo template (all four views merged) in a
     library with the bundled templates (``with_library``), clicked in
@@ -675,7 +766,9 @@ def clutter_rows(
     of ``realdata.HELD_OUT`` among ``realdata.ORIGINAL_SCENES``, so that the row stays
     comparable; [] for none). "milk": PCL's milk carton as a point-cloud template in the bundled
     library, clicked on the carton: ranked first, within 2 mm / 2 deg of the identity,
-    accepted; "as_box" the same click without the carton's template (:func:`_milk_as_box`). A
+    accepted; "as_box" the same click without the carton's template (:func:`_milk_as_box`);
+    "cost" what the carton's scanned template adds to a click against its mesh
+    (:func:`scanned_template_cost` on ``cost_clicks`` mOSD clicks; 0: not measured). A
     row whose data is absent (no shared data, pip cannot fetch or-pcd) is None with ``why``."""
     from ..core.registration import Registrar
     from ..core.scene import Scene
@@ -743,6 +836,10 @@ def clutter_rows(
                         "time_s": time.perf_counter() - t0,
                     }
                     out["milk"]["as_box"] = _milk_as_box(factory, case)
+                    if cost_clicks:
+                        out["milk"]["cost"] = scanned_template_cost(
+                            factory, case, tpl, cost_clicks
+                        )
                 except AffordanceError as exc:
                     out["milk"], out["milk_why"] = None, str(exc)
     return out
