@@ -152,6 +152,21 @@ def real_kinect_rows(
     }
 
 
+def _real_clicks(scenes=None) -> list:
+    """(scene, click) of every labelled object of the mOSD ``scenes`` (paths; default the 15
+    learn scenes of the earlier rounds, ``realdata.ORIGINAL_SCENES``), clicked in its middle."""
+    from ..core.scene import Scene
+    from .realdata import labelled_objects, read_labelled_pcd
+
+    real = []
+    paths = list(scenes) if scenes is not None else osd_scene_paths(scenes=ORIGINAL_SCENES)
+    for path in paths:
+        cloud = read_labelled_pcd(path)
+        scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
+        real += [(scene, obj.click) for obj in labelled_objects(cloud)]
+    return real
+
+
 def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | None:
     """What the engine's click costs on a real capture against a simulated bench click, in one
     process: the click the node runs (``AffordanceEngine.click``: the fit, its verdict, the
@@ -167,15 +182,8 @@ def real_capture_cost(registrar, jobs, clicks: int = 20, scenes=None) -> dict | 
     "views" (the real clicks that were unsettled), "view_median_s" (their views' CPU time;
     None without one), "clock": "cpu"}, None without data."""
     from ..core.engine import AffordanceEngine
-    from ..core.scene import Scene
-    from .realdata import labelled_objects, read_labelled_pcd
 
-    real = []
-    paths = list(scenes) if scenes is not None else osd_scene_paths(scenes=ORIGINAL_SCENES)
-    for path in paths:
-        cloud = read_labelled_pcd(path)
-        scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
-        real += [(scene, obj.click) for obj in labelled_objects(cloud)]
+    real = _real_clicks(scenes)
     n = min(clicks, len(real), len(jobs))
     if n == 0:
         return None
@@ -254,14 +262,8 @@ def scanned_template_cost(factory, case, scanned, clicks: int = 20, scenes=None)
     "cpu"}; None without data."""
     from ..core.scene import Scene
     from ..core.templates import TemplateLibrary
-    from .realdata import labelled_objects, read_labelled_pcd
 
-    real = []
-    paths = list(scenes) if scenes is not None else osd_scene_paths(scenes=ORIGINAL_SCENES)
-    for path in paths:
-        cloud = read_labelled_pcd(path)
-        scene = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
-        real += [(scene, obj.click) for obj in labelled_objects(cloud)]
+    real = _real_clicks(scenes)
     n = min(clicks, len(real))
     if n == 0:
         return None
