@@ -2,9 +2,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """The ``affordance-registration`` command.
 
-Subcommands: fit, settings, simulate, bench, demo, generate-models (and the ROS ones: launch, bag,
-spacemouse, station, when their modules are present). Errors print one line naming the problem and
-exit with status 2; nothing half-written is left behind.
+Subcommands: fit, settings, simulate, bench, trust, demo, generate-models (and the ROS ones:
+launch, bag, spacemouse, station, when their modules are present). Errors print one line naming
+the problem and exit with status 2; nothing half-written is left behind.
 """
 
 from __future__ import annotations
@@ -339,6 +339,22 @@ def default_session_dir() -> str:
     from .core.templates import default_models_dir
 
     return os.path.join(os.path.dirname(default_models_dir()), "test", "data", "session")
+
+
+def cmd_trust(args) -> int:
+    from .evaluation.composite import format_lines, run
+
+    summary, records = run(
+        args.kind,
+        args.seeds,
+        args.out,
+        refined=args.refined,
+        save=args.save,
+        log=lambda line: print(line, file=sys.stderr, flush=True),
+    )
+    print("\n".join(format_lines(summary)))
+    print(f"{len(records)} records written to {os.path.abspath(args.out)}")
+    return 0
 
 
 def cmd_demo(args) -> int:
@@ -748,6 +764,34 @@ def build_parser() -> argparse.ArgumentParser:
         "kind), not a sample of 5 + 5",
     )
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser(
+        "trust",
+        help="click every labelled object of composite (or learn) real scenes and judge the "
+        "shown fit against the labels (needs the shared mOSD scans)",
+    )
+    p.add_argument(
+        "--kind",
+        choices=("mixed", "complex", "learn"),
+        default="mixed",
+        help="composite scenes of several learn scenes' objects (mixed, complex) or the learn "
+        "scenes themselves; default mixed",
+    )
+    p.add_argument(
+        "--seeds",
+        default="0-19",
+        help="composite seeds: N, N-M, comma-separated (development 0-19, held-out 100-119)",
+    )
+    p.add_argument(
+        "--out", type=path_arg, required=True, help="the JSON file of every click's record"
+    )
+    p.add_argument(
+        "--refined", action="store_true", help="also score each fit refined on the labels"
+    )
+    p.add_argument(
+        "--save", type=path_arg, help="a folder to write the composite scenes into (PCD)"
+    )
+    p.set_defaults(func=cmd_trust)
 
     p = sub.add_parser(
         "demo",

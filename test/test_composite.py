@@ -309,7 +309,7 @@ def test_seed_lists_are_parsed_and_bad_ones_refused():
 
 def _module(*args):
     return subprocess.run(
-        [sys.executable, "-m", "affordance_registration.evaluation.composite", *args],
+        [sys.executable, "-m", "affordance_registration.cli", "trust", *args],
         capture_output=True,
         text=True,
     )
@@ -325,11 +325,13 @@ def test_the_command_refuses_bad_input_in_one_line(tmp_path):
 
 @needs_data
 def test_the_command_writes_every_click(tmp_path, scenes):
-    """``python -m ...composite --kind mixed --seeds 0`` (its main, in this process: the
-    learn scenes' units are read once): one judged record per labelled object of mixed seed 0
-    in the JSON, and its summary."""
+    """``affordance-registration trust --kind mixed --seeds 0`` (the CLI's main, in this
+    process: the learn scenes' units are read once): one judged record per labelled object of
+    mixed seed 0 in the JSON, and its summary."""
+    from affordance_registration.cli import main
+
     out = tmp_path / "mixed.json"
-    assert cp.main(["--kind", "mixed", "--seeds", "0", "--out", str(out)]) == 0
+    assert main(["trust", "--kind", "mixed", "--seeds", "0", "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
     clickable = rd.labelled_objects(scenes[0].cloud)
     assert [r["object"] for r in doc["records"]] == [o.id for o in clickable]

@@ -73,20 +73,18 @@ claim* -- a specific (non-primitive) template fits (every object here is outside
 Groups: the learn scenes by mOSD group, tuning and held-out scenes apart; the mixed and
 complex composites, development and held-out seeds apart.
 
-Run ``python -m affordance_registration.evaluation.composite --kind mixed --seeds 0-19 --out
-FILE.json`` (``--kind learn`` for the learn scenes; ``--save DIR`` writes the composites as
-mOSD-like PCDs): every click's record goes to the JSON, a summary to stdout.
+Run ``affordance-registration trust --kind mixed --seeds 0-19 --out FILE.json`` (``--kind
+learn`` for the learn scenes; ``--save DIR`` writes the composites as mOSD-like PCDs): every
+click's record goes to the JSON, a summary to stdout (:func:`run`).
 """
 
 from __future__ import annotations
 
-import argparse
 import colorsys
 import functools
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -149,7 +147,7 @@ __all__ = [
     "format_lines",
     "parse_seeds",
     "write_labelled_pcd",
-    "main",
+    "run",
 ]
 
 KINDS = ("mixed", "complex")
@@ -1341,68 +1339,38 @@ def parse_seeds(text: str) -> list:
     return seeds
 
 
-def main(argv=None) -> int:
-    """``python -m affordance_registration.evaluation.composite``: measure the default
-    library (``TemplateLibrary.load()``) on composites or learn scenes; every click's record
-    into ``--out`` (JSON), the summary on stdout. A bad argument or absent data: one line on
-    stderr, exit 2."""
-    parser = argparse.ArgumentParser(
-        prog="python -m affordance_registration.evaluation.composite",
-        description="Click every labelled object of composite (or learn) scenes and judge "
-        "the shown fit against the labels (issue 59).",
-    )
-    parser.add_argument("--kind", choices=KINDS + ("learn",), default="mixed")
-    parser.add_argument(
-        "--seeds",
-        default="0-19",
-        help="composite seeds: N, N-M, comma-separated (development 0-19, held-out 100-119)",
-    )
-    parser.add_argument("--out", required=True, help="the JSON file of every click's record")
-    parser.add_argument(
-        "--refined", action="store_true", help="also score each fit refined on the labels"
-    )
-    parser.add_argument("--save", help="a folder to write the composite scenes into (PCD)")
-    args = parser.parse_args(argv)
-
-    def fail(message: str) -> int:
-        print(f"error: {message}", file=sys.stderr)
-        return 2
-
-    out = os.path.abspath(args.out)
+def run(
+    kind: str,
+    seeds: str,
+    out: str,
+    refined: bool = False,
+    save: str | None = None,
+    log=None,
+) -> tuple[dict, list]:
+    """``affordance-registration trust``: measure the default library
+    (``TemplateLibrary.load()``) on the composites of ``kind`` and ``seeds`` (N, N-M,
+    comma-separated), or on the learn scenes (``kind`` "learn"); every click's record and the
+    summary written to the JSON file ``out`` (atomically). Returns (summary, records). A bad
+    argument or absent data raises :class:`AffordanceError` before anything is measured."""
+    out = os.path.abspath(out)
     if os.path.exists(out) and not os.path.isfile(out):
-        return fail(f"{args.out} exists and is not a regular file")
+        raise AffordanceError(f"{out} exists and is not a regular file")
     if not os.path.isdir(os.path.dirname(out)):
-        return fail(f"{os.path.dirname(out)}: no such folder")
-    try:
-        seeds = parse_seeds(args.seeds) if args.kind != "learn" else []
-        if not osd_scene_paths():
-            raise AffordanceError("no shared mOSD scenes (set AFFORDANCE_SHARED_DATA)")
-        from ..core.registration import Registrar
-        from ..core.templates import TemplateLibrary
+        raise AffordanceError(f"{os.path.dirname(out)}: no such folder")
+    if kind not in KINDS + ("learn",):
+        raise AffordanceError(f"no composite kind {kind!r} (have: {', '.join(KINDS)}, learn)")
+    seeds = parse_seeds(seeds) if kind != "learn" else []
+    if not osd_scene_paths():
+        raise AffordanceError("no shared mOSD scenes (set AFFORDANCE_SHARED_DATA)")
+    from ..core.files import write_atomically
+    from ..core.registration import Registrar
+    from ..core.templates import TemplateLibrary
 
-        registrar = Registrar(TemplateLibrary.load())
-
-        def log(line):
-            print(line, file=sys.stderr, flush=True)
-
-        if args.kind == "learn":
-            records = measure_learn(registrar, refined=args.refined, log=log)
-        else:
-            records = measure(
-                registrar, args.kind, seeds, refined=args.refined, log=log, save=args.save
-            )
-        summary = summarize(records)
-        from ..core.files import write_atomically
-
-        write_atomically(
-            {out: json.dumps({"summary": summary, "records": records}, indent=1) + "\n"}
-        )
-    except (AffordanceError, OSError) as exc:
-        return fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    print("\n".join(format_lines(summary)))
-    print(f"{len(records)} records written to {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    registrar = Registrar(TemplateLibrary.load())
+    if kind == "learn":
+        records = measure_learn(registrar, refined=refined, log=log)
+    else:
+        records = measure(registrar, kind, seeds, refined=refined, log=log, save=save)
+    summary = summarize(records)
+    write_atomically({out: json.dumps({"summary": summary, "records": records}, indent=1) + "\n"})
+    return summary, records
