@@ -1,8 +1,8 @@
 # Copyright 2026 affordance_registration developers
 # SPDX-License-Identifier: Apache-2.0
-"""The scene's side of the scanned templates' feature matching (the crop's and the cluster's
-descriptors) is the click's: computed once a click context, shared by every scanned template,
-and gone with the context."""
+"""The scene's side of the scanned templates' feature matching (the cluster's descriptors) is
+the click's: computed once a click context, shared by every scanned template, and gone with the
+context."""
 
 import gc
 
@@ -20,22 +20,20 @@ def test_scene_descriptors_are_computed_once_a_click_and_go_with_it():
     sim = simulate_taskboard(library, seed=1000)
     registrar = Registrar(library)
     ctx = registrar.prepare(Scene(sim.organized), sim.objects[0].click)
-    crop, cluster = features._scene_features(ctx), features._cluster_features(ctx)
-    paired = features._paired(ctx)
-    assert len(ctx.crop) > len(paired) == features.MAX_PAIRS  # (a subset: can differ)
-    assert crop.shape == (len(paired), 33) and cluster.shape == (len(ctx.cluster), 33)
-    assert features._scene_features(ctx) is crop and features._cluster_features(ctx) is cluster
-    assert not crop.flags.writeable  # shared: nobody may change it
-    # what the memo gives is what computing every crop point's afresh gives at those points
+    cluster = features._cluster_features(ctx)
+    assert cluster.shape == (len(ctx.cluster), 33)
+    assert features._cluster_features(ctx) is cluster
+    assert not cluster.flags.writeable  # shared: nobody may change it
+    # what the memo gives is what computing them afresh gives
     fresh = features._fpfh(
-        ctx.crop,
-        features._normals(ctx, ctx.crop, ctx.crop_tree),
-        features.FEATURE_RADIUS * ctx.voxel,
+        ctx.cluster,
+        features._normals(ctx, ctx.cluster, ctx.cluster_tree),
+        features.GLOBAL_RADIUS * ctx.voxel,
     )
-    np.testing.assert_array_equal(crop, fresh[paired])
+    np.testing.assert_array_equal(cluster, fresh)
     # another context of the same click has its own; the memo goes with each context
     other = registrar.prepare(Scene(sim.organized), sim.objects[0].click)
-    assert features._scene_features(other) is not crop
+    assert features._cluster_features(other) is not cluster
     key = id(ctx)
     assert key in memo._per_object
     del ctx, other

@@ -4,38 +4,29 @@
 
 A scanned template is usually a large, free-standing object with no mounting base, and a click
 may land anywhere on it (a leg of a statue): random restarts about the click rarely start ICP in
-its basin. Here FPFH descriptors (Open3D) of the template's samples are matched to those of the
-crop, and a RANSAC over three-point correspondences (drawn from a generator of their own, and
-the descriptors -- normals towards the sensor -- do not depend on the scene's frame) proposes a
-few distinct poses; they join the other initial hypotheses and compete in the same coarse
-stage.
+its basin. Here FPFH descriptors (Open3D) of the template's thinned surface are matched to those
+of the *cluster* -- the points connected to the click off the support, where an object touching
+others in clutter still has most of its own points and a crop full of neighbours would outvote
+it: mutual nearest descriptors (all nearest ones where too few are mutual), then
+``GLOBAL_RUNS`` runs of a RANSAC over three matches (:func:`global_ransac`: Open3D's
+feature-matching RANSAC's checks and stopping rule, drawn from the fit's generator for it),
+whose best poses join the other initial hypotheses and compete in the same coarse stage. The
+descriptors -- normals towards the sensor -- do not depend on the scene's frame. (Mesh
+templates are not matched: the taskboard parts are found by the mounting prior, and their
+results stay as they were.)
 
-A second source matches the template's descriptors to the *cluster's* -- the points connected to
-the click off the support, where an object touching others in clutter still has most of its own
-points and a crop full of neighbours would outvote it: mutual nearest descriptors (all nearest
-ones where too few are mutual), then a RANSAC of its own (:func:`global_ransac`: Open3D's
-feature-matching RANSAC's checks and stopping rule, its draws from a seeded generator of its
-own) whose ``GLOBAL_KEEP`` distinct best poses join the hypotheses. (Mesh templates use
-neither source: the taskboard parts are found by the mounting prior, and their results stay as
-they were.)
+This matching was Open3D's RANSAC, run three times at 100000 draws. It poses every draw before
+it checks the draw's edges, and on a cluster the template is not in no pose ends the draws
+early: the three runs took 1.2-1.8 s of CPU on a real mOSD click with PCL's milk carton as the
+scanned template, where about 0.1% of the draws keep their edges. Checking the edges first, in
+batches, answers 50000 draws in 10-20 ms. A second matching, of the template's descriptors to
+the crop's (1500 crop points, its own RANSAC), went with it: it found no pose the cluster's
+runs did not (the Armadillo in clutter, the Armadillo's views, the milk carton: the same found,
+ranked and accepted without it), and it cost 180-240 ms a click.
 
-The cluster matching was Open3D's RANSAC, run three times (seeds 1-3, one pose each). It poses
-every draw before it checks the draw's edges, and on a cluster the template is not in no pose
-ends the draws early: the three runs took 1.2-1.8 s of CPU on a real mOSD click with PCL's
-milk carton as the scanned template, where about 0.1% of the draws keep their edges. Checking
-the edges first, in batches, answers the same draws in 20-30 ms each 100000; the distinct best
-poses of one run replace the best of three runs, which found the same pose more often than
-not. Found within 5 mm / 5 deg, the Armadillo in clutter, before -> after: 16/16 -> 16/16 on
-8 tuning tables not tuned on (learn1, 5, 9, 15, 19, 25, 29, 35, seeds 0-1), 6/6 -> 6/6 on
-learn0 and learn20, 12/12 -> 12/12 held out; their clicks' CPU 33.4 -> 21.8 s, 12.5 -> 7.7 s,
-24.0 -> 15.9 s. What the carton's scanned template adds to 20 mOSD clicks: 1533 -> 301 ms.
-
-What a scanned template costs a click besides: the crop's descriptors 140-190 ms (at the
-MAX_PAIRS crop points that get a partner only, their neighbourhoods in the whole crop: the same
-descriptors as the whole crop's there, which cost 200-280 ms), the cluster's 50-90 ms, the crop
-matching's own RANSAC 30-50 ms. The scene's descriptors are the click's, not the template's:
-they are computed once a click context (:func:`_per_click`) and shared by every scanned
-template of the library.
+What a scanned template costs a click here: the cluster's descriptors 50-90 ms (the click's,
+not the template's: computed once a click context, :func:`_per_click`, and shared by every
+scanned template of the library), the matching 50-60 ms, the RANSAC runs 30-60 ms.
 """
 
 from __future__ import annotations
@@ -48,32 +39,23 @@ from scipy.spatial import cKDTree
 from ..memo import per_object
 from ..neighbours import pca_normals
 from ..scene import ClickContext
-from ..transforms import rotation_angle
 from .solve import rigid_step
 
-__all__ = ["feature_alignments", "global_alignments"]
+__all__ = ["global_alignments", "global_ransac"]
 
-FEATURE_RADIUS = 10.0  #: FPFH radius, in voxels
 FEATURE_SAMPLES = 20000  #: a mesh template's samples its descriptors are computed on
-NORMAL_NEIGHBOURS = 12  #: the normals of the crop, the cluster and the thinned template
-RANSAC_TRIALS = 60000  #: three-point draws
-EDGE_TOLERANCE = 0.1  #: a draw's edges must agree to this fraction (rigid)
-INLIER_VOXELS = 2.0  #: a correspondence within this many voxels is an inlier
-MAX_EVALUATED = 4000  #: rigid draws whose inliers are counted
-MAX_PAIRS = 1500  #: at most this many crop points (evenly spread) get a partner
-CHUNK = 250  #: hypotheses whose inliers are counted at once
-#: distinct poses returned per template: a template of the Armadillo's other views holds only
-#: half of view 60, and its true pose was among the best 4 on 1 of 6 seeds, the best 16 on 5
-KEEP = 16
-DISTINCT_TURN = math.radians(20.0)
+NORMAL_NEIGHBOURS = 12  #: the normals of the cluster and of the thinned template
+CHUNK = 250  #: poses whose inliers are counted at once
 
-GLOBAL_RADIUS = 5.0  #: FPFH radius of the cluster matching, in voxels
-GLOBAL_SEED = 1  #: the cluster matching's RANSAC draws from a generator of this seed
-#: the distinct best poses the cluster matching returns (it once took the best of three runs:
-#: they found the same pose more often than not)
-GLOBAL_KEEP = 3
-GLOBAL_ITERATIONS = 100000  #: RANSAC draws per run
-GLOBAL_DISTANCE = 1.5  #: a correspondence within this many voxels is an inlier
+GLOBAL_RADIUS = 5.0  #: FPFH radius, in voxels
+#: independent RANSAC runs, each one pose. Set on the Armadillo in clutter, 22 tuning clicks x
+#: 8 generator seeds: a pose in the true one's basin (3 cm, 30 deg) on 176/176 from 3 runs,
+#: on 170 from the 3 distinct best poses of one run (Open3D's 3 runs: 176)
+GLOBAL_RUNS = 3
+#: draws a run at the most (the same 22 x 8, 3 runs: 10000 174/176, 20000 175, 34000 176,
+#: 50000 176, 100000 176)
+GLOBAL_ITERATIONS = 50000
+GLOBAL_DISTANCE = 1.5  #: a match within this many voxels is an inlier
 GLOBAL_EDGE = 0.9  #: a draw's edges must agree to this ratio (Open3D's edge check)
 GLOBAL_CONFIDENCE = 0.999  #: the draws stop when a better pose is this unlikely
 #: fewer mutual matches than this share of the template's descriptors: all their matches are used
@@ -93,24 +75,21 @@ def _per_click(ctx: ClickContext, what: str, compute):
     return per_object(ctx, ("features", what), shared)
 
 
-def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float, at=None) -> np.ndarray:
-    """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3); ``at``: of those
-    points only (indices, (M, 33) -- the same descriptors, their neighbourhoods still in all
-    the points)."""
+def _fpfh(points: np.ndarray, normals: np.ndarray, radius: float) -> np.ndarray:
+    """FPFH descriptors (N, 33) of points (N, 3) with unit normals (N, 3)."""
     import open3d as o3d
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals)
     param = o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=100)
-    compute = o3d.pipelines.registration.compute_fpfh_feature
-    feat = compute(cloud, param) if at is None else compute(cloud, param, np.asarray(at).tolist())
+    feat = o3d.pipelines.registration.compute_fpfh_feature(cloud, param)
     return np.asarray(feat.data).T.copy()
 
 
-def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
-    """The model's surface described as the scene's crop is: thinned to the mean of each
+def _template_features(model, voxel: float):
+    """The model's surface described as the scene's cluster is: thinned to the mean of each
     occupied voxel (model frame), normals by PCA of ``NORMAL_NEIGHBOURS`` of those means
-    (turned to the side of the file's normals), FPFH descriptors (``radius`` in voxels); cached
+    (turned to the side of the file's normals), FPFH descriptors (``GLOBAL_RADIUS``); cached
     with the model. A scanned template gives every point of its file (it is a scan: its points
     are the surface), a mesh ``FEATURE_SAMPLES`` samples. The voxel grid is laid out in the
     template's axes about its centroid (``AffordanceTemplate.axes``), so the voxels do not
@@ -137,10 +116,10 @@ def _template_features(model, voxel: float, radius: float = FEATURE_RADIUS):
         # the normals found as the scene's are (on the thinned points), on the file's side
         normals = pca_normals(P, NORMAL_NEIGHBOURS)
         normals[np.einsum("ij,ij->i", normals, N) < 0] *= -1
-        return P, normals, _fpfh(P, normals, radius * voxel)
+        return P, normals, _fpfh(P, normals, GLOBAL_RADIUS * voxel)
 
-    key = ("fpfh", model.template, model.q, model.scale, float(voxel))
-    return model.cache.posed(key if radius == FEATURE_RADIUS else key + (float(radius),), build)
+    key = ("fpfh", model.template, model.q, model.scale, float(voxel), GLOBAL_RADIUS)
+    return model.cache.posed(key, build)
 
 
 def _normals(ctx: ClickContext, points: np.ndarray, tree) -> np.ndarray:
@@ -154,31 +133,9 @@ def _normals(ctx: ClickContext, points: np.ndarray, tree) -> np.ndarray:
     return normals
 
 
-def _scene_features(ctx: ClickContext):
-    """The descriptors of the crop points :func:`_paired` names (normals towards the sensor,
-    or away from the crop's centre without one; their neighbourhoods in the whole crop), once
-    a click."""
-    return _per_click(
-        ctx,
-        "crop",
-        lambda: _fpfh(
-            ctx.crop,
-            _normals(ctx, ctx.crop, ctx.crop_tree),
-            FEATURE_RADIUS * ctx.voxel,
-            _paired(ctx),
-        ),
-    )
-
-
-def _paired(ctx: ClickContext) -> np.ndarray:
-    """The crop points (indices) that get a template partner: at most ``MAX_PAIRS``, evenly
-    spread."""
-    n = len(ctx.crop)
-    return np.unique(np.linspace(0, n - 1, min(n, MAX_PAIRS)).astype(int))
-
-
 def _cluster_features(ctx: ClickContext):
-    """The cluster's descriptors for :func:`global_alignments`, once a click."""
+    """The cluster's descriptors (normals towards the sensor, or away from the cluster's
+    centre without one), once a click."""
     return _per_click(
         ctx,
         "cluster",
@@ -213,62 +170,22 @@ def _kept_edges(src: np.ndarray, dst: np.ndarray, picks: np.ndarray) -> np.ndarr
     return kept
 
 
-def _distinct(R, t, R2, t2, centre: np.ndarray, reach: float) -> bool:
-    """Two poses are distinct where they turn more than ``DISTINCT_TURN`` apart or move
-    ``centre`` more than ``reach`` apart."""
-    return (
-        rotation_angle(R.T @ R2) > DISTINCT_TURN
-        or np.linalg.norm(R @ centre + t - R2 @ centre - t2) > reach
-    )
-
-
 def global_ransac(
-    src: np.ndarray,
-    dst: np.ndarray,
-    rng: np.random.Generator,
-    distance: float,
-    keep: int = 1,
-    centre: np.ndarray | None = None,
-    reach: float = 0.0,
-) -> list:
-    """Up to ``keep`` distinct poses (R (3, 3), t (3,)), best first, that bring the most
-    matched pairs ``src`` -> ``dst`` (M, 3 each) within ``distance`` (fewer squared errors on a
-    tie), by RANSAC over three pairs: a draw is posed only where its edges agree to
-    ``GLOBAL_EDGE`` both ways (a rigid motion keeps them) and every pair lands within
-    ``distance``; each kept pose's inliers are then fitted by least squares. Poses are
-    :func:`_distinct` about ``centre`` (the model's) within ``reach``: of two that are not, the
-    better stays (drawn, and again refined). The draws stop at ``GLOBAL_ITERATIONS`` or, as
-    soon as the best pose's inlier share w makes it ``GLOBAL_CONFIDENCE`` sure that a better
-    one would have been drawn, at log(1 - confidence) / log(1 - w^3) -- Open3D's criterion.
-    Drawn in growing batches (``FIRST_BATCH``, four times larger each) and judged in draw
-    order, so the answer is the one draw by draw would give; [] when no draw holds. On a
-    cluster the template is not in, few draws keep their edges (about 0.1%, measured on mOSD
-    clicks with the milk carton's template), and the cost is the draws' edges."""
+    src: np.ndarray, dst: np.ndarray, rng: np.random.Generator, distance: float
+) -> tuple | None:
+    """The pose (R (3, 3), t (3,)) that brings the most matched pairs ``src`` -> ``dst`` (M, 3
+    each) within ``distance`` (fewer squared errors on a tie), by RANSAC over three pairs: a
+    draw is posed only where its edges agree to ``GLOBAL_EDGE`` both ways (a rigid motion keeps
+    them) and every pair lands within ``distance``; the best pose's inliers are then fitted by
+    least squares. The draws stop at ``GLOBAL_ITERATIONS`` or, as soon as the best pose's
+    inlier share w makes it ``GLOBAL_CONFIDENCE`` sure that a better one would have been
+    drawn, at log(1 - confidence) / log(1 - w^3) -- Open3D's criterion. Drawn in growing
+    batches (``FIRST_BATCH``, four times larger each) and judged in draw order, so the answer
+    is the one draw by draw would give; None when no draw holds. On a cluster the template is
+    not in, few draws keep their edges (about 0.1%, measured on mOSD clicks with the milk
+    carton's template), and the cost is the draws' edges."""
     M = len(src)
-    centre = np.zeros(3) if centre is None else centre
-    tops: list = []  # [count, sse, inliers, R, t], best first
-
-    def rank(entry):
-        count, sse = entry[0], entry[1]
-        return (-count, math.sqrt(sse / count))
-
-    def offer(count, sse, inl, R, t) -> bool:
-        """Keep the pose among ``tops`` where it belongs; True when it is the best now."""
-        entry = [count, sse, inl, R, t]
-        for i, other in enumerate(tops):
-            if not _distinct(R, t, other[3], other[4], centre, reach):
-                if rank(entry) >= rank(other):
-                    return False
-                tops[i] = entry
-                break
-        else:
-            if len(tops) == keep and rank(entry) >= rank(tops[-1]):
-                return False
-            tops.append(entry)
-        tops.sort(key=rank)
-        del tops[keep:]
-        return tops[0] is entry
-
+    best_count, best_rmse, best = 0, math.inf, None
     stop, done, batch = GLOBAL_ITERATIONS, 0, FIRST_BATCH
     while done < stop:
         n = min(batch, stop - done)
@@ -294,7 +211,9 @@ def global_ransac(
                     if done + kept[k + j] >= stop:
                         break
                     c = int(counts[j])
-                    if c and offer(c, float(sse[j]), inl[j], R[k + j], t[k + j]):
+                    rmse = math.sqrt(sse[j] / c) if c else math.inf
+                    if c > best_count or (c == best_count and c and rmse < best_rmse):
+                        best_count, best_rmse, best = c, rmse, inl[j].copy()
                         w3 = (c / M) ** 3
                         need = (
                             0
@@ -304,78 +223,23 @@ def global_ransac(
                         stop = min(stop, max(done + int(kept[k + j]) + 1, need))
         done += n
         batch *= 4
-    out = []
-    for count, _, inl, _, _ in tops:  # refined, the poses are still distinct
-        fit = rigid_step(src[inl][None], dst[inl][None], np.ones((1, count)))
-        R, t = fit.R[0], fit.t[0]
-        if all(_distinct(R, t, R2, t2, centre, reach) for R2, t2 in out):
-            out.append((R, t))
-    return out
+    if best is None:
+        return None
+    fit = rigid_step(src[best][None], dst[best][None], np.ones((1, best_count)))
+    return fit.R[0], fit.t[0]
 
 
-def global_alignments(ctx: ClickContext, model) -> list:
+def global_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> list:
     """Poses (R (3, 3), t (3,)), model -> scene, from matching the model's descriptors to the
-    cluster's (:func:`_matched`): the ``GLOBAL_KEEP`` distinct best of :func:`global_ransac`
-    over the matches; [] for a cluster too small to match."""
+    cluster's (:func:`_matched`): the best of each of ``GLOBAL_RUNS`` runs of
+    :func:`global_ransac` over the matches, drawn from ``rng`` in turn; [] for a cluster too
+    small to match."""
     if len(ctx.cluster) < 30:
         return []
-    P, _, F = _template_features(model, ctx.voxel, GLOBAL_RADIUS)
-    mine, theirs = _matched(F, _cluster_features(ctx))
-    return global_ransac(
-        P[mine],
-        ctx.cluster[theirs],
-        np.random.default_rng(GLOBAL_SEED),
-        GLOBAL_DISTANCE * ctx.voxel,
-        GLOBAL_KEEP,
-        model.centroid,
-        0.1 * model.diameter,
-    )
-
-
-def feature_alignments(ctx: ClickContext, model, rng: np.random.Generator) -> list:
-    """Up to ``KEEP`` distinct poses (R (3, 3), t (3,)), model -> scene, that bring the model's
-    descriptors onto the crop's with the most inliers, best first; [] when too few match."""
-    if len(ctx.crop) < 10:
-        return []
     P, _, F = _template_features(model, ctx.voxel)
-    s_idx = _paired(ctx)
-    if len(s_idx) < 6:
-        return []
-    # each paired crop point's nearest template descriptor (33-D: scipy's tree, not the
-    # spatial one)
-    _, i_sm = cKDTree(F).query(_scene_features(ctx))
-    src, dst = P[i_sm], ctx.crop[s_idx]
-    picks = rng.integers(0, len(src), size=(RANSAC_TRIALS, 3))
-    X, Q = src[picks], dst[picks]
-    ex = np.linalg.norm(X - np.roll(X, 1, axis=1), axis=2)
-    eq = np.linalg.norm(Q - np.roll(Q, 1, axis=1), axis=2)
-    rigid = np.all(np.abs(ex - eq) <= EDGE_TOLERANCE * np.maximum(eq, 1e-9), axis=1) & np.all(
-        eq > 2 * ctx.voxel, axis=1
+    mine, theirs = _matched(F, _cluster_features(ctx))
+    runs = (
+        global_ransac(P[mine], ctx.cluster[theirs], rng, GLOBAL_DISTANCE * ctx.voxel)
+        for _ in range(GLOBAL_RUNS)
     )
-    if not rigid.any():
-        return []
-    keep = np.flatnonzero(rigid)[:MAX_EVALUATED]
-    step = rigid_step(X[keep], Q[keep], np.ones((len(keep), 3)))
-    inliers = np.concatenate(
-        [
-            np.linalg.norm(
-                np.einsum("bij,nj->bni", step.R[k : k + CHUNK], src)
-                + step.t[k : k + CHUNK, None, :]
-                - dst,
-                axis=2,
-            )
-            <= INLIER_VOXELS * ctx.voxel
-            for k in range(0, len(keep), CHUNK)
-        ]
-    )
-    counts = inliers.sum(axis=1)
-    out = []
-    for k in np.argsort(-counts, kind="stable"):
-        if counts[k] < 6 or len(out) >= KEEP:
-            break
-        inl = inliers[k]
-        refined = rigid_step(src[inl][None], dst[inl][None], np.ones((1, int(inl.sum()))))
-        R, t = refined.R[0], refined.t[0]
-        if all(_distinct(R, t, R2, t2, model.centroid, 0.1 * model.diameter) for R2, t2 in out):
-            out.append((R, t))
-    return out
+    return [pose for pose in runs if pose is not None]

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from ..scene import ClickContext
 from ..templates import AffordanceTemplate
 from ..transforms import align_z_to, axis_angle_matrix, make_T, rotation_angle, unit_quaternions
-from .features import feature_alignments, global_alignments
+from .features import global_alignments
 from .model import Batch
 from .results import FitResult, IcpResult
 from .settings import REST_SAMPLES, SAMPLE_SEED, FitSettings
@@ -46,7 +46,7 @@ MOUNTED, RESTING, RANDOM = 0, 1, 2  #: families of initial hypotheses
 #: diameter from the centre the click gives, the yaw sweeps start over that mean too
 SEGMENT_REACH = 1.1
 CENTRE_SHIFT = 0.1
-FEATURE_SEED = 4099  #: the feature RANSAC draws from ``[settings.seed, FEATURE_SEED]``
+FEATURE_SEED = 4099  #: the feature matching draws from ``[settings.seed, FEATURE_SEED]``
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ def initial_hypotheses(
     where the click is off it (:func:`_segment_middle`); random ones get an offset of up to
     ``RANDOM_OFFSET`` of the diameter (the paper's restarts use up to the diameter). A
     point-cloud template (a scanned object) also starts from the poses its shape features
-    match, in the crop and in the cluster (:mod:`.features`)."""
+    match in the cluster (:mod:`.features`)."""
     up = cluster_axis = None
     if ctx.plane is not None:  # the plane's frame (turns with the scan) and the cluster's
         up = align_z_to(ctx.plane.normal, hint=ctx.frame[:, 0])  # main axis in it
@@ -172,7 +172,7 @@ def initial_hypotheses(
             # a scanned object: poses from matched shape features too (their own generator,
             # so the other templates' draws stay as they are)
             features = np.random.default_rng([settings.seed, FEATURE_SEED])
-            matched = feature_alignments(ctx, model, features) + global_alignments(ctx, model)
+            matched = global_alignments(ctx, model, features)
             if matched:
                 index.append(np.full(len(matched), i))
                 Rs.append(np.stack([R for R, _ in matched]))
