@@ -80,6 +80,13 @@ class Code:
                 out.add(node.name)
             elif isinstance(node, (ast.Import, ast.ImportFrom)):
                 out.update((a.asname or a.name).split(".")[0] for a in node.names)
+            elif (
+                isinstance(node, ast.Assign)
+                and [getattr(t, "id", None) for t in node.targets] == ["_PUBLIC"]
+                and isinstance(node.value, ast.Dict)
+            ):  # a package's lazy re-exports: {name: the module it is imported from}
+                out.update(k.value for k in node.value.keys if isinstance(k, ast.Constant))
+                out.add("_PUBLIC")
             else:
                 for sub in ast.walk(node):
                     if isinstance(sub, ast.Name) and isinstance(sub.ctx, ast.Store):

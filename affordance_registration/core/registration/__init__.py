@@ -13,24 +13,29 @@ measured), hidden_parts, ambiguity, viewpoint (a suggested view); services (what
 uses) and state (what passes from stage to stage).
 """
 
-from .correspondences import correspondence_weights
-from .model import Model
-from .registrar import Registrar
-from .results import (
-    NO_MATCH,
-    NO_MATCH_RESIDUAL,
-    FitReport,
-    FitResult,
-    describe_primitive,
-    no_match,
-    rank,
-    verdict,
-)
-from .settings import FitSettings
-from .solve import weighted_rigid_fit
+from __future__ import annotations
 
-#: the model type every template is fitted as (rigid = joint at zero, scale one)
-PosedTemplate = Model
+import importlib
+
+#: where each public name lives: imported with it on first use, so that what needs only the
+#: settings (``affordance-registration settings``, a node's parameter checks) does not load the
+#: fitting stack (scipy, trimesh, numba) with them
+_PUBLIC = {
+    "correspondence_weights": ".correspondences",
+    "Model": ".model",
+    "PosedTemplate": ".model",
+    "Registrar": ".registrar",
+    "NO_MATCH": ".results",
+    "NO_MATCH_RESIDUAL": ".results",
+    "FitReport": ".results",
+    "FitResult": ".results",
+    "describe_primitive": ".results",
+    "no_match": ".results",
+    "rank": ".results",
+    "verdict": ".results",
+    "FitSettings": ".settings",
+    "weighted_rigid_fit": ".solve",
+}
 
 __all__ = [
     "FitSettings",
@@ -48,3 +53,18 @@ __all__ = [
     "verdict",
     "describe_primitive",
 ]
+
+
+def __getattr__(name: str):
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    #: the model type every template is fitted as (rigid = joint at zero, scale one)
+    attr = "Model" if name == "PosedTemplate" else name
+    value = getattr(importlib.import_module(module, __name__), attr)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
