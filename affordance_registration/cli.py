@@ -395,7 +395,9 @@ def cmd_session(args) -> int:
 def cmd_station(args) -> int:
     """The browser operator station (``--demo``: with an engine node and a simulated scan;
     ``--scene FILE``: with an engine node and that scan)."""
-    from .ros.station.node import check_port
+    # (from the light parameters module: --demo and --scene start the station as a node of
+    # their own, and a refusal is said before the node module's imports)
+    from .ros.station.parameters import check_port
 
     if args.demo and args.scene:
         raise AffordanceError("--demo and --scene exclude each other (--demo simulates a scan)")
