@@ -74,12 +74,17 @@ $(INTERFACES_STAMP): $(STAMP) $(INTERFACES_SOURCES)
 demo: setup
 	$(VENV)/bin/affordance-registration demo
 
+# The suite starts some 300 Python processes (nodes, CLI commands, pytest workers), each importing
+# the package: compiled to bytecode once here (a second or so; __pycache__/ is ignored by git), so
+# that none compiles it again where PYTHONDONTWRITEBYTECODE is set (Python then reads bytecode but
+# never writes it: every process compiled the modules it imports, about 0.1 s each).
 # The real-scan tests fetch the or-pcd wheel (Stanford Armadillo range scans, 1.7 MB) with pip
 # into ~/.cache/affordance_registration (AFFORDANCE_DATA_CACHE); fetched here first, so a failed
 # download is said once, up front -- the tests then fail with the same reason, nothing is skipped.
 test: setup browser
 	@$(PY) -c "from affordance_registration.evaluation.realscans import fetch_or_pcd; fetch_or_pcd()" \
 	  || echo "could not fetch or-pcd: the real-scan tests will fail"
+	@$(PY) -m compileall -q -j 0 affordance_registration test >/dev/null || true
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
 
 bench: setup
