@@ -9,12 +9,15 @@ import tempfile
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 # `make test` runs the suite on pytest-xdist workers, which inherit the controller's environment:
-# the controller (or a plain pytest run) picks an odd domain, and worker gwN takes that plus N, so
-# two workers of one run never share a domain (and two runs rarely do).
+# the controller (or a plain pytest run) picks an odd domain, and worker gwN the Nth odd domain
+# after it, so two workers of one run never share a domain (and two runs rarely do). Test
+# processes keep to odd domains: a demo started without ROS_DOMAIN_ID takes an even one
+# (cli.DEMO_DOMAINS), and must not meet a test's nodes there.
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + 2 * (os.getpid() % 50)))
 _WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if _WORKER.startswith("gw") and _WORKER[2:].isdigit():
-    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) + int(_WORKER[2:])) % 102)
+    _ODD = (int(os.environ["ROS_DOMAIN_ID"]) // 2 + int(_WORKER[2:])) % 51  # 51 odd in 0-101
+    os.environ["ROS_DOMAIN_ID"] = str(1 + 2 * _ODD)
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="ar_roslog_"))
 # where a node keeps its files when not told (an engine's registrations file), the run's own
 os.environ["ROS_HOME"] = tempfile.mkdtemp(prefix="ar_roshome_")
