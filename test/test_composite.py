@@ -355,3 +355,27 @@ def test_the_trust_row_without_the_data_says_so_in_one_line(tmp_path):
     )
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
     assert "AFFORDANCE_SHARED_DATA" in out.stderr
+
+
+@needs_data
+def test_a_box_on_a_crowded_table_is_measured_on_the_plane_it_stands_on(library):
+    """complex4 (development seed 4): the crop's dominant plane runs through a face of the
+    clicked simulated box and the coplanar face of its neighbour; two thirds of the box lie
+    behind it. Taken for the support, it left 137 voxels of the box, and a taskboard template
+    led, refused. A plane the clicked object reaches behind is not its support: the next plane
+    is, and the box is measured whole -- shown as a box that fits and passes the label rule."""
+    from affordance_registration.core.registration import Registrar
+    from affordance_registration.core.scene import Scene
+
+    scene = cp.composite_scene(4, "complex")
+    assert scene.object(7).kind == "box"  # (the scene as this test was written on)
+    cloud = scene.cloud
+    obj = next(o for o in rd.labelled_objects(cloud) if o.id == 7)
+    registrar = Registrar(library)
+    points = Scene(cloud.points.reshape(-1, 3), sensor_origin=cloud.viewpoint)
+    ctx = registrar.prepare(points, obj.click)
+    own = cloud.points[cloud.valid & (cloud.object_ids == 7)]
+    assert np.mean(cKDTree(ctx.cluster).query(own)[0] <= ctx.voxel) > 0.9
+    best = registrar.fit(points, obj.click).candidates[0]
+    assert best.primitive == "box" and best.fits, (best.template, best.reason)
+    assert rd.score_primitive(cloud, obj, "box", best.T_scene_model, best.dimensions).passes

@@ -39,9 +39,11 @@ from .plane import (
     ON_PLANE,
     SUPPORT_REACH,
     SUPPORT_SIGMAS,
+    SUPPORT_TRIES,
     Plane,
     flatness,
     ransac_plane,
+    reaches_behind,
     runs_along,
 )
 from .segmentation import connected_to, gap_components, segment
@@ -262,16 +264,9 @@ class Scene:
         crop = voxel_downsample(raw, voxel, c, frame)
         _check_spread(crop, voxel, radius)
         crop_tree = build_tree(crop)
-        plane = ransac_plane(crop, plane_threshold, min_plane_fraction, origin, seed)
-        band = plane_threshold  # taken off the support plane for the cluster
-        if plane is not None:
-            flat, sigma = flatness(plane, crop, crop_tree, plane_threshold)
-            if flat < FLAT_FRACTION:
-                plane = None  # a slab through a curved object: no support under it
-            else:
-                band = min(
-                    max(SUPPORT_SIGMAS * sigma, plane_threshold), SUPPORT_REACH * plane_threshold
-                )
+        plane, band = _flat_plane(
+            crop, crop, crop_tree, plane_threshold, min_plane_fraction, origin, seed
+        )
         support = plane
         if (
             plane is not None
@@ -280,14 +275,43 @@ class Scene:
         ):
             plane = None  # the click is on the plane: it is the object's, not a mount's
         gap = cluster_gap if cluster_gap is not None else 0.025
-        if plane is None:
-            keep = np.ones(len(crop), bool)
-        else:  # off the plane, but not the support's own surface lifted by the noise
-            off = plane.distance(crop)
-            keep = off > plane_threshold
-            lifted = np.flatnonzero(keep & (off <= band))
-            keep[lifted] = ~runs_along(plane, np.take(crop, lifted, axis=0), crop, crop_tree)
-        cluster = connected_to(crop, keep, c, gap, reach=max(0.3 * radius, 3 * voxel))
+        reach = max(0.3 * radius, 3 * voxel)
+        keep, straddles = np.ones(len(crop), bool), False
+        if plane is not None:
+            keep, straddling, straddles = _off_plane(
+                plane, band, crop, crop_tree, plane_threshold, c, gap, reach
+            )
+            if straddles:  # the clicked object reaches behind it: is another its support?
+                first, left = (plane, keep, straddling), crop
+                for attempt in range(1, 1 + SUPPORT_TRIES):
+                    left = np.compress(
+                        np.abs(plane.distance(left)) > plane_threshold, left, axis=0
+                    )
+                    if len(left) < 10:
+                        break
+                    plane, band = _flat_plane(
+                        left,
+                        crop,
+                        crop_tree,
+                        plane_threshold,
+                        min(1.0, min_plane_fraction * len(crop) / len(left)),
+                        origin,
+                        seed + attempt,
+                    )
+                    if plane is None:
+                        break
+                    if plane.distance(c) <= plane_threshold:
+                        continue  # (a support has the click in front of it)
+                    found = _off_plane(
+                        plane, band, crop, crop_tree, plane_threshold, c, gap, reach
+                    )
+                    if not found[2]:
+                        support, (keep, straddling, straddles) = plane, found
+                        break
+                if straddles:  # none: the first plane, the object's part behind it kept
+                    plane, keep, straddling = first
+                    keep = keep | straddling
+        cluster = connected_to(crop, keep, c, gap, reach=reach)
         if len(cluster) < 10:  # nothing off the plane near the click: fit to the whole crop
             cluster = crop
             plane_for_fine = None
@@ -296,11 +320,14 @@ class Scene:
         # full-resolution points of the cluster's voxels (final refinement target)
         # (the points on the plane first left out: most of a crop's, and none of them fine)
         cluster_tree = build_tree(cluster)
-        fine = (
-            raw
-            if plane_for_fine is None
-            else np.compress(plane_for_fine.distance(raw) > plane_threshold, raw, axis=0)
-        )
+        if plane_for_fine is None:
+            fine = raw
+        else:
+            off_raw = plane_for_fine.distance(raw)
+            ahead = off_raw > plane_threshold
+            if straddles:  # (and the object's part behind the plane)
+                ahead |= off_raw < -SUPPORT_REACH * plane_threshold
+            fine = np.compress(ahead, raw, axis=0)
         fine = _within(fine, cluster, cluster_tree, voxel)
         if len(fine) < 10:
             fine = cluster
@@ -335,6 +362,74 @@ class Scene:
             frame=frame,
         )
         return ctx
+
+
+def _flat_plane(
+    points: np.ndarray,
+    crop: np.ndarray,
+    tree: KDTree,
+    threshold: float,
+    min_fraction: float,
+    origin: np.ndarray | None,
+    seed: int,
+) -> tuple[Plane | None, float]:
+    """The largest plane of ``points`` (holding at least ``min_fraction`` of them) where the
+    ``crop``'s surface under it is flat (:func:`~.plane.flatness`; ``tree`` over ``crop``),
+    and the band (m) its surface's noise lifts points off it; (None, ``threshold``): none (a
+    slab through a curved object is no support)."""
+    plane = ransac_plane(points, threshold, min_fraction, origin, seed)
+    if plane is None:
+        return None, threshold
+    flat, sigma = flatness(plane, crop, tree, threshold)
+    if flat < FLAT_FRACTION:
+        return None, threshold
+    return plane, min(max(SUPPORT_SIGMAS * sigma, threshold), SUPPORT_REACH * threshold)
+
+
+def _off_plane(
+    plane: Plane,
+    band: float,
+    crop: np.ndarray,
+    tree: KDTree,
+    threshold: float,
+    click: np.ndarray,
+    gap: float,
+    reach: float,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """What stands off ``plane`` for the click's cluster: (the ``crop`` points in front of it --
+    not the plane's own surface lifted by its noise, up to ``band`` -- (N,) bool; those behind
+    it that belong with the click, (N,) bool; whether the clicked object reaches behind it).
+
+    Nothing is seen through what an object stands on. A plane through the faces of other
+    objects (a crowded table's box tops, the top of a box another lies across and hangs over)
+    has the clicked object reaching behind it, and taking everything behind it away cuts the
+    object. Behind it: the points more than SUPPORT_REACH ``threshold`` behind, and those
+    between whose surface crosses the plane (not running along it, within ``gap`` of the
+    points behind), joined by steps of at most ``gap`` to the points in front within
+    ``reach`` of the click; whether all that the steps join reaches behind it is
+    :func:`~.plane.reaches_behind`'s."""
+    off = plane.distance(crop)
+    keep = off > threshold
+    lifted = np.flatnonzero(keep & (off <= band))
+    keep[lifted] = ~runs_along(plane, np.take(crop, lifted, axis=0), crop, tree)
+    behind = off < -SUPPORT_REACH * threshold
+    if not behind.any():
+        return keep, behind, False
+    between = np.flatnonzero(~keep & ~behind)
+    if len(between):
+        d, _ = nearest(build_tree(np.compress(behind, crop, axis=0)), crop[between], gap)
+        between = between[np.isfinite(d)]
+    crossing = np.zeros(len(crop), bool)
+    if len(between):
+        crossing[between] = ~runs_along(plane, crop[between], crop, tree)
+    idx = np.flatnonzero(keep | behind | crossing)
+    pts = crop[idx]
+    labels = gap_components(pts, gap)
+    seeds = keep[idx] & (np.linalg.norm(minus_point(pts, click), axis=1) <= reach)
+    joined = np.zeros(len(crop), bool)
+    joined[idx[np.isin(labels, np.unique(labels[seeds]))]] = True
+    straddles = reaches_behind(plane, np.compress(joined, crop, axis=0), threshold)
+    return keep, joined & (behind | crossing), straddles
 
 
 #: the plane's surface reaches a click near it where the plane's points joined by steps of at

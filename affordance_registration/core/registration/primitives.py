@@ -28,6 +28,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..neighbours import build_tree
+from ..plane import reaches_behind
 from ..scene import ClickContext, ransac_plane
 from ..segmentation import segments_and_patches, share_within
 from ..templates import AffordanceTemplate
@@ -220,7 +221,9 @@ def object_voxels(ctx: ClickContext) -> ObjectVoxels:
     is cut from what lies above it; without one the face is the object's top. Where the crop
     has no dominant plane, or one the click lies behind (the face of a larger box in front of a
     smaller one standing on it), the support is looked for among the cluster's other segments
-    (none there: that plane, if any, stays the support)."""
+    (none there: that plane, if any, stays the support). A support the clicked object reaches
+    behind (:func:`~..plane.reaches_behind`) is none: the floor is looked for among the
+    cluster's other segments, and without one the object stands on nothing known."""
     cluster, labels, patches, support = ctx.cluster, ctx.segments, ctx.patches, ctx.support
     clicked = ctx.clicked_segment
     thr = ctx.plane_threshold
@@ -249,6 +252,13 @@ def object_voxels(ctx: ClickContext) -> ObjectVoxels:
         floor = _floor(ctx, cluster[off])
         if floor is not None:  # (none found: a plane in front still gives the axis)
             support = floor
+    if support is not None and reaches_behind(support, cluster[labels == clicked], thr):
+        # the object reaches behind that plane: it stands on something else, if on anything
+        # the cluster shows (a plane the object reaches behind too is not that either)
+        others = (labels != clicked) & (np.abs(support.distance(cluster)) > thr)
+        support, up = _floor(ctx, cluster[others]), None
+        if support is not None and reaches_behind(support, cluster[labels == clicked], thr):
+            support = None
     tree = build_tree(cluster) if cluster is not ctx.cluster else ctx.cluster_tree
     return ObjectVoxels(cluster, tree, labels, patches, int(clicked), ctx.voxel, support, up)
 
