@@ -6,9 +6,9 @@ A box behind a can is seen left and right of the can: two pieces of the scan, no
 and the click lands on one of them. A primitive measured on that piece alone is half the box.
 Another piece is taken for part of the same object when
 
-* it lies off the support -- outside the click's cluster, or a segment of it other than the
-  clicked one (what stands in front may join both to the cluster) -- and is not much smaller
-  than the clicked part (``MIN_PART`` of its points);
+* it lies off the support -- a segment of what lies outside the click's cluster, or a
+  segment of the cluster other than the clicked one (what stands in front may join both to
+  the cluster) -- and is not much smaller than the clicked part (``MIN_PART`` of its points);
 * the straight line from the clicked part to it (between their nearest points, at most
   ``BRIDGE_REACH`` long) is hidden all along: wherever the sensor returned something in its
   direction, that return lies at least ``verdict.occluder_gap`` in front of the line (all but
@@ -28,7 +28,7 @@ from ..click_context import RangeImage
 from ..memo import per_object
 from ..neighbours import build_tree, nearest, pca_normals
 from ..scene import ClickContext
-from ..segmentation import gap_components
+from ..segmentation import gap_components, segments_and_patches
 from .model import surface_distances
 from .primitives import MEASURE_POINTS
 from .scoring import widening
@@ -85,13 +85,15 @@ def _hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSe
     candidates = []
     if len(rest) >= 10:
         labels = gap_components(rest, PIECE_GAP)
-        candidates += [rest[labels == k] for k in range(int(labels.max()) + 1)]
+        candidates += [(rest[labels == k], True) for k in range(int(labels.max()) + 1)]
     segments = ctx.segments
     clicked_label = ctx.clicked_segment
-    candidates += [ctx.cluster[segments == k] for k in np.unique(segments) if k != clicked_label]
+    candidates += [
+        (ctx.cluster[segments == k], False) for k in np.unique(segments) if k != clicked_label
+    ]
     tree_a = build_tree(clicked)
     image, pieces = None, []
-    for piece in candidates:
+    for piece, joined_by_steps in candidates:
         if len(piece) < max(10, MIN_PART * len(clicked)):
             continue
         dist, idx = nearest(tree_a, piece, BRIDGE_REACH)
@@ -110,8 +112,21 @@ def _hidden_parts(ctx: ClickContext, scene, clicked: np.ndarray, settings: FitSe
         hidden = obs[known] < depth[known] - settings.verdict.occluder_gap
         if known.sum() < BRIDGE_KNOWN * BRIDGE_SAMPLES or hidden.sum() < known.sum() - SEEN_PAST:
             continue
+        if joined_by_steps:
+            piece = _segment_at(ctx, piece, j)
+            if len(piece) < max(10, MIN_PART * len(clicked)):
+                continue
         pieces.append(_full_resolution(ctx, scene, piece))
     return [p for p in pieces if len(p[0]) >= 10]
+
+
+def _segment_at(ctx: ClickContext, piece: np.ndarray, end: int) -> np.ndarray:
+    """The segment of ``piece`` (voxels, (N, 3)) that its point ``end`` (where the line from
+    the clicked part arrives) lies in: a piece outside the cluster is what the cluster's steps
+    join, and another object touching the hidden part is joined to it -- cut where two
+    touching surfaces meet, as the cluster is (:func:`~..segmentation.segments_and_patches`)."""
+    labels, _ = segments_and_patches(piece, ctx.sensor_origin, ctx.voxel)
+    return piece[labels == labels[end]]
 
 
 def _cone_image(ctx: ClickContext, scene) -> RangeImage:
