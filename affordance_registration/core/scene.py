@@ -282,34 +282,22 @@ class Scene:
                 plane, band, crop, crop_tree, plane_threshold, c, gap, reach
             )
             if straddles:  # the clicked object reaches behind it: is another its support?
-                first, left = (plane, keep, straddling), crop
-                for attempt in range(1, 1 + SUPPORT_TRIES):
-                    left = np.compress(
-                        np.abs(plane.distance(left)) > plane_threshold, left, axis=0
-                    )
-                    if len(left) < 10:
-                        break
-                    plane, band = _flat_plane(
-                        left,
-                        crop,
-                        crop_tree,
-                        plane_threshold,
-                        min(1.0, min_plane_fraction * len(crop) / len(left)),
-                        origin,
-                        seed + attempt,
-                    )
-                    if plane is None:
-                        break
-                    if plane.distance(c) <= plane_threshold:
-                        continue  # (a support has the click in front of it)
-                    found = _off_plane(
-                        plane, band, crop, crop_tree, plane_threshold, c, gap, reach
-                    )
-                    if not found[2]:
-                        support, (keep, straddling, straddles) = plane, found
-                        break
-                if straddles:  # none: the first plane, the object's part behind it kept
-                    plane, keep, straddling = first
+                other = _support_in_front(
+                    plane,
+                    crop,
+                    crop_tree,
+                    plane_threshold,
+                    min_plane_fraction,
+                    origin,
+                    seed,
+                    c,
+                    gap,
+                    reach,
+                )
+                if other is not None:
+                    plane, keep, straddles = other
+                    support = plane
+                else:  # none: the first plane, the object's part behind it kept
                     keep = keep | straddling
         cluster = connected_to(crop, keep, c, gap, reach=reach)
         if len(cluster) < 10:  # nothing off the plane near the click: fit to the whole crop
@@ -384,6 +372,47 @@ def _flat_plane(
     if flat < FLAT_FRACTION:
         return None, threshold
     return plane, min(max(SUPPORT_SIGMAS * sigma, threshold), SUPPORT_REACH * threshold)
+
+
+def _support_in_front(
+    plane: Plane,
+    crop: np.ndarray,
+    tree: KDTree,
+    threshold: float,
+    min_fraction: float,
+    origin: np.ndarray | None,
+    seed: int,
+    click: np.ndarray,
+    gap: float,
+    reach: float,
+) -> tuple[Plane, np.ndarray, bool] | None:
+    """The support of a click whose object reaches behind ``plane`` (the crop's dominant one):
+    the first of the next SUPPORT_TRIES flat planes of the ``crop`` (each holding at least
+    ``min_fraction`` of it, found among the points off the planes before it) with the click
+    in front of it and the object not reaching behind it, with what stands off it for the
+    cluster (:func:`_off_plane`'s points in front, and False); None: none."""
+    left = crop
+    for attempt in range(1, 1 + SUPPORT_TRIES):
+        left = np.compress(np.abs(plane.distance(left)) > threshold, left, axis=0)
+        if len(left) < 10:
+            return None
+        plane, band = _flat_plane(
+            left,
+            crop,
+            tree,
+            threshold,
+            min(1.0, min_fraction * len(crop) / len(left)),
+            origin,
+            seed + attempt,
+        )
+        if plane is None:
+            return None
+        if plane.distance(click) <= threshold:
+            continue  # (a support has the click in front of it)
+        keep, _, straddles = _off_plane(plane, band, crop, tree, threshold, click, gap, reach)
+        if not straddles:
+            return plane, keep, False
+    return None
 
 
 def _off_plane(
