@@ -294,8 +294,8 @@ class Scene:
                     gap,
                     reach,
                 )
-                if other is not None:
-                    plane, keep, straddles = other
+                if other is not None:  # (which the object does not reach behind)
+                    (plane, keep), straddles = other, False
                     support = plane
                 else:  # none: the first plane, the object's part behind it kept
                     keep = keep | straddling
@@ -385,12 +385,12 @@ def _support_in_front(
     click: np.ndarray,
     gap: float,
     reach: float,
-) -> tuple[Plane, np.ndarray, bool] | None:
+) -> tuple[Plane, np.ndarray] | None:
     """The support of a click whose object reaches behind ``plane`` (the crop's dominant one):
     the first of the next SUPPORT_TRIES flat planes of the ``crop`` (each holding at least
     ``min_fraction`` of it, found among the points off the planes before it) with the click
     in front of it and the object not reaching behind it, with what stands off it for the
-    cluster (:func:`_off_plane`'s points in front, and False); None: none."""
+    cluster (:func:`_off_plane`'s points in front); None: none."""
     left = crop
     for attempt in range(1, 1 + SUPPORT_TRIES):
         left = np.compress(np.abs(plane.distance(left)) > threshold, left, axis=0)
@@ -411,7 +411,7 @@ def _support_in_front(
             continue  # (a support has the click in front of it)
         keep, _, straddles = _off_plane(plane, band, crop, tree, threshold, click, gap, reach)
         if not straddles:
-            return plane, keep, False
+            return plane, keep
     return None
 
 
