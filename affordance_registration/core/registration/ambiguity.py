@@ -9,9 +9,9 @@ primitive (box, cylinder) that fits. It is settled when it fits and nothing riva
 * **refused**: the verdict refuses it (``FitResult.fits`` False);
 * **rival template**: another candidate -- a specific template, or a primitive where the answer
   is one -- scores within ``viewpoint.margin`` of it (a fitting box and a fitting cylinder
-  alike: the scan cannot tell them apart -- unless the answer describes the clicked object
-  decisively better by the verdict's one criterion, :func:`.scoring.description_lengths`:
-  a flat cylinder laid over a box's face explains that face, not the box);
+  alike: the scan cannot tell them apart -- where one describes the clicked object decisively
+  better, the verdict refuses the other, :func:`.scoring.described`: a flat cylinder laid over
+  a box's face explains that face, not the box);
 * **rival pose**: its template in a second pose -- more than ``viewpoint.pose_distance`` /
   ``viewpoint.pose_angle`` away, symmetry-aware -- scores within that margin (the fit's
   medium-stage hypotheses, ``FitReport.alternatives``, are those second poses);
@@ -50,7 +50,6 @@ from ..scene import ClickContext
 from ..transforms import axis_angle_matrix, make_T, pose_error
 from .model import Model, surface_distances
 from .results import FitResult
-from .scoring import description_lengths, parameters
 from .settings import FitSettings
 from .visibility import visible
 
@@ -157,16 +156,13 @@ def assess(
         reasons.append(f"the verdict refuses {best.template} ({best.reason})")
     standing = {c.template: c for c in fitted}  # each template's candidate
 
-    outdone = _outdone(ctx, best, fitted, model_of, settings)
-
     def rivals_best(r: FitResult) -> bool:
         """Whether ``r`` (a candidate or an alternative) can rival the answer: not when the
         answer fits and the verdict refuses ``r``'s template, nor when a primitive meets a
-        specific template that fits (the verdict set those apart), nor when the answer, a
-        primitive, describes the object decisively better than ``r``'s primitive."""
+        specific template that fits (the verdict set those apart)."""
         if not best.fits:
             return True
-        if standing.get(r.template, r).fits is False or r.template in outdone:
+        if standing.get(r.template, r).fits is False:
             return False
         return best.primitive is not None or r.primitive is None
 
@@ -225,37 +221,6 @@ def assess(
         weakest=weakest,
         weak_direction=None if direction is None else tuple(direction),
     )
-
-
-#: nats: a primitive answer whose description of the clicked object is this much shorter than
-#: a fitting rival primitive's is decisively the better one, and the rival does not unsettle it
-#: -- a difference in BIC of 10 (twice the description length), "very strong" evidence on
-#: Kass and Raftery's scale; not set on any data
-DECISIVE_NATS = 5.0
-
-
-def _outdone(ctx: ClickContext, best: FitResult, fitted, model_of, settings: FitSettings) -> set:
-    """The primitives among ``fitted`` (other than the answer ``best``) that fit the click and
-    describe the clicked object decisively worse than ``best`` does, where ``best`` is a
-    primitive that fits: by the one criterion of :func:`.scoring.description_lengths`, more than
-    ``DECISIVE_NATS`` longer (a flat cylinder over one face of a box explains the face, not the
-    box). Empty otherwise, and without a viewpoint (no segments)."""
-    if best.primitive is None or not best.fits or ctx.sensor_origin is None:
-        return set()
-    others = [r for r in fitted if r.primitive is not None and r.fits and r is not best]
-    others = [r for r in others if r.template != best.template]
-    if not others:
-        return set()
-    pair = [best, *others]
-    models = [model_of(r) for r in pair]
-    lengths, _ = description_lengths(
-        ctx,
-        models,
-        np.stack([r.T_scene_model for r in pair]),
-        [parameters(m, r) for m, r in zip(models, pair)],
-        settings,
-    )
-    return {r.template for r, n in zip(others, lengths[1:]) if n - lengths[0] > DECISIVE_NATS}
 
 
 def _same(settings: FitSettings, h: Hypothesis, r: FitResult) -> bool:

@@ -495,6 +495,43 @@ def distinguished(
     return out
 
 
+#: nats: a shape whose description of the clicked object (:func:`description_lengths`) is this
+#: much longer than another's that fits is decisively the worse description -- a difference in
+#: BIC of 10 (twice the description length), "very strong" evidence on Kass and Raftery's
+#: scale; not set on any data
+DECISIVE_NATS = 5.0
+
+
+def described(ctx: ClickContext, models, fits, settings: FitSettings) -> list:
+    """``fits`` (primitives judged on one click, their models in ``models``) with each that
+    fits refused where another that fits describes the clicked object decisively better: its
+    description length (:func:`description_lengths`) more than ``DECISIVE_NATS`` shorter (a
+    flat cylinder laid over one face of a box explains that face, not the box). Unchanged
+    with fewer than two that fit, and without a viewpoint (no segments)."""
+    fits, models = list(fits), list(models)
+    fitting = [k for k, r in enumerate(fits) if r.fits]
+    if ctx.sensor_origin is None or len(fitting) < 2:
+        return fits
+    lengths, explains = description_lengths(
+        ctx,
+        [models[k] for k in fitting],
+        np.stack([fits[k].T_scene_model for k in fitting]),
+        [parameters(models[k], fits[k]) for k in fitting],
+        settings,
+    )
+    best = int(np.argmin(lengths))
+    out = list(fits)
+    for j, k in enumerate(fitting):
+        if lengths[j] - lengths[best] > DECISIVE_NATS:
+            r = fits[k]
+            why = (
+                f"a {fits[fitting[best]].primitive} describes the clicked object better: it "
+                f"explains {explains[best]:.0%} of its points, this {explains[j]:.0%}"
+            )
+            out[k] = replace(r, fits=False, reason=f"{r.reason}; {why}" if r.reason else why)
+    return out
+
+
 #: a cluster segment of which at least this share lies on a candidate is part of the object
 #: the candidate stands for (with the clicked segment); one that merely touches it (less) is a
 #: neighbour

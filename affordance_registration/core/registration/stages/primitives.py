@@ -35,7 +35,7 @@ from ..primitives import (
     truncated,
 )
 from ..results import FitResult, rank
-from ..scoring import widening
+from ..scoring import described, widening
 from ..services import Services
 from ..state import FitState, stage
 from .prepare import click_context
@@ -94,7 +94,8 @@ def measured_on(services: Services, ctx: ClickContext, scene, names, points, ref
     """The primitives ``names`` measured on ``points`` (:func:`..primitives.object_points`'
     tuple) and on it with the pieces something in front splits off
     (:func:`..hidden_parts.with_hidden_parts`), those that may lead refined with ``refine``,
-    judged in ``ctx``."""
+    judged in ``ctx`` -- also against each other: one that fits but describes the object
+    decisively worse than another that fits is refused (:func:`..scoring.described`)."""
     library, s = services.library, services.settings
 
     def fit_on(on, k):
@@ -120,7 +121,9 @@ def measured_on(services: Services, ctx: ClickContext, scene, names, points, ref
             for n, r in zip(names, fitted)
         ],
     )
-    return explained(services, ctx, scene, judged, points[0], pieces)
+    judged = explained(services, ctx, scene, judged, points[0], pieces)
+    # (of two that explain it, the one that describes it decisively worse is refused)
+    return described(ctx, [services.model_of(r) for r in judged], judged, s)
 
 
 def explained(
