@@ -77,7 +77,9 @@ demo: setup
 # The suite starts some 300 Python processes (nodes, CLI commands, pytest workers), each importing
 # the package: compiled to bytecode once here (a second or so; __pycache__/ is ignored by git), so
 # that none compiles it again where PYTHONDONTWRITEBYTECODE is set (Python then reads bytecode but
-# never writes it: every process compiled the modules it imports, about 0.1 s each).
+# never writes it: every process compiled the modules it imports, about 0.1 s each). The compiled
+# kernels (numba, cached beside their module) likewise: compiled once here (11 s of CPU), where
+# each worker and node started before the cache was written compiled them again.
 # The real-scan tests fetch the or-pcd wheel (Stanford Armadillo range scans, 1.7 MB) with pip
 # into ~/.cache/affordance_registration (AFFORDANCE_DATA_CACHE); fetched here first, so a failed
 # download is said once, up front -- the tests then fail with the same reason, nothing is skipped.
@@ -85,6 +87,7 @@ test: setup browser
 	@$(PY) -c "from affordance_registration.evaluation.realscans import fetch_or_pcd; fetch_or_pcd()" \
 	  || echo "could not fetch or-pcd: the real-scan tests will fail"
 	@$(PY) -m compileall -q -j 0 affordance_registration test >/dev/null || true
+	@$(PY) -c "from affordance_registration.core.compiled import kernels; kernels()" || true
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
 
 bench: setup
