@@ -10,7 +10,7 @@ import tempfile
 
 import numpy as np
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -122,6 +122,9 @@ def test_clouds_round_trip(h, w, xyz):
     mesh=st.sampled_from(["meshes/ball_valve.stl", "meshes/grab_handle.stl", "x.ply"]),
     raw=st.one_of(st.none(), st.binary(max_size=64)),
 )
+# (found by this test: a NUL in the mesh's path was a ValueError from os.path, a traceback)
+@example(doc={"mesh": "\x00", "name": "0"}, mesh="meshes/ball_valve.stl", raw=None)
+@example(doc={"base_mesh": "a\x00b"}, mesh="meshes/ball_valve.stl", raw=None)
 def test_any_template_file_loads_or_names_file_and_key(doc, mesh, raw):
     with tempfile.TemporaryDirectory() as d:
         shutil.copytree(os.path.join(MODELS, "meshes"), os.path.join(d, "meshes"))

@@ -272,6 +272,8 @@ def _geometry_path(yaml_path: str, key: str, rel, allow_external: bool) -> str:
     A path that resolves anywhere else is refused."""
     if not isinstance(rel, str) or not rel:
         raise _fail(yaml_path, key, "expected a file path relative to the YAML file")
+    if "\x00" in rel:  # (no file system takes one: os.path raises ValueError)
+        raise _fail(yaml_path, key, f"{rel!r} holds a NUL character: no file has such a name")
     folder = os.path.dirname(os.path.abspath(yaml_path))
     path = os.path.join(folder, rel)
     if not allow_external:
