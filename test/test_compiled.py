@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 
-from affordance_registration.core import compiled
+from affordance_registration.core import compiled, neighbours
 from affordance_registration.core.neighbours import build_tree, nearest
 
 needs_numba = pytest.mark.skipif(not compiled.available(), reason="numba is not installed")
@@ -44,6 +45,34 @@ def test_grid_distances_are_the_kd_trees(seed, n, m, upper, cell):
     found = np.isfinite(want)
     assert np.array_equal(got_i[found], want_i[found])  # (random points: no ties)
     assert got_i.shape == (m,) and (got_i >= 0).all() and (got_i < n).all()
+
+
+@needs_numba
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(0, 2000),
+    radius=st.sampled_from([0.0009, 0.009, 0.015, 0.05, 0.6]),
+    grid=st.booleans(),
+)
+def test_pairs_within_are_the_kd_trees_pairs(seed, n, radius, grid):
+    """The same pairs (i < j) as the KD-tree's ``query_pairs``, at most ``radius`` apart,
+    whether the points are scattered or on a grid of the radius' own step (pairs exactly the
+    radius apart, the comparison's edge), and where the cloud is so dense that the pairs
+    outnumber the room first made for them."""
+    rng = np.random.default_rng(seed)
+    if grid:
+        side = max(int(round(n ** (1 / 3))), 1)
+        axis = np.arange(side) * radius
+        data = np.stack(np.meshgrid(axis, axis, axis), axis=-1).reshape(-1, 3) + 0.1
+    else:
+        data = rng.normal(size=(n, 3)) * rng.uniform(0.005, 0.3)
+    want = cKDTree(data).query_pairs(radius, output_type="ndarray").reshape(-1, 2)
+    got = compiled.pairs_within(data, radius)
+    assert got.shape[1] == 2 and (got[:, 0] < got[:, 1]).all()
+    key = lambda p: np.sort(p[:, 0].astype(np.int64) * max(len(data), 1) + p[:, 1])  # noqa: E731
+    assert np.array_equal(key(got), key(want))
+    assert np.array_equal(key(neighbours.pairs_within(data, radius)), key(want))  # (its caller's)
 
 
 @needs_numba

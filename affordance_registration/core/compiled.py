@@ -34,6 +34,10 @@ fitter's sets (240-300 ns against 300-400), no call's overhead, and readable fro
 kernel -- where a search may start from a guess (the last iteration's partner), a tighter
 bound with the same answer.
 
+The pairs of a point set within a radius (:func:`pairs_within`): what the clicked object's
+segmentation joins (``segmentation``), the same set as scipy's ``query_pairs`` from a grid of
+cells of the radius, each pair looked at once -- 4.8 against 7.6 ms of a real click.
+
 The fused ICP step (:func:`_rigid_step`): one point-to-point iteration of a batch of hypotheses
 on the voxelized cluster -- posing, the visibility test, the plane band, the nearest point, the
 weights, the weighted sums and the 3 x 3 SVD -- in one call instead of some fifty array
@@ -61,6 +65,7 @@ __all__ = [
     "cell_load",
     "grid_cell",
     "MAX_CELL_LOAD",
+    "pairs_within",
 ]
 
 _log = logging.getLogger(__name__)
@@ -439,6 +444,53 @@ def _seen(x, n, view, frame, depth, nu, nv):
     return seen
 
 
+def _pairs(pts, order, lo, dims, first, cell, radius, out):
+    """The index pairs (i < j, into the original points) of the grid points (``_build``'s
+    arrays, cells of edge ``cell`` at least ``radius``) at most ``radius`` apart -- squared
+    distance ((dx^2 + dy^2) + dz^2) against radius^2, as the KD-tree's ``query_pairs``
+    compares them -- written into ``out`` (M, 2) up to its length; returns how many there are
+    (a count larger than ``out`` holds: call again with room for them). Each pair is looked at
+    once: a cell's own points after each point, and the 13 neighbouring cells that come after
+    it in the grid's order."""
+    bound = radius * radius
+    m = 0
+    room = out.shape[0]
+    n1, n2 = dims[1], dims[2]
+    for a0 in range(dims[0]):
+        for b0 in range(n1):
+            for c0 in range(n2):
+                here = (a0 * n1 + b0) * n2 + c0
+                for i in range(first[here], first[here + 1]):
+                    p0, p1, p2 = pts[i, 0], pts[i, 1], pts[i, 2]
+                    oi = order[i]
+                    for da in range(0, 2):
+                        a = a0 + da
+                        if a >= dims[0]:
+                            continue
+                        for db in range(-1, 2):
+                            b = b0 + db
+                            if b < 0 or b >= n1 or (da == 0 and db < 0):
+                                continue
+                            row = (a * n1 + b) * n2
+                            if da == 0 and db == 0:  # (this cell's later points, the next cell)
+                                lo_j = i + 1
+                                hi_c = min(c0 + 1, n2 - 1)
+                            else:
+                                lo_j = first[row + max(c0 - 1, 0)]
+                                hi_c = min(c0 + 1, n2 - 1)
+                            for j in range(lo_j, first[row + hi_c + 1]):
+                                dx = p0 - pts[j, 0]
+                                dy = p1 - pts[j, 1]
+                                dz = p2 - pts[j, 2]
+                                if dx * dx + dy * dy + dz * dz <= bound:
+                                    if m < room:
+                                        oj = order[j]
+                                        out[m, 0] = min(oi, oj)
+                                        out[m, 1] = max(oi, oj)
+                                    m += 1
+    return m
+
+
 def _fine_rows(
     X,
     Nw,
@@ -663,6 +715,7 @@ def _compile():
         "void(f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1], f8, f8[:, ::1], f8, f8[::1], "
         "i8[::1])",
     )
+    k.pairs = jit(_pairs, "i8(f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1], f8, f8, i8[:, ::1])")
     # a kernel that others call is bound in this module's namespace as compiled, where the
     # callers (compiled after it) find it
     tree = "Tuple((f8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[::1], i8[::1], i8[::1]))"
@@ -792,6 +845,26 @@ class DistanceGrid:
     def distances(self, queries: np.ndarray, upper: float) -> np.ndarray:
         """The distances of :meth:`nearest`."""
         return self.nearest(queries, upper)[0]
+
+
+def pairs_within(points: np.ndarray, radius: float, k=None) -> np.ndarray:
+    """Index pairs (M, 2), i < j, of ``points`` (N, 3) at most ``radius`` apart: the pairs
+    the KD-tree's ``query_pairs`` finds (the same set; in another order), from a grid of cells
+    of edge ``radius`` (at most ``MAX_CELLS_PER_AXIS`` along an axis). Use only where
+    :func:`kernels` is not None."""
+    k = k or kernels()
+    points = np.array(points, dtype=float, order="C").reshape(-1, 3)
+    if len(points) < 2:
+        return np.empty((0, 2), np.int64)
+    extent = float(np.ptp(points, axis=0).max())
+    cell = max(float(radius), extent / MAX_CELLS_PER_AXIS, 1e-9)
+    grid = k.build(points, cell)
+    out = np.empty((8 * len(points), 2), np.int64)
+    m = k.pairs(*grid, cell, float(radius), out)
+    if m > len(out):  # (denser than a surface: again, with room for them all)
+        out = np.empty((m, 2), np.int64)
+        k.pairs(*grid, cell, float(radius), out)
+    return out[:m]
 
 
 #: points a leaf of :class:`NearestTree` holds at most
