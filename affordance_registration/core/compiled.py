@@ -154,6 +154,34 @@ def _nearest(pts, order, lo, dims, first, cell, queries, upper, out, index):
             index[i] = -1
 
 
+def _select(keys, idx, lo, stop, k):
+    """Reorder ``keys`` and ``idx`` alike over [lo, stop) so that ``keys[k]`` is the value a
+    sort would put there, none before it larger and none after it smaller (Hoare's selection,
+    the pivot the median of three): a median in linear time, where a sort takes n log n."""
+    hi = stop - 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        x, y, z = keys[lo], keys[mid], keys[hi]
+        pivot = max(min(x, y), min(max(x, y), z))
+        i, j = lo, hi
+        while i <= j:
+            while keys[i] < pivot:
+                i += 1
+            while keys[j] > pivot:
+                j -= 1
+            if i <= j:
+                keys[i], keys[j] = keys[j], keys[i]
+                idx[i], idx[j] = idx[j], idx[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:  # (between them every key is the pivot)
+            return
+
+
 def _tree_build(points, leaf):
     """A KD-tree over ``points`` (N, 3): the points in leaf order (N, 3), their indices in
     ``points`` (N,), and per node its first and end point, its split axis and value (-1 and 0
@@ -169,6 +197,7 @@ def _tree_build(points, leaf):
     left = np.full(most, -1, np.int64)
     right = np.full(most, -1, np.int64)
     todo = np.empty(most, np.int64)
+    keys = np.empty(n)
     start[0], stop[0], todo[0] = 0, n, 0
     nodes, pending = 1, 1
     while pending > 0:
@@ -187,11 +216,10 @@ def _tree_build(points, leaf):
                 mx = max(mx, v)
             if mx - mn > widest:
                 widest, ax = mx - mn, d
-        keys = np.empty(b - a)
         for i in range(a, b):
-            keys[i - a] = points[idx[i], ax]
-        idx[a:b] = idx[a:b][np.argsort(keys, kind="mergesort")]
+            keys[i] = points[idx[i], ax]
         m = (a + b) // 2
+        _select(keys, idx, a, b, m)
         axis[node], split[node] = ax, points[idx[m], ax]
         left[node], right[node] = nodes, nodes + 1
         start[nodes], stop[nodes] = a, m
@@ -718,6 +746,7 @@ def _compile():
     k.pairs = jit(_pairs, "i8(f8[:, ::1], i8[::1], f8[::1], i8[::1], i8[::1], f8, f8, i8[:, ::1])")
     # a kernel that others call is bound in this module's namespace as compiled, where the
     # callers (compiled after it) find it
+    globals()["_select"] = jit(_select, "void(f8[::1], i8[::1], i8, i8, i8)")
     tree = "Tuple((f8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[::1], i8[::1], i8[::1]))"
     k.tree_build = jit(_tree_build, f"{tree}(f8[:, ::1], i8)")
     globals()["_tree_query"] = jit(
