@@ -488,6 +488,7 @@ def _pairs(pts, order, lo, dims, first, cell, radius, out):
         for b0 in range(n1):
             for c0 in range(n2):
                 here = (a0 * n1 + b0) * n2 + c0
+                hi_c = min(c0 + 1, n2 - 1)  # (the cells along z up to the next one)
                 for i in range(first[here], first[here + 1]):
                     p0, p1, p2 = pts[i, 0], pts[i, 1], pts[i, 2]
                     oi = order[i]
@@ -500,12 +501,8 @@ def _pairs(pts, order, lo, dims, first, cell, radius, out):
                             if b < 0 or b >= n1 or (da == 0 and db < 0):
                                 continue
                             row = (a * n1 + b) * n2
-                            if da == 0 and db == 0:  # (this cell's later points, the next cell)
-                                lo_j = i + 1
-                                hi_c = min(c0 + 1, n2 - 1)
-                            else:
-                                lo_j = first[row + max(c0 - 1, 0)]
-                                hi_c = min(c0 + 1, n2 - 1)
+                            # (in this column: this cell's later points and the next cell)
+                            lo_j = i + 1 if da == 0 and db == 0 else first[row + max(c0 - 1, 0)]
                             for j in range(lo_j, first[row + hi_c + 1]):
                                 dx = p0 - pts[j, 0]
                                 dy = p1 - pts[j, 1]
